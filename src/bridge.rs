@@ -1,0 +1,381 @@
+//! The only module that touches pyo3: SUMO in-process through libsumo.
+//!
+//! `bridge/coid_bridge.py` (compiled into the binary) does the per-step
+//! reads in Python; this module copies them into plain Rust structs under the
+//! GIL and converts SUMO's conventions once: the front-bumper position
+//! becomes the geometric centre, the navigational angle (0 = north,
+//! clockwise, degrees) becomes a mathematical heading (0 = +x, counter-
+//! clockwise, radians). Python exceptions become [`BridgeError`]s carrying
+//! SUMO's message. SUMO is closed on every exit path ([`Drop`]).
+//!
+//! libsumo is a process-wide singleton: one [`Sumo`] per process at a time.
+
+use std::ffi::CString;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use pyo3::prelude::*;
+use pyo3::types::PyModule;
+
+use crate::geometry::{Polygon, Pose2, Vec2};
+use crate::traffic::{ObjectClass, StaticScene, TrafficFrame, TrafficObject};
+
+const SHIM: &str = include_str!("../bridge/coid_bridge.py");
+
+/// Set while a simulation is open in this process.
+static RUNNING: AtomicBool = AtomicBool::new(false);
+
+#[derive(Debug, thiserror::Error)]
+pub enum BridgeError {
+    #[error(
+        "no project Python environment with libsumo at {0} (run bridge/setup.sh, or set COID_VENV)"
+    )]
+    NoEnvironment(PathBuf),
+    #[error("Python set-up failed: {0}")]
+    Setup(String),
+    #[error("SUMO failed to start with {sumocfg}: {message}")]
+    Start { sumocfg: PathBuf, message: String },
+    #[error("SUMO failed at t = {time_s} s: {message}")]
+    Step { time_s: f64, message: String },
+    #[error("SUMO call {call} failed: {message}")]
+    Call { call: &'static str, message: String },
+    #[error(
+        "junction '{id}' does not exist in the scenario (it has {count} junctions, e.g. {examples})"
+    )]
+    UnknownJunction {
+        id: String,
+        count: usize,
+        examples: String,
+    },
+    #[error("a SUMO simulation is already running in this process (libsumo allows one)")]
+    AlreadyRunning,
+}
+
+/// `TypeName: message` of a Python exception, on one line.
+fn describe(py: Python<'_>, err: &PyErr) -> String {
+    let kind = err
+        .get_type(py)
+        .name()
+        .map(|n| n.to_string())
+        .unwrap_or_else(|_| "Exception".into());
+    let msg = err.value(py).to_string();
+    let msg = msg.split_whitespace().collect::<Vec<_>>().join(" ");
+    if msg.is_empty() {
+        kind
+    } else {
+        format!("{kind}: {msg}")
+    }
+}
+
+/// Where the project-local Python environment lives: `COID_VENV`, else the
+/// `.venv` in the source tree this binary was built from.
+pub fn venv_dir() -> PathBuf {
+    std::env::var_os("COID_VENV")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv"))
+}
+
+fn site_packages(venv: &Path) -> Option<PathBuf> {
+    let lib = venv.join("lib");
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(&lib)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .map(|e| e.path().join("site-packages"))
+        .filter(|p| p.join("libsumo").is_dir())
+        .collect();
+    dirs.sort();
+    dirs.pop()
+}
+
+/// Makes the embedded interpreter see the project's environment: its
+/// site-packages, its python as `sys.executable`, and `SUMO_HOME` (in
+/// Python's and the process environment). Idempotent.
+fn prepare_python(py: Python<'_>) -> Result<Bound<'_, PyModule>, BridgeError> {
+    let venv = venv_dir();
+    let site = site_packages(&venv).ok_or_else(|| BridgeError::NoEnvironment(venv.clone()))?;
+    let setup = format!(
+        "import os, site, sys\n\
+         site.addsitedir({site:?})\n\
+         sys.executable = {exe:?}\n\
+         import sumo\n\
+         os.environ.setdefault('SUMO_HOME', sumo.SUMO_HOME)\n",
+        site = site.to_string_lossy(),
+        exe = venv.join("bin").join("python").to_string_lossy(),
+    );
+    let setup = CString::new(setup).map_err(|e| BridgeError::Setup(e.to_string()))?;
+    py.run(&setup, None, None)
+        .map_err(|e| BridgeError::Setup(describe(py, &e)))?;
+    let code = CString::new(SHIM).map_err(|e| BridgeError::Setup(e.to_string()))?;
+    PyModule::from_code(py, &code, c"coid_bridge.py", c"coid_bridge")
+        .map_err(|e| BridgeError::Setup(describe(py, &e)))
+}
+
+/// SUMO's report for a road user: front-bumper position (m), navigational
+/// angle (deg, 0 = north, clockwise), length (m).
+/// Returns the centre pose in the mathematical convention.
+pub fn centre_pose_from_sumo(
+    front_x_m: f64,
+    front_y_m: f64,
+    nav_angle_deg: f64,
+    length_m: f64,
+) -> Pose2 {
+    let heading_rad = crate::geometry::wrap_angle((90.0 - nav_angle_deg).to_radians());
+    let forward = Vec2::new(heading_rad.cos(), heading_rad.sin());
+    Pose2::new(
+        Vec2::new(front_x_m, front_y_m) - forward * (length_m / 2.0),
+        heading_rad,
+    )
+}
+
+/// One road user as the shim returns it:
+/// `(id, vclass, (x, y, angle_nav_deg, speed, length, width, height), (r, g, b))`.
+type Row = (
+    String,
+    String,
+    (f64, f64, f64, f64, f64, f64, f64),
+    (u8, u8, u8),
+);
+
+/// One polygon as the shim returns it: `(id, type, shape)`.
+type PolygonRow = (String, String, Vec<(f64, f64)>);
+
+/// What SUMO printed on standard error while loading (captured by the shim
+/// into a file), on one line (empty when nothing).
+fn captured_stderr(path: &Path) -> String {
+    std::fs::read_to_string(path)
+        .unwrap_or_default()
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Closes libsumo after a failure (which also flushes SUMO's error log),
+/// then describes the failure: what SUMO logged (often the only place that
+/// says what went wrong: libsumo's exception may just say "Process Error"),
+/// followed by the Python exception.
+fn close_and_describe(py: Python<'_>, err: &PyErr, stderr_capture: &Path) -> String {
+    let exc = describe(py, err);
+    if let Ok(libsumo) = py.import("libsumo") {
+        let _ = libsumo.call_method0("close");
+    }
+    let logged = captured_stderr(stderr_capture);
+    if logged.is_empty() || exc.contains(&logged) {
+        exc
+    } else {
+        format!("{logged} [{exc}]")
+    }
+}
+
+/// An open libsumo simulation.
+pub struct Sumo {
+    shim: Py<PyModule>,
+    stderr_capture: PathBuf,
+    step_length_s: f64,
+    time_s: f64,
+    steps: u64,
+    open: bool,
+}
+
+impl Sumo {
+    /// Starts SUMO on `sumocfg` with `--seed traffic_seed`, running until
+    /// `end_s`. Nothing is printed by SUMO but errors.
+    pub fn start(sumocfg: &Path, traffic_seed: u64, end_s: f64) -> Result<Sumo, BridgeError> {
+        if RUNNING.swap(true, Ordering::SeqCst) {
+            return Err(BridgeError::AlreadyRunning);
+        }
+        let stderr_capture =
+            std::env::temp_dir().join(format!("coid-sumo-stderr-{}.log", std::process::id()));
+        let _ = std::fs::remove_file(&stderr_capture);
+        let result = Python::attach(|py| -> Result<Sumo, BridgeError> {
+            let shim = prepare_python(py)?;
+            let args: Vec<String> = vec![
+                "sumo".into(),
+                "-c".into(),
+                sumocfg.to_string_lossy().into_owned(),
+                "--seed".into(),
+                traffic_seed.to_string(),
+                "--end".into(),
+                format!("{end_s}"),
+                "--no-step-log".into(),
+                "true".into(),
+                "--no-warnings".into(),
+                "true".into(),
+                "--duration-log.disable".into(),
+                "true".into(),
+            ];
+            let step_length_s: f64 = shim
+                .call_method1(
+                    "start",
+                    (args, stderr_capture.to_string_lossy().into_owned()),
+                )
+                .and_then(|v| v.extract())
+                .map_err(|e| BridgeError::Start {
+                    sumocfg: sumocfg.to_owned(),
+                    message: close_and_describe(py, &e, &stderr_capture),
+                })?;
+            Ok(Sumo {
+                shim: shim.unbind(),
+                stderr_capture: stderr_capture.clone(),
+                step_length_s,
+                time_s: 0.0,
+                steps: 0,
+                open: true,
+            })
+        });
+        if result.is_err() {
+            let _ = std::fs::remove_file(&stderr_capture);
+            RUNNING.store(false, Ordering::SeqCst);
+        }
+        result
+    }
+
+    pub fn step_length_s(&self) -> f64 {
+        self.step_length_s
+    }
+
+    pub fn time_s(&self) -> f64 {
+        self.time_s
+    }
+
+    fn call<T>(
+        &self,
+        call: &'static str,
+        args: impl for<'py> FnOnce(Python<'py>, &Bound<'py, PyModule>) -> PyResult<T>,
+    ) -> Result<T, BridgeError> {
+        Python::attach(|py| {
+            let shim = self.shim.bind(py);
+            args(py, shim).map_err(|e| BridgeError::Call {
+                call,
+                message: describe(py, &e),
+            })
+        })
+    }
+
+    /// The junction's position, or a clear error when it does not exist.
+    pub fn junction_position(&self, id: &str) -> Result<Vec2, BridgeError> {
+        let ids: Vec<String> = self.call("junction_ids", |_, s| {
+            s.call_method0("junction_ids")?.extract()
+        })?;
+        if !ids.iter().any(|j| j == id) {
+            let named: Vec<&String> = ids.iter().filter(|j| !j.starts_with(':')).take(5).collect();
+            return Err(BridgeError::UnknownJunction {
+                id: id.to_owned(),
+                count: ids.len(),
+                examples: format!("{named:?}"),
+            });
+        }
+        let (x, y): (f64, f64) = self.call("junction_position", |_, s| {
+            s.call_method1("junction_position", (id,))?.extract()
+        })?;
+        Ok(Vec2::new(x, y))
+    }
+
+    /// Polygons whose SUMO type is one of `types` (e.g. "building").
+    pub fn polygons_of_type(&self, types: &[&str]) -> Result<Vec<Polygon>, BridgeError> {
+        let polys: Vec<PolygonRow> =
+            self.call("polygons", |_, s| s.call_method0("polygons")?.extract())?;
+        Ok(polys
+            .into_iter()
+            .filter(|(_, t, shape)| types.contains(&t.as_str()) && shape.len() >= 3)
+            .map(|(_, _, shape)| Polygon {
+                vertices_m: shape.into_iter().map(|(x, y)| Vec2::new(x, y)).collect(),
+            })
+            .collect())
+    }
+
+    pub fn static_scene(&self, junction_id: &str) -> Result<StaticScene, BridgeError> {
+        Ok(StaticScene {
+            junction_id: junction_id.to_owned(),
+            junction_position_m: self.junction_position(junction_id)?,
+            buildings: self.polygons_of_type(&["building"])?,
+        })
+    }
+
+    /// Advances one step and returns every vehicle and person.
+    pub fn step(&mut self) -> Result<TrafficFrame, BridgeError> {
+        let time_before = self.time_s;
+        let (time_s, _expected, rows) = Python::attach(|py| {
+            let shim = self.shim.bind(py);
+            shim.call_method0("step")
+                .and_then(|v| v.extract::<(f64, i64, Vec<Row>)>())
+                .map_err(|e| BridgeError::Step {
+                    time_s: time_before,
+                    message: close_and_describe(py, &e, &self.stderr_capture),
+                })
+        })
+        .inspect_err(|_| {
+            // Already closed above; nothing left to close on drop.
+            self.open = false;
+            let _ = std::fs::remove_file(&self.stderr_capture);
+            RUNNING.store(false, Ordering::SeqCst);
+        })?;
+        self.time_s = time_s;
+        let step = self.steps;
+        self.steps += 1;
+        let objects = rows
+            .into_iter()
+            .map(
+                |(id, vclass, (x, y, angle, speed, length, width, height), (r, g, b))| {
+                    TrafficObject {
+                        id,
+                        class: ObjectClass::from_sumo_vclass(&vclass),
+                        pose: centre_pose_from_sumo(x, y, angle, length),
+                        length_m: length,
+                        width_m: width,
+                        height_m: height,
+                        colour_rgb: [r, g, b],
+                        speed_mps: speed,
+                    }
+                },
+            )
+            .collect();
+        Ok(TrafficFrame {
+            step,
+            time_s,
+            objects,
+        })
+    }
+
+    /// Closes SUMO, reporting an error if it fails.
+    pub fn close(mut self) -> Result<(), BridgeError> {
+        self.close_inner()
+    }
+
+    fn close_inner(&mut self) -> Result<(), BridgeError> {
+        if !self.open {
+            return Ok(());
+        }
+        self.open = false;
+        let closed = self.call("close", |_, s| s.call_method0("close").map(|_| ()));
+        let _ = std::fs::remove_file(&self.stderr_capture);
+        RUNNING.store(false, Ordering::SeqCst);
+        closed
+    }
+}
+
+impl Drop for Sumo {
+    fn drop(&mut self) {
+        let _ = self.close_inner();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sumo_front_bumper_and_nav_angle_become_centre_and_heading() {
+        // Heading north (nav 0): centre is half a length south of the front.
+        let p = centre_pose_from_sumo(10.0, 20.0, 0.0, 4.0);
+        assert!((p.position_m() - Vec2::new(10.0, 18.0)).norm() < 1e-12);
+        assert!((p.heading_rad() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        // Heading east (nav 90): mathematical 0.
+        let p = centre_pose_from_sumo(10.0, 20.0, 90.0, 4.0);
+        assert!((p.position_m() - Vec2::new(8.0, 20.0)).norm() < 1e-12);
+        assert!(p.heading_rad().abs() < 1e-12);
+        // Heading south-west (nav 225): mathematical -135 deg.
+        let p = centre_pose_from_sumo(0.0, 0.0, 225.0, 2.0 * 2f64.sqrt());
+        assert!((p.position_m() - Vec2::new(1.0, 1.0)).norm() < 1e-12);
+        assert!((p.heading_rad() + 0.75 * std::f64::consts::PI).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,209 @@
+//! The only module that touches polars and writes results: `summary.csv`,
+//! `objects.parquet` and `summary.md` into `results/<run>/`.
+//!
+//! A run folder appears complete or not at all: everything is written into a
+//! hidden temporary folder beside it, flushed, then renamed into place. An
+//! existing folder is never overwritten unless asked, and then it is swapped
+//! out only after the new one is complete.
+
+use std::fmt::Write as _;
+use std::fs::File;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use polars::prelude::*;
+
+use crate::config::Settings;
+use crate::eval::SummaryRow;
+use crate::pipeline::RunResults;
+
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    #[error(
+        "output folder {0} already exists (choose another --out, or pass --force to replace it)"
+    )]
+    Exists(PathBuf),
+    #[error("cannot write {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("cannot write {path}: {source}")]
+    Polars { path: PathBuf, source: PolarsError },
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
+    move |source| OutputError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// Builds the summary table.
+pub fn summary_frame(rows: &[SummaryRow]) -> PolarsResult<DataFrame> {
+    df!(
+        "method" => rows.iter().map(|r| r.key.method.as_str()).collect::<Vec<_>>(),
+        "pose_noise" => rows.iter().map(|r| r.key.pose_noise.as_str()).collect::<Vec<_>>(),
+        "fusion" => rows.iter().map(|r| r.key.fusion.as_str()).collect::<Vec<_>>(),
+        "n_instances" => rows.iter().map(|r| r.n_instances as u64).collect::<Vec<_>>(),
+        "n_objects" => rows.iter().map(|r| r.n_objects as u64).collect::<Vec<_>>(),
+        "precision" => rows.iter().map(|r| r.precision).collect::<Vec<_>>(),
+        "recall" => rows.iter().map(|r| r.recall).collect::<Vec<_>>(),
+        "f1" => rows.iter().map(|r| r.f1).collect::<Vec<_>>(),
+        "de_single_m" => rows.iter().map(|r| r.de_single_m).collect::<Vec<_>>(),
+        "de_fused_m" => rows.iter().map(|r| r.de_fused_m).collect::<Vec<_>>(),
+    )
+}
+
+/// Builds the per-object table.
+pub fn objects_frame(results: &RunResults) -> PolarsResult<DataFrame> {
+    let o = &results.objects;
+    df!(
+        "instance" => o.iter().map(|r| r.instance as u64).collect::<Vec<_>>(),
+        "step" => o.iter().map(|r| r.step).collect::<Vec<_>>(),
+        "time_s" => o.iter().map(|r| r.time_s).collect::<Vec<_>>(),
+        "method" => o.iter().map(|r| r.key.method.as_str()).collect::<Vec<_>>(),
+        "pose_noise" => o.iter().map(|r| r.key.pose_noise.as_str()).collect::<Vec<_>>(),
+        "fusion" => o.iter().map(|r| r.key.fusion.as_str()).collect::<Vec<_>>(),
+        "ego_id" => o.iter().map(|r| r.estimate.ego_id.as_str()).collect::<Vec<_>>(),
+        "peer_id" => o.iter().map(|r| r.estimate.peer_id.as_str()).collect::<Vec<_>>(),
+        "object_id" => o.iter().map(|r| r.estimate.object_id.as_str()).collect::<Vec<_>>(),
+        "match_correct" => o.iter().map(|r| r.estimate.match_correct).collect::<Vec<_>>(),
+        "pose_refined" => o.iter().map(|r| r.estimate.pose_refined).collect::<Vec<_>>(),
+        "truth_x" => o.iter().map(|r| r.estimate.truth_m.x).collect::<Vec<_>>(),
+        "truth_y" => o.iter().map(|r| r.estimate.truth_m.y).collect::<Vec<_>>(),
+        "single_x" => o.iter().map(|r| r.estimate.single_m.x).collect::<Vec<_>>(),
+        "single_y" => o.iter().map(|r| r.estimate.single_m.y).collect::<Vec<_>>(),
+        "fused_x" => o.iter().map(|r| r.estimate.fused_m.x).collect::<Vec<_>>(),
+        "fused_y" => o.iter().map(|r| r.estimate.fused_m.y).collect::<Vec<_>>(),
+    )
+}
+
+fn fmt_num(v: f64, digits: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.digits$}")
+    } else {
+        "n/a".into()
+    }
+}
+
+/// The human-readable report.
+pub fn summary_markdown(settings: &Settings, results: &RunResults, rows: &[SummaryRow]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# coid-sim run\n");
+    let _ = writeln!(s, "- config: `{}`", settings.source.display());
+    let _ = writeln!(
+        s,
+        "- scenario: `{}`, junction `{}`",
+        settings.scenario.sumocfg.display(),
+        settings.scenario.junction
+    );
+    let _ = writeln!(
+        s,
+        "- seeds: traffic {}, sensor {}; simulated {:.1} s in {} steps; {} instances",
+        settings.seeds.traffic,
+        settings.seeds.sensor,
+        results.sim_end_s,
+        results.n_steps,
+        results.n_instances
+    );
+    let _ = writeln!(
+        s,
+        "- precision/recall pool all pairs of all instances; displacement errors are means over matched objects (metres, ground plane, ego frame)\n"
+    );
+    let _ = writeln!(
+        s,
+        "| method | pose noise | fusion | instances | objects | precision | recall | F1 | DE single (m) | DE fused (m) |"
+    );
+    let _ = writeln!(s, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|");
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            r.key.method.as_str(),
+            r.key.pose_noise.as_str(),
+            r.key.fusion.as_str(),
+            r.n_instances,
+            r.n_objects,
+            fmt_num(r.precision, 4),
+            fmt_num(r.recall, 4),
+            fmt_num(r.f1, 4),
+            fmt_num(r.de_single_m, 4),
+            fmt_num(r.de_fused_m, 4),
+        );
+    }
+    s
+}
+
+/// Writes a run's results into `out` (see the module docs for atomicity).
+pub fn write_run(
+    out: &Path,
+    settings: &Settings,
+    results: &RunResults,
+    force: bool,
+) -> Result<(), OutputError> {
+    if out.exists() && !force {
+        return Err(OutputError::Exists(out.to_owned()));
+    }
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent).map_err(io(&parent))?;
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "run".into());
+    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
+    }
+    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
+    let result = write_files(&tmp, settings, results).and_then(|()| {
+        if out.exists() {
+            let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+            std::fs::rename(out, &old).map_err(io(out))?;
+            std::fs::rename(&tmp, out).map_err(io(out))?;
+            std::fs::remove_dir_all(&old).map_err(io(&old))
+        } else {
+            std::fs::rename(&tmp, out).map_err(io(out))
+        }
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    result
+}
+
+fn write_files(dir: &Path, settings: &Settings, results: &RunResults) -> Result<(), OutputError> {
+    let rows = results.summary.rows();
+    let polars_err = |path: &Path| {
+        let path = path.to_owned();
+        move |source| OutputError::Polars { path, source }
+    };
+
+    let path = dir.join("summary.csv");
+    let mut df = summary_frame(&rows).map_err(polars_err(&path))?;
+    let mut f = File::create(&path).map_err(io(&path))?;
+    CsvWriter::new(&mut f)
+        .include_header(true)
+        .with_float_precision(Some(6))
+        .finish(&mut df)
+        .map_err(polars_err(&path))?;
+    f.sync_all().map_err(io(&path))?;
+
+    let path = dir.join("objects.parquet");
+    let mut df = objects_frame(results).map_err(polars_err(&path))?;
+    let f = File::create(&path).map_err(io(&path))?;
+    ParquetWriter::new(&f)
+        .finish(&mut df)
+        .map_err(polars_err(&path))?;
+    f.sync_all().map_err(io(&path))?;
+
+    let path = dir.join("summary.md");
+    let mut f = File::create(&path).map_err(io(&path))?;
+    f.write_all(summary_markdown(settings, results, &rows).as_bytes())
+        .map_err(io(&path))?;
+    f.sync_all().map_err(io(&path))?;
+    Ok(())
+}

@@ -1,0 +1,93 @@
+//! Seeded random streams. Every random draw in the program comes from a
+//! stream named by (master seed, purpose, step, entity), so a draw never
+//! depends on how many draws another stage made before it, on thread
+//! scheduling or on the number of workers.
+
+use rand_chacha::ChaCha8Rng;
+use rand_chacha::rand_core::SeedableRng;
+
+/// What a stream is used for; part of the stream's name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u64)]
+pub enum Purpose {
+    /// Detections of one connected vehicle at one step.
+    Detections = 1,
+    /// GPS pose error of one connected vehicle at one step and noise level.
+    PoseNoise = 2,
+    /// Whether a vehicle is connected (penetration-rate draws).
+    Penetration = 3,
+}
+
+/// SplitMix64 finaliser: a well-mixed 64-bit hash step.
+fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// FNV-1a of a string: stable across Rust versions and platforms (unlike
+/// `std`'s `DefaultHasher`).
+pub fn hash_str(s: &str) -> u64 {
+    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+/// A stable 64-bit key from a sequence of parts.
+pub fn key(parts: &[u64]) -> u64 {
+    parts.iter().fold(0x5EED_C01D_u64, |h, &p| mix(h ^ mix(p)))
+}
+
+/// The stream for `(seed, purpose, parts...)`.
+pub fn stream(seed: u64, purpose: Purpose, parts: &[u64]) -> ChaCha8Rng {
+    let mut all = Vec::with_capacity(parts.len() + 2);
+    all.push(seed);
+    all.push(purpose as u64);
+    all.extend_from_slice(parts);
+    ChaCha8Rng::seed_from_u64(key(&all))
+}
+
+/// A uniform number in [0, 1) that depends only on its name; for one-off
+/// decisions such as "is this vehicle connected".
+pub fn unit(seed: u64, purpose: Purpose, parts: &[u64]) -> f64 {
+    let mut all = vec![seed, purpose as u64];
+    all.extend_from_slice(parts);
+    (key(&all) >> 11) as f64 / (1u64 << 53) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::Rng;
+
+    fn draws(mut r: ChaCha8Rng) -> Vec<u64> {
+        (0..4).map(|_| r.random()).collect()
+    }
+
+    #[test]
+    fn same_name_same_draws_other_name_other_draws() {
+        let a = draws(stream(7, Purpose::Detections, &[3, 9]));
+        assert_eq!(a, draws(stream(7, Purpose::Detections, &[3, 9])));
+        assert_ne!(a, draws(stream(7, Purpose::Detections, &[3, 10])));
+        assert_ne!(a, draws(stream(7, Purpose::PoseNoise, &[3, 9])));
+        assert_ne!(a, draws(stream(8, Purpose::Detections, &[3, 9])));
+    }
+
+    #[test]
+    fn string_hash_is_fnv1a() {
+        // Reference values of 64-bit FNV-1a.
+        assert_eq!(hash_str(""), 0xcbf2_9ce4_8422_2325);
+        assert_eq!(hash_str("a"), 0xaf63_dc4c_8601_ec8c);
+    }
+
+    #[test]
+    fn unit_is_in_range_and_spread() {
+        let xs: Vec<f64> = (0..1000)
+            .map(|i| unit(1, Purpose::Penetration, &[i]))
+            .collect();
+        assert!(xs.iter().all(|x| (0.0..1.0).contains(x)));
+        let mean = xs.iter().sum::<f64>() / xs.len() as f64;
+        assert!((mean - 0.5).abs() < 0.05, "mean {mean}");
+    }
+}
