@@ -203,7 +203,12 @@ struct RawMatching {
 impl Default for RawMatching {
     fn default() -> Self {
         Self {
-            methods: vec![Method::GpsHungarian, Method::Oracle],
+            methods: vec![
+                Method::Mogm,
+                Method::Rgm,
+                Method::GpsHungarian,
+                Method::Oracle,
+            ],
             gate_chi2: 9.21,
         }
     }

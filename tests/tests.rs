@@ -150,8 +150,9 @@ mod run {
         ] {
             assert!(cols.iter().any(|x| x == c), "column {c} missing: {cols:?}");
         }
-        // 2 methods x 3 pose-noise levels x 2 fusion variants.
-        assert_eq!(summary.height(), 12);
+        // 4 methods (mogm, rgm, gps-hungarian, oracle) x 3 pose-noise levels
+        // x 2 fusion variants.
+        assert_eq!(summary.height(), 24);
         let methods = strs(&summary, "method");
         let noise = strs(&summary, "pose_noise");
         let fusion = strs(&summary, "fusion");
