@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use crate::matching::Method;
+use crate::matching::deep::decision::UncertaintyKind;
 
 /// Why a configuration could not be used. Each message is one line and names
 /// the file and the offending key.
@@ -50,6 +51,8 @@ struct RawConfig {
     pose_noise: RawPoseNoise,
     matching: RawMatching,
     fusion: RawFusion,
+    train: RawTrain,
+    eval: RawEval,
 }
 
 #[derive(Debug, Deserialize)]
@@ -198,6 +201,10 @@ struct RawPoseLevel {
 struct RawMatching {
     methods: Vec<Method>,
     gate_chi2: f64,
+    models_dir: PathBuf,
+    mc_samples: usize,
+    lambda: f64,
+    uncertainty: UncertaintyKind,
 }
 
 impl Default for RawMatching {
@@ -210,6 +217,52 @@ impl Default for RawMatching {
                 Method::Oracle,
             ],
             gate_chi2: 9.21,
+            models_dir: PathBuf::from("../models"),
+            mc_samples: 20,
+            lambda: 0.7,
+            uncertainty: UncertaintyKind::Total,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawTrain {
+    traffic_seeds: Vec<u64>,
+    methods: Vec<Method>,
+    epochs: usize,
+    learning_rate: f64,
+    seed: u64,
+}
+
+impl Default for RawTrain {
+    fn default() -> Self {
+        Self {
+            traffic_seeds: (101..=124).collect(),
+            methods: vec![
+                Method::Ours,
+                Method::CoidNon,
+                Method::CoidUnc,
+                Method::Dgmc,
+                Method::GcnGm,
+            ],
+            epochs: 4,
+            learning_rate: 1e-3,
+            seed: 7,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawEval {
+    traffic_seeds: Vec<u64>,
+}
+
+impl Default for RawEval {
+    fn default() -> Self {
+        Self {
+            traffic_seeds: (1..=10).collect(),
         }
     }
 }
@@ -247,6 +300,28 @@ pub struct Settings {
     pub pose_noise: Vec<PoseNoiseLevel>,
     pub matching: MatchingSettings,
     pub fusion: FusionSettings,
+    pub train: TrainSettings,
+    pub eval: EvalSettings,
+}
+
+/// `coid train`: which runs make the training set and how to fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainSettings {
+    /// SUMO seeds of the training runs (the sensor seed of run k is the
+    /// same number). Must not overlap `eval.traffic_seeds`: train and test
+    /// instances never come from the same run.
+    pub traffic_seeds: Vec<u64>,
+    pub methods: Vec<Method>,
+    pub epochs: usize,
+    pub learning_rate: f64,
+    /// Weight initialisation, shuffling and training dropout.
+    pub seed: u64,
+}
+
+/// `coid eval`: the test runs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EvalSettings {
+    pub traffic_seeds: Vec<u64>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -391,6 +466,14 @@ pub struct MatchingSettings {
     /// GPS-Hungarian gate on the squared Mahalanobis distance (9.21 is the
     /// 99% point of chi-square with 2 degrees of freedom).
     pub gate_chi2: f64,
+    /// Folder of the deep methods' trained weights (`<method>.bpk`).
+    pub models_dir: PathBuf,
+    /// MC-dropout samples at inference (paper: T = 20).
+    pub mc_samples: usize,
+    /// Pairs whose uncertainty (binary entropy in bits, in [0, 1]) is at
+    /// least this are removed (paper: 0.7).
+    pub lambda: f64,
+    pub uncertainty: UncertaintyKind,
 }
 
 /// How the matched measurements are fused.
@@ -639,6 +722,63 @@ fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
         ));
     }
     positive("matching.gate_chi2", m.gate_chi2).map_err(|e| invalid("matching.gate_chi2", e))?;
+    if m.mc_samples == 0 {
+        return Err(invalid(
+            "matching.mc_samples",
+            "need at least one sample".into(),
+        ));
+    }
+    if !(0.0..=1.0).contains(&m.lambda) {
+        return Err(invalid(
+            "matching.lambda",
+            format!(
+                "must be in [0, 1] (binary entropy in bits), got {}",
+                m.lambda
+            ),
+        ));
+    }
+    let models_dir = if m.models_dir.is_absolute() {
+        m.models_dir.clone()
+    } else {
+        base.join(&m.models_dir)
+    };
+    let t = raw.train;
+    if t.traffic_seeds.is_empty() {
+        return Err(invalid(
+            "train.traffic_seeds",
+            "need at least one run".into(),
+        ));
+    }
+    if let Some(s) = t
+        .traffic_seeds
+        .iter()
+        .find(|s| raw.eval.traffic_seeds.contains(s))
+    {
+        return Err(invalid(
+            "train.traffic_seeds",
+            format!("seed {s} is also an eval seed: train and test runs must be disjoint"),
+        ));
+    }
+    if t.methods
+        .iter()
+        .any(|m| crate::matching::deep::variant(*m).is_none())
+    {
+        return Err(invalid(
+            "train.methods",
+            "only deep methods (ours, coid+non, coid+unc, dgmc, gcn-gm) are trained".into(),
+        ));
+    }
+    if t.epochs == 0 {
+        return Err(invalid("train.epochs", "need at least one epoch".into()));
+    }
+    positive("train.learning_rate", t.learning_rate)
+        .map_err(|e| invalid("train.learning_rate", e))?;
+    if raw.eval.traffic_seeds.is_empty() {
+        return Err(invalid(
+            "eval.traffic_seeds",
+            "need at least one run".into(),
+        ));
+    }
     let f = raw.fusion;
     if f.variants.is_empty() {
         return Err(invalid(
@@ -673,10 +813,24 @@ fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
         matching: MatchingSettings {
             methods: dedup_sorted(m.methods),
             gate_chi2: m.gate_chi2,
+            models_dir,
+            mc_samples: m.mc_samples,
+            lambda: m.lambda,
+            uncertainty: m.uncertainty,
         },
         fusion: FusionSettings {
             variants: dedup_sorted(f.variants),
             align_min_matches: f.align_min_matches,
+        },
+        train: TrainSettings {
+            traffic_seeds: t.traffic_seeds,
+            methods: dedup_sorted(t.methods),
+            epochs: t.epochs,
+            learning_rate: t.learning_rate,
+            seed: t.seed,
+        },
+        eval: EvalSettings {
+            traffic_seeds: raw.eval.traffic_seeds,
         },
     })
 }

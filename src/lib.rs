@@ -8,6 +8,7 @@
 pub mod bridge;
 pub mod config;
 pub mod eval;
+pub mod experiments;
 pub mod fusion;
 pub mod geometry;
 pub mod graph;

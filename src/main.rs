@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use coid_sim::config::{FusionVariant, PoseNoiseLabel, Settings};
 use coid_sim::matching::Method;
-use coid_sim::{output, pipeline};
+use coid_sim::{experiments, output, pipeline};
 
 #[derive(Parser)]
 #[command(
@@ -43,6 +43,22 @@ enum Command {
         #[arg(long)]
         force: bool,
         /// No progress bar.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Train the deep matchers on instances from the training runs
+    /// ([train] traffic_seeds) and save their weights, config and loss curve.
+    Train {
+        /// Configuration file (TOML).
+        #[arg(long, short, default_value = "configs/default.toml")]
+        config: PathBuf,
+        /// Models folder [default: [matching] models_dir of the config].
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+        /// Train only these methods (labels as in the config) [default: [train] methods].
+        #[arg(long, value_delimiter = ',')]
+        methods: Vec<String>,
+        /// No progress bars.
         #[arg(long, short)]
         quiet: bool,
     },
@@ -114,6 +130,110 @@ fn run(config: &Path, out: Option<PathBuf>, force: bool, quiet: bool) -> anyhow:
     Ok(())
 }
 
+fn bar(quiet: bool, len: u64, template: &str) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template(template)
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar
+}
+
+fn train(
+    config: &Path,
+    out: Option<PathBuf>,
+    methods: &[String],
+    quiet: bool,
+) -> anyhow::Result<()> {
+    let settings = Settings::load(config)?;
+    let models_dir = out.unwrap_or_else(|| settings.matching.models_dir.clone());
+    let methods: Vec<Method> = if methods.is_empty() {
+        settings.train.methods.clone()
+    } else {
+        methods
+            .iter()
+            .map(|m| {
+                toml::Value::String(m.clone())
+                    .try_into::<Method>()
+                    .map_err(|_| anyhow::anyhow!("unknown method '{m}'"))
+            })
+            .collect::<anyhow::Result<_>>()?
+    };
+    if let Some(m) = methods
+        .iter()
+        .find(|m| coid_sim::matching::deep::variant(**m).is_none())
+    {
+        anyhow::bail!("'{}' is not a trainable (deep) method", m.as_str());
+    }
+    let runs = settings.train.traffic_seeds.len() as u64;
+    let pb = bar(
+        quiet,
+        runs,
+        "{spinner} collecting training pairs: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
+    );
+    let examples = experiments::collect_examples(&settings, |_, _, n| {
+        pb.inc(1);
+        pb.set_message(format!("{n} pairs"));
+    })
+    .context("collecting training data failed")?;
+    pb.finish_and_clear();
+    eprintln!("coid: {} training pairs from {} runs", examples.len(), runs);
+    for method in methods {
+        let started = std::time::Instant::now();
+        let total = (settings.train.epochs * examples.len()) as u64;
+        let pb = bar(
+            quiet,
+            total,
+            &format!(
+                "{{spinner}} training {:<9} [{{bar:30}}] {{pos}}/{{len}} steps, {{msg}} eta {{eta}}",
+                method.as_str()
+            ),
+        );
+        let mut smooth = f32::NAN;
+        let (net, report) =
+            experiments::train_method(&settings, method, &examples, |step, _, loss| {
+                smooth = if smooth.is_nan() {
+                    loss
+                } else {
+                    0.98 * smooth + 0.02 * loss
+                };
+                pb.set_position(step as u64);
+                if step % 20 == 0 {
+                    pb.set_message(format!("loss {smooth:.3}"));
+                }
+            })
+            .map_err(|e| anyhow::anyhow!("training {} failed: {e}", method.as_str()))?;
+        pb.finish_and_clear();
+        let record = output::TrainingRecord {
+            method: method.as_str(),
+            settings: &settings,
+            n_examples: examples.len(),
+            report: &report,
+            seconds: started.elapsed().as_secs_f64(),
+        };
+        output::write_model(&models_dir, &record, |p| {
+            coid_sim::matching::deep::model::save(&net, p)
+        })?;
+        eprintln!(
+            "coid: trained {} in {:.0} s ({} steps), loss per epoch {:?}; wrote {}",
+            method.as_str(),
+            record.seconds,
+            report.steps,
+            report
+                .epoch_losses
+                .iter()
+                .map(|l| (l * 1000.0).round() / 1000.0)
+                .collect::<Vec<_>>(),
+            coid_sim::matching::deep::weights_path(&models_dir, method).display()
+        );
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -123,6 +243,12 @@ fn main() -> ExitCode {
             force,
             quiet,
         } => run(&config, out, force, quiet),
+        Command::Train {
+            config,
+            out,
+            methods,
+            quiet,
+        } => train(&config, out, &methods, quiet),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

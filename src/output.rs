@@ -207,3 +207,85 @@ fn write_files(dir: &Path, settings: &Settings, results: &RunResults) -> Result<
     f.sync_all().map_err(io(&path))?;
     Ok(())
 }
+
+/// What `coid train` records beside each model's weights.
+pub struct TrainingRecord<'a> {
+    pub method: &'a str,
+    pub settings: &'a Settings,
+    pub n_examples: usize,
+    pub report: &'a crate::matching::deep::train::TrainReport,
+    pub seconds: f64,
+}
+
+/// Writes a trained model into `dir`: `<method>.bpk` (weights, written by
+/// `save_weights` to a temporary path first), `<method>.toml` (config,
+/// seeds, data size, final loss) and `<method>_loss.csv` (mean loss per
+/// epoch). Each file is renamed into place only when complete.
+pub fn write_model(
+    dir: &Path,
+    record: &TrainingRecord,
+    save_weights: impl FnOnce(&Path) -> Result<(), String>,
+) -> Result<(), OutputError> {
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let tmp = |name: &str| dir.join(format!(".{name}.tmp-{}", std::process::id()));
+    let publish = |name: &str, tmp_path: &Path| {
+        let dst = dir.join(name);
+        std::fs::rename(tmp_path, &dst).map_err(io(&dst))
+    };
+
+    let weights = format!("{}.bpk", record.method);
+    let tmp_weights = tmp(&weights);
+    save_weights(&tmp_weights).map_err(|e| OutputError::Io {
+        path: dir.join(&weights),
+        source: std::io::Error::other(e),
+    })?;
+    publish(&weights, &tmp_weights)?;
+
+    let t = &record.settings.train;
+    let mut meta = String::new();
+    let _ = writeln!(
+        meta,
+        "# Trained by `coid train`; the config and seeds it was trained with."
+    );
+    let _ = writeln!(meta, "method = {:?}", record.method);
+    let _ = writeln!(
+        meta,
+        "config = {:?}",
+        record.settings.source.display().to_string()
+    );
+    let _ = writeln!(meta, "train_traffic_seeds = {:?}", t.traffic_seeds);
+    let _ = writeln!(
+        meta,
+        "eval_traffic_seeds = {:?}",
+        record.settings.eval.traffic_seeds
+    );
+    let _ = writeln!(meta, "epochs = {}", t.epochs);
+    let _ = writeln!(meta, "learning_rate = {}", t.learning_rate);
+    let _ = writeln!(meta, "seed = {}", t.seed);
+    let _ = writeln!(meta, "examples = {}", record.n_examples);
+    let _ = writeln!(meta, "steps = {}", record.report.steps);
+    let _ = writeln!(meta, "seconds = {:.1}", record.seconds);
+    let _ = writeln!(
+        meta,
+        "final_epoch_loss = {}",
+        record
+            .report
+            .epoch_losses
+            .last()
+            .copied()
+            .unwrap_or(f64::NAN)
+    );
+    let name = format!("{}.toml", record.method);
+    let p = tmp(&name);
+    std::fs::write(&p, meta).map_err(io(&p))?;
+    publish(&name, &p)?;
+
+    let mut curve = String::from("epoch,mean_loss\n");
+    for (k, l) in record.report.epoch_losses.iter().enumerate() {
+        let _ = writeln!(curve, "{},{l:.6}", k + 1);
+    }
+    let name = format!("{}_loss.csv", record.method);
+    let p = tmp(&name);
+    std::fs::write(&p, curve).map_err(io(&p))?;
+    publish(&name, &p)
+}

@@ -16,6 +16,10 @@ pub enum Purpose {
     PoseNoise = 2,
     /// Whether a vehicle is connected (penetration-rate draws).
     Penetration = 3,
+    /// MC-dropout masks of the deep matcher.
+    Dropout = 4,
+    /// Training: shuffling and dropout masks.
+    Training = 5,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.

@@ -4,6 +4,7 @@
 //! uncertainty per pair. Pairs not listed are "no match" (non-covisible).
 
 pub mod affinity;
+pub mod deep;
 mod gps_hungarian;
 mod mogm;
 mod oracle;
@@ -16,7 +17,7 @@ pub use rgm::Rgm;
 
 use serde::Deserialize;
 
-use crate::config::PoseNoiseLevel;
+use crate::config::{MatchingSettings, PoseNoiseLevel};
 use crate::geometry::Pose2;
 use crate::graph::SceneGraph;
 use crate::sensor::Detection;
@@ -24,6 +25,22 @@ use crate::sensor::Detection;
 /// The matching methods, with the labels used in configs and results.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Deserialize)]
 pub enum Method {
+    /// The paper's Bayesian deep graph matcher: L_coid + L_non + L_unc,
+    /// MC-dropout uncertainty, thresholding.
+    #[serde(rename = "ours")]
+    Ours,
+    /// Ablation: L_coid + L_non.
+    #[serde(rename = "coid+non")]
+    CoidNon,
+    /// Ablation: L_coid + L_unc.
+    #[serde(rename = "coid+unc")]
+    CoidUnc,
+    /// DGMC: GNN + neighbourhood consensus, L_coid only.
+    #[serde(rename = "dgmc")]
+    Dgmc,
+    /// GCN-GM: GNN similarity + Sinkhorn, L_coid only.
+    #[serde(rename = "gcn-gm")]
+    GcnGm,
     /// Learning-free multi-order graph matching (appearance, edge lengths,
     /// edge directions; spectral solution).
     #[serde(rename = "mogm")]
@@ -44,6 +61,11 @@ pub enum Method {
 impl Method {
     pub fn as_str(self) -> &'static str {
         match self {
+            Method::Ours => "ours",
+            Method::CoidNon => "coid+non",
+            Method::CoidUnc => "coid+unc",
+            Method::Dgmc => "dgmc",
+            Method::GcnGm => "gcn-gm",
             Method::Mogm => "mogm",
             Method::Rgm => "rgm",
             Method::GpsHungarian => "gps-hungarian",
@@ -89,14 +111,32 @@ pub fn binary_entropy_bits(p: f64) -> f64 {
     h(p) + h(1.0 - p)
 }
 
-/// Builds the matcher for a method.
-pub fn matcher_for(method: Method, gate_chi2: f64) -> Box<dyn Matcher> {
-    match method {
+/// Builds the matcher for a method; deep methods load their trained
+/// weights from `settings.models_dir`.
+pub fn matcher_for(
+    method: Method,
+    settings: &MatchingSettings,
+    dropout_seed: u64,
+) -> Result<Box<dyn Matcher>, deep::LoadError> {
+    Ok(match method {
         Method::Mogm => Box::new(Mogm::default()),
         Method::Rgm => Box::new(Rgm::default()),
-        Method::GpsHungarian => Box::new(GpsHungarian { gate_chi2 }),
+        Method::GpsHungarian => Box::new(GpsHungarian {
+            gate_chi2: settings.gate_chi2,
+        }),
         Method::Oracle => Box::new(Oracle),
-    }
+        deep_method => {
+            let threshold = deep::thresholds_by_default(deep_method)
+                .then_some((settings.uncertainty, settings.lambda));
+            Box::new(deep::DeepMatcher::load(
+                deep_method,
+                &settings.models_dir,
+                settings.mc_samples,
+                threshold,
+                dropout_seed,
+            )?)
+        }
+    })
 }
 
 #[cfg(test)]
@@ -106,6 +146,17 @@ pub(crate) mod tests {
     use crate::geometry::{Cov2, Vec2};
     use crate::sensor::Appearance;
     use crate::traffic::ObjectClass;
+
+    pub(crate) fn test_settings() -> MatchingSettings {
+        MatchingSettings {
+            methods: vec![],
+            gate_chi2: 9.21,
+            models_dir: std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models"),
+            mc_samples: 20,
+            lambda: 0.7,
+            uncertainty: deep::decision::UncertaintyKind::Total,
+        }
+    }
 
     pub(crate) const EXACT: PoseNoiseLevel = PoseNoiseLevel {
         label: PoseNoiseLabel::None,
@@ -197,7 +248,8 @@ pub(crate) mod tests {
             Method::GpsHungarian,
             Method::Oracle,
         ] {
-            let (found, wrong) = self_match(matcher_for(method, 9.21).as_ref());
+            let (found, wrong) =
+                self_match(matcher_for(method, &test_settings(), 1).unwrap().as_ref());
             assert_eq!((found, wrong), (1.0, 0), "{method:?}");
         }
     }
@@ -243,7 +295,8 @@ pub(crate) mod tests {
         };
         // RGM prices every match, so unsupported pairs stay unmatched.
         assert!(
-            matcher_for(Method::Rgm, 9.21)
+            matcher_for(Method::Rgm, &test_settings(), 1)
+                .unwrap()
                 .match_pair(&va, &vb)
                 .is_empty()
         );
@@ -251,7 +304,13 @@ pub(crate) mod tests {
         // strongest compatible candidates (here: the first vehicle's
         // pedestrian and bicycle, both compatible with the second's
         // pedestrians), a known weakness of the method.
-        assert!(matcher_for(Method::Mogm, 9.21).match_pair(&va, &vb).len() <= 2);
+        assert!(
+            matcher_for(Method::Mogm, &test_settings(), 1)
+                .unwrap()
+                .match_pair(&va, &vb)
+                .len()
+                <= 2
+        );
     }
 
     #[test]

@@ -1,0 +1,174 @@
+//! From Monte Carlo samples of the soft assignment to correspondences: the
+//! mean assignment E[Y] (paper Eq. 9), per-pair uncertainties (Eq. 10 and
+//! its epistemic/aleatoric split, paper Table 3), the one-to-one decision
+//! with "no match", and the removal of uncertain pairs (threshold lambda).
+//! Plain `f32` arrays; no tensors.
+//!
+//! Entropy scale: each pair (i, j) is a binary event "i matches j" with
+//! probability p = E[Y]_ij, and its uncertainty is the binary entropy of p
+//! in bits, which lies in [0, 1] (0 = certain either way, 1 = p of 0.5).
+//! That is the scale the paper's lambda = 0.7 fits. Aleatoric = the mean
+//! over samples of the binary entropy of each sample's p_t (expected data
+//! uncertainty); epistemic = total - aleatoric (the mutual information
+//! between the pair's outcome and the weights, >= 0).
+
+use crate::matching::{Correspondence, binary_entropy_bits};
+
+/// Which uncertainty the threshold applies to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UncertaintyKind {
+    /// Entropy of the mean (Eq. 10): aleatoric + epistemic.
+    #[serde(rename = "entropy")]
+    Total,
+    Epistemic,
+    Aleatoric,
+}
+
+impl UncertaintyKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            UncertaintyKind::Total => "entropy",
+            UncertaintyKind::Epistemic => "epistemic",
+            UncertaintyKind::Aleatoric => "aleatoric",
+        }
+    }
+}
+
+/// The summary of T samples of a soft assignment with dustbins.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MatchDistribution {
+    pub n1: usize,
+    pub n2: usize,
+    /// `(n1 + 1) x (n2 + 1)` row-major mean assignment; the last row and
+    /// column are the dustbins ("no match").
+    pub mean: Vec<f32>,
+    /// `n1 x n2` mean over samples of each sample's binary entropy (bits).
+    pub aleatoric: Vec<f32>,
+}
+
+impl MatchDistribution {
+    /// Summarises `samples`, each `(n1 + 1) x (n2 + 1)` row-major.
+    pub fn from_samples(n1: usize, n2: usize, samples: &[Vec<f32>]) -> Self {
+        let cols = n2 + 1;
+        let mut mean = vec![0f32; (n1 + 1) * cols];
+        let mut aleatoric = vec![0f32; n1 * n2];
+        let t = samples.len().max(1) as f32;
+        for s in samples {
+            for (m, v) in mean.iter_mut().zip(s) {
+                *m += v / t;
+            }
+            for i in 0..n1 {
+                for j in 0..n2 {
+                    aleatoric[i * n2 + j] +=
+                        binary_entropy_bits(f64::from(s[i * cols + j])) as f32 / t;
+                }
+            }
+        }
+        Self {
+            n1,
+            n2,
+            mean,
+            aleatoric,
+        }
+    }
+
+    pub fn p(&self, i: usize, j: usize) -> f32 {
+        self.mean[i * (self.n2 + 1) + j]
+    }
+
+    pub fn total(&self, i: usize, j: usize) -> f64 {
+        binary_entropy_bits(f64::from(self.p(i, j)))
+    }
+
+    pub fn uncertainty(&self, i: usize, j: usize, kind: UncertaintyKind) -> f64 {
+        let total = self.total(i, j);
+        let aleatoric = f64::from(self.aleatoric[i * self.n2 + j]).min(total);
+        match kind {
+            UncertaintyKind::Total => total,
+            UncertaintyKind::Aleatoric => aleatoric,
+            UncertaintyKind::Epistemic => (total - aleatoric).max(0.0),
+        }
+    }
+
+    /// One-to-one decision with "no match": i and j are paired when each is
+    /// the other's most likely partner in E[Y] (dustbins included), then
+    /// pairs whose uncertainty of `kind` is at least `lambda` are removed.
+    pub fn decide(&self, threshold: Option<(UncertaintyKind, f64)>) -> Vec<Correspondence> {
+        let (n1, n2) = (self.n1, self.n2);
+        let best_in_row = |i: usize| {
+            (0..=n2)
+                .max_by(|&a, &b| self.p(i, a).total_cmp(&self.p(i, b)).then(b.cmp(&a)))
+                .unwrap_or(n2)
+        };
+        let best_in_col = |j: usize| {
+            (0..=n1)
+                .max_by(|&a, &b| self.p(a, j).total_cmp(&self.p(b, j)).then(b.cmp(&a)))
+                .unwrap_or(n1)
+        };
+        let mut out = Vec::new();
+        for i in 0..n1 {
+            let j = best_in_row(i);
+            if j == n2 || best_in_col(j) != i {
+                continue;
+            }
+            if let Some((kind, lambda)) = threshold
+                && self.uncertainty(i, j, kind) >= lambda
+            {
+                continue;
+            }
+            out.push(Correspondence {
+                a: i,
+                b: j,
+                probability: f64::from(self.p(i, j)),
+                uncertainty: self.total(i, j),
+            });
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dist(samples: &[Vec<f32>]) -> MatchDistribution {
+        MatchDistribution::from_samples(2, 2, samples)
+    }
+
+    #[test]
+    fn mutual_best_pairs_and_dustbins() {
+        // Rows: node 0 matches column 1; node 1 prefers the dustbin.
+        let s = vec![
+            0.05, 0.9, 0.05, //
+            0.1, 0.2, 0.7, //
+            0.85, 0.05, 0.1,
+        ];
+        let d = dist(&[s]);
+        let m = d.decide(None);
+        assert_eq!(m.len(), 1);
+        assert_eq!((m[0].a, m[0].b), (0, 1));
+    }
+
+    #[test]
+    fn uncertainty_split_and_thresholding() {
+        // Two samples that disagree completely: each is certain (aleatoric
+        // 0), their mean is a coin flip (total 1): all epistemic.
+        let a = vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+        let b = vec![0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+        let d = dist(&[a.clone(), b]);
+        assert!((d.total(0, 0) - 1.0).abs() < 1e-6);
+        assert!(d.uncertainty(0, 0, UncertaintyKind::Aleatoric) < 1e-6);
+        assert!((d.uncertainty(0, 0, UncertaintyKind::Epistemic) - 1.0).abs() < 1e-6);
+        // A certain distribution keeps its pairs under any threshold.
+        let sure = dist(&[a]);
+        assert_eq!(sure.decide(Some((UncertaintyKind::Total, 0.7))).len(), 2);
+        // A 0.6/0.4 pair: total entropy 0.971 bits, removed at lambda 0.7.
+        let soft = vec![0.6, 0.0, 0.4, 0.0, 1.0, 0.0, 0.4, 0.0, 0.6];
+        let d = dist(&[soft]);
+        assert_eq!(d.decide(None).len(), 2);
+        let kept = d.decide(Some((UncertaintyKind::Total, 0.7)));
+        assert_eq!(kept.len(), 1);
+        assert_eq!((kept[0].a, kept[0].b), (1, 1));
+    }
+}

@@ -1,0 +1,185 @@
+//! What the deep matcher sees of one vehicle's scene graph, as plain `f32`
+//! arrays (no tensors here): node attributes (the paper's A) and, for the
+//! SplineCNN layers, the degree-normalised B-spline basis of every edge's
+//! pseudo-coordinates (the paper's Phi(E_ij), Eq. 1).
+//!
+//! Pseudo-coordinates: the edge vector i -> j rotated into world-aligned
+//! axes with the vehicle's *reported* heading (GPS heading noise is 0.2 deg;
+//! GPS position error does not enter), scaled from [-max_edge, max_edge] to
+//! [0, 1] per axis. Open B-splines of degree 1 with `KERNEL` knots per axis
+//! (SplineCNN, Fey et al. 2018) give 4 non-zero basis weights per edge.
+
+use crate::geometry::{Pose2, Vec2};
+use crate::graph::SceneGraph;
+use crate::sensor::Detection;
+use crate::traffic::ObjectClass;
+
+/// B-spline knots per pseudo-coordinate dimension (paper: 5).
+pub const KERNEL: usize = 5;
+/// Kernel weights per edge: `KERNEL^2` for 2-D pseudo-coordinates.
+pub const KERNEL_2D: usize = KERNEL * KERNEL;
+/// Node attribute length: class one-hot (7), colour (3), size (3).
+pub const NODE_FEATURES: usize = 13;
+/// Edge vectors are scaled by this half-range (longer edges are clipped).
+pub const MAX_EDGE_M: f64 = 60.0;
+
+/// One vehicle's graph, ready for the network. Every undirected edge
+/// appears twice, once per direction; message `e` goes from `src[e]` to
+/// `dst[e]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GraphInput {
+    pub n: usize,
+    /// `n x NODE_FEATURES`, row-major.
+    pub node_features: Vec<f32>,
+    pub src: Vec<i64>,
+    pub dst: Vec<i64>,
+    /// `E x 4`: the kernel indices with non-zero basis weight per edge.
+    pub basis_index: Vec<i64>,
+    /// `E x 4`: those basis weights (they sum to 1 per edge).
+    pub basis_weight: Vec<f32>,
+    /// `n x E`, row-major: `1 / deg(i)` where `dst[e] == i` (mean
+    /// aggregation of incoming messages).
+    pub aggregate: Vec<f32>,
+}
+
+impl GraphInput {
+    pub fn edge_count(&self) -> usize {
+        self.src.len()
+    }
+}
+
+pub fn node_features(d: &Detection) -> [f32; NODE_FEATURES] {
+    let mut f = [0f32; NODE_FEATURES];
+    let class = ObjectClass::ALL
+        .iter()
+        .position(|&c| c == d.appearance.class)
+        .unwrap_or(0);
+    f[class] = 1.0;
+    for k in 0..3 {
+        f[7 + k] = d.appearance.colour_rgb[k] as f32;
+    }
+    f[10] = (d.appearance.length_m / 10.0) as f32;
+    f[11] = (d.appearance.width_m / 3.0) as f32;
+    f[12] = (d.appearance.height_m / 4.0) as f32;
+    f
+}
+
+/// Degree-1 open B-spline weights of a coordinate in [0, 1]: the two
+/// active knots and their weights.
+fn linear_basis(u: f64) -> [(usize, f64); 2] {
+    let s = u.clamp(0.0, 1.0) * (KERNEL - 1) as f64;
+    let left = (s.floor() as usize).min(KERNEL - 2);
+    let frac = s - left as f64;
+    [(left, 1.0 - frac), (left + 1, frac)]
+}
+
+/// The 4 non-zero (kernel index, weight) pairs of an edge vector given in
+/// world-aligned axes.
+pub fn edge_basis(d_world_m: &Vec2) -> [(usize, f64); 4] {
+    let ux = d_world_m.x / (2.0 * MAX_EDGE_M) + 0.5;
+    let uy = d_world_m.y / (2.0 * MAX_EDGE_M) + 0.5;
+    let bx = linear_basis(ux);
+    let by = linear_basis(uy);
+    [
+        (bx[0].0 * KERNEL + by[0].0, bx[0].1 * by[0].1),
+        (bx[0].0 * KERNEL + by[1].0, bx[0].1 * by[1].1),
+        (bx[1].0 * KERNEL + by[0].0, bx[1].1 * by[0].1),
+        (bx[1].0 * KERNEL + by[1].0, bx[1].1 * by[1].1),
+    ]
+}
+
+pub fn graph_input(
+    detections: &[Detection],
+    graph: &SceneGraph,
+    pose_reported: &Pose2,
+) -> GraphInput {
+    let n = detections.len();
+    let mut node_feat = Vec::with_capacity(n * NODE_FEATURES);
+    for d in detections {
+        node_feat.extend_from_slice(&node_features(d));
+    }
+    let neighbours = graph.neighbours();
+    let heading = Pose2::new(Vec2::zeros(), pose_reported.heading_rad());
+    let (mut src, mut dst, mut basis_index, mut basis_weight) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (i, nb) in neighbours.iter().enumerate() {
+        for &j in nb {
+            let d_world = heading.to_parent(&(graph.positions_m[j] - graph.positions_m[i]));
+            src.push(j as i64);
+            dst.push(i as i64);
+            for (k, w) in edge_basis(&d_world) {
+                basis_index.push(k as i64);
+                basis_weight.push(w as f32);
+            }
+        }
+    }
+    let e = src.len();
+    let mut aggregate = vec![0f32; n * e];
+    for (k, &i) in dst.iter().enumerate() {
+        let i = i as usize;
+        aggregate[i * e + k] = 1.0 / neighbours[i].len() as f32;
+    }
+    GraphInput {
+        n,
+        node_features: node_feat,
+        src,
+        dst,
+        basis_index,
+        basis_weight,
+        aggregate,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #[test]
+        fn basis_is_a_partition_of_unity(x in -100.0..100.0f64, y in -100.0..100.0f64) {
+            let b = edge_basis(&Vec2::new(x, y));
+            let sum: f64 = b.iter().map(|&(_, w)| w).sum();
+            prop_assert!((sum - 1.0).abs() < 1e-12);
+            prop_assert!(b.iter().all(|&(k, w)| k < KERNEL_2D && (0.0..=1.0).contains(&w)));
+        }
+    }
+
+    #[test]
+    fn zero_edge_sits_on_the_centre_knot() {
+        let b = edge_basis(&Vec2::zeros());
+        let centre = (KERNEL / 2) * KERNEL + KERNEL / 2;
+        let w: f64 = b
+            .iter()
+            .filter(|&&(k, _)| k == centre)
+            .map(|&(_, w)| w)
+            .sum();
+        assert!((w - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn every_node_averages_its_incoming_messages() {
+        let pts = vec![
+            Vec2::new(0.0, 0.0),
+            Vec2::new(10.0, 0.0),
+            Vec2::new(3.0, 8.0),
+        ];
+        let g = SceneGraph::delaunay(&pts).unwrap();
+        let dets: Vec<Detection> = crate::matching::tests::detections_from(
+            &Pose2::identity(),
+            &crate::matching::tests::world_objects()[..3],
+            &[0, 1, 2],
+        );
+        let input = graph_input(&dets, &g, &Pose2::new(Vec2::new(5.0, 5.0), 0.7));
+        let e = input.edge_count();
+        assert_eq!(e, 2 * g.edges.len());
+        for i in 0..3 {
+            let row = &input.aggregate[i * e..(i + 1) * e];
+            assert!((row.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+        }
+        for w in input.basis_weight.chunks(4) {
+            assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+        }
+        assert_eq!(input.node_features.len(), 3 * NODE_FEATURES);
+    }
+}
