@@ -115,7 +115,11 @@ fn main() {
         let g1 = GraphTensors::new(&ex.g1, &device);
         let g2 = GraphTensors::new(&ex.g2, &device);
         let masks = draw_masks(&mut stream, &arch, 1, ex.g1.n, ex.g2.n, &device);
-        let log_p = net.forward(&g1, &g2, masks, arch.sinkhorn_iters);
+        let cost = Tensor::<3>::from_data(
+            TensorData::new(ex.position_cost.clone(), [1, ex.g1.n, ex.g2.n]),
+            &device,
+        );
+        let log_p = net.forward(&g1, &g2, masks, cost, arch.sinkhorn_iters);
         let y = Tensor::<2>::from_data(
             TensorData::new(ex.y_star.clone(), [ex.g1.n, ex.g2.n]),
             &device,

@@ -211,6 +211,11 @@ impl Default for RawMatching {
     fn default() -> Self {
         Self {
             methods: vec![
+                Method::Ours,
+                Method::CoidNon,
+                Method::CoidUnc,
+                Method::Dgmc,
+                Method::GcnGm,
                 Method::Mogm,
                 Method::Rgm,
                 Method::GpsHungarian,

@@ -46,6 +46,25 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
+    /// Evaluate every method on the test runs ([eval] traffic_seeds) and write
+    /// the paper's tables: table1.csv (P/R/F1 per method and pose noise),
+    /// table2.csv (F1 before/after uncertainty thresholding), table3.csv
+    /// (uncertainty types), lambda_sweep.csv, case_study.csv; means with 95%
+    /// confidence intervals over runs.
+    Eval {
+        /// Configuration file (TOML).
+        #[arg(long, short, default_value = "configs/default.toml")]
+        config: PathBuf,
+        /// Output folder [default: results/<config file stem>-eval].
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+        /// Replace the output folder if it exists.
+        #[arg(long)]
+        force: bool,
+        /// No progress bar.
+        #[arg(long, short)]
+        quiet: bool,
+    },
     /// Train the deep matchers on instances from the training runs
     /// ([train] traffic_seeds) and save their weights, config and loss curve.
     Train {
@@ -234,6 +253,59 @@ fn train(
     Ok(())
 }
 
+/// Every method of the paper's Table 1 plus the practical ones.
+const ALL_METHODS: [Method; 9] = [
+    Method::Ours,
+    Method::CoidNon,
+    Method::CoidUnc,
+    Method::Dgmc,
+    Method::GcnGm,
+    Method::Mogm,
+    Method::Rgm,
+    Method::GpsHungarian,
+    Method::Oracle,
+];
+
+fn eval(config: &Path, out: Option<PathBuf>, force: bool, quiet: bool) -> anyhow::Result<()> {
+    let settings = Settings::load(config)?;
+    let out = out.unwrap_or_else(|| {
+        let stem = config
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "run".into());
+        PathBuf::from("results").join(format!("{stem}-eval"))
+    });
+    if out.exists() && !force {
+        return Err(output::OutputError::Exists(out).into());
+    }
+    let seeds = settings.eval.traffic_seeds.clone();
+    let pb = bar(
+        quiet,
+        seeds.len() as u64,
+        "{spinner} evaluating: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
+    );
+    let mut runs = Vec::new();
+    for &seed in &seeds {
+        let run = experiments::settings_for_seed(&settings, seed);
+        pb.set_message(format!("seed {seed}"));
+        let r = experiments::eval_run(&run, &ALL_METHODS, |_| {})
+            .with_context(|| format!("test run with seed {seed} failed"))?;
+        runs.push(r);
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let tables = experiments::eval_tables(&settings, &runs);
+    output::write_eval(&out, &settings, &tables, force)?;
+    let instances: usize = runs.iter().map(|r| r.instances).sum();
+    eprintln!(
+        "coid: evaluated {} methods on {} test runs ({instances} instances); wrote {}",
+        ALL_METHODS.len(),
+        runs.len(),
+        out.display()
+    );
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -249,6 +321,12 @@ fn main() -> ExitCode {
             methods,
             quiet,
         } => train(&config, out, &methods, quiet),
+        Command::Eval {
+            config,
+            out,
+            force,
+            quiet,
+        } => eval(&config, out, force, quiet),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -142,37 +142,7 @@ pub fn write_run(
     results: &RunResults,
     force: bool,
 ) -> Result<(), OutputError> {
-    if out.exists() && !force {
-        return Err(OutputError::Exists(out.to_owned()));
-    }
-    let parent = match out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&parent).map_err(io(&parent))?;
-    let name = out
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "run".into());
-    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
-    }
-    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-    let result = write_files(&tmp, settings, results).and_then(|()| {
-        if out.exists() {
-            let old = parent.join(format!(".{name}.old-{}", std::process::id()));
-            std::fs::rename(out, &old).map_err(io(out))?;
-            std::fs::rename(&tmp, out).map_err(io(out))?;
-            std::fs::remove_dir_all(&old).map_err(io(&old))
-        } else {
-            std::fs::rename(&tmp, out).map_err(io(out))
-        }
-    });
-    if result.is_err() {
-        let _ = std::fs::remove_dir_all(&tmp);
-    }
-    result
+    atomic_dir(out, force, |dir| write_files(dir, settings, results))
 }
 
 fn write_files(dir: &Path, settings: &Settings, results: &RunResults) -> Result<(), OutputError> {
@@ -288,4 +258,167 @@ pub fn write_model(
     let p = tmp(&name);
     std::fs::write(&p, curve).map_err(io(&p))?;
     publish(&name, &p)
+}
+
+fn table_frame(t: &crate::experiments::Table) -> PolarsResult<DataFrame> {
+    use crate::experiments::TableColumn;
+    let columns: Vec<Column> = t
+        .columns
+        .iter()
+        .map(|(name, col)| match col {
+            TableColumn::Text(v) => Column::new(name.as_str().into(), v),
+            TableColumn::Number(v) => Column::new(name.as_str().into(), v),
+        })
+        .collect();
+    DataFrame::new_infer_height(columns)
+}
+
+fn write_csv(path: &Path, df: &mut DataFrame) -> Result<(), OutputError> {
+    let mut f = File::create(path).map_err(io(path))?;
+    CsvWriter::new(&mut f)
+        .include_header(true)
+        .with_float_precision(Some(6))
+        .finish(df)
+        .map_err(|source| OutputError::Polars {
+            path: path.to_owned(),
+            source,
+        })?;
+    f.sync_all().map_err(io(path))
+}
+
+/// Writes `coid eval`'s tables (CSV) and a `summary.md` into `out`, atomically
+/// as for a run.
+pub fn write_eval(
+    out: &Path,
+    settings: &Settings,
+    tables: &crate::experiments::EvalTables,
+    force: bool,
+) -> Result<(), OutputError> {
+    let mut files: Vec<(&str, &crate::experiments::Table)> = vec![
+        ("table1.csv", &tables.table1),
+        ("table2.csv", &tables.table2),
+        ("table3.csv", &tables.table3),
+        ("lambda_sweep.csv", &tables.lambda_sweep),
+        ("case_study.csv", &tables.case_study),
+    ];
+    files.retain(|(_, t)| !t.columns.is_empty());
+    atomic_dir(out, force, |dir| {
+        let mut md = String::new();
+        let _ = writeln!(md, "# coid-sim evaluation\n");
+        let _ = writeln!(md, "- config: `{}`", settings.source.display());
+        let _ = writeln!(
+            md,
+            "- test runs (traffic = sensor seed): {:?}; training runs: {:?}",
+            settings.eval.traffic_seeds, settings.train.traffic_seeds
+        );
+        let _ = writeln!(
+            md,
+            "- every number is the mean over test runs, `±` the half-width of its 95% confidence interval (Student t)\n"
+        );
+        for (name, t) in &files {
+            let path = dir.join(name);
+            let mut df = table_frame(t).map_err(|source| OutputError::Polars {
+                path: path.clone(),
+                source,
+            })?;
+            write_csv(&path, &mut df)?;
+            let _ = writeln!(md, "## {name}\n\n{}\n", markdown_table(t));
+        }
+        let path = dir.join("summary.md");
+        std::fs::write(&path, md).map_err(io(&path))
+    })
+}
+
+/// A table in Markdown, `x ± ci` for each `x` with an `x_ci95` column.
+fn markdown_table(t: &crate::experiments::Table) -> String {
+    use crate::experiments::TableColumn;
+    let names: Vec<&String> = t.columns.iter().map(|(n, _)| n).collect();
+    let shown: Vec<usize> = (0..names.len())
+        .filter(|&k| !names[k].ends_with("_ci95"))
+        .collect();
+    let rows = match t.columns.first() {
+        Some((_, TableColumn::Text(v))) => v.len(),
+        Some((_, TableColumn::Number(v))) => v.len(),
+        None => 0,
+    };
+    let cell = |k: usize, r: usize| -> String {
+        match &t.columns[k].1 {
+            TableColumn::Text(v) => v[r].clone(),
+            TableColumn::Number(v) => {
+                let ci = t
+                    .columns
+                    .iter()
+                    .find(|(n, _)| *n == format!("{}_ci95", names[k]))
+                    .and_then(|(_, c)| match c {
+                        TableColumn::Number(c) => Some(c[r]),
+                        TableColumn::Text(_) => None,
+                    });
+                match ci {
+                    Some(c) if c.is_finite() => format!("{} ± {}", fmt_num(v[r], 4), fmt_num(c, 4)),
+                    _ => fmt_num(v[r], 4),
+                }
+            }
+        }
+    };
+    let mut s = format!(
+        "| {} |\n|{}\n",
+        shown
+            .iter()
+            .map(|&k| names[k].as_str())
+            .collect::<Vec<_>>()
+            .join(" | "),
+        "---|".repeat(shown.len())
+    );
+    for r in 0..rows {
+        let _ = writeln!(
+            s,
+            "| {} |",
+            shown
+                .iter()
+                .map(|&k| cell(k, r))
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+    }
+    s
+}
+
+/// Creates `out` atomically: `fill` writes into a temporary sibling folder,
+/// which then replaces `out` (refused when `out` exists and not `force`).
+fn atomic_dir(
+    out: &Path,
+    force: bool,
+    fill: impl FnOnce(&Path) -> Result<(), OutputError>,
+) -> Result<(), OutputError> {
+    if out.exists() && !force {
+        return Err(OutputError::Exists(out.to_owned()));
+    }
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent).map_err(io(&parent))?;
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
+    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
+    }
+    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
+    let result = fill(&tmp).and_then(|()| {
+        if out.exists() {
+            let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+            std::fs::rename(out, &old).map_err(io(out))?;
+            std::fs::rename(&tmp, out).map_err(io(out))?;
+            std::fs::remove_dir_all(&old).map_err(io(&old))
+        } else {
+            std::fs::rename(&tmp, out).map_err(io(out))
+        }
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    result
 }

@@ -37,11 +37,19 @@ impl Fixture {
 
     /// Writes a config: the shipped scenario, run for `end_s`, plus `extra`
     /// TOML (sections after `[scenario]`).
+    /// Unless `extra` has its own `[matching]` section, the deep methods
+    /// use the shipped weights.
     fn config(&self, name: &str, end_s: f64, extra: &str) -> PathBuf {
-        let body = format!(
+        let mut body = format!(
             "[scenario]\nsumocfg = {:?}\njunction = \"C\"\nend_s = {end_s}\n{extra}",
             shipped_sumocfg().to_string_lossy()
         );
+        if !extra.contains("[matching]") {
+            body.push_str(&format!(
+                "\n[matching]\nmodels_dir = {:?}\n",
+                repo().join("models").to_string_lossy()
+            ));
+        }
         self.write(name, &body)
     }
 
@@ -150,9 +158,8 @@ mod run {
         ] {
             assert!(cols.iter().any(|x| x == c), "column {c} missing: {cols:?}");
         }
-        // 4 methods (mogm, rgm, gps-hungarian, oracle) x 3 pose-noise levels
-        // x 2 fusion variants.
-        assert_eq!(summary.height(), 24);
+        // 9 methods x 3 pose-noise levels x 2 fusion variants.
+        assert_eq!(summary.height(), 54);
         let methods = strs(&summary, "method");
         let noise = strs(&summary, "pose_noise");
         let fusion = strs(&summary, "fusion");
@@ -332,7 +339,7 @@ mod bad_input {
         let cfg = fx.write(
             "j.toml",
             &format!(
-                "[scenario]\nsumocfg = {:?}\njunction = \"Z9\"\nend_s = 60\n",
+                "[scenario]\nsumocfg = {:?}\njunction = \"Z9\"\nend_s = 60\n[matching]\nmethods = [\"oracle\"]\n",
                 shipped_sumocfg().to_string_lossy()
             ),
         );
@@ -355,7 +362,7 @@ mod bad_input {
         );
         let cfg = fx.write(
             "s.toml",
-            "[scenario]\nsumocfg = \"broken.sumocfg\"\njunction = \"C\"\n",
+            "[scenario]\nsumocfg = \"broken.sumocfg\"\njunction = \"C\"\n[matching]\nmethods = [\"oracle\"]\n",
         );
         fails_cleanly(&fx, &cfg, "SUMO failed to start");
     }
@@ -387,7 +394,7 @@ mod bad_input {
         );
         let cfg = fx.write(
             "mid.toml",
-            "[scenario]\nsumocfg = \"mid.sumocfg\"\njunction = \"C\"\nend_s = 60\n[connected]\nids = [\"a\", \"c\"]\n",
+            "[scenario]\nsumocfg = \"mid.sumocfg\"\njunction = \"C\"\nend_s = 60\n[connected]\nids = [\"a\", \"c\"]\n[matching]\nmethods = [\"oracle\"]\n",
         );
         fails_cleanly(&fx, &cfg, "SUMO failed at t = ");
     }
@@ -421,5 +428,103 @@ mod bad_input {
                 .unwrap()
                 .starts_with("method,")
         );
+    }
+}
+
+mod learned {
+    use super::*;
+
+    /// Real burn training on a small real data set (one SUMO run, one
+    /// epoch), then a run that loads the weights it wrote.
+    #[test]
+    fn train_writes_loadable_weights_and_a_loss_curve() {
+        let fx = Fixture::new();
+        let cfg = fx.config(
+            "t.toml",
+            80.0,
+            &format!(
+                "[train]\ntraffic_seeds = [201]\nepochs = 1\nmethods = [\"gcn-gm\"]\n[matching]\nmethods = [\"gcn-gm\", \"oracle\"]\nmodels_dir = {:?}\n[pose_noise]\nlevels = [\"gps\"]\n",
+                fx.path("models").to_string_lossy()
+            ),
+        );
+        let out = fx.coid(&["train", "-q", "--config", cfg.to_str().unwrap()]);
+        assert_ok(&out);
+        for f in ["gcn-gm.bpk", "gcn-gm.toml", "gcn-gm_loss.csv"] {
+            assert!(fx.path("models").join(f).is_file(), "{f} missing");
+        }
+        let curve = std::fs::read_to_string(fx.path("models/gcn-gm_loss.csv")).unwrap();
+        let loss: f64 = curve
+            .lines()
+            .nth(1)
+            .unwrap()
+            .split(',')
+            .nth(1)
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!(loss.is_finite() && loss > 0.0, "{curve}");
+        assert_ok(&fx.run(&cfg, "with-model"));
+        let summary = read_csv(&fx.path("with-model/summary.csv"));
+        assert!(strs(&summary, "method").iter().any(|m| m == "gcn-gm"));
+    }
+
+    #[test]
+    fn missing_weights_are_a_clear_error() {
+        let fx = Fixture::new();
+        let cfg = fx.config(
+            "m.toml",
+            60.0,
+            &format!(
+                "[matching]\nmethods = [\"ours\"]\nmodels_dir = {:?}\n",
+                fx.path("nowhere").to_string_lossy()
+            ),
+        );
+        let out = fx.run(&cfg, "out");
+        assert!(!out.status.success());
+        let err = stderr(&out);
+        assert!(err.contains("ours") && err.contains("coid train"), "{err}");
+        assert!(!err.contains("panicked"));
+    }
+
+    /// The shipped default weights on a small fixed test set (two test runs,
+    /// never used in training) at 1.2 m pose noise: the full method must
+    /// beat GPS-Hungarian in F1.
+    #[test]
+    fn shipped_model_beats_gps_hungarian_at_gps_noise() {
+        let fx = Fixture::new();
+        let cfg = fx.config(
+            "e.toml",
+            130.0,
+            &format!(
+                "[matching]\nmodels_dir = {:?}\n[pose_noise]\nlevels = [\"gps\"]\n[eval]\ntraffic_seeds = [1, 2]\n",
+                repo().join("models").to_string_lossy()
+            ),
+        );
+        assert_ok(&fx.coid(&[
+            "eval",
+            "-q",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--out",
+            "ev",
+        ]));
+        let t1 = read_csv(&fx.path("ev/table1.csv"));
+        let (m, f1) = (strs(&t1, "method"), f64s(&t1, "f1"));
+        let f1_of = |name: &str| f1[m.iter().position(|x| x == name).unwrap()];
+        assert!(
+            f1_of("ours") > f1_of("gps-hungarian"),
+            "ours F1 {} vs gps-hungarian F1 {}",
+            f1_of("ours"),
+            f1_of("gps-hungarian")
+        );
+        for f in [
+            "table2.csv",
+            "table3.csv",
+            "lambda_sweep.csv",
+            "case_study.csv",
+            "summary.md",
+        ] {
+            assert!(fx.path("ev").join(f).is_file(), "{f} missing");
+        }
     }
 }

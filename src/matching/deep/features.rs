@@ -130,6 +130,31 @@ pub fn graph_input(
     }
 }
 
+/// The GPS position prior of every pair, `n1 x n2` row-major: both
+/// detections placed in the world with their vehicle's *reported* pose, and
+/// their squared distance over twice its expected variance (the detections'
+/// own covariances plus both vehicles' claimed GPS position variance):
+/// `d^2 / (2 (tr(P_i + P_j) / 2 + 2 sigma_gps^2))`. 0 = same place.
+pub fn position_cost(
+    first: &crate::matching::MatchView,
+    second: &crate::matching::MatchView,
+) -> Vec<f32> {
+    let gps_var =
+        first.pose_noise.position_sigma_m.powi(2) + second.pose_noise.position_sigma_m.powi(2);
+    let mut cost = Vec::with_capacity(first.detections.len() * second.detections.len());
+    for a in first.detections {
+        let pa = first.pose_reported.to_parent(&a.position_m);
+        let ca = first.pose_reported.cov_to_parent(&a.cov_m2);
+        for b in second.detections {
+            let pb = second.pose_reported.to_parent(&b.position_m);
+            let cb = second.pose_reported.cov_to_parent(&b.cov_m2);
+            let var = 0.5 * (ca + cb).trace() + gps_var;
+            cost.push(((pa - pb).norm_squared() / (2.0 * var.max(1e-6))) as f32);
+        }
+    }
+    cost
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

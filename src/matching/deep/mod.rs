@@ -204,7 +204,13 @@ impl DeepMatcher {
         );
         let mut stream = rng::stream(self.seed, Purpose::Dropout, &[problem_key(first, second)]);
         let masks = draw_masks(&mut stream, &self.arch, self.samples, n1, n2, &self.device);
-        let log_p = self.net.forward(&g1, &g2, masks, self.arch.sinkhorn_iters);
+        let cost = Tensor::<3>::from_data(
+            TensorData::new(features::position_cost(first, second), [1, n1, n2]),
+            &self.device,
+        );
+        let log_p = self
+            .net
+            .forward(&g1, &g2, masks, cost, self.arch.sinkhorn_iters);
         let p: Vec<f32> = log_p.exp().try_into_vec_as::<f32>().unwrap_or_default();
         p.chunks((n1 + 1) * (n2 + 1)).map(<[f32]>::to_vec).collect()
     }
@@ -416,5 +422,55 @@ mod tests {
             pose_noise: EXACT,
         };
         assert!(m.match_pair(&va, &vb).is_empty());
+    }
+
+    fn shipped(method: Method) -> DeepMatcher {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+        DeepMatcher::load(method, &dir, 20, Some((UncertaintyKind::Total, 0.7)), 1).unwrap()
+    }
+
+    #[test]
+    fn shipped_model_matches_a_moved_copy_of_a_scene_to_itself() {
+        let (found, wrong) = crate::matching::tests::self_match(&shipped(Method::Ours));
+        assert_eq!((found, wrong), (1.0, 0));
+    }
+
+    #[test]
+    fn shipped_model_finds_nothing_between_unrelated_scenes() {
+        // Different objects (other classes, other places) seen by two
+        // vehicles far apart.
+        let objects = world_objects();
+        let others: Vec<_> = objects
+            .iter()
+            .map(|&(p, _, col)| {
+                (
+                    Vec2::new(p.x + 150.0, p.y - 90.0),
+                    crate::traffic::ObjectClass::Pedestrian,
+                    col,
+                )
+            })
+            .collect();
+        let idx: Vec<usize> = (0..objects.len()).collect();
+        let pa = Pose2::identity();
+        let pb = Pose2::new(Vec2::new(140.0, -100.0), 1.0);
+        let da = detections_from(&pa, &objects, &idx);
+        let db = detections_from(&pb, &others, &idx);
+        let ga =
+            SceneGraph::delaunay(&da.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
+        let gb =
+            SceneGraph::delaunay(&db.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
+        let va = MatchView {
+            detections: &da,
+            graph: &ga,
+            pose_reported: pa,
+            pose_noise: EXACT,
+        };
+        let vb = MatchView {
+            detections: &db,
+            graph: &gb,
+            pose_reported: pb,
+            pose_noise: EXACT,
+        };
+        assert!(shipped(Method::Ours).match_pair(&va, &vb).is_empty());
     }
 }

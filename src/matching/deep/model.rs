@@ -119,6 +119,11 @@ pub struct Architecture {
     pub consensus_dim: usize,
     pub dropout_phi: f64,
     pub sinkhorn_iters: usize,
+    /// Beyond the paper: subtract a learned multiple of the GPS position
+    /// cost ([`super::features::position_cost`]) from the similarity, so the
+    /// network can weigh where the vehicles say the objects are against what
+    /// they look like and how they are arranged.
+    pub gps_prior: bool,
 }
 
 impl Default for Architecture {
@@ -132,6 +137,7 @@ impl Default for Architecture {
             consensus_dim: 32,
             dropout_phi: 0.2,
             sinkhorn_iters: 20,
+            gps_prior: true,
         }
     }
 }
@@ -157,6 +163,10 @@ pub struct Network {
     phi_out: Option<Linear>,
     /// Dustbin score (Sinkhorn's "no match" row and column), `[1]`.
     dustbin: Param<Tensor<1>>,
+    /// Log of the weight of the GPS position cost, `[1]` (unused when the
+    /// architecture has no GPS prior).
+    log_position_weight: Param<Tensor<1>>,
+    gps_prior: bool,
 }
 
 impl Network {
@@ -181,6 +191,8 @@ impl Network {
             phi_in,
             phi_out,
             dustbin: Param::from_tensor(Tensor::ones([1], device)),
+            log_position_weight: Param::from_tensor(Tensor::zeros([1], device)),
+            gps_prior: arch.gps_prior,
         }
     }
 
@@ -192,12 +204,13 @@ impl Network {
     }
 
     /// Log of the soft assignment with dustbins, `[T, N1 + 1, N2 + 1]`.
-    /// Both graphs must have at least one node.
+    /// Both graphs must have at least one node. `position_cost`: `[1, N1, N2]`.
     pub fn forward(
         &self,
         g1: &GraphTensors,
         g2: &GraphTensors,
         masks: Masks,
+        position_cost: Tensor<3>,
         sinkhorn_iters: usize,
     ) -> Tensor<3> {
         let [c1a, c1b] = masks.conv1;
@@ -217,6 +230,10 @@ impl Network {
             let d = z1.unsqueeze_dim::<4>(2) - z2.unsqueeze_dim::<4>(1); // [T, N1, N2, r]
             let hidden = activation::relu(phi_in.forward(d)) * masks.phi; // [T, N1, N2, r]
             s = s + phi_out.forward(hidden).reshape([t, n1, n2]);
+        }
+        if self.gps_prior {
+            let w = self.log_position_weight.val().exp().reshape([1, 1, 1]);
+            s = s - position_cost * w;
         }
         log_sinkhorn(s, self.dustbin.val(), sinkhorn_iters)
     }

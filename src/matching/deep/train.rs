@@ -23,6 +23,8 @@ pub struct Example {
     /// false positive counts as non-covisible).
     pub non: Vec<f32>,
     pub n_true: usize,
+    /// `n1 x n2` GPS position cost (see `features::position_cost`).
+    pub position_cost: Vec<f32>,
 }
 
 /// Labels a pair from the detections' true ids; `None` when a side is empty
@@ -69,6 +71,7 @@ pub fn example(first: &MatchView, second: &MatchView) -> Option<Example> {
         y_star,
         non,
         n_true,
+        position_cost: super::features::position_cost(first, second),
     })
 }
 
@@ -116,7 +119,11 @@ pub fn train(
             let g1 = GraphTensors::new(&ex.g1, &device);
             let g2 = GraphTensors::new(&ex.g2, &device);
             let masks = draw_masks(&mut stream, &arch, 1, n1, n2, &device);
-            let log_p = net.forward(&g1, &g2, masks, arch.sinkhorn_iters);
+            let cost = Tensor::<3>::from_data(
+                TensorData::new(ex.position_cost.clone(), [1, n1, n2]),
+                &device,
+            );
+            let log_p = net.forward(&g1, &g2, masks, cost, arch.sinkhorn_iters);
             let y = Tensor::<2>::from_data(TensorData::new(ex.y_star.clone(), [n1, n2]), &device);
             let non = Tensor::<2>::from_data(TensorData::new(ex.non.clone(), [n1, n2]), &device);
             let loss = model::loss(log_p, y, non, ex.n_true, terms);
