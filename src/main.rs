@@ -133,7 +133,7 @@ fn run(config: &Path, out: Option<PathBuf>, force: bool, quiet: bool) -> anyhow:
         results.wall_time.as_secs_f64(),
         results.bridge_time.as_secs_f64() * 1e3 / results.n_steps.max(1) as f64,
     );
-    for m in [Method::GpsHungarian, Method::Oracle] {
+    for m in [Method::Ours, Method::GpsHungarian, Method::Oracle] {
         if let Some(r) = pick(m) {
             line.push_str(&format!(
                 "; {} @gps/aligned F1 {:.3}, DE {:.2} -> {:.2} m",
