@@ -5,6 +5,7 @@
 //! combines matched measurements and [`eval`] scores them; [`pipeline`] runs
 //! the stages and [`output`] writes the results. See ARCHITECTURE.md.
 
+pub mod batch;
 pub mod bridge;
 pub mod config;
 pub mod eval;

@@ -45,6 +45,50 @@ enum Command {
         /// No progress bar.
         #[arg(long, short)]
         quiet: bool,
+        /// Override [seeds] traffic (SUMO's seed).
+        #[arg(long)]
+        traffic_seed: Option<u64>,
+        /// Override [seeds] sensor.
+        #[arg(long)]
+        sensor_seed: Option<u64>,
+    },
+    /// Run a Monte Carlo batch: N runs with seeds derived from one master
+    /// seed, on W worker processes, resumable (run the same command again to
+    /// finish a killed batch), aggregated into <out>/summary.csv with 95%
+    /// confidence intervals. Each run keeps its own folder in <out>/runs/.
+    Batch {
+        /// Configuration file (TOML).
+        #[arg(long, short, default_value = "configs/default.toml")]
+        config: PathBuf,
+        /// Number of runs.
+        #[arg(long)]
+        runs: usize,
+        /// Worker processes [default: the number of cores].
+        #[arg(long, short)]
+        workers: Option<usize>,
+        /// Master seed: run i gets traffic and sensor seeds derived from it.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output folder [default: results/<config file stem>-batch].
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+        /// Only this slice of the runs, `k/n` (1-based): runs i with
+        /// i mod n = k - 1; combine the shards' folders with `coid merge`.
+        #[arg(long)]
+        shard: Option<coid_sim::batch::Shard>,
+        /// No progress bar.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Combine batch shard folders into one aggregate, identical to the
+    /// unsharded batch's.
+    Merge {
+        /// Shard folders (each made by `coid batch --shard k/n`).
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        /// Output folder.
+        #[arg(long, short)]
+        out: PathBuf,
     },
     /// Evaluate every method on the test runs ([eval] traffic_seeds) and write
     /// the paper's tables: table1.csv (P/R/F1 per method and pose noise),
@@ -91,8 +135,20 @@ fn default_out(config: &Path) -> PathBuf {
     PathBuf::from("results").join(stem)
 }
 
-fn run(config: &Path, out: Option<PathBuf>, force: bool, quiet: bool) -> anyhow::Result<()> {
-    let settings = Settings::load(config)?;
+fn run(
+    config: &Path,
+    out: Option<PathBuf>,
+    force: bool,
+    quiet: bool,
+    seeds: (Option<u64>, Option<u64>),
+) -> anyhow::Result<()> {
+    let mut settings = Settings::load(config)?;
+    if let Some(t) = seeds.0 {
+        settings.seeds.traffic = t;
+    }
+    if let Some(s) = seeds.1 {
+        settings.seeds.sensor = s;
+    }
     let out = out.unwrap_or_else(|| default_out(config));
     if out.exists() && !force {
         return Err(output::OutputError::Exists(out).into());
@@ -253,6 +309,157 @@ fn train(
     Ok(())
 }
 
+#[allow(clippy::too_many_arguments)]
+fn batch(
+    config: &Path,
+    runs: usize,
+    workers: Option<usize>,
+    seed: u64,
+    out: Option<PathBuf>,
+    shard: Option<coid_sim::batch::Shard>,
+    quiet: bool,
+) -> anyhow::Result<()> {
+    use coid_sim::batch;
+    // Validate the config once here, so a bad config fails before any run.
+    Settings::load(config)?;
+    if runs == 0 {
+        anyhow::bail!("--runs must be at least 1");
+    }
+    let config = config
+        .canonicalize()
+        .with_context(|| format!("cannot resolve {}", config.display()))?;
+    let out = out.unwrap_or_else(|| {
+        let stem = config
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "run".into());
+        PathBuf::from("results").join(format!("{stem}-batch"))
+    });
+    let workers = workers
+        .unwrap_or_else(|| {
+            std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1)
+        })
+        .max(1);
+    // A batch folder belongs to one (config, runs, seed): refuse to mix.
+    let identity = format!(
+        "config = {:?}\nruns = {runs}\nmaster_seed = {seed}\n",
+        config.display().to_string()
+    );
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    let id_path = out.join("batch.toml");
+    match std::fs::read_to_string(&id_path) {
+        Ok(existing) if existing != identity => anyhow::bail!(
+            "{} holds a different batch ({}); choose another --out",
+            out.display(),
+            existing.replace('\n', ", ").trim_end_matches(", ")
+        ),
+        Ok(_) => {}
+        Err(_) => {
+            let tmp = out.join(format!(".batch.toml.tmp-{}", std::process::id()));
+            std::fs::write(&tmp, &identity)
+                .and_then(|()| std::fs::rename(&tmp, &id_path))
+                .with_context(|| format!("cannot write {}", id_path.display()))?;
+        }
+    }
+    let pending = batch::pending_runs(&out, runs, shard);
+    let mine = (0..runs)
+        .filter(|i| shard.is_none_or(|s| i % s.count == s.index - 1))
+        .count();
+    let pb = bar(
+        quiet,
+        mine as u64,
+        "{spinner} runs {pos}/{len} [{bar:30}] {per_sec} eta {eta} {msg}",
+    );
+    pb.set_position((mine - pending.len()) as u64);
+    let exe = std::env::current_exe().context("cannot find the coid executable")?;
+    let started = std::time::Instant::now();
+    let mut failed_count = 0;
+    let failures = batch::execute(&exe, &config, &out, seed, &pending, workers, |_, ok| {
+        pb.inc(1);
+        if !ok {
+            failed_count += 1;
+            pb.set_message(format!("{failed_count} failed"));
+        }
+    })
+    .context("cannot start worker processes")?;
+    pb.finish_and_clear();
+    let completed = batch::completed_runs(&out)?;
+    let rows = batch::aggregate(&completed)?;
+    let header = format!(
+        "- config: `{}`; master seed {seed}; {} of {runs} runs complete{}\n- means over runs, `±` the half-width of the 95% confidence interval (Student t)",
+        config.display(),
+        completed.len(),
+        shard
+            .map(|s| format!(" (this folder: shard {}/{})", s.index, s.count))
+            .unwrap_or_default()
+    );
+    output::write_batch_summary(&out, &rows, &header)?;
+    eprintln!(
+        "coid: {} runs done in {:.1} s on {workers} workers ({} complete in {}); aggregate in {}",
+        pending.len() - failures.len(),
+        started.elapsed().as_secs_f64(),
+        completed.len(),
+        out.display(),
+        out.join("summary.csv").display()
+    );
+    if !failures.is_empty() {
+        for f in &failures {
+            eprintln!("coid: run {} failed: {}", f.run, f.message);
+        }
+        let list: Vec<String> = failures.iter().map(|f| f.run.to_string()).collect();
+        anyhow::bail!(
+            "{} run(s) failed: {} (the aggregate covers the {} complete runs; run the same command again to retry)",
+            failures.len(),
+            list.join(", "),
+            completed.len()
+        );
+    }
+    Ok(())
+}
+
+fn merge(dirs: &[PathBuf], out: &Path) -> anyhow::Result<()> {
+    use coid_sim::batch;
+    let mut identity: Option<String> = None;
+    for d in dirs {
+        let id = std::fs::read_to_string(d.join("batch.toml"))
+            .with_context(|| format!("{} is not a batch folder (no batch.toml)", d.display()))?;
+        match &identity {
+            Some(i) if *i != id => anyhow::bail!(
+                "{} belongs to a different batch than {}",
+                d.display(),
+                dirs[0].display()
+            ),
+            _ => identity = Some(id),
+        }
+    }
+    std::fs::create_dir_all(out.join("runs"))
+        .with_context(|| format!("cannot create {}", out.display()))?;
+    let mut total = 0;
+    for d in dirs {
+        for run in batch::completed_runs(d)? {
+            let dst = out.join("runs").join(run.file_name().unwrap_or_default());
+            output::copy_run(&run, &dst)?;
+            total += 1;
+        }
+    }
+    if let Some(id) = identity {
+        std::fs::write(out.join("batch.toml"), id)
+            .with_context(|| format!("cannot write into {}", out.display()))?;
+    }
+    let completed = batch::completed_runs(out)?;
+    let rows = batch::aggregate(&completed)?;
+    let header = format!(
+        "- merged from {} shard folders; {} runs\n- means over runs, `±` the half-width of the 95% confidence interval (Student t)",
+        dirs.len(),
+        completed.len()
+    );
+    output::write_batch_summary(out, &rows, &header)?;
+    eprintln!("coid: merged {total} runs into {}", out.display());
+    Ok(())
+}
+
 /// Every method of the paper's Table 1 plus the practical ones.
 const ALL_METHODS: [Method; 9] = [
     Method::Ours,
@@ -314,7 +521,19 @@ fn main() -> ExitCode {
             out,
             force,
             quiet,
-        } => run(&config, out, force, quiet),
+            traffic_seed,
+            sensor_seed,
+        } => run(&config, out, force, quiet, (traffic_seed, sensor_seed)),
+        Command::Batch {
+            config,
+            runs,
+            workers,
+            seed,
+            out,
+            shard,
+            quiet,
+        } => batch(&config, runs, workers, seed, out, shard, quiet),
+        Command::Merge { dirs, out } => merge(&dirs, &out),
         Command::Train {
             config,
             out,

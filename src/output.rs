@@ -422,3 +422,158 @@ fn atomic_dir(
     }
     result
 }
+
+/// One row of a run's `summary.csv`, as read back for a batch aggregate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunRow {
+    pub method: String,
+    pub pose_noise: String,
+    pub fusion: String,
+    pub n_instances: u64,
+    pub precision: f64,
+    pub recall: f64,
+    pub f1: f64,
+    pub de_single_m: f64,
+    pub de_fused_m: f64,
+}
+
+/// Reads a run's `summary.csv`.
+pub fn read_run_summary(path: &Path) -> Result<Vec<RunRow>, OutputError> {
+    let perr = |source| OutputError::Polars {
+        path: path.to_owned(),
+        source,
+    };
+    let df = CsvReadOptions::default()
+        .with_has_header(true)
+        .try_into_reader_with_file_path(Some(path.to_owned()))
+        .and_then(|r| r.finish())
+        .map_err(perr)?;
+    let text = |c: &str| -> Result<Vec<String>, OutputError> {
+        Ok(df
+            .column(c)
+            .and_then(|c| c.cast(&DataType::String))
+            .map_err(perr)?
+            .str()
+            .map_err(perr)?
+            .iter()
+            .map(|v| v.unwrap_or("").to_owned())
+            .collect())
+    };
+    let num = |c: &str| -> Result<Vec<f64>, OutputError> {
+        Ok(df
+            .column(c)
+            .and_then(|c| c.cast(&DataType::Float64))
+            .map_err(perr)?
+            .f64()
+            .map_err(perr)?
+            .iter()
+            .map(|v| v.unwrap_or(f64::NAN))
+            .collect())
+    };
+    let (m, p, f) = (text("method")?, text("pose_noise")?, text("fusion")?);
+    let (ni, pr, re, f1, ds, dfu) = (
+        num("n_instances")?,
+        num("precision")?,
+        num("recall")?,
+        num("f1")?,
+        num("de_single_m")?,
+        num("de_fused_m")?,
+    );
+    Ok((0..df.height())
+        .map(|k| RunRow {
+            method: m[k].clone(),
+            pose_noise: p[k].clone(),
+            fusion: f[k].clone(),
+            n_instances: ni[k] as u64,
+            precision: pr[k],
+            recall: re[k],
+            f1: f1[k],
+            de_single_m: ds[k],
+            de_fused_m: dfu[k],
+        })
+        .collect())
+}
+
+/// Writes a batch's aggregate `summary.csv` (and `summary.md`) into `dir`,
+/// each through a temporary file and a rename.
+pub fn write_batch_summary(
+    dir: &Path,
+    rows: &[crate::batch::AggregateRow],
+    header: &str,
+) -> Result<(), OutputError> {
+    let col =
+        |f: &dyn Fn(&crate::batch::AggregateRow) -> f64| rows.iter().map(f).collect::<Vec<f64>>();
+    let mut df = df!(
+        "method" => rows.iter().map(|r| r.method.as_str()).collect::<Vec<_>>(),
+        "pose_noise" => rows.iter().map(|r| r.pose_noise.as_str()).collect::<Vec<_>>(),
+        "fusion" => rows.iter().map(|r| r.fusion.as_str()).collect::<Vec<_>>(),
+        "n_runs" => rows.iter().map(|r| r.n_runs as u64).collect::<Vec<_>>(),
+        "n_instances" => rows.iter().map(|r| r.n_instances).collect::<Vec<_>>(),
+        "precision" => col(&|r| r.precision.0),
+        "precision_ci95" => col(&|r| r.precision.1),
+        "recall" => col(&|r| r.recall.0),
+        "recall_ci95" => col(&|r| r.recall.1),
+        "f1" => col(&|r| r.f1.0),
+        "f1_ci95" => col(&|r| r.f1.1),
+        "de_single_m" => col(&|r| r.de_single_m.0),
+        "de_single_m_ci95" => col(&|r| r.de_single_m.1),
+        "de_fused_m" => col(&|r| r.de_fused_m.0),
+        "de_fused_m_ci95" => col(&|r| r.de_fused_m.1),
+    )
+    .map_err(|source| OutputError::Polars {
+        path: dir.join("summary.csv"),
+        source,
+    })?;
+    let tmp = dir.join(format!(".summary.csv.tmp-{}", std::process::id()));
+    write_csv(&tmp, &mut df)?;
+    let dst = dir.join("summary.csv");
+    std::fs::rename(&tmp, &dst).map_err(io(&dst))?;
+
+    let mut md = format!("# coid-sim batch\n\n{header}\n\n");
+    let _ = writeln!(
+        md,
+        "| method | pose noise | fusion | runs | instances | precision | recall | F1 | DE single (m) | DE fused (m) |"
+    );
+    let _ = writeln!(md, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|");
+    let pm = |(m, c): (f64, f64)| {
+        if c.is_finite() {
+            format!("{} ± {}", fmt_num(m, 4), fmt_num(c, 4))
+        } else {
+            fmt_num(m, 4)
+        }
+    };
+    for r in rows {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            r.method,
+            r.pose_noise,
+            r.fusion,
+            r.n_runs,
+            r.n_instances,
+            pm(r.precision),
+            pm(r.recall),
+            pm(r.f1),
+            pm(r.de_single_m),
+            pm(r.de_fused_m)
+        );
+    }
+    let tmp = dir.join(format!(".summary.md.tmp-{}", std::process::id()));
+    std::fs::write(&tmp, md).map_err(io(&tmp))?;
+    let dst = dir.join("summary.md");
+    std::fs::rename(&tmp, &dst).map_err(io(&dst))
+}
+
+/// Copies a completed run folder (flat: files only) into `dst` atomically.
+pub fn copy_run(src: &Path, dst: &Path) -> Result<(), OutputError> {
+    atomic_dir(dst, true, |tmp| {
+        for e in std::fs::read_dir(src).map_err(io(src))? {
+            let p = e.map_err(io(src))?.path();
+            if p.is_file() {
+                let to = tmp.join(p.file_name().unwrap_or_default());
+                std::fs::copy(&p, &to).map_err(io(&to))?;
+            }
+        }
+        Ok(())
+    })
+}

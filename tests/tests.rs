@@ -528,3 +528,171 @@ mod learned {
         }
     }
 }
+
+mod batch {
+    use super::*;
+    use std::time::{Duration, Instant};
+
+    /// A fast batch config: short runs, cheap methods.
+    fn fast_config(fx: &Fixture, sumocfg: &Path) -> PathBuf {
+        fx.write(
+            "b.toml",
+            &format!(
+                "[scenario]\nsumocfg = {:?}\njunction = \"C\"\nend_s = 75\n[matching]\nmethods = [\"gps-hungarian\", \"oracle\"]\n",
+                sumocfg.to_string_lossy()
+            ),
+        )
+    }
+
+    fn batch(
+        fx: &Fixture,
+        cfg: &Path,
+        runs: &str,
+        workers: &str,
+        out: &str,
+        extra: &[&str],
+    ) -> Output {
+        let mut args = vec![
+            "batch",
+            "-q",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--runs",
+            runs,
+            "--workers",
+            workers,
+            "--out",
+            out,
+        ];
+        args.extend_from_slice(extra);
+        fx.coid(&args)
+    }
+
+    fn bytes(fx: &Fixture, dir: &str) -> Vec<u8> {
+        std::fs::read(fx.path(dir).join("summary.csv")).unwrap()
+    }
+
+    #[test]
+    fn one_and_two_workers_give_identical_aggregates_with_intervals() {
+        let fx = Fixture::new();
+        let cfg = fast_config(&fx, &shipped_sumocfg());
+        assert_ok(&batch(&fx, &cfg, "4", "1", "w1", &[]));
+        assert_ok(&batch(&fx, &cfg, "4", "2", "w2", &[]));
+        assert_eq!(bytes(&fx, "w1"), bytes(&fx, "w2"));
+        let s = read_csv(&fx.path("w1/summary.csv"));
+        for c in ["de_fused_m_ci95", "f1_ci95", "n_runs"] {
+            assert!(s.column(c).is_ok(), "{c} missing");
+        }
+        for i in 0..4 {
+            assert!(
+                fx.path(&format!("w1/runs/run-{i:06}/summary.csv"))
+                    .is_file()
+            );
+        }
+    }
+
+    #[test]
+    fn a_killed_batch_resumes_to_the_same_bytes() {
+        let fx = Fixture::new();
+        let cfg = fast_config(&fx, &shipped_sumocfg());
+        assert_ok(&batch(&fx, &cfg, "5", "2", "whole", &[]));
+        let mut child = Command::new(BIN)
+            .args([
+                "batch",
+                "-q",
+                "--config",
+                cfg.to_str().unwrap(),
+                "--runs",
+                "5",
+                "--workers",
+                "1",
+                "--out",
+                "killed",
+            ])
+            .current_dir(fx.dir.path())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        // Kill it once the first run is complete, mid-batch.
+        let started = Instant::now();
+        while !fx.path("killed/runs/run-000000/summary.csv").is_file() {
+            assert!(
+                started.elapsed() < Duration::from_secs(60),
+                "first run never finished"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        child.kill().unwrap(); // SIGKILL
+        child.wait().unwrap();
+        assert!(
+            !fx.path("killed/summary.csv").exists() || bytes(&fx, "killed") != bytes(&fx, "whole")
+        );
+        assert_ok(&batch(&fx, &cfg, "5", "2", "killed", &[]));
+        assert_eq!(bytes(&fx, "killed"), bytes(&fx, "whole"));
+    }
+
+    #[test]
+    fn merged_shards_equal_the_unsharded_batch() {
+        let fx = Fixture::new();
+        let cfg = fast_config(&fx, &shipped_sumocfg());
+        assert_ok(&batch(&fx, &cfg, "5", "2", "all", &[]));
+        assert_ok(&batch(&fx, &cfg, "5", "1", "s1", &["--shard", "1/2"]));
+        assert_ok(&batch(&fx, &cfg, "5", "1", "s2", &["--shard", "2/2"]));
+        assert_ok(&fx.coid(&["merge", "s1", "s2", "--out", "merged"]));
+        assert_eq!(bytes(&fx, "merged"), bytes(&fx, "all"));
+    }
+
+    #[test]
+    fn failing_runs_are_reported_and_do_not_poison_the_aggregate() {
+        let fx = Fixture::new();
+        // A private copy of the scenario, removed once the first run is done.
+        let scen = fx.path("scenario");
+        std::fs::create_dir_all(&scen).unwrap();
+        for e in std::fs::read_dir(repo().join("sumo_nets/intersection")).unwrap() {
+            let p = e.unwrap().path();
+            std::fs::copy(&p, scen.join(p.file_name().unwrap())).unwrap();
+        }
+        let cfg = fast_config(&fx, &scen.join("intersection.sumocfg"));
+        let child = Command::new(BIN)
+            .args([
+                "batch",
+                "-q",
+                "--config",
+                cfg.to_str().unwrap(),
+                "--runs",
+                "4",
+                "--workers",
+                "1",
+                "--out",
+                "f",
+            ])
+            .current_dir(fx.dir.path())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let started = Instant::now();
+        while !fx.path("f/runs/run-000000/summary.csv").is_file() {
+            assert!(
+                started.elapsed() < Duration::from_secs(60),
+                "first run never finished"
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        std::fs::remove_file(scen.join("intersection.sumocfg")).unwrap();
+        let out = child.wait_with_output().unwrap();
+        let err = stderr(&out);
+        assert!(!out.status.success(), "{err}");
+        assert!(
+            err.contains("failed") && err.contains("no such file"),
+            "{err}"
+        );
+        assert!(!err.contains("panicked"), "{err}");
+        let s = read_csv(&fx.path("f/summary.csv"));
+        let n_runs = f64s(&s, "n_runs");
+        assert!(
+            n_runs.iter().all(|&n| (1.0..4.0).contains(&n)),
+            "{n_runs:?}"
+        );
+        assert!(f64s(&s, "f1").iter().all(|v| v.is_finite()));
+    }
+}
