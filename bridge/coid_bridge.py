@@ -55,6 +55,13 @@ def polygons():
             for p in poly.getIDList()]
 
 
+def lanes():
+    """Every lane (internal ones too) as (id, width, [(x, y), ...])."""
+    lane = libsumo.lane
+    return [(l, float(lane.getWidth(l)), [(float(x), float(y)) for x, y in lane.getShape(l)])
+            for l in lane.getIDList()]
+
+
 def _type_info(type_id, is_person):
     info = _type_cache.get(type_id)
     if info is None:

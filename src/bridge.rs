@@ -18,7 +18,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyModule;
 
 use crate::geometry::{Polygon, Pose2, Vec2};
-use crate::traffic::{ObjectClass, StaticScene, TrafficFrame, TrafficObject};
+use crate::traffic::{Lane, ObjectClass, StaticScene, TrafficFrame, TrafficObject};
 
 const SHIM: &str = include_str!("../bridge/coid_bridge.py");
 
@@ -135,6 +135,9 @@ type Row = (
     (f64, f64, f64, f64, f64, f64, f64),
     (u8, u8, u8),
 );
+
+/// One lane as the shim returns it: `(id, width, shape)`.
+type LaneRow = (String, f64, Vec<(f64, f64)>);
 
 /// One polygon as the shim returns it: `(id, type, shape)`.
 type PolygonRow = (String, String, Vec<(f64, f64)>);
@@ -283,11 +286,24 @@ impl Sumo {
             .collect())
     }
 
+    /// Every lane's centre line and width (for pictures).
+    pub fn lanes(&self) -> Result<Vec<Lane>, BridgeError> {
+        let lanes: Vec<LaneRow> = self.call("lanes", |_, s| s.call_method0("lanes")?.extract())?;
+        Ok(lanes
+            .into_iter()
+            .map(|(_, width_m, shape)| Lane {
+                width_m,
+                centre_m: shape.into_iter().map(|(x, y)| Vec2::new(x, y)).collect(),
+            })
+            .collect())
+    }
+
     pub fn static_scene(&self, junction_id: &str) -> Result<StaticScene, BridgeError> {
         Ok(StaticScene {
             junction_id: junction_id.to_owned(),
             junction_position_m: self.junction_position(junction_id)?,
             buildings: self.polygons_of_type(&["building"])?,
+            lanes: self.lanes()?,
         })
     }
 

@@ -16,6 +16,7 @@ pub mod graph;
 pub mod matching;
 pub mod output;
 pub mod pipeline;
+pub mod render;
 pub mod rng;
 pub mod sensor;
 pub mod traffic;

@@ -90,6 +90,29 @@ enum Command {
         #[arg(long, short)]
         out: PathBuf,
     },
+    /// Draw chosen instances top-down (PNG and SVG): roads, buildings, road
+    /// users, camera frustums, detections and the correspondences of one
+    /// method (green right, red wrong, thicker = more uncertain).
+    Render {
+        /// Configuration file (TOML).
+        #[arg(long, short, default_value = "configs/default.toml")]
+        config: PathBuf,
+        /// Output folder [default: results/<config file stem>-render].
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+        /// Instance indices to draw (0 = the run's first instance).
+        #[arg(long, value_delimiter = ',', default_value = "0")]
+        instances: Vec<usize>,
+        /// Method whose correspondences are drawn.
+        #[arg(long, default_value = "ours")]
+        method: String,
+        /// Pose-noise level of the drawn correspondences: none, rtk or gps.
+        #[arg(long, default_value = "gps")]
+        pose_noise: String,
+        /// Replace the output folder if it exists.
+        #[arg(long)]
+        force: bool,
+    },
     /// Evaluate every method on the test runs ([eval] traffic_seeds) and write
     /// the paper's tables: table1.csv (P/R/F1 per method and pose noise),
     /// table2.csv (F1 before/after uncertainty thresholding), table3.csv
@@ -460,6 +483,124 @@ fn merge(dirs: &[PathBuf], out: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn render(
+    config: &Path,
+    out: Option<PathBuf>,
+    instances: &[usize],
+    method: &str,
+    pose_noise: &str,
+    force: bool,
+) -> anyhow::Result<()> {
+    use coid_sim::matching::MatchView;
+    let settings = Settings::load(config)?;
+    let method: Method = toml::Value::String(method.to_owned())
+        .try_into()
+        .map_err(|_| anyhow::anyhow!("unknown method '{method}'"))?;
+    let level = *settings
+        .pose_noise
+        .iter()
+        .find(|l| l.label.as_str() == pose_noise)
+        .ok_or_else(|| {
+            anyhow::anyhow!("pose noise '{pose_noise}' is not one of the config's levels")
+        })?;
+    let out = out.unwrap_or_else(|| {
+        let stem = config
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "run".into());
+        PathBuf::from("results").join(format!("{stem}-render"))
+    });
+    if out.exists() && !force {
+        return Err(output::OutputError::Exists(out).into());
+    }
+    let matcher =
+        coid_sim::matching::matcher_for(method, &settings.matching, settings.seeds.sensor)?;
+    let tmp = out.with_file_name(format!(
+        ".{}.tmp-{}",
+        out.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        std::process::id()
+    ));
+    std::fs::create_dir_all(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
+    let mut drawn = Vec::new();
+    let result = pipeline::simulate(
+        &settings,
+        |_| {},
+        |inst| {
+            if !instances.contains(&inst.index) {
+                return Ok(());
+            }
+            let step = inst.frame.step;
+            let (pa, pb) = (
+                inst.a.reported_pose(settings.seeds.sensor, step, &level),
+                inst.b.reported_pose(settings.seeds.sensor, step, &level),
+            );
+            let va = MatchView {
+                detections: &inst.a.obs.detections,
+                graph: &inst.a.graph,
+                pose_reported: pa,
+                pose_noise: level,
+            };
+            let vb = MatchView {
+                detections: &inst.b.obs.detections,
+                graph: &inst.b.graph,
+                pose_reported: pb,
+                pose_noise: level,
+            };
+            let matches = matcher.match_pair(&va, &vb);
+            let c = coid_sim::eval::count_pairs(&inst.a.obs, &inst.b.obs, &matches);
+            let view = coid_sim::render::SceneView {
+                scene: inst.scene,
+                frame: inst.frame,
+                camera: &settings.camera,
+                egos: [&inst.a.obs, &inst.b.obs],
+                matches: &matches,
+                caption: format!(
+                    "{} @ {} pose noise, t = {:.1} s: {} vs {}, precision {:.2}, recall {:.2}",
+                    method.as_str(),
+                    level.label.as_str(),
+                    inst.frame.time_s,
+                    inst.a.obs.ego_id,
+                    inst.b.obs.ego_id,
+                    c.precision(),
+                    c.recall()
+                ),
+                half_window_m: settings.camera.range_m + 10.0,
+            };
+            let stem = tmp.join(format!("instance-{:04}", inst.index));
+            coid_sim::render::render_scene(&view, &stem, 1000)
+                .map_err(|e| pipeline::RunError::Render(e.to_string()))?;
+            drawn.push(inst.index);
+            Ok(())
+        },
+    );
+    if let Err(e) = result {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e.into());
+    }
+    let missing: Vec<usize> = instances
+        .iter()
+        .copied()
+        .filter(|i| !drawn.contains(i))
+        .collect();
+    if !missing.is_empty() {
+        let _ = std::fs::remove_dir_all(&tmp);
+        anyhow::bail!("the run has no instance(s) {missing:?} (it has fewer instances)");
+    }
+    if out.exists() {
+        std::fs::remove_dir_all(&out)
+            .with_context(|| format!("cannot replace {}", out.display()))?;
+    }
+    std::fs::rename(&tmp, &out).with_context(|| format!("cannot write {}", out.display()))?;
+    eprintln!(
+        "coid: drew {} instance(s) into {}",
+        drawn.len(),
+        out.display()
+    );
+    Ok(())
+}
+
 /// Every method of the paper's Table 1 plus the practical ones.
 const ALL_METHODS: [Method; 9] = [
     Method::Ours,
@@ -534,6 +675,14 @@ fn main() -> ExitCode {
             quiet,
         } => batch(&config, runs, workers, seed, out, shard, quiet),
         Command::Merge { dirs, out } => merge(&dirs, &out),
+        Command::Render {
+            config,
+            out,
+            instances,
+            method,
+            pose_noise,
+            force,
+        } => render(&config, out, &instances, &method, &pose_noise, force),
         Command::Train {
             config,
             out,

@@ -23,6 +23,8 @@ pub enum RunError {
     Graph(#[from] GraphError),
     #[error(transparent)]
     Model(#[from] crate::matching::deep::LoadError),
+    #[error("{0}")]
+    Render(String),
     #[error("connected vehicle(s) {0:?} never appeared in the simulation before its end")]
     MissingConnectedVehicles(Vec<String>),
 }
@@ -113,6 +115,7 @@ impl Ego {
 pub struct Instance<'a> {
     /// Running index within the simulation.
     pub index: usize,
+    pub scene: &'a StaticScene,
     pub frame: &'a TrafficFrame,
     /// The pair, ordered by vehicle id.
     pub a: &'a Ego,
@@ -155,6 +158,7 @@ pub fn simulate(
                     }
                     on_instance(&Instance {
                         index: stats.n_instances,
+                        scene: &scene,
                         frame: &frame,
                         a: &egos[i],
                         b: &egos[j],

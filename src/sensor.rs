@@ -368,6 +368,7 @@ mod tests {
             junction_id: "C".into(),
             junction_position_m: Vec2::zeros(),
             buildings,
+            lanes: Vec::new(),
         }
     }
 

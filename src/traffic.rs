@@ -118,10 +118,19 @@ impl TrafficFrame {
     }
 }
 
-/// What does not move: the junction under study and the building footprints.
+/// A lane's centre line (world frame) and width, for pictures.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Lane {
+    pub width_m: f64,
+    pub centre_m: Vec<Vec2>,
+}
+
+/// What does not move: the junction under study, the building footprints
+/// and the lanes.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StaticScene {
     pub junction_id: String,
     pub junction_position_m: Vec2,
     pub buildings: Vec<Polygon>,
+    pub lanes: Vec<Lane>,
 }

@@ -1,0 +1,304 @@
+//! Pictures (plotters, PNG and SVG): the scene of one instance, top-down,
+//! as the paper draws it (Figs. 5 and 7): roads, buildings, every road user
+//! as an oriented box (connected vehicles highlighted), each connected
+//! vehicle's camera frustum and detections, and the correspondences between
+//! the two vehicles' detections, green when right and red when wrong, line
+//! width growing with uncertainty; non-covisible detections ringed.
+//!
+//! This module and `output` are the ones that write result files; it only
+//! draws what it is given.
+
+use std::path::Path;
+use std::sync::Once;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::config::CameraSettings;
+use crate::geometry::{Pose2, Vec2};
+use crate::matching::Correspondence;
+use crate::sensor::Observation;
+use crate::traffic::{StaticScene, TrafficFrame};
+
+static FONT: Once = Once::new();
+
+/// Registers the shipped DejaVu Sans for all text (no system fonts needed).
+fn register_font() {
+    FONT.call_once(|| {
+        let bytes: &'static [u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, bytes);
+    });
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("cannot draw {path}: {message}")]
+pub struct RenderError {
+    pub path: String,
+    pub message: String,
+}
+
+/// Everything one scene picture shows.
+pub struct SceneView<'a> {
+    pub scene: &'a StaticScene,
+    pub frame: &'a TrafficFrame,
+    pub camera: &'a CameraSettings,
+    /// The two connected vehicles' observations (detections are placed in
+    /// the world with each vehicle's true pose: what it measured about its
+    /// surroundings).
+    pub egos: [&'a Observation; 2],
+    pub matches: &'a [Correspondence],
+    pub caption: String,
+    /// Half the width of the square window around the junction, metres.
+    pub half_window_m: f64,
+}
+
+const EGO_COLOURS: [RGBColor; 2] = [RGBColor(30, 90, 200), RGBColor(230, 120, 0)];
+const RIGHT: RGBColor = RGBColor(20, 160, 60);
+const WRONG: RGBColor = RGBColor(215, 30, 40);
+
+/// Draws `view` to `<stem>.png` and `<stem>.svg`.
+pub fn render_scene(view: &SceneView, stem: &Path, size_px: u32) -> Result<(), RenderError> {
+    register_font();
+    let png = stem.with_extension("png");
+    let svg = stem.with_extension("svg");
+    let err = |p: &Path| {
+        let path = p.display().to_string();
+        move |e: String| RenderError {
+            path: path.clone(),
+            message: e,
+        }
+    };
+    {
+        let root = BitMapBackend::new(&png, (size_px, size_px)).into_drawing_area();
+        draw(view, &root).map_err(err(&png))?;
+        root.present().map_err(|e| err(&png)(e.to_string()))?;
+    }
+    {
+        let root = SVGBackend::new(&svg, (size_px, size_px)).into_drawing_area();
+        draw(view, &root).map_err(err(&svg))?;
+        root.present().map_err(|e| err(&svg)(e.to_string()))?;
+    }
+    Ok(())
+}
+
+fn pt(p: &Vec2) -> (f64, f64) {
+    (p.x, p.y)
+}
+
+fn draw<DB: DrawingBackend>(view: &SceneView, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+    let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
+    root.fill(&WHITE).map_err(e)?;
+    let c = view.scene.junction_position_m;
+    let h = view.half_window_m;
+    let chart = ChartBuilder::on(root)
+        .caption(&view.caption, ("sans-serif", 18))
+        .margin(10)
+        .build_cartesian_2d((c.x - h)..(c.x + h), (c.y - h)..(c.y + h))
+        .map_err(e)?;
+    let area = chart.plotting_area();
+    let (w_px, _) = area.dim_in_pixel();
+    let px_per_m = f64::from(w_px) / (2.0 * h);
+
+    // Roads: lanes as thick grey lines.
+    for lane in &view.scene.lanes {
+        let width = ((lane.width_m * px_per_m).round() as u32).max(1);
+        let style = RGBColor(205, 205, 205).stroke_width(width);
+        area.draw(&PathElement::new(
+            lane.centre_m.iter().map(pt).collect::<Vec<_>>(),
+            style,
+        ))
+        .map_err(e)?;
+    }
+    // Buildings.
+    for b in &view.scene.buildings {
+        let pts: Vec<(f64, f64)> = b.vertices_m.iter().map(pt).collect();
+        area.draw(&Polygon::new(pts.clone(), RGBColor(200, 180, 150).filled()))
+            .map_err(e)?;
+        area.draw(&PathElement::new(pts, RGBColor(120, 100, 80)))
+            .map_err(e)?;
+    }
+    // Camera frustums.
+    for (k, ego) in view.egos.iter().enumerate() {
+        let Some(obj) = view.frame.find(&ego.ego_id).map(|i| &view.frame.objects[i]) else {
+            continue;
+        };
+        for &yaw in &view.camera.yaw_offsets_rad {
+            let cam = obj
+                .pose
+                .compose(&Pose2::new(Vec2::new(obj.length_m / 2.0, 0.0), yaw));
+            let mut pts = vec![pt(&cam.position_m())];
+            for s in 0..=16 {
+                let a = -view.camera.fov_rad / 2.0 + view.camera.fov_rad * f64::from(s) / 16.0;
+                pts.push(pt(
+                    &cam.to_parent(&(Vec2::new(a.cos(), a.sin()) * view.camera.range_m))
+                ));
+            }
+            area.draw(&Polygon::new(pts, EGO_COLOURS[k].mix(0.08).filled()))
+                .map_err(e)?;
+        }
+    }
+    // Road users.
+    for o in &view.frame.objects {
+        let corners: Vec<(f64, f64)> = o.footprint().corners().iter().map(pt).collect();
+        let fill = RGBColor(o.colour_rgb[0], o.colour_rgb[1], o.colour_rgb[2]);
+        area.draw(&Polygon::new(corners.clone(), fill.filled()))
+            .map_err(e)?;
+        let ego = view.egos.iter().position(|g| g.ego_id == o.id);
+        let outline = match ego {
+            Some(k) => EGO_COLOURS[k].stroke_width(3),
+            None => BLACK.stroke_width(1),
+        };
+        let mut closed = corners.clone();
+        closed.push(corners[0]);
+        area.draw(&PathElement::new(closed, outline)).map_err(e)?;
+    }
+    // Detections, in the world with each vehicle's true pose.
+    let world = |k: usize, i: usize| -> Vec2 {
+        let ego = view.egos[k];
+        ego.ego_pose_true.to_parent(&ego.detections[i].position_m)
+    };
+    for (k, ego) in view.egos.iter().enumerate() {
+        let other = view.egos[1 - k];
+        for (i, d) in ego.detections.iter().enumerate() {
+            let p = pt(&world(k, i));
+            area.draw(&Cross::new(p, 5, EGO_COLOURS[k].stroke_width(2)))
+                .map_err(e)?;
+            let covisible = d.truth_id.as_ref().is_some_and(|id| {
+                other
+                    .detections
+                    .iter()
+                    .any(|o| o.truth_id.as_ref() == Some(id))
+            });
+            if !covisible {
+                area.draw(&Circle::new(p, 8, EGO_COLOURS[k].stroke_width(1)))
+                    .map_err(e)?;
+            }
+        }
+    }
+    // Correspondences.
+    for m in view.matches {
+        let (a, b) = (&view.egos[0].detections[m.a], &view.egos[1].detections[m.b]);
+        let right = a.truth_id.is_some() && a.truth_id == b.truth_id;
+        let width = 1 + (4.0 * m.uncertainty.clamp(0.0, 1.0)).round() as u32;
+        let colour = if right { RIGHT } else { WRONG };
+        area.draw(&PathElement::new(
+            vec![pt(&world(0, m.a)), pt(&world(1, m.b))],
+            colour.stroke_width(width),
+        ))
+        .map_err(e)?;
+    }
+    // Legend (top-left), drawn in pixels.
+    let legend: [(&str, ShapeStyle); 6] = [
+        ("vehicle 1 detections", EGO_COLOURS[0].stroke_width(2)),
+        ("vehicle 2 detections", EGO_COLOURS[1].stroke_width(2)),
+        ("correct match", RIGHT.stroke_width(3)),
+        ("wrong match", WRONG.stroke_width(3)),
+        ("ring: not seen by the other", BLACK.stroke_width(1)),
+        ("thicker line: more uncertain", BLACK.stroke_width(4)),
+    ];
+    let (x0, y0) = (20i32, 40i32);
+    root.draw(&Rectangle::new(
+        [(x0 - 8, y0 - 12), (x0 + 250, y0 + 6 * 20)],
+        WHITE.mix(0.85).filled(),
+    ))
+    .map_err(e)?;
+    for (k, (label, style)) in legend.iter().enumerate() {
+        let y = y0 + 20 * k as i32;
+        root.draw(&PathElement::new(vec![(x0, y), (x0 + 24, y)], *style))
+            .map_err(e)?;
+        root.draw(&Text::new(
+            label.to_string(),
+            (x0 + 32, y - 7),
+            ("sans-serif", 13),
+        ))
+        .map_err(e)?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Polygon;
+    use crate::traffic::{Lane, ObjectClass, TrafficObject};
+
+    fn non_white_share(path: &Path) -> (u32, u32, f64) {
+        let img = image::open(path).unwrap().to_rgb8();
+        let n = img.pixels().filter(|p| p.0 != [255, 255, 255]).count();
+        (
+            img.width(),
+            img.height(),
+            n as f64 / (img.width() * img.height()) as f64,
+        )
+    }
+
+    #[test]
+    fn a_scene_with_one_vehicle_and_no_detections_renders() {
+        let scene = StaticScene {
+            junction_id: "C".into(),
+            junction_position_m: Vec2::zeros(),
+            buildings: vec![Polygon {
+                vertices_m: vec![
+                    Vec2::new(10.0, 10.0),
+                    Vec2::new(30.0, 10.0),
+                    Vec2::new(30.0, 30.0),
+                    Vec2::new(10.0, 30.0),
+                ],
+            }],
+            lanes: vec![Lane {
+                width_m: 3.2,
+                centre_m: vec![Vec2::new(-80.0, -1.6), Vec2::new(80.0, -1.6)],
+            }],
+        };
+        let ego = TrafficObject {
+            id: "cv0".into(),
+            class: ObjectClass::Car,
+            pose: Pose2::new(Vec2::new(-20.0, -1.6), 0.0),
+            length_m: 4.6,
+            width_m: 1.8,
+            height_m: 1.5,
+            colour_rgb: [240, 240, 240],
+            speed_mps: 5.0,
+        };
+        let frame = TrafficFrame {
+            step: 0,
+            time_s: 0.0,
+            objects: vec![ego.clone()],
+        };
+        let obs = Observation {
+            ego_id: "cv0".into(),
+            ego_pose_true: ego.pose,
+            detections: vec![],
+        };
+        let other = Observation {
+            ego_id: "cv1".into(),
+            ego_pose_true: Pose2::identity(),
+            detections: vec![],
+        };
+        let camera = CameraSettings {
+            fov_rad: 1.5,
+            range_m: 70.0,
+            height_m: 1.5,
+            yaw_offsets_rad: vec![0.0],
+        };
+        let view = SceneView {
+            scene: &scene,
+            frame: &frame,
+            camera: &camera,
+            egos: [&obs, &other],
+            matches: &[],
+            caption: "empty".into(),
+            half_window_m: 80.0,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let stem = dir.path().join("scene");
+        render_scene(&view, &stem, 400).unwrap();
+        let (w, h, share) = non_white_share(&stem.with_extension("png"));
+        assert_eq!((w, h), (400, 400));
+        // Road, building, frustum and legend cover part of the picture,
+        // not all of it.
+        assert!(share > 0.05 && share < 0.9, "non-white share {share}");
+        let svg = std::fs::read_to_string(stem.with_extension("svg")).unwrap();
+        assert!(svg.starts_with("<svg") && svg.contains("polygon"));
+    }
+}
