@@ -97,6 +97,9 @@ pub struct RunEval {
     pub thresholded: BTreeMap<(Method, PoseNoiseLabel, UncertaintyKind, usize), PairCounts>,
     /// Displacement errors per (method, level, fusion): sums and count.
     pub errors: BTreeMap<(Method, PoseNoiseLabel, FusionVariant), (f64, f64, usize)>,
+    /// Every object's single and fused error of the full method (`ours`),
+    /// for the error CDFs.
+    pub ours_errors: BTreeMap<(PoseNoiseLabel, FusionVariant), (Vec<f64>, Vec<f64>)>,
     pub instances: usize,
 }
 
@@ -203,6 +206,11 @@ pub fn eval_run(
                     est.extend(eval::fuse_for_ego(
                         &side_b, &side_a, &ba, level, variant, min, &truth,
                     ));
+                    if method == Method::Ours {
+                        let o = out.ours_errors.entry((level.label, variant)).or_default();
+                        o.0.extend(est.iter().map(|x| x.single_error_m()));
+                        o.1.extend(est.iter().map(|x| x.fused_error_m()));
+                    }
                     let e = out
                         .errors
                         .entry((method, level.label, variant))
@@ -423,5 +431,100 @@ pub fn eval_tables(settings: &Settings, runs: &[RunEval]) -> EvalTables {
         table3: t3,
         lambda_sweep: sweep,
         case_study: case,
+    }
+}
+
+/// One point of the lambda sweep: (lambda, precision, recall, F1).
+pub type SweepPoint = (f64, f64, f64, f64);
+
+/// The data behind `coid eval`'s plots.
+pub struct PlotData {
+    /// Per level: (level, points) of `ours`.
+    pub lambda_sweep: Vec<(String, Vec<SweepPoint>)>,
+    /// Methods, and per level the (mean, ci) F1 of each method.
+    pub methods: Vec<String>,
+    pub f1: Vec<(String, Vec<(f64, f64)>)>,
+    /// Per level: pooled single and fused errors of `ours` (aligned fusion
+    /// when configured, else paper).
+    pub errors: Vec<(String, Vec<f64>, Vec<f64>)>,
+}
+
+pub fn plot_data(settings: &Settings, runs: &[RunEval]) -> PlotData {
+    let levels: Vec<PoseNoiseLabel> = settings.pose_noise.iter().map(|l| l.label).collect();
+    let grid = lambda_grid(settings.matching.lambda);
+    let kind = settings.matching.uncertainty;
+    let mean = |v: Vec<f64>| mean_ci95(&v).0;
+    let lambda_sweep = levels
+        .iter()
+        .map(|&l| {
+            let pts = grid
+                .iter()
+                .enumerate()
+                .map(|(k, &g)| {
+                    let get = |f: fn(&PairCounts) -> f64| {
+                        mean(
+                            runs.iter()
+                                .filter_map(|r| {
+                                    r.thresholded.get(&(Method::Ours, l, kind, k)).map(f)
+                                })
+                                .collect(),
+                        )
+                    };
+                    (
+                        g,
+                        get(PairCounts::precision),
+                        get(PairCounts::recall),
+                        get(PairCounts::f1),
+                    )
+                })
+                .collect();
+            (l.as_str().to_owned(), pts)
+        })
+        .collect();
+    let mut methods: Vec<Method> = runs
+        .first()
+        .map(|r| r.table1.keys().map(|k| k.0).collect())
+        .unwrap_or_default();
+    methods.dedup();
+    let f1 = levels
+        .iter()
+        .map(|&l| {
+            let v = methods
+                .iter()
+                .map(|&m| {
+                    mean_ci95(
+                        &runs
+                            .iter()
+                            .filter_map(|r| r.table1.get(&(m, l)).map(|c| c.f1()))
+                            .collect::<Vec<_>>(),
+                    )
+                })
+                .collect();
+            (l.as_str().to_owned(), v)
+        })
+        .collect();
+    let variant = if settings.fusion.variants.contains(&FusionVariant::Aligned) {
+        FusionVariant::Aligned
+    } else {
+        FusionVariant::Paper
+    };
+    let errors = levels
+        .iter()
+        .map(|&l| {
+            let (mut s, mut f) = (Vec::new(), Vec::new());
+            for r in runs {
+                if let Some((a, b)) = r.ours_errors.get(&(l, variant)) {
+                    s.extend_from_slice(a);
+                    f.extend_from_slice(b);
+                }
+            }
+            (l.as_str().to_owned(), s, f)
+        })
+        .collect();
+    PlotData {
+        lambda_sweep,
+        methods: methods.iter().map(|m| m.as_str().to_owned()).collect(),
+        f1,
+        errors,
     }
 }

@@ -419,6 +419,7 @@ fn batch(
             .unwrap_or_default()
     );
     output::write_batch_summary(&out, &rows, &header)?;
+    batch_plot(&out, &rows)?;
     eprintln!(
         "coid: {} runs done in {:.1} s on {workers} workers ({} complete in {}); aggregate in {}",
         pending.len() - failures.len(),
@@ -601,6 +602,103 @@ fn render(
     Ok(())
 }
 
+/// A batch's F1 per method (first fusion variant; F1 does not depend on
+/// it) with 95% CIs, per pose-noise level; drawn under a temporary name,
+/// then renamed.
+fn batch_plot(out: &Path, rows: &[coid_sim::batch::AggregateRow]) -> anyhow::Result<()> {
+    let Some(first_fusion) = rows.first().map(|r| r.fusion.clone()) else {
+        return Ok(());
+    };
+    let rows: Vec<_> = rows.iter().filter(|r| r.fusion == first_fusion).collect();
+    let mut methods: Vec<String> = rows.iter().map(|r| r.method.clone()).collect();
+    methods.dedup();
+    let mut levels: Vec<String> = rows.iter().map(|r| r.pose_noise.clone()).collect();
+    levels.sort();
+    levels.dedup();
+    let series: Vec<(String, Vec<(f64, f64)>)> = levels
+        .iter()
+        .map(|l| {
+            let v = methods
+                .iter()
+                .map(|m| {
+                    rows.iter()
+                        .find(|r| &r.method == m && &r.pose_noise == l)
+                        .map(|r| r.f1)
+                        .unwrap_or((f64::NAN, f64::NAN))
+                })
+                .collect();
+            (l.clone(), v)
+        })
+        .collect();
+    let tmp = out.join(format!(".f1_per_method.tmp-{}", std::process::id()));
+    coid_sim::render::bars_with_ci(
+        &tmp,
+        "F1 per method (mean and 95% CI over runs)",
+        "F1",
+        &methods,
+        &series,
+    )?;
+    for ext in ["png", "svg"] {
+        std::fs::rename(
+            tmp.with_extension(ext),
+            out.join(format!("f1_per_method.{ext}")),
+        )
+        .with_context(|| format!("cannot write the plot into {}", out.display()))?;
+    }
+    Ok(())
+}
+
+/// `coid eval`'s plots: lambda sweep, error CDFs, F1 per method.
+fn eval_plots(dir: &Path, d: &experiments::PlotData) -> Result<(), String> {
+    use coid_sim::render::{Panel, bars_with_ci, cdf, line_panels};
+    let sweep: Vec<Panel> = d
+        .lambda_sweep
+        .iter()
+        .map(|(level, pts)| Panel {
+            title: format!("ours, lambda sweep, pose noise {level}"),
+            x_label: "lambda (entropy threshold, bits)".into(),
+            y_label: "mean over test runs".into(),
+            x_range: (0.0, 1.0),
+            y_range: (0.0, 1.05),
+            series: vec![
+                ("precision".into(), pts.iter().map(|p| (p.0, p.1)).collect()),
+                ("recall".into(), pts.iter().map(|p| (p.0, p.2)).collect()),
+                ("F1".into(), pts.iter().map(|p| (p.0, p.3)).collect()),
+            ],
+        })
+        .collect();
+    line_panels(&dir.join("lambda_sweep"), &sweep).map_err(|e| e.to_string())?;
+    let max_err = d
+        .errors
+        .iter()
+        .flat_map(|(_, s, f)| s.iter().chain(f))
+        .cloned()
+        .filter(|x| x.is_finite())
+        .fold(1.0, f64::max)
+        .min(10.0);
+    let cdfs: Vec<Panel> = d
+        .errors
+        .iter()
+        .map(|(level, s, f)| Panel {
+            title: format!("ours, displacement error, pose noise {level}"),
+            x_label: "error (m)".into(),
+            y_label: "share of objects".into(),
+            x_range: (0.0, max_err),
+            y_range: (0.0, 1.0),
+            series: vec![("single vehicle".into(), cdf(s)), ("fused".into(), cdf(f))],
+        })
+        .collect();
+    line_panels(&dir.join("error_cdf"), &cdfs).map_err(|e| e.to_string())?;
+    bars_with_ci(
+        &dir.join("f1_per_method"),
+        "F1 per method (mean and 95% CI over test runs)",
+        "F1",
+        &d.methods,
+        &d.f1,
+    )
+    .map_err(|e| e.to_string())
+}
+
 /// Every method of the paper's Table 1 plus the practical ones.
 const ALL_METHODS: [Method; 9] = [
     Method::Ours,
@@ -643,7 +741,10 @@ fn eval(config: &Path, out: Option<PathBuf>, force: bool, quiet: bool) -> anyhow
     }
     pb.finish_and_clear();
     let tables = experiments::eval_tables(&settings, &runs);
-    output::write_eval(&out, &settings, &tables, force)?;
+    let plots = experiments::plot_data(&settings, &runs);
+    output::write_eval(&out, &settings, &tables, force, |dir| {
+        eval_plots(dir, &plots)
+    })?;
     let instances: usize = runs.iter().map(|r| r.instances).sum();
     eprintln!(
         "coid: evaluated {} methods on {} test runs ({instances} instances); wrote {}",

@@ -293,6 +293,7 @@ pub fn write_eval(
     settings: &Settings,
     tables: &crate::experiments::EvalTables,
     force: bool,
+    plots: impl FnOnce(&Path) -> Result<(), String>,
 ) -> Result<(), OutputError> {
     let mut files: Vec<(&str, &crate::experiments::Table)> = vec![
         ("table1.csv", &tables.table1),
@@ -325,7 +326,11 @@ pub fn write_eval(
             let _ = writeln!(md, "## {name}\n\n{}\n", markdown_table(t));
         }
         let path = dir.join("summary.md");
-        std::fs::write(&path, md).map_err(io(&path))
+        std::fs::write(&path, md).map_err(io(&path))?;
+        plots(dir).map_err(|e| OutputError::Io {
+            path: dir.to_owned(),
+            source: std::io::Error::other(e),
+        })
     })
 }
 

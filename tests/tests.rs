@@ -523,8 +523,25 @@ mod learned {
             "lambda_sweep.csv",
             "case_study.csv",
             "summary.md",
+            "lambda_sweep.svg",
+            "error_cdf.svg",
+            "f1_per_method.svg",
         ] {
             assert!(fx.path("ev").join(f).is_file(), "{f} missing");
+        }
+        for (plot, w, h) in [
+            ("lambda_sweep", 420, 380),
+            ("error_cdf", 420, 380),
+            ("f1_per_method", 810, 420),
+        ] {
+            let img = image::open(fx.path("ev").join(format!("{plot}.png")))
+                .unwrap()
+                .to_rgb8();
+            assert_eq!(img.height(), h, "{plot}");
+            assert_eq!(img.width() % w, 0, "{plot}: width {}", img.width());
+            let ink = img.pixels().filter(|p| p.0 != [255, 255, 255]).count() as f64;
+            let share = ink / f64::from(img.width() * img.height());
+            assert!(share > 0.03 && share < 0.9, "{plot}: ink share {share}");
         }
     }
 }
