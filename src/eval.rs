@@ -198,6 +198,41 @@ pub fn fuse_for_ego(
     out
 }
 
+/// Fused estimates for both vehicles of a pair: each fuses what the other
+/// shares for every matched object it detected (`matches` index
+/// `(first detection, second detection)`).
+pub fn fuse_pair(
+    first: &EgoSide,
+    second: &EgoSide,
+    matches: &[Correspondence],
+    level: &PoseNoiseLevel,
+    variant: FusionVariant,
+    align_min_matches: usize,
+    truth_world_m: &HashMap<&str, Vec2>,
+) -> Vec<ObjectEstimate> {
+    let ab: Vec<(usize, usize)> = matches.iter().map(|c| (c.a, c.b)).collect();
+    let ba: Vec<(usize, usize)> = matches.iter().map(|c| (c.b, c.a)).collect();
+    let mut est = fuse_for_ego(
+        first,
+        second,
+        &ab,
+        level,
+        variant,
+        align_min_matches,
+        truth_world_m,
+    );
+    est.extend(fuse_for_ego(
+        second,
+        first,
+        &ba,
+        level,
+        variant,
+        align_min_matches,
+        truth_world_m,
+    ));
+    est
+}
+
 /// The key of a summary row.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct RowKey {

@@ -189,8 +189,6 @@ pub fn eval_run(
                     .entry((method, level.label))
                     .or_default()
                     .add(eval::count_pairs(&a.obs, &b.obs, &matches));
-                let ab: Vec<(usize, usize)> = matches.iter().map(|c| (c.a, c.b)).collect();
-                let ba: Vec<(usize, usize)> = matches.iter().map(|c| (c.b, c.a)).collect();
                 let side_a = EgoSide {
                     obs: &a.obs,
                     pose_reported: pa,
@@ -201,11 +199,8 @@ pub fn eval_run(
                 };
                 for &variant in &settings.fusion.variants {
                     let min = settings.fusion.align_min_matches;
-                    let mut est =
-                        eval::fuse_for_ego(&side_a, &side_b, &ab, level, variant, min, &truth);
-                    est.extend(eval::fuse_for_ego(
-                        &side_b, &side_a, &ba, level, variant, min, &truth,
-                    ));
+                    let est =
+                        eval::fuse_pair(&side_a, &side_b, &matches, level, variant, min, &truth);
                     if method == Method::Ours {
                         let o = out.ours_errors.entry((level.label, variant)).or_default();
                         o.0.extend(est.iter().map(|x| x.single_error_m()));

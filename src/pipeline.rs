@@ -288,8 +288,6 @@ fn evaluate_instance(
         for matcher in matchers {
             let matches = matcher.match_pair(&va, &vb);
             let counts = eval::count_pairs(&a.obs, &b.obs, &matches);
-            let ab: Vec<(usize, usize)> = matches.iter().map(|c| (c.a, c.b)).collect();
-            let ba: Vec<(usize, usize)> = matches.iter().map(|c| (c.b, c.a)).collect();
             let side_a = EgoSide {
                 obs: &a.obs,
                 pose_reported: pa,
@@ -305,17 +303,15 @@ fn evaluate_instance(
                     fusion: variant,
                 };
                 let min = settings.fusion.align_min_matches;
-                let mut est =
-                    eval::fuse_for_ego(&side_a, &side_b, &ab, level, variant, min, &truth_world_m);
-                est.extend(eval::fuse_for_ego(
-                    &side_b,
+                let est = eval::fuse_pair(
                     &side_a,
-                    &ba,
+                    &side_b,
+                    &matches,
                     level,
                     variant,
                     min,
                     &truth_world_m,
-                ));
+                );
                 results.summary.record(key, counts, &est);
                 results
                     .objects
