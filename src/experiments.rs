@@ -6,10 +6,10 @@ use std::collections::{BTreeMap, HashMap};
 
 use crate::config::{FusionVariant, PoseNoiseLabel, Settings};
 use crate::eval::{self, EgoSide, PairCounts};
+use crate::matching::Method;
 use crate::matching::deep::model::Network;
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainReport};
 use crate::matching::deep::{self, decision::UncertaintyKind};
-use crate::matching::{MatchView, Method};
 use crate::pipeline::{self, Progress, RunError};
 
 /// The settings of run `seed`: traffic and sensor seeds both set to it.
@@ -36,20 +36,8 @@ pub fn collect_examples(
             &run,
             |_: Progress| {},
             |inst| {
-                let step = inst.frame.step;
                 for level in &settings.pose_noise {
-                    let first = MatchView {
-                        detections: &inst.a.obs.detections,
-                        graph: &inst.a.graph,
-                        pose_reported: inst.a.reported_pose(seed, step, level),
-                        pose_noise: *level,
-                    };
-                    let second = MatchView {
-                        detections: &inst.b.obs.detections,
-                        graph: &inst.b.graph,
-                        pose_reported: inst.b.reported_pose(seed, step, level),
-                        pose_noise: *level,
-                    };
+                    let (first, second) = inst.views(seed, level);
                     examples.extend(train::example(&first, &second));
                 }
                 Ok(())
@@ -147,20 +135,8 @@ pub fn eval_run(
             .map(|o| (o.id.as_str(), o.pose.position_m()))
             .collect();
         for level in &settings.pose_noise {
-            let pa = a.reported_pose(settings.seeds.sensor, frame.step, level);
-            let pb = b.reported_pose(settings.seeds.sensor, frame.step, level);
-            let va = MatchView {
-                detections: &a.obs.detections,
-                graph: &a.graph,
-                pose_reported: pa,
-                pose_noise: *level,
-            };
-            let vb = MatchView {
-                detections: &b.obs.detections,
-                graph: &b.graph,
-                pose_reported: pb,
-                pose_noise: *level,
-            };
+            let (va, vb) = inst.views(settings.seeds.sensor, level);
+            let (pa, pb) = (va.pose_reported, vb.pose_reported);
             let mut decided: Vec<(Method, Vec<crate::matching::Correspondence>)> = Vec::new();
             for d in &deep {
                 let dist = d.distribution(&va, &vb);

@@ -492,7 +492,6 @@ fn render(
     pose_noise: &str,
     force: bool,
 ) -> anyhow::Result<()> {
-    use coid_sim::matching::MatchView;
     let settings = Settings::load(config)?;
     let method: Method = toml::Value::String(method.to_owned())
         .try_into()
@@ -532,23 +531,7 @@ fn render(
             if !instances.contains(&inst.index) {
                 return Ok(());
             }
-            let step = inst.frame.step;
-            let (pa, pb) = (
-                inst.a.reported_pose(settings.seeds.sensor, step, &level),
-                inst.b.reported_pose(settings.seeds.sensor, step, &level),
-            );
-            let va = MatchView {
-                detections: &inst.a.obs.detections,
-                graph: &inst.a.graph,
-                pose_reported: pa,
-                pose_noise: level,
-            };
-            let vb = MatchView {
-                detections: &inst.b.obs.detections,
-                graph: &inst.b.graph,
-                pose_reported: pb,
-                pose_noise: level,
-            };
+            let (va, vb) = inst.views(settings.seeds.sensor, &level);
             let matches = matcher.match_pair(&va, &vb);
             let c = coid_sim::eval::count_pairs(&inst.a.obs, &inst.b.obs, &matches);
             let view = coid_sim::render::SceneView {

@@ -110,6 +110,25 @@ impl Ego {
     }
 }
 
+impl<'a> Instance<'a> {
+    /// What each vehicle of the pair knows at a pose-noise level: its
+    /// detections, graph and GPS-reported pose.
+    pub fn views(
+        &self,
+        sensor_seed: u64,
+        level: &PoseNoiseLevel,
+    ) -> (MatchView<'a>, MatchView<'a>) {
+        let step = self.frame.step;
+        let view = |e: &'a Ego| MatchView {
+            detections: &e.obs.detections,
+            graph: &e.graph,
+            pose_reported: e.reported_pose(sensor_seed, step, level),
+            pose_noise: *level,
+        };
+        (view(self.a), view(self.b))
+    }
+}
+
 /// One evaluation instance: a step and a pair of connected vehicles, both
 /// near the junction, that detect at least one common object.
 pub struct Instance<'a> {
@@ -271,20 +290,8 @@ fn evaluate_instance(
         .map(|o| (o.id.as_str(), o.pose.position_m()))
         .collect();
     for level in &settings.pose_noise {
-        let pa = a.reported_pose(settings.seeds.sensor, frame.step, level);
-        let pb = b.reported_pose(settings.seeds.sensor, frame.step, level);
-        let va = MatchView {
-            detections: &a.obs.detections,
-            graph: &a.graph,
-            pose_reported: pa,
-            pose_noise: *level,
-        };
-        let vb = MatchView {
-            detections: &b.obs.detections,
-            graph: &b.graph,
-            pose_reported: pb,
-            pose_noise: *level,
-        };
+        let (va, vb) = inst.views(settings.seeds.sensor, level);
+        let (pa, pb) = (va.pose_reported, vb.pose_reported);
         for matcher in matchers {
             let matches = matcher.match_pair(&va, &vb);
             let counts = eval::count_pairs(&a.obs, &b.obs, &matches);

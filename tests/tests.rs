@@ -644,7 +644,11 @@ mod batch {
         assert!(
             !fx.path("killed/summary.csv").exists() || bytes(&fx, "killed") != bytes(&fx, "whole")
         );
+        // Only the missing runs run again: the finished one is left alone.
+        let finished = fx.path("killed/runs/run-000000/summary.csv");
+        let before = std::fs::metadata(&finished).unwrap().modified().unwrap();
         assert_ok(&batch(&fx, &cfg, "5", "2", "killed", &[]));
+        assert_eq!(std::fs::metadata(&finished).unwrap().modified().unwrap(), before);
         assert_eq!(bytes(&fx, "killed"), bytes(&fx, "whole"));
     }
 
