@@ -4,16 +4,13 @@
 
 use std::time::Instant;
 
-use burn::optim::{AdamConfig, GradientsParams};
-use burn::prelude::*;
-use coid_sim::config::{PoseNoiseLabel, PoseNoiseLevel};
 use coid_sim::geometry::{Cov2, Pose2, Vec2};
 use coid_sim::graph::SceneGraph;
-use coid_sim::matching::deep::model::{self, Architecture, GraphTensors, Network};
-use coid_sim::matching::deep::train::example;
-use coid_sim::matching::deep::{DeepMatcher, draw_masks, variant};
-use coid_sim::matching::{MatchView, Method};
-use coid_sim::sensor::{Appearance, Detection};
+use coid_sim::matching::deep::DeepMatcher;
+use coid_sim::matching::deep::model::Architecture;
+use coid_sim::matching::deep::train::{TrainOptions, Trainer, example};
+use coid_sim::matching::{Correspondence, MatchView, Method};
+use coid_sim::sensor::{Appearance, Detection, PoseNoiseLabel, PoseNoiseLevel};
 use coid_sim::traffic::ObjectClass;
 use rand::{Rng, SeedableRng};
 
@@ -31,8 +28,7 @@ fn scene(n: usize, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<(Vec2, ObjectClass)
 fn detections(pose: &Pose2, objects: &[(Vec2, ObjectClass)]) -> Vec<Detection> {
     objects
         .iter()
-        .enumerate()
-        .map(|(k, &(w, class))| Detection {
+        .map(|&(w, class)| Detection {
             position_m: pose.to_body(&w),
             cov_m2: Cov2::identity(),
             appearance: Appearance {
@@ -42,8 +38,6 @@ fn detections(pose: &Pose2, objects: &[(Vec2, ObjectClass)]) -> Vec<Detection> {
                 width_m: 1.8,
                 height_m: 1.5,
             },
-            truth_id: Some(k.to_string()),
-            visible_fraction: 1.0,
         })
         .collect()
 }
@@ -78,9 +72,7 @@ fn main() {
         pose_noise: level,
     };
 
-    let arch = Architecture::default();
-    let net = Network::new(&arch, &Device::flex());
-    let matcher = DeepMatcher::new(Method::Ours, net, arch, 20, None, 1);
+    let matcher = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, 20, 1);
     let mut times = Vec::new();
     for k in 0..60 {
         let t = Instant::now();
@@ -96,39 +88,27 @@ fn main() {
         median(times)
     );
 
-    let (mut arch, terms) = variant(Method::Ours).unwrap();
-    if let Ok(v) = std::env::var("SINK") {
-        arch.sinkhorn_iters = v.parse().unwrap();
-    }
-    if std::env::var("NOCONS").is_ok() {
-        arch.consensus = false;
-    }
-    let device = Device::flex().autodiff();
-    device.seed(1);
-    let mut net = Network::new(&arch, &device);
-    let mut optim = AdamConfig::new().init();
-    let ex = example(&va, &vb).unwrap();
-    let mut stream = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+    // The second vehicle sees objects 2.. of the first: detection j of the
+    // second is detection j + 2 of the first.
+    let truth: Vec<Correspondence> = (0..db.len())
+        .map(|j| Correspondence {
+            a: j + 2,
+            b: j,
+            probability: 1.0,
+            uncertainty: 0.0,
+        })
+        .collect();
+    let ex = example(&va, &vb, &truth).unwrap();
+    let opts = TrainOptions {
+        epochs: 1,
+        learning_rate: 1e-3,
+        seed: 1,
+    };
+    let mut trainer = Trainer::new(Method::Ours, &opts).unwrap();
     let mut times = Vec::new();
     for k in 0..60 {
         let t = Instant::now();
-        let g1 = GraphTensors::new(&ex.g1, &device);
-        let g2 = GraphTensors::new(&ex.g2, &device);
-        let masks = draw_masks(&mut stream, &arch, 1, ex.g1.n, ex.g2.n, &device);
-        let cost = Tensor::<3>::from_data(
-            TensorData::new(ex.position_cost.clone(), [1, ex.g1.n, ex.g2.n]),
-            &device,
-        );
-        let log_p = net.forward(&g1, &g2, masks, cost, arch.sinkhorn_iters);
-        let y = Tensor::<2>::from_data(
-            TensorData::new(ex.y_star.clone(), [ex.g1.n, ex.g2.n]),
-            &device,
-        );
-        let non =
-            Tensor::<2>::from_data(TensorData::new(ex.non.clone(), [ex.g1.n, ex.g2.n]), &device);
-        let loss = model::loss(log_p, y, non, ex.n_true, terms);
-        let grads = GradientsParams::from_grads(loss.backward(), &net);
-        net = optim.step(1e-3, net, grads);
+        std::hint::black_box(trainer.step(&ex).unwrap());
         if k >= 10 {
             times.push(t.elapsed().as_secs_f64() * 1e3);
         }

@@ -1,17 +1,43 @@
-//! The run configuration: a TOML file read once (serde, unknown keys are
-//! errors) and validated into typed settings with units in the field names.
-//! Each stage receives only its own slice.
+//! The run configuration: a TOML file read once and validated into typed
+//! settings with units in the field names. Each stage's settings type lives
+//! with its stage (`traffic::ScenarioSettings`, `sensor::SensorSettings`,
+//! ...); this module only reads, merges and checks, so it depends on the
+//! stages and never the reverse.
 //!
-//! Every key has a default (documented beside it and in
-//! `configs/default.toml`), so a scenario file only states what differs.
-//! Relative paths resolve against the folder of the config file.
+//! One source of defaults: `configs/default.toml`, compiled in. The user's
+//! file is deep-merged over it (a table the user gives replaces only the
+//! keys it names; `[connected]` is replaced as a whole, since `ids` and
+//! `penetration` exclude each other), so a scenario file states only what
+//! differs, and errors keep the line numbers of the user's file. Relative
+//! paths resolve against the folder of the file that states them: the
+//! user's folder, or the installation's `configs/` for the defaults (so the
+//! shipped models are found from any folder).
 
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
+use toml::de::{DeTable, DeValue};
 
-use crate::matching::Method;
+use crate::evaluate::EvalSettings;
+use crate::fusion::{FusionSettings, FusionVariant};
 use crate::matching::deep::decision::UncertaintyKind;
+use crate::matching::deep::{self, train::TrainSettings};
+use crate::matching::{MatchingSettings, Method};
+use crate::rng::Seeds;
+use crate::sensor::{
+    CameraSettings, ConnectedSelection, PoseNoiseLabel, PoseNoiseLevel, SensorSettings,
+};
+use crate::traffic::ScenarioSettings;
+
+/// The defaults: every key, with its documentation.
+pub const DEFAULTS_TOML: &str = include_str!("../configs/default.toml");
+
+/// Where the defaults' relative paths are anchored: the installation's
+/// `configs/` folder.
+pub fn defaults_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("configs")
+}
 
 /// Why a configuration could not be used. Each message is one line and names
 /// the file and the offending key.
@@ -37,11 +63,12 @@ pub enum ConfigError {
 }
 
 // ---------------------------------------------------------------------------
-// Raw TOML structure (what the user writes).
+// Raw TOML structure (what the merged file holds): every key is present,
+// because the defaults state every key.
 // ---------------------------------------------------------------------------
 
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
 struct RawConfig {
     scenario: RawScenario,
     connected: RawConnected,
@@ -56,52 +83,33 @@ struct RawConfig {
 }
 
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 struct RawScenario {
-    sumocfg: Option<PathBuf>,
-    junction: Option<String>,
+    sumocfg: PathBuf,
+    junction: String,
     end_s: f64,
     radius_m: f64,
     sample_every_s: f64,
 }
 
-impl Default for RawScenario {
-    fn default() -> Self {
-        Self {
-            sumocfg: None,
-            junction: None,
-            end_s: 130.0,
-            radius_m: 50.0,
-            sample_every_s: 0.5,
-        }
-    }
-}
-
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
 struct RawConnected {
+    #[serde(default)]
     ids: Option<Vec<String>>,
+    #[serde(default)]
     penetration: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 struct RawSeeds {
     traffic: u64,
     sensor: u64,
 }
 
-impl Default for RawSeeds {
-    fn default() -> Self {
-        Self {
-            traffic: 1,
-            sensor: 1,
-        }
-    }
-}
-
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 struct RawCamera {
     fov_deg: f64,
     range_m: f64,
@@ -109,19 +117,8 @@ struct RawCamera {
     yaw_offsets_deg: Vec<f64>,
 }
 
-impl Default for RawCamera {
-    fn default() -> Self {
-        Self {
-            fov_deg: 90.0,
-            range_m: 70.0,
-            height_m: 1.5,
-            yaw_offsets_deg: vec![0.0],
-        }
-    }
-}
-
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 struct RawSensor {
     min_visible_fraction: f64,
     aim_height_fraction: f64,
@@ -139,54 +136,12 @@ struct RawSensor {
     size_sigma_fraction: f64,
 }
 
-impl Default for RawSensor {
-    fn default() -> Self {
-        let s = SensorSettings::default();
-        Self {
-            min_visible_fraction: s.min_visible_fraction,
-            aim_height_fraction: s.aim_height_fraction,
-            range_sigma_base_m: s.range_sigma_base_m,
-            range_sigma_per_m: s.range_sigma_per_m,
-            bearing_sigma_base_deg: s.bearing_sigma_base_rad.to_degrees(),
-            bearing_sigma_per_m_deg: s.bearing_sigma_per_m_rad.to_degrees(),
-            miss_prob_base: s.miss_prob_base,
-            miss_prob_at_max_range: s.miss_prob_at_max_range,
-            miss_prob_occlusion: s.miss_prob_occlusion,
-            false_positives_per_frame: s.false_positives_per_frame,
-            class_confusion_prob: s.class_confusion_prob,
-            colour_sigma: s.colour_sigma,
-            lighting_spread: s.lighting_spread,
-            size_sigma_fraction: s.size_sigma_fraction,
-        }
-    }
-}
-
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 struct RawPoseNoise {
     levels: Vec<PoseNoiseLabel>,
     rtk: RawPoseLevel,
     gps: RawPoseLevel,
-}
-
-impl Default for RawPoseNoise {
-    fn default() -> Self {
-        Self {
-            levels: vec![
-                PoseNoiseLabel::None,
-                PoseNoiseLabel::Rtk,
-                PoseNoiseLabel::Gps,
-            ],
-            rtk: RawPoseLevel {
-                position_sigma_m: 0.2,
-                heading_sigma_deg: 0.2,
-            },
-            gps: RawPoseLevel {
-                position_sigma_m: 1.2,
-                heading_sigma_deg: 0.2,
-            },
-        }
-    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -197,7 +152,7 @@ struct RawPoseLevel {
 }
 
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 struct RawMatching {
     methods: Vec<Method>,
     gate_chi2: f64,
@@ -207,31 +162,8 @@ struct RawMatching {
     uncertainty: UncertaintyKind,
 }
 
-impl Default for RawMatching {
-    fn default() -> Self {
-        Self {
-            methods: vec![
-                Method::Ours,
-                Method::CoidNon,
-                Method::CoidUnc,
-                Method::Dgmc,
-                Method::GcnGm,
-                Method::Mogm,
-                Method::Rgm,
-                Method::GpsHungarian,
-                Method::Oracle,
-            ],
-            gate_chi2: 9.21,
-            models_dir: PathBuf::from("../models"),
-            mc_samples: 20,
-            lambda: 0.7,
-            uncertainty: UncertaintyKind::Total,
-        }
-    }
-}
-
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 struct RawTrain {
     traffic_seeds: Vec<u64>,
     methods: Vec<Method>,
@@ -240,59 +172,24 @@ struct RawTrain {
     seed: u64,
 }
 
-impl Default for RawTrain {
-    fn default() -> Self {
-        Self {
-            traffic_seeds: (101..=124).collect(),
-            methods: vec![
-                Method::Ours,
-                Method::CoidNon,
-                Method::CoidUnc,
-                Method::Dgmc,
-                Method::GcnGm,
-            ],
-            epochs: 4,
-            learning_rate: 1e-3,
-            seed: 7,
-        }
-    }
-}
-
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 struct RawEval {
     traffic_seeds: Vec<u64>,
 }
 
-impl Default for RawEval {
-    fn default() -> Self {
-        Self {
-            traffic_seeds: (1..=10).collect(),
-        }
-    }
-}
-
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 struct RawFusion {
     variants: Vec<FusionVariant>,
     align_min_matches: usize,
-}
-
-impl Default for RawFusion {
-    fn default() -> Self {
-        Self {
-            variants: vec![FusionVariant::Paper, FusionVariant::Aligned],
-            align_min_matches: 3,
-        }
-    }
 }
 
 // ---------------------------------------------------------------------------
 // Validated settings (what the program uses).
 // ---------------------------------------------------------------------------
 
-/// Everything a run needs, validated.
+/// Everything a run needs, validated; each field is one stage's slice.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Settings {
     /// The config file these settings came from.
@@ -309,205 +206,6 @@ pub struct Settings {
     pub eval: EvalSettings,
 }
 
-/// `coid train`: which runs make the training set and how to fit.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TrainSettings {
-    /// SUMO seeds of the training runs (the sensor seed of run k is the
-    /// same number). Must not overlap `eval.traffic_seeds`: train and test
-    /// instances never come from the same run.
-    pub traffic_seeds: Vec<u64>,
-    pub methods: Vec<Method>,
-    pub epochs: usize,
-    pub learning_rate: f64,
-    /// Weight initialisation, shuffling and training dropout.
-    pub seed: u64,
-}
-
-/// `coid eval`: the test runs.
-#[derive(Clone, Debug, PartialEq)]
-pub struct EvalSettings {
-    pub traffic_seeds: Vec<u64>,
-}
-
-#[derive(Clone, Debug, PartialEq)]
-pub struct ScenarioSettings {
-    /// Absolute path of the `.sumocfg`.
-    pub sumocfg: PathBuf,
-    pub junction: String,
-    /// Simulated time at which the run stops.
-    pub end_s: f64,
-    /// Both connected vehicles must be this close to the junction centre for
-    /// a (step, pair) to be an instance.
-    pub radius_m: f64,
-    /// Instances are taken at most this often (in simulated seconds).
-    pub sample_every_s: f64,
-}
-
-#[derive(Clone, Debug, PartialEq)]
-pub enum ConnectedSelection {
-    /// These SUMO vehicle ids carry the camera rig.
-    Ids(Vec<String>),
-    /// This share of the vehicles (cars, vans, trucks, buses), drawn per
-    /// vehicle id from the sensor seed.
-    Penetration(f64),
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Seeds {
-    /// SUMO's `--seed`: departures, driver imperfection.
-    pub traffic: u64,
-    /// Every draw of the sensor model, the pose noise and the penetration.
-    pub sensor: u64,
-}
-
-/// The camera rig every connected vehicle carries.
-#[derive(Clone, Debug, PartialEq)]
-pub struct CameraSettings {
-    /// Horizontal field of view of each camera. Default 90 deg (the SPEC's
-    /// starting point; OpenCDA uses 100, DMGM 120, Artery 60).
-    pub fov_rad: f64,
-    /// Detection range. Default 70 m (OpenCDA 50 m, Artery 80 m).
-    pub range_m: f64,
-    /// Height of the camera above the ground (a roof-line camera on a car).
-    pub height_m: f64,
-    /// One camera per entry, yawed from the vehicle's heading; the cameras
-    /// sit at the front bumper.
-    pub yaw_offsets_rad: Vec<f64>,
-}
-
-/// The detector stand-in. Defaults are calibrated so the mean single-vehicle
-/// displacement error on the default scenario is about 2.0 m (README,
-/// "Calibration").
-#[derive(Clone, Debug, PartialEq)]
-pub struct SensorSettings {
-    /// An object is detected only when at least this share of its footprint
-    /// samples (centre, corners, edge midpoints) is in view and unblocked.
-    pub min_visible_fraction: f64,
-    /// Sight lines aim at this fraction of the object's height: a car hides a
-    /// car or a person behind it, not the upper half of a truck.
-    pub aim_height_fraction: f64,
-    /// Range noise standard deviation: `base + per_m * distance`.
-    pub range_sigma_base_m: f64,
-    pub range_sigma_per_m: f64,
-    /// Bearing noise standard deviation: `base + per_m * distance`.
-    pub bearing_sigma_base_rad: f64,
-    pub bearing_sigma_per_m_rad: f64,
-    /// Miss probability: base, plus a share growing linearly to
-    /// `miss_prob_at_max_range` at the camera's range, plus
-    /// `miss_prob_occlusion * (1 - visible fraction)`.
-    pub miss_prob_base: f64,
-    pub miss_prob_at_max_range: f64,
-    pub miss_prob_occlusion: f64,
-    /// Mean number of false positives per camera and frame (Poisson).
-    pub false_positives_per_frame: f64,
-    /// Probability that the detector reports the confusable class.
-    pub class_confusion_prob: f64,
-    /// Colour noise per channel (RGB in [0, 1]) at zero distance; doubles at
-    /// the camera's range.
-    pub colour_sigma: f64,
-    /// View-dependent brightness: colours scale by a factor drawn uniformly
-    /// from `1 +- lighting_spread`.
-    pub lighting_spread: f64,
-    /// Relative noise on the measured length, width and height.
-    pub size_sigma_fraction: f64,
-}
-
-impl Default for SensorSettings {
-    fn default() -> Self {
-        Self {
-            min_visible_fraction: 0.3,
-            aim_height_fraction: 0.6,
-            range_sigma_base_m: 0.3,
-            range_sigma_per_m: 0.095,
-            bearing_sigma_base_rad: 0.5_f64.to_radians(),
-            bearing_sigma_per_m_rad: 0.02_f64.to_radians(),
-            miss_prob_base: 0.03,
-            miss_prob_at_max_range: 0.15,
-            miss_prob_occlusion: 0.3,
-            false_positives_per_frame: 0.3,
-            class_confusion_prob: 0.1,
-            colour_sigma: 0.06,
-            lighting_spread: 0.25,
-            size_sigma_fraction: 0.1,
-        }
-    }
-}
-
-/// The pose-noise levels results are reported at.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum PoseNoiseLabel {
-    /// Perfect self-localisation.
-    None,
-    /// RTK-class GNSS: 0.2 m / 0.2 deg by default.
-    Rtk,
-    /// Plain GPS as in the DMGM data: 1.2 m / 0.2 deg by default.
-    Gps,
-}
-
-impl PoseNoiseLabel {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            PoseNoiseLabel::None => "none",
-            PoseNoiseLabel::Rtk => "rtk",
-            PoseNoiseLabel::Gps => "gps",
-        }
-    }
-}
-
-/// One pose-noise level: every connected vehicle's reported pose is its true
-/// pose plus independent Gaussian errors, per step.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PoseNoiseLevel {
-    pub label: PoseNoiseLabel,
-    /// Standard deviation of the error along each of x and y.
-    pub position_sigma_m: f64,
-    pub heading_sigma_rad: f64,
-}
-
-#[derive(Clone, Debug, PartialEq)]
-pub struct MatchingSettings {
-    pub methods: Vec<Method>,
-    /// GPS-Hungarian gate on the squared Mahalanobis distance (9.21 is the
-    /// 99% point of chi-square with 2 degrees of freedom).
-    pub gate_chi2: f64,
-    /// Folder of the deep methods' trained weights (`<method>.bpk`).
-    pub models_dir: PathBuf,
-    /// MC-dropout samples at inference (paper: T = 20).
-    pub mc_samples: usize,
-    /// Pairs whose uncertainty (binary entropy in bits, in [0, 1]) is at
-    /// least this are removed (paper: 0.7).
-    pub lambda: f64,
-    pub uncertainty: UncertaintyKind,
-}
-
-/// How the matched measurements are fused.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FusionVariant {
-    /// Paper Eq. 14-16 with the relative pose from both vehicles' GPS.
-    Paper,
-    /// The relative pose refined from the matched objects first.
-    Aligned,
-}
-
-impl FusionVariant {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            FusionVariant::Paper => "paper",
-            FusionVariant::Aligned => "aligned",
-        }
-    }
-}
-
-#[derive(Clone, Debug, PartialEq)]
-pub struct FusionSettings {
-    pub variants: Vec<FusionVariant>,
-    /// The aligned variant falls back to the GPS pose below this many
-    /// matched objects.
-    pub align_min_matches: usize,
-}
-
 impl Settings {
     /// Reads and validates a config file.
     pub fn load(path: &Path) -> Result<Settings, ConfigError> {
@@ -518,82 +216,201 @@ impl Settings {
         Self::from_toml(&text, path)
     }
 
-    /// Parses and validates config text; `path` names the file in errors and
-    /// anchors relative paths.
+    /// The defaults alone (`configs/default.toml` as compiled in).
+    pub fn defaults() -> Result<Settings, ConfigError> {
+        Self::from_toml("", &defaults_dir().join("default.toml"))
+    }
+
+    /// Parses config text, merges it over the defaults and validates it;
+    /// `path` names the file in errors and anchors its relative paths.
     pub fn from_toml(text: &str, path: &Path) -> Result<Settings, ConfigError> {
-        let raw: RawConfig = toml::from_str(text).map_err(|e| {
+        let parse_error = |source_text: &str, e: toml::de::Error| {
             let line = e
                 .span()
-                .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1)
+                .filter(|s| s.start <= source_text.len())
+                .map(|s| source_text[..s.start].matches('\n').count() + 1)
                 .unwrap_or(1);
             ConfigError::Parse {
                 path: path.to_owned(),
                 line,
                 message: e.message().replace('\n', " "),
             }
-        })?;
+        };
+        let mut user = DeTable::parse(text).map_err(|e| parse_error(text, e))?;
+        let user_sumocfg = user.get_ref().get("scenario").and_then(|s| {
+            let t = s.get_ref().as_table()?;
+            Some((t.contains_key("sumocfg"), t.contains_key("junction")))
+        });
+        if let Some((true, false)) = user_sumocfg {
+            return Err(ConfigError::Invalid {
+                path: path.to_owned(),
+                key: "scenario.junction",
+                message: "missing: the junction id to study in your sumocfg (the default junction belongs to the default scenario)".into(),
+            });
+        }
+        let defaults = DeTable::parse(DEFAULTS_TOML).map_err(|e| parse_error(DEFAULTS_TOML, e))?;
+        let mut defaults = defaults.into_inner();
+        anchor_default_paths(&mut defaults);
+        merge_under(user.get_mut(), defaults);
+        let raw = RawConfig::deserialize(toml::de::Deserializer::from(user))
+            .map_err(|e| parse_error(text, e))?;
         validate(raw, path)
     }
 }
 
-fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
-    let invalid = |key: &'static str, message: String| ConfigError::Invalid {
-        path: path.to_owned(),
-        key,
-        message,
-    };
-    let base = path.parent().unwrap_or(Path::new("."));
+/// Makes the defaults' relative paths absolute (anchored at
+/// [`defaults_dir`]), so they mean the same from any user's folder.
+fn anchor_default_paths(defaults: &mut DeTable<'_>) {
+    for (section, key) in [("scenario", "sumocfg"), ("matching", "models_dir")] {
+        let Some(DeValue::Table(t)) = defaults.get_mut(section).map(|v| v.get_mut()) else {
+            continue;
+        };
+        if let Some(v) = t.get_mut(key)
+            && let DeValue::String(s) = v.get_mut()
+            && Path::new(s.as_ref()).is_relative()
+        {
+            let abs = defaults_dir().join(s.as_ref());
+            *s = Cow::Owned(abs.to_string_lossy().into_owned());
+        }
+    }
+}
 
-    let sumocfg = raw.scenario.sumocfg.ok_or_else(|| {
-        invalid(
-            "scenario.sumocfg",
-            "missing: the SUMO scenario to run".into(),
-        )
-    })?;
-    let sumocfg = if sumocfg.is_absolute() {
-        sumocfg
-    } else {
-        base.join(sumocfg)
-    };
+/// Adds every key of `defaults` that `user` lacks, recursing into tables
+/// both have (except `[connected]`, which the user's replaces whole).
+fn merge_under<'i>(user: &mut DeTable<'i>, defaults: DeTable<'i>) {
+    for (key, value) in defaults {
+        match user.get_mut(key.get_ref().as_ref()) {
+            None => {
+                user.insert(key, value);
+            }
+            Some(mine) => {
+                if key.get_ref() == "connected" {
+                    continue;
+                }
+                if let (DeValue::Table(mine), DeValue::Table(theirs)) =
+                    (mine.get_mut(), value.into_inner())
+                {
+                    merge_under(mine, theirs);
+                }
+            }
+        }
+    }
+}
+
+/// Names the file in validation errors and resolves its relative paths.
+struct Checker<'a> {
+    path: &'a Path,
+}
+
+impl Checker<'_> {
+    fn invalid(&self, key: &'static str, message: String) -> ConfigError {
+        ConfigError::Invalid {
+            path: self.path.to_owned(),
+            key,
+            message,
+        }
+    }
+
+    fn positive(&self, key: &'static str, v: f64) -> Result<(), ConfigError> {
+        if v > 0.0 && v.is_finite() {
+            Ok(())
+        } else {
+            Err(self.invalid(key, format!("must be a positive number, got {v}")))
+        }
+    }
+
+    fn non_negative(&self, key: &'static str, v: f64) -> Result<(), ConfigError> {
+        if v >= 0.0 && v.is_finite() {
+            Ok(())
+        } else {
+            Err(self.invalid(key, format!("must be >= 0, got {v}")))
+        }
+    }
+
+    fn fraction(&self, key: &'static str, v: f64) -> Result<(), ConfigError> {
+        if (0.0..=1.0).contains(&v) {
+            Ok(())
+        } else {
+            Err(self.invalid(key, format!("must be in [0, 1], got {v}")))
+        }
+    }
+
+    /// A path relative to the config file's folder.
+    fn resolve(&self, p: &Path) -> PathBuf {
+        if p.is_absolute() {
+            p.to_owned()
+        } else {
+            self.path.parent().unwrap_or(Path::new(".")).join(p)
+        }
+    }
+}
+
+fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
+    let c = Checker { path };
+    let (train, eval) = train_and_eval(&c, raw.train, raw.eval)?;
+    Ok(Settings {
+        source: path.to_owned(),
+        scenario: scenario(&c, raw.scenario)?,
+        connected: connected(&c, raw.connected)?,
+        seeds: Seeds {
+            traffic: raw.seeds.traffic,
+            sensor: raw.seeds.sensor,
+        },
+        camera: camera(&c, raw.camera)?,
+        sensor: sensor(&c, raw.sensor)?,
+        pose_noise: pose_noise(&c, raw.pose_noise)?,
+        matching: matching(&c, raw.matching)?,
+        fusion: fusion(&c, raw.fusion)?,
+        train,
+        eval,
+    })
+}
+
+fn scenario(c: &Checker, s: RawScenario) -> Result<ScenarioSettings, ConfigError> {
+    let sumocfg = c.resolve(&s.sumocfg);
     if !sumocfg.is_file() {
-        return Err(invalid(
+        return Err(c.invalid(
             "scenario.sumocfg",
             format!("no such file: {}", sumocfg.display()),
         ));
     }
     let sumocfg = sumocfg.canonicalize().map_err(|e| {
-        invalid(
+        c.invalid(
             "scenario.sumocfg",
             format!("cannot resolve {}: {e}", sumocfg.display()),
         )
     })?;
-    let junction = raw
-        .scenario
-        .junction
-        .filter(|j| !j.is_empty())
-        .ok_or_else(|| {
-            invalid(
-                "scenario.junction",
-                "missing: the junction id to study".into(),
-            )
-        })?;
-    positive("scenario.end_s", raw.scenario.end_s).map_err(|m| invalid("scenario.end_s", m))?;
-    positive("scenario.radius_m", raw.scenario.radius_m)
-        .map_err(|m| invalid("scenario.radius_m", m))?;
-    positive("scenario.sample_every_s", raw.scenario.sample_every_s)
-        .map_err(|m| invalid("scenario.sample_every_s", m))?;
+    if s.junction.is_empty() {
+        return Err(c.invalid(
+            "scenario.junction",
+            "missing: the junction id to study".into(),
+        ));
+    }
+    c.positive("scenario.end_s", s.end_s)?;
+    c.positive("scenario.radius_m", s.radius_m)?;
+    c.positive("scenario.sample_every_s", s.sample_every_s)?;
+    Ok(ScenarioSettings {
+        sumocfg,
+        junction: s.junction,
+        end_s: s.end_s,
+        radius_m: s.radius_m,
+        sample_every_s: s.sample_every_s,
+    })
+}
 
-    let connected = match (raw.connected.ids, raw.connected.penetration) {
-        (Some(_), Some(_)) => {
-            return Err(invalid(
-                "connected",
-                "give either `ids` or `penetration`, not both".into(),
-            ));
-        }
-        (None, None) => ConnectedSelection::Ids(vec!["cv0".into(), "cv1".into()]),
+fn connected(c: &Checker, raw: RawConnected) -> Result<ConnectedSelection, ConfigError> {
+    match (raw.ids, raw.penetration) {
+        (Some(_), Some(_)) => Err(c.invalid(
+            "connected",
+            "give either `ids` or `penetration`, not both".into(),
+        )),
+        (None, None) => Err(c.invalid(
+            "connected",
+            "give `ids` (at least two vehicle ids) or `penetration`".into(),
+        )),
         (Some(ids), None) => {
             if ids.len() < 2 {
-                return Err(invalid(
+                return Err(c.invalid(
                     "connected.ids",
                     format!("need at least two connected vehicles, got {}", ids.len()),
                 ));
@@ -602,80 +419,70 @@ fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
             sorted.sort();
             sorted.dedup();
             if sorted.len() != ids.len() {
-                return Err(invalid("connected.ids", "ids repeat".into()));
+                return Err(c.invalid("connected.ids", "ids repeat".into()));
             }
-            ConnectedSelection::Ids(ids)
+            Ok(ConnectedSelection::Ids(ids))
         }
         (None, Some(p)) => {
             if !(p > 0.0 && p <= 1.0) {
-                return Err(invalid(
+                return Err(c.invalid(
                     "connected.penetration",
                     format!("must be in (0, 1], got {p}"),
                 ));
             }
-            ConnectedSelection::Penetration(p)
+            Ok(ConnectedSelection::Penetration(p))
         }
-    };
+    }
+}
 
-    let c = raw.camera;
-    if !(c.fov_deg > 0.0 && c.fov_deg < 180.0) {
-        return Err(invalid(
+fn camera(c: &Checker, raw: RawCamera) -> Result<CameraSettings, ConfigError> {
+    if !(raw.fov_deg > 0.0 && raw.fov_deg < 180.0) {
+        return Err(c.invalid(
             "camera.fov_deg",
-            format!("must be in (0, 180), got {}", c.fov_deg),
+            format!("must be in (0, 180), got {}", raw.fov_deg),
         ));
     }
-    positive("camera.range_m", c.range_m).map_err(|m| invalid("camera.range_m", m))?;
-    positive("camera.height_m", c.height_m).map_err(|m| invalid("camera.height_m", m))?;
-    if c.yaw_offsets_deg.is_empty() || c.yaw_offsets_deg.iter().any(|y| !y.is_finite()) {
-        return Err(invalid(
+    c.positive("camera.range_m", raw.range_m)?;
+    c.positive("camera.height_m", raw.height_m)?;
+    if raw.yaw_offsets_deg.is_empty() || raw.yaw_offsets_deg.iter().any(|y| !y.is_finite()) {
+        return Err(c.invalid(
             "camera.yaw_offsets_deg",
             "need one finite yaw per camera".into(),
         ));
     }
-    let camera = CameraSettings {
-        fov_rad: c.fov_deg.to_radians(),
-        range_m: c.range_m,
-        height_m: c.height_m,
-        yaw_offsets_rad: c.yaw_offsets_deg.iter().map(|y| y.to_radians()).collect(),
-    };
+    Ok(CameraSettings {
+        fov_rad: raw.fov_deg.to_radians(),
+        range_m: raw.range_m,
+        height_m: raw.height_m,
+        yaw_offsets_rad: raw.yaw_offsets_deg.iter().map(|y| y.to_radians()).collect(),
+    })
+}
 
-    let s = raw.sensor;
-    for (key, v) in [
-        ("sensor.min_visible_fraction", s.min_visible_fraction),
-        ("sensor.aim_height_fraction", s.aim_height_fraction),
-        ("sensor.miss_prob_base", s.miss_prob_base),
-        ("sensor.miss_prob_at_max_range", s.miss_prob_at_max_range),
-        ("sensor.miss_prob_occlusion", s.miss_prob_occlusion),
-        ("sensor.class_confusion_prob", s.class_confusion_prob),
-        ("sensor.lighting_spread", s.lighting_spread),
-    ] {
-        if !(0.0..=1.0).contains(&v) {
-            return Err(invalid(key, format!("must be in [0, 1], got {v}")));
-        }
-    }
-    for (key, v) in [
-        ("sensor.range_sigma_base_m", s.range_sigma_base_m),
-        ("sensor.range_sigma_per_m", s.range_sigma_per_m),
-        ("sensor.bearing_sigma_base_deg", s.bearing_sigma_base_deg),
-        ("sensor.bearing_sigma_per_m_deg", s.bearing_sigma_per_m_deg),
-        (
-            "sensor.false_positives_per_frame",
-            s.false_positives_per_frame,
-        ),
-        ("sensor.colour_sigma", s.colour_sigma),
-        ("sensor.size_sigma_fraction", s.size_sigma_fraction),
-    ] {
-        if !(v >= 0.0 && v.is_finite()) {
-            return Err(invalid(key, format!("must be >= 0, got {v}")));
-        }
-    }
+fn sensor(c: &Checker, s: RawSensor) -> Result<SensorSettings, ConfigError> {
+    c.fraction("sensor.min_visible_fraction", s.min_visible_fraction)?;
+    c.fraction("sensor.aim_height_fraction", s.aim_height_fraction)?;
+    c.fraction("sensor.miss_prob_base", s.miss_prob_base)?;
+    c.fraction("sensor.miss_prob_at_max_range", s.miss_prob_at_max_range)?;
+    c.fraction("sensor.miss_prob_occlusion", s.miss_prob_occlusion)?;
+    c.fraction("sensor.class_confusion_prob", s.class_confusion_prob)?;
+    c.fraction("sensor.lighting_spread", s.lighting_spread)?;
+    c.non_negative("sensor.range_sigma_base_m", s.range_sigma_base_m)?;
+    c.non_negative("sensor.range_sigma_per_m", s.range_sigma_per_m)?;
+    c.non_negative("sensor.bearing_sigma_base_deg", s.bearing_sigma_base_deg)?;
+    c.non_negative("sensor.bearing_sigma_per_m_deg", s.bearing_sigma_per_m_deg)?;
+    c.non_negative(
+        "sensor.false_positives_per_frame",
+        s.false_positives_per_frame,
+    )?;
+    c.non_negative("sensor.colour_sigma", s.colour_sigma)?;
+    c.non_negative("sensor.size_sigma_fraction", s.size_sigma_fraction)?;
     if s.range_sigma_base_m + s.bearing_sigma_base_deg <= 0.0 {
-        return Err(invalid(
+        return Err(c.invalid(
             "sensor.range_sigma_base_m",
             "range and bearing noise cannot both be zero at zero distance (the covariance would be singular)".into(),
         ));
     }
-    let sensor = SensorSettings {
+    Ok(SensorSettings {
         min_visible_fraction: s.min_visible_fraction,
         aim_height_fraction: s.aim_height_fraction,
         range_sigma_base_m: s.range_sigma_base_m,
@@ -690,51 +497,47 @@ fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
         colour_sigma: s.colour_sigma,
         lighting_spread: s.lighting_spread,
         size_sigma_fraction: s.size_sigma_fraction,
-    };
+    })
+}
 
-    let p = raw.pose_noise;
+fn pose_noise(c: &Checker, p: RawPoseNoise) -> Result<Vec<PoseNoiseLevel>, ConfigError> {
     if p.levels.is_empty() {
-        return Err(invalid(
-            "pose_noise.levels",
-            "need at least one level".into(),
-        ));
+        return Err(c.invalid("pose_noise.levels", "need at least one level".into()));
     }
-    let mut pose_noise = Vec::new();
-    for label in dedup_sorted(p.levels) {
-        let (sigma_m, sigma_deg) = match label {
-            PoseNoiseLabel::None => (0.0, 0.0),
-            PoseNoiseLabel::Rtk => (p.rtk.position_sigma_m, p.rtk.heading_sigma_deg),
-            PoseNoiseLabel::Gps => (p.gps.position_sigma_m, p.gps.heading_sigma_deg),
-        };
-        if !(sigma_m >= 0.0 && sigma_deg >= 0.0 && sigma_m.is_finite() && sigma_deg.is_finite()) {
-            return Err(invalid(
-                "pose_noise",
-                format!("level {}: sigmas must be >= 0", label.as_str()),
-            ));
-        }
-        pose_noise.push(PoseNoiseLevel {
-            label,
-            position_sigma_m: sigma_m,
-            heading_sigma_rad: sigma_deg.to_radians(),
-        });
-    }
+    dedup_sorted(p.levels)
+        .into_iter()
+        .map(|label| {
+            let (sigma_m, sigma_deg) = match label {
+                PoseNoiseLabel::None => (0.0, 0.0),
+                PoseNoiseLabel::Rtk => (p.rtk.position_sigma_m, p.rtk.heading_sigma_deg),
+                PoseNoiseLabel::Gps => (p.gps.position_sigma_m, p.gps.heading_sigma_deg),
+            };
+            let ok = |v: f64| v >= 0.0 && v.is_finite();
+            if !(ok(sigma_m) && ok(sigma_deg)) {
+                return Err(c.invalid(
+                    "pose_noise",
+                    format!("level {}: sigmas must be >= 0", label.as_str()),
+                ));
+            }
+            Ok(PoseNoiseLevel {
+                label,
+                position_sigma_m: sigma_m,
+                heading_sigma_rad: sigma_deg.to_radians(),
+            })
+        })
+        .collect()
+}
 
-    let m = raw.matching;
+fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError> {
     if m.methods.is_empty() {
-        return Err(invalid(
-            "matching.methods",
-            "need at least one method".into(),
-        ));
+        return Err(c.invalid("matching.methods", "need at least one method".into()));
     }
-    positive("matching.gate_chi2", m.gate_chi2).map_err(|e| invalid("matching.gate_chi2", e))?;
+    c.positive("matching.gate_chi2", m.gate_chi2)?;
     if m.mc_samples == 0 {
-        return Err(invalid(
-            "matching.mc_samples",
-            "need at least one sample".into(),
-        ));
+        return Err(c.invalid("matching.mc_samples", "need at least one sample".into()));
     }
     if !(0.0..=1.0).contains(&m.lambda) {
-        return Err(invalid(
+        return Err(c.invalid(
             "matching.lambda",
             format!(
                 "must be in [0, 1] (binary entropy in bits), got {}",
@@ -742,110 +545,72 @@ fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
             ),
         ));
     }
-    let models_dir = if m.models_dir.is_absolute() {
-        m.models_dir.clone()
-    } else {
-        base.join(&m.models_dir)
-    };
-    let t = raw.train;
+    Ok(MatchingSettings {
+        methods: dedup_sorted(m.methods),
+        gate_chi2: m.gate_chi2,
+        models_dir: c.resolve(&m.models_dir),
+        mc_samples: m.mc_samples,
+        lambda: m.lambda,
+        uncertainty: m.uncertainty,
+    })
+}
+
+fn train_and_eval(
+    c: &Checker,
+    t: RawTrain,
+    e: RawEval,
+) -> Result<(TrainSettings, EvalSettings), ConfigError> {
     if t.traffic_seeds.is_empty() {
-        return Err(invalid(
-            "train.traffic_seeds",
-            "need at least one run".into(),
-        ));
+        return Err(c.invalid("train.traffic_seeds", "need at least one run".into()));
     }
-    if let Some(s) = t
-        .traffic_seeds
-        .iter()
-        .find(|s| raw.eval.traffic_seeds.contains(s))
-    {
-        return Err(invalid(
+    if let Some(s) = t.traffic_seeds.iter().find(|s| e.traffic_seeds.contains(s)) {
+        return Err(c.invalid(
             "train.traffic_seeds",
             format!("seed {s} is also an eval seed: train and test runs must be disjoint"),
         ));
     }
-    if t.methods
-        .iter()
-        .any(|m| crate::matching::deep::variant(*m).is_none())
-    {
-        return Err(invalid(
+    if t.methods.iter().any(|m| deep::variant(*m).is_none()) {
+        return Err(c.invalid(
             "train.methods",
             "only deep methods (ours, coid+non, coid+unc, dgmc, gcn-gm) are trained".into(),
         ));
     }
     if t.epochs == 0 {
-        return Err(invalid("train.epochs", "need at least one epoch".into()));
+        return Err(c.invalid("train.epochs", "need at least one epoch".into()));
     }
-    positive("train.learning_rate", t.learning_rate)
-        .map_err(|e| invalid("train.learning_rate", e))?;
-    if raw.eval.traffic_seeds.is_empty() {
-        return Err(invalid(
-            "eval.traffic_seeds",
-            "need at least one run".into(),
-        ));
+    c.positive("train.learning_rate", t.learning_rate)?;
+    if e.traffic_seeds.is_empty() {
+        return Err(c.invalid("eval.traffic_seeds", "need at least one run".into()));
     }
-    let f = raw.fusion;
+    let train = TrainSettings {
+        traffic_seeds: t.traffic_seeds,
+        methods: dedup_sorted(t.methods),
+        epochs: t.epochs,
+        learning_rate: t.learning_rate,
+        seed: t.seed,
+    };
+    Ok((
+        train,
+        EvalSettings {
+            traffic_seeds: e.traffic_seeds,
+        },
+    ))
+}
+
+fn fusion(c: &Checker, f: RawFusion) -> Result<FusionSettings, ConfigError> {
     if f.variants.is_empty() {
-        return Err(invalid(
-            "fusion.variants",
-            "need at least one variant".into(),
-        ));
+        return Err(c.invalid("fusion.variants", "need at least one variant".into()));
     }
     if f.align_min_matches < 2 {
-        return Err(invalid(
+        return Err(c.invalid(
             "fusion.align_min_matches",
             "a rigid alignment needs at least 2 matched objects".into(),
         ));
     }
-
-    Ok(Settings {
-        source: path.to_owned(),
-        scenario: ScenarioSettings {
-            sumocfg,
-            junction,
-            end_s: raw.scenario.end_s,
-            radius_m: raw.scenario.radius_m,
-            sample_every_s: raw.scenario.sample_every_s,
-        },
-        connected,
-        seeds: Seeds {
-            traffic: raw.seeds.traffic,
-            sensor: raw.seeds.sensor,
-        },
-        camera,
-        sensor,
-        pose_noise,
-        matching: MatchingSettings {
-            methods: dedup_sorted(m.methods),
-            gate_chi2: m.gate_chi2,
-            models_dir,
-            mc_samples: m.mc_samples,
-            lambda: m.lambda,
-            uncertainty: m.uncertainty,
-        },
-        fusion: FusionSettings {
-            variants: dedup_sorted(f.variants),
-            align_min_matches: f.align_min_matches,
-        },
-        train: TrainSettings {
-            traffic_seeds: t.traffic_seeds,
-            methods: dedup_sorted(t.methods),
-            epochs: t.epochs,
-            learning_rate: t.learning_rate,
-            seed: t.seed,
-        },
-        eval: EvalSettings {
-            traffic_seeds: raw.eval.traffic_seeds,
-        },
+    Ok(FusionSettings {
+        variants: dedup_sorted(f.variants),
+        align_min_matches: f.align_min_matches,
     })
-}
-
-fn positive(key: &str, v: f64) -> Result<(), String> {
-    if v > 0.0 && v.is_finite() {
-        Ok(())
-    } else {
-        Err(format!("{key} must be a positive number, got {v}"))
-    }
 }
 
 /// Sorted, without repeats: output rows come in a fixed order whatever order
@@ -867,31 +632,87 @@ mod tests {
         path
     }
 
-    const MINIMAL: &str = "[scenario]\nsumocfg = \"scenario.sumocfg\"\njunction = \"C\"\n";
+    const MINIMAL: &str = "[scenario]\nsumocfg = \"scenario.sumocfg\"\njunction = \"J1\"\n";
 
     #[test]
-    fn minimal_config_gets_documented_defaults() {
-        let dir = tempfile::tempdir().unwrap();
-        let s = Settings::load(&write_cfg(dir.path(), MINIMAL)).unwrap();
-        assert!(s.scenario.sumocfg.is_absolute());
+    fn the_defaults_are_the_shipped_file_and_valid() {
+        let d = Settings::defaults().unwrap();
+        let shipped = Settings::load(&defaults_dir().join("default.toml")).unwrap();
+        // Same settings whether the file is read as a user's file or taken
+        // as the compiled-in defaults (paths aside: both resolve to the
+        // installation).
+        assert_eq!(d.scenario.sumocfg, shipped.scenario.sumocfg);
+        assert_eq!(d.sensor, shipped.sensor);
+        assert_eq!(d.matching.methods.len(), 9);
         assert_eq!(
-            s.connected,
+            d.connected,
             ConnectedSelection::Ids(vec!["cv0".into(), "cv1".into()])
         );
-        assert_eq!(s.pose_noise.len(), 3);
-        assert_eq!(s.pose_noise[2].position_sigma_m, 1.2);
-        assert!((s.camera.fov_rad - 90f64.to_radians()).abs() < 1e-12);
-        assert_eq!(s.sensor, SensorSettings::default());
+        assert!(d.matching.models_dir.join("ours.bpk").is_file());
     }
 
     #[test]
-    fn unknown_key_is_an_error_with_a_line() {
+    fn a_minimal_user_file_gets_the_defaults_and_its_own_paths() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = Settings::load(&write_cfg(dir.path(), MINIMAL)).unwrap();
+        let d = Settings::defaults().unwrap();
+        assert!(
+            s.scenario
+                .sumocfg
+                .starts_with(dir.path().canonicalize().unwrap())
+        );
+        assert_eq!(s.scenario.junction, "J1");
+        assert_eq!(s.scenario.end_s, d.scenario.end_s);
+        assert_eq!(
+            (&s.sensor, &s.camera, &s.pose_noise),
+            (&d.sensor, &d.camera, &d.pose_noise)
+        );
+        // The shipped models, not a folder beside the user's file.
+        assert_eq!(s.matching.models_dir, d.matching.models_dir);
+        assert_eq!(s.pose_noise[2].position_sigma_m, 1.2);
+    }
+
+    #[test]
+    fn tables_merge_key_by_key_but_connected_is_replaced_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let body = format!(
+            "{MINIMAL}[connected]\npenetration = 0.3\n[pose_noise]\nrtk = {{ position_sigma_m = 0.5 }}\n[camera]\nrange_m = 50.0\n"
+        );
+        let s = Settings::load(&write_cfg(dir.path(), &body)).unwrap();
+        assert_eq!(s.connected, ConnectedSelection::Penetration(0.3));
+        assert_eq!(s.pose_noise[1].position_sigma_m, 0.5);
+        assert!((s.pose_noise[1].heading_sigma_rad - 0.2f64.to_radians()).abs() < 1e-15);
+        assert_eq!(
+            (s.camera.range_m, s.camera.yaw_offsets_rad.len()),
+            (50.0, 1)
+        );
+    }
+
+    #[test]
+    fn a_user_scenario_needs_its_own_junction() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write_cfg(dir.path(), "[scenario]\nsumocfg = \"scenario.sumocfg\"\n");
+        let e = Settings::load(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("scenario.junction") && e.contains("missing"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn unknown_key_is_an_error_with_the_users_line() {
         let dir = tempfile::tempdir().unwrap();
         let path = write_cfg(dir.path(), &format!("{MINIMAL}\n[camera]\nfov = 90\n"));
         let e = Settings::load(&path).unwrap_err().to_string();
         assert!(e.contains("unknown field `fov`"), "{e}");
         assert!(e.contains(":6:"), "{e}");
         assert!(!e.contains('\n'));
+        let path = write_cfg(
+            dir.path(),
+            &format!("{MINIMAL}[seeds]\ntraffic = \"one\"\n"),
+        );
+        let e = Settings::load(&path).unwrap_err().to_string();
+        assert!(e.contains(":5:"), "{e}");
     }
 
     #[test]
@@ -906,6 +727,11 @@ mod tests {
                 "connected",
             ),
             ("[sensor]\nmiss_prob_base = -0.1\n", "sensor.miss_prob_base"),
+            ("[train]\ntraffic_seeds = [1]\n", "train.traffic_seeds"),
+            (
+                "[fusion]\nalign_min_matches = 1\n",
+                "fusion.align_min_matches",
+            ),
         ] {
             let path = write_cfg(dir.path(), &format!("{MINIMAL}{extra}"));
             let e = Settings::load(&path).unwrap_err().to_string();
@@ -938,5 +764,6 @@ mod tests {
         );
         let e = Settings::load(&path).unwrap_err().to_string();
         assert!(e.contains("magic") && e.contains("oracle"), "{e}");
+        assert!(e.contains(":5:"), "{e}");
     }
 }

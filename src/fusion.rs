@@ -9,6 +9,26 @@ use nalgebra::{Matrix2, Matrix3, Vector3};
 
 use crate::geometry::{Cov2, Pose2, Vec2, wrap_angle};
 
+crate::label_enum! { "fusion variant";
+    /// How the matched measurements are fused.
+    #[strum(serialize_all = "lowercase")]
+    pub enum FusionVariant {
+        /// Paper Eq. 14-16 with the relative pose from both vehicles' GPS.
+        Paper,
+        /// The relative pose refined from the matched objects first ([`align`]).
+        Aligned,
+    }
+}
+
+/// `[fusion]`: which variants are reported, and when alignment applies.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FusionSettings {
+    pub variants: Vec<FusionVariant>,
+    /// The aligned variant falls back to the GPS pose below this many
+    /// matched objects.
+    pub align_min_matches: usize,
+}
+
 /// One vehicle's measurement of an object, already in the common frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Measurement {

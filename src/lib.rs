@@ -1,22 +1,33 @@
 //! coid-sim: seeded co-simulation of cooperative perception at road
-//! intersections. SUMO drives the traffic (through [`bridge`]), [`sensor`]
-//! derives each connected vehicle's camera detections, [`graph`] builds
-//! Delaunay scene graphs, [`matching`] identifies correspondences, [`fusion`]
-//! combines matched measurements and [`eval`] scores them; [`pipeline`] runs
-//! the stages and [`output`] writes the results. See ARCHITECTURE.md.
+//! intersections. The modules read as the pipeline, bottom to top (see
+//! ARCHITECTURE.md; a module uses only modules below it):
+//!
+//! - foundations: [`geometry`], [`rng`], [`label`], [`traffic`];
+//! - stages: [`bridge`] (SUMO), [`sensor`], [`graph`], [`fusion`],
+//!   [`matching`];
+//! - [`evaluate`]: one instance, one method: match, count, fuse;
+//! - [`config`]: the TOML file into each stage's settings;
+//! - [`report`]: rows, tables and plot data before they are written;
+//! - [`tables`], [`render`], [`io`]: the paper's tables, pictures, files;
+//! - [`pipeline`]: one run; [`experiments`], [`batch`]: many runs;
+//! - [`cli`]: the `coid` commands.
 
 pub mod batch;
 pub mod bridge;
+pub mod cli;
 pub mod config;
-pub mod eval;
+pub mod evaluate;
 pub mod experiments;
 pub mod fusion;
 pub mod geometry;
 pub mod graph;
+pub mod io;
+pub mod label;
 pub mod matching;
-pub mod output;
 pub mod pipeline;
 pub mod render;
+pub mod report;
 pub mod rng;
 pub mod sensor;
+pub mod tables;
 pub mod traffic;

@@ -1,18 +1,22 @@
-//! One headless run: SUMO steps -> sensing -> graphs -> matching -> fusion ->
-//! evaluation. The stages are called here in order with their own settings;
-//! this module does no file IO (the caller writes the results).
+//! One headless run: SUMO steps -> sensing -> graphs -> instances, each
+//! handed out at every pose-noise level for [`evaluate`] to match, count
+//! and fuse. The stages are called here in order with their own settings.
+//! The only file this module reads is a deep method's weights, through
+//! `io`; it writes nothing (the caller writes the results).
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
 use crate::bridge::{BridgeError, Sumo};
-use crate::config::{ConnectedSelection, PoseNoiseLevel, Settings};
-use crate::eval::{self, EgoSide, ObjectEstimate, RowKey, Summary};
+use crate::config::Settings;
+use crate::evaluate::{self, PairAtLevel, Runner, Side};
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::{GraphError, SceneGraph};
-use crate::matching::{self, MatchView, Matcher};
+use crate::io::{self, WeightsError};
+use crate::matching::{self, BuildError, MatchView, Method};
+use crate::report::{ObjectRow, RowKey, RunResults};
 use crate::rng::{self, Purpose};
-use crate::sensor::{self, Observation};
+use crate::sensor::{self, ConnectedSelection, PoseNoiseLevel, Sensed};
 use crate::traffic::{StaticScene, TrafficFrame};
 
 #[derive(Debug, thiserror::Error)]
@@ -22,7 +26,9 @@ pub enum RunError {
     #[error(transparent)]
     Graph(#[from] GraphError),
     #[error(transparent)]
-    Model(#[from] crate::matching::deep::LoadError),
+    Weights(#[from] WeightsError),
+    #[error(transparent)]
+    Build(#[from] BuildError),
     #[error("{0}")]
     Render(String),
     #[error("connected vehicle(s) {0:?} never appeared in the simulation before its end")]
@@ -35,47 +41,6 @@ pub struct Progress {
     pub time_s: f64,
     pub end_s: f64,
     pub instances: usize,
-}
-
-/// One row of `objects.parquet`.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ObjectRow {
-    pub instance: usize,
-    pub step: u64,
-    pub time_s: f64,
-    pub key: RowKey,
-    pub estimate: ObjectEstimate,
-}
-
-/// Everything a run produced.
-#[derive(Clone, Debug, Default)]
-pub struct RunResults {
-    pub summary: Summary,
-    pub objects: Vec<ObjectRow>,
-    pub n_instances: usize,
-    pub n_steps: u64,
-    pub sim_end_s: f64,
-    /// Wall time spent inside the bridge's step calls.
-    pub bridge_time: Duration,
-    /// Road users read over all steps (for the per-object bridge cost).
-    pub objects_read: u64,
-    /// Wall time of the whole run.
-    pub wall_time: Duration,
-}
-
-/// Whether a vehicle carries the camera rig.
-fn is_connected(
-    selection: &ConnectedSelection,
-    sensor_seed: u64,
-    obj: &crate::traffic::TrafficObject,
-) -> bool {
-    match selection {
-        ConnectedSelection::Ids(ids) => ids.contains(&obj.id),
-        ConnectedSelection::Penetration(p) => {
-            obj.class.can_be_connected()
-                && rng::unit(sensor_seed, Purpose::Penetration, &[rng::hash_str(&obj.id)]) < *p
-        }
-    }
 }
 
 /// Counters of one simulation.
@@ -92,7 +57,7 @@ pub struct SimStats {
 
 /// A connected vehicle near the junction at one step, with what it sees.
 pub struct Ego {
-    pub obs: Observation,
+    pub sensed: Sensed,
     pub graph: SceneGraph,
     id_hash: u64,
 }
@@ -104,28 +69,9 @@ impl Ego {
         let mut s = rng::stream(
             sensor_seed,
             Purpose::PoseNoise,
-            &[step, self.id_hash, level.label as u64],
+            &[step, self.id_hash, level.label.stream_code()],
         );
-        sensor::reported_pose(&self.obs.ego_pose_true, level, &mut s)
-    }
-}
-
-impl<'a> Instance<'a> {
-    /// What each vehicle of the pair knows at a pose-noise level: its
-    /// detections, graph and GPS-reported pose.
-    pub fn views(
-        &self,
-        sensor_seed: u64,
-        level: &PoseNoiseLevel,
-    ) -> (MatchView<'a>, MatchView<'a>) {
-        let step = self.frame.step;
-        let view = |e: &'a Ego| MatchView {
-            detections: &e.obs.detections,
-            graph: &e.graph,
-            pose_reported: e.reported_pose(sensor_seed, step, level),
-            pose_noise: *level,
-        };
-        (view(self.a), view(self.b))
+        sensor::reported_pose(&self.sensed.truth.ego_pose, level, &mut s)
     }
 }
 
@@ -139,6 +85,29 @@ pub struct Instance<'a> {
     /// The pair, ordered by vehicle id.
     pub a: &'a Ego,
     pub b: &'a Ego,
+}
+
+impl<'a> Instance<'a> {
+    /// The instance at a pose-noise level: each vehicle's detections, graph
+    /// and GPS-reported pose, with the truth beside them.
+    pub fn at_level(&self, sensor_seed: u64, level: &PoseNoiseLevel) -> PairAtLevel<'a> {
+        let step = self.frame.step;
+        let side = |e: &'a Ego| Side {
+            view: MatchView {
+                detections: &e.sensed.observation.detections,
+                graph: &e.graph,
+                pose_reported: e.reported_pose(sensor_seed, step, level),
+                pose_noise: *level,
+            },
+            obs: &e.sensed.observation,
+            truth: &e.sensed.truth,
+        };
+        PairAtLevel {
+            first: side(self.a),
+            second: side(self.b),
+            level: *level,
+        }
+    }
 }
 
 /// Runs the scenario of `settings` from start to end and hands every
@@ -163,7 +132,7 @@ pub fn simulate(
         stats.n_steps += 1;
         stats.objects_read += frame.objects.len() as u64;
         for o in &frame.objects {
-            if is_connected(&settings.connected, settings.seeds.sensor, o) {
+            if settings.connected.carries_rig(settings.seeds.sensor, o) {
                 seen_connected.insert(o.id.clone());
             }
         }
@@ -172,15 +141,18 @@ pub fn simulate(
             let mut found = 0;
             for i in 0..egos.len() {
                 for j in (i + 1)..egos.len() {
-                    if eval::covisible_pairs(&egos[i].obs, &egos[j].obs) == 0 {
+                    let (a, b) = (&egos[i], &egos[j]);
+                    if evaluate::covisible_pairs(&a.sensed.truth, &b.sensed.truth) == 0 {
                         continue;
                     }
+                    let index = stats.n_instances;
+                    let (scene, frame) = (&scene, &frame);
                     on_instance(&Instance {
-                        index: stats.n_instances,
-                        scene: &scene,
-                        frame: &frame,
-                        a: &egos[i],
-                        b: &egos[j],
+                        index,
+                        scene,
+                        frame,
+                        a,
+                        b,
                     })?;
                     stats.n_instances += 1;
                     found += 1;
@@ -198,17 +170,22 @@ pub fn simulate(
     }
     stats.sim_end_s = sumo.time_s();
     sumo.close()?;
-    if let ConnectedSelection::Ids(ids) = &settings.connected {
-        let missing: Vec<String> = ids
-            .iter()
-            .filter(|i| !seen_connected.contains(*i))
-            .cloned()
-            .collect();
+    check_connected_appeared(&settings.connected, &seen_connected)?;
+    Ok(stats)
+}
+
+/// Named connected vehicles must all have appeared.
+fn check_connected_appeared(
+    selection: &ConnectedSelection,
+    seen: &BTreeSet<String>,
+) -> Result<(), RunError> {
+    if let ConnectedSelection::Ids(ids) = selection {
+        let missing: Vec<String> = ids.iter().filter(|i| !seen.contains(*i)).cloned().collect();
         if !missing.is_empty() {
             return Err(RunError::MissingConnectedVehicles(missing));
         }
     }
-    Ok(stats)
+    Ok(())
 }
 
 /// Observations and graphs of the connected vehicles near the junction,
@@ -220,7 +197,7 @@ fn sense(
 ) -> Result<Vec<Ego>, RunError> {
     let mut egos: Vec<Ego> = Vec::new();
     for (k, o) in frame.objects.iter().enumerate() {
-        if !is_connected(&settings.connected, settings.seeds.sensor, o)
+        if !settings.connected.carries_rig(settings.seeds.sensor, o)
             || (o.pose.position_m() - scene.junction_position_m).norm() > settings.scenario.radius_m
         {
             continue;
@@ -231,39 +208,94 @@ fn sense(
             Purpose::Detections,
             &[frame.step, id_hash],
         );
-        let obs = sensor::observe(
-            frame,
-            scene,
-            k,
-            &settings.camera,
-            &settings.sensor,
-            &mut stream,
-        );
-        let positions: Vec<Vec2> = obs.detections.iter().map(|d| d.position_m).collect();
+        let (camera, sensor) = (&settings.camera, &settings.sensor);
+        let sensed = sensor::observe(frame, scene, k, camera, sensor, &mut stream);
+        let positions: Vec<Vec2> = sensed
+            .observation
+            .detections
+            .iter()
+            .map(|d| d.position_m)
+            .collect();
         let graph = SceneGraph::delaunay(&positions)?;
         egos.push(Ego {
-            obs,
+            sensed,
             graph,
             id_hash,
         });
     }
-    egos.sort_by(|a, b| a.obs.ego_id.cmp(&b.obs.ego_id));
+    egos.sort_by(|a, b| {
+        a.sensed
+            .observation
+            .ego_id
+            .cmp(&b.sensed.observation.ego_id)
+    });
     Ok(egos)
 }
 
-/// Runs the scenario and evaluates every method, pose-noise level and
-/// fusion variant on every instance.
+/// How `method` runs with `settings`: deep methods get their weights from
+/// `[matching] models_dir`; MC-dropout masks are seeded with the sensor
+/// seed.
+pub fn runner(settings: &Settings, method: Method) -> Result<Runner, RunError> {
+    if method == Method::Oracle {
+        return Ok(Runner::Oracle);
+    }
+    let m = &settings.matching;
+    let weights = if matching::deep::variant(method).is_some() {
+        Some(io::read_weights(&m.models_dir, method)?)
+    } else {
+        None
+    };
+    let matcher = matching::build(method, m, settings.seeds.sensor, weights.as_deref()).map_err(
+        |e| match e {
+            BuildError::BadWeights {
+                method: label,
+                reason,
+            } => RunError::Weights(WeightsError {
+                method: label,
+                path: io::weights_path(&m.models_dir, method),
+                reason,
+            }),
+            other => RunError::Build(other),
+        },
+    )?;
+    Ok(Runner::Matcher(matcher))
+}
+
+/// The runners of `methods`, in order.
+pub fn runners(settings: &Settings, methods: &[Method]) -> Result<Vec<Runner>, RunError> {
+    methods.iter().map(|&m| runner(settings, m)).collect()
+}
+
+/// Runs the scenario and evaluates every configured method, pose-noise
+/// level and fusion variant on every instance.
 pub fn run(settings: &Settings, progress: impl FnMut(Progress)) -> Result<RunResults, RunError> {
     let started = Instant::now();
-    let matchers: Vec<Box<dyn Matcher>> = settings
-        .matching
-        .methods
-        .iter()
-        .map(|&m| matching::matcher_for(m, &settings.matching, settings.seeds.sensor))
-        .collect::<Result<_, _>>()?;
+    let runners = runners(settings, &settings.matching.methods)?;
     let mut results = RunResults::default();
     let stats = simulate(settings, progress, |inst| {
-        evaluate_instance(settings, inst, &matchers, &mut results);
+        for level in &settings.pose_noise {
+            let pair = inst.at_level(settings.seeds.sensor, level);
+            for runner in &runners {
+                let e = evaluate::evaluate(&pair, runner, &settings.fusion);
+                for (fusion, est) in e.fused {
+                    let key = RowKey {
+                        method: e.method,
+                        pose_noise: level.label,
+                        fusion,
+                    };
+                    results.summary.record(key, e.counts, &est);
+                    results
+                        .objects
+                        .extend(est.into_iter().map(|estimate| ObjectRow {
+                            instance: inst.index,
+                            step: inst.frame.step,
+                            time_s: inst.frame.time_s,
+                            key,
+                            estimate,
+                        }));
+                }
+            }
+        }
         Ok(())
     })?;
     results.n_instances = stats.n_instances;
@@ -273,63 +305,4 @@ pub fn run(settings: &Settings, progress: impl FnMut(Progress)) -> Result<RunRes
     results.objects_read = stats.objects_read;
     results.wall_time = started.elapsed();
     Ok(results)
-}
-
-/// Evaluates every method, pose-noise level and fusion variant on one
-/// instance.
-fn evaluate_instance(
-    settings: &Settings,
-    inst: &Instance,
-    matchers: &[Box<dyn Matcher>],
-    results: &mut RunResults,
-) {
-    let (a, b, frame) = (inst.a, inst.b, inst.frame);
-    let truth_world_m: HashMap<&str, Vec2> = frame
-        .objects
-        .iter()
-        .map(|o| (o.id.as_str(), o.pose.position_m()))
-        .collect();
-    for level in &settings.pose_noise {
-        let (va, vb) = inst.views(settings.seeds.sensor, level);
-        let (pa, pb) = (va.pose_reported, vb.pose_reported);
-        for matcher in matchers {
-            let matches = matcher.match_pair(&va, &vb);
-            let counts = eval::count_pairs(&a.obs, &b.obs, &matches);
-            let side_a = EgoSide {
-                obs: &a.obs,
-                pose_reported: pa,
-            };
-            let side_b = EgoSide {
-                obs: &b.obs,
-                pose_reported: pb,
-            };
-            for &variant in &settings.fusion.variants {
-                let key = RowKey {
-                    method: matcher.method(),
-                    pose_noise: level.label,
-                    fusion: variant,
-                };
-                let min = settings.fusion.align_min_matches;
-                let est = eval::fuse_pair(
-                    &side_a,
-                    &side_b,
-                    &matches,
-                    level,
-                    variant,
-                    min,
-                    &truth_world_m,
-                );
-                results.summary.record(key, counts, &est);
-                results
-                    .objects
-                    .extend(est.into_iter().map(|estimate| ObjectRow {
-                        instance: inst.index,
-                        step: frame.step,
-                        time_s: frame.time_s,
-                        key,
-                        estimate,
-                    }));
-            }
-        }
-    }
 }

@@ -5,8 +5,12 @@
 //! the two vehicles' detections, green when right and red when wrong, line
 //! width growing with uncertainty; non-covisible detections ringed.
 //!
-//! This module and `output` are the ones that write result files; it only
-//! draws what it is given.
+//! Also the plots of `coid eval` (lambda sweep, error CDFs, F1 per method)
+//! and `coid batch` (F1 per method).
+//!
+//! This module and `io` are the only ones that write result files; it
+//! draws what it is given into the folder it is given (a temporary one that
+//! `io` renames into place).
 
 use std::path::Path;
 use std::sync::Once;
@@ -14,10 +18,10 @@ use std::sync::Once;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::config::CameraSettings;
 use crate::geometry::{Pose2, Vec2};
 use crate::matching::Correspondence;
-use crate::sensor::Observation;
+use crate::report::{AggregateRow, PlotData};
+use crate::sensor::{CameraSettings, Observation, ObservationTruth};
 use crate::traffic::{StaticScene, TrafficFrame};
 
 static FONT: Once = Once::new();
@@ -42,10 +46,10 @@ pub struct SceneView<'a> {
     pub scene: &'a StaticScene,
     pub frame: &'a TrafficFrame,
     pub camera: &'a CameraSettings,
-    /// The two connected vehicles' observations (detections are placed in
-    /// the world with each vehicle's true pose: what it measured about its
-    /// surroundings).
-    pub egos: [&'a Observation; 2],
+    /// The two connected vehicles' observations with the truth beside
+    /// them (detections are placed in the world with each vehicle's true
+    /// pose: what it measured about its surroundings).
+    pub egos: [(&'a Observation, &'a ObservationTruth); 2],
     pub matches: &'a [Correspondence],
     pub caption: String,
     /// Half the width of the square window around the junction, metres.
@@ -98,27 +102,48 @@ fn draw<DB: DrawingBackend>(view: &SceneView, root: &DrawingArea<DB, Shift>) -> 
     let area = chart.plotting_area();
     let (w_px, _) = area.dim_in_pixel();
     let px_per_m = f64::from(w_px) / (2.0 * h);
+    draw_ground(view, area, px_per_m).map_err(e)?;
+    draw_frustums(view, area).map_err(e)?;
+    draw_road_users(view, area).map_err(e)?;
+    draw_detections(view, area).map_err(e)?;
+    draw_matches(view, area).map_err(e)?;
+    draw_legend(root).map_err(e)
+}
 
-    // Roads: lanes as thick grey lines.
+type Area<DB> = DrawingArea<
+    DB,
+    plotters::coord::cartesian::Cartesian2d<
+        plotters::coord::types::RangedCoordf64,
+        plotters::coord::types::RangedCoordf64,
+    >,
+>;
+type DrawResult<DB> = Result<(), DrawingAreaErrorKind<<DB as DrawingBackend>::ErrorType>>;
+
+/// Roads (lanes as thick grey lines) and buildings.
+fn draw_ground<DB: DrawingBackend>(
+    view: &SceneView,
+    area: &Area<DB>,
+    px_per_m: f64,
+) -> DrawResult<DB> {
     for lane in &view.scene.lanes {
         let width = ((lane.width_m * px_per_m).round() as u32).max(1);
         let style = RGBColor(205, 205, 205).stroke_width(width);
         area.draw(&PathElement::new(
             lane.centre_m.iter().map(pt).collect::<Vec<_>>(),
             style,
-        ))
-        .map_err(e)?;
+        ))?;
     }
-    // Buildings.
     for b in &view.scene.buildings {
         let pts: Vec<(f64, f64)> = b.vertices_m.iter().map(pt).collect();
-        area.draw(&Polygon::new(pts.clone(), RGBColor(200, 180, 150).filled()))
-            .map_err(e)?;
-        area.draw(&PathElement::new(pts, RGBColor(120, 100, 80)))
-            .map_err(e)?;
+        area.draw(&Polygon::new(pts.clone(), RGBColor(200, 180, 150).filled()))?;
+        area.draw(&PathElement::new(pts, RGBColor(120, 100, 80)))?;
     }
-    // Camera frustums.
-    for (k, ego) in view.egos.iter().enumerate() {
+    Ok(())
+}
+
+/// Each connected vehicle's camera frustums.
+fn draw_frustums<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> DrawResult<DB> {
+    for (k, (ego, _)) in view.egos.iter().enumerate() {
         let Some(obj) = view.frame.find(&ego.ego_id).map(|i| &view.frame.objects[i]) else {
             continue;
         };
@@ -133,61 +158,76 @@ fn draw<DB: DrawingBackend>(view: &SceneView, root: &DrawingArea<DB, Shift>) -> 
                     &cam.to_parent(&(Vec2::new(a.cos(), a.sin()) * view.camera.range_m))
                 ));
             }
-            area.draw(&Polygon::new(pts, EGO_COLOURS[k].mix(0.08).filled()))
-                .map_err(e)?;
+            area.draw(&Polygon::new(pts, EGO_COLOURS[k].mix(0.08).filled()))?;
         }
     }
-    // Road users.
+    Ok(())
+}
+
+/// Every road user as an oriented box; connected vehicles outlined.
+fn draw_road_users<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> DrawResult<DB> {
     for o in &view.frame.objects {
         let corners: Vec<(f64, f64)> = o.footprint().corners().iter().map(pt).collect();
         let fill = RGBColor(o.colour_rgb[0], o.colour_rgb[1], o.colour_rgb[2]);
-        area.draw(&Polygon::new(corners.clone(), fill.filled()))
-            .map_err(e)?;
-        let ego = view.egos.iter().position(|g| g.ego_id == o.id);
+        area.draw(&Polygon::new(corners.clone(), fill.filled()))?;
+        let ego = view.egos.iter().position(|(g, _)| g.ego_id == o.id);
         let outline = match ego {
             Some(k) => EGO_COLOURS[k].stroke_width(3),
             None => BLACK.stroke_width(1),
         };
         let mut closed = corners.clone();
         closed.push(corners[0]);
-        area.draw(&PathElement::new(closed, outline)).map_err(e)?;
+        area.draw(&PathElement::new(closed, outline))?;
     }
-    // Detections, in the world with each vehicle's true pose.
-    let world = |k: usize, i: usize| -> Vec2 {
-        let ego = view.egos[k];
-        ego.ego_pose_true.to_parent(&ego.detections[i].position_m)
-    };
-    for (k, ego) in view.egos.iter().enumerate() {
-        let other = view.egos[1 - k];
-        for (i, d) in ego.detections.iter().enumerate() {
-            let p = pt(&world(k, i));
-            area.draw(&Cross::new(p, 5, EGO_COLOURS[k].stroke_width(2)))
-                .map_err(e)?;
-            let covisible = d.truth_id.as_ref().is_some_and(|id| {
-                other
-                    .detections
-                    .iter()
-                    .any(|o| o.truth_id.as_ref() == Some(id))
-            });
+    Ok(())
+}
+
+/// Detection `i` of vehicle `k`, in the world with the vehicle's true pose.
+fn detection_world(view: &SceneView, k: usize, i: usize) -> Vec2 {
+    let (obs, truth) = view.egos[k];
+    truth.ego_pose.to_parent(&obs.detections[i].position_m)
+}
+
+/// Detections as crosses, ringed when the other vehicle does not see them.
+fn draw_detections<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> DrawResult<DB> {
+    for (k, (obs, truth)) in view.egos.iter().enumerate() {
+        let other = view.egos[1 - k].1;
+        for i in 0..obs.detections.len() {
+            let p = pt(&detection_world(view, k, i));
+            area.draw(&Cross::new(p, 5, EGO_COLOURS[k].stroke_width(2)))?;
+            let covisible = truth
+                .object_id(i)
+                .is_some_and(|id| other.find(id).is_some());
             if !covisible {
-                area.draw(&Circle::new(p, 8, EGO_COLOURS[k].stroke_width(1)))
-                    .map_err(e)?;
+                area.draw(&Circle::new(p, 8, EGO_COLOURS[k].stroke_width(1)))?;
             }
         }
     }
-    // Correspondences.
+    Ok(())
+}
+
+/// Correspondences: green right, red wrong, wider when more uncertain.
+fn draw_matches<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> DrawResult<DB> {
     for m in view.matches {
-        let (a, b) = (&view.egos[0].detections[m.a], &view.egos[1].detections[m.b]);
-        let right = a.truth_id.is_some() && a.truth_id == b.truth_id;
+        let a = view.egos[0].1.object_id(m.a);
+        let right = a.is_some() && a == view.egos[1].1.object_id(m.b);
         let width = 1 + (4.0 * m.uncertainty.clamp(0.0, 1.0)).round() as u32;
         let colour = if right { RIGHT } else { WRONG };
         area.draw(&PathElement::new(
-            vec![pt(&world(0, m.a)), pt(&world(1, m.b))],
+            vec![
+                pt(&detection_world(view, 0, m.a)),
+                pt(&detection_world(view, 1, m.b)),
+            ],
             colour.stroke_width(width),
-        ))
-        .map_err(e)?;
+        ))?;
     }
-    // Legend (top-left), drawn in pixels.
+    Ok(())
+}
+
+/// The legend (top-left), drawn in pixels.
+fn draw_legend<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
     let legend: [(&str, ShapeStyle); 6] = [
         ("vehicle 1 detections", EGO_COLOURS[0].stroke_width(2)),
         ("vehicle 2 detections", EGO_COLOURS[1].stroke_width(2)),
@@ -200,18 +240,15 @@ fn draw<DB: DrawingBackend>(view: &SceneView, root: &DrawingArea<DB, Shift>) -> 
     root.draw(&Rectangle::new(
         [(x0 - 8, y0 - 12), (x0 + 250, y0 + 6 * 20)],
         WHITE.mix(0.85).filled(),
-    ))
-    .map_err(e)?;
+    ))?;
     for (k, (label, style)) in legend.iter().enumerate() {
         let y = y0 + 20 * k as i32;
-        root.draw(&PathElement::new(vec![(x0, y), (x0 + 24, y)], *style))
-            .map_err(e)?;
+        root.draw(&PathElement::new(vec![(x0, y), (x0 + 24, y)], *style))?;
         root.draw(&Text::new(
             label.to_string(),
             (x0 + 32, y - 7),
             ("sans-serif", 13),
-        ))
-        .map_err(e)?;
+        ))?;
     }
     Ok(())
 }
@@ -432,6 +469,92 @@ pub fn cdf(values: &[f64]) -> Vec<(f64, f64)> {
         .collect()
 }
 
+/// `coid eval`'s plots into `dir`: `lambda_sweep`, `error_cdf` and
+/// `f1_per_method`, each as PNG and SVG.
+pub fn eval_plots(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
+    let sweep: Vec<Panel> = d
+        .lambda_sweep
+        .iter()
+        .map(|(level, pts)| Panel {
+            title: format!("ours, lambda sweep, pose noise {level}"),
+            x_label: "lambda (entropy threshold, bits)".into(),
+            y_label: "mean over test runs".into(),
+            x_range: (0.0, 1.0),
+            y_range: (0.0, 1.05),
+            series: vec![
+                ("precision".into(), pts.iter().map(|p| (p.0, p.1)).collect()),
+                ("recall".into(), pts.iter().map(|p| (p.0, p.2)).collect()),
+                ("F1".into(), pts.iter().map(|p| (p.0, p.3)).collect()),
+            ],
+        })
+        .collect();
+    line_panels(&dir.join("lambda_sweep"), &sweep)?;
+    let max_err = d
+        .errors
+        .iter()
+        .flat_map(|(_, s, f)| s.iter().chain(f))
+        .cloned()
+        .filter(|x| x.is_finite())
+        .fold(1.0, f64::max)
+        .min(10.0);
+    let cdfs: Vec<Panel> = d
+        .errors
+        .iter()
+        .map(|(level, s, f)| Panel {
+            title: format!("ours, displacement error, pose noise {level}"),
+            x_label: "error (m)".into(),
+            y_label: "share of objects".into(),
+            x_range: (0.0, max_err),
+            y_range: (0.0, 1.0),
+            series: vec![("single vehicle".into(), cdf(s)), ("fused".into(), cdf(f))],
+        })
+        .collect();
+    line_panels(&dir.join("error_cdf"), &cdfs)?;
+    bars_with_ci(
+        &dir.join("f1_per_method"),
+        "F1 per method (mean and 95% CI over test runs)",
+        "F1",
+        &d.methods,
+        &d.f1,
+    )
+}
+
+/// A batch's F1 per method (first fusion variant; F1 does not depend on
+/// it) with 95% CIs, per pose-noise level, into `dir/f1_per_method`.
+pub fn batch_plot(dir: &Path, rows: &[AggregateRow]) -> Result<(), RenderError> {
+    let Some(first_fusion) = rows.first().map(|r| r.fusion.clone()) else {
+        return Ok(());
+    };
+    let rows: Vec<_> = rows.iter().filter(|r| r.fusion == first_fusion).collect();
+    let mut methods: Vec<String> = rows.iter().map(|r| r.method.clone()).collect();
+    methods.dedup();
+    let mut levels: Vec<String> = rows.iter().map(|r| r.pose_noise.clone()).collect();
+    levels.sort();
+    levels.dedup();
+    let series: Vec<(String, Vec<(f64, f64)>)> = levels
+        .iter()
+        .map(|l| {
+            let v = methods
+                .iter()
+                .map(|m| {
+                    rows.iter()
+                        .find(|r| &r.method == m && &r.pose_noise == l)
+                        .map(|r| r.f1)
+                        .unwrap_or((f64::NAN, f64::NAN))
+                })
+                .collect();
+            (l.clone(), v)
+        })
+        .collect();
+    bars_with_ci(
+        &dir.join("f1_per_method"),
+        "F1 per method (mean and 95% CI over runs)",
+        "F1",
+        &methods,
+        &series,
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -483,12 +606,18 @@ mod tests {
         };
         let obs = Observation {
             ego_id: "cv0".into(),
-            ego_pose_true: ego.pose,
+            detections: vec![],
+        };
+        let truth = ObservationTruth {
+            ego_pose: ego.pose,
             detections: vec![],
         };
         let other = Observation {
             ego_id: "cv1".into(),
-            ego_pose_true: Pose2::identity(),
+            detections: vec![],
+        };
+        let other_truth = ObservationTruth {
+            ego_pose: Pose2::identity(),
             detections: vec![],
         };
         let camera = CameraSettings {
@@ -501,7 +630,7 @@ mod tests {
             scene: &scene,
             frame: &frame,
             camera: &camera,
-            egos: [&obs, &other],
+            egos: [(&obs, &truth), (&other, &other_truth)],
             matches: &[],
             caption: "empty".into(),
             half_window_m: 80.0,

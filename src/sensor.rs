@@ -1,18 +1,132 @@
 //! The camera stand-in: what a connected vehicle's cameras detect in one
 //! traffic frame, with occlusion, distance-dependent noise, misses, false
-//! positives and appearance descriptors that do not identify objects alone.
+//! positives and appearance descriptors that do not identify objects alone;
+//! and the GPS pose each vehicle reports.
 //!
-//! Pure computation: a frame and a seeded stream in, an [`Observation`] out.
-//! Detections are in the ego's body frame (x forward, y left, metres), which
-//! is what the vehicle itself knows; the ego's GPS pose is added per noise
-//! level by [`reported_pose`].
+//! Pure computation: a frame and a seeded stream in, a [`Sensed`] out. What
+//! the vehicle knows ([`Observation`]: detections in its body frame, x
+//! forward, y left, metres) is kept apart from what only the simulator
+//! knows ([`ObservationTruth`]: the true object behind each detection and the
+//! ego's true pose), so that matchers, which receive observations, cannot
+//! reach the truth by construction.
 
 use rand::Rng;
 use rand_distr::{Distribution, Normal, Poisson};
 
-use crate::config::{CameraSettings, PoseNoiseLevel, SensorSettings};
 use crate::geometry::{Cov2, Pose2, Vec2, wrap_angle};
+use crate::rng::{self, Purpose};
 use crate::traffic::{ObjectClass, StaticScene, TrafficFrame, TrafficObject};
+
+/// `[connected]`: which vehicles carry the camera rig.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ConnectedSelection {
+    /// These SUMO vehicle ids carry the camera rig.
+    Ids(Vec<String>),
+    /// This share of the vehicles (cars, vans, trucks, buses), drawn per
+    /// vehicle id from the sensor seed.
+    Penetration(f64),
+}
+
+impl ConnectedSelection {
+    /// Whether `obj` carries the rig (penetration draws are named by the
+    /// vehicle id, so they do not depend on the order vehicles appear in).
+    pub fn carries_rig(&self, sensor_seed: u64, obj: &TrafficObject) -> bool {
+        match self {
+            ConnectedSelection::Ids(ids) => ids.contains(&obj.id),
+            ConnectedSelection::Penetration(p) => {
+                obj.class.can_be_connected()
+                    && rng::unit(sensor_seed, Purpose::Penetration, &[rng::hash_str(&obj.id)]) < *p
+            }
+        }
+    }
+}
+
+/// `[camera]`: the camera rig every connected vehicle carries.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraSettings {
+    /// Horizontal field of view of each camera (OpenCDA uses 100 deg, DMGM
+    /// 120, Artery 60).
+    pub fov_rad: f64,
+    /// Detection range (OpenCDA 50 m, Artery 80 m).
+    pub range_m: f64,
+    /// Height of the camera above the ground (a roof-line camera on a car).
+    pub height_m: f64,
+    /// One camera per entry, yawed from the vehicle's heading; the cameras
+    /// sit at the front bumper.
+    pub yaw_offsets_rad: Vec<f64>,
+}
+
+/// `[sensor]`: the detector stand-in. The defaults (`configs/default.toml`)
+/// are calibrated so the mean single-vehicle displacement error on the
+/// default scenario is about 2.0 m (README, "Calibration").
+#[derive(Clone, Debug, PartialEq)]
+pub struct SensorSettings {
+    /// An object is detected only when at least this share of its footprint
+    /// samples (centre, corners, edge midpoints) is in view and unblocked.
+    pub min_visible_fraction: f64,
+    /// Sight lines aim at this fraction of the object's height: a car hides a
+    /// car or a person behind it, not the upper half of a truck.
+    pub aim_height_fraction: f64,
+    /// Range noise standard deviation: `base + per_m * distance`.
+    pub range_sigma_base_m: f64,
+    pub range_sigma_per_m: f64,
+    /// Bearing noise standard deviation: `base + per_m * distance`.
+    pub bearing_sigma_base_rad: f64,
+    pub bearing_sigma_per_m_rad: f64,
+    /// Miss probability: base, plus a share growing linearly to
+    /// `miss_prob_at_max_range` at the camera's range, plus
+    /// `miss_prob_occlusion * (1 - visible fraction)`.
+    pub miss_prob_base: f64,
+    pub miss_prob_at_max_range: f64,
+    pub miss_prob_occlusion: f64,
+    /// Mean number of false positives per camera and frame (Poisson).
+    pub false_positives_per_frame: f64,
+    /// Probability that the detector reports the confusable class.
+    pub class_confusion_prob: f64,
+    /// Colour noise per channel (RGB in [0, 1]) at zero distance; doubles at
+    /// the camera's range.
+    pub colour_sigma: f64,
+    /// View-dependent brightness: colours scale by a factor drawn uniformly
+    /// from `1 +- lighting_spread`.
+    pub lighting_spread: f64,
+    /// Relative noise on the measured length, width and height.
+    pub size_sigma_fraction: f64,
+}
+
+crate::label_enum! { "pose-noise level";
+    /// The pose-noise levels results are reported at.
+    #[strum(serialize_all = "lowercase")]
+    pub enum PoseNoiseLabel {
+        /// Perfect self-localisation.
+        None,
+        /// RTK-class GNSS: 0.2 m / 0.2 deg by default.
+        Rtk,
+        /// Plain GPS as in the DMGM data: 1.2 m / 0.2 deg by default.
+        Gps,
+    }
+}
+
+impl PoseNoiseLabel {
+    /// The level's part of a pose-noise stream name (frozen: changing it
+    /// changes every result).
+    pub fn stream_code(self) -> u64 {
+        match self {
+            PoseNoiseLabel::None => 0,
+            PoseNoiseLabel::Rtk => 1,
+            PoseNoiseLabel::Gps => 2,
+        }
+    }
+}
+
+/// One pose-noise level: every connected vehicle's reported pose is its true
+/// pose plus independent Gaussian errors, per step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseNoiseLevel {
+    pub label: PoseNoiseLabel,
+    /// Standard deviation of the error along each of x and y.
+    pub position_sigma_m: f64,
+    pub heading_sigma_rad: f64,
+}
 
 /// What the detector reports about an object's look: class (sometimes
 /// confused), colour under the scene's lighting, and a noisy size. Many cars
@@ -27,7 +141,7 @@ pub struct Appearance {
     pub height_m: f64,
 }
 
-/// One detection in one vehicle's body frame.
+/// One detection in one vehicle's body frame: what the vehicle knows.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Detection {
     /// Measured object centre, ego body frame.
@@ -35,20 +149,55 @@ pub struct Detection {
     /// Covariance of `position_m` from the same noise model that drew it.
     pub cov_m2: Cov2,
     pub appearance: Appearance,
-    /// Evaluation only: the SUMO id of the object, `None` for a false
-    /// positive. Matchers other than the oracle must not read it.
-    pub truth_id: Option<String>,
-    /// Evaluation only: the share of footprint samples that were visible.
-    pub visible_fraction: f64,
 }
 
 /// Everything one connected vehicle perceives at one step.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Observation {
     pub ego_id: String,
-    /// Evaluation only: the ego's true centre pose, world frame.
-    pub ego_pose_true: Pose2,
     pub detections: Vec<Detection>,
+}
+
+/// Evaluation only: what lies behind one detection.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DetectionTruth {
+    /// SUMO id of the detected object; `None` for a false positive.
+    pub object_id: Option<String>,
+    /// The object's true centre, world frame; `None` for a false positive.
+    pub position_m: Option<Vec2>,
+    /// The share of footprint samples that were visible (0 for a false
+    /// positive).
+    pub visible_fraction: f64,
+}
+
+/// Evaluation only: the truth beside an [`Observation`], one entry per
+/// detection in the same order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ObservationTruth {
+    /// The ego's true centre pose, world frame.
+    pub ego_pose: Pose2,
+    pub detections: Vec<DetectionTruth>,
+}
+
+impl ObservationTruth {
+    /// The true object id behind detection `k` (`None`: false positive).
+    pub fn object_id(&self, k: usize) -> Option<&str> {
+        self.detections[k].object_id.as_deref()
+    }
+
+    /// The index of the detection of object `id`, if this vehicle detected it.
+    pub fn find(&self, id: &str) -> Option<usize> {
+        self.detections
+            .iter()
+            .position(|d| d.object_id.as_deref() == Some(id))
+    }
+}
+
+/// One vehicle's sensing at one step: what it knows, and the truth beside it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sensed {
+    pub observation: Observation,
+    pub truth: ObservationTruth,
 }
 
 /// Samples on an object's footprint used for the visibility test: centre,
@@ -229,67 +378,75 @@ fn typical_size_m(class: ObjectClass) -> [f64; 3] {
     }
 }
 
-/// What the cameras of `frame.objects[ego_index]` detect. All draws come
-/// from `rng`, in a fixed order (objects in frame order, then false
-/// positives), so the same stream gives the same observation.
-pub fn observe(
-    frame: &TrafficFrame,
-    scene: &StaticScene,
-    ego_index: usize,
-    camera: &CameraSettings,
-    sensor: &SensorSettings,
-    rng: &mut impl Rng,
-) -> Observation {
-    let ego = &frame.objects[ego_index];
-    let mut detections = Vec::new();
-    let mut seen = vec![false; frame.objects.len()];
-    for &yaw in &camera.yaw_offsets_rad {
-        let cam = camera_pose(ego, yaw);
-        let cam_in_ego = ego.pose.relative(&cam);
-        for (k, obj) in frame.objects.iter().enumerate() {
-            if k == ego_index || seen[k] {
-                continue;
-            }
-            // Cheap reject before the sampled visibility test.
-            let reach = camera.range_m + obj.footprint().bounding_radius_m();
-            if (obj.pose.position_m() - cam.position_m()).norm() > reach {
-                continue;
-            }
-            let vis = visible_fraction(&cam, ego_index, k, frame, scene, camera, sensor);
-            if vis < sensor.min_visible_fraction || vis == 0.0 {
-                continue;
-            }
-            let p_cam = cam.to_body(&obj.pose.position_m());
-            let d = p_cam.norm();
-            let p_miss = (sensor.miss_prob_base
-                + sensor.miss_prob_at_max_range * (d / camera.range_m).min(1.0)
-                + sensor.miss_prob_occlusion * (1.0 - vis))
-                .clamp(0.0, 1.0);
-            // Always draw, so the stream advances the same way whatever happens.
-            let u: f64 = rng.random();
-            let (p_meas, cov_cam) = measure(&p_cam, sensor, rng);
-            let appearance = observe_appearance(
-                obj.class,
-                obj.colour_rgb,
-                [obj.length_m, obj.width_m, obj.height_m],
-                d,
-                camera,
-                sensor,
-                rng,
-            );
-            if u < p_miss {
-                continue;
-            }
-            seen[k] = true;
-            detections.push(Detection {
-                position_m: cam_in_ego.to_parent(&p_meas),
-                cov_m2: cam_in_ego.cov_to_parent(&cov_cam),
-                appearance,
-                truth_id: Some(obj.id.clone()),
-                visible_fraction: vis,
-            });
+/// One camera of an ego at one step, with the settings it works under.
+struct Camera<'a> {
+    /// The camera's pose, world frame.
+    pose: Pose2,
+    /// The camera's pose in the ego's body frame.
+    in_ego: Pose2,
+    camera: &'a CameraSettings,
+    sensor: &'a SensorSettings,
+}
+
+impl Camera<'_> {
+    /// A camera-frame measurement as a detection in the ego's body frame.
+    fn detection(&self, p_meas: &Vec2, cov_cam: &Cov2, appearance: Appearance) -> Detection {
+        Detection {
+            position_m: self.in_ego.to_parent(p_meas),
+            cov_m2: self.in_ego.cov_to_parent(cov_cam),
+            appearance,
         }
-        // False positives: uniform over the frustum's area.
+    }
+
+    /// Tries to detect `frame.objects[k]`: `None` when it is out of view,
+    /// hidden or missed. The stream advances the same way whether or not
+    /// the object is missed.
+    fn detect(
+        &self,
+        frame: &TrafficFrame,
+        scene: &StaticScene,
+        ego_index: usize,
+        k: usize,
+        rng: &mut impl Rng,
+    ) -> Option<(Detection, DetectionTruth)> {
+        let (camera, sensor) = (self.camera, self.sensor);
+        let obj = &frame.objects[k];
+        // Cheap reject before the sampled visibility test.
+        let reach = camera.range_m + obj.footprint().bounding_radius_m();
+        if (obj.pose.position_m() - self.pose.position_m()).norm() > reach {
+            return None;
+        }
+        let vis = visible_fraction(&self.pose, ego_index, k, frame, scene, camera, sensor);
+        if vis < sensor.min_visible_fraction || vis == 0.0 {
+            return None;
+        }
+        let p_cam = self.pose.to_body(&obj.pose.position_m());
+        let d = p_cam.norm();
+        let p_miss = (sensor.miss_prob_base
+            + sensor.miss_prob_at_max_range * (d / camera.range_m).min(1.0)
+            + sensor.miss_prob_occlusion * (1.0 - vis))
+            .clamp(0.0, 1.0);
+        // Always draw, so the stream advances the same way whatever happens.
+        let u: f64 = rng.random();
+        let (p_meas, cov_cam) = measure(&p_cam, sensor, rng);
+        let size = [obj.length_m, obj.width_m, obj.height_m];
+        let appearance =
+            observe_appearance(obj.class, obj.colour_rgb, size, d, camera, sensor, rng);
+        if u < p_miss {
+            return None;
+        }
+        let truth = DetectionTruth {
+            object_id: Some(obj.id.clone()),
+            position_m: Some(obj.pose.position_m()),
+            visible_fraction: vis,
+        };
+        Some((self.detection(&p_meas, &cov_cam, appearance), truth))
+    }
+
+    /// False positives of one frame: Poisson many, uniform over the
+    /// frustum's area, of any class and colour.
+    fn false_positives(&self, rng: &mut impl Rng) -> Vec<(Detection, DetectionTruth)> {
+        let (camera, sensor) = (self.camera, self.sensor);
         let n_fp = if sensor.false_positives_per_frame > 0.0 {
             Poisson::new(sensor.false_positives_per_frame)
                 .map(|p| p.sample(rng) as usize)
@@ -297,28 +454,71 @@ pub fn observe(
         } else {
             0
         };
-        for _ in 0..n_fp {
-            let r = camera.range_m * rng.random::<f64>().sqrt().max(0.05);
-            let b = camera.fov_rad * (rng.random::<f64>() - 0.5);
-            let p_cam = Vec2::new(r * b.cos(), r * b.sin());
-            let (p_meas, cov_cam) = measure(&p_cam, sensor, rng);
-            let class = ObjectClass::ALL[rng.random_range(0..ObjectClass::ALL.len())];
-            let colour = [rng.random::<u8>(), rng.random::<u8>(), rng.random::<u8>()];
-            let appearance =
-                observe_appearance(class, colour, typical_size_m(class), r, camera, sensor, rng);
-            detections.push(Detection {
-                position_m: cam_in_ego.to_parent(&p_meas),
-                cov_m2: cam_in_ego.cov_to_parent(&cov_cam),
-                appearance,
-                truth_id: None,
-                visible_fraction: 0.0,
-            });
-        }
+        (0..n_fp)
+            .map(|_| {
+                let r = camera.range_m * rng.random::<f64>().sqrt().max(0.05);
+                let b = camera.fov_rad * (rng.random::<f64>() - 0.5);
+                let p_cam = Vec2::new(r * b.cos(), r * b.sin());
+                let (p_meas, cov_cam) = measure(&p_cam, sensor, rng);
+                let class = ObjectClass::ALL[rng.random_range(0..ObjectClass::ALL.len())];
+                let colour = [rng.random::<u8>(), rng.random::<u8>(), rng.random::<u8>()];
+                let size = typical_size_m(class);
+                let appearance = observe_appearance(class, colour, size, r, camera, sensor, rng);
+                let truth = DetectionTruth {
+                    object_id: None,
+                    position_m: None,
+                    visible_fraction: 0.0,
+                };
+                (self.detection(&p_meas, &cov_cam, appearance), truth)
+            })
+            .collect()
     }
-    Observation {
-        ego_id: ego.id.clone(),
-        ego_pose_true: ego.pose,
-        detections,
+}
+
+/// What the cameras of `frame.objects[ego_index]` detect, with the truth
+/// beside it. All draws come from `rng`, in a fixed order (per camera:
+/// objects in frame order, then false positives), so the same stream gives
+/// the same observation.
+pub fn observe(
+    frame: &TrafficFrame,
+    scene: &StaticScene,
+    ego_index: usize,
+    camera: &CameraSettings,
+    sensor: &SensorSettings,
+    rng: &mut impl Rng,
+) -> Sensed {
+    let ego = &frame.objects[ego_index];
+    let mut found: Vec<(Detection, DetectionTruth)> = Vec::new();
+    let mut seen = vec![false; frame.objects.len()];
+    for &yaw in &camera.yaw_offsets_rad {
+        let pose = camera_pose(ego, yaw);
+        let cam = Camera {
+            pose,
+            in_ego: ego.pose.relative(&pose),
+            camera,
+            sensor,
+        };
+        for (k, already) in seen.iter_mut().enumerate() {
+            if k == ego_index || *already {
+                continue;
+            }
+            if let Some(d) = cam.detect(frame, scene, ego_index, k, rng) {
+                *already = true;
+                found.push(d);
+            }
+        }
+        found.extend(cam.false_positives(rng));
+    }
+    let (detections, truths) = found.into_iter().unzip();
+    Sensed {
+        observation: Observation {
+            ego_id: ego.id.clone(),
+            detections,
+        },
+        truth: ObservationTruth {
+            ego_pose: ego.pose,
+            detections: truths,
+        },
     }
 }
 
@@ -380,6 +580,26 @@ mod tests {
         }
     }
 
+    /// The sensor these tests use (the shipped defaults' values).
+    fn sensor() -> SensorSettings {
+        SensorSettings {
+            min_visible_fraction: 0.3,
+            aim_height_fraction: 0.6,
+            range_sigma_base_m: 0.3,
+            range_sigma_per_m: 0.095,
+            bearing_sigma_base_rad: 0.5_f64.to_radians(),
+            bearing_sigma_per_m_rad: 0.02_f64.to_radians(),
+            miss_prob_base: 0.03,
+            miss_prob_at_max_range: 0.15,
+            miss_prob_occlusion: 0.3,
+            false_positives_per_frame: 0.3,
+            class_confusion_prob: 0.1,
+            colour_sigma: 0.06,
+            lighting_spread: 0.25,
+            size_sigma_fraction: 0.1,
+        }
+    }
+
     fn vis(f: &TrafficFrame, sc: &StaticScene, target: usize) -> f64 {
         let cam = CameraSettings {
             fov_rad: 90f64.to_radians(),
@@ -388,7 +608,7 @@ mod tests {
             yaw_offsets_rad: vec![0.0],
         };
         let pose = camera_pose(&f.objects[0], 0.0);
-        visible_fraction(&pose, 0, target, f, sc, &cam, &SensorSettings::default())
+        visible_fraction(&pose, 0, target, f, sc, &cam, &sensor())
     }
 
     #[test]
@@ -477,17 +697,23 @@ mod tests {
             miss_prob_at_max_range: 0.0,
             miss_prob_occlusion: 0.0,
             false_positives_per_frame: 0.0,
-            ..SensorSettings::default()
+            ..sensor()
         };
         let sc = scene(vec![]);
-        let obs = observe(&f, &sc, 0, &cam, &quiet, &mut ChaCha8Rng::seed_from_u64(1));
+        let sensed = observe(&f, &sc, 0, &cam, &quiet, &mut ChaCha8Rng::seed_from_u64(1));
+        let (obs, truth) = (&sensed.observation, &sensed.truth);
         assert_eq!(obs.detections.len(), 2);
-        for d in &obs.detections {
-            let truth = &f.objects[f.find(d.truth_id.as_deref().unwrap()).unwrap()];
-            let world = obs.ego_pose_true.to_parent(&d.position_m);
-            assert!((world - truth.pose.position_m()).norm() < 1e-9);
+        assert_eq!(truth.detections.len(), 2);
+        for (k, d) in obs.detections.iter().enumerate() {
+            let object = &f.objects[f.find(truth.object_id(k).unwrap()).unwrap()];
+            let world = truth.ego_pose.to_parent(&d.position_m);
+            assert!((world - object.pose.position_m()).norm() < 1e-9);
+            assert_eq!(
+                truth.detections[k].position_m,
+                Some(object.pose.position_m())
+            );
         }
-        let noisy = SensorSettings::default();
+        let noisy = sensor();
         let a = observe(&f, &sc, 0, &cam, &noisy, &mut ChaCha8Rng::seed_from_u64(9));
         let b = observe(&f, &sc, 0, &cam, &noisy, &mut ChaCha8Rng::seed_from_u64(9));
         assert_eq!(a, b);
@@ -495,7 +721,7 @@ mod tests {
 
     #[test]
     fn noise_grows_with_distance_and_matches_its_covariance() {
-        let s = SensorSettings::default();
+        let s = sensor();
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         for d in [10.0, 50.0] {
             let p = Vec2::new(d, 0.0);
@@ -519,12 +745,45 @@ mod tests {
     fn pose_noise_level_none_is_exact() {
         let truth = Pose2::new(Vec2::new(3.0, 4.0), 0.3);
         let level = PoseNoiseLevel {
-            label: crate::config::PoseNoiseLabel::None,
+            label: PoseNoiseLabel::None,
             position_sigma_m: 0.0,
             heading_sigma_rad: 0.0,
         };
         let p = reported_pose(&truth, &level, &mut ChaCha8Rng::seed_from_u64(1));
         assert_eq!(p.position_m(), truth.position_m());
         assert!((p.heading_rad() - truth.heading_rad()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn golden_pose_noise_stream_codes_and_labels() {
+        // Part of every pose-noise stream's name: frozen.
+        let levels = [
+            PoseNoiseLabel::None,
+            PoseNoiseLabel::Rtk,
+            PoseNoiseLabel::Gps,
+        ];
+        let codes: Vec<u64> = levels.iter().map(|l| l.stream_code()).collect();
+        assert_eq!(codes, vec![0, 1, 2]);
+        let labels: Vec<&str> = levels.iter().map(|l| l.as_str()).collect();
+        assert_eq!(labels, vec!["none", "rtk", "gps"]);
+    }
+
+    #[test]
+    fn penetration_draws_depend_on_the_vehicle_id_only() {
+        let all = ConnectedSelection::Penetration(1.0);
+        let none_of_them = ConnectedSelection::Penetration(1e-12);
+        let mut person = car("p", 0.0, 0.0, 0.0);
+        person.class = ObjectClass::Pedestrian;
+        assert!(all.carries_rig(1, &car("a", 0.0, 0.0, 0.0)));
+        assert!(!all.carries_rig(1, &person));
+        assert!(!none_of_them.carries_rig(1, &car("a", 0.0, 0.0, 0.0)));
+        let half = ConnectedSelection::Penetration(0.5);
+        let chosen = (0..400)
+            .filter(|k| half.carries_rig(3, &car(&format!("v{k}"), 0.0, 0.0, 0.0)))
+            .count();
+        assert!((150..250).contains(&chosen), "{chosen} of 400");
+        let ids = ConnectedSelection::Ids(vec!["a".into()]);
+        assert!(ids.carries_rig(1, &car("a", 9.0, 9.0, 0.0)));
+        assert!(!ids.carries_rig(1, &car("b", 0.0, 0.0, 0.0)));
     }
 }

@@ -4,19 +4,42 @@
 //!
 //! SUMO's own conventions (front-bumper positions, navigational degrees) never
 //! reach this module: the bridge converts them once.
+//!
+//! Also the scenario's settings (`[scenario]` of the config): which SUMO
+//! scenario runs, for how long, around which junction.
+
+use std::path::PathBuf;
 
 use crate::geometry::{OrientedBox, Polygon, Pose2, Vec2};
 
-/// Road-user classes the sensor can tell apart (and sometimes confuses).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum ObjectClass {
-    Car,
-    Van,
-    Truck,
-    Bus,
-    Motorcycle,
-    Bicycle,
-    Pedestrian,
+/// `[scenario]`: what SUMO runs and where instances are taken.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScenarioSettings {
+    /// Absolute path of the `.sumocfg`.
+    pub sumocfg: PathBuf,
+    /// The SUMO junction id the study is centred on.
+    pub junction: String,
+    /// Simulated time at which the run stops.
+    pub end_s: f64,
+    /// Both connected vehicles must be this close to the junction centre for
+    /// a (step, pair) to be an instance.
+    pub radius_m: f64,
+    /// Instances are taken at most this often (in simulated seconds).
+    pub sample_every_s: f64,
+}
+
+crate::label_enum! { "object class";
+    /// Road-user classes the sensor can tell apart (and sometimes confuses).
+    #[strum(serialize_all = "lowercase")]
+    pub enum ObjectClass {
+        Car,
+        Van,
+        Truck,
+        Bus,
+        Motorcycle,
+        Bicycle,
+        Pedestrian,
+    }
 }
 
 impl ObjectClass {
@@ -40,18 +63,6 @@ impl ObjectClass {
             "bicycle" => ObjectClass::Bicycle,
             "pedestrian" => ObjectClass::Pedestrian,
             _ => ObjectClass::Car,
-        }
-    }
-
-    pub fn as_str(self) -> &'static str {
-        match self {
-            ObjectClass::Car => "car",
-            ObjectClass::Van => "van",
-            ObjectClass::Truck => "truck",
-            ObjectClass::Bus => "bus",
-            ObjectClass::Motorcycle => "motorcycle",
-            ObjectClass::Bicycle => "bicycle",
-            ObjectClass::Pedestrian => "pedestrian",
         }
     }
 

@@ -36,20 +36,13 @@ impl Fixture {
     }
 
     /// Writes a config: the shipped scenario, run for `end_s`, plus `extra`
-    /// TOML (sections after `[scenario]`).
-    /// Unless `extra` has its own `[matching]` section, the deep methods
-    /// use the shipped weights.
+    /// TOML (sections after `[scenario]`). Everything else comes from the
+    /// defaults, the shipped weights included.
     fn config(&self, name: &str, end_s: f64, extra: &str) -> PathBuf {
-        let mut body = format!(
+        let body = format!(
             "[scenario]\nsumocfg = {:?}\njunction = \"C\"\nend_s = {end_s}\n{extra}",
             shipped_sumocfg().to_string_lossy()
         );
-        if !extra.contains("[matching]") {
-            body.push_str(&format!(
-                "\n[matching]\nmodels_dir = {:?}\n",
-                repo().join("models").to_string_lossy()
-            ));
-        }
         self.write(name, &body)
     }
 
@@ -127,19 +120,11 @@ fn strs(df: &DataFrame, col: &str) -> Vec<String> {
 mod run {
     use super::*;
 
-    #[test]
-    fn short_real_run_writes_consistent_results() {
-        let fx = Fixture::new();
-        let cfg = fx.config("short.toml", 80.0, "");
-        let out = fx.run(&cfg, "results/short");
-        assert_ok(&out);
-        assert!(stderr(&out).contains("instances"), "{}", stderr(&out));
-        let dir = fx.path("results/short");
-        for f in ["summary.csv", "objects.parquet", "summary.md"] {
-            assert!(dir.join(f).is_file(), "{f} missing");
-        }
-
-        let summary = read_csv(&dir.join("summary.csv"));
+    /// The columns of a run's `summary.csv`, and its rows' invariants: 9
+    /// methods x 3 pose-noise levels x 2 fusion variants, enough
+    /// instances, rates in [0, 1], a perfect oracle whose aligned fusion
+    /// beats the single-vehicle error at every level.
+    fn check_summary(summary: &DataFrame) {
         let cols: Vec<String> = summary
             .get_column_names()
             .iter()
@@ -158,14 +143,12 @@ mod run {
         ] {
             assert!(cols.iter().any(|x| x == c), "column {c} missing: {cols:?}");
         }
-        // 9 methods x 3 pose-noise levels x 2 fusion variants.
         assert_eq!(summary.height(), 54);
-        let methods = strs(&summary, "method");
-        let noise = strs(&summary, "pose_noise");
-        let fusion = strs(&summary, "fusion");
-        let (p, r) = (f64s(&summary, "precision"), f64s(&summary, "recall"));
-        let (single, fused) = (f64s(&summary, "de_single_m"), f64s(&summary, "de_fused_m"));
-        let n_inst = f64s(&summary, "n_instances");
+        let (methods, noise) = (strs(summary, "method"), strs(summary, "pose_noise"));
+        let fusion = strs(summary, "fusion");
+        let (p, r) = (f64s(summary, "precision"), f64s(summary, "recall"));
+        let (single, fused) = (f64s(summary, "de_single_m"), f64s(summary, "de_fused_m"));
+        let n_inst = f64s(summary, "n_instances");
         assert!(
             n_inst.iter().all(|&n| n >= 5.0),
             "too few instances: {n_inst:?}"
@@ -175,8 +158,6 @@ mod run {
             if methods[i] == "oracle" {
                 assert_eq!((p[i], r[i]), (1.0, 1.0));
                 if fusion[i] == "aligned" {
-                    // The bar: with true correspondences and aligned
-                    // fusion, fusing helps at every pose-noise level.
                     assert!(
                         fused[i] < single[i],
                         "oracle/{}/aligned: fused {} >= single {}",
@@ -187,9 +168,10 @@ mod run {
                 }
             }
         }
+    }
 
-        // Every summary error can be recomputed from objects.parquet.
-        let objects = read_parquet(&dir.join("objects.parquet"));
+    /// Every summary error can be recomputed from `objects.parquet`.
+    fn check_errors_recompute(summary: &DataFrame, objects: &DataFrame) {
         for c in [
             "truth_x",
             "truth_y",
@@ -205,40 +187,61 @@ mod run {
         ] {
             assert!(objects.column(c).is_ok(), "objects.parquet lacks {c}");
         }
-        let (om, on, of) = (
-            strs(&objects, "method"),
-            strs(&objects, "pose_noise"),
-            strs(&objects, "fusion"),
-        );
-        let (tx, ty) = (f64s(&objects, "truth_x"), f64s(&objects, "truth_y"));
-        let (sx, sy) = (f64s(&objects, "single_x"), f64s(&objects, "single_y"));
-        let (fx_, fy) = (f64s(&objects, "fused_x"), f64s(&objects, "fused_y"));
-        for i in 0..summary.height() {
+        let key = |df: &DataFrame| {
+            let (m, n, f) = (
+                strs(df, "method"),
+                strs(df, "pose_noise"),
+                strs(df, "fusion"),
+            );
+            (0..df.height())
+                .map(|i| format!("{}/{}/{}", m[i], n[i], f[i]))
+                .collect::<Vec<_>>()
+        };
+        let (keys, object_keys) = (key(summary), key(objects));
+        let (single, fused) = (f64s(summary, "de_single_m"), f64s(summary, "de_fused_m"));
+        let (tx, ty) = (f64s(objects, "truth_x"), f64s(objects, "truth_y"));
+        let (sx, sy) = (f64s(objects, "single_x"), f64s(objects, "single_y"));
+        let (fx, fy) = (f64s(objects, "fused_x"), f64s(objects, "fused_y"));
+        for (i, k) in keys.iter().enumerate() {
             let rows: Vec<usize> = (0..objects.height())
-                .filter(|&k| om[k] == methods[i] && on[k] == noise[i] && of[k] == fusion[i])
+                .filter(|&j| &object_keys[j] == k)
                 .collect();
-            assert!(!rows.is_empty());
+            assert!(!rows.is_empty(), "{k}: no object rows");
             let n = rows.len() as f64;
-            let de_s = rows
-                .iter()
-                .map(|&k| (sx[k] - tx[k]).hypot(sy[k] - ty[k]))
-                .sum::<f64>()
-                / n;
-            let de_f = rows
-                .iter()
-                .map(|&k| (fx_[k] - tx[k]).hypot(fy[k] - ty[k]))
-                .sum::<f64>()
-                / n;
-            assert!((de_s - single[i]).abs() < 1e-5, "{de_s} vs {}", single[i]);
-            assert!((de_f - fused[i]).abs() < 1e-5, "{de_f} vs {}", fused[i]);
+            let mean = |x: &[f64], y: &[f64]| {
+                rows.iter()
+                    .map(|&j| (x[j] - tx[j]).hypot(y[j] - ty[j]))
+                    .sum::<f64>()
+                    / n
+            };
+            assert!((mean(&sx, &sy) - single[i]).abs() < 1e-5, "{k}: single");
+            assert!((mean(&fx, &fy) - fused[i]).abs() < 1e-5, "{k}: fused");
         }
-        assert!(
-            !dir.parent().unwrap().read_dir().unwrap().any(|e| e
-                .unwrap()
-                .file_name()
-                .to_string_lossy()
-                .contains(".tmp-"))
-        );
+    }
+
+    #[test]
+    fn short_real_run_writes_consistent_results() {
+        let fx = Fixture::new();
+        let cfg = fx.config("short.toml", 80.0, "");
+        let out = fx.run(&cfg, "results/short");
+        assert_ok(&out);
+        assert!(stderr(&out).contains("instances"), "{}", stderr(&out));
+        let dir = fx.path("results/short");
+        for f in ["summary.csv", "objects.parquet", "summary.md"] {
+            assert!(dir.join(f).is_file(), "{f} missing");
+        }
+        let summary = read_csv(&dir.join("summary.csv"));
+        check_summary(&summary);
+        check_errors_recompute(&summary, &read_parquet(&dir.join("objects.parquet")));
+        let leftovers: Vec<String> = dir
+            .parent()
+            .unwrap()
+            .read_dir()
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.contains(".tmp-"))
+            .collect();
+        assert!(leftovers.is_empty(), "{leftovers:?}");
     }
 
     #[test]
@@ -495,10 +498,7 @@ mod learned {
         let cfg = fx.config(
             "e.toml",
             130.0,
-            &format!(
-                "[matching]\nmodels_dir = {:?}\n[pose_noise]\nlevels = [\"gps\"]\n[eval]\ntraffic_seeds = [1, 2]\n",
-                repo().join("models").to_string_lossy()
-            ),
+            "[pose_noise]\nlevels = [\"gps\"]\n[eval]\ntraffic_seeds = [1, 2]\n",
         );
         assert_ok(&fx.coid(&[
             "eval",
@@ -589,6 +589,40 @@ mod batch {
         std::fs::read(fx.path(dir).join("summary.csv")).unwrap()
     }
 
+    /// Starts `coid batch` of `runs` runs on one worker into `out` without
+    /// waiting for it.
+    fn spawn_batch(fx: &Fixture, cfg: &Path, runs: &str, out: &str) -> std::process::Child {
+        Command::new(BIN)
+            .args([
+                "batch",
+                "-q",
+                "--config",
+                cfg.to_str().unwrap(),
+                "--runs",
+                runs,
+            ])
+            .args(["--workers", "1", "--out", out])
+            .current_dir(fx.dir.path())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    }
+
+    /// Waits until the first run of the batch in `out` is complete.
+    fn wait_for_first_run(fx: &Fixture, out: &str) {
+        let started = Instant::now();
+        while !fx
+            .path(&format!("{out}/runs/run-000000/summary.csv"))
+            .is_file()
+        {
+            assert!(
+                started.elapsed() < Duration::from_secs(60),
+                "first run never finished"
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
     #[test]
     fn one_and_two_workers_give_identical_aggregates_with_intervals() {
         let fx = Fixture::new();
@@ -613,32 +647,9 @@ mod batch {
         let fx = Fixture::new();
         let cfg = fast_config(&fx, &shipped_sumocfg());
         assert_ok(&batch(&fx, &cfg, "5", "2", "whole", &[]));
-        let mut child = Command::new(BIN)
-            .args([
-                "batch",
-                "-q",
-                "--config",
-                cfg.to_str().unwrap(),
-                "--runs",
-                "5",
-                "--workers",
-                "1",
-                "--out",
-                "killed",
-            ])
-            .current_dir(fx.dir.path())
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .unwrap();
+        let mut child = spawn_batch(&fx, &cfg, "5", "killed");
         // Kill it once the first run is complete, mid-batch.
-        let started = Instant::now();
-        while !fx.path("killed/runs/run-000000/summary.csv").is_file() {
-            assert!(
-                started.elapsed() < Duration::from_secs(60),
-                "first run never finished"
-            );
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        wait_for_first_run(&fx, "killed");
         child.kill().unwrap(); // SIGKILL
         child.wait().unwrap();
         assert!(
@@ -648,7 +659,10 @@ mod batch {
         let finished = fx.path("killed/runs/run-000000/summary.csv");
         let before = std::fs::metadata(&finished).unwrap().modified().unwrap();
         assert_ok(&batch(&fx, &cfg, "5", "2", "killed", &[]));
-        assert_eq!(std::fs::metadata(&finished).unwrap().modified().unwrap(), before);
+        assert_eq!(
+            std::fs::metadata(&finished).unwrap().modified().unwrap(),
+            before
+        );
         assert_eq!(bytes(&fx, "killed"), bytes(&fx, "whole"));
     }
 
@@ -674,31 +688,8 @@ mod batch {
             std::fs::copy(&p, scen.join(p.file_name().unwrap())).unwrap();
         }
         let cfg = fast_config(&fx, &scen.join("intersection.sumocfg"));
-        let child = Command::new(BIN)
-            .args([
-                "batch",
-                "-q",
-                "--config",
-                cfg.to_str().unwrap(),
-                "--runs",
-                "4",
-                "--workers",
-                "1",
-                "--out",
-                "f",
-            ])
-            .current_dir(fx.dir.path())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap();
-        let started = Instant::now();
-        while !fx.path("f/runs/run-000000/summary.csv").is_file() {
-            assert!(
-                started.elapsed() < Duration::from_secs(60),
-                "first run never finished"
-            );
-            std::thread::sleep(Duration::from_millis(5));
-        }
+        let child = spawn_batch(&fx, &cfg, "4", "f");
+        wait_for_first_run(&fx, "f");
         std::fs::remove_file(scen.join("intersection.sumocfg")).unwrap();
         let out = child.wait_with_output().unwrap();
         let err = stderr(&out);

@@ -5,7 +5,7 @@
 //! optimally (`lsap`, Jonker-Volgenant) and pairs beyond the chi-square gate
 //! are dropped. Position only: no appearance, no graph structure.
 
-use super::{Correspondence, MatchView, Matcher, Method, binary_entropy_bits};
+use super::{Correspondence, Identification, MatchView, Matcher, Method, binary_entropy_bits};
 use crate::geometry::{Cov2, Vec2};
 
 pub struct GpsHungarian {
@@ -31,7 +31,13 @@ impl Matcher for GpsHungarian {
         Method::GpsHungarian
     }
 
-    fn match_pair(&self, first: &MatchView, second: &MatchView) -> Vec<Correspondence> {
+    fn identify(&self, first: &MatchView, second: &MatchView) -> Identification {
+        Identification::plain(self.assign(first, second))
+    }
+}
+
+impl GpsHungarian {
+    fn assign(&self, first: &MatchView, second: &MatchView) -> Vec<Correspondence> {
         let (n, m) = (first.detections.len(), second.detections.len());
         if n == 0 || m == 0 {
             return Vec::new();
@@ -88,88 +94,33 @@ impl Matcher for GpsHungarian {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::{PoseNoiseLabel, PoseNoiseLevel};
-    use crate::geometry::Pose2;
-    use crate::graph::SceneGraph;
-    use crate::sensor::{Appearance, Detection};
+    use crate::matching::testkit::{self, Side};
     use crate::traffic::ObjectClass;
-
-    fn det(p: Vec2, id: &str) -> Detection {
-        Detection {
-            position_m: p,
-            cov_m2: Cov2::identity() * 0.25,
-            appearance: Appearance {
-                class: ObjectClass::Car,
-                colour_rgb: [0.5; 3],
-                length_m: 4.6,
-                width_m: 1.8,
-                height_m: 1.5,
-            },
-            truth_id: Some(id.into()),
-            visible_fraction: 1.0,
-        }
-    }
-
-    const EXACT: PoseNoiseLevel = PoseNoiseLevel {
-        label: PoseNoiseLabel::None,
-        position_sigma_m: 0.0,
-        heading_sigma_rad: 0.0,
-    };
 
     #[test]
     fn exact_poses_recover_the_true_pairs_and_gate_the_rest() {
-        let world = [
-            Vec2::new(10.0, 5.0),
-            Vec2::new(20.0, -3.0),
-            Vec2::new(15.0, 12.0),
+        let white = [0.9; 3];
+        let world = vec![
+            (Vec2::new(10.0, 5.0), ObjectClass::Car, white),
+            (Vec2::new(20.0, -3.0), ObjectClass::Car, white),
+            (Vec2::new(15.0, 12.0), ObjectClass::Car, white),
+            (Vec2::new(-40.0, 0.0), ObjectClass::Car, white),
         ];
-        let pa = Pose2::new(Vec2::new(0.0, 0.0), 0.0);
-        let pb = Pose2::new(Vec2::new(30.0, 30.0), -2.0);
-        let da: Vec<Detection> = world
-            .iter()
-            .enumerate()
-            .map(|(k, w)| det(pa.to_body(w), &k.to_string()))
-            .collect();
+        let a = Side::of((0.0, 0.0, 0.0), &world, &[0, 1, 2], testkit::EXACT);
         // The second vehicle sees the last two objects (in the other order)
         // and one object the first does not see.
-        let db = vec![
-            det(pb.to_body(&world[2]), "2"),
-            det(pb.to_body(&Vec2::new(-40.0, 0.0)), "x"),
-            det(pb.to_body(&world[1]), "1"),
-        ];
-        let ga =
-            SceneGraph::delaunay(&da.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
-        let gb =
-            SceneGraph::delaunay(&db.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
-        let va = MatchView {
-            detections: &da,
-            graph: &ga,
-            pose_reported: pa,
-            pose_noise: EXACT,
-        };
-        let vb = MatchView {
-            detections: &db,
-            graph: &gb,
-            pose_reported: pb,
-            pose_noise: EXACT,
-        };
-        let m = GpsHungarian { gate_chi2: 9.21 }.match_pair(&va, &vb);
+        let b = Side::of((30.0, 30.0, -2.0), &world, &[2, 3, 1], testkit::EXACT);
+        let m = GpsHungarian { gate_chi2: 9.21 }
+            .identify(&a.view(), &b.view())
+            .matches;
         let pairs: Vec<(usize, usize)> = m.iter().map(|c| (c.a, c.b)).collect();
         assert_eq!(pairs, vec![(1, 2), (2, 0)]);
         assert!(
             m.iter()
                 .all(|c| c.probability > 0.99 && c.uncertainty < 0.1)
         );
-        let empty = MatchView {
-            detections: &[],
-            graph: &ga,
-            pose_reported: pb,
-            pose_noise: EXACT,
-        };
-        assert!(
-            GpsHungarian { gate_chi2: 9.21 }
-                .match_pair(&va, &empty)
-                .is_empty()
-        );
+        let empty = Side::new(vec![], vec![], b.pose, testkit::EXACT);
+        let none = GpsHungarian { gate_chi2: 9.21 }.identify(&a.view(), &empty.view());
+        assert!(none.matches.is_empty());
     }
 }

@@ -1,77 +1,88 @@
 //! Correspondence identification: which detections of two vehicles are the
-//! same object. Every method implements [`Matcher`]; the rest of the program
-//! sees only plain [`Correspondence`] lists with a probability and an
-//! uncertainty per pair. Pairs not listed are "no match" (non-covisible).
+//! same object. Every method that works from what the vehicles know
+//! implements [`Matcher`]: two [`MatchView`]s in (detections, graph, GPS
+//! pose; no ground truth, by type), an [`Identification`] out (one-to-one
+//! [`Correspondence`]s with a probability and an uncertainty per pair; pairs
+//! not listed are "no match"). The oracle is not a `Matcher`: it reads the
+//! ground truth ([`oracle::true_pairs`]) and only the evaluation calls it.
 
-pub mod affinity;
 pub mod deep;
 mod gps_hungarian;
-mod mogm;
-mod oracle;
-mod rgm;
+pub mod learning_free;
+pub mod oracle;
+#[cfg(test)]
+pub(crate) mod testkit;
 
 pub use gps_hungarian::GpsHungarian;
-pub use mogm::Mogm;
-pub use oracle::Oracle;
-pub use rgm::Rgm;
+pub use learning_free::{Mogm, Rgm};
 
-use serde::Deserialize;
+use std::path::PathBuf;
 
-use crate::config::{MatchingSettings, PoseNoiseLevel};
+use self::deep::decision::{MatchDistribution, UncertaintyKind};
 use crate::geometry::Pose2;
 use crate::graph::SceneGraph;
-use crate::sensor::Detection;
+use crate::sensor::{Detection, PoseNoiseLevel};
 
-/// The matching methods, with the labels used in configs and results.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Deserialize)]
-pub enum Method {
-    /// The paper's Bayesian deep graph matcher: L_coid + L_non + L_unc,
-    /// MC-dropout uncertainty, thresholding.
-    #[serde(rename = "ours")]
-    Ours,
-    /// Ablation: L_coid + L_non.
-    #[serde(rename = "coid+non")]
-    CoidNon,
-    /// Ablation: L_coid + L_unc.
-    #[serde(rename = "coid+unc")]
-    CoidUnc,
-    /// DGMC: GNN + neighbourhood consensus, L_coid only.
-    #[serde(rename = "dgmc")]
-    Dgmc,
-    /// GCN-GM: GNN similarity + Sinkhorn, L_coid only.
-    #[serde(rename = "gcn-gm")]
-    GcnGm,
-    /// Learning-free multi-order graph matching (appearance, edge lengths,
-    /// edge directions; spectral solution).
-    #[serde(rename = "mogm")]
-    Mogm,
-    /// Learning-free regularised graph matching that allows "no match"
-    /// (IPFP with a price per match).
-    #[serde(rename = "rgm")]
-    Rgm,
-    /// Detections moved into the ego frame with the GPS poses, gated
-    /// Hungarian assignment on Mahalanobis distance.
-    #[serde(rename = "gps-hungarian")]
-    GpsHungarian,
-    /// The true correspondences: an upper bound for fusion.
-    #[serde(rename = "oracle")]
-    Oracle,
+crate::label_enum! { "method";
+    /// The matching methods, with the labels used in configs and results.
+    /// Rows of every table come in this order.
+    pub enum Method {
+        /// The paper's Bayesian deep graph matcher: L_coid + L_non + L_unc,
+        /// MC-dropout uncertainty, thresholding.
+        #[strum(serialize = "ours")]
+        Ours,
+        /// Ablation: L_coid + L_non.
+        #[strum(serialize = "coid+non")]
+        CoidNon,
+        /// Ablation: L_coid + L_unc.
+        #[strum(serialize = "coid+unc")]
+        CoidUnc,
+        /// DGMC: GNN + neighbourhood consensus, L_coid only.
+        #[strum(serialize = "dgmc")]
+        Dgmc,
+        /// GCN-GM: GNN similarity + Sinkhorn, L_coid only.
+        #[strum(serialize = "gcn-gm")]
+        GcnGm,
+        /// Learning-free multi-order graph matching (appearance, edge lengths,
+        /// edge directions; spectral solution).
+        #[strum(serialize = "mogm")]
+        Mogm,
+        /// Learning-free regularised graph matching that allows "no match"
+        /// (IPFP with a price per match).
+        #[strum(serialize = "rgm")]
+        Rgm,
+        /// Detections moved into the ego frame with the GPS poses, gated
+        /// Hungarian assignment on Mahalanobis distance.
+        #[strum(serialize = "gps-hungarian")]
+        GpsHungarian,
+        /// The true correspondences: an upper bound for fusion.
+        #[strum(serialize = "oracle")]
+        Oracle,
+    }
 }
 
 impl Method {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Method::Ours => "ours",
-            Method::CoidNon => "coid+non",
-            Method::CoidUnc => "coid+unc",
-            Method::Dgmc => "dgmc",
-            Method::GcnGm => "gcn-gm",
-            Method::Mogm => "mogm",
-            Method::Rgm => "rgm",
-            Method::GpsHungarian => "gps-hungarian",
-            Method::Oracle => "oracle",
-        }
+    /// Every method, in table order.
+    pub fn all() -> &'static [Method] {
+        <Method as strum::VariantArray>::VARIANTS
     }
+}
+
+/// `[matching]`: which methods run and how they decide.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MatchingSettings {
+    pub methods: Vec<Method>,
+    /// GPS-Hungarian gate on the squared Mahalanobis distance (9.21 is the
+    /// 99% point of chi-square with 2 degrees of freedom).
+    pub gate_chi2: f64,
+    /// Folder of the deep methods' trained weights (`<method>.bpk`).
+    pub models_dir: PathBuf,
+    /// MC-dropout samples at inference (paper: T = 20).
+    pub mc_samples: usize,
+    /// Pairs whose uncertainty (binary entropy in bits, in [0, 1]) is at
+    /// least this are removed (paper: 0.7).
+    pub lambda: f64,
+    pub uncertainty: UncertaintyKind,
 }
 
 /// One vehicle's side of a matching problem: what that vehicle knows.
@@ -97,11 +108,31 @@ pub struct Correspondence {
     pub uncertainty: f64,
 }
 
+/// What a method says about one pair of vehicles.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Identification {
+    /// One-to-one pairs (each `a` and each `b` at most once), sorted by `a`.
+    pub matches: Vec<Correspondence>,
+    /// Deep methods: the mean assignment and uncertainties behind the
+    /// decision, so that other thresholds can be applied without matching
+    /// again.
+    pub distribution: Option<MatchDistribution>,
+}
+
+impl Identification {
+    /// Correspondences without a distribution behind them.
+    pub fn plain(matches: Vec<Correspondence>) -> Self {
+        Self {
+            matches,
+            distribution: None,
+        }
+    }
+}
+
 /// A one-to-one correspondence method between two vehicles' detections.
 pub trait Matcher: Send + Sync {
     fn method(&self) -> Method;
-    /// One-to-one pairs (each `a` and each `b` at most once), sorted by `a`.
-    fn match_pair(&self, first: &MatchView, second: &MatchView) -> Vec<Correspondence>;
+    fn identify(&self, first: &MatchView, second: &MatchView) -> Identification;
 }
 
 /// Binary entropy in bits, 0 at p in {0, 1} and 1 at p = 0.5.
@@ -111,205 +142,151 @@ pub fn binary_entropy_bits(p: f64) -> f64 {
     h(p) + h(1.0 - p)
 }
 
-/// Builds the matcher for a method; deep methods load their trained
-/// weights from `settings.models_dir`.
-pub fn matcher_for(
+/// Why a method could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    #[error("the oracle reads ground truth; the evaluation runs it, not a Matcher")]
+    Oracle,
+    #[error("'{0}' needs trained weights")]
+    NoWeights(&'static str),
+    #[error("'{method}': the weights do not fit its network ({reason})")]
+    BadWeights {
+        method: &'static str,
+        reason: String,
+    },
+}
+
+/// Builds the matcher of a method. Deep methods need their trained
+/// weights (`weights`, the bytes of `<method>.bpk`); MC-dropout masks are
+/// drawn from streams seeded with `dropout_seed`.
+pub fn build(
     method: Method,
     settings: &MatchingSettings,
     dropout_seed: u64,
-) -> Result<Box<dyn Matcher>, deep::LoadError> {
+    weights: Option<&[u8]>,
+) -> Result<Box<dyn Matcher>, BuildError> {
     Ok(match method {
         Method::Mogm => Box::new(Mogm::default()),
         Method::Rgm => Box::new(Rgm::default()),
         Method::GpsHungarian => Box::new(GpsHungarian {
             gate_chi2: settings.gate_chi2,
         }),
-        Method::Oracle => Box::new(Oracle),
+        Method::Oracle => return Err(BuildError::Oracle),
         deep_method => {
+            let bytes = weights.ok_or(BuildError::NoWeights(deep_method.as_str()))?;
             let threshold = deep::thresholds_by_default(deep_method)
                 .then_some((settings.uncertainty, settings.lambda));
-            Box::new(deep::DeepMatcher::load(
+            let matcher = deep::DeepMatcher::from_weights(
                 deep_method,
-                &settings.models_dir,
+                bytes,
                 settings.mc_samples,
                 threshold,
                 dropout_seed,
-            )?)
+            )
+            .map_err(|reason| BuildError::BadWeights {
+                method: deep_method.as_str(),
+                reason,
+            })?;
+            Box::new(matcher)
         }
     })
 }
 
 #[cfg(test)]
-pub(crate) mod tests {
+mod tests {
+    use super::testkit::{self, Side};
     use super::*;
-    use crate::config::{PoseNoiseLabel, PoseNoiseLevel};
-    use crate::geometry::{Cov2, Vec2};
-    use crate::sensor::Appearance;
+    use crate::geometry::Vec2;
     use crate::traffic::ObjectClass;
 
-    pub(crate) fn test_settings() -> MatchingSettings {
+    fn settings() -> MatchingSettings {
         MatchingSettings {
             methods: vec![],
             gate_chi2: 9.21,
-            models_dir: std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models"),
+            models_dir: PathBuf::new(),
             mc_samples: 20,
             lambda: 0.7,
-            uncertainty: deep::decision::UncertaintyKind::Total,
+            uncertainty: UncertaintyKind::Total,
         }
     }
 
-    pub(crate) const EXACT: PoseNoiseLevel = PoseNoiseLevel {
-        label: PoseNoiseLabel::None,
-        position_sigma_m: 0.0,
-        heading_sigma_rad: 0.0,
-    };
-
-    /// Objects in the world: position, class, colour. Colours repeat.
-    pub(crate) fn world_objects() -> Vec<(Vec2, ObjectClass, [f64; 3])> {
-        let white = [0.95; 3];
-        let black = [0.1; 3];
-        let red = [0.7, 0.1, 0.1];
-        vec![
-            (Vec2::new(12.0, 3.0), ObjectClass::Car, white),
-            (Vec2::new(18.0, -6.0), ObjectClass::Car, black),
-            (Vec2::new(25.0, 9.0), ObjectClass::Car, white),
-            (Vec2::new(31.0, -2.0), ObjectClass::Truck, red),
-            (Vec2::new(9.0, 14.0), ObjectClass::Pedestrian, black),
-            (Vec2::new(22.0, 17.0), ObjectClass::Car, white),
-            (Vec2::new(36.0, 12.0), ObjectClass::Car, black),
-            (Vec2::new(15.0, -15.0), ObjectClass::Bicycle, red),
-        ]
-    }
-
-    pub(crate) fn detections_from(
-        pose: &Pose2,
-        objects: &[(Vec2, ObjectClass, [f64; 3])],
-        order: &[usize],
-    ) -> Vec<Detection> {
-        order
-            .iter()
-            .map(|&k| {
-                let (w, class, colour) = objects[k];
-                Detection {
-                    position_m: pose.to_body(&w),
-                    cov_m2: Cov2::identity() * 0.25,
-                    appearance: Appearance {
-                        class,
-                        colour_rgb: colour,
-                        length_m: 4.6,
-                        width_m: 1.8,
-                        height_m: 1.5,
-                    },
-                    truth_id: Some(k.to_string()),
-                    visible_fraction: 1.0,
-                }
-            })
-            .collect()
-    }
-
-    /// Matches a scene against a rigidly moved, reordered copy of itself and
-    /// returns the fraction of detections paired with their true twin and
-    /// the number of wrong pairs.
-    pub(crate) fn self_match(matcher: &dyn Matcher) -> (f64, usize) {
-        let objects = world_objects();
-        let pa = Pose2::new(Vec2::new(0.0, 0.0), 0.0);
-        let pb = Pose2::new(Vec2::new(45.0, 30.0), -2.4);
-        let da = detections_from(&pa, &objects, &(0..objects.len()).collect::<Vec<_>>());
-        let db = detections_from(&pb, &objects, &[5, 2, 7, 0, 3, 6, 1, 4]);
-        let ga =
-            SceneGraph::delaunay(&da.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
-        let gb =
-            SceneGraph::delaunay(&db.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
-        let va = MatchView {
-            detections: &da,
-            graph: &ga,
-            pose_reported: pa,
-            pose_noise: EXACT,
-        };
-        let vb = MatchView {
-            detections: &db,
-            graph: &gb,
-            pose_reported: pb,
-            pose_noise: EXACT,
-        };
-        let m = matcher.match_pair(&va, &vb);
-        let right = m
-            .iter()
-            .filter(|c| da[c.a].truth_id == db[c.b].truth_id)
-            .count();
-        (right as f64 / objects.len() as f64, m.len() - right)
+    fn plain(method: Method) -> Box<dyn Matcher> {
+        build(method, &settings(), 1, None).unwrap()
     }
 
     #[test]
-    fn every_matcher_matches_a_moved_copy_of_a_scene_to_itself() {
-        for method in [
-            Method::Mogm,
-            Method::Rgm,
-            Method::GpsHungarian,
-            Method::Oracle,
-        ] {
-            let (found, wrong) =
-                self_match(matcher_for(method, &test_settings(), 1).unwrap().as_ref());
-            assert_eq!((found, wrong), (1.0, 0), "{method:?}");
+    fn every_learning_free_matcher_matches_a_moved_copy_of_a_scene_to_itself() {
+        for method in [Method::Mogm, Method::Rgm, Method::GpsHungarian] {
+            assert_eq!(
+                testkit::self_match(plain(method).as_ref()),
+                (1.0, 0),
+                "{method:?}"
+            );
         }
     }
 
     #[test]
     fn graph_matchers_find_nothing_in_unrelated_scenes() {
         // The second vehicle sees other objects of other classes elsewhere.
-        let objects = world_objects();
+        let objects = testkit::world_objects();
         let others: Vec<(Vec2, ObjectClass, [f64; 3])> = objects
             .iter()
             .map(|&(p, c, col)| {
-                (
-                    Vec2::new(p.y * 1.7, -p.x * 0.6),
-                    if c == ObjectClass::Pedestrian {
-                        ObjectClass::Bus
-                    } else {
-                        ObjectClass::Pedestrian
-                    },
-                    col,
-                )
+                let class = if c == ObjectClass::Pedestrian {
+                    ObjectClass::Bus
+                } else {
+                    ObjectClass::Pedestrian
+                };
+                (Vec2::new(p.y * 1.7, -p.x * 0.6), class, col)
             })
             .collect();
-        let pa = Pose2::identity();
-        let pb = Pose2::new(Vec2::new(45.0, 30.0), -2.4);
         let idx: Vec<usize> = (0..objects.len()).collect();
-        let da = detections_from(&pa, &objects, &idx);
-        let db = detections_from(&pb, &others, &idx);
-        let ga =
-            SceneGraph::delaunay(&da.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
-        let gb =
-            SceneGraph::delaunay(&db.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
-        let va = MatchView {
-            detections: &da,
-            graph: &ga,
-            pose_reported: pa,
-            pose_noise: EXACT,
-        };
-        let vb = MatchView {
-            detections: &db,
-            graph: &gb,
-            pose_reported: pb,
-            pose_noise: EXACT,
-        };
+        let a = Side::of(testkit::POSE_A, &objects, &idx, testkit::EXACT);
+        let b = Side::of(testkit::POSE_B, &others, &idx, testkit::EXACT);
         // RGM prices every match, so unsupported pairs stay unmatched.
-        assert!(
-            matcher_for(Method::Rgm, &test_settings(), 1)
-                .unwrap()
-                .match_pair(&va, &vb)
-                .is_empty()
-        );
+        let rgm = plain(Method::Rgm).identify(&a.view(), &b.view());
+        assert!(rgm.matches.is_empty());
         // Spectral matching (MOGM) has no absolute "no match": it keeps the
         // strongest compatible candidates (here: the first vehicle's
         // pedestrian and bicycle, both compatible with the second's
         // pedestrians), a known weakness of the method.
+        let mogm = plain(Method::Mogm).identify(&a.view(), &b.view());
+        assert!(mogm.matches.len() <= 2);
+    }
+
+    #[test]
+    fn the_oracle_is_not_a_matcher_and_deep_methods_need_weights() {
+        assert!(matches!(
+            build(Method::Oracle, &settings(), 1, None),
+            Err(BuildError::Oracle)
+        ));
+        let e = build(Method::Ours, &settings(), 1, None).err().unwrap();
+        assert_eq!(e.to_string(), "'ours' needs trained weights");
+        let e = build(Method::Ours, &settings(), 1, Some(b"not a burnpack"))
+            .err()
+            .unwrap();
         assert!(
-            matcher_for(Method::Mogm, &test_settings(), 1)
-                .unwrap()
-                .match_pair(&va, &vb)
-                .len()
-                <= 2
+            e.to_string().starts_with("'ours': the weights do not fit"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn method_labels_are_the_published_ones_in_table_order() {
+        let labels: Vec<&str> = Method::all().iter().map(|m| m.as_str()).collect();
+        assert_eq!(
+            labels,
+            [
+                "ours",
+                "coid+non",
+                "coid+unc",
+                "dgmc",
+                "gcn-gm",
+                "mogm",
+                "rgm",
+                "gps-hungarian",
+                "oracle"
+            ]
         );
     }
 

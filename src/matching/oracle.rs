@@ -1,33 +1,56 @@
-//! The oracle: pairs detections with the same true object id. It bounds what
-//! fusion can reach with perfect correspondences; it is the only matcher that
-//! reads the evaluation-only `truth_id`.
+//! The oracle: pairs detections behind which stands the same true object.
+//! It bounds what fusion can reach with perfect correspondences. It reads
+//! the ground truth ([`ObservationTruth`]), so it is not a [`super::Matcher`]:
+//! the evaluation calls it with the truths beside the observations, and the
+//! same pairs are the training labels.
 
-use super::{Correspondence, MatchView, Matcher, Method};
+use super::Correspondence;
+use crate::sensor::ObservationTruth;
 
-pub struct Oracle;
+/// Every pair (a, b) of detections of the same true object, sorted by `a`,
+/// with probability 1 and no uncertainty.
+pub fn true_pairs(first: &ObservationTruth, second: &ObservationTruth) -> Vec<Correspondence> {
+    (0..first.detections.len())
+        .filter_map(|a| {
+            let b = second.find(first.object_id(a)?)?;
+            Some(Correspondence {
+                a,
+                b,
+                probability: 1.0,
+                uncertainty: 0.0,
+            })
+        })
+        .collect()
+}
 
-impl Matcher for Oracle {
-    fn method(&self) -> Method {
-        Method::Oracle
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Pose2;
+    use crate::sensor::DetectionTruth;
+
+    fn truth(ids: &[Option<&str>]) -> ObservationTruth {
+        ObservationTruth {
+            ego_pose: Pose2::identity(),
+            detections: ids
+                .iter()
+                .map(|id| DetectionTruth {
+                    object_id: id.map(str::to_owned),
+                    position_m: None,
+                    visible_fraction: 1.0,
+                })
+                .collect(),
+        }
     }
 
-    fn match_pair(&self, first: &MatchView, second: &MatchView) -> Vec<Correspondence> {
-        let mut out = Vec::new();
-        for (a, da) in first.detections.iter().enumerate() {
-            let Some(id) = &da.truth_id else { continue };
-            if let Some(b) = second
-                .detections
-                .iter()
-                .position(|db| db.truth_id.as_ref() == Some(id))
-            {
-                out.push(Correspondence {
-                    a,
-                    b,
-                    probability: 1.0,
-                    uncertainty: 0.0,
-                });
-            }
-        }
-        out
+    #[test]
+    fn pairs_the_same_objects_and_never_false_positives() {
+        let first = truth(&[Some("x"), None, Some("y"), Some("z")]);
+        let second = truth(&[Some("y"), None, Some("x"), Some("w")]);
+        let pairs: Vec<(usize, usize)> = true_pairs(&first, &second)
+            .iter()
+            .map(|c| (c.a, c.b))
+            .collect();
+        assert_eq!(pairs, vec![(0, 2), (2, 0)]);
     }
 }

@@ -14,24 +14,15 @@
 
 use crate::matching::{Correspondence, binary_entropy_bits};
 
-/// Which uncertainty the threshold applies to.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum UncertaintyKind {
-    /// Entropy of the mean (Eq. 10): aleatoric + epistemic.
-    #[serde(rename = "entropy")]
-    Total,
-    Epistemic,
-    Aleatoric,
-}
-
-impl UncertaintyKind {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            UncertaintyKind::Total => "entropy",
-            UncertaintyKind::Epistemic => "epistemic",
-            UncertaintyKind::Aleatoric => "aleatoric",
-        }
+crate::label_enum! { "uncertainty";
+    /// Which uncertainty the threshold applies to.
+    #[strum(serialize_all = "lowercase")]
+    pub enum UncertaintyKind {
+        /// Entropy of the mean (Eq. 10): aleatoric + epistemic.
+        #[strum(serialize = "entropy")]
+        Total,
+        Epistemic,
+        Aleatoric,
     }
 }
 

@@ -190,11 +190,10 @@ mod tests {
             Vec2::new(3.0, 8.0),
         ];
         let g = SceneGraph::delaunay(&pts).unwrap();
-        let dets: Vec<Detection> = crate::matching::tests::detections_from(
-            &Pose2::identity(),
-            &crate::matching::tests::world_objects()[..3],
-            &[0, 1, 2],
-        );
+        use crate::matching::testkit;
+        let objects = testkit::world_objects();
+        let dets = testkit::Side::of(testkit::POSE_A, &objects[..3], &[0, 1, 2], testkit::EXACT)
+            .detections;
         let input = graph_input(&dets, &g, &Pose2::new(Vec2::new(5.0, 5.0), 0.7));
         let e = input.edge_count();
         assert_eq!(e, 2 * g.edges.len());

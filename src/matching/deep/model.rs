@@ -17,13 +17,83 @@
 //! autodiff training, and MC dropout needs masks at inference. The T Monte
 //! Carlo samples are a leading batch dimension; the first layer, whose input
 //! does not depend on any mask, is computed once.
+//!
+//! Initial weights come from named streams ([`Init`]), one per parameter,
+//! never from burn's own generator. Weights leave and enter as bytes
+//! (burn's burnpack format, [`to_bytes`] / [`from_bytes`]); files are the
+//! caller's business.
 
-use burn::module::Param;
-use burn::nn::{Linear, LinearConfig};
+use burn::module::{Param, ParamId};
+use burn::nn::Linear;
 use burn::prelude::*;
-use burn::tensor::{Distribution, activation};
+use burn::tensor::activation;
+use rand::Rng;
 
 use super::features::{GraphInput, KERNEL_2D};
+use crate::rng::{self, Purpose};
+
+/// Where a new network's weights come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Init {
+    /// Uniform draws from the stream `(seed, WeightInit, hash(parameter
+    /// name))`: the same seed gives the same weights, whatever else was
+    /// drawn before.
+    Seeded(u64),
+    /// Zeros: a skeleton about to receive trained weights.
+    Zeros,
+}
+
+impl Init {
+    /// A tensor of `shape` drawn uniformly from `(-bound, bound)`.
+    fn uniform<const D: usize>(
+        self,
+        name: &str,
+        shape: [usize; D],
+        bound: f64,
+        device: &Device,
+    ) -> Tensor<D> {
+        match self {
+            Init::Seeded(seed) if bound > 0.0 => {
+                let mut s = rng::stream(seed, Purpose::WeightInit, &[rng::hash_str(name)]);
+                let n = shape.iter().product();
+                let v: Vec<f32> = (0..n)
+                    .map(|_| s.random_range(-bound..bound) as f32)
+                    .collect();
+                Tensor::from_data(TensorData::new(v, shape), device)
+            }
+            _ => Tensor::zeros(shape, device),
+        }
+    }
+
+    /// The parameter `name`, drawn uniformly from `(-bound, bound)`.
+    fn param<const D: usize>(
+        self,
+        name: &str,
+        shape: [usize; D],
+        bound: f64,
+        device: &Device,
+    ) -> Param<Tensor<D>> {
+        named_param(name, self.uniform(name, shape, bound, device))
+    }
+
+    /// A linear layer `[d_in] -> [d_out]` initialised like burn's default
+    /// (weight and bias uniform in `+-1/sqrt(d_in)`).
+    fn linear(self, name: &str, d_in: usize, d_out: usize, device: &Device) -> Linear {
+        let b = 1.0 / (d_in as f64).sqrt();
+        Linear {
+            weight: self.param(&format!("{name}.weight"), [d_in, d_out], b, device),
+            bias: Some(self.param(&format!("{name}.bias"), [d_out], b, device)),
+        }
+    }
+}
+
+/// A trainable parameter whose id is derived from its name (burn draws
+/// ids at random, which would make saved weights differ from run to run).
+fn named_param<const D: usize>(name: &str, value: Tensor<D>) -> Param<Tensor<D>> {
+    // Through `Parameter`: a tensor without autodiff is left as it is.
+    let value = <Tensor<D> as burn::module::Parameter>::set_require_grad(value, true);
+    Param::initialized(ParamId::from(rng::hash_str(name)), value)
+}
 
 /// One graph as tensors on a device.
 pub struct GraphTensors {
@@ -72,14 +142,15 @@ pub struct SplineConv {
 }
 
 impl SplineConv {
-    pub fn new(d_in: usize, d_out: usize, device: &Device) -> Self {
+    /// A layer named `name` (the parameter names of its streams).
+    pub fn new(name: &str, d_in: usize, d_out: usize, init: Init, device: &Device) -> Self {
         // Uniform(+-1/sqrt(fan_in)) with the fan-in of one kernel cell.
         let b = 1.0 / (d_in as f64).sqrt();
-        let uniform = Distribution::Uniform(-b, b);
+        let weight = [d_in, KERNEL_2D * d_out];
         Self {
-            weight: Param::from_tensor(Tensor::random([d_in, KERNEL_2D * d_out], uniform, device)),
-            root: Param::from_tensor(Tensor::random([d_in, d_out], uniform, device)),
-            bias: Param::from_tensor(Tensor::zeros([d_out], device)),
+            weight: init.param(&format!("{name}.weight"), weight, b, device),
+            root: init.param(&format!("{name}.root"), [d_in, d_out], b, device),
+            bias: named_param(&format!("{name}.bias"), Tensor::zeros([d_out], device)),
             d_out,
         }
     }
@@ -170,28 +241,25 @@ pub struct Network {
 }
 
 impl Network {
-    pub fn new(arch: &Architecture, device: &Device) -> Self {
+    pub fn new(arch: &Architecture, init: Init, device: &Device) -> Self {
+        let r = arch.consensus_dim;
         let (consensus_conv, phi_in, phi_out) = if arch.consensus {
             (
-                Some(SplineConv::new(
-                    arch.consensus_dim,
-                    arch.consensus_dim,
-                    device,
-                )),
-                Some(LinearConfig::new(arch.consensus_dim, arch.consensus_dim).init(device)),
-                Some(LinearConfig::new(arch.consensus_dim, 1).init(device)),
+                Some(SplineConv::new("consensus_conv", r, r, init, device)),
+                Some(init.linear("phi_in", r, r, device)),
+                Some(init.linear("phi_out", r, 1, device)),
             )
         } else {
             (None, None, None)
         };
         Self {
-            conv1: SplineConv::new(arch.node_features, arch.hidden, device),
-            conv2: SplineConv::new(arch.hidden, arch.out, device),
+            conv1: SplineConv::new("conv1", arch.node_features, arch.hidden, init, device),
+            conv2: SplineConv::new("conv2", arch.hidden, arch.out, init, device),
             consensus_conv,
             phi_in,
             phi_out,
-            dustbin: Param::from_tensor(Tensor::ones([1], device)),
-            log_position_weight: Param::from_tensor(Tensor::zeros([1], device)),
+            dustbin: named_param("dustbin", Tensor::ones([1], device)),
+            log_position_weight: named_param("log_position_weight", Tensor::zeros([1], device)),
             gps_prior: arch.gps_prior,
         }
     }
@@ -321,19 +389,106 @@ pub fn loss(
     total
 }
 
-/// Saves the network's weights (burn's own format).
-pub fn save(net: &Network, path: &std::path::Path) -> Result<(), String> {
-    net.clone().save_file(path).map_err(|e| format!("{e:?}"))
+/// The network's weights as bytes (burn's burnpack format, what a
+/// `<method>.bpk` file holds).
+pub fn to_bytes(net: &Network) -> Result<Vec<u8>, String> {
+    let bytes = net
+        .clone()
+        .into_record()
+        .into_bytes()
+        .map_err(|e| format!("{e:?}"))?;
+    Ok(bytes.to_vec())
 }
 
-/// Loads weights saved by [`save`] into a network of the same architecture
-/// on `device`.
-pub fn load(
-    arch: &Architecture,
-    path: &std::path::Path,
-    device: &Device,
-) -> Result<Network, String> {
-    Network::new(arch, device)
-        .try_load_file(path)
+/// A network of architecture `arch` on `device` with the weights of
+/// [`to_bytes`].
+pub fn from_bytes(arch: &Architecture, bytes: &[u8], device: &Device) -> Result<Network, String> {
+    let record =
+        burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec()))
+            .map_err(|e| format!("{e:?}"))?;
+    Network::new(arch, Init::Zeros, device)
+        .try_load_record(record)
         .map_err(|e| format!("{e:?}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two MC samples of a 2 x 2 assignment (dustbins padded with 0.1),
+    /// whose real blocks average to P = [[0.7, 0.2], [0.1, 0.6]].
+    fn two_samples(device: &Device) -> Tensor<3> {
+        let samples: Vec<f32> = vec![
+            0.8, 0.1, 0.1, 0.1, 0.5, 0.1, 0.1, 0.1, 0.1, // t = 0
+            0.6, 0.3, 0.1, 0.1, 0.7, 0.1, 0.1, 0.1, 0.1, // t = 1
+        ];
+        Tensor::<3>::from_data(TensorData::new(samples, [2, 3, 3]), device).log()
+    }
+
+    /// The loss terms on a hand-computed case: object 0 of each side is
+    /// the same, object 1 of each side is seen by one vehicle only.
+    /// By hand (P above, Y* = [[1, 0], [0, 0]], N = [[0, 1], [1, 1]]):
+    /// L_coid = -ln 0.7 = 0.356675;
+    /// L_non = -ln((1 + e^-0.2 + e^-0.1 + e^-0.6) / 4) = 0.200777;
+    /// L_unc = -ln(mean(exp(-H_bits(p)))) over 0.7, 0.2, 0.1, 0.6 = 0.742119.
+    #[test]
+    fn loss_terms_match_a_hand_computed_two_by_two_case() {
+        let device = Device::flex();
+        let y = Tensor::<2>::from_data(TensorData::new(vec![1f32, 0., 0., 0.], [2, 2]), &device);
+        let non = Tensor::<2>::from_data(TensorData::new(vec![0f32, 1., 1., 1.], [2, 2]), &device);
+        let value = |non_term: bool, unc_term: bool| {
+            let terms = LossTerms {
+                non: non_term,
+                unc: unc_term,
+            };
+            f64::from(
+                loss(two_samples(&device), y.clone(), non.clone(), 1, terms).into_scalar::<f32>(),
+            )
+        };
+        let coid = value(false, false);
+        assert!((coid - 0.356675).abs() < 1e-5, "L_coid {coid}");
+        assert!((value(true, false) - coid - 0.200777).abs() < 1e-5);
+        assert!((value(false, true) - coid - 0.742119).abs() < 1e-5);
+        assert!((value(true, true) - 1.299571).abs() < 1e-5);
+    }
+
+    #[test]
+    fn seeded_initialisation_is_named_per_parameter() {
+        let device = Device::flex();
+        let arch = Architecture::default();
+        let bytes = |init| to_bytes(&Network::new(&arch, init, &device)).unwrap();
+        // Same seed, same weights (and the same bytes: parameter ids are
+        // named too); another seed, other weights.
+        assert_eq!(bytes(Init::Seeded(4)), bytes(Init::Seeded(4)));
+        assert_ne!(bytes(Init::Seeded(4)), bytes(Init::Seeded(5)));
+        // A parameter's draws do not depend on which other layers exist:
+        // the first layer is the same with and without consensus.
+        let first_layer = |consensus: bool| {
+            let a = Architecture {
+                consensus,
+                ..Architecture::default()
+            };
+            let net = Network::new(&a, Init::Seeded(4), &device);
+            net.conv1.weight.val().try_into_vec_as::<f32>().unwrap()
+        };
+        assert_eq!(first_layer(true), first_layer(false));
+    }
+
+    #[test]
+    fn weights_survive_bytes_and_bad_bytes_are_refused() {
+        let device = Device::flex();
+        let arch = Architecture::default();
+        let net = Network::new(&arch, Init::Seeded(9), &device);
+        let bytes = to_bytes(&net).unwrap();
+        let back = from_bytes(&arch, &bytes, &device).unwrap();
+        assert_eq!(to_bytes(&back).unwrap(), bytes);
+        assert!(from_bytes(&arch, b"junk", &device).is_err());
+        // Weights of another architecture do not fit.
+        let other = Architecture {
+            consensus: false,
+            ..arch
+        };
+        let other_bytes = to_bytes(&Network::new(&other, Init::Seeded(9), &device)).unwrap();
+        assert!(from_bytes(&arch, &other_bytes, &device).is_err());
+    }
 }

@@ -1,16 +1,33 @@
 //! Training of the deep matchers (burn autodiff on the `flex` CPU backend):
 //! Adam over single pairs, one dropout sample per step (the MC expectation
-//! is taken over steps), seeded shuffling and masks.
+//! is taken over steps), seeded initial weights, shuffling and masks.
+//! Labels come from the true correspondences, which the caller supplies
+//! (the oracle's pairs): nothing here reads ground truth itself.
 
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
 
 use super::features::{GraphInput, graph_input};
-use super::model::{self, GraphTensors, Network};
+use super::model::{self, Architecture, GraphTensors, Init, LossTerms, Network};
 use super::{draw_masks, variant};
-use crate::matching::{MatchView, Method};
+use crate::matching::{Correspondence, MatchView, Method};
 use crate::rng::{self, Purpose};
+
+/// `[train]`: which runs make the training set and how to fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainSettings {
+    /// SUMO seeds of the training runs (the sensor seed of run k is the
+    /// same number). Must not overlap the evaluation's test seeds: train
+    /// and test instances never come from the same run.
+    pub traffic_seeds: Vec<u64>,
+    pub methods: Vec<Method>,
+    pub epochs: usize,
+    pub learning_rate: f64,
+    /// Weight initialisation, shuffling and training dropout.
+    pub seed: u64,
+}
 
 /// One training pair with its labels.
 #[derive(Clone, Debug, PartialEq)]
@@ -27,34 +44,30 @@ pub struct Example {
     pub position_cost: Vec<f32>,
 }
 
-/// Labels a pair from the detections' true ids; `None` when a side is empty
-/// or nothing is shared (such a pair teaches nothing about matching).
-pub fn example(first: &MatchView, second: &MatchView) -> Option<Example> {
+/// Labels a pair with its true correspondences (`true_pairs`: detection
+/// `a` of the first vehicle is detection `b` of the second); `None` when a
+/// side is empty or nothing is shared (such a pair teaches nothing about
+/// matching).
+pub fn example(
+    first: &MatchView,
+    second: &MatchView,
+    true_pairs: &[Correspondence],
+) -> Option<Example> {
     let (n1, n2) = (first.detections.len(), second.detections.len());
-    if n1 == 0 || n2 == 0 {
+    if n1 == 0 || n2 == 0 || true_pairs.is_empty() {
         return None;
     }
-    let partner_of = |id: &Option<String>, others: &[crate::sensor::Detection]| {
-        id.as_ref()
-            .and_then(|id| others.iter().position(|d| d.truth_id.as_ref() == Some(id)))
-    };
-    let row_partner: Vec<Option<usize>> = first
-        .detections
-        .iter()
-        .map(|d| partner_of(&d.truth_id, second.detections))
-        .collect();
-    let col_has: Vec<bool> = second
-        .detections
-        .iter()
-        .map(|d| partner_of(&d.truth_id, first.detections).is_some())
-        .collect();
+    let mut row_partner: Vec<Option<usize>> = vec![None; n1];
+    let mut col_has = vec![false; n2];
+    for c in true_pairs {
+        row_partner[c.a] = Some(c.b);
+        col_has[c.b] = true;
+    }
     let mut y_star = vec![0f32; n1 * n2];
     let mut non = vec![0f32; n1 * n2];
-    let mut n_true = 0;
     for i in 0..n1 {
         if let Some(j) = row_partner[i] {
             y_star[i * n2 + j] = 1.0;
-            n_true += 1;
         }
         for j in 0..n2 {
             if row_partner[i].is_none() || !col_has[j] {
@@ -62,15 +75,12 @@ pub fn example(first: &MatchView, second: &MatchView) -> Option<Example> {
             }
         }
     }
-    if n_true == 0 {
-        return None;
-    }
     Some(Example {
         g1: graph_input(first.detections, first.graph, &first.pose_reported),
         g2: graph_input(second.detections, second.graph, &second.pose_reported),
         y_star,
         non,
-        n_true,
+        n_true: true_pairs.len(),
         position_cost: super::features::position_cost(first, second),
     })
 }
@@ -89,58 +99,164 @@ pub struct TrainReport {
     pub steps: usize,
 }
 
-/// Trains a deep method on `examples`. `progress(step, total, loss)` is
-/// called after every step.
+/// A network being trained, with its optimizer and random stream.
+pub struct Trainer {
+    arch: Architecture,
+    terms: LossTerms,
+    device: Device,
+    net: Network,
+    optim: ModuleOptimizer,
+    /// Shuffling and dropout masks: `(seed, Training, hash(method label))`.
+    stream: ChaCha8Rng,
+    learning_rate: f64,
+}
+
+impl Trainer {
+    /// A fresh network of `method` (initial weights from `opts.seed`).
+    pub fn new(method: Method, opts: &TrainOptions) -> Result<Self, String> {
+        let (arch, terms) =
+            variant(method).ok_or_else(|| format!("{} is not a deep method", method.as_str()))?;
+        let device = Device::flex().autodiff();
+        Ok(Self {
+            arch,
+            terms,
+            net: Network::new(&arch, Init::Seeded(opts.seed), &device),
+            device,
+            optim: AdamConfig::new().init(),
+            stream: rng::stream(
+                opts.seed,
+                Purpose::Training,
+                &[rng::hash_str(method.as_str())],
+            ),
+            learning_rate: opts.learning_rate,
+        })
+    }
+
+    /// Shuffles an epoch's order from the trainer's stream.
+    pub fn shuffle(&mut self, order: &mut [usize]) {
+        order.shuffle(&mut self.stream);
+    }
+
+    /// One Adam step on one pair; returns the loss before the step.
+    pub fn step(&mut self, ex: &Example) -> Result<f32, String> {
+        let (n1, n2) = (ex.g1.n, ex.g2.n);
+        let device = &self.device;
+        let g1 = GraphTensors::new(&ex.g1, device);
+        let g2 = GraphTensors::new(&ex.g2, device);
+        let masks = draw_masks(&mut self.stream, &self.arch, 1, n1, n2, device);
+        let matrix =
+            |v: &[f32]| Tensor::<2>::from_data(TensorData::new(v.to_vec(), [n1, n2]), device);
+        let cost = matrix(&ex.position_cost).unsqueeze::<3>();
+        let log_p = self
+            .net
+            .forward(&g1, &g2, masks, cost, self.arch.sinkhorn_iters);
+        let loss = model::loss(
+            log_p,
+            matrix(&ex.y_star),
+            matrix(&ex.non),
+            ex.n_true,
+            self.terms,
+        );
+        let value = loss.clone().into_scalar::<f32>();
+        if !value.is_finite() {
+            return Err(format!("training diverged (loss {value})"));
+        }
+        let grads = GradientsParams::from_grads(loss.backward(), &self.net);
+        self.net = self.optim.step(self.learning_rate, self.net.clone(), grads);
+        Ok(value)
+    }
+
+    /// The trained weights as bytes (what a `.bpk` file holds).
+    pub fn weights(&self) -> Result<Vec<u8>, String> {
+        model::to_bytes(&self.net)
+    }
+}
+
+/// Trains a deep method on `examples`; returns its weights (bytes) and the
+/// loss curve. `progress(step, total, loss)` is called after every step.
 pub fn train(
     method: Method,
     examples: &[Example],
     opts: &TrainOptions,
     mut progress: impl FnMut(usize, usize, f32),
-) -> Result<(Network, TrainReport), String> {
-    let (arch, terms) =
-        variant(method).ok_or_else(|| format!("{} is not a deep method", method.as_str()))?;
+) -> Result<(Vec<u8>, TrainReport), String> {
+    let mut trainer = Trainer::new(method, opts)?;
     if examples.is_empty() {
         return Err("no training examples (no instance with a covisible object)".into());
     }
-    let device = Device::flex().autodiff();
-    device.seed(opts.seed);
-    let mut net = Network::new(&arch, &device);
-    let mut optim = AdamConfig::new().init();
     let mut order: Vec<usize> = (0..examples.len()).collect();
-    let mut stream = rng::stream(opts.seed, Purpose::Training, &[method as u64]);
     let total = opts.epochs * examples.len();
     let mut report = TrainReport::default();
     for _ in 0..opts.epochs {
-        order.shuffle(&mut stream);
+        trainer.shuffle(&mut order);
         let mut sum = 0.0;
         for &k in &order {
-            let ex = &examples[k];
-            let (n1, n2) = (ex.g1.n, ex.g2.n);
-            let g1 = GraphTensors::new(&ex.g1, &device);
-            let g2 = GraphTensors::new(&ex.g2, &device);
-            let masks = draw_masks(&mut stream, &arch, 1, n1, n2, &device);
-            let cost = Tensor::<3>::from_data(
-                TensorData::new(ex.position_cost.clone(), [1, n1, n2]),
-                &device,
-            );
-            let log_p = net.forward(&g1, &g2, masks, cost, arch.sinkhorn_iters);
-            let y = Tensor::<2>::from_data(TensorData::new(ex.y_star.clone(), [n1, n2]), &device);
-            let non = Tensor::<2>::from_data(TensorData::new(ex.non.clone(), [n1, n2]), &device);
-            let loss = model::loss(log_p, y, non, ex.n_true, terms);
-            let value = loss.clone().into_scalar::<f32>();
-            if !value.is_finite() {
-                return Err(format!(
-                    "training diverged at step {} (loss {value})",
-                    report.steps
-                ));
-            }
-            let grads = GradientsParams::from_grads(loss.backward(), &net);
-            net = optim.step(opts.learning_rate, net, grads);
+            let value = trainer
+                .step(&examples[k])
+                .map_err(|e| format!("{e} at step {}", report.steps))?;
             sum += f64::from(value);
             report.steps += 1;
             progress(report.steps, total, value);
         }
         report.epoch_losses.push(sum / examples.len() as f64);
     }
-    Ok((net, report))
+    Ok((trainer.weights()?, report))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::matching::testkit::{self, Side};
+
+    fn pairs(p: &[(usize, usize)]) -> Vec<Correspondence> {
+        p.iter()
+            .map(|&(a, b)| Correspondence {
+                a,
+                b,
+                probability: 1.0,
+                uncertainty: 0.0,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn labels_mark_true_pairs_and_non_covisible_rows_and_columns() {
+        let objects = testkit::world_objects();
+        let a = Side::of(testkit::POSE_A, &objects, &[0, 1, 2], testkit::EXACT);
+        let b = Side::of(testkit::POSE_B, &objects, &[2, 0], testkit::EXACT);
+        let ex = example(&a.view(), &b.view(), &pairs(&[(0, 1), (2, 0)])).unwrap();
+        assert_eq!(ex.n_true, 2);
+        assert_eq!(ex.y_star, vec![0., 1., 0., 0., 1., 0.]);
+        // Row 1 (object 1) is seen by the first vehicle only.
+        assert_eq!(ex.non, vec![0., 0., 1., 1., 0., 0.]);
+        assert!(example(&a.view(), &b.view(), &[]).is_none());
+    }
+
+    /// Real training on a small set: the loss falls, and the same seed
+    /// gives the same weights, byte for byte.
+    #[test]
+    fn training_lowers_the_loss_and_is_reproducible() {
+        let (a, b) = testkit::moved_copy();
+        let all: Vec<(usize, usize)> = (0..a.detections.len())
+            .map(|i| {
+                (
+                    i,
+                    b.objects.iter().position(|&o| o == a.objects[i]).unwrap(),
+                )
+            })
+            .collect();
+        let ex = example(&a.view(), &b.view(), &pairs(&all)).unwrap();
+        let opts = TrainOptions {
+            epochs: 30,
+            learning_rate: 1e-3,
+            seed: 3,
+        };
+        let examples = vec![ex];
+        let (w1, report) = train(Method::GcnGm, &examples, &opts, |_, _, _| {}).unwrap();
+        let first = report.epoch_losses[0];
+        let last = *report.epoch_losses.last().unwrap();
+        assert!(last < 0.5 * first, "loss {first} -> {last}");
+        let (w2, _) = train(Method::GcnGm, &examples, &opts, |_, _, _| {}).unwrap();
+        assert_eq!(w1, w2);
+    }
 }

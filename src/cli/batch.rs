@@ -1,0 +1,154 @@
+//! `coid batch` (Monte Carlo runs on worker processes, resumable,
+//! shardable) and `coid merge` (shard folders into one aggregate).
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use super::{ConfigArg, QuietArg, progress_bar};
+use crate::batch::{self, Shard};
+use crate::config::Settings;
+use crate::io;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    config: ConfigArg,
+    /// Number of runs.
+    #[arg(long)]
+    runs: usize,
+    /// Worker processes [default: the number of cores].
+    #[arg(long, short)]
+    workers: Option<usize>,
+    /// Master seed: run i gets traffic and sensor seeds derived from it.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Output folder [default: results/<config file stem>-batch].
+    #[arg(long, short)]
+    out: Option<PathBuf>,
+    /// Only this slice of the runs, `k/n` (1-based): runs i with
+    /// i mod n = k - 1; combine the shards' folders with `coid merge`.
+    #[arg(long)]
+    shard: Option<Shard>,
+    #[command(flatten)]
+    quiet: QuietArg,
+}
+
+#[derive(clap::Args)]
+pub struct MergeArgs {
+    /// Shard folders (each made by `coid batch --shard k/n`).
+    #[arg(required = true)]
+    dirs: Vec<PathBuf>,
+    /// Output folder.
+    #[arg(long, short)]
+    out: PathBuf,
+}
+
+const CI_NOTE: &str =
+    "- means over runs, `±` the half-width of the 95% confidence interval (Student t)";
+
+pub fn batch(a: Args) -> anyhow::Result<()> {
+    // Validate the config once here, so a bad config fails before any run.
+    Settings::load(&a.config.config)?;
+    if a.runs == 0 {
+        anyhow::bail!("--runs must be at least 1");
+    }
+    let config = a
+        .config
+        .config
+        .canonicalize()
+        .with_context(|| format!("cannot resolve {}", a.config.config.display()))?;
+    let out = super::out_dir(a.out, &config, "-batch");
+    let workers = a
+        .workers
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .max(1);
+    io::claim_batch_folder(&out, &batch::identity(&config, a.runs, a.seed))?;
+    let pending = batch::pending_runs(&out, a.runs, a.shard);
+    let mine = (0..a.runs)
+        .filter(|i| a.shard.is_none_or(|s| i % s.count == s.index - 1))
+        .count();
+    let pb = progress_bar(
+        a.quiet.quiet,
+        mine as u64,
+        "{spinner} runs {pos}/{len} [{bar:30}] {per_sec} eta {eta} {msg}",
+    );
+    pb.set_position((mine - pending.len()) as u64);
+    let exe = std::env::current_exe().context("cannot find the coid executable")?;
+    let started = std::time::Instant::now();
+    let mut failed_count = 0;
+    let failures = batch::execute(&exe, &config, &out, a.seed, &pending, workers, |_, ok| {
+        pb.inc(1);
+        if !ok {
+            failed_count += 1;
+            pb.set_message(format!("{failed_count} failed"));
+        }
+    })
+    .context("cannot start worker processes")?;
+    pb.finish_and_clear();
+    let (rows, complete) = batch::aggregate(&out)?;
+    let shard_note = a
+        .shard
+        .map(|s| format!(" (this folder: shard {}/{})", s.index, s.count))
+        .unwrap_or_default();
+    let header = format!(
+        "- config: `{}`; master seed {}; {complete} of {} runs complete{shard_note}\n{CI_NOTE}",
+        config.display(),
+        a.seed,
+        a.runs,
+    );
+    batch::write_aggregate(&out, &rows, &header)?;
+    eprintln!(
+        "coid: {} runs done in {:.1} s on {workers} workers ({complete} complete in {}); aggregate in {}",
+        pending.len() - failures.len(),
+        started.elapsed().as_secs_f64(),
+        out.display(),
+        out.join("summary.csv").display()
+    );
+    if failures.is_empty() {
+        return Ok(());
+    }
+    for f in &failures {
+        eprintln!("coid: run {} failed: {}", f.run, f.message);
+    }
+    let list: Vec<String> = failures.iter().map(|f| f.run.to_string()).collect();
+    anyhow::bail!(
+        "{} run(s) failed: {} (the aggregate covers the {complete} complete runs; run the same command again to retry)",
+        failures.len(),
+        list.join(", "),
+    )
+}
+
+pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
+    let mut identity: Option<String> = None;
+    for d in &a.dirs {
+        let id = io::batch_identity(d)?;
+        match &identity {
+            Some(i) if *i != id => anyhow::bail!(
+                "{} belongs to a different batch than {}",
+                d.display(),
+                a.dirs[0].display()
+            ),
+            _ => identity = Some(id),
+        }
+    }
+    let mut total = 0;
+    for d in &a.dirs {
+        for run in io::completed_runs(d)? {
+            let dst = a.out.join("runs").join(run.file_name().unwrap_or_default());
+            io::copy_run(&run, &dst)?;
+            total += 1;
+        }
+    }
+    if let Some(id) = identity {
+        io::write_batch_identity(&a.out, &id)?;
+    }
+    let (rows, complete) = batch::aggregate(&a.out)?;
+    let header = format!(
+        "- merged from {} shard folders; {complete} runs\n{CI_NOTE}",
+        a.dirs.len()
+    );
+    batch::write_aggregate(&a.out, &rows, &header)?;
+    eprintln!("coid: merged {total} runs into {}", a.out.display());
+    Ok(())
+}

@@ -1,0 +1,112 @@
+//! `coid train`: the deep matchers on the training runs; weights, config
+//! and loss curve into the models folder.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use super::{ConfigArg, QuietArg, label_arg, progress_bar};
+use crate::config::Settings;
+use crate::experiments;
+use crate::io::{self, TrainingRecord};
+use crate::matching::{Method, deep};
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    config: ConfigArg,
+    /// Models folder [default: [matching] models_dir of the config].
+    #[arg(long, short)]
+    out: Option<PathBuf>,
+    /// Train only these methods [default: [train] methods].
+    #[arg(long, value_delimiter = ',', value_parser = label_arg::<Method>("method"))]
+    methods: Vec<Method>,
+    #[command(flatten)]
+    quiet: QuietArg,
+}
+
+pub fn train(a: Args) -> anyhow::Result<()> {
+    let settings = Settings::load(&a.config.config)?;
+    let models_dir = a
+        .out
+        .unwrap_or_else(|| settings.matching.models_dir.clone());
+    let methods = if a.methods.is_empty() {
+        settings.train.methods.clone()
+    } else {
+        a.methods
+    };
+    if let Some(m) = methods.iter().find(|m| deep::variant(**m).is_none()) {
+        anyhow::bail!("'{}' is not a trainable (deep) method", m.as_str());
+    }
+    let runs = settings.train.traffic_seeds.len() as u64;
+    let pb = progress_bar(
+        a.quiet.quiet,
+        runs,
+        "{spinner} collecting training pairs: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
+    );
+    let examples = experiments::collect_examples(&settings, |_, _, n| {
+        pb.inc(1);
+        pb.set_message(format!("{n} pairs"));
+    })
+    .context("collecting training data failed")?;
+    pb.finish_and_clear();
+    eprintln!("coid: {} training pairs from {runs} runs", examples.len());
+    for method in methods {
+        train_one(&settings, method, &examples, &models_dir, a.quiet.quiet)?;
+    }
+    Ok(())
+}
+
+fn train_one(
+    settings: &Settings,
+    method: Method,
+    examples: &[deep::train::Example],
+    models_dir: &std::path::Path,
+    quiet: bool,
+) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
+    let pb = progress_bar(
+        quiet,
+        (settings.train.epochs * examples.len()) as u64,
+        &format!(
+            "{{spinner}} training {:<9} [{{bar:30}}] {{pos}}/{{len}} steps, {{msg}} eta {{eta}}",
+            method.as_str()
+        ),
+    );
+    let mut smooth = f32::NAN;
+    let (weights, report) =
+        experiments::train_method(settings, method, examples, |step, _, loss| {
+            smooth = if smooth.is_nan() {
+                loss
+            } else {
+                0.98 * smooth + 0.02 * loss
+            };
+            pb.set_position(step as u64);
+            if step % 20 == 0 {
+                pb.set_message(format!("loss {smooth:.3}"));
+            }
+        })
+        .map_err(|e| anyhow::anyhow!("training {} failed: {e}", method.as_str()))?;
+    pb.finish_and_clear();
+    let record = TrainingRecord {
+        method,
+        settings,
+        n_examples: examples.len(),
+        report: &report,
+        seconds: started.elapsed().as_secs_f64(),
+    };
+    io::write_model(models_dir, &record, &weights)?;
+    let losses: Vec<f64> = report
+        .epoch_losses
+        .iter()
+        .map(|l| (l * 1000.0).round() / 1000.0)
+        .collect();
+    eprintln!(
+        "coid: trained {} in {:.0} s ({} steps), loss per epoch {losses:?}; wrote {}",
+        method.as_str(),
+        record.seconds,
+        report.steps,
+        io::weights_path(models_dir, method).display()
+    );
+    Ok(())
+}

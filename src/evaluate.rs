@@ -1,0 +1,428 @@
+//! Evaluation of one instance: the one place that runs a method on a pair
+//! of vehicles, counts its correspondences against the truth (precision,
+//! recall) and fuses what it matched (displacement errors, single vs
+//! fused). `run`, `eval`, `render` and the training-data collection all go
+//! through [`evaluate`]. Pure computation; the protocol is written down in
+//! the README ("Evaluation protocol").
+//!
+//! This module, the oracle and the pictures are the only readers of the
+//! ground truth ([`ObservationTruth`]); matchers receive [`MatchView`]s.
+
+use crate::fusion::{FusionSettings, FusionVariant, Measurement, PosePrior, align, fuse};
+use crate::geometry::{Pose2, Vec2};
+use crate::matching::{Correspondence, Identification, MatchView, Matcher, Method, oracle};
+use crate::sensor::{Observation, ObservationTruth, PoseNoiseLevel};
+
+/// `[eval]`: the test runs of `coid eval`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EvalSettings {
+    /// Traffic (= sensor) seeds of the test runs; disjoint from the
+    /// training runs.
+    pub traffic_seeds: Vec<u64>,
+}
+
+/// Correspondence counts of one or more instances.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PairCounts {
+    /// Pairs the method identified.
+    pub identified: usize,
+    /// Identified pairs whose two detections are the same true object.
+    pub correct: usize,
+    /// True covisible pairs: same object detected by both vehicles.
+    pub ground_truth: usize,
+}
+
+impl PairCounts {
+    pub fn add(&mut self, other: PairCounts) {
+        self.identified += other.identified;
+        self.correct += other.correct;
+        self.ground_truth += other.ground_truth;
+    }
+
+    /// correct / identified; 1 when nothing was identified (no false claim).
+    pub fn precision(&self) -> f64 {
+        if self.identified == 0 {
+            1.0
+        } else {
+            self.correct as f64 / self.identified as f64
+        }
+    }
+
+    /// correct / ground truth; 1 when there was nothing to find.
+    pub fn recall(&self) -> f64 {
+        if self.ground_truth == 0 {
+            1.0
+        } else {
+            self.correct as f64 / self.ground_truth as f64
+        }
+    }
+
+    pub fn f1(&self) -> f64 {
+        let (p, r) = (self.precision(), self.recall());
+        if p + r == 0.0 {
+            0.0
+        } else {
+            2.0 * p * r / (p + r)
+        }
+    }
+}
+
+/// Number of objects both vehicles detected (true covisible pairs).
+pub fn covisible_pairs(first: &ObservationTruth, second: &ObservationTruth) -> usize {
+    oracle::true_pairs(first, second).len()
+}
+
+/// Counts `matches` against the truth.
+pub fn count_pairs(
+    first: &ObservationTruth,
+    second: &ObservationTruth,
+    matches: &[Correspondence],
+) -> PairCounts {
+    let correct = matches
+        .iter()
+        .filter(|c| {
+            let a = first.object_id(c.a);
+            a.is_some() && a == second.object_id(c.b)
+        })
+        .count();
+    PairCounts {
+        identified: matches.len(),
+        correct,
+        ground_truth: covisible_pairs(first, second),
+    }
+}
+
+/// One vehicle of an instance at one pose-noise level: what it knows (its
+/// view, with the GPS pose of that level) and the truth beside it.
+#[derive(Clone, Copy, Debug)]
+pub struct Side<'a> {
+    pub view: MatchView<'a>,
+    pub obs: &'a Observation,
+    pub truth: &'a ObservationTruth,
+}
+
+/// An instance (a step and a pair of connected vehicles) at one pose-noise
+/// level.
+#[derive(Clone, Copy, Debug)]
+pub struct PairAtLevel<'a> {
+    pub first: Side<'a>,
+    pub second: Side<'a>,
+    pub level: PoseNoiseLevel,
+}
+
+/// How a method runs: from what the vehicles know, or from the truth.
+pub enum Runner {
+    Matcher(Box<dyn Matcher>),
+    /// The true correspondences ([`oracle::true_pairs`]).
+    Oracle,
+}
+
+impl Runner {
+    pub fn method(&self) -> Method {
+        match self {
+            Runner::Matcher(m) => m.method(),
+            Runner::Oracle => Method::Oracle,
+        }
+    }
+
+    pub fn identify(&self, pair: &PairAtLevel) -> Identification {
+        match self {
+            Runner::Matcher(m) => m.identify(&pair.first.view, &pair.second.view),
+            Runner::Oracle => {
+                Identification::plain(oracle::true_pairs(pair.first.truth, pair.second.truth))
+            }
+        }
+    }
+}
+
+/// One (ego, object) estimate of one instance, all positions in the world
+/// frame: estimates live in the ego's frame and are placed in the world with
+/// the ego's true pose, so the error is what the ego gets wrong about the
+/// object relative to itself.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ObjectEstimate {
+    pub ego_id: String,
+    pub peer_id: String,
+    pub object_id: String,
+    /// Whether the correspondence used for this object was right.
+    pub match_correct: bool,
+    /// Whether the relative pose was refined from matches (aligned variant).
+    pub pose_refined: bool,
+    pub truth_m: Vec2,
+    pub single_m: Vec2,
+    pub fused_m: Vec2,
+}
+
+impl ObjectEstimate {
+    pub fn single_error_m(&self) -> f64 {
+        (self.single_m - self.truth_m).norm()
+    }
+    pub fn fused_error_m(&self) -> f64 {
+        (self.fused_m - self.truth_m).norm()
+    }
+}
+
+/// What one method did on one instance at one pose-noise level.
+#[derive(Clone, Debug)]
+pub struct MethodEval {
+    pub method: Method,
+    pub identification: Identification,
+    pub counts: PairCounts,
+    /// Per configured fusion variant, both vehicles' estimates (the first
+    /// vehicle's objects, then the second's).
+    pub fused: Vec<(FusionVariant, Vec<ObjectEstimate>)>,
+}
+
+/// Runs `runner` on `pair`, counts its correspondences and fuses them with
+/// every variant of `fusion`.
+pub fn evaluate(pair: &PairAtLevel, runner: &Runner, fusion: &FusionSettings) -> MethodEval {
+    let identification = runner.identify(pair);
+    let matches = &identification.matches;
+    let counts = count_pairs(pair.first.truth, pair.second.truth, matches);
+    let ab: Vec<(usize, usize)> = matches.iter().map(|c| (c.a, c.b)).collect();
+    let ba: Vec<(usize, usize)> = matches.iter().map(|c| (c.b, c.a)).collect();
+    let fused = fusion
+        .variants
+        .iter()
+        .map(|&variant| {
+            let fuse_for = |ego: &Side, peer: &Side, pairs: &[(usize, usize)]| {
+                let ctx = FusionContext {
+                    level: &pair.level,
+                    variant,
+                    align_min_matches: fusion.align_min_matches,
+                };
+                fuse_for_ego(ego, peer, pairs, &ctx)
+            };
+            let mut est = fuse_for(&pair.first, &pair.second, &ab);
+            est.extend(fuse_for(&pair.second, &pair.first, &ba));
+            (variant, est)
+        })
+        .collect();
+    MethodEval {
+        method: runner.method(),
+        identification,
+        counts,
+        fused,
+    }
+}
+
+/// The relative-pose prior of `second` in `first`'s frame from both reported
+/// poses: each vehicle contributes its GPS error.
+fn gps_prior(first_reported: &Pose2, second_reported: &Pose2, level: &PoseNoiseLevel) -> PosePrior {
+    PosePrior {
+        pose: first_reported.relative(second_reported),
+        position_sigma_m: std::f64::consts::SQRT_2 * level.position_sigma_m,
+        heading_sigma_rad: std::f64::consts::SQRT_2 * level.heading_sigma_rad,
+    }
+}
+
+/// How one ego fuses: the pose-noise level, the variant and its setting.
+struct FusionContext<'a> {
+    level: &'a PoseNoiseLevel,
+    variant: FusionVariant,
+    align_min_matches: usize,
+}
+
+/// Fused estimates of every real object `ego` detected that the
+/// correspondences pair with one of `peer`'s detections. `pairs` index
+/// `(ego detection, peer detection)`.
+fn fuse_for_ego(
+    ego: &Side,
+    peer: &Side,
+    pairs: &[(usize, usize)],
+    ctx: &FusionContext,
+) -> Vec<ObjectEstimate> {
+    let prior = gps_prior(&ego.view.pose_reported, &peer.view.pose_reported, ctx.level);
+    let measured = |obs: &Observation, k: usize| Measurement {
+        position_m: obs.detections[k].position_m,
+        cov_m2: obs.detections[k].cov_m2,
+    };
+    let alignment = match ctx.variant {
+        FusionVariant::Paper => None,
+        FusionVariant::Aligned => {
+            let matched: Vec<(Measurement, Measurement)> = pairs
+                .iter()
+                .map(|&(a, b)| (measured(ego.obs, a), measured(peer.obs, b)))
+                .collect();
+            Some(align(&matched, &prior, ctx.align_min_matches))
+        }
+    };
+    let (peer_in_ego, refined) = match alignment {
+        Some(a) => (a.pose, a.refined),
+        None => (prior.pose, false),
+    };
+    let mut out = Vec::new();
+    for &(a, b) in pairs {
+        let truth = &ego.truth.detections[a];
+        let (Some(id), Some(truth_m)) = (truth.object_id.as_deref(), truth.position_m) else {
+            continue;
+        };
+        let own = measured(ego.obs, a);
+        let shared = measured(peer.obs, b).moved(&peer_in_ego);
+        let Some(fused) = fuse(&[own, shared]) else {
+            continue;
+        };
+        let to_world = |p: &Vec2| ego.truth.ego_pose.to_parent(p);
+        out.push(ObjectEstimate {
+            ego_id: ego.obs.ego_id.clone(),
+            peer_id: peer.obs.ego_id.clone(),
+            object_id: id.to_owned(),
+            match_correct: peer.truth.object_id(b) == Some(id),
+            pose_refined: refined,
+            truth_m,
+            single_m: to_world(&own.position_m),
+            fused_m: to_world(&fused.position_m),
+        });
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::graph::SceneGraph;
+    use crate::matching::testkit;
+    use crate::sensor::{DetectionTruth, PoseNoiseLabel};
+
+    /// An observation of `objects` (id, world position) from `pose`, exact.
+    fn sensed(
+        ego: &str,
+        pose: Pose2,
+        objects: &[(Option<&str>, Vec2)],
+    ) -> (Observation, ObservationTruth) {
+        let class = crate::traffic::ObjectClass::Car;
+        let obs = Observation {
+            ego_id: ego.into(),
+            detections: objects
+                .iter()
+                .map(|(_, w)| testkit::detection(pose.to_body(w), class, [0.5; 3]))
+                .collect(),
+        };
+        let truth = ObservationTruth {
+            ego_pose: pose,
+            detections: objects
+                .iter()
+                .map(|(id, w)| DetectionTruth {
+                    object_id: id.map(str::to_owned),
+                    position_m: id.map(|_| *w),
+                    visible_fraction: 1.0,
+                })
+                .collect(),
+        };
+        (obs, truth)
+    }
+
+    fn corr(a: usize, b: usize) -> Correspondence {
+        Correspondence {
+            a,
+            b,
+            probability: 1.0,
+            uncertainty: 0.0,
+        }
+    }
+
+    #[test]
+    fn precision_recall_f1() {
+        let z = Vec2::zeros();
+        let (_, first) = sensed(
+            "a",
+            Pose2::identity(),
+            &[(Some("x"), z), (Some("y"), z), (None, z)],
+        );
+        let (_, second) = sensed(
+            "b",
+            Pose2::identity(),
+            &[(Some("y"), z), (Some("x"), z), (Some("z"), z)],
+        );
+        let c = count_pairs(&first, &second, &[corr(0, 1), corr(1, 2), corr(2, 0)]);
+        assert_eq!(
+            c,
+            PairCounts {
+                identified: 3,
+                correct: 1,
+                ground_truth: 2
+            }
+        );
+        assert!((c.precision() - 1.0 / 3.0).abs() < 1e-12);
+        assert!((c.recall() - 0.5).abs() < 1e-12);
+        assert!((c.f1() - 0.4).abs() < 1e-12);
+        let none = count_pairs(&first, &second, &[]);
+        assert_eq!(none.precision(), 1.0);
+        assert_eq!(none.recall(), 0.0);
+        assert_eq!(none.f1(), 0.0);
+    }
+
+    #[test]
+    fn zero_noise_gives_zero_error_single_and_fused_and_the_oracle_is_perfect() {
+        // Two egos with exact measurements and exact poses.
+        let pa = Pose2::new(Vec2::new(0.0, 0.0), 0.3);
+        let pb = Pose2::new(Vec2::new(30.0, 10.0), 2.0);
+        let objects = [
+            (Some("x"), Vec2::new(15.0, 8.0)),
+            (Some("y"), Vec2::new(20.0, -2.0)),
+            (Some("z"), Vec2::new(10.0, 15.0)),
+        ];
+        let (oa, ta) = sensed("a", pa, &objects);
+        let (ob, tb) = sensed("b", pb, &objects);
+        let graph = |o: &Observation| {
+            SceneGraph::delaunay(
+                &o.detections
+                    .iter()
+                    .map(|d| d.position_m)
+                    .collect::<Vec<_>>(),
+            )
+            .unwrap()
+        };
+        let (ga, gb) = (graph(&oa), graph(&ob));
+        let level = PoseNoiseLevel {
+            label: PoseNoiseLabel::None,
+            position_sigma_m: 0.0,
+            heading_sigma_rad: 0.0,
+        };
+        fn view<'a>(obs: &'a Observation, graph: &'a SceneGraph, pose: Pose2) -> MatchView<'a> {
+            MatchView {
+                detections: &obs.detections,
+                graph,
+                pose_reported: pose,
+                pose_noise: PoseNoiseLevel {
+                    label: PoseNoiseLabel::None,
+                    position_sigma_m: 0.0,
+                    heading_sigma_rad: 0.0,
+                },
+            }
+        }
+        let pair = PairAtLevel {
+            first: Side {
+                view: view(&oa, &ga, pa),
+                obs: &oa,
+                truth: &ta,
+            },
+            second: Side {
+                view: view(&ob, &gb, pb),
+                obs: &ob,
+                truth: &tb,
+            },
+            level,
+        };
+        let fusion = FusionSettings {
+            variants: vec![FusionVariant::Paper, FusionVariant::Aligned],
+            align_min_matches: 3,
+        };
+        let e = evaluate(&pair, &Runner::Oracle, &fusion);
+        assert_eq!(
+            (e.counts.correct, e.counts.identified, e.counts.ground_truth),
+            (3, 3, 3)
+        );
+        assert_eq!(e.fused.len(), 2);
+        for (_, est) in &e.fused {
+            assert_eq!(est.len(), 6);
+            for x in est {
+                assert!(
+                    x.single_error_m() < 1e-9 && x.fused_error_m() < 1e-9,
+                    "{x:?}"
+                );
+                assert!(x.match_correct);
+            }
+        }
+    }
+}

@@ -1,0 +1,170 @@
+//! The human-readable reports (`summary.md`) of a run, an evaluation and a
+//! batch: plain text built from the report types.
+
+use std::fmt::Write as _;
+
+use crate::config::Settings;
+use crate::report::{AggregateRow, RunResults, SummaryRow, Table, TableColumn};
+
+/// A number with `digits` decimals, "n/a" when it is not finite.
+pub fn fmt_num(v: f64, digits: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.digits$}")
+    } else {
+        "n/a".into()
+    }
+}
+
+/// `mean ± ci`, or the mean alone when the interval is not finite.
+fn with_ci(m: f64, ci: f64) -> String {
+    if ci.is_finite() {
+        format!("{} ± {}", fmt_num(m, 4), fmt_num(ci, 4))
+    } else {
+        fmt_num(m, 4)
+    }
+}
+
+/// The report of one run.
+pub fn run(settings: &Settings, results: &RunResults, rows: &[SummaryRow]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# coid-sim run\n");
+    let _ = writeln!(s, "- config: `{}`", settings.source.display());
+    let _ = writeln!(
+        s,
+        "- scenario: `{}`, junction `{}`",
+        settings.scenario.sumocfg.display(),
+        settings.scenario.junction
+    );
+    let _ = writeln!(
+        s,
+        "- seeds: traffic {}, sensor {}; simulated {:.1} s in {} steps; {} instances",
+        settings.seeds.traffic,
+        settings.seeds.sensor,
+        results.sim_end_s,
+        results.n_steps,
+        results.n_instances
+    );
+    let _ = writeln!(
+        s,
+        "- precision/recall pool all pairs of all instances; displacement errors are means over matched objects (metres, ground plane, ego frame)\n"
+    );
+    let _ = writeln!(
+        s,
+        "| method | pose noise | fusion | instances | objects | precision | recall | F1 | DE single (m) | DE fused (m) |"
+    );
+    let _ = writeln!(s, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|");
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            r.key.method.as_str(),
+            r.key.pose_noise.as_str(),
+            r.key.fusion.as_str(),
+            r.n_instances,
+            r.n_objects,
+            fmt_num(r.precision, 4),
+            fmt_num(r.recall, 4),
+            fmt_num(r.f1, 4),
+            fmt_num(r.de_single_m, 4),
+            fmt_num(r.de_fused_m, 4),
+        );
+    }
+    s
+}
+
+/// The report of `coid eval`: the seeds, then every table.
+pub fn eval(settings: &Settings, tables: &[(&str, &Table)]) -> String {
+    let mut md = String::new();
+    let _ = writeln!(md, "# coid-sim evaluation\n");
+    let _ = writeln!(md, "- config: `{}`", settings.source.display());
+    let _ = writeln!(
+        md,
+        "- test runs (traffic = sensor seed): {:?}; training runs: {:?}",
+        settings.eval.traffic_seeds, settings.train.traffic_seeds
+    );
+    let _ = writeln!(
+        md,
+        "- every number is the mean over test runs, `±` the half-width of its 95% confidence interval (Student t)\n"
+    );
+    for (name, t) in tables {
+        let _ = writeln!(md, "## {name}\n\n{}\n", table(t));
+    }
+    md
+}
+
+/// A table in Markdown, `x ± ci` for each `x` with an `x_ci95` column.
+pub fn table(t: &Table) -> String {
+    let names: Vec<&String> = t.columns.iter().map(|(n, _)| n).collect();
+    let shown: Vec<usize> = (0..names.len())
+        .filter(|&k| !names[k].ends_with("_ci95"))
+        .collect();
+    let cell = |k: usize, r: usize| -> String {
+        match &t.columns[k].1 {
+            TableColumn::Text(v) => v[r].clone(),
+            TableColumn::Number(v) => match t.column(&format!("{}_ci95", names[k])) {
+                Some(TableColumn::Number(c)) => with_ci(v[r], c[r]),
+                _ => fmt_num(v[r], 4),
+            },
+        }
+    };
+    let mut s = format!(
+        "| {} |\n|{}\n",
+        shown
+            .iter()
+            .map(|&k| names[k].as_str())
+            .collect::<Vec<_>>()
+            .join(" | "),
+        "---|".repeat(shown.len())
+    );
+    for r in 0..t.height() {
+        let cells: Vec<String> = shown.iter().map(|&k| cell(k, r)).collect();
+        let _ = writeln!(s, "| {} |", cells.join(" | "));
+    }
+    s
+}
+
+/// The report of a batch: `header` (what was run), then the aggregate.
+pub fn batch(rows: &[AggregateRow], header: &str) -> String {
+    let mut md = format!("# coid-sim batch\n\n{header}\n\n");
+    let _ = writeln!(
+        md,
+        "| method | pose noise | fusion | runs | instances | precision | recall | F1 | DE single (m) | DE fused (m) |"
+    );
+    let _ = writeln!(md, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|");
+    let pm = |(m, c): (f64, f64)| with_ci(m, c);
+    for r in rows {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            r.method,
+            r.pose_noise,
+            r.fusion,
+            r.n_runs,
+            r.n_instances,
+            pm(r.precision),
+            pm(r.recall),
+            pm(r.f1),
+            pm(r.de_single_m),
+            pm(r.de_fused_m)
+        );
+    }
+    md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tables_show_intervals_beside_their_means() {
+        let mut t = Table::default();
+        t.text("method", vec!["ours".into(), "rgm".into()]);
+        t.number("f1", vec![0.5, f64::NAN]);
+        t.number("f1_ci95", vec![0.01, f64::NAN]);
+        t.number("n_runs", vec![2.0, 2.0]);
+        assert_eq!(
+            table(&t),
+            "| method | f1 | n_runs |\n|---|---|---|\n| ours | 0.5000 ± 0.0100 | 2.0000 |\n| rgm | n/a | 2.0000 |\n"
+        );
+    }
+}

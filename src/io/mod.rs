@@ -1,0 +1,459 @@
+//! The output side: everything that writes result files, and the reading of
+//! weight files and batch folders. Results are never lost or half-written:
+//!
+//! - a results folder (run, eval, render, a batch's run) is filled under a
+//!   temporary name beside it and renamed into place when complete
+//!   ([`atomic_dir`]); an existing folder is replaced only when asked, and
+//!   only once the new one is complete;
+//! - files added to an existing folder (a batch's aggregate, trained
+//!   models) are staged in a temporary folder inside it and renamed into
+//!   place one by one ([`publish_files`]).
+//!
+//! Temporary folders come from `tempfile` (removed on every error path).
+//! `frames` is the only code that touches polars; `markdown` writes the
+//! human-readable reports.
+
+pub mod frames;
+pub mod markdown;
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use polars::prelude::PolarsError;
+
+use crate::config::Settings;
+use crate::matching::Method;
+use crate::matching::deep::train::TrainReport;
+use crate::report::{AggregateRow, RunResults, RunRow, Table};
+
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    #[error(
+        "output folder {0} already exists (choose another --out, or pass --force to replace it)"
+    )]
+    Exists(PathBuf),
+    #[error("cannot write {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("cannot write {path}: {source}")]
+    Polars { path: PathBuf, source: PolarsError },
+    #[error("cannot draw into {path}: {message}")]
+    Picture { path: PathBuf, message: String },
+    #[error("{0}")]
+    Batch(String),
+}
+
+pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
+    move |source| OutputError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// A temporary folder in `parent` named `.<name>.tmp-XXXXXX`, with the
+/// permissions a plain `mkdir` would give (tempfile's default is 0700).
+fn staging_dir(parent: &Path, name: &str) -> Result<tempfile::TempDir, OutputError> {
+    let prefix = format!(".{name}.tmp-");
+    let mut b = tempfile::Builder::new();
+    b.prefix(&prefix);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        b.permissions(std::fs::Permissions::from_mode(0o777));
+    }
+    b.tempdir_in(parent).map_err(io(parent))
+}
+
+/// Creates `out` atomically: `fill` writes into a temporary sibling folder,
+/// which then replaces `out` (refused when `out` exists and not `force`).
+/// Whatever `fill` fails with is returned, and nothing is left behind.
+pub fn atomic_dir<E: From<OutputError>>(
+    out: &Path,
+    force: bool,
+    fill: impl FnOnce(&Path) -> Result<(), E>,
+) -> Result<(), E> {
+    if out.exists() && !force {
+        return Err(OutputError::Exists(out.to_owned()).into());
+    }
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent).map_err(io(&parent))?;
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
+    let staged = staging_dir(&parent, &name)?;
+    fill(staged.path())?;
+    replace_dir(staged, out, &parent, &name)?;
+    Ok(())
+}
+
+/// Renames the complete `staged` folder to `out`; an old `out` moves into a
+/// temporary folder first and is removed once the new one is in place.
+fn replace_dir(
+    staged: tempfile::TempDir,
+    out: &Path,
+    parent: &Path,
+    name: &str,
+) -> Result<(), OutputError> {
+    let old = if out.exists() {
+        let old = staging_dir(parent, &format!("{name}.old"))?;
+        std::fs::rename(out, old.path().join(name)).map_err(io(out))?;
+        Some(old)
+    } else {
+        None
+    };
+    let staged = staged.keep();
+    std::fs::rename(&staged, out).map_err(|e| {
+        let _ = std::fs::remove_dir_all(&staged);
+        io(out)(e)
+    })?;
+    drop(old);
+    Ok(())
+}
+
+/// Adds files to the existing folder `dir`: `fill` writes them into a
+/// temporary folder inside `dir`, then each is renamed into place (an
+/// existing file of the same name is replaced).
+pub fn publish_files(
+    dir: &Path,
+    fill: impl FnOnce(&Path) -> Result<(), OutputError>,
+) -> Result<(), OutputError> {
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let staged = staging_dir(dir, "staging")?;
+    fill(staged.path())?;
+    let mut names: Vec<_> = std::fs::read_dir(staged.path())
+        .map_err(io(staged.path()))?
+        .map(|e| e.map(|e| e.file_name()))
+        .collect::<Result<_, _>>()
+        .map_err(io(staged.path()))?;
+    names.sort();
+    for name in names {
+        let dst = dir.join(&name);
+        std::fs::rename(staged.path().join(&name), &dst).map_err(io(&dst))?;
+    }
+    Ok(())
+}
+
+fn write_text(path: &Path, text: &str) -> Result<(), OutputError> {
+    std::fs::write(path, text).map_err(io(path))
+}
+
+/// Writes a run's results into `out`: `summary.csv`, `objects.parquet`,
+/// `summary.md` (atomically, see [`atomic_dir`]).
+pub fn write_run(
+    out: &Path,
+    settings: &Settings,
+    results: &RunResults,
+    force: bool,
+) -> Result<(), OutputError> {
+    atomic_dir(out, force, |dir| -> Result<(), OutputError> {
+        let rows = results.summary.rows();
+        frames::write_summary(&dir.join("summary.csv"), &rows)?;
+        frames::write_objects(&dir.join("objects.parquet"), results)?;
+        write_text(
+            &dir.join("summary.md"),
+            &markdown::run(settings, results, &rows),
+        )
+    })
+}
+
+/// Writes `coid eval`'s tables (CSV), its `summary.md` and whatever `plots`
+/// draws into `out`, atomically.
+pub fn write_eval(
+    out: &Path,
+    settings: &Settings,
+    tables: &[(&str, &Table)],
+    force: bool,
+    plots: impl FnOnce(&Path) -> Result<(), OutputError>,
+) -> Result<(), OutputError> {
+    atomic_dir(out, force, |dir| -> Result<(), OutputError> {
+        for (name, t) in tables {
+            frames::write_table(&dir.join(name), t)?;
+        }
+        write_text(&dir.join("summary.md"), &markdown::eval(settings, tables))?;
+        plots(dir)
+    })
+}
+
+// ---------------------------------------------------------------------------
+// Trained models.
+// ---------------------------------------------------------------------------
+
+/// The weights file of a method in a models folder.
+pub fn weights_path(models_dir: &Path, method: Method) -> PathBuf {
+    models_dir.join(format!("{}.bpk", method.as_str()))
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "cannot load the weights of '{method}' from {path} ({reason}); run `coid train` to make them"
+)]
+pub struct WeightsError {
+    pub method: &'static str,
+    pub path: PathBuf,
+    pub reason: String,
+}
+
+/// The bytes of a method's weights file.
+pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, WeightsError> {
+    let path = weights_path(models_dir, method);
+    std::fs::read(&path).map_err(|e| WeightsError {
+        method: method.as_str(),
+        reason: if e.kind() == std::io::ErrorKind::NotFound {
+            "no such file".into()
+        } else {
+            e.to_string()
+        },
+        path,
+    })
+}
+
+/// What `coid train` records beside each model's weights.
+pub struct TrainingRecord<'a> {
+    pub method: Method,
+    pub settings: &'a Settings,
+    pub n_examples: usize,
+    pub report: &'a TrainReport,
+    pub seconds: f64,
+}
+
+/// The metadata file of a trained model: config, seeds, data size, loss.
+fn model_metadata(record: &TrainingRecord) -> String {
+    let t = &record.settings.train;
+    let mut meta = String::new();
+    let _ = writeln!(
+        meta,
+        "# Trained by `coid train`; the config and seeds it was trained with."
+    );
+    let _ = writeln!(meta, "method = {:?}", record.method.as_str());
+    let source = record.settings.source.display().to_string();
+    let _ = writeln!(meta, "config = {source:?}");
+    let _ = writeln!(meta, "train_traffic_seeds = {:?}", t.traffic_seeds);
+    let eval_seeds = &record.settings.eval.traffic_seeds;
+    let _ = writeln!(meta, "eval_traffic_seeds = {eval_seeds:?}");
+    let _ = writeln!(meta, "epochs = {}", t.epochs);
+    let _ = writeln!(meta, "learning_rate = {}", t.learning_rate);
+    let _ = writeln!(meta, "seed = {}", t.seed);
+    let _ = writeln!(meta, "examples = {}", record.n_examples);
+    let _ = writeln!(meta, "steps = {}", record.report.steps);
+    let _ = writeln!(meta, "seconds = {:.1}", record.seconds);
+    let last = record.report.epoch_losses.last().copied();
+    let _ = writeln!(meta, "final_epoch_loss = {}", last.unwrap_or(f64::NAN));
+    meta
+}
+
+/// Writes a trained model into `dir`: `<method>.bpk` (the weights),
+/// `<method>.toml` (config, seeds, data size, final loss) and
+/// `<method>_loss.csv` (mean loss per epoch), each renamed into place
+/// when complete.
+pub fn write_model(dir: &Path, record: &TrainingRecord, weights: &[u8]) -> Result<(), OutputError> {
+    let method = record.method.as_str();
+    let mut curve = String::from("epoch,mean_loss\n");
+    for (k, l) in record.report.epoch_losses.iter().enumerate() {
+        let _ = writeln!(curve, "{},{l:.6}", k + 1);
+    }
+    publish_files(dir, |tmp| {
+        let bpk = tmp.join(format!("{method}.bpk"));
+        std::fs::write(&bpk, weights).map_err(io(&bpk))?;
+        write_text(&tmp.join(format!("{method}.toml")), &model_metadata(record))?;
+        write_text(&tmp.join(format!("{method}_loss.csv")), &curve)
+    })
+}
+
+// ---------------------------------------------------------------------------
+// Batch folders.
+// ---------------------------------------------------------------------------
+
+/// Whether a run folder is complete (it has its `summary.csv`).
+pub fn run_is_complete(run_dir: &Path) -> bool {
+    run_dir.join("summary.csv").is_file()
+}
+
+/// Claims `dir` for the batch described by `identity` (its `batch.toml`):
+/// creates it, or accepts it when it holds the same batch; a folder of
+/// another batch is refused.
+pub fn claim_batch_folder(dir: &Path, identity: &str) -> Result<(), OutputError> {
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    match std::fs::read_to_string(dir.join("batch.toml")) {
+        Ok(existing) if existing != identity => Err(OutputError::Batch(format!(
+            "{} holds a different batch ({}); choose another --out",
+            dir.display(),
+            existing.replace('\n', ", ").trim_end_matches(", ")
+        ))),
+        Ok(_) => Ok(()),
+        Err(_) => publish_files(dir, |tmp| write_text(&tmp.join("batch.toml"), identity)),
+    }
+}
+
+/// The identity (`batch.toml`) of a batch folder.
+pub fn batch_identity(dir: &Path) -> Result<String, OutputError> {
+    std::fs::read_to_string(dir.join("batch.toml")).map_err(|_| {
+        OutputError::Batch(format!(
+            "{} is not a batch folder (no batch.toml)",
+            dir.display()
+        ))
+    })
+}
+
+/// The complete run folders under `<batch_dir>/runs`, sorted by name.
+pub fn completed_runs(batch_dir: &Path) -> Result<Vec<PathBuf>, OutputError> {
+    let runs = batch_dir.join("runs");
+    if !runs.is_dir() {
+        return Ok(Vec::new());
+    }
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(&runs).map_err(io(&runs))? {
+        let p = e.map_err(io(&runs))?.path();
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if name.starts_with("run-") && run_is_complete(&p) {
+            out.push(p);
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// The summary rows of each complete run, in run order.
+pub fn read_runs(run_dirs: &[PathBuf]) -> Result<Vec<Vec<RunRow>>, OutputError> {
+    let mut dirs = run_dirs.to_vec();
+    dirs.sort_by(|a, b| a.file_name().cmp(&b.file_name()));
+    dirs.iter()
+        .map(|d| frames::read_run_summary(&d.join("summary.csv")))
+        .collect()
+}
+
+/// Writes a batch's aggregate (`summary.csv`, `summary.md`) and whatever
+/// `plots` draws into its folder, each file renamed into place.
+pub fn write_batch_summary(
+    dir: &Path,
+    rows: &[AggregateRow],
+    header: &str,
+    plots: impl FnOnce(&Path) -> Result<(), OutputError>,
+) -> Result<(), OutputError> {
+    publish_files(dir, |tmp| {
+        frames::write_aggregate(&tmp.join("summary.csv"), rows)?;
+        write_text(&tmp.join("summary.md"), &markdown::batch(rows, header))?;
+        plots(tmp)
+    })
+}
+
+/// Copies a complete run folder (flat: files only) into `dst` atomically.
+pub fn copy_run(src: &Path, dst: &Path) -> Result<(), OutputError> {
+    atomic_dir(dst, true, |tmp| -> Result<(), OutputError> {
+        for e in std::fs::read_dir(src).map_err(io(src))? {
+            let p = e.map_err(io(src))?.path();
+            if p.is_file() {
+                let to = tmp.join(p.file_name().unwrap_or_default());
+                std::fs::copy(&p, &to).map_err(io(&to))?;
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Writes a merged batch's identity.
+pub fn write_batch_identity(dir: &Path, identity: &str) -> Result<(), OutputError> {
+    publish_files(dir, |tmp| write_text(&tmp.join("batch.toml"), identity))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn a_folder_appears_complete_or_not_at_all() {
+        let root = tempfile::tempdir().unwrap();
+        let out = root.path().join("res");
+        // A failing fill leaves nothing behind.
+        let e = atomic_dir(&out, false, |d| -> Result<(), OutputError> {
+            std::fs::write(d.join("a.csv"), "half").unwrap();
+            Err(OutputError::Batch("boom".into()))
+        });
+        assert!(e.is_err());
+        assert!(names(root.path()).is_empty(), "{:?}", names(root.path()));
+        // A complete one appears; an existing one is kept without force...
+        atomic_dir(&out, false, |d| write_text(&d.join("a.csv"), "one")).unwrap();
+        assert!(matches!(
+            atomic_dir(&out, false, |_| -> Result<(), OutputError> { Ok(()) }),
+            Err(OutputError::Exists(_))
+        ));
+        // ...and replaced with force, only once the new one is complete.
+        let e = atomic_dir(&out, true, |_| Err(OutputError::Batch("no".into())));
+        assert!(e.is_err());
+        assert_eq!(std::fs::read_to_string(out.join("a.csv")).unwrap(), "one");
+        atomic_dir(&out, true, |d| write_text(&d.join("b.csv"), "two")).unwrap();
+        assert_eq!(names(&out), vec!["b.csv"]);
+        assert_eq!(names(root.path()), vec!["res"]);
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = std::fs::metadata(&out).unwrap().permissions().mode();
+            assert_ne!(
+                mode & 0o055,
+                0,
+                "a results folder is readable by others: {mode:o}"
+            );
+        }
+    }
+
+    #[test]
+    fn published_files_replace_old_ones_and_leave_no_staging() {
+        let dir = tempfile::tempdir().unwrap();
+        write_text(&dir.path().join("summary.csv"), "old").unwrap();
+        publish_files(dir.path(), |t| {
+            write_text(&t.join("summary.csv"), "new")?;
+            write_text(&t.join("summary.md"), "md")
+        })
+        .unwrap();
+        assert_eq!(names(dir.path()), vec!["summary.csv", "summary.md"]);
+        assert_eq!(
+            std::fs::read_to_string(dir.path().join("summary.csv")).unwrap(),
+            "new"
+        );
+        assert!(publish_files(dir.path(), |_| Err(OutputError::Batch("x".into()))).is_err());
+        assert_eq!(names(dir.path()), vec!["summary.csv", "summary.md"]);
+    }
+
+    #[test]
+    fn a_batch_folder_belongs_to_one_batch() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path().join("b");
+        claim_batch_folder(&d, "runs = 4\n").unwrap();
+        claim_batch_folder(&d, "runs = 4\n").unwrap();
+        let e = claim_batch_folder(&d, "runs = 5\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("different batch (runs = 4)"), "{e}");
+        assert_eq!(batch_identity(&d).unwrap(), "runs = 4\n");
+        assert!(batch_identity(dir.path()).is_err());
+    }
+
+    #[test]
+    fn missing_weights_name_the_method_and_the_remedy() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = read_weights(dir.path(), Method::Ours)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("'ours'") && e.contains("no such file") && e.contains("coid train"),
+            "{e}"
+        );
+    }
+}

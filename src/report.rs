@@ -1,0 +1,394 @@
+//! What results look like before they are written: summary rows of a run,
+//! the per-object rows, the paper's tables as named columns, a batch's
+//! rows, and the data behind the plots. Plain data and the arithmetic that
+//! makes it (pooling; means over Monte Carlo runs with 95% intervals from
+//! Student's t quantiles, statrs); `io` writes it and `render` draws it.
+
+use std::collections::{BTreeMap, HashMap};
+use std::time::Duration;
+
+use statrs::distribution::{ContinuousCDF, StudentsT};
+
+use crate::evaluate::{ObjectEstimate, PairCounts};
+use crate::fusion::FusionVariant;
+use crate::matching::Method;
+use crate::sensor::PoseNoiseLabel;
+
+/// The 97.5% quantile of Student's t with `dof` degrees of freedom (NaN
+/// for 0).
+pub fn t_975(dof: usize) -> f64 {
+    StudentsT::new(0.0, 1.0, dof as f64)
+        .map(|t| t.inverse_cdf(0.975))
+        .unwrap_or(f64::NAN)
+}
+
+/// Mean and half-width of the 95% confidence interval (Student t) of a
+/// sample, ignoring values that are not finite; the half-width is NaN for
+/// fewer than two values.
+pub fn mean_ci95(values: &[f64]) -> (f64, f64) {
+    let v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    let n = v.len();
+    if n == 0 {
+        return (f64::NAN, f64::NAN);
+    }
+    let mean = v.iter().sum::<f64>() / n as f64;
+    if n < 2 {
+        return (mean, f64::NAN);
+    }
+    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    (mean, t_975(n - 1) * (var / n as f64).sqrt())
+}
+
+/// The key of a summary row.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct RowKey {
+    pub method: Method,
+    pub pose_noise: PoseNoiseLabel,
+    pub fusion: FusionVariant,
+}
+
+/// Running sums for one summary row.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Accumulator {
+    pub instances: usize,
+    pub counts: PairCounts,
+    pub objects: usize,
+    pub single_error_sum_m: f64,
+    pub fused_error_sum_m: f64,
+}
+
+/// One line of a run's `summary.csv`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SummaryRow {
+    pub key: RowKey,
+    pub n_instances: usize,
+    pub n_objects: usize,
+    pub precision: f64,
+    pub recall: f64,
+    pub f1: f64,
+    /// Mean over objects; NaN when no object was matched.
+    pub de_single_m: f64,
+    pub de_fused_m: f64,
+}
+
+/// A run's summary: counts and errors pooled over its instances.
+#[derive(Clone, Debug, Default)]
+pub struct Summary {
+    pub rows: BTreeMap<RowKey, Accumulator>,
+}
+
+impl Summary {
+    pub fn record(&mut self, key: RowKey, counts: PairCounts, estimates: &[ObjectEstimate]) {
+        let acc = self.rows.entry(key).or_default();
+        acc.instances += 1;
+        acc.counts.add(counts);
+        acc.objects += estimates.len();
+        acc.single_error_sum_m += estimates.iter().map(|e| e.single_error_m()).sum::<f64>();
+        acc.fused_error_sum_m += estimates.iter().map(|e| e.fused_error_m()).sum::<f64>();
+    }
+
+    /// Rows in a fixed order (method, pose noise, fusion).
+    pub fn rows(&self) -> Vec<SummaryRow> {
+        self.rows
+            .iter()
+            .map(|(key, acc)| {
+                let mean = |s: f64| {
+                    if acc.objects == 0 {
+                        f64::NAN
+                    } else {
+                        s / acc.objects as f64
+                    }
+                };
+                SummaryRow {
+                    key: *key,
+                    n_instances: acc.instances,
+                    n_objects: acc.objects,
+                    precision: acc.counts.precision(),
+                    recall: acc.counts.recall(),
+                    f1: acc.counts.f1(),
+                    de_single_m: mean(acc.single_error_sum_m),
+                    de_fused_m: mean(acc.fused_error_sum_m),
+                }
+            })
+            .collect()
+    }
+}
+
+/// One row of `objects.parquet`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ObjectRow {
+    pub instance: usize,
+    pub step: u64,
+    pub time_s: f64,
+    pub key: RowKey,
+    pub estimate: ObjectEstimate,
+}
+
+/// Everything a run produced.
+#[derive(Clone, Debug, Default)]
+pub struct RunResults {
+    pub summary: Summary,
+    pub objects: Vec<ObjectRow>,
+    pub n_instances: usize,
+    pub n_steps: u64,
+    pub sim_end_s: f64,
+    /// Wall time spent inside the bridge's step calls.
+    pub bridge_time: Duration,
+    /// Road users read over all steps (for the per-object bridge cost).
+    pub objects_read: u64,
+    /// Wall time of the whole run.
+    pub wall_time: Duration,
+}
+
+/// A table for a results folder: named columns of text or numbers.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Table {
+    pub columns: Vec<(String, TableColumn)>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum TableColumn {
+    Text(Vec<String>),
+    Number(Vec<f64>),
+}
+
+impl Table {
+    pub fn text(&mut self, name: &str, v: Vec<String>) {
+        self.columns.push((name.into(), TableColumn::Text(v)));
+    }
+
+    pub fn number(&mut self, name: &str, v: Vec<f64>) {
+        self.columns.push((name.into(), TableColumn::Number(v)));
+    }
+
+    /// Adds `name` and `name_ci95`: per row, the mean of its per-run
+    /// samples and the half-width of the 95% interval.
+    pub fn stat(&mut self, name: &str, samples: &[Vec<f64>]) {
+        let (m, c): (Vec<f64>, Vec<f64>) = samples.iter().map(|s| mean_ci95(s)).unzip();
+        self.number(name, m);
+        self.number(&format!("{name}_ci95"), c);
+    }
+
+    /// The column `name`, if it exists.
+    pub fn column(&self, name: &str) -> Option<&TableColumn> {
+        self.columns.iter().find(|(n, _)| n == name).map(|(_, c)| c)
+    }
+
+    pub fn height(&self) -> usize {
+        match self.columns.first() {
+            Some((_, TableColumn::Text(v))) => v.len(),
+            Some((_, TableColumn::Number(v))) => v.len(),
+            None => 0,
+        }
+    }
+}
+
+/// One row of a run's `summary.csv`, as read back for a batch aggregate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunRow {
+    pub method: String,
+    pub pose_noise: String,
+    pub fusion: String,
+    pub n_instances: u64,
+    pub precision: f64,
+    pub recall: f64,
+    pub f1: f64,
+    pub de_single_m: f64,
+    pub de_fused_m: f64,
+}
+
+/// One line of a batch's `summary.csv`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AggregateRow {
+    pub method: String,
+    pub pose_noise: String,
+    pub fusion: String,
+    pub n_runs: usize,
+    pub n_instances: u64,
+    /// (mean over runs, 95% CI half-width) of each metric.
+    pub precision: (f64, f64),
+    pub recall: (f64, f64),
+    pub f1: (f64, f64),
+    pub de_single_m: (f64, f64),
+    pub de_fused_m: (f64, f64),
+}
+
+/// Aggregates runs (each its summary rows, in run order): one row per
+/// (method, pose noise, fusion) in order of first appearance, with the mean
+/// over the runs that have it and the 95% interval.
+pub fn aggregate(runs: &[Vec<RunRow>]) -> Vec<AggregateRow> {
+    type Key = (String, String, String);
+    let mut order: Vec<Key> = Vec::new();
+    let mut groups: HashMap<Key, Vec<&RunRow>> = HashMap::new();
+    for row in runs.iter().flatten() {
+        let key = (
+            row.method.clone(),
+            row.pose_noise.clone(),
+            row.fusion.clone(),
+        );
+        if !groups.contains_key(&key) {
+            order.push(key.clone());
+        }
+        groups.entry(key).or_default().push(row);
+    }
+    order
+        .into_iter()
+        .map(|key| {
+            let rows = &groups[&key];
+            let stat =
+                |f: fn(&RunRow) -> f64| mean_ci95(&rows.iter().map(|r| f(r)).collect::<Vec<_>>());
+            AggregateRow {
+                n_runs: rows.len(),
+                n_instances: rows.iter().map(|r| r.n_instances).sum(),
+                precision: stat(|r| r.precision),
+                recall: stat(|r| r.recall),
+                f1: stat(|r| r.f1),
+                de_single_m: stat(|r| r.de_single_m),
+                de_fused_m: stat(|r| r.de_fused_m),
+                method: key.0,
+                pose_noise: key.1,
+                fusion: key.2,
+            }
+        })
+        .collect()
+}
+
+/// One point of the lambda sweep: (lambda, precision, recall, F1).
+pub type SweepPoint = (f64, f64, f64, f64);
+
+/// The data behind `coid eval`'s plots.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PlotData {
+    /// Per level: (level, points) of `ours`.
+    pub lambda_sweep: Vec<(String, Vec<SweepPoint>)>,
+    /// Methods, and per level the (mean, ci) F1 of each method.
+    pub methods: Vec<String>,
+    pub f1: Vec<(String, Vec<(f64, f64)>)>,
+    /// Per level: pooled single and fused errors of `ours` (aligned fusion
+    /// when configured, else paper).
+    pub errors: Vec<(String, Vec<f64>, Vec<f64>)>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(method: &str, noise: &str, f1: f64, de: f64) -> RunRow {
+        RunRow {
+            method: method.into(),
+            pose_noise: noise.into(),
+            fusion: "paper".into(),
+            n_instances: 10,
+            precision: f1,
+            recall: f1,
+            f1,
+            de_single_m: de,
+            de_fused_m: de / 2.0,
+        }
+    }
+
+    #[test]
+    fn aggregation_pools_runs_per_key_in_first_seen_order() {
+        let runs = vec![
+            vec![row("ours", "gps", 0.8, 2.0), row("oracle", "gps", 1.0, 2.0)],
+            vec![
+                row("ours", "gps", 0.6, 4.0),
+                row("oracle", "gps", 1.0, f64::NAN),
+            ],
+            vec![row("ours", "gps", 0.7, 3.0)],
+        ];
+        let agg = aggregate(&runs);
+        assert_eq!(agg.len(), 2);
+        let ours = &agg[0];
+        assert_eq!(
+            (ours.method.as_str(), ours.n_runs, ours.n_instances),
+            ("ours", 3, 30)
+        );
+        // 0.8, 0.6, 0.7: mean 0.7, s = 0.1, half-width t(2) 0.1 / sqrt(3).
+        assert!((ours.f1.0 - 0.7).abs() < 1e-12);
+        assert!(
+            (ours.f1.1 - 4.302652730 * 0.1 / 3f64.sqrt()).abs() < 1e-7,
+            "{:?}",
+            ours.f1
+        );
+        assert!((ours.de_fused_m.0 - 1.5).abs() < 1e-12);
+        // The oracle: a NaN error is left out of its mean.
+        let oracle = &agg[1];
+        assert_eq!((oracle.method.as_str(), oracle.n_runs), ("oracle", 2));
+        assert_eq!(oracle.de_single_m.0, 2.0);
+        assert!(oracle.de_single_m.1.is_nan());
+        assert_eq!(oracle.f1, (1.0, 0.0));
+    }
+
+    #[test]
+    fn summary_pools_counts_and_means_errors_over_objects() {
+        use crate::geometry::Vec2;
+        let key = RowKey {
+            method: Method::Ours,
+            pose_noise: PoseNoiseLabel::Gps,
+            fusion: FusionVariant::Paper,
+        };
+        let est = |single: f64, fused: f64| ObjectEstimate {
+            ego_id: "a".into(),
+            peer_id: "b".into(),
+            object_id: "x".into(),
+            match_correct: true,
+            pose_refined: false,
+            truth_m: Vec2::zeros(),
+            single_m: Vec2::new(single, 0.0),
+            fused_m: Vec2::new(0.0, fused),
+        };
+        let mut s = Summary::default();
+        let counts = |identified, correct, ground_truth| PairCounts {
+            identified,
+            correct,
+            ground_truth,
+        };
+        s.record(key, counts(2, 1, 4), &[est(1.0, 0.5)]);
+        s.record(key, counts(2, 2, 2), &[est(2.0, 1.0), est(3.0, 0.0)]);
+        let rows = s.rows();
+        assert_eq!(rows.len(), 1);
+        let r = &rows[0];
+        assert_eq!((r.n_instances, r.n_objects), (2, 3));
+        assert_eq!((r.precision, r.recall), (0.75, 0.5));
+        assert_eq!((r.de_single_m, r.de_fused_m), (2.0, 0.5));
+    }
+
+    #[test]
+    fn t_quantiles_match_the_tables() {
+        // Two-sided 95% points of Student's t (standard tables, 9 digits).
+        for (dof, t) in [
+            (1, 12.706204736),
+            (3, 3.182446305),
+            (9, 2.262157163),
+            (30, 2.042272456),
+            (60, 2.000297822),
+            (100, 1.983971519),
+            (1000, 1.962339081),
+        ] {
+            assert!((t_975(dof) - t).abs() < 1e-6, "dof {dof}: {}", t_975(dof));
+        }
+        assert!(t_975(0).is_nan());
+    }
+
+    #[test]
+    fn intervals_of_known_samples() {
+        // 1..5: mean 3, s = sqrt(2.5), half-width t(4) s / sqrt(5).
+        let (m, ci) = mean_ci95(&[1.0, 2.0, 3.0, 4.0, 5.0]);
+        assert_eq!(m, 3.0);
+        assert!(
+            (ci - 2.776445105 * 2.5f64.sqrt() / 5f64.sqrt()).abs() < 1e-8,
+            "{ci}"
+        );
+        // Non-finite values are left out; one value has no interval.
+        let (m, ci) = mean_ci95(&[2.0, f64::NAN, 4.0]);
+        assert_eq!(m, 3.0);
+        assert!((ci - 12.706204736 * 1.0).abs() < 1e-6, "{ci}");
+        let (m, ci) = mean_ci95(&[7.0]);
+        assert_eq!(m, 7.0);
+        assert!(ci.is_nan());
+        assert!(mean_ci95(&[]).0.is_nan());
+        // A constant sample has a zero-width interval.
+        assert_eq!(mean_ci95(&[0.5; 4]), (0.5, 0.0));
+    }
+}

@@ -1,0 +1,499 @@
+//! The paper's tables from the test runs of `coid eval`: what each run
+//! contributes ([`RunEval`], pooled within the run), and Table 1 (P/R/F1 per
+//! method), Table 2 (F1 before and after uncertainty thresholding), Table 3
+//! (uncertainty types), the lambda sweep (Fig. 8a) and the case study, each
+//! metric as the mean over runs with its 95% interval.
+
+use std::collections::BTreeMap;
+
+use crate::config::Settings;
+use crate::evaluate::{MethodEval, PairCounts, count_pairs};
+use crate::fusion::FusionVariant;
+use crate::matching::Method;
+use crate::matching::deep::{self, decision::UncertaintyKind};
+use crate::report::{PlotData, Table, mean_ci95};
+use crate::sensor::{ObservationTruth, PoseNoiseLabel};
+
+/// The uncertainty types of Table 3, in its order.
+const TABLE3_KINDS: [UncertaintyKind; 3] = [
+    UncertaintyKind::Epistemic,
+    UncertaintyKind::Aleatoric,
+    UncertaintyKind::Total,
+];
+
+/// The threshold grid of the lambda sweep (binary entropy in bits): 0 to 1
+/// by 0.05, plus the configured lambda.
+pub fn lambda_grid(configured: f64) -> Vec<f64> {
+    let mut g: Vec<f64> = (0..=20).map(|k| k as f64 * 0.05).collect();
+    g.push(configured);
+    g.sort_by(f64::total_cmp);
+    g.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    g
+}
+
+/// What one test run contributes to the tables.
+#[derive(Clone, Debug, Default)]
+pub struct RunEval {
+    /// Table 1: each method with its default decision.
+    pub table1: BTreeMap<(Method, PoseNoiseLabel), PairCounts>,
+    /// Deep methods without thresholding.
+    pub unthresholded: BTreeMap<(Method, PoseNoiseLabel), PairCounts>,
+    /// Deep methods thresholded: (method, level, kind, index into
+    /// [`lambda_grid`]).
+    pub thresholded: BTreeMap<(Method, PoseNoiseLabel, UncertaintyKind, usize), PairCounts>,
+    /// Displacement errors per (method, level, fusion): sums and count.
+    pub errors: BTreeMap<(Method, PoseNoiseLabel, FusionVariant), (f64, f64, usize)>,
+    /// Every object's single and fused error of the full method (`ours`),
+    /// for the error CDFs.
+    pub ours_errors: BTreeMap<(PoseNoiseLabel, FusionVariant), (Vec<f64>, Vec<f64>)>,
+    pub instances: usize,
+}
+
+impl RunEval {
+    /// Adds one method's evaluation of one instance at one level; deep
+    /// methods also count every threshold of `grid` and every uncertainty
+    /// type on the same distribution.
+    pub fn record(
+        &mut self,
+        e: &MethodEval,
+        level: PoseNoiseLabel,
+        truths: (&ObservationTruth, &ObservationTruth),
+        grid: &[f64],
+    ) {
+        let (ta, tb) = truths;
+        if let Some(dist) = &e.identification.distribution {
+            let key = (e.method, level);
+            let before = count_pairs(ta, tb, &dist.decide(None));
+            self.unthresholded.entry(key).or_default().add(before);
+            for kind in [
+                UncertaintyKind::Total,
+                UncertaintyKind::Epistemic,
+                UncertaintyKind::Aleatoric,
+            ] {
+                for (k, &lambda) in grid.iter().enumerate() {
+                    let c = count_pairs(ta, tb, &dist.decide(Some((kind, lambda))));
+                    self.thresholded
+                        .entry((e.method, level, kind, k))
+                        .or_default()
+                        .add(c);
+                }
+            }
+        }
+        self.table1
+            .entry((e.method, level))
+            .or_default()
+            .add(e.counts);
+        for (variant, est) in &e.fused {
+            if e.method == Method::Ours {
+                let o = self.ours_errors.entry((level, *variant)).or_default();
+                o.0.extend(est.iter().map(|x| x.single_error_m()));
+                o.1.extend(est.iter().map(|x| x.fused_error_m()));
+            }
+            let sums = self.errors.entry((e.method, level, *variant)).or_default();
+            sums.0 += est.iter().map(|x| x.single_error_m()).sum::<f64>();
+            sums.1 += est.iter().map(|x| x.fused_error_m()).sum::<f64>();
+            sums.2 += est.len();
+        }
+    }
+}
+
+/// The paper's tables over the test runs.
+pub struct EvalTables {
+    pub table1: Table,
+    pub table2: Table,
+    pub table3: Table,
+    pub lambda_sweep: Table,
+    pub case_study: Table,
+}
+
+impl EvalTables {
+    /// The tables with their file names, empty ones left out.
+    pub fn files(&self) -> Vec<(&'static str, &Table)> {
+        let mut files = vec![
+            ("table1.csv", &self.table1),
+            ("table2.csv", &self.table2),
+            ("table3.csv", &self.table3),
+            ("lambda_sweep.csv", &self.lambda_sweep),
+            ("case_study.csv", &self.case_study),
+        ];
+        files.retain(|(_, t)| !t.columns.is_empty());
+        files
+    }
+}
+
+/// Everything the tables are made from.
+struct Inputs<'a> {
+    runs: &'a [RunEval],
+    levels: Vec<PoseNoiseLabel>,
+    /// Methods of Table 1 (those the runs evaluated), in table order.
+    methods: Vec<Method>,
+    /// The configured lambda's index in the grid, and the grid.
+    at: usize,
+    grid: Vec<f64>,
+    kind: UncertaintyKind,
+    variants: Vec<FusionVariant>,
+}
+
+impl Inputs<'_> {
+    /// The per-run values of a metric (runs without it left out).
+    fn per_run(&self, f: impl Fn(&RunEval) -> Option<f64>) -> Vec<f64> {
+        self.runs.iter().filter_map(f).collect()
+    }
+
+    fn deep_methods(&self) -> Vec<Method> {
+        self.methods
+            .iter()
+            .copied()
+            .filter(|m| deep::variant(*m).is_some())
+            .collect()
+    }
+}
+
+fn inputs<'a>(settings: &Settings, runs: &'a [RunEval]) -> Inputs<'a> {
+    let mut methods: Vec<Method> = runs
+        .first()
+        .map(|r| r.table1.keys().map(|k| k.0).collect())
+        .unwrap_or_default();
+    methods.dedup();
+    let grid = lambda_grid(settings.matching.lambda);
+    let at = grid
+        .iter()
+        .position(|g| (g - settings.matching.lambda).abs() < 1e-9)
+        .unwrap_or(0);
+    Inputs {
+        runs,
+        levels: settings.pose_noise.iter().map(|l| l.label).collect(),
+        methods,
+        at,
+        grid,
+        kind: settings.matching.uncertainty,
+        variants: settings.fusion.variants.clone(),
+    }
+}
+
+pub fn eval_tables(settings: &Settings, runs: &[RunEval]) -> EvalTables {
+    let inp = inputs(settings, runs);
+    let with_ours = inp.deep_methods().contains(&Method::Ours);
+    EvalTables {
+        table1: table1(&inp),
+        table2: table2(&inp),
+        table3: if with_ours {
+            table3(&inp)
+        } else {
+            Table::default()
+        },
+        lambda_sweep: if with_ours {
+            sweep(&inp)
+        } else {
+            Table::default()
+        },
+        case_study: if with_ours {
+            case_study(&inp)
+        } else {
+            Table::default()
+        },
+    }
+}
+
+fn table1(inp: &Inputs) -> Table {
+    let mut t = Table::default();
+    let (mut names, mut noise, mut p, mut r, mut f) = (vec![], vec![], vec![], vec![], vec![]);
+    for &m in &inp.methods {
+        for &l in &inp.levels {
+            names.push(m.as_str().to_owned());
+            noise.push(l.as_str().to_owned());
+            let get = |run: &RunEval| run.table1.get(&(m, l)).copied();
+            p.push(inp.per_run(|run| get(run).map(|c| c.precision())));
+            r.push(inp.per_run(|run| get(run).map(|c| c.recall())));
+            f.push(inp.per_run(|run| get(run).map(|c| c.f1())));
+        }
+    }
+    t.text("method", names);
+    t.text("pose_noise", noise);
+    t.stat("precision", &p);
+    t.stat("recall", &r);
+    t.stat("f1", &f);
+    t.number("n_runs", vec![inp.runs.len() as f64; p.len()]);
+    t
+}
+
+fn table2(inp: &Inputs) -> Table {
+    let mut t = Table::default();
+    let (mut names, mut noise, mut before, mut after) = (vec![], vec![], vec![], vec![]);
+    for m in inp.deep_methods() {
+        for &l in &inp.levels {
+            names.push(m.as_str().to_owned());
+            noise.push(l.as_str().to_owned());
+            before.push(inp.per_run(|run| run.unthresholded.get(&(m, l)).map(|c| c.f1())));
+            let key = (m, l, inp.kind, inp.at);
+            after.push(inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())));
+        }
+    }
+    t.text("method", names);
+    t.text("pose_noise", noise);
+    t.stat("f1_before", &before);
+    t.stat("f1_after", &after);
+    t
+}
+
+fn table3(inp: &Inputs) -> Table {
+    let mut t = Table::default();
+    let (mut kinds, mut noise, mut f) = (vec![], vec![], vec![]);
+    for &l in &inp.levels {
+        for k in TABLE3_KINDS {
+            kinds.push(k.as_str().to_owned());
+            noise.push(l.as_str().to_owned());
+            let key = (Method::Ours, l, k, inp.at);
+            f.push(inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())));
+        }
+    }
+    t.text("uncertainty", kinds);
+    t.text("pose_noise", noise);
+    t.stat("f1", &f);
+    t
+}
+
+fn sweep(inp: &Inputs) -> Table {
+    let mut t = Table::default();
+    let (mut lam, mut noise, mut p, mut r, mut f) = (vec![], vec![], vec![], vec![], vec![]);
+    for &l in &inp.levels {
+        for (k, &g) in inp.grid.iter().enumerate() {
+            lam.push(g);
+            noise.push(l.as_str().to_owned());
+            let get = |run: &RunEval| {
+                run.thresholded
+                    .get(&(Method::Ours, l, inp.kind, k))
+                    .copied()
+            };
+            p.push(inp.per_run(|run| get(run).map(|c| c.precision())));
+            r.push(inp.per_run(|run| get(run).map(|c| c.recall())));
+            f.push(inp.per_run(|run| get(run).map(|c| c.f1())));
+        }
+    }
+    t.number("lambda", lam);
+    t.text("pose_noise", noise);
+    t.stat("precision", &p);
+    t.stat("recall", &r);
+    t.stat("f1", &f);
+    t
+}
+
+fn case_study(inp: &Inputs) -> Table {
+    let mut t = Table::default();
+    let (mut noise, mut fusion, mut p, mut r, mut ds, mut df) =
+        (vec![], vec![], vec![], vec![], vec![], vec![]);
+    for &l in &inp.levels {
+        for &v in &inp.variants {
+            noise.push(l.as_str().to_owned());
+            fusion.push(v.as_str().to_owned());
+            let counts = |run: &RunEval| run.table1.get(&(Method::Ours, l)).copied();
+            p.push(inp.per_run(|run| counts(run).map(|c| c.precision())));
+            r.push(inp.per_run(|run| counts(run).map(|c| c.recall())));
+            let err = |run: &RunEval, fused: bool| {
+                run.errors
+                    .get(&(Method::Ours, l, v))
+                    .filter(|e| e.2 > 0)
+                    .map(|e| if fused { e.1 } else { e.0 } / e.2 as f64)
+            };
+            ds.push(inp.per_run(|run| err(run, false)));
+            df.push(inp.per_run(|run| err(run, true)));
+        }
+    }
+    t.text("pose_noise", noise);
+    t.text("fusion", fusion);
+    t.stat("precision", &p);
+    t.stat("recall", &r);
+    t.stat("de_single_m", &ds);
+    t.stat("de_fused_m", &df);
+    t
+}
+
+/// The data of `coid eval`'s plots.
+pub fn plot_data(settings: &Settings, runs: &[RunEval]) -> PlotData {
+    let inp = inputs(settings, runs);
+    let mean = |v: Vec<f64>| mean_ci95(&v).0;
+    let lambda_sweep = inp
+        .levels
+        .iter()
+        .map(|&l| {
+            let point = |k: usize, g: f64| {
+                let get = |f: fn(&PairCounts) -> f64| {
+                    mean(inp.per_run(|r| r.thresholded.get(&(Method::Ours, l, inp.kind, k)).map(f)))
+                };
+                (
+                    g,
+                    get(PairCounts::precision),
+                    get(PairCounts::recall),
+                    get(PairCounts::f1),
+                )
+            };
+            let pts = inp
+                .grid
+                .iter()
+                .enumerate()
+                .map(|(k, &g)| point(k, g))
+                .collect();
+            (l.as_str().to_owned(), pts)
+        })
+        .collect();
+    let f1 = inp
+        .levels
+        .iter()
+        .map(|&l| {
+            let v = inp
+                .methods
+                .iter()
+                .map(|&m| mean_ci95(&inp.per_run(|r| r.table1.get(&(m, l)).map(|c| c.f1()))))
+                .collect();
+            (l.as_str().to_owned(), v)
+        })
+        .collect();
+    PlotData {
+        lambda_sweep,
+        methods: inp.methods.iter().map(|m| m.as_str().to_owned()).collect(),
+        f1,
+        errors: error_samples(&inp),
+    }
+}
+
+/// Per level: the pooled single and fused errors of `ours` (aligned fusion
+/// when configured, else paper).
+fn error_samples(inp: &Inputs) -> Vec<(String, Vec<f64>, Vec<f64>)> {
+    let variant = if inp.variants.contains(&FusionVariant::Aligned) {
+        FusionVariant::Aligned
+    } else {
+        FusionVariant::Paper
+    };
+    inp.levels
+        .iter()
+        .map(|&l| {
+            let (mut s, mut f) = (Vec::new(), Vec::new());
+            for r in inp.runs {
+                if let Some((a, b)) = r.ours_errors.get(&(l, variant)) {
+                    s.extend_from_slice(a);
+                    f.extend_from_slice(b);
+                }
+            }
+            (l.as_str().to_owned(), s, f)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Settings;
+    use crate::geometry::Pose2;
+    use crate::matching::deep::decision::MatchDistribution;
+    use crate::matching::{Correspondence, Identification};
+    use crate::report::TableColumn;
+    use crate::sensor::DetectionTruth;
+
+    #[test]
+    fn the_lambda_grid_has_every_twentieth_and_the_configured_value_once() {
+        let g = lambda_grid(0.7);
+        assert_eq!(g.len(), 21);
+        assert_eq!((g[0], g[20]), (0.0, 1.0));
+        assert!(g.windows(2).all(|w| w[0] < w[1]));
+        let g = lambda_grid(0.72);
+        assert_eq!(g.len(), 22);
+        assert!(g.contains(&0.72));
+    }
+
+    /// Two vehicles that both see objects x and y (detections 0 and 1).
+    fn truths() -> (ObservationTruth, ObservationTruth) {
+        let t = |ids: [&str; 2]| ObservationTruth {
+            ego_pose: Pose2::identity(),
+            detections: ids
+                .iter()
+                .map(|id| DetectionTruth {
+                    object_id: Some((*id).to_owned()),
+                    position_m: None,
+                    visible_fraction: 1.0,
+                })
+                .collect(),
+        };
+        (t(["x", "y"]), t(["x", "y"]))
+    }
+
+    /// A 2 x 2 distribution of one sample: the right pairs with
+    /// probabilities `p0` and `p1`.
+    fn dist(p0: f32, p1: f32) -> MatchDistribution {
+        let s = vec![
+            p0,
+            0.0,
+            1.0 - p0, //
+            0.0,
+            p1,
+            1.0 - p1, //
+            1.0 - p0,
+            1.0 - p1,
+            0.0,
+        ];
+        MatchDistribution::from_samples(2, 2, &[s])
+    }
+
+    fn run_with(dists: &[MatchDistribution], grid: &[f64]) -> RunEval {
+        let (ta, tb) = truths();
+        let mut run = RunEval::default();
+        for d in dists {
+            let matches: Vec<Correspondence> = d.decide(Some((UncertaintyKind::Total, 0.7)));
+            let e = MethodEval {
+                method: Method::Ours,
+                counts: count_pairs(&ta, &tb, &matches),
+                identification: Identification {
+                    matches,
+                    distribution: Some(d.clone()),
+                },
+                fused: vec![],
+            };
+            run.record(&e, PoseNoiseLabel::Gps, (&ta, &tb), grid);
+        }
+        run
+    }
+
+    fn numbers(t: &Table, name: &str) -> Vec<f64> {
+        match t.column(name) {
+            Some(TableColumn::Number(v)) => v.clone(),
+            other => panic!("{name}: {other:?}"),
+        }
+    }
+
+    /// Table 2 and 3 from hand-made distributions: run 1 has pairs at
+    /// p = 0.95 and 0.6 (entropy 0.29 and 0.97 bits), run 2 at 0.95 and
+    /// 0.95. Before thresholding both runs find both pairs (F1 1); at
+    /// lambda 0.7 run 1 keeps one of two (F1 2/3), run 2 both (F1 1).
+    #[test]
+    fn tables_two_and_three_from_hand_made_distributions() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = dir.path().join("c.toml");
+        std::fs::write(&cfg, "[pose_noise]\nlevels = [\"gps\"]\n").unwrap();
+        let settings = Settings::load(&cfg).unwrap();
+        let grid = lambda_grid(settings.matching.lambda);
+        let runs = vec![
+            run_with(&[dist(0.95, 0.6)], &grid),
+            run_with(&[dist(0.95, 0.95)], &grid),
+        ];
+        let t = eval_tables(&settings, &runs);
+        assert_eq!(t.table2.height(), 1);
+        assert_eq!(numbers(&t.table2, "f1_before"), vec![1.0]);
+        let after = numbers(&t.table2, "f1_after")[0];
+        assert!((after - (2.0 / 3.0 + 1.0) / 2.0).abs() < 1e-12, "{after}");
+        let ci = numbers(&t.table2, "f1_after_ci95")[0];
+        // Two runs, 2/3 and 1: s = (1/3)/sqrt(2), half-width t(1) s / sqrt(2).
+        assert!((ci - 12.706204736 * (1.0 / 3.0) / 2.0).abs() < 1e-6, "{ci}");
+        // Table 3: one sample per distribution, so no epistemic part: the
+        // epistemic threshold keeps everything, aleatoric = entropy here.
+        let f = numbers(&t.table3, "f1");
+        assert_eq!(f.len(), 3);
+        assert_eq!(f[0], 1.0);
+        assert!((f[1] - after).abs() < 1e-12 && (f[2] - after).abs() < 1e-12);
+        // Table 1 holds the default decision (thresholded for `ours`).
+        assert!((numbers(&t.table1, "f1")[0] - after).abs() < 1e-12);
+        assert_eq!(numbers(&t.table1, "n_runs"), vec![2.0]);
+        // The sweep at lambda 0: nothing kept, recall 0.
+        let recall = numbers(&t.lambda_sweep, "recall");
+        assert_eq!(recall.len(), grid.len());
+        assert_eq!(recall[0], 0.0);
+    }
+}
