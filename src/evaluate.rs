@@ -39,30 +39,36 @@ impl PairCounts {
         self.ground_truth += other.ground_truth;
     }
 
-    /// correct / identified; 1 when nothing was identified (no false claim).
+    /// correct / identified; undefined (NaN) when nothing was identified:
+    /// a method that claims nothing has made no correct claim either.
     pub fn precision(&self) -> f64 {
         if self.identified == 0 {
-            1.0
+            f64::NAN
         } else {
             self.correct as f64 / self.identified as f64
         }
     }
 
-    /// correct / ground truth; 1 when there was nothing to find.
+    /// correct / ground truth; undefined (NaN) when there was nothing to
+    /// find.
     pub fn recall(&self) -> f64 {
         if self.ground_truth == 0 {
-            1.0
+            f64::NAN
         } else {
             self.correct as f64 / self.ground_truth as f64
         }
     }
 
+    /// The harmonic mean of precision and recall, from the counts:
+    /// `2 correct / (identified + ground truth)`. Defined whenever either
+    /// count is (0 when nothing was identified but there was something to
+    /// find); NaN only when both are 0.
     pub fn f1(&self) -> f64 {
-        let (p, r) = (self.precision(), self.recall());
-        if p + r == 0.0 {
-            0.0
+        let denominator = self.identified + self.ground_truth;
+        if denominator == 0 {
+            f64::NAN
         } else {
-            2.0 * p * r / (p + r)
+            2.0 * self.correct as f64 / denominator as f64
         }
     }
 }
@@ -346,10 +352,12 @@ mod tests {
         assert!((c.precision() - 1.0 / 3.0).abs() < 1e-12);
         assert!((c.recall() - 0.5).abs() < 1e-12);
         assert!((c.f1() - 0.4).abs() < 1e-12);
+        // Nothing identified: precision undefined (not 1), recall and F1 0.
         let none = count_pairs(&first, &second, &[]);
-        assert_eq!(none.precision(), 1.0);
+        assert!(none.precision().is_nan());
         assert_eq!(none.recall(), 0.0);
         assert_eq!(none.f1(), 0.0);
+        assert!(PairCounts::default().f1().is_nan());
     }
 
     #[test]

@@ -150,6 +150,7 @@ pub struct Table {
 pub enum TableColumn {
     Text(Vec<String>),
     Number(Vec<f64>),
+    Count(Vec<u64>),
 }
 
 impl Table {
@@ -161,12 +162,26 @@ impl Table {
         self.columns.push((name.into(), TableColumn::Number(v)));
     }
 
+    pub fn count(&mut self, name: &str, v: Vec<u64>) {
+        self.columns.push((name.into(), TableColumn::Count(v)));
+    }
+
     /// Adds `name` and `name_ci95`: per row, the mean of its per-run
-    /// samples and the half-width of the 95% interval.
+    /// samples and the half-width of the 95% interval. Undefined (NaN)
+    /// samples are left out.
     pub fn stat(&mut self, name: &str, samples: &[Vec<f64>]) {
         let (m, c): (Vec<f64>, Vec<f64>) = samples.iter().map(|s| mean_ci95(s)).unzip();
         self.number(name, m);
         self.number(&format!("{name}_ci95"), c);
+    }
+
+    /// Adds `name`: per row, how many of its per-run samples are defined.
+    pub fn defined(&mut self, name: &str, samples: &[Vec<f64>]) {
+        let n = samples
+            .iter()
+            .map(|s| s.iter().filter(|x| x.is_finite()).count() as u64)
+            .collect();
+        self.count(name, n);
     }
 
     /// The column `name`, if it exists.
@@ -178,6 +193,7 @@ impl Table {
         match self.columns.first() {
             Some((_, TableColumn::Text(v))) => v.len(),
             Some((_, TableColumn::Number(v))) => v.len(),
+            Some((_, TableColumn::Count(v))) => v.len(),
             None => 0,
         }
     }
@@ -204,6 +220,9 @@ pub struct AggregateRow {
     pub pose_noise: String,
     pub fusion: String,
     pub n_runs: usize,
+    /// Runs in which the method identified at least one pair (precision is
+    /// defined); the precision mean is over these.
+    pub n_runs_precision: usize,
     pub n_instances: u64,
     /// (mean over runs, 95% CI half-width) of each metric.
     pub precision: (f64, f64),
@@ -239,6 +258,7 @@ pub fn aggregate(runs: &[Vec<RunRow>]) -> Vec<AggregateRow> {
                 |f: fn(&RunRow) -> f64| mean_ci95(&rows.iter().map(|r| f(r)).collect::<Vec<_>>());
             AggregateRow {
                 n_runs: rows.len(),
+                n_runs_precision: rows.iter().filter(|r| r.precision.is_finite()).count(),
                 n_instances: rows.iter().map(|r| r.n_instances).sum(),
                 precision: stat(|r| r.precision),
                 recall: stat(|r| r.recall),

@@ -213,7 +213,8 @@ fn table1(inp: &Inputs) -> Table {
     t.stat("precision", &p);
     t.stat("recall", &r);
     t.stat("f1", &f);
-    t.number("n_runs", vec![inp.runs.len() as f64; p.len()]);
+    t.count("n_runs", vec![inp.runs.len() as u64; p.len()]);
+    t.defined("n_runs_precision", &p);
     t
 }
 
@@ -275,6 +276,7 @@ fn sweep(inp: &Inputs) -> Table {
     t.stat("precision", &p);
     t.stat("recall", &r);
     t.stat("f1", &f);
+    t.defined("n_runs_precision", &p);
     t
 }
 
@@ -490,10 +492,16 @@ mod tests {
         assert!((f[1] - after).abs() < 1e-12 && (f[2] - after).abs() < 1e-12);
         // Table 1 holds the default decision (thresholded for `ours`).
         assert!((numbers(&t.table1, "f1")[0] - after).abs() < 1e-12);
-        assert_eq!(numbers(&t.table1, "n_runs"), vec![2.0]);
-        // The sweep at lambda 0: nothing kept, recall 0.
+        assert_eq!(t.table1.column("n_runs"), Some(&TableColumn::Count(vec![2])));
+        // The sweep at lambda 0: nothing kept, recall 0, precision
+        // undefined in both runs (not 1).
         let recall = numbers(&t.lambda_sweep, "recall");
         assert_eq!(recall.len(), grid.len());
         assert_eq!(recall[0], 0.0);
+        assert!(numbers(&t.lambda_sweep, "precision")[0].is_nan());
+        match t.lambda_sweep.column("n_runs_precision") {
+            Some(TableColumn::Count(n)) => assert_eq!((n[0], n[grid.len() - 1]), (0, 2)),
+            other => panic!("{other:?}"),
+        }
     }
 }

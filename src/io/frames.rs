@@ -64,6 +64,7 @@ fn table_frame(t: &Table) -> PolarsResult<DataFrame> {
         .map(|(name, col)| match col {
             TableColumn::Text(v) => Column::new(name.as_str().into(), v),
             TableColumn::Number(v) => Column::new(name.as_str().into(), v),
+            TableColumn::Count(v) => Column::new(name.as_str().into(), v),
         })
         .collect();
     DataFrame::new_infer_height(columns)
@@ -79,6 +80,7 @@ fn aggregate_frame(rows: &[AggregateRow]) -> PolarsResult<DataFrame> {
         "n_instances" => rows.iter().map(|r| r.n_instances).collect::<Vec<_>>(),
         "precision" => col(&|r| r.precision.0),
         "precision_ci95" => col(&|r| r.precision.1),
+        "n_runs_precision" => rows.iter().map(|r| r.n_runs_precision as u64).collect::<Vec<_>>(),
         "recall" => col(&|r| r.recall.0),
         "recall_ci95" => col(&|r| r.recall.1),
         "f1" => col(&|r| r.f1.0),

@@ -101,6 +101,7 @@ pub fn table(t: &Table) -> String {
     let cell = |k: usize, r: usize| -> String {
         match &t.columns[k].1 {
             TableColumn::Text(v) => v[r].clone(),
+            TableColumn::Count(v) => v[r].to_string(),
             TableColumn::Number(v) => match t.column(&format!("{}_ci95", names[k])) {
                 Some(TableColumn::Number(c)) => with_ci(v[r], c[r]),
                 _ => fmt_num(v[r], 4),
@@ -161,10 +162,10 @@ mod tests {
         t.text("method", vec!["ours".into(), "rgm".into()]);
         t.number("f1", vec![0.5, f64::NAN]);
         t.number("f1_ci95", vec![0.01, f64::NAN]);
-        t.number("n_runs", vec![2.0, 2.0]);
+        t.count("n_runs", vec![2, 2]);
         assert_eq!(
             table(&t),
-            "| method | f1 | n_runs |\n|---|---|---|\n| ours | 0.5000 ± 0.0100 | 2.0000 |\n| rgm | n/a | 2.0000 |\n"
+            "| method | f1 | n_runs |\n|---|---|---|\n| ours | 0.5000 ± 0.0100 | 2 |\n| rgm | n/a | 2 |\n"
         );
     }
 }
