@@ -47,14 +47,71 @@ pub struct RowKey {
     pub fusion: FusionVariant,
 }
 
+/// Sums of displacement errors over a set of objects.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ErrorSums {
+    pub n: usize,
+    pub single_m: f64,
+    pub fused_m: f64,
+}
+
+impl ErrorSums {
+    pub fn add(&mut self, e: &ObjectEstimate) {
+        self.n += 1;
+        self.single_m += e.single_error_m();
+        self.fused_m += e.fused_error_m();
+    }
+
+    /// Mean single-vehicle error; NaN for an empty set.
+    pub fn mean_single_m(&self) -> f64 {
+        self.mean(self.single_m)
+    }
+
+    /// Mean fused error; NaN for an empty set.
+    pub fn mean_fused_m(&self) -> f64 {
+        self.mean(self.fused_m)
+    }
+
+    fn mean(&self, sum: f64) -> f64 {
+        if self.n == 0 {
+            f64::NAN
+        } else {
+            sum / self.n as f64
+        }
+    }
+}
+
+/// Displacement errors over the three object sets of the protocol.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ObjectErrors {
+    /// Every real object an ego detects: the same set for every method.
+    pub all: ErrorSums,
+    /// Those the peer detects too.
+    pub covisible: ErrorSums,
+    /// Those the method matched (a method-dependent set).
+    pub matched: ErrorSums,
+}
+
+impl ObjectErrors {
+    pub fn record(&mut self, estimates: &[ObjectEstimate]) {
+        for e in estimates {
+            self.all.add(e);
+            if e.covisible {
+                self.covisible.add(e);
+            }
+            if e.matched {
+                self.matched.add(e);
+            }
+        }
+    }
+}
+
 /// Running sums for one summary row.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Accumulator {
     pub instances: usize,
     pub counts: PairCounts,
-    pub objects: usize,
-    pub single_error_sum_m: f64,
-    pub fused_error_sum_m: f64,
+    pub errors: ObjectErrors,
 }
 
 /// One line of a run's `summary.csv`.
@@ -62,13 +119,22 @@ pub struct Accumulator {
 pub struct SummaryRow {
     pub key: RowKey,
     pub n_instances: usize,
+    /// Objects of the common set (every real object an ego detects).
     pub n_objects: usize,
+    /// Of those, the ones the method matched.
+    pub n_matched: usize,
     pub precision: f64,
     pub recall: f64,
     pub f1: f64,
-    /// Mean over objects; NaN when no object was matched.
+    /// Means over the common set (fused = single where unmatched).
     pub de_single_m: f64,
     pub de_fused_m: f64,
+    /// Means over the covisible objects.
+    pub de_single_covis_m: f64,
+    pub de_fused_covis_m: f64,
+    /// Means over the matched objects only (method-dependent).
+    pub de_single_matched_m: f64,
+    pub de_fused_matched_m: f64,
 }
 
 /// A run's summary: counts and errors pooled over its instances.
@@ -82,9 +148,7 @@ impl Summary {
         let acc = self.rows.entry(key).or_default();
         acc.instances += 1;
         acc.counts.add(counts);
-        acc.objects += estimates.len();
-        acc.single_error_sum_m += estimates.iter().map(|e| e.single_error_m()).sum::<f64>();
-        acc.fused_error_sum_m += estimates.iter().map(|e| e.fused_error_m()).sum::<f64>();
+        acc.errors.record(estimates);
     }
 
     /// Rows in a fixed order (method, pose noise, fusion).
@@ -92,22 +156,21 @@ impl Summary {
         self.rows
             .iter()
             .map(|(key, acc)| {
-                let mean = |s: f64| {
-                    if acc.objects == 0 {
-                        f64::NAN
-                    } else {
-                        s / acc.objects as f64
-                    }
-                };
+                let e = &acc.errors;
                 SummaryRow {
                     key: *key,
                     n_instances: acc.instances,
-                    n_objects: acc.objects,
+                    n_objects: e.all.n,
+                    n_matched: e.matched.n,
                     precision: acc.counts.precision(),
                     recall: acc.counts.recall(),
                     f1: acc.counts.f1(),
-                    de_single_m: mean(acc.single_error_sum_m),
-                    de_fused_m: mean(acc.fused_error_sum_m),
+                    de_single_m: e.all.mean_single_m(),
+                    de_fused_m: e.all.mean_fused_m(),
+                    de_single_covis_m: e.covisible.mean_single_m(),
+                    de_fused_covis_m: e.covisible.mean_fused_m(),
+                    de_single_matched_m: e.matched.mean_single_m(),
+                    de_fused_matched_m: e.matched.mean_fused_m(),
                 }
             })
             .collect()
@@ -211,6 +274,9 @@ pub struct RunRow {
     pub f1: f64,
     pub de_single_m: f64,
     pub de_fused_m: f64,
+    pub de_single_covis_m: f64,
+    pub de_fused_covis_m: f64,
+    pub de_fused_matched_m: f64,
 }
 
 /// One line of a batch's `summary.csv`.
@@ -230,6 +296,9 @@ pub struct AggregateRow {
     pub f1: (f64, f64),
     pub de_single_m: (f64, f64),
     pub de_fused_m: (f64, f64),
+    pub de_single_covis_m: (f64, f64),
+    pub de_fused_covis_m: (f64, f64),
+    pub de_fused_matched_m: (f64, f64),
 }
 
 /// Aggregates runs (each its summary rows, in run order): one row per
@@ -265,6 +334,9 @@ pub fn aggregate(runs: &[Vec<RunRow>]) -> Vec<AggregateRow> {
                 f1: stat(|r| r.f1),
                 de_single_m: stat(|r| r.de_single_m),
                 de_fused_m: stat(|r| r.de_fused_m),
+                de_single_covis_m: stat(|r| r.de_single_covis_m),
+                de_fused_covis_m: stat(|r| r.de_fused_covis_m),
+                de_fused_matched_m: stat(|r| r.de_fused_matched_m),
                 method: key.0,
                 pose_noise: key.1,
                 fusion: key.2,
@@ -304,6 +376,9 @@ mod tests {
             f1,
             de_single_m: de,
             de_fused_m: de / 2.0,
+            de_single_covis_m: de,
+            de_fused_covis_m: de / 2.0,
+            de_fused_matched_m: de / 4.0,
         }
     }
 
@@ -352,6 +427,8 @@ mod tests {
             ego_id: "a".into(),
             peer_id: "b".into(),
             object_id: "x".into(),
+            covisible: fused < 1.0,
+            matched: fused > 0.0,
             match_correct: true,
             pose_refined: false,
             truth_m: Vec2::zeros(),
@@ -369,9 +446,13 @@ mod tests {
         let rows = s.rows();
         assert_eq!(rows.len(), 1);
         let r = &rows[0];
-        assert_eq!((r.n_instances, r.n_objects), (2, 3));
+        assert_eq!((r.n_instances, r.n_objects, r.n_matched), (2, 3, 2));
         assert_eq!((r.precision, r.recall), (0.75, 0.5));
         assert_eq!((r.de_single_m, r.de_fused_m), (2.0, 0.5));
+        // Covisible: fused errors 0.5 and 0 (singles 1 and 3); matched:
+        // fused 0.5 and 1 (singles 1 and 2).
+        assert_eq!((r.de_single_covis_m, r.de_fused_covis_m), (2.0, 0.25));
+        assert_eq!((r.de_single_matched_m, r.de_fused_matched_m), (1.5, 0.75));
     }
 
     #[test]

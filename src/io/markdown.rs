@@ -44,33 +44,41 @@ pub fn run(settings: &Settings, results: &RunResults, rows: &[SummaryRow]) -> St
         results.n_steps,
         results.n_instances
     );
+    let _ = writeln!(s, "{RUN_PROTOCOL}\n");
     let _ = writeln!(
         s,
-        "- precision/recall pool all pairs of all instances; displacement errors are means over matched objects (metres, ground plane, ego frame)\n"
+        "| method | pose noise | fusion | instances | objects | matched | precision | recall | F1 | DE single (m) | DE fused (m) | DE single, covisible (m) | DE fused, covisible (m) |"
     );
     let _ = writeln!(
         s,
-        "| method | pose noise | fusion | instances | objects | precision | recall | F1 | DE single (m) | DE fused (m) |"
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     );
-    let _ = writeln!(s, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
+        let n = |v: f64| fmt_num(v, 4);
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.key.method.as_str(),
             r.key.pose_noise.as_str(),
             r.key.fusion.as_str(),
             r.n_instances,
             r.n_objects,
-            fmt_num(r.precision, 4),
-            fmt_num(r.recall, 4),
-            fmt_num(r.f1, 4),
-            fmt_num(r.de_single_m, 4),
-            fmt_num(r.de_fused_m, 4),
+            r.n_matched,
+            n(r.precision),
+            n(r.recall),
+            n(r.f1),
+            n(r.de_single_m),
+            n(r.de_fused_m),
+            n(r.de_single_covis_m),
+            n(r.de_fused_covis_m),
         );
     }
     s
 }
+
+/// How a run's numbers are made, in one paragraph.
+const RUN_PROTOCOL: &str = "- precision and recall pool the pairs of all instances; precision is n/a when the method identified no pair\n\
+- displacement errors (metres, ground plane, ego frame) are means over every real object an ego detects, the same set for every method: fused = single where the method left the object unmatched, a wrong match counts as fused; `covisible`: the objects the peer detects too; `summary.csv` also has the mean over matched objects only (`de_*_matched_m`)";
 
 /// The report of `coid eval`: the seeds, then every table.
 pub fn eval(settings: &Settings, tables: &[(&str, &Table)]) -> String {
@@ -129,14 +137,14 @@ pub fn batch(rows: &[AggregateRow], header: &str) -> String {
     let mut md = format!("# coid-sim batch\n\n{header}\n\n");
     let _ = writeln!(
         md,
-        "| method | pose noise | fusion | runs | instances | precision | recall | F1 | DE single (m) | DE fused (m) |"
+        "| method | pose noise | fusion | runs | instances | precision | recall | F1 | DE single (m) | DE fused (m) | DE fused, covisible (m) |"
     );
-    let _ = writeln!(md, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(md, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     let pm = |(m, c): (f64, f64)| with_ci(m, c);
     for r in rows {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.method,
             r.pose_noise,
             r.fusion,
@@ -146,7 +154,8 @@ pub fn batch(rows: &[AggregateRow], header: &str) -> String {
             pm(r.recall),
             pm(r.f1),
             pm(r.de_single_m),
-            pm(r.de_fused_m)
+            pm(r.de_fused_m),
+            pm(r.de_fused_covis_m)
         );
     }
     md
