@@ -73,9 +73,25 @@ impl PairCounts {
     }
 }
 
-/// Number of objects both vehicles detected (true covisible pairs).
+/// Number of true pairs: the same object behind a node of each vehicle
+/// (camera detections, and a sender's own node with the peer's detection
+/// of it).
 pub fn covisible_pairs(first: &ObservationTruth, second: &ObservationTruth) -> usize {
     oracle::true_pairs(first, second).len()
+}
+
+/// Whether both vehicles' cameras detect a common object (the paper's CAD
+/// rule for an instance; senders' own nodes do not count).
+pub fn share_a_detected_object(first: &ObservationTruth, second: &ObservationTruth) -> bool {
+    first.detections.iter().any(|d| {
+        !d.sender
+            && d.object_id.as_deref().is_some_and(|id| {
+                second
+                    .detections
+                    .iter()
+                    .any(|e| !e.sender && e.object_id.as_deref() == Some(id))
+            })
+    })
 }
 
 /// Counts `matches` against the truth.
@@ -235,7 +251,7 @@ enum PeerPose {
 }
 
 /// The estimates of every real object `ego` detected (false positives have
-/// no truth): fused with the peer's detection the correspondences pair it
+/// no truth; the ego's own node is not a detection): fused with the peer's detection the correspondences pair it
 /// with (`pairs` index `(ego detection, peer detection)`), or the ego's own
 /// where there is none. `paper` moves the peer's detection with the
 /// relative pose of both GPS poses and rotates its covariance (Eq. 14-16);
@@ -282,6 +298,9 @@ fn fuse_for_ego(
         let (Some(id), Some(truth_m)) = (truth.object_id.as_deref(), truth.position_m) else {
             continue;
         };
+        if truth.sender {
+            continue;
+        }
         let own = measured(ego.obs, a);
         let fused = partner[a]
             .and_then(|b| fuse(&[own, moved(&measured(peer.obs, b))]))
@@ -333,6 +352,7 @@ mod tests {
                     object_id: id.map(str::to_owned),
                     position_m: id.map(|_| *w),
                     visible_fraction: 1.0,
+                    sender: false,
                 })
                 .collect(),
         };

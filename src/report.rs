@@ -345,6 +345,106 @@ pub fn aggregate(runs: &[Vec<RunRow>]) -> Vec<AggregateRow> {
         .collect()
 }
 
+/// One identified pair, for calibration: the method's probability that it
+/// is right, its uncertainty, and whether it was right.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScoredPair {
+    pub probability: f64,
+    pub uncertainty: f64,
+    pub correct: bool,
+}
+
+/// Equal-width probability bins of the calibration measures.
+pub const CALIBRATION_BINS: usize = 15;
+
+/// One bin of a reliability diagram.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReliabilityBin {
+    /// Mean probability of the pairs in the bin.
+    pub confidence: f64,
+    /// Share of them that were right.
+    pub accuracy: f64,
+    pub count: usize,
+}
+
+/// The non-empty bins of `pairs` by probability (15 equal-width bins of
+/// [0, 1]).
+pub fn reliability(pairs: &[ScoredPair]) -> Vec<ReliabilityBin> {
+    let mut sums = [(0.0, 0.0, 0usize); CALIBRATION_BINS];
+    for p in pairs {
+        let b = ((p.probability.clamp(0.0, 1.0) * CALIBRATION_BINS as f64) as usize)
+            .min(CALIBRATION_BINS - 1);
+        sums[b].0 += p.probability;
+        sums[b].1 += if p.correct { 1.0 } else { 0.0 };
+        sums[b].2 += 1;
+    }
+    sums.iter()
+        .filter(|s| s.2 > 0)
+        .map(|&(conf, right, n)| ReliabilityBin {
+            confidence: conf / n as f64,
+            accuracy: right / n as f64,
+            count: n,
+        })
+        .collect()
+}
+
+/// Expected calibration error: the count-weighted mean gap between
+/// accuracy and confidence over the bins; NaN without pairs.
+pub fn expected_calibration_error(pairs: &[ScoredPair]) -> f64 {
+    if pairs.is_empty() {
+        return f64::NAN;
+    }
+    reliability(pairs)
+        .iter()
+        .map(|b| b.count as f64 * (b.accuracy - b.confidence).abs())
+        .sum::<f64>()
+        / pairs.len() as f64
+}
+
+/// Brier score: the mean squared gap between probability and outcome;
+/// NaN without pairs.
+pub fn brier_score(pairs: &[ScoredPair]) -> f64 {
+    if pairs.is_empty() {
+        return f64::NAN;
+    }
+    pairs
+        .iter()
+        .map(|p| (p.probability - if p.correct { 1.0 } else { 0.0 }).powi(2))
+        .sum::<f64>()
+        / pairs.len() as f64
+}
+
+/// How well the uncertainty tells wrong pairs from right ones: the
+/// probability that a wrong pair has a higher uncertainty than a right one
+/// (ties count half; the area under the ROC curve). NaN unless there are
+/// both.
+pub fn uncertainty_auroc(pairs: &[ScoredPair]) -> f64 {
+    let wrong: Vec<f64> = pairs
+        .iter()
+        .filter(|p| !p.correct)
+        .map(|p| p.uncertainty)
+        .collect();
+    let mut right: Vec<f64> = pairs
+        .iter()
+        .filter(|p| p.correct)
+        .map(|p| p.uncertainty)
+        .collect();
+    if wrong.is_empty() || right.is_empty() {
+        return f64::NAN;
+    }
+    right.sort_by(f64::total_cmp);
+    let below = |u: f64| right.partition_point(|&r| r < u) as f64;
+    let not_above = |u: f64| right.partition_point(|&r| r <= u) as f64;
+    let score: f64 = wrong
+        .iter()
+        .map(|&u| below(u) + 0.5 * (not_above(u) - below(u)))
+        .sum();
+    score / (wrong.len() * right.len()) as f64
+}
+
+/// A pose-noise level's reliability diagram: (level, bins).
+pub type LevelReliability = (String, Vec<ReliabilityBin>);
+
 /// One point of the lambda sweep: (lambda, precision, recall, F1).
 pub type SweepPoint = (f64, f64, f64, f64);
 
@@ -359,6 +459,8 @@ pub struct PlotData {
     /// Per level: pooled single and fused errors of `ours` (aligned fusion
     /// when configured, else paper).
     pub errors: Vec<(String, Vec<f64>, Vec<f64>)>,
+    /// Per deep method: per level, its reliability diagram.
+    pub reliability: Vec<(String, Vec<LevelReliability>)>,
 }
 
 #[cfg(test)]
@@ -491,5 +593,42 @@ mod tests {
         assert!(mean_ci95(&[]).0.is_nan());
         // A constant sample has a zero-width interval.
         assert_eq!(mean_ci95(&[0.5; 4]), (0.5, 0.0));
+    }
+
+    fn scored(probability: f64, uncertainty: f64, correct: bool) -> ScoredPair {
+        ScoredPair {
+            probability,
+            uncertainty,
+            correct,
+        }
+    }
+
+    /// Six pairs in three bins: 0.95 (2 of 3 right), 0.55 (1 of 2), 0.15
+    /// (0 of 1). By hand: ECE = 3/6 |2/3 - 0.95| + 2/6 |0.5 - 0.55| +
+    /// 1/6 |0 - 0.15| = 0.183333; Brier = (2 (0.05)^2 + 0.95^2 + 0.45^2 +
+    /// 0.55^2 + 0.15^2) / 6 = 0.239167.
+    #[test]
+    fn calibration_of_a_hand_made_set() {
+        let pairs = [
+            scored(0.95, 0.1, true),
+            scored(0.95, 0.2, true),
+            scored(0.95, 0.5, false),
+            scored(0.55, 0.6, true),
+            scored(0.55, 0.7, false),
+            scored(0.15, 0.6, false),
+        ];
+        assert!((expected_calibration_error(&pairs) - 0.183_333_333).abs() < 1e-9);
+        assert!((brier_score(&pairs) - 0.239_166_667).abs() < 1e-9);
+        let bins = reliability(&pairs);
+        assert_eq!(bins.len(), 3);
+        assert_eq!((bins[2].count, bins[2].accuracy), (3, 2.0 / 3.0));
+        // Wrong pairs' uncertainties 0.5, 0.7, 0.6 against right 0.1, 0.2,
+        // 0.6: 2 + 3 + 2.5 of 9 pairs ordered right.
+        assert!((uncertainty_auroc(&pairs) - 7.5 / 9.0).abs() < 1e-12);
+        // A perfectly calibrated set.
+        let fair: Vec<ScoredPair> = (0..10).map(|k| scored(0.7, 0.3, k < 7)).collect();
+        assert!(expected_calibration_error(&fair).abs() < 1e-12);
+        assert!(uncertainty_auroc(&fair[..7]).is_nan());
+        assert!(expected_calibration_error(&[]).is_nan());
     }
 }

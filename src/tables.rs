@@ -11,7 +11,10 @@ use crate::evaluate::{MethodEval, PairCounts, count_pairs};
 use crate::fusion::FusionVariant;
 use crate::matching::Method;
 use crate::matching::deep::{self, decision::UncertaintyKind};
-use crate::report::{ObjectErrors, PlotData, Table, mean_ci95};
+use crate::report::{
+    ObjectErrors, PlotData, ScoredPair, Table, brier_score, expected_calibration_error, mean_ci95,
+    reliability, uncertainty_auroc,
+};
 use crate::sensor::{ObservationTruth, PoseNoiseLabel};
 
 /// The uncertainty types of Table 3, in its order.
@@ -22,13 +25,24 @@ const TABLE3_KINDS: [UncertaintyKind; 3] = [
 ];
 
 /// The threshold grid of the lambda sweep (binary entropy in bits): 0 to 1
-/// by 0.05, plus the configured lambda.
-pub fn lambda_grid(configured: f64) -> Vec<f64> {
+/// by 0.05, plus the methods' own lambdas.
+pub fn lambda_grid<'a>(lambdas: impl IntoIterator<Item = &'a f64>) -> Vec<f64> {
     let mut g: Vec<f64> = (0..=20).map(|k| k as f64 * 0.05).collect();
-    g.push(configured);
+    g.extend(lambdas.into_iter().filter(|l| l.is_finite()));
     g.sort_by(f64::total_cmp);
     g.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
     g
+}
+
+/// The index of `lambda` in `grid` (the nearest value).
+fn grid_index(grid: &[f64], lambda: f64) -> usize {
+    (0..grid.len())
+        .min_by(|&a, &b| {
+            (grid[a] - lambda)
+                .abs()
+                .total_cmp(&(grid[b] - lambda).abs())
+        })
+        .unwrap_or(0)
 }
 
 /// What one test run contributes to the tables.
@@ -47,6 +61,9 @@ pub struct RunEval {
     /// Every object's single and fused error of the full method (`ours`),
     /// for the error CDFs.
     pub ours_errors: BTreeMap<(PoseNoiseLabel, FusionVariant), (Vec<f64>, Vec<f64>)>,
+    /// Every identified pair of each method (its default decision), for
+    /// calibration.
+    pub scored: BTreeMap<(Method, PoseNoiseLabel), Vec<ScoredPair>>,
     pub instances: usize,
 }
 
@@ -105,6 +122,7 @@ pub struct EvalTables {
     pub table3: Table,
     pub lambda_sweep: Table,
     pub case_study: Table,
+    pub calibration: Table,
 }
 
 impl EvalTables {
@@ -116,6 +134,7 @@ impl EvalTables {
             ("table3.csv", &self.table3),
             ("lambda_sweep.csv", &self.lambda_sweep),
             ("case_study.csv", &self.case_study),
+            ("calibration.csv", &self.calibration),
         ];
         files.retain(|(_, t)| !t.columns.is_empty());
         files
@@ -128,8 +147,8 @@ struct Inputs<'a> {
     levels: Vec<PoseNoiseLabel>,
     /// Methods of Table 1 (those the runs evaluated), in table order.
     methods: Vec<Method>,
-    /// The configured lambda's index in the grid, and the grid.
-    at: usize,
+    /// Each deep method's lambda as an index into the grid, and the grid.
+    at: BTreeMap<Method, usize>,
     grid: Vec<f64>,
     kind: UncertaintyKind,
     variants: Vec<FusionVariant>,
@@ -141,6 +160,11 @@ impl Inputs<'_> {
         self.runs.iter().filter_map(f).collect()
     }
 
+    /// A deep method's lambda index (0 when it has none).
+    fn at(&self, m: Method) -> usize {
+        self.at.get(&m).copied().unwrap_or(0)
+    }
+
     fn deep_methods(&self) -> Vec<Method> {
         self.methods
             .iter()
@@ -150,17 +174,21 @@ impl Inputs<'_> {
     }
 }
 
-fn inputs<'a>(settings: &Settings, runs: &'a [RunEval]) -> Inputs<'a> {
+fn inputs<'a>(
+    settings: &Settings,
+    runs: &'a [RunEval],
+    lambdas: &BTreeMap<Method, f64>,
+) -> Inputs<'a> {
     let mut methods: Vec<Method> = runs
         .first()
         .map(|r| r.table1.keys().map(|k| k.0).collect())
         .unwrap_or_default();
     methods.dedup();
-    let grid = lambda_grid(settings.matching.lambda);
-    let at = grid
+    let grid = lambda_grid(lambdas.values());
+    let at = lambdas
         .iter()
-        .position(|g| (g - settings.matching.lambda).abs() < 1e-9)
-        .unwrap_or(0);
+        .map(|(&m, &l)| (m, grid_index(&grid, l)))
+        .collect();
     Inputs {
         runs,
         levels: settings.pose_noise.iter().map(|l| l.label).collect(),
@@ -172,28 +200,62 @@ fn inputs<'a>(settings: &Settings, runs: &'a [RunEval]) -> Inputs<'a> {
     }
 }
 
-pub fn eval_tables(settings: &Settings, runs: &[RunEval]) -> EvalTables {
-    let inp = inputs(settings, runs);
+/// The tables, each deep method thresholded at its own lambda.
+pub fn eval_tables(
+    settings: &Settings,
+    runs: &[RunEval],
+    lambdas: &BTreeMap<Method, f64>,
+) -> EvalTables {
+    let inp = inputs(settings, runs, lambdas);
     let with_ours = inp.deep_methods().contains(&Method::Ours);
+    let if_ours = |f: fn(&Inputs) -> Table| {
+        if with_ours { f(&inp) } else { Table::default() }
+    };
     EvalTables {
         table1: table1(&inp),
         table2: table2(&inp),
-        table3: if with_ours {
-            table3(&inp)
-        } else {
-            Table::default()
-        },
-        lambda_sweep: if with_ours {
-            sweep(&inp)
-        } else {
-            Table::default()
-        },
-        case_study: if with_ours {
-            case_study(&inp)
-        } else {
-            Table::default()
-        },
+        table3: if_ours(table3),
+        lambda_sweep: if_ours(sweep),
+        case_study: if_ours(case_study),
+        calibration: calibration(&inp),
     }
+}
+
+/// Every identified pair of `m` at `l`, pooled over the runs.
+fn pooled(inp: &Inputs, m: Method, l: PoseNoiseLabel) -> Vec<ScoredPair> {
+    inp.runs
+        .iter()
+        .filter_map(|r| r.scored.get(&(m, l)))
+        .flatten()
+        .copied()
+        .collect()
+}
+
+/// Calibration of each method's probabilities on its identified pairs,
+/// pooled over the runs: ECE (15 bins), Brier score, and the AUROC of the
+/// uncertainty for telling wrong pairs from right ones.
+fn calibration(inp: &Inputs) -> Table {
+    let mut t = Table::default();
+    let (mut names, mut noise, mut n) = (vec![], vec![], vec![]);
+    let (mut ece, mut brier, mut auroc) = (vec![], vec![], vec![]);
+    for &m in &inp.methods {
+        for &l in &inp.levels {
+            let pairs = pooled(inp, m, l);
+            names.push(m.as_str().to_owned());
+            noise.push(l.as_str().to_owned());
+            n.push(pairs.len() as u64);
+            ece.push(expected_calibration_error(&pairs));
+            brier.push(brier_score(&pairs));
+            auroc.push(uncertainty_auroc(&pairs));
+        }
+    }
+    t.text("method", names);
+    t.text("pose_noise", noise);
+    t.count("n_pairs", n);
+    t.number("ece", ece);
+    t.number("brier", brier);
+    t.number("auroc", auroc);
+    t
 }
 
 fn table1(inp: &Inputs) -> Table {
@@ -227,7 +289,7 @@ fn table2(inp: &Inputs) -> Table {
             names.push(m.as_str().to_owned());
             noise.push(l.as_str().to_owned());
             before.push(inp.per_run(|run| run.unthresholded.get(&(m, l)).map(|c| c.f1())));
-            let key = (m, l, inp.kind, inp.at);
+            let key = (m, l, inp.kind, inp.at(m));
             after.push(inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())));
         }
     }
@@ -245,7 +307,7 @@ fn table3(inp: &Inputs) -> Table {
         for k in TABLE3_KINDS {
             kinds.push(k.as_str().to_owned());
             noise.push(l.as_str().to_owned());
-            let key = (Method::Ours, l, k, inp.at);
+            let key = (Method::Ours, l, k, inp.at(Method::Ours));
             f.push(inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())));
         }
     }
@@ -323,8 +385,12 @@ fn case_study(inp: &Inputs) -> Table {
 }
 
 /// The data of `coid eval`'s plots.
-pub fn plot_data(settings: &Settings, runs: &[RunEval]) -> PlotData {
-    let inp = inputs(settings, runs);
+pub fn plot_data(
+    settings: &Settings,
+    runs: &[RunEval],
+    lambdas: &BTreeMap<Method, f64>,
+) -> PlotData {
+    let inp = inputs(settings, runs, lambdas);
     let mean = |v: Vec<f64>| mean_ci95(&v).0;
     let lambda_sweep = inp
         .levels
@@ -362,11 +428,24 @@ pub fn plot_data(settings: &Settings, runs: &[RunEval]) -> PlotData {
             (l.as_str().to_owned(), v)
         })
         .collect();
+    let reliability = inp
+        .deep_methods()
+        .iter()
+        .map(|&m| {
+            let per_level = inp
+                .levels
+                .iter()
+                .map(|&l| (l.as_str().to_owned(), reliability(&pooled(&inp, m, l))))
+                .collect();
+            (m.as_str().to_owned(), per_level)
+        })
+        .collect();
     PlotData {
         lambda_sweep,
         methods: inp.methods.iter().map(|m| m.as_str().to_owned()).collect(),
         f1,
         errors: error_samples(&inp),
+        reliability,
     }
 }
 
@@ -404,14 +483,18 @@ mod tests {
     use crate::sensor::DetectionTruth;
 
     #[test]
-    fn the_lambda_grid_has_every_twentieth_and_the_configured_value_once() {
-        let g = lambda_grid(0.7);
+    fn the_lambda_grid_has_every_twentieth_and_each_lambda_once() {
+        let g = lambda_grid(&[0.7]);
         assert_eq!(g.len(), 21);
         assert_eq!((g[0], g[20]), (0.0, 1.0));
         assert!(g.windows(2).all(|w| w[0] < w[1]));
-        let g = lambda_grid(0.72);
-        assert_eq!(g.len(), 22);
-        assert!(g.contains(&0.72));
+        let g = lambda_grid(&[0.72, 0.72, 0.33, f64::NAN]);
+        assert_eq!(g.len(), 23);
+        assert!(g.contains(&0.72) && g.contains(&0.33));
+        assert_eq!(
+            grid_index(&g, 0.72),
+            g.iter().position(|&x| x == 0.72).unwrap()
+        );
     }
 
     /// Two vehicles that both see objects x and y (detections 0 and 1).
@@ -424,6 +507,7 @@ mod tests {
                     object_id: Some((*id).to_owned()),
                     position_m: None,
                     visible_fraction: 1.0,
+                    sender: false,
                 })
                 .collect(),
         };
@@ -483,12 +567,13 @@ mod tests {
         let cfg = dir.path().join("c.toml");
         std::fs::write(&cfg, "[pose_noise]\nlevels = [\"gps\"]\n").unwrap();
         let settings = Settings::load(&cfg).unwrap();
-        let grid = lambda_grid(settings.matching.lambda);
+        let lambdas = BTreeMap::from([(Method::Ours, 0.7)]);
+        let grid = lambda_grid(lambdas.values());
         let runs = vec![
             run_with(&[dist(0.95, 0.6)], &grid),
             run_with(&[dist(0.95, 0.95)], &grid),
         ];
-        let t = eval_tables(&settings, &runs);
+        let t = eval_tables(&settings, &runs, &lambdas);
         assert_eq!(t.table2.height(), 1);
         assert_eq!(numbers(&t.table2, "f1_before"), vec![1.0]);
         let after = numbers(&t.table2, "f1_after")[0];
