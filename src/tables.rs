@@ -27,7 +27,7 @@ const TABLE3_KINDS: [UncertaintyKind; 3] = [
 /// The threshold grid of the lambda sweep (binary entropy in bits): 0 to 1
 /// by 0.05, plus the methods' own lambdas.
 pub fn lambda_grid<'a>(lambdas: impl IntoIterator<Item = &'a f64>) -> Vec<f64> {
-    let mut g: Vec<f64> = (0..=20).map(|k| k as f64 * 0.05).collect();
+    let mut g: Vec<f64> = (0..=20).map(|k| f64::from(k) / 20.0).collect();
     g.extend(lambdas.into_iter().filter(|l| l.is_finite()));
     g.sort_by(f64::total_cmp);
     g.dedup_by(|a, b| (*a - *b).abs() < 1e-9);

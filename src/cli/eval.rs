@@ -48,17 +48,25 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
     pb.finish_and_clear();
     let tables = tables::eval_tables(&settings, &runs, &lambdas);
     let plots = tables::plot_data(&settings, &runs, &lambdas);
-    io::write_eval(&out, &settings, &tables.files(), a.common.force, |dir| {
-        render::eval_plots(dir, &plots).map_err(|e| OutputError::Picture {
-            path: dir.to_owned(),
-            message: e.to_string(),
-        })
-    })?;
+    io::write_eval(
+        &out,
+        &settings,
+        &tables.files(),
+        &lambdas,
+        a.common.force,
+        |dir| {
+            render::eval_plots(dir, &plots).map_err(|e| OutputError::Picture {
+                path: dir.to_owned(),
+                message: e.to_string(),
+            })
+        },
+    )?;
     let instances: usize = runs.iter().map(|r| r.instances).sum();
     eprintln!(
-        "coid: evaluated {} methods on {} test runs ({instances} instances); wrote {}",
+        "coid: evaluated {} methods on {} {} runs ({instances} instances); wrote {}",
         methods.len(),
         runs.len(),
+        if a.validation { "validation" } else { "test" },
         out.display()
     );
     Ok(())

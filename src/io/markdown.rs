@@ -3,7 +3,10 @@
 
 use std::fmt::Write as _;
 
+use std::collections::BTreeMap;
+
 use crate::config::Settings;
+use crate::matching::{LambdaChoice, Method};
 use crate::report::{AggregateRow, RunResults, SummaryRow, Table, TableColumn};
 
 /// A number with `digits` decimals, "n/a" when it is not finite.
@@ -80,15 +83,32 @@ pub fn run(settings: &Settings, results: &RunResults, rows: &[SummaryRow]) -> St
 const RUN_PROTOCOL: &str = "- precision and recall pool the pairs of all instances; precision is n/a when the method identified no pair\n\
 - displacement errors (metres, ground plane, ego frame) are means over every real object an ego detects, the same set for every method: fused = single where the method left the object unmatched, a wrong match counts as fused; `covisible`: the objects the peer detects too; `summary.csv` also has the mean over matched objects only (`de_*_matched_m`)";
 
-/// The report of `coid eval`: the seeds, then every table.
-pub fn eval(settings: &Settings, tables: &[(&str, &Table)]) -> String {
+/// The report of `coid eval`: the seeds, the thresholds, then every table.
+pub fn eval(
+    settings: &Settings,
+    tables: &[(&str, &Table)],
+    lambdas: &BTreeMap<Method, f64>,
+) -> String {
     let mut md = String::new();
     let _ = writeln!(md, "# coid-sim evaluation\n");
     let _ = writeln!(md, "- config: `{}`", settings.source.display());
     let _ = writeln!(
         md,
-        "- test runs (traffic = sensor seed): {:?}; training runs: {:?}",
-        settings.eval.traffic_seeds, settings.train.traffic_seeds
+        "- evaluated runs (traffic = sensor seed): {:?}; training runs: {:?}; validation runs: {:?}",
+        settings.eval.traffic_seeds, settings.train.traffic_seeds, settings.train.validation_seeds
+    );
+    let chosen: Vec<String> = lambdas
+        .iter()
+        .map(|(m, l)| format!("{} {l:.2}", m.as_str()))
+        .collect();
+    let source = match settings.matching.lambda {
+        LambdaChoice::Validated => "each chosen on the validation runs by `coid train`",
+        LambdaChoice::Fixed(_) => "as configured",
+    };
+    let _ = writeln!(
+        md,
+        "- entropy thresholds lambda ({source}): {}",
+        chosen.join(", ")
     );
     let _ = writeln!(
         md,

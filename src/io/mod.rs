@@ -168,6 +168,7 @@ pub fn write_eval(
     out: &Path,
     settings: &Settings,
     tables: &[(&str, &Table)],
+    lambdas: &std::collections::BTreeMap<Method, f64>,
     force: bool,
     plots: impl FnOnce(&Path) -> Result<(), OutputError>,
 ) -> Result<(), OutputError> {
@@ -175,7 +176,10 @@ pub fn write_eval(
         for (name, t) in tables {
             frames::write_table(&dir.join(name), t)?;
         }
-        write_text(&dir.join("summary.md"), &markdown::eval(settings, tables))?;
+        write_text(
+            &dir.join("summary.md"),
+            &markdown::eval(settings, tables, lambdas),
+        )?;
         plots(dir)
     })
 }
@@ -266,7 +270,8 @@ fn model_metadata(record: &TrainingRecord) -> String {
         );
         let _ = writeln!(meta, "validation_seeds = {:?}", v.seeds);
         let _ = writeln!(meta, "validation_uncertainty = {:?}", v.uncertainty);
-        let _ = writeln!(meta, "validated_lambda = {}", v.lambda);
+        // `{:?}` keeps a decimal point: 1.0, not the TOML integer 1.
+        let _ = writeln!(meta, "validated_lambda = {:?}", v.lambda);
         let _ = writeln!(meta, "validation_f1 = {:.6}", v.f1);
     }
     meta
@@ -285,10 +290,13 @@ pub fn read_validated_lambda(models_dir: &Path, method: Method) -> Result<f64, W
     let table: toml::Table = text
         .parse()
         .map_err(|e: toml::de::Error| fail(e.message().to_owned()))?;
-    table
-        .get("validated_lambda")
-        .and_then(|v| v.as_float())
-        .ok_or_else(|| fail("no validated_lambda: set [matching] lambda to a number".into()))
+    let value = table.get("validated_lambda");
+    value
+        .and_then(|v| v.as_float().or_else(|| v.as_integer().map(|i| i as f64)))
+        .filter(|l| (0.0..=1.0).contains(l))
+        .ok_or_else(|| {
+            fail("no validated_lambda in [0, 1]: set [matching] lambda to a number".into())
+        })
 }
 
 /// Writes a trained model into `dir`: `<method>.bpk` (the weights),
