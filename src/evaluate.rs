@@ -94,6 +94,12 @@ pub fn share_a_detected_object(first: &ObservationTruth, second: &ObservationTru
     })
 }
 
+/// Whether `c` pairs two detections of the same real object.
+pub fn is_correct(first: &ObservationTruth, second: &ObservationTruth, c: &Correspondence) -> bool {
+    let a = first.object_id(c.a);
+    a.is_some() && a == second.object_id(c.b)
+}
+
 /// Counts `matches` against the truth.
 pub fn count_pairs(
     first: &ObservationTruth,
@@ -102,10 +108,7 @@ pub fn count_pairs(
 ) -> PairCounts {
     let correct = matches
         .iter()
-        .filter(|c| {
-            let a = first.object_id(c.a);
-            a.is_some() && a == second.object_id(c.b)
-        })
+        .filter(|c| is_correct(first, second, c))
         .count();
     PairCounts {
         identified: matches.len(),

@@ -7,7 +7,7 @@
 use std::collections::BTreeMap;
 
 use crate::config::Settings;
-use crate::evaluate::{MethodEval, PairCounts, count_pairs};
+use crate::evaluate::{MethodEval, PairCounts, count_pairs, is_correct};
 use crate::fusion::FusionVariant;
 use crate::matching::Method;
 use crate::matching::deep::{self, decision::UncertaintyKind};
@@ -101,6 +101,15 @@ impl RunEval {
             .entry((e.method, level))
             .or_default()
             .add(e.counts);
+        let scored = e.identification.matches.iter().map(|c| ScoredPair {
+            probability: c.probability,
+            uncertainty: c.uncertainty,
+            correct: is_correct(ta, tb, c),
+        });
+        self.scored
+            .entry((e.method, level))
+            .or_default()
+            .extend(scored);
         for (variant, est) in &e.fused {
             if e.method == Method::Ours {
                 let o = self.ours_errors.entry((level, *variant)).or_default();

@@ -599,6 +599,18 @@ mod learned {
         for c in ["method", "pose_noise", "ece", "brier", "auroc"] {
             assert!(cal.column(c).is_ok(), "calibration.csv lacks {c}");
         }
+        // Every method identified pairs here, so each row is measured on
+        // them: a count above zero and the three measures in [0, 1].
+        let (n, ece) = (f64s(&cal, "n_pairs"), f64s(&cal, "ece"));
+        let (brier, auroc) = (f64s(&cal, "brier"), f64s(&cal, "auroc"));
+        for (k, name) in strs(&cal, "method").iter().enumerate() {
+            assert!(n[k] > 0.0, "{name}: no identified pairs");
+            for v in [ece[k], brier[k]] {
+                assert!((0.0..=1.0).contains(&v), "{name}: {v}");
+            }
+            // The oracle is never wrong, so the AUROC is undefined for it.
+            assert_eq!(auroc[k].is_nan(), name == "oracle", "{name}: {}", auroc[k]);
+        }
         for (plot, w, h) in [
             ("lambda_sweep", 420, 380),
             ("error_cdf", 420, 380),
