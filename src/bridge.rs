@@ -127,6 +127,28 @@ pub fn centre_pose_from_sumo(
     )
 }
 
+/// Whether a SUMO polygon type is a building footprint.
+pub fn is_building_type(t: &str) -> bool {
+    t == "building" || t.starts_with("building.")
+}
+
+/// The junction `id` names among `ids`: itself, or the cluster netconvert
+/// joined it into (`cluster_a_b_c` holds nodes a, b and c; ids may
+/// themselves contain underscores, so the cluster's name must hold `_id_`
+/// or end in `_id`).
+pub fn resolve_junction<'a>(ids: &'a [String], id: &str) -> Option<&'a str> {
+    if let Some(exact) = ids.iter().find(|j| *j == id) {
+        return Some(exact);
+    }
+    if id.is_empty() {
+        return None;
+    }
+    ids.iter()
+        .filter(|j| j.starts_with("cluster"))
+        .find(|j| j.contains(&format!("_{id}_")) || j.ends_with(&format!("_{id}")))
+        .map(String::as_str)
+}
+
 /// One road user as the shim returns it:
 /// `(id, vclass, (x, y, angle_nav_deg, speed, length, width, height), (r, g, b))`.
 type Row = (
@@ -254,32 +276,36 @@ impl Sumo {
         })
     }
 
-    /// The junction's position, or a clear error when it does not exist.
+    /// The junction's position, or a clear error when it does not exist. A
+    /// node that netconvert joined into a cluster (`--junctions.join`, OSM
+    /// imports) is found as its cluster (`cluster_<id>_<id>...`).
     pub fn junction_position(&self, id: &str) -> Result<Vec2, BridgeError> {
         let ids: Vec<String> = self.call("junction_ids", |_, s| {
             s.call_method0("junction_ids")?.extract()
         })?;
-        if !ids.iter().any(|j| j == id) {
+        let Some(found) = resolve_junction(&ids, id) else {
             let named: Vec<&String> = ids.iter().filter(|j| !j.starts_with(':')).take(5).collect();
             return Err(BridgeError::UnknownJunction {
                 id: id.to_owned(),
                 count: ids.len(),
                 examples: format!("{named:?}"),
             });
-        }
+        };
         let (x, y): (f64, f64) = self.call("junction_position", |_, s| {
-            s.call_method1("junction_position", (id,))?.extract()
+            s.call_method1("junction_position", (found,))?.extract()
         })?;
         Ok(Vec2::new(x, y))
     }
 
-    /// Polygons whose SUMO type is one of `types` (e.g. "building").
-    pub fn polygons_of_type(&self, types: &[&str]) -> Result<Vec<Polygon>, BridgeError> {
+    /// Building footprints: polygons of SUMO type `building` or `building.*`
+    /// (what polyconvert writes for OSM buildings: `building.yes`,
+    /// `building.residential`, ...). A scenario without any is fine.
+    pub fn buildings(&self) -> Result<Vec<Polygon>, BridgeError> {
         let polys: Vec<PolygonRow> =
             self.call("polygons", |_, s| s.call_method0("polygons")?.extract())?;
         Ok(polys
             .into_iter()
-            .filter(|(_, t, shape)| types.contains(&t.as_str()) && shape.len() >= 3)
+            .filter(|(_, t, shape)| is_building_type(t) && shape.len() >= 3)
             .map(|(_, _, shape)| Polygon {
                 vertices_m: shape.into_iter().map(|(x, y)| Vec2::new(x, y)).collect(),
             })
@@ -302,7 +328,7 @@ impl Sumo {
         Ok(StaticScene {
             junction_id: junction_id.to_owned(),
             junction_position_m: self.junction_position(junction_id)?,
-            buildings: self.polygons_of_type(&["building"])?,
+            buildings: self.buildings()?,
             lanes: self.lanes()?,
         })
     }
@@ -378,6 +404,27 @@ impl Drop for Sumo {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn buildings_and_clustered_junctions_are_found_as_osm_imports_name_them() {
+        assert!(is_building_type("building"));
+        assert!(is_building_type("building.yes"));
+        assert!(!is_building_type("buildings"));
+        assert!(!is_building_type("landuse.residential"));
+        let ids: Vec<String> = ["C", "cluster_12_345_6", ":C_0", "J7"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        assert_eq!(resolve_junction(&ids, "C"), Some("C"));
+        assert_eq!(resolve_junction(&ids, "345"), Some("cluster_12_345_6"));
+        assert_eq!(resolve_junction(&ids, "6"), Some("cluster_12_345_6"));
+        assert_eq!(
+            resolve_junction(&ids, "cluster_12_345_6"),
+            Some("cluster_12_345_6")
+        );
+        assert_eq!(resolve_junction(&ids, "34"), None);
+        assert_eq!(resolve_junction(&ids, "Z9"), None);
+    }
 
     #[test]
     fn sumo_front_bumper_and_nav_angle_become_centre_and_heading() {

@@ -23,7 +23,7 @@ use crate::evaluate::EvalSettings;
 use crate::fusion::{FusionSettings, FusionVariant};
 use crate::matching::deep::decision::UncertaintyKind;
 use crate::matching::deep::{self, train::TrainSettings};
-use crate::matching::{MatchingSettings, Method};
+use crate::matching::{LambdaChoice, MatchingSettings, Method};
 use crate::rng::Seeds;
 use crate::sensor::{
     CameraSettings, ConnectedSelection, PoseNoiseLabel, PoseNoiseLevel, SensorSettings,
@@ -158,14 +158,24 @@ struct RawMatching {
     gate_chi2: f64,
     models_dir: PathBuf,
     mc_samples: usize,
-    lambda: f64,
+    lambda: RawLambda,
     uncertainty: UncertaintyKind,
+    sender_as_node: bool,
+}
+
+/// `lambda = 0.7` or `lambda = "validated"`.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum RawLambda {
+    Value(f64),
+    Word(String),
 }
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawTrain {
     traffic_seeds: Vec<u64>,
+    validation_seeds: Vec<u64>,
     methods: Vec<Method>,
     epochs: usize,
     learning_rate: f64,
@@ -536,22 +546,30 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
     if m.mc_samples == 0 {
         return Err(c.invalid("matching.mc_samples", "need at least one sample".into()));
     }
-    if !(0.0..=1.0).contains(&m.lambda) {
-        return Err(c.invalid(
-            "matching.lambda",
-            format!(
-                "must be in [0, 1] (binary entropy in bits), got {}",
-                m.lambda
-            ),
-        ));
-    }
+    let lambda = match m.lambda {
+        RawLambda::Word(w) if w == "validated" => LambdaChoice::Validated,
+        RawLambda::Value(v) if (0.0..=1.0).contains(&v) => LambdaChoice::Fixed(v),
+        RawLambda::Value(v) => {
+            return Err(c.invalid(
+                "matching.lambda",
+                format!("must be in [0, 1] (binary entropy in bits), got {v}"),
+            ));
+        }
+        RawLambda::Word(w) => {
+            return Err(c.invalid(
+                "matching.lambda",
+                format!("must be a number in [0, 1] or \"validated\", got \"{w}\""),
+            ));
+        }
+    };
     Ok(MatchingSettings {
         methods: dedup_sorted(m.methods),
         gate_chi2: m.gate_chi2,
         models_dir: c.resolve(&m.models_dir),
         mc_samples: m.mc_samples,
-        lambda: m.lambda,
+        lambda,
         uncertainty: m.uncertainty,
+        sender_as_node: m.sender_as_node,
     })
 }
 
@@ -563,16 +581,43 @@ fn train_and_eval(
     if t.traffic_seeds.is_empty() {
         return Err(c.invalid("train.traffic_seeds", "need at least one run".into()));
     }
-    if let Some(s) = t.traffic_seeds.iter().find(|s| e.traffic_seeds.contains(s)) {
-        return Err(c.invalid(
+    for (key, a, b, what) in [
+        (
             "train.traffic_seeds",
-            format!("seed {s} is also an eval seed: train and test runs must be disjoint"),
-        ));
+            &t.traffic_seeds,
+            &e.traffic_seeds,
+            "an eval (test) seed",
+        ),
+        (
+            "train.validation_seeds",
+            &t.validation_seeds,
+            &e.traffic_seeds,
+            "an eval (test) seed",
+        ),
+        (
+            "train.validation_seeds",
+            &t.validation_seeds,
+            &t.traffic_seeds,
+            "a training seed",
+        ),
+    ] {
+        if let Some(s) = a.iter().find(|s| b.contains(s)) {
+            return Err(c.invalid(
+                key,
+                format!(
+                    "seed {s} is also {what}: training, validation and test runs must be disjoint"
+                ),
+            ));
+        }
+    }
+    if t.validation_seeds.is_empty() {
+        return Err(c.invalid("train.validation_seeds", "need at least one run".into()));
     }
     if t.methods.iter().any(|m| deep::variant(*m).is_none()) {
         return Err(c.invalid(
             "train.methods",
-            "only deep methods (ours, coid+non, coid+unc, dgmc, gcn-gm) are trained".into(),
+            "only deep methods (ours, ours-noprior, coid+non, coid+unc, dgmc, gcn-gm) are trained"
+                .into(),
         ));
     }
     if t.epochs == 0 {
@@ -584,6 +629,7 @@ fn train_and_eval(
     }
     let train = TrainSettings {
         traffic_seeds: t.traffic_seeds,
+        validation_seeds: t.validation_seeds,
         methods: dedup_sorted(t.methods),
         epochs: t.epochs,
         learning_rate: t.learning_rate,
@@ -643,7 +689,9 @@ mod tests {
         // installation).
         assert_eq!(d.scenario.sumocfg, shipped.scenario.sumocfg);
         assert_eq!(d.sensor, shipped.sensor);
-        assert_eq!(d.matching.methods.len(), 9);
+        assert_eq!(d.matching.methods.len(), 11);
+        assert!(d.matching.sender_as_node);
+        assert_eq!(d.matching.lambda, LambdaChoice::Validated);
         assert_eq!(
             d.connected,
             ConnectedSelection::Ids(vec!["cv0".into(), "cv1".into()])
@@ -728,6 +776,16 @@ mod tests {
             ),
             ("[sensor]\nmiss_prob_base = -0.1\n", "sensor.miss_prob_base"),
             ("[train]\ntraffic_seeds = [1]\n", "train.traffic_seeds"),
+            (
+                "[train]\nvalidation_seeds = [101]\n",
+                "train.validation_seeds",
+            ),
+            (
+                "[train]\nvalidation_seeds = [3]\n",
+                "train.validation_seeds",
+            ),
+            ("[matching]\nlambda = \"best\"\n", "matching.lambda"),
+            ("[matching]\nlambda = 1.5\n", "matching.lambda"),
             (
                 "[fusion]\nalign_min_matches = 1\n",
                 "fusion.align_min_matches",

@@ -8,8 +8,8 @@
 //! This module, the oracle and the pictures are the only readers of the
 //! ground truth ([`ObservationTruth`]); matchers receive [`MatchView`]s.
 
-use crate::fusion::{FusionSettings, FusionVariant, Measurement, PosePrior, align, fuse};
-use crate::geometry::{Pose2, Vec2};
+use crate::fusion::{FusionSettings, FusionVariant, Measurement, align, fuse, relative_pose_prior};
+use crate::geometry::Vec2;
 use crate::matching::{Correspondence, Identification, MatchView, Matcher, Method, oracle};
 use crate::sensor::{Observation, ObservationTruth, PoseNoiseLevel};
 
@@ -39,37 +39,65 @@ impl PairCounts {
         self.ground_truth += other.ground_truth;
     }
 
-    /// correct / identified; 1 when nothing was identified (no false claim).
+    /// correct / identified; undefined (NaN) when nothing was identified:
+    /// a method that claims nothing has made no correct claim either.
     pub fn precision(&self) -> f64 {
         if self.identified == 0 {
-            1.0
+            f64::NAN
         } else {
             self.correct as f64 / self.identified as f64
         }
     }
 
-    /// correct / ground truth; 1 when there was nothing to find.
+    /// correct / ground truth; undefined (NaN) when there was nothing to
+    /// find.
     pub fn recall(&self) -> f64 {
         if self.ground_truth == 0 {
-            1.0
+            f64::NAN
         } else {
             self.correct as f64 / self.ground_truth as f64
         }
     }
 
+    /// The harmonic mean of precision and recall, from the counts:
+    /// `2 correct / (identified + ground truth)`. Defined whenever either
+    /// count is (0 when nothing was identified but there was something to
+    /// find); NaN only when both are 0.
     pub fn f1(&self) -> f64 {
-        let (p, r) = (self.precision(), self.recall());
-        if p + r == 0.0 {
-            0.0
+        let denominator = self.identified + self.ground_truth;
+        if denominator == 0 {
+            f64::NAN
         } else {
-            2.0 * p * r / (p + r)
+            2.0 * self.correct as f64 / denominator as f64
         }
     }
 }
 
-/// Number of objects both vehicles detected (true covisible pairs).
+/// Number of true pairs: the same object behind a node of each vehicle
+/// (camera detections, and a sender's own node with the peer's detection
+/// of it).
 pub fn covisible_pairs(first: &ObservationTruth, second: &ObservationTruth) -> usize {
     oracle::true_pairs(first, second).len()
+}
+
+/// Whether both vehicles' cameras detect a common object (the paper's CAD
+/// rule for an instance; senders' own nodes do not count).
+pub fn share_a_detected_object(first: &ObservationTruth, second: &ObservationTruth) -> bool {
+    first.detections.iter().any(|d| {
+        !d.sender
+            && d.object_id.as_deref().is_some_and(|id| {
+                second
+                    .detections
+                    .iter()
+                    .any(|e| !e.sender && e.object_id.as_deref() == Some(id))
+            })
+    })
+}
+
+/// Whether `c` pairs two detections of the same real object.
+pub fn is_correct(first: &ObservationTruth, second: &ObservationTruth, c: &Correspondence) -> bool {
+    let a = first.object_id(c.a);
+    a.is_some() && a == second.object_id(c.b)
 }
 
 /// Counts `matches` against the truth.
@@ -80,10 +108,7 @@ pub fn count_pairs(
 ) -> PairCounts {
     let correct = matches
         .iter()
-        .filter(|c| {
-            let a = first.object_id(c.a);
-            a.is_some() && a == second.object_id(c.b)
-        })
+        .filter(|c| is_correct(first, second, c))
         .count();
     PairCounts {
         identified: matches.len(),
@@ -138,13 +163,20 @@ impl Runner {
 /// One (ego, object) estimate of one instance, all positions in the world
 /// frame: estimates live in the ego's frame and are placed in the world with
 /// the ego's true pose, so the error is what the ego gets wrong about the
-/// object relative to itself.
+/// object relative to itself. There is one for every real object the ego
+/// detects, whatever the method did: the object set is the same for every
+/// method.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ObjectEstimate {
     pub ego_id: String,
     pub peer_id: String,
     pub object_id: String,
-    /// Whether the correspondence used for this object was right.
+    /// Whether the peer detects the object too.
+    pub covisible: bool,
+    /// Whether the method paired the ego's detection with one of the
+    /// peer's; if not, the fused estimate is the single one.
+    pub matched: bool,
+    /// Whether it was paired with the peer's detection of the same object.
     pub match_correct: bool,
     /// Whether the relative pose was refined from matches (aligned variant).
     pub pose_refined: bool,
@@ -206,16 +238,6 @@ pub fn evaluate(pair: &PairAtLevel, runner: &Runner, fusion: &FusionSettings) ->
     }
 }
 
-/// The relative-pose prior of `second` in `first`'s frame from both reported
-/// poses: each vehicle contributes its GPS error.
-fn gps_prior(first_reported: &Pose2, second_reported: &Pose2, level: &PoseNoiseLevel) -> PosePrior {
-    PosePrior {
-        pose: first_reported.relative(second_reported),
-        position_sigma_m: std::f64::consts::SQRT_2 * level.position_sigma_m,
-        heading_sigma_rad: std::f64::consts::SQRT_2 * level.heading_sigma_rad,
-    }
-}
-
 /// How one ego fuses: the pose-noise level, the variant and its setting.
 struct FusionContext<'a> {
     level: &'a PoseNoiseLevel,
@@ -223,55 +245,81 @@ struct FusionContext<'a> {
     align_min_matches: usize,
 }
 
-/// Fused estimates of every real object `ego` detected that the
-/// correspondences pair with one of `peer`'s detections. `pairs` index
-/// `(ego detection, peer detection)`.
+/// Where the peer sits in the ego's frame, as a fusion variant sees it.
+enum PeerPose {
+    /// From both GPS poses, its uncertainty ignored (the paper).
+    Reported(crate::geometry::Pose2),
+    /// Refined from the matches, with its covariance.
+    Aligned(crate::fusion::PoseEstimate),
+}
+
+/// The estimates of every real object `ego` detected (false positives have
+/// no truth; the ego's own node is not a detection): fused with the peer's detection the correspondences pair it
+/// with (`pairs` index `(ego detection, peer detection)`), or the ego's own
+/// where there is none. `paper` moves the peer's detection with the
+/// relative pose of both GPS poses and rotates its covariance (Eq. 14-16);
+/// `aligned` refines that pose from the matched pairs and adds the
+/// covariance of the refined pose to the moved detection's.
 fn fuse_for_ego(
     ego: &Side,
     peer: &Side,
     pairs: &[(usize, usize)],
     ctx: &FusionContext,
 ) -> Vec<ObjectEstimate> {
-    let prior = gps_prior(&ego.view.pose_reported, &peer.view.pose_reported, ctx.level);
+    let prior = relative_pose_prior(
+        &ego.view.pose_reported,
+        &peer.view.pose_reported,
+        ctx.level.position_sigma_m,
+        ctx.level.heading_sigma_rad,
+    );
     let measured = |obs: &Observation, k: usize| Measurement {
         position_m: obs.detections[k].position_m,
         cov_m2: obs.detections[k].cov_m2,
     };
-    let alignment = match ctx.variant {
-        FusionVariant::Paper => None,
+    let (refined, peer_pose) = match ctx.variant {
+        FusionVariant::Paper => (false, PeerPose::Reported(prior.pose)),
         FusionVariant::Aligned => {
             let matched: Vec<(Measurement, Measurement)> = pairs
                 .iter()
                 .map(|&(a, b)| (measured(ego.obs, a), measured(peer.obs, b)))
                 .collect();
-            Some(align(&matched, &prior, ctx.align_min_matches))
+            let al = align(&matched, &prior, ctx.align_min_matches);
+            (al.refined, PeerPose::Aligned(al.estimate))
         }
     };
-    let (peer_in_ego, refined) = match alignment {
-        Some(a) => (a.pose, a.refined),
-        None => (prior.pose, false),
+    let moved = |m: &Measurement| match &peer_pose {
+        PeerPose::Reported(pose) => m.moved(pose),
+        PeerPose::Aligned(estimate) => m.moved_uncertain(estimate),
     };
-    let mut out = Vec::new();
+    let mut partner: Vec<Option<usize>> = vec![None; ego.obs.detections.len()];
     for &(a, b) in pairs {
-        let truth = &ego.truth.detections[a];
+        partner[a] = Some(b);
+    }
+    let to_world = |p: &Vec2| ego.truth.ego_pose.to_parent(p);
+    let mut out = Vec::new();
+    for (a, truth) in ego.truth.detections.iter().enumerate() {
         let (Some(id), Some(truth_m)) = (truth.object_id.as_deref(), truth.position_m) else {
             continue;
         };
-        let own = measured(ego.obs, a);
-        let shared = measured(peer.obs, b).moved(&peer_in_ego);
-        let Some(fused) = fuse(&[own, shared]) else {
+        if truth.sender {
             continue;
-        };
-        let to_world = |p: &Vec2| ego.truth.ego_pose.to_parent(p);
+        }
+        let own = measured(ego.obs, a);
+        let fused = partner[a]
+            .and_then(|b| fuse(&[own, moved(&measured(peer.obs, b))]))
+            .map_or(own.position_m, |f| f.position_m);
+        let matched = partner[a].is_some();
         out.push(ObjectEstimate {
             ego_id: ego.obs.ego_id.clone(),
             peer_id: peer.obs.ego_id.clone(),
             object_id: id.to_owned(),
-            match_correct: peer.truth.object_id(b) == Some(id),
+            covisible: peer.truth.find(id).is_some(),
+            matched,
+            match_correct: partner[a].is_some_and(|b| peer.truth.object_id(b) == Some(id)),
             pose_refined: refined,
             truth_m,
             single_m: to_world(&own.position_m),
-            fused_m: to_world(&fused.position_m),
+            fused_m: to_world(&fused),
         });
     }
     out
@@ -280,6 +328,7 @@ fn fuse_for_ego(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::Pose2;
     use crate::graph::SceneGraph;
     use crate::matching::testkit;
     use crate::sensor::{DetectionTruth, PoseNoiseLabel};
@@ -306,6 +355,7 @@ mod tests {
                     object_id: id.map(str::to_owned),
                     position_m: id.map(|_| *w),
                     visible_fraction: 1.0,
+                    sender: false,
                 })
                 .collect(),
         };
@@ -346,10 +396,12 @@ mod tests {
         assert!((c.precision() - 1.0 / 3.0).abs() < 1e-12);
         assert!((c.recall() - 0.5).abs() < 1e-12);
         assert!((c.f1() - 0.4).abs() < 1e-12);
+        // Nothing identified: precision undefined (not 1), recall and F1 0.
         let none = count_pairs(&first, &second, &[]);
-        assert_eq!(none.precision(), 1.0);
+        assert!(none.precision().is_nan());
         assert_eq!(none.recall(), 0.0);
         assert_eq!(none.f1(), 0.0);
+        assert!(PairCounts::default().f1().is_nan());
     }
 
     #[test]
@@ -422,6 +474,96 @@ mod tests {
                     "{x:?}"
                 );
                 assert!(x.match_correct);
+            }
+        }
+    }
+
+    /// A matcher that returns fixed pairs (for property tests).
+    struct Fixed(Vec<Correspondence>);
+
+    impl Matcher for Fixed {
+        fn method(&self) -> Method {
+            Method::Mogm
+        }
+        fn identify(&self, _: &MatchView, _: &MatchView) -> Identification {
+            Identification::plain(self.0.clone())
+        }
+    }
+
+    fn exact_view<'a>(obs: &'a Observation, graph: &'a SceneGraph, pose: Pose2) -> MatchView<'a> {
+        MatchView {
+            detections: &obs.detections,
+            graph,
+            pose_reported: pose,
+            pose_noise: PoseNoiseLevel {
+                label: PoseNoiseLabel::Gps,
+                position_sigma_m: 1.2,
+                heading_sigma_rad: 0.0035,
+            },
+        }
+    }
+
+    proptest::proptest! {
+        /// Whatever a method pairs, the object set of the displacement
+        /// error (every real object an ego detects) and its single-vehicle
+        /// estimates are the same; unmatched objects keep their single
+        /// estimate as the fused one.
+        #[test]
+        fn the_object_set_does_not_depend_on_the_method(
+            seen_a in proptest::collection::vec(proptest::bool::ANY, 6),
+            seen_b in proptest::collection::vec(proptest::bool::ANY, 6),
+            shuffle in proptest::collection::vec(0usize..100, 12),
+        ) {
+            let world: Vec<(Option<&str>, Vec2)> = ["o0", "o1", "o2", "o3", "o4", "o5"]
+                .iter()
+                .enumerate()
+                .map(|(k, id)| (Some(*id), Vec2::new(10.0 + 4.0 * k as f64, (k as f64 * 1.7).sin() * 9.0)))
+                .chain([(None, Vec2::new(25.0, 30.0))]) // a false positive
+                .collect();
+            let pick = |seen: &[bool]| -> Vec<(Option<&str>, Vec2)> {
+                world.iter().enumerate().filter(|(k, _)| *k == 6 || seen[*k]).map(|(_, o)| *o).collect()
+            };
+            let (pa, pb) = (Pose2::new(Vec2::zeros(), 0.2), Pose2::new(Vec2::new(50.0, 5.0), 2.9));
+            let (oa, ta) = sensed("a", pa, &pick(&seen_a));
+            let (ob, tb) = sensed("b", pb, &pick(&seen_b));
+            let graph = |o: &Observation| SceneGraph::delaunay(&o.detections.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
+            let (ga, gb) = (graph(&oa), graph(&ob));
+            let pair = PairAtLevel {
+                first: Side { view: exact_view(&oa, &ga, pa), obs: &oa, truth: &ta },
+                second: Side { view: exact_view(&ob, &gb, pb), obs: &ob, truth: &tb },
+                level: exact_view(&oa, &ga, pa).pose_noise,
+            };
+            // A random one-to-one matching, right or wrong.
+            let (n, m) = (oa.detections.len(), ob.detections.len());
+            let mut cols: Vec<usize> = (0..m).collect();
+            for (k, &r) in shuffle.iter().enumerate().take(m) {
+                cols.swap(k, r % m);
+            }
+            let random: Vec<Correspondence> = (0..n.min(m))
+                .filter(|i| shuffle[i + 6] % 3 != 0)
+                .map(|i| corr(i, cols[i]))
+                .collect();
+            let fusion = FusionSettings {
+                variants: vec![FusionVariant::Paper, FusionVariant::Aligned],
+                align_min_matches: 2,
+            };
+            let runners = [Runner::Oracle, Runner::Matcher(Box::new(Fixed(vec![]))), Runner::Matcher(Box::new(Fixed(random)))];
+            let sets: Vec<Vec<(String, String, bool, Vec2)>> = runners
+                .iter()
+                .flat_map(|r| evaluate(&pair, r, &fusion).fused)
+                .map(|(_, est)| {
+                    for e in &est {
+                        if !e.matched {
+                            proptest::prop_assert_eq!(e.fused_m, e.single_m);
+                        }
+                    }
+                    Ok(est.into_iter().map(|e| (e.ego_id, e.object_id, e.covisible, e.single_m)).collect())
+                })
+                .collect::<Result<_, _>>()?;
+            let real = |seen: &[bool]| seen.iter().filter(|s| **s).count();
+            proptest::prop_assert_eq!(sets[0].len(), real(&seen_a) + real(&seen_b));
+            for s in &sets[1..] {
+                proptest::prop_assert_eq!(s, &sets[0]);
             }
         }
     }

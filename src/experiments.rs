@@ -4,11 +4,13 @@
 //! through [`evaluate::evaluate`]; the training labels are the oracle's
 //! pairs. No file IO here beyond what `pipeline` reads.
 
+use std::collections::BTreeMap;
+
 use crate::config::Settings;
 use crate::evaluate::{self, Runner};
 use crate::fusion::FusionSettings;
-use crate::matching::Method;
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainReport};
+use crate::matching::{LambdaChoice, Method};
 use crate::pipeline::{self, Progress, RunError};
 use crate::tables::{RunEval, lambda_grid};
 
@@ -73,14 +75,16 @@ pub fn train_method(
 
 /// Evaluates `methods` on one test run (`settings` already carries the
 /// run's seeds): every instance, every pose-noise level; deep methods are
-/// also counted at every threshold of the lambda sweep.
+/// also counted at every threshold of the lambda sweep (whose grid holds
+/// `lambdas`).
 pub fn eval_run(
     settings: &Settings,
     methods: &[Method],
+    lambdas: &BTreeMap<Method, f64>,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
     let runners = pipeline::runners(settings, methods)?;
-    let grid = lambda_grid(settings.matching.lambda);
+    let grid = lambda_grid(lambdas.values());
     let mut out = RunEval::default();
     let stats = pipeline::simulate(settings, progress, |inst| {
         for level in &settings.pose_noise {
@@ -99,4 +103,69 @@ pub fn eval_run(
     })?;
     out.instances = stats.n_instances;
     Ok(out)
+}
+
+/// What the validation runs say about one deep method: the lambda with the
+/// best mean F1 (over the runs, of the mean over pose-noise levels), and
+/// that F1.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Chosen {
+    pub lambda: f64,
+    pub f1: f64,
+}
+
+/// Chooses each deep method's lambda on the validation runs (`[train]
+/// validation_seeds`), never on the test runs: the grid 0..1 by 0.05, the
+/// configured uncertainty type; ties go to the smaller lambda.
+/// `progress(run, runs)` after each run.
+pub fn validate(
+    settings: &Settings,
+    methods: &[Method],
+    mut progress: impl FnMut(usize, usize),
+) -> Result<BTreeMap<Method, Chosen>, RunError> {
+    // The default decision is not used: every threshold is counted.
+    let mut s = settings.clone();
+    s.matching.lambda = LambdaChoice::Fixed(0.7);
+    let seeds = &settings.train.validation_seeds;
+    let mut runs = Vec::new();
+    for (k, &seed) in seeds.iter().enumerate() {
+        let run = settings_for_seed(&s, seed);
+        runs.push(eval_run(&run, methods, &BTreeMap::new(), |_| {})?);
+        progress(k + 1, seeds.len());
+    }
+    let grid = lambda_grid(&[]);
+    let kind = settings.matching.uncertainty;
+    let mean_f1 = |m: Method, k: usize| {
+        let per_run: Vec<f64> = runs
+            .iter()
+            .map(|r| {
+                let f: Vec<f64> = settings
+                    .pose_noise
+                    .iter()
+                    .filter_map(|l| r.thresholded.get(&(m, l.label, kind, k)).map(|c| c.f1()))
+                    .collect();
+                f.iter().sum::<f64>() / f.len().max(1) as f64
+            })
+            .collect();
+        per_run.iter().sum::<f64>() / per_run.len().max(1) as f64
+    };
+    Ok(methods
+        .iter()
+        .filter(|m| crate::matching::deep::variant(**m).is_some())
+        .map(|&m| {
+            let (k, f1) = (0..grid.len()).map(|k| (k, mean_f1(m, k))).fold(
+                (0, f64::NEG_INFINITY),
+                |best, (k, f)| {
+                    if f > best.1 { (k, f) } else { best }
+                },
+            );
+            (
+                m,
+                Chosen {
+                    lambda: grid[k],
+                    f1,
+                },
+            )
+        })
+        .collect())
 }

@@ -86,21 +86,78 @@ pub fn fuse(measurements: &[Measurement]) -> Option<Fused> {
     })
 }
 
-/// What we believe about the pose of the second vehicle in the first one's
-/// frame before looking at the matches (from both GPS poses).
+/// A pose with its uncertainty: the covariance of `(x m, y m, heading rad)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PosePrior {
+pub struct PoseEstimate {
     pub pose: Pose2,
-    /// Standard deviation of the relative position, per axis.
-    pub position_sigma_m: f64,
-    pub heading_sigma_rad: f64,
+    pub cov: Matrix3<f64>,
+}
+
+impl PoseEstimate {
+    /// Independent errors: `position_sigma_m` per axis, `heading_sigma_rad`.
+    pub fn diagonal(pose: Pose2, position_sigma_m: f64, heading_sigma_rad: f64) -> Self {
+        let (p, h) = (position_sigma_m.powi(2), heading_sigma_rad.powi(2));
+        Self {
+            pose,
+            cov: Matrix3::from_diagonal(&Vector3::new(p, p, h)),
+        }
+    }
+}
+
+/// `(-v.y, v.x)`: the derivative of `R(theta) v` with respect to `theta`.
+fn perp(v: &Vec2) -> Vec2 {
+    Vec2::new(-v.y, v.x)
+}
+
+/// The pose of vehicle b in vehicle a's frame from both GPS poses, each with
+/// independent errors of `position_sigma_m` per axis and
+/// `heading_sigma_rad`. With `t` the relative position,
+/// `dt = R_a^T (dp_b - dp_a) - dh_a perp(t)` and `dtheta = dh_b - dh_a`, so
+/// `cov(t) = 2 s_p^2 I + s_h^2 perp(t) perp(t)^T`, `var(theta) = 2 s_h^2`
+/// and `cov(t, theta) = s_h^2 perp(t)`: a's heading error swings b about a.
+pub fn relative_pose_prior(
+    a_reported: &Pose2,
+    b_reported: &Pose2,
+    position_sigma_m: f64,
+    heading_sigma_rad: f64,
+) -> PoseEstimate {
+    let pose = a_reported.relative(b_reported);
+    let (sp2, sh2) = (position_sigma_m.powi(2), heading_sigma_rad.powi(2));
+    let lever = perp(&pose.position_m());
+    let mut cov = Matrix3::zeros();
+    let ct = Matrix2::identity() * (2.0 * sp2) + lever * lever.transpose() * sh2;
+    cov.fixed_view_mut::<2, 2>(0, 0).copy_from(&ct);
+    cov.fixed_view_mut::<2, 1>(0, 2).copy_from(&(lever * sh2));
+    cov.fixed_view_mut::<1, 2>(2, 0)
+        .copy_from(&(lever.transpose() * sh2));
+    cov[(2, 2)] = 2.0 * sh2;
+    PoseEstimate { pose, cov }
+}
+
+impl Measurement {
+    /// The measurement of a point given in the body frame of an uncertain
+    /// pose, in the parent frame: the covariance rotates with the point and
+    /// gains the pose's own uncertainty, `J cov J^T` with
+    /// `J = [I, perp(R p)]` (position error, and heading error times the
+    /// lever arm).
+    pub fn moved_uncertain(&self, pose: &PoseEstimate) -> Measurement {
+        let moved = self.moved(&pose.pose);
+        let lever = perp(&(moved.position_m - pose.pose.position_m()));
+        let j = nalgebra::Matrix2x3::new(1.0, 0.0, lever.x, 0.0, 1.0, lever.y);
+        let added = j * pose.cov * j.transpose();
+        Measurement {
+            position_m: moved.position_m,
+            cov_m2: moved.cov_m2 + (added + added.transpose()) * 0.5,
+        }
+    }
 }
 
 /// Result of [`align`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Alignment {
-    /// The second vehicle's pose in the first vehicle's frame.
-    pub pose: Pose2,
+    /// The second vehicle's pose in the first vehicle's frame, with its
+    /// posterior covariance (or the prior's, when the prior was kept).
+    pub estimate: PoseEstimate,
     /// False when there were too few matches and the prior was kept.
     pub refined: bool,
 }
@@ -112,31 +169,71 @@ const MIN_HEADING_SIGMA_RAD: f64 = 1e-4;
 /// wrong matches) get less weight.
 const HUBER_K: f64 = 2.5;
 
+/// The information (inverse covariance) of a prior, floored so that a
+/// perfect GPS still leaves the problem well posed.
+fn prior_information(prior: &PoseEstimate) -> Matrix3<f64> {
+    let floor = Matrix3::from_diagonal(&Vector3::new(
+        MIN_POSITION_SIGMA_M.powi(2),
+        MIN_POSITION_SIGMA_M.powi(2),
+        MIN_HEADING_SIGMA_RAD.powi(2),
+    ));
+    (prior.cov + floor)
+        .try_inverse()
+        .unwrap_or_else(|| floor.try_inverse().unwrap_or_else(Matrix3::identity))
+}
+
+/// The Gauss-Newton system of [`align`] at `x = (tx, ty, theta)`: the
+/// Hessian (prior plus Huber-weighted pairs) and the gradient.
+fn normal_equations(
+    pairs: &[(Measurement, Measurement)],
+    prior_info: &Matrix3<f64>,
+    x0: &Vector3<f64>,
+    x: &Vector3<f64>,
+) -> (Matrix3<f64>, Vector3<f64>) {
+    let pose = Pose2::new(Vec2::new(x[0], x[1]), x[2]);
+    let mut h = *prior_info;
+    let mut dx0 = x - x0;
+    dx0[2] = wrap_angle(dx0[2]);
+    let mut g = -(prior_info * dx0);
+    for (m1, m2) in pairs {
+        let moved = m2.moved(&pose);
+        let r = m1.position_m - moved.position_m;
+        let Some(w) = (m1.cov_m2 + moved.cov_m2).try_inverse() else {
+            continue;
+        };
+        let maha = (r.transpose() * w * r)[(0, 0)].max(0.0).sqrt();
+        let huber = if maha <= HUBER_K { 1.0 } else { HUBER_K / maha };
+        let w = w * huber;
+        // d(R p2 + t)/d(tx, ty, theta)
+        let lever = perp(&(moved.position_m - pose.position_m()));
+        let j = nalgebra::Matrix2x3::new(1.0, 0.0, lever.x, 0.0, 1.0, lever.y);
+        h += j.transpose() * w * j;
+        g += j.transpose() * w * r;
+    }
+    (h, g)
+}
+
 /// Weighted rigid alignment on the ground plane: the pose `(t, theta)` of the
 /// second vehicle in the first one's frame that best maps the second
 /// vehicle's matched measurements onto the first one's, with
 /// `r_k = p1_k - (R p2_k + t)`, weights `(P1_k + R P2_k R^T)^-1` (Huber
 /// down-weighted), plus the GPS prior as a Gaussian on `(t, theta)`.
-/// Gauss-Newton from the prior. With fewer than `min_matches` pairs the
-/// prior is returned unchanged.
+/// Gauss-Newton from the prior; the posterior covariance is the inverse
+/// Hessian at the solution. With fewer than `min_matches` pairs the prior
+/// is returned unchanged.
 pub fn align(
     pairs: &[(Measurement, Measurement)],
-    prior: &PosePrior,
+    prior: &PoseEstimate,
     min_matches: usize,
 ) -> Alignment {
+    let kept = Alignment {
+        estimate: *prior,
+        refined: false,
+    };
     if pairs.len() < min_matches.max(1) {
-        return Alignment {
-            pose: prior.pose,
-            refined: false,
-        };
+        return kept;
     }
-    let sp = prior.position_sigma_m.max(MIN_POSITION_SIGMA_M);
-    let sh = prior.heading_sigma_rad.max(MIN_HEADING_SIGMA_RAD);
-    let prior_info = Matrix3::from_diagonal(&Vector3::new(
-        1.0 / (sp * sp),
-        1.0 / (sp * sp),
-        1.0 / (sh * sh),
-    ));
+    let prior_info = prior_information(prior);
     let x0 = Vector3::new(
         prior.pose.position_m().x,
         prior.pose.position_m().y,
@@ -144,26 +241,7 @@ pub fn align(
     );
     let mut x = x0;
     for _ in 0..15 {
-        let pose = Pose2::new(Vec2::new(x[0], x[1]), x[2]);
-        let mut h = prior_info;
-        let mut dx0 = x - x0;
-        dx0[2] = wrap_angle(dx0[2]);
-        let mut g = -(prior_info * dx0);
-        for (m1, m2) in pairs {
-            let moved = m2.moved(&pose);
-            let r = m1.position_m - moved.position_m;
-            let Some(w) = (m1.cov_m2 + moved.cov_m2).try_inverse() else {
-                continue;
-            };
-            let maha = (r.transpose() * w * r)[(0, 0)].max(0.0).sqrt();
-            let huber = if maha <= HUBER_K { 1.0 } else { HUBER_K / maha };
-            let w = w * huber;
-            // d(R p2 + t)/d(tx, ty, theta)
-            let rp = moved.position_m - pose.position_m();
-            let j = nalgebra::Matrix2x3::new(1.0, 0.0, -rp.y, 0.0, 1.0, rp.x);
-            h += j.transpose() * w * j;
-            g += j.transpose() * w * r;
-        }
+        let (h, g) = normal_equations(pairs, &prior_info, &x0, &x);
         let Some(step) = h.try_inverse().map(|hi| hi * g) else {
             break;
         };
@@ -172,16 +250,16 @@ pub fn align(
             break;
         }
     }
-    if x.iter().all(|v| v.is_finite()) {
-        Alignment {
-            pose: Pose2::new(Vec2::new(x[0], x[1]), x[2]),
+    let (h, _) = normal_equations(pairs, &prior_info, &x0, &x);
+    match h.try_inverse() {
+        Some(cov) if x.iter().all(|v| v.is_finite()) => Alignment {
+            estimate: PoseEstimate {
+                pose: Pose2::new(Vec2::new(x[0], x[1]), x[2]),
+                cov: (cov + cov.transpose()) * 0.5,
+            },
             refined: true,
-        }
-    } else {
-        Alignment {
-            pose: prior.pose,
-            refined: false,
-        }
+        },
+        _ => kept,
     }
 }
 
@@ -282,54 +360,110 @@ mod tests {
         let pos_err = |p: &Pose2| (p.position_m() - truth.position_m()).norm();
         let head_err = |p: &Pose2| wrap_angle(p.heading_rad() - truth.heading_rad()).abs();
         // An uninformative prior: exact matches give the exact pose.
-        let vague = PosePrior {
-            pose: wrong,
-            position_sigma_m: 100.0,
-            heading_sigma_rad: 1.0,
-        };
+        let vague = PoseEstimate::diagonal(wrong, 100.0, 1.0);
         let a = align(&scene_pairs(&truth, 0.0), &vague, 3);
         assert!(a.refined);
         assert!(
-            pos_err(&a.pose) < 0.01 && head_err(&a.pose) < 1e-3,
+            pos_err(&a.estimate.pose) < 0.01 && head_err(&a.estimate.pose) < 1e-3,
             "{:?}",
-            a.pose
+            a.estimate.pose
         );
         // A GPS-like prior still pulls (this is a MAP estimate, checked
         // against a brute-force minimum: 0.333 m, 0.0102 rad), but the error
         // shrinks several-fold from the prior's 1.92 m / 0.05 rad.
-        let gps = PosePrior {
-            pose: wrong,
-            position_sigma_m: 1.7,
-            heading_sigma_rad: 0.1,
-        };
+        let gps = PoseEstimate::diagonal(wrong, 1.7, 0.1);
         let a = align(&scene_pairs(&truth, 0.0), &gps, 3);
-        assert!((pos_err(&a.pose) - 0.3333).abs() < 1e-3, "{:?}", a.pose);
-        assert!((head_err(&a.pose) - 0.01024).abs() < 1e-4, "{:?}", a.pose);
+        assert!(
+            (pos_err(&a.estimate.pose) - 0.3333).abs() < 1e-3,
+            "{:?}",
+            a.estimate.pose
+        );
+        assert!(
+            (head_err(&a.estimate.pose) - 0.01024).abs() < 1e-4,
+            "{:?}",
+            a.estimate.pose
+        );
     }
 
     #[test]
     fn alignment_falls_back_to_the_prior_with_few_matches() {
         let truth = Pose2::new(Vec2::new(40.0, -10.0), 2.2);
-        let prior = PosePrior {
-            pose: Pose2::new(Vec2::new(41.5, -8.8), 2.2),
-            position_sigma_m: 1.7,
-            heading_sigma_rad: 0.005,
-        };
+        let prior = PoseEstimate::diagonal(Pose2::new(Vec2::new(41.5, -8.8), 2.2), 1.7, 0.005);
         let pairs = scene_pairs(&truth, 0.0);
         let a = align(&pairs[..2], &prior, 3);
         assert!(!a.refined);
-        assert_eq!(a.pose, prior.pose);
+        assert_eq!(a.estimate, prior);
     }
 
     #[test]
     fn a_tight_prior_wins_over_the_matches() {
         let truth = Pose2::new(Vec2::new(40.0, -10.0), 2.2);
-        let prior = PosePrior {
-            pose: Pose2::new(Vec2::new(40.0, -10.0), 2.2),
-            position_sigma_m: 0.0,
-            heading_sigma_rad: 0.0,
-        };
+        let prior = PoseEstimate::diagonal(Pose2::new(Vec2::new(40.0, -10.0), 2.2), 0.0, 0.0);
         let a = align(&scene_pairs(&truth, 1.0), &prior, 3);
-        assert!((a.pose.position_m() - truth.position_m()).norm() < 0.02);
+        assert!((a.estimate.pose.position_m() - truth.position_m()).norm() < 0.02);
+    }
+
+    /// The pose term of `moved_uncertain` against Monte Carlo: two GPS
+    /// receivers with independent errors, a point seen by b, moved into
+    /// a's frame with the relative pose both report.
+    #[test]
+    fn the_pose_term_matches_sampled_gps_errors() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let (sp, sh) = (1.2, 0.05);
+        let a_true = Pose2::new(Vec2::new(10.0, -5.0), 0.4);
+        let b_true = Pose2::new(Vec2::new(45.0, 20.0), 2.5);
+        let p_b = Vec2::new(25.0, 8.0);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let (np, nh) = (Normal::new(0.0, sp).unwrap(), Normal::new(0.0, sh).unwrap());
+        let mut noisy = |p: &Pose2| {
+            let d = Vec2::new(np.sample(&mut rng), np.sample(&mut rng));
+            Pose2::new(p.position_m() + d, p.heading_rad() + nh.sample(&mut rng))
+        };
+        let n = 40_000;
+        let xs: Vec<Vec2> = (0..n)
+            .map(|_| noisy(&a_true).relative(&noisy(&b_true)).to_parent(&p_b))
+            .collect();
+        let mean = xs.iter().fold(Vec2::zeros(), |s, x| s + x) / n as f64;
+        let emp = xs.iter().fold(Matrix2::zeros(), |s, x| {
+            s + (x - mean) * (x - mean).transpose()
+        }) / n as f64;
+        let prior = relative_pose_prior(&a_true, &b_true, sp, sh);
+        let point = Measurement {
+            position_m: p_b,
+            cov_m2: Cov2::zeros(),
+        };
+        let predicted = point.moved_uncertain(&prior).cov_m2;
+        assert!(
+            (emp - predicted).norm() < 0.05 * predicted.norm(),
+            "sampled {emp} vs predicted {predicted}"
+        );
+        // The lever arm matters: heading error alone moves a far point.
+        assert!(predicted.trace() > 4.0 * sp * sp);
+        // No pose error, no pose term.
+        let exact = PoseEstimate::diagonal(prior.pose, 0.0, 0.0);
+        assert_eq!(point.moved_uncertain(&exact), point.moved(&prior.pose));
+    }
+
+    #[test]
+    fn alignment_shrinks_the_pose_covariance() {
+        let truth = Pose2::new(Vec2::new(40.0, -10.0), 2.2);
+        let prior = PoseEstimate::diagonal(Pose2::new(Vec2::new(41.5, -8.8), 2.25), 1.7, 0.1);
+        let a = align(&scene_pairs(&truth, 0.0), &prior, 3);
+        assert!(a.refined);
+        for k in 0..3 {
+            assert!(
+                a.estimate.cov[(k, k)] < 0.25 * prior.cov[(k, k)],
+                "{}",
+                a.estimate.cov
+            );
+        }
+        assert!(
+            a.estimate
+                .cov
+                .symmetric_eigenvalues()
+                .iter()
+                .all(|&e| e > 0.0)
+        );
     }
 }

@@ -4,7 +4,7 @@
 //! The only file this module reads is a deep method's weights, through
 //! `io`; it writes nothing (the caller writes the results).
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
 use crate::bridge::{BridgeError, Sumo};
@@ -13,7 +13,7 @@ use crate::evaluate::{self, PairAtLevel, Runner, Side};
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::{GraphError, SceneGraph};
 use crate::io::{self, WeightsError};
-use crate::matching::{self, BuildError, MatchView, Method};
+use crate::matching::{self, BuildError, LambdaChoice, MatchView, Method};
 use crate::report::{ObjectRow, RowKey, RunResults};
 use crate::rng::{self, Purpose};
 use crate::sensor::{self, ConnectedSelection, PoseNoiseLevel, Sensed};
@@ -142,7 +142,7 @@ pub fn simulate(
             for i in 0..egos.len() {
                 for j in (i + 1)..egos.len() {
                     let (a, b) = (&egos[i], &egos[j]);
-                    if evaluate::covisible_pairs(&a.sensed.truth, &b.sensed.truth) == 0 {
+                    if !evaluate::share_a_detected_object(&a.sensed.truth, &b.sensed.truth) {
                         continue;
                     }
                     let index = stats.n_instances;
@@ -209,7 +209,10 @@ fn sense(
             &[frame.step, id_hash],
         );
         let (camera, sensor) = (&settings.camera, &settings.sensor);
-        let sensed = sensor::observe(frame, scene, k, camera, sensor, &mut stream);
+        let mut sensed = sensor::observe(frame, scene, k, camera, sensor, &mut stream);
+        if settings.matching.sender_as_node {
+            sensed.add_sender(o);
+        }
         let positions: Vec<Vec2> = sensed
             .observation
             .detections
@@ -232,21 +235,48 @@ fn sense(
     Ok(egos)
 }
 
+/// The entropy threshold of a deep method: the configured number, or the
+/// one `coid train` chose on the validation runs (recorded beside the
+/// weights).
+pub fn lambda_for(settings: &Settings, method: Method) -> Result<f64, RunError> {
+    match settings.matching.lambda {
+        LambdaChoice::Fixed(v) => Ok(v),
+        LambdaChoice::Validated => Ok(io::read_validated_lambda(
+            &settings.matching.models_dir,
+            method,
+        )?),
+    }
+}
+
+/// The lambda of every deep method among `methods`.
+pub fn lambdas(settings: &Settings, methods: &[Method]) -> Result<BTreeMap<Method, f64>, RunError> {
+    methods
+        .iter()
+        .filter(|m| matching::deep::variant(**m).is_some())
+        .map(|&m| Ok((m, lambda_for(settings, m)?)))
+        .collect()
+}
+
 /// How `method` runs with `settings`: deep methods get their weights from
-/// `[matching] models_dir`; MC-dropout masks are seeded with the sensor
-/// seed.
+/// `[matching] models_dir` and their lambda ([`lambda_for`]); MC-dropout
+/// masks are seeded with the sensor seed.
 pub fn runner(settings: &Settings, method: Method) -> Result<Runner, RunError> {
     if method == Method::Oracle {
         return Ok(Runner::Oracle);
     }
     let m = &settings.matching;
-    let weights = if matching::deep::variant(method).is_some() {
-        Some(io::read_weights(&m.models_dir, method)?)
+    let (weights, lambda) = if matching::deep::variant(method).is_some() {
+        let lambda = if matching::deep::thresholds_by_default(method) {
+            lambda_for(settings, method)?
+        } else {
+            f64::NAN
+        };
+        (Some(io::read_weights(&m.models_dir, method)?), lambda)
     } else {
-        None
+        (None, f64::NAN)
     };
-    let matcher = matching::build(method, m, settings.seeds.sensor, weights.as_deref()).map_err(
-        |e| match e {
+    let matcher = matching::build(method, m, lambda, settings.seeds.sensor, weights.as_deref())
+        .map_err(|e| match e {
             BuildError::BadWeights {
                 method: label,
                 reason,
@@ -256,8 +286,7 @@ pub fn runner(settings: &Settings, method: Method) -> Result<Runner, RunError> {
                 reason,
             }),
             other => RunError::Build(other),
-        },
-    )?;
+        })?;
     Ok(Runner::Matcher(matcher))
 }
 

@@ -516,7 +516,25 @@ pub fn eval_plots(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
         "F1",
         &d.methods,
         &d.f1,
-    )
+    )?;
+    for (method, per_level) in &d.reliability {
+        let mut series: Vec<(String, Vec<(f64, f64)>)> =
+            vec![("perfect".into(), vec![(0.0, 0.0), (1.0, 1.0)])];
+        series.extend(per_level.iter().map(|(level, bins)| {
+            let pts = bins.iter().map(|b| (b.confidence, b.accuracy)).collect();
+            (format!("pose noise {level}"), pts)
+        }));
+        let panel = Panel {
+            title: format!("{method}: reliability of identified pairs"),
+            x_label: "probability E[Y] (15 bins)".into(),
+            y_label: "share right".into(),
+            x_range: (0.0, 1.0),
+            y_range: (0.0, 1.0),
+            series,
+        };
+        line_panels(&dir.join(format!("reliability_{method}")), &[panel])?;
+    }
+    Ok(())
 }
 
 /// A batch's F1 per method (first fusion variant; F1 does not depend on

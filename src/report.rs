@@ -47,14 +47,71 @@ pub struct RowKey {
     pub fusion: FusionVariant,
 }
 
+/// Sums of displacement errors over a set of objects.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ErrorSums {
+    pub n: usize,
+    pub single_m: f64,
+    pub fused_m: f64,
+}
+
+impl ErrorSums {
+    pub fn add(&mut self, e: &ObjectEstimate) {
+        self.n += 1;
+        self.single_m += e.single_error_m();
+        self.fused_m += e.fused_error_m();
+    }
+
+    /// Mean single-vehicle error; NaN for an empty set.
+    pub fn mean_single_m(&self) -> f64 {
+        self.mean(self.single_m)
+    }
+
+    /// Mean fused error; NaN for an empty set.
+    pub fn mean_fused_m(&self) -> f64 {
+        self.mean(self.fused_m)
+    }
+
+    fn mean(&self, sum: f64) -> f64 {
+        if self.n == 0 {
+            f64::NAN
+        } else {
+            sum / self.n as f64
+        }
+    }
+}
+
+/// Displacement errors over the three object sets of the protocol.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ObjectErrors {
+    /// Every real object an ego detects: the same set for every method.
+    pub all: ErrorSums,
+    /// Those the peer detects too.
+    pub covisible: ErrorSums,
+    /// Those the method matched (a method-dependent set).
+    pub matched: ErrorSums,
+}
+
+impl ObjectErrors {
+    pub fn record(&mut self, estimates: &[ObjectEstimate]) {
+        for e in estimates {
+            self.all.add(e);
+            if e.covisible {
+                self.covisible.add(e);
+            }
+            if e.matched {
+                self.matched.add(e);
+            }
+        }
+    }
+}
+
 /// Running sums for one summary row.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Accumulator {
     pub instances: usize,
     pub counts: PairCounts,
-    pub objects: usize,
-    pub single_error_sum_m: f64,
-    pub fused_error_sum_m: f64,
+    pub errors: ObjectErrors,
 }
 
 /// One line of a run's `summary.csv`.
@@ -62,13 +119,22 @@ pub struct Accumulator {
 pub struct SummaryRow {
     pub key: RowKey,
     pub n_instances: usize,
+    /// Objects of the common set (every real object an ego detects).
     pub n_objects: usize,
+    /// Of those, the ones the method matched.
+    pub n_matched: usize,
     pub precision: f64,
     pub recall: f64,
     pub f1: f64,
-    /// Mean over objects; NaN when no object was matched.
+    /// Means over the common set (fused = single where unmatched).
     pub de_single_m: f64,
     pub de_fused_m: f64,
+    /// Means over the covisible objects.
+    pub de_single_covis_m: f64,
+    pub de_fused_covis_m: f64,
+    /// Means over the matched objects only (method-dependent).
+    pub de_single_matched_m: f64,
+    pub de_fused_matched_m: f64,
 }
 
 /// A run's summary: counts and errors pooled over its instances.
@@ -82,9 +148,7 @@ impl Summary {
         let acc = self.rows.entry(key).or_default();
         acc.instances += 1;
         acc.counts.add(counts);
-        acc.objects += estimates.len();
-        acc.single_error_sum_m += estimates.iter().map(|e| e.single_error_m()).sum::<f64>();
-        acc.fused_error_sum_m += estimates.iter().map(|e| e.fused_error_m()).sum::<f64>();
+        acc.errors.record(estimates);
     }
 
     /// Rows in a fixed order (method, pose noise, fusion).
@@ -92,22 +156,21 @@ impl Summary {
         self.rows
             .iter()
             .map(|(key, acc)| {
-                let mean = |s: f64| {
-                    if acc.objects == 0 {
-                        f64::NAN
-                    } else {
-                        s / acc.objects as f64
-                    }
-                };
+                let e = &acc.errors;
                 SummaryRow {
                     key: *key,
                     n_instances: acc.instances,
-                    n_objects: acc.objects,
+                    n_objects: e.all.n,
+                    n_matched: e.matched.n,
                     precision: acc.counts.precision(),
                     recall: acc.counts.recall(),
                     f1: acc.counts.f1(),
-                    de_single_m: mean(acc.single_error_sum_m),
-                    de_fused_m: mean(acc.fused_error_sum_m),
+                    de_single_m: e.all.mean_single_m(),
+                    de_fused_m: e.all.mean_fused_m(),
+                    de_single_covis_m: e.covisible.mean_single_m(),
+                    de_fused_covis_m: e.covisible.mean_fused_m(),
+                    de_single_matched_m: e.matched.mean_single_m(),
+                    de_fused_matched_m: e.matched.mean_fused_m(),
                 }
             })
             .collect()
@@ -150,6 +213,7 @@ pub struct Table {
 pub enum TableColumn {
     Text(Vec<String>),
     Number(Vec<f64>),
+    Count(Vec<u64>),
 }
 
 impl Table {
@@ -161,12 +225,26 @@ impl Table {
         self.columns.push((name.into(), TableColumn::Number(v)));
     }
 
+    pub fn count(&mut self, name: &str, v: Vec<u64>) {
+        self.columns.push((name.into(), TableColumn::Count(v)));
+    }
+
     /// Adds `name` and `name_ci95`: per row, the mean of its per-run
-    /// samples and the half-width of the 95% interval.
+    /// samples and the half-width of the 95% interval. Undefined (NaN)
+    /// samples are left out.
     pub fn stat(&mut self, name: &str, samples: &[Vec<f64>]) {
         let (m, c): (Vec<f64>, Vec<f64>) = samples.iter().map(|s| mean_ci95(s)).unzip();
         self.number(name, m);
         self.number(&format!("{name}_ci95"), c);
+    }
+
+    /// Adds `name`: per row, how many of its per-run samples are defined.
+    pub fn defined(&mut self, name: &str, samples: &[Vec<f64>]) {
+        let n = samples
+            .iter()
+            .map(|s| s.iter().filter(|x| x.is_finite()).count() as u64)
+            .collect();
+        self.count(name, n);
     }
 
     /// The column `name`, if it exists.
@@ -178,6 +256,7 @@ impl Table {
         match self.columns.first() {
             Some((_, TableColumn::Text(v))) => v.len(),
             Some((_, TableColumn::Number(v))) => v.len(),
+            Some((_, TableColumn::Count(v))) => v.len(),
             None => 0,
         }
     }
@@ -195,6 +274,9 @@ pub struct RunRow {
     pub f1: f64,
     pub de_single_m: f64,
     pub de_fused_m: f64,
+    pub de_single_covis_m: f64,
+    pub de_fused_covis_m: f64,
+    pub de_fused_matched_m: f64,
 }
 
 /// One line of a batch's `summary.csv`.
@@ -204,6 +286,9 @@ pub struct AggregateRow {
     pub pose_noise: String,
     pub fusion: String,
     pub n_runs: usize,
+    /// Runs in which the method identified at least one pair (precision is
+    /// defined); the precision mean is over these.
+    pub n_runs_precision: usize,
     pub n_instances: u64,
     /// (mean over runs, 95% CI half-width) of each metric.
     pub precision: (f64, f64),
@@ -211,6 +296,9 @@ pub struct AggregateRow {
     pub f1: (f64, f64),
     pub de_single_m: (f64, f64),
     pub de_fused_m: (f64, f64),
+    pub de_single_covis_m: (f64, f64),
+    pub de_fused_covis_m: (f64, f64),
+    pub de_fused_matched_m: (f64, f64),
 }
 
 /// Aggregates runs (each its summary rows, in run order): one row per
@@ -239,12 +327,16 @@ pub fn aggregate(runs: &[Vec<RunRow>]) -> Vec<AggregateRow> {
                 |f: fn(&RunRow) -> f64| mean_ci95(&rows.iter().map(|r| f(r)).collect::<Vec<_>>());
             AggregateRow {
                 n_runs: rows.len(),
+                n_runs_precision: rows.iter().filter(|r| r.precision.is_finite()).count(),
                 n_instances: rows.iter().map(|r| r.n_instances).sum(),
                 precision: stat(|r| r.precision),
                 recall: stat(|r| r.recall),
                 f1: stat(|r| r.f1),
                 de_single_m: stat(|r| r.de_single_m),
                 de_fused_m: stat(|r| r.de_fused_m),
+                de_single_covis_m: stat(|r| r.de_single_covis_m),
+                de_fused_covis_m: stat(|r| r.de_fused_covis_m),
+                de_fused_matched_m: stat(|r| r.de_fused_matched_m),
                 method: key.0,
                 pose_noise: key.1,
                 fusion: key.2,
@@ -252,6 +344,106 @@ pub fn aggregate(runs: &[Vec<RunRow>]) -> Vec<AggregateRow> {
         })
         .collect()
 }
+
+/// One identified pair, for calibration: the method's probability that it
+/// is right, its uncertainty, and whether it was right.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScoredPair {
+    pub probability: f64,
+    pub uncertainty: f64,
+    pub correct: bool,
+}
+
+/// Equal-width probability bins of the calibration measures.
+pub const CALIBRATION_BINS: usize = 15;
+
+/// One bin of a reliability diagram.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReliabilityBin {
+    /// Mean probability of the pairs in the bin.
+    pub confidence: f64,
+    /// Share of them that were right.
+    pub accuracy: f64,
+    pub count: usize,
+}
+
+/// The non-empty bins of `pairs` by probability (15 equal-width bins of
+/// [0, 1]).
+pub fn reliability(pairs: &[ScoredPair]) -> Vec<ReliabilityBin> {
+    let mut sums = [(0.0, 0.0, 0usize); CALIBRATION_BINS];
+    for p in pairs {
+        let b = ((p.probability.clamp(0.0, 1.0) * CALIBRATION_BINS as f64) as usize)
+            .min(CALIBRATION_BINS - 1);
+        sums[b].0 += p.probability;
+        sums[b].1 += if p.correct { 1.0 } else { 0.0 };
+        sums[b].2 += 1;
+    }
+    sums.iter()
+        .filter(|s| s.2 > 0)
+        .map(|&(conf, right, n)| ReliabilityBin {
+            confidence: conf / n as f64,
+            accuracy: right / n as f64,
+            count: n,
+        })
+        .collect()
+}
+
+/// Expected calibration error: the count-weighted mean gap between
+/// accuracy and confidence over the bins; NaN without pairs.
+pub fn expected_calibration_error(pairs: &[ScoredPair]) -> f64 {
+    if pairs.is_empty() {
+        return f64::NAN;
+    }
+    reliability(pairs)
+        .iter()
+        .map(|b| b.count as f64 * (b.accuracy - b.confidence).abs())
+        .sum::<f64>()
+        / pairs.len() as f64
+}
+
+/// Brier score: the mean squared gap between probability and outcome;
+/// NaN without pairs.
+pub fn brier_score(pairs: &[ScoredPair]) -> f64 {
+    if pairs.is_empty() {
+        return f64::NAN;
+    }
+    pairs
+        .iter()
+        .map(|p| (p.probability - if p.correct { 1.0 } else { 0.0 }).powi(2))
+        .sum::<f64>()
+        / pairs.len() as f64
+}
+
+/// How well the uncertainty tells wrong pairs from right ones: the
+/// probability that a wrong pair has a higher uncertainty than a right one
+/// (ties count half; the area under the ROC curve). NaN unless there are
+/// both.
+pub fn uncertainty_auroc(pairs: &[ScoredPair]) -> f64 {
+    let wrong: Vec<f64> = pairs
+        .iter()
+        .filter(|p| !p.correct)
+        .map(|p| p.uncertainty)
+        .collect();
+    let mut right: Vec<f64> = pairs
+        .iter()
+        .filter(|p| p.correct)
+        .map(|p| p.uncertainty)
+        .collect();
+    if wrong.is_empty() || right.is_empty() {
+        return f64::NAN;
+    }
+    right.sort_by(f64::total_cmp);
+    let below = |u: f64| right.partition_point(|&r| r < u) as f64;
+    let not_above = |u: f64| right.partition_point(|&r| r <= u) as f64;
+    let score: f64 = wrong
+        .iter()
+        .map(|&u| below(u) + 0.5 * (not_above(u) - below(u)))
+        .sum();
+    score / (wrong.len() * right.len()) as f64
+}
+
+/// A pose-noise level's reliability diagram: (level, bins).
+pub type LevelReliability = (String, Vec<ReliabilityBin>);
 
 /// One point of the lambda sweep: (lambda, precision, recall, F1).
 pub type SweepPoint = (f64, f64, f64, f64);
@@ -267,6 +459,8 @@ pub struct PlotData {
     /// Per level: pooled single and fused errors of `ours` (aligned fusion
     /// when configured, else paper).
     pub errors: Vec<(String, Vec<f64>, Vec<f64>)>,
+    /// Per deep method: per level, its reliability diagram.
+    pub reliability: Vec<(String, Vec<LevelReliability>)>,
 }
 
 #[cfg(test)]
@@ -284,6 +478,9 @@ mod tests {
             f1,
             de_single_m: de,
             de_fused_m: de / 2.0,
+            de_single_covis_m: de,
+            de_fused_covis_m: de / 2.0,
+            de_fused_matched_m: de / 4.0,
         }
     }
 
@@ -332,6 +529,8 @@ mod tests {
             ego_id: "a".into(),
             peer_id: "b".into(),
             object_id: "x".into(),
+            covisible: fused < 1.0,
+            matched: fused > 0.0,
             match_correct: true,
             pose_refined: false,
             truth_m: Vec2::zeros(),
@@ -349,9 +548,13 @@ mod tests {
         let rows = s.rows();
         assert_eq!(rows.len(), 1);
         let r = &rows[0];
-        assert_eq!((r.n_instances, r.n_objects), (2, 3));
+        assert_eq!((r.n_instances, r.n_objects, r.n_matched), (2, 3, 2));
         assert_eq!((r.precision, r.recall), (0.75, 0.5));
         assert_eq!((r.de_single_m, r.de_fused_m), (2.0, 0.5));
+        // Covisible: fused errors 0.5 and 0 (singles 1 and 3); matched:
+        // fused 0.5 and 1 (singles 1 and 2).
+        assert_eq!((r.de_single_covis_m, r.de_fused_covis_m), (2.0, 0.25));
+        assert_eq!((r.de_single_matched_m, r.de_fused_matched_m), (1.5, 0.75));
     }
 
     #[test]
@@ -390,5 +593,42 @@ mod tests {
         assert!(mean_ci95(&[]).0.is_nan());
         // A constant sample has a zero-width interval.
         assert_eq!(mean_ci95(&[0.5; 4]), (0.5, 0.0));
+    }
+
+    fn scored(probability: f64, uncertainty: f64, correct: bool) -> ScoredPair {
+        ScoredPair {
+            probability,
+            uncertainty,
+            correct,
+        }
+    }
+
+    /// Six pairs in three bins: 0.95 (2 of 3 right), 0.55 (1 of 2), 0.15
+    /// (0 of 1). By hand: ECE = 3/6 |2/3 - 0.95| + 2/6 |0.5 - 0.55| +
+    /// 1/6 |0 - 0.15| = 0.183333; Brier = (2 (0.05)^2 + 0.95^2 + 0.45^2 +
+    /// 0.55^2 + 0.15^2) / 6 = 0.239167.
+    #[test]
+    fn calibration_of_a_hand_made_set() {
+        let pairs = [
+            scored(0.95, 0.1, true),
+            scored(0.95, 0.2, true),
+            scored(0.95, 0.5, false),
+            scored(0.55, 0.6, true),
+            scored(0.55, 0.7, false),
+            scored(0.15, 0.6, false),
+        ];
+        assert!((expected_calibration_error(&pairs) - 0.183_333_333).abs() < 1e-9);
+        assert!((brier_score(&pairs) - 0.239_166_667).abs() < 1e-9);
+        let bins = reliability(&pairs);
+        assert_eq!(bins.len(), 3);
+        assert_eq!((bins[2].count, bins[2].accuracy), (3, 2.0 / 3.0));
+        // Wrong pairs' uncertainties 0.5, 0.7, 0.6 against right 0.1, 0.2,
+        // 0.6: 2 + 3 + 2.5 of 9 pairs ordered right.
+        assert!((uncertainty_auroc(&pairs) - 7.5 / 9.0).abs() < 1e-12);
+        // A perfectly calibrated set.
+        let fair: Vec<ScoredPair> = (0..10).map(|k| scored(0.7, 0.3, k < 7)).collect();
+        assert!(expected_calibration_error(&fair).abs() < 1e-12);
+        assert!(uncertainty_auroc(&fair[..7]).is_nan());
+        assert!(expected_calibration_error(&[]).is_nan());
     }
 }

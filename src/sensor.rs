@@ -166,8 +166,11 @@ pub struct DetectionTruth {
     /// The object's true centre, world frame; `None` for a false positive.
     pub position_m: Option<Vec2>,
     /// The share of footprint samples that were visible (0 for a false
-    /// positive).
+    /// positive, 1 for a sender's own node).
     pub visible_fraction: f64,
+    /// Whether this is the sender's own node (its self-report), not a
+    /// camera detection.
+    pub sender: bool,
 }
 
 /// Evaluation only: the truth beside an [`Observation`], one entry per
@@ -198,6 +201,38 @@ impl ObservationTruth {
 pub struct Sensed {
     pub observation: Observation,
     pub truth: ObservationTruth,
+}
+
+/// How well a sender knows its own centre in its own body frame: its
+/// self-report is exact up to the body's size estimate, so a small
+/// position sigma (its world pose error is the GPS's, which the receiver
+/// of the message accounts for).
+pub const SENDER_SIGMA_M: f64 = 0.1;
+
+impl Sensed {
+    /// Appends the sender's own node: what a V2X message (CAM/CPM) carries
+    /// about the sender itself, its centre (the origin of its body frame),
+    /// class, colour and size, as one more node of its graph. A peer's
+    /// camera detection of the sender then has a true partner.
+    pub fn add_sender(&mut self, ego: &TrafficObject) {
+        self.observation.detections.push(Detection {
+            position_m: Vec2::zeros(),
+            cov_m2: Cov2::identity() * SENDER_SIGMA_M.powi(2),
+            appearance: Appearance {
+                class: ego.class,
+                colour_rgb: ego.colour_rgb.map(|c| f64::from(c) / 255.0),
+                length_m: ego.length_m,
+                width_m: ego.width_m,
+                height_m: ego.height_m,
+            },
+        });
+        self.truth.detections.push(DetectionTruth {
+            object_id: Some(ego.id.clone()),
+            position_m: Some(ego.pose.position_m()),
+            visible_fraction: 1.0,
+            sender: true,
+        });
+    }
 }
 
 /// Samples on an object's footprint used for the visibility test: centre,
@@ -439,6 +474,7 @@ impl Camera<'_> {
             object_id: Some(obj.id.clone()),
             position_m: Some(obj.pose.position_m()),
             visible_fraction: vis,
+            sender: false,
         };
         Some((self.detection(&p_meas, &cov_cam, appearance), truth))
     }
@@ -468,6 +504,7 @@ impl Camera<'_> {
                     object_id: None,
                     position_m: None,
                     visible_fraction: 0.0,
+                    sender: false,
                 };
                 (self.detection(&p_meas, &cov_cam, appearance), truth)
             })

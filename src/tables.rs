@@ -7,11 +7,14 @@
 use std::collections::BTreeMap;
 
 use crate::config::Settings;
-use crate::evaluate::{MethodEval, PairCounts, count_pairs};
+use crate::evaluate::{MethodEval, PairCounts, count_pairs, is_correct};
 use crate::fusion::FusionVariant;
 use crate::matching::Method;
 use crate::matching::deep::{self, decision::UncertaintyKind};
-use crate::report::{PlotData, Table, mean_ci95};
+use crate::report::{
+    ObjectErrors, PlotData, ScoredPair, Table, brier_score, expected_calibration_error, mean_ci95,
+    reliability, uncertainty_auroc,
+};
 use crate::sensor::{ObservationTruth, PoseNoiseLabel};
 
 /// The uncertainty types of Table 3, in its order.
@@ -22,13 +25,24 @@ const TABLE3_KINDS: [UncertaintyKind; 3] = [
 ];
 
 /// The threshold grid of the lambda sweep (binary entropy in bits): 0 to 1
-/// by 0.05, plus the configured lambda.
-pub fn lambda_grid(configured: f64) -> Vec<f64> {
-    let mut g: Vec<f64> = (0..=20).map(|k| k as f64 * 0.05).collect();
-    g.push(configured);
+/// by 0.05, plus the methods' own lambdas.
+pub fn lambda_grid<'a>(lambdas: impl IntoIterator<Item = &'a f64>) -> Vec<f64> {
+    let mut g: Vec<f64> = (0..=20).map(|k| f64::from(k) / 20.0).collect();
+    g.extend(lambdas.into_iter().filter(|l| l.is_finite()));
     g.sort_by(f64::total_cmp);
     g.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
     g
+}
+
+/// The index of `lambda` in `grid` (the nearest value).
+fn grid_index(grid: &[f64], lambda: f64) -> usize {
+    (0..grid.len())
+        .min_by(|&a, &b| {
+            (grid[a] - lambda)
+                .abs()
+                .total_cmp(&(grid[b] - lambda).abs())
+        })
+        .unwrap_or(0)
 }
 
 /// What one test run contributes to the tables.
@@ -41,11 +55,15 @@ pub struct RunEval {
     /// Deep methods thresholded: (method, level, kind, index into
     /// [`lambda_grid`]).
     pub thresholded: BTreeMap<(Method, PoseNoiseLabel, UncertaintyKind, usize), PairCounts>,
-    /// Displacement errors per (method, level, fusion): sums and count.
-    pub errors: BTreeMap<(Method, PoseNoiseLabel, FusionVariant), (f64, f64, usize)>,
+    /// Displacement errors per (method, level, fusion) over the object
+    /// sets of the protocol.
+    pub errors: BTreeMap<(Method, PoseNoiseLabel, FusionVariant), ObjectErrors>,
     /// Every object's single and fused error of the full method (`ours`),
     /// for the error CDFs.
     pub ours_errors: BTreeMap<(PoseNoiseLabel, FusionVariant), (Vec<f64>, Vec<f64>)>,
+    /// Every identified pair of each method (its default decision), for
+    /// calibration.
+    pub scored: BTreeMap<(Method, PoseNoiseLabel), Vec<ScoredPair>>,
     pub instances: usize,
 }
 
@@ -83,16 +101,25 @@ impl RunEval {
             .entry((e.method, level))
             .or_default()
             .add(e.counts);
+        let scored = e.identification.matches.iter().map(|c| ScoredPair {
+            probability: c.probability,
+            uncertainty: c.uncertainty,
+            correct: is_correct(ta, tb, c),
+        });
+        self.scored
+            .entry((e.method, level))
+            .or_default()
+            .extend(scored);
         for (variant, est) in &e.fused {
             if e.method == Method::Ours {
                 let o = self.ours_errors.entry((level, *variant)).or_default();
                 o.0.extend(est.iter().map(|x| x.single_error_m()));
                 o.1.extend(est.iter().map(|x| x.fused_error_m()));
             }
-            let sums = self.errors.entry((e.method, level, *variant)).or_default();
-            sums.0 += est.iter().map(|x| x.single_error_m()).sum::<f64>();
-            sums.1 += est.iter().map(|x| x.fused_error_m()).sum::<f64>();
-            sums.2 += est.len();
+            self.errors
+                .entry((e.method, level, *variant))
+                .or_default()
+                .record(est);
         }
     }
 }
@@ -104,6 +131,7 @@ pub struct EvalTables {
     pub table3: Table,
     pub lambda_sweep: Table,
     pub case_study: Table,
+    pub calibration: Table,
 }
 
 impl EvalTables {
@@ -115,6 +143,7 @@ impl EvalTables {
             ("table3.csv", &self.table3),
             ("lambda_sweep.csv", &self.lambda_sweep),
             ("case_study.csv", &self.case_study),
+            ("calibration.csv", &self.calibration),
         ];
         files.retain(|(_, t)| !t.columns.is_empty());
         files
@@ -127,8 +156,8 @@ struct Inputs<'a> {
     levels: Vec<PoseNoiseLabel>,
     /// Methods of Table 1 (those the runs evaluated), in table order.
     methods: Vec<Method>,
-    /// The configured lambda's index in the grid, and the grid.
-    at: usize,
+    /// Each deep method's lambda as an index into the grid, and the grid.
+    at: BTreeMap<Method, usize>,
     grid: Vec<f64>,
     kind: UncertaintyKind,
     variants: Vec<FusionVariant>,
@@ -140,6 +169,11 @@ impl Inputs<'_> {
         self.runs.iter().filter_map(f).collect()
     }
 
+    /// A deep method's lambda index (0 when it has none).
+    fn at(&self, m: Method) -> usize {
+        self.at.get(&m).copied().unwrap_or(0)
+    }
+
     fn deep_methods(&self) -> Vec<Method> {
         self.methods
             .iter()
@@ -149,17 +183,21 @@ impl Inputs<'_> {
     }
 }
 
-fn inputs<'a>(settings: &Settings, runs: &'a [RunEval]) -> Inputs<'a> {
+fn inputs<'a>(
+    settings: &Settings,
+    runs: &'a [RunEval],
+    lambdas: &BTreeMap<Method, f64>,
+) -> Inputs<'a> {
     let mut methods: Vec<Method> = runs
         .first()
         .map(|r| r.table1.keys().map(|k| k.0).collect())
         .unwrap_or_default();
     methods.dedup();
-    let grid = lambda_grid(settings.matching.lambda);
-    let at = grid
+    let grid = lambda_grid(lambdas.values());
+    let at = lambdas
         .iter()
-        .position(|g| (g - settings.matching.lambda).abs() < 1e-9)
-        .unwrap_or(0);
+        .map(|(&m, &l)| (m, grid_index(&grid, l)))
+        .collect();
     Inputs {
         runs,
         levels: settings.pose_noise.iter().map(|l| l.label).collect(),
@@ -171,28 +209,62 @@ fn inputs<'a>(settings: &Settings, runs: &'a [RunEval]) -> Inputs<'a> {
     }
 }
 
-pub fn eval_tables(settings: &Settings, runs: &[RunEval]) -> EvalTables {
-    let inp = inputs(settings, runs);
+/// The tables, each deep method thresholded at its own lambda.
+pub fn eval_tables(
+    settings: &Settings,
+    runs: &[RunEval],
+    lambdas: &BTreeMap<Method, f64>,
+) -> EvalTables {
+    let inp = inputs(settings, runs, lambdas);
     let with_ours = inp.deep_methods().contains(&Method::Ours);
+    let if_ours = |f: fn(&Inputs) -> Table| {
+        if with_ours { f(&inp) } else { Table::default() }
+    };
     EvalTables {
         table1: table1(&inp),
         table2: table2(&inp),
-        table3: if with_ours {
-            table3(&inp)
-        } else {
-            Table::default()
-        },
-        lambda_sweep: if with_ours {
-            sweep(&inp)
-        } else {
-            Table::default()
-        },
-        case_study: if with_ours {
-            case_study(&inp)
-        } else {
-            Table::default()
-        },
+        table3: if_ours(table3),
+        lambda_sweep: if_ours(sweep),
+        case_study: if_ours(case_study),
+        calibration: calibration(&inp),
     }
+}
+
+/// Every identified pair of `m` at `l`, pooled over the runs.
+fn pooled(inp: &Inputs, m: Method, l: PoseNoiseLabel) -> Vec<ScoredPair> {
+    inp.runs
+        .iter()
+        .filter_map(|r| r.scored.get(&(m, l)))
+        .flatten()
+        .copied()
+        .collect()
+}
+
+/// Calibration of each method's probabilities on its identified pairs,
+/// pooled over the runs: ECE (15 bins), Brier score, and the AUROC of the
+/// uncertainty for telling wrong pairs from right ones.
+fn calibration(inp: &Inputs) -> Table {
+    let mut t = Table::default();
+    let (mut names, mut noise, mut n) = (vec![], vec![], vec![]);
+    let (mut ece, mut brier, mut auroc) = (vec![], vec![], vec![]);
+    for &m in &inp.methods {
+        for &l in &inp.levels {
+            let pairs = pooled(inp, m, l);
+            names.push(m.as_str().to_owned());
+            noise.push(l.as_str().to_owned());
+            n.push(pairs.len() as u64);
+            ece.push(expected_calibration_error(&pairs));
+            brier.push(brier_score(&pairs));
+            auroc.push(uncertainty_auroc(&pairs));
+        }
+    }
+    t.text("method", names);
+    t.text("pose_noise", noise);
+    t.count("n_pairs", n);
+    t.number("ece", ece);
+    t.number("brier", brier);
+    t.number("auroc", auroc);
+    t
 }
 
 fn table1(inp: &Inputs) -> Table {
@@ -213,7 +285,8 @@ fn table1(inp: &Inputs) -> Table {
     t.stat("precision", &p);
     t.stat("recall", &r);
     t.stat("f1", &f);
-    t.number("n_runs", vec![inp.runs.len() as f64; p.len()]);
+    t.count("n_runs", vec![inp.runs.len() as u64; p.len()]);
+    t.defined("n_runs_precision", &p);
     t
 }
 
@@ -225,7 +298,7 @@ fn table2(inp: &Inputs) -> Table {
             names.push(m.as_str().to_owned());
             noise.push(l.as_str().to_owned());
             before.push(inp.per_run(|run| run.unthresholded.get(&(m, l)).map(|c| c.f1())));
-            let key = (m, l, inp.kind, inp.at);
+            let key = (m, l, inp.kind, inp.at(m));
             after.push(inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())));
         }
     }
@@ -243,7 +316,7 @@ fn table3(inp: &Inputs) -> Table {
         for k in TABLE3_KINDS {
             kinds.push(k.as_str().to_owned());
             noise.push(l.as_str().to_owned());
-            let key = (Method::Ours, l, k, inp.at);
+            let key = (Method::Ours, l, k, inp.at(Method::Ours));
             f.push(inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())));
         }
     }
@@ -275,13 +348,17 @@ fn sweep(inp: &Inputs) -> Table {
     t.stat("precision", &p);
     t.stat("recall", &r);
     t.stat("f1", &f);
+    t.defined("n_runs_precision", &p);
     t
 }
 
+/// The case study of `ours` (the paper's last table): precision, recall and
+/// displacement errors over the common object set and its covisible part,
+/// with oracle fusion on the same set for reference.
 fn case_study(inp: &Inputs) -> Table {
     let mut t = Table::default();
-    let (mut noise, mut fusion, mut p, mut r, mut ds, mut df) =
-        (vec![], vec![], vec![], vec![], vec![], vec![]);
+    let (mut noise, mut fusion, mut p, mut r) = (vec![], vec![], vec![], vec![]);
+    let mut de: [Vec<Vec<f64>>; 5] = Default::default();
     for &l in &inp.levels {
         for &v in &inp.variants {
             noise.push(l.as_str().to_owned());
@@ -289,28 +366,40 @@ fn case_study(inp: &Inputs) -> Table {
             let counts = |run: &RunEval| run.table1.get(&(Method::Ours, l)).copied();
             p.push(inp.per_run(|run| counts(run).map(|c| c.precision())));
             r.push(inp.per_run(|run| counts(run).map(|c| c.recall())));
-            let err = |run: &RunEval, fused: bool| {
-                run.errors
-                    .get(&(Method::Ours, l, v))
-                    .filter(|e| e.2 > 0)
-                    .map(|e| if fused { e.1 } else { e.0 } / e.2 as f64)
+            let mean = |m: Method, f: fn(&ObjectErrors) -> f64| {
+                inp.per_run(|run| run.errors.get(&(m, l, v)).map(f))
             };
-            ds.push(inp.per_run(|run| err(run, false)));
-            df.push(inp.per_run(|run| err(run, true)));
+            de[0].push(mean(Method::Ours, |e| e.all.mean_single_m()));
+            de[1].push(mean(Method::Ours, |e| e.all.mean_fused_m()));
+            de[2].push(mean(Method::Ours, |e| e.covisible.mean_single_m()));
+            de[3].push(mean(Method::Ours, |e| e.covisible.mean_fused_m()));
+            de[4].push(mean(Method::Oracle, |e| e.all.mean_fused_m()));
         }
     }
     t.text("pose_noise", noise);
     t.text("fusion", fusion);
     t.stat("precision", &p);
     t.stat("recall", &r);
-    t.stat("de_single_m", &ds);
-    t.stat("de_fused_m", &df);
+    let names = [
+        "de_single_m",
+        "de_fused_m",
+        "de_single_covis_m",
+        "de_fused_covis_m",
+        "de_fused_oracle_m",
+    ];
+    for (name, samples) in names.iter().zip(&de) {
+        t.stat(name, samples);
+    }
     t
 }
 
 /// The data of `coid eval`'s plots.
-pub fn plot_data(settings: &Settings, runs: &[RunEval]) -> PlotData {
-    let inp = inputs(settings, runs);
+pub fn plot_data(
+    settings: &Settings,
+    runs: &[RunEval],
+    lambdas: &BTreeMap<Method, f64>,
+) -> PlotData {
+    let inp = inputs(settings, runs, lambdas);
     let mean = |v: Vec<f64>| mean_ci95(&v).0;
     let lambda_sweep = inp
         .levels
@@ -348,11 +437,24 @@ pub fn plot_data(settings: &Settings, runs: &[RunEval]) -> PlotData {
             (l.as_str().to_owned(), v)
         })
         .collect();
+    let reliability = inp
+        .deep_methods()
+        .iter()
+        .map(|&m| {
+            let per_level = inp
+                .levels
+                .iter()
+                .map(|&l| (l.as_str().to_owned(), reliability(&pooled(&inp, m, l))))
+                .collect();
+            (m.as_str().to_owned(), per_level)
+        })
+        .collect();
     PlotData {
         lambda_sweep,
         methods: inp.methods.iter().map(|m| m.as_str().to_owned()).collect(),
         f1,
         errors: error_samples(&inp),
+        reliability,
     }
 }
 
@@ -390,14 +492,18 @@ mod tests {
     use crate::sensor::DetectionTruth;
 
     #[test]
-    fn the_lambda_grid_has_every_twentieth_and_the_configured_value_once() {
-        let g = lambda_grid(0.7);
+    fn the_lambda_grid_has_every_twentieth_and_each_lambda_once() {
+        let g = lambda_grid(&[0.7]);
         assert_eq!(g.len(), 21);
         assert_eq!((g[0], g[20]), (0.0, 1.0));
         assert!(g.windows(2).all(|w| w[0] < w[1]));
-        let g = lambda_grid(0.72);
-        assert_eq!(g.len(), 22);
-        assert!(g.contains(&0.72));
+        let g = lambda_grid(&[0.72, 0.72, 0.33, f64::NAN]);
+        assert_eq!(g.len(), 23);
+        assert!(g.contains(&0.72) && g.contains(&0.33));
+        assert_eq!(
+            grid_index(&g, 0.72),
+            g.iter().position(|&x| x == 0.72).unwrap()
+        );
     }
 
     /// Two vehicles that both see objects x and y (detections 0 and 1).
@@ -410,6 +516,7 @@ mod tests {
                     object_id: Some((*id).to_owned()),
                     position_m: None,
                     visible_fraction: 1.0,
+                    sender: false,
                 })
                 .collect(),
         };
@@ -469,12 +576,13 @@ mod tests {
         let cfg = dir.path().join("c.toml");
         std::fs::write(&cfg, "[pose_noise]\nlevels = [\"gps\"]\n").unwrap();
         let settings = Settings::load(&cfg).unwrap();
-        let grid = lambda_grid(settings.matching.lambda);
+        let lambdas = BTreeMap::from([(Method::Ours, 0.7)]);
+        let grid = lambda_grid(lambdas.values());
         let runs = vec![
             run_with(&[dist(0.95, 0.6)], &grid),
             run_with(&[dist(0.95, 0.95)], &grid),
         ];
-        let t = eval_tables(&settings, &runs);
+        let t = eval_tables(&settings, &runs, &lambdas);
         assert_eq!(t.table2.height(), 1);
         assert_eq!(numbers(&t.table2, "f1_before"), vec![1.0]);
         let after = numbers(&t.table2, "f1_after")[0];
@@ -490,10 +598,19 @@ mod tests {
         assert!((f[1] - after).abs() < 1e-12 && (f[2] - after).abs() < 1e-12);
         // Table 1 holds the default decision (thresholded for `ours`).
         assert!((numbers(&t.table1, "f1")[0] - after).abs() < 1e-12);
-        assert_eq!(numbers(&t.table1, "n_runs"), vec![2.0]);
-        // The sweep at lambda 0: nothing kept, recall 0.
+        assert_eq!(
+            t.table1.column("n_runs"),
+            Some(&TableColumn::Count(vec![2]))
+        );
+        // The sweep at lambda 0: nothing kept, recall 0, precision
+        // undefined in both runs (not 1).
         let recall = numbers(&t.lambda_sweep, "recall");
         assert_eq!(recall.len(), grid.len());
         assert_eq!(recall[0], 0.0);
+        assert!(numbers(&t.lambda_sweep, "precision")[0].is_nan());
+        match t.lambda_sweep.column("n_runs_precision") {
+            Some(TableColumn::Count(n)) => assert_eq!((n[0], n[grid.len() - 1]), (0, 2)),
+            other => panic!("{other:?}"),
+        }
     }
 }

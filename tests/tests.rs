@@ -120,10 +120,11 @@ fn strs(df: &DataFrame, col: &str) -> Vec<String> {
 mod run {
     use super::*;
 
-    /// The columns of a run's `summary.csv`, and its rows' invariants: 9
+    /// The columns of a run's `summary.csv`, and its rows' invariants: 11
     /// methods x 3 pose-noise levels x 2 fusion variants, enough
-    /// instances, rates in [0, 1], a perfect oracle whose aligned fusion
-    /// beats the single-vehicle error at every level.
+    /// instances, rates in [0, 1], one object set (the same single-vehicle
+    /// error) for every method, a perfect oracle whose fusion beats the
+    /// single-vehicle error at every level with both variants.
     fn check_summary(summary: &DataFrame) {
         let cols: Vec<String> = summary
             .get_column_names()
@@ -140,10 +141,14 @@ mod run {
             "f1",
             "de_single_m",
             "de_fused_m",
+            "de_single_covis_m",
+            "de_fused_covis_m",
+            "de_fused_matched_m",
+            "n_matched",
         ] {
             assert!(cols.iter().any(|x| x == c), "column {c} missing: {cols:?}");
         }
-        assert_eq!(summary.height(), 54);
+        assert_eq!(summary.height(), 66);
         let (methods, noise) = (strs(summary, "method"), strs(summary, "pose_noise"));
         let fusion = strs(summary, "fusion");
         let (p, r) = (f64s(summary, "precision"), f64s(summary, "recall"));
@@ -155,17 +160,17 @@ mod run {
         );
         for i in 0..summary.height() {
             assert!((0.0..=1.0).contains(&p[i]) && (0.0..=1.0).contains(&r[i]));
+            assert_eq!(single[i], single[0], "{}: another object set", methods[i]);
             if methods[i] == "oracle" {
                 assert_eq!((p[i], r[i]), (1.0, 1.0));
-                if fusion[i] == "aligned" {
-                    assert!(
-                        fused[i] < single[i],
-                        "oracle/{}/aligned: fused {} >= single {}",
-                        noise[i],
-                        fused[i],
-                        single[i]
-                    );
-                }
+                assert!(
+                    fused[i] < single[i],
+                    "oracle/{}/{}: fused {} >= single {}",
+                    noise[i],
+                    fusion[i],
+                    fused[i],
+                    single[i]
+                );
             }
         }
     }
@@ -287,6 +292,65 @@ mod run {
         assert_ok(&out);
         let text = String::from_utf8_lossy(&out.stdout);
         assert!(text.contains("run") && text.contains("SUMO"), "{text}");
+    }
+}
+
+mod protocol {
+    use super::*;
+
+    /// A user's own config in their own folder, holding only `[scenario]`
+    /// and `[connected]` (the README's example), runs with the shipped
+    /// weights and their validated lambdas.
+    #[test]
+    fn a_minimal_user_config_runs_with_the_shipped_models() {
+        let fx = Fixture::new();
+        std::fs::create_dir_all(fx.path("mine")).unwrap();
+        let cfg = fx.write(
+            "mine/study.toml",
+            &format!(
+                "[scenario]\nsumocfg = {:?}\njunction = \"C\"\nend_s = 80\n[connected]\nids = [\"cv0\", \"cv1\"]\n",
+                shipped_sumocfg().to_string_lossy()
+            ),
+        );
+        assert_ok(&fx.run(&cfg, "mine/out"));
+        let summary = read_csv(&fx.path("mine/out/summary.csv"));
+        let methods = strs(&summary, "method");
+        for m in ["ours", "ours-noprior", "gps-app-hungarian", "oracle"] {
+            assert!(methods.iter().any(|x| x == m), "{m} missing");
+        }
+    }
+
+    /// With lambda 0 the thresholding methods keep no pair: their
+    /// precision is undefined (not 1), recall and F1 are 0.
+    #[test]
+    fn a_method_that_identifies_nothing_has_undefined_precision() {
+        let fx = Fixture::new();
+        let cfg = fx.config(
+            "zero.toml",
+            70.0,
+            "[matching]\nmethods = [\"ours\", \"oracle\"]\nlambda = 0.0\n[pose_noise]\nlevels = [\"gps\"]\n",
+        );
+        assert_ok(&fx.run(&cfg, "zero"));
+        let summary = read_csv(&fx.path("zero/summary.csv"));
+        let (m, p, r) = (
+            strs(&summary, "method"),
+            f64s(&summary, "precision"),
+            f64s(&summary, "recall"),
+        );
+        let (f1, matched) = (f64s(&summary, "f1"), f64s(&summary, "n_matched"));
+        for i in 0..summary.height() {
+            if m[i] == "ours" {
+                assert!(p[i].is_nan(), "precision {}", p[i]);
+                assert_eq!((r[i], f1[i], matched[i]), (0.0, 0.0, 0.0));
+            } else {
+                assert_eq!(p[i], 1.0);
+            }
+        }
+        let md = std::fs::read_to_string(fx.path("zero/summary.md")).unwrap();
+        assert!(
+            md.contains("| ours | gps | paper |") && md.contains("n/a"),
+            "{md}"
+        );
     }
 }
 
@@ -523,16 +587,35 @@ mod learned {
             "lambda_sweep.csv",
             "case_study.csv",
             "summary.md",
+            "calibration.csv",
             "lambda_sweep.svg",
             "error_cdf.svg",
             "f1_per_method.svg",
+            "reliability_ours.svg",
         ] {
             assert!(fx.path("ev").join(f).is_file(), "{f} missing");
+        }
+        let cal = read_csv(&fx.path("ev/calibration.csv"));
+        for c in ["method", "pose_noise", "ece", "brier", "auroc"] {
+            assert!(cal.column(c).is_ok(), "calibration.csv lacks {c}");
+        }
+        // Every method identified pairs here, so each row is measured on
+        // them: a count above zero and the three measures in [0, 1].
+        let (n, ece) = (f64s(&cal, "n_pairs"), f64s(&cal, "ece"));
+        let (brier, auroc) = (f64s(&cal, "brier"), f64s(&cal, "auroc"));
+        for (k, name) in strs(&cal, "method").iter().enumerate() {
+            assert!(n[k] > 0.0, "{name}: no identified pairs");
+            for v in [ece[k], brier[k]] {
+                assert!((0.0..=1.0).contains(&v), "{name}: {v}");
+            }
+            // The oracle is never wrong, so the AUROC is undefined for it.
+            assert_eq!(auroc[k].is_nan(), name == "oracle", "{name}: {}", auroc[k]);
         }
         for (plot, w, h) in [
             ("lambda_sweep", 420, 380),
             ("error_cdf", 420, 380),
-            ("f1_per_method", 810, 420),
+            ("reliability_ours", 420, 380),
+            ("f1_per_method", 990, 420),
         ] {
             let img = image::open(fx.path("ev").join(format!("{plot}.png")))
                 .unwrap()

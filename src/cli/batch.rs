@@ -99,9 +99,10 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
     );
     batch::write_aggregate(&out, &rows, &header)?;
     eprintln!(
-        "coid: {} runs done in {:.1} s on {workers} workers ({complete} complete in {}); aggregate in {}",
+        "coid: {} runs done in {:.1} s on {workers} worker{} ({complete} complete in {}); aggregate in {}",
         pending.len() - failures.len(),
         started.elapsed().as_secs_f64(),
+        if workers == 1 { "" } else { "s" },
         out.display(),
         out.join("summary.csv").display()
     );

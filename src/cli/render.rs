@@ -5,6 +5,7 @@ use crate::config::Settings;
 use crate::evaluate::{self, Runner};
 use crate::fusion::FusionSettings;
 use crate::io;
+use crate::io::markdown::fmt_num;
 use crate::matching::Method;
 use crate::pipeline::{self, Instance, RunError};
 use crate::render::{self, SceneView};
@@ -96,14 +97,14 @@ fn draw(
         egos: [(a.obs, a.truth), (b.obs, b.truth)],
         matches: &e.identification.matches,
         caption: format!(
-            "{} @ {} pose noise, t = {:.1} s: {} vs {}, precision {:.2}, recall {:.2}",
+            "{} @ {} pose noise, t = {:.1} s: {} vs {}, precision {}, recall {}",
             e.method.as_str(),
             level.label.as_str(),
             inst.frame.time_s,
             a.obs.ego_id,
             b.obs.ego_id,
-            e.counts.precision(),
-            e.counts.recall()
+            fmt_num(e.counts.precision(), 2),
+            fmt_num(e.counts.recall(), 2)
         ),
         half_window_m: settings.camera.range_m + 10.0,
     };

@@ -51,8 +51,76 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     .context("collecting training data failed")?;
     pb.finish_and_clear();
     eprintln!("coid: {} training pairs from {runs} runs", examples.len());
-    for method in methods {
-        train_one(&settings, method, &examples, &models_dir, a.quiet.quiet)?;
+    let mut trained = Vec::new();
+    for &method in &methods {
+        trained.push(train_one(
+            &settings,
+            method,
+            &examples,
+            &models_dir,
+            a.quiet.quiet,
+        )?);
+    }
+    validate(
+        &settings,
+        &models_dir,
+        trained,
+        examples.len(),
+        a.quiet.quiet,
+    )
+}
+
+/// One trained method, kept until its validation is recorded.
+struct Trained {
+    method: Method,
+    weights: Vec<u8>,
+    report: deep::train::TrainReport,
+    seconds: f64,
+}
+
+/// Chooses each trained method's lambda on the validation runs and records
+/// it beside the weights.
+fn validate(
+    settings: &Settings,
+    models_dir: &std::path::Path,
+    trained: Vec<Trained>,
+    n_examples: usize,
+    quiet: bool,
+) -> anyhow::Result<()> {
+    let seeds = &settings.train.validation_seeds;
+    let pb = progress_bar(
+        quiet,
+        seeds.len() as u64,
+        "{spinner} choosing lambda on the validation runs: run {pos}/{len} [{bar:30}] eta {eta}",
+    );
+    let mut on_models = settings.clone();
+    on_models.matching.models_dir = models_dir.to_owned();
+    let methods: Vec<Method> = trained.iter().map(|t| t.method).collect();
+    let chosen = experiments::validate(&on_models, &methods, |_, _| pb.inc(1))
+        .context("validation runs failed")?;
+    pb.finish_and_clear();
+    for t in trained {
+        let c = chosen[&t.method];
+        let record = TrainingRecord {
+            method: t.method,
+            settings,
+            n_examples,
+            report: &t.report,
+            seconds: t.seconds,
+            validation: Some(io::Validation {
+                lambda: c.lambda,
+                f1: c.f1,
+                seeds: seeds.clone(),
+                uncertainty: settings.matching.uncertainty.as_str(),
+            }),
+        };
+        io::write_model(models_dir, &record, &t.weights)?;
+        eprintln!(
+            "coid: {}: lambda {:.2} (mean F1 {:.3} on validation runs {seeds:?})",
+            t.method.as_str(),
+            c.lambda,
+            c.f1
+        );
     }
     Ok(())
 }
@@ -63,7 +131,7 @@ fn train_one(
     examples: &[deep::train::Example],
     models_dir: &std::path::Path,
     quiet: bool,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Trained> {
     let started = std::time::Instant::now();
     let pb = progress_bar(
         quiet,
@@ -94,6 +162,7 @@ fn train_one(
         n_examples: examples.len(),
         report: &report,
         seconds: started.elapsed().as_secs_f64(),
+        validation: None,
     };
     io::write_model(models_dir, &record, &weights)?;
     let losses: Vec<f64> = report
@@ -108,5 +177,10 @@ fn train_one(
         report.steps,
         io::weights_path(models_dir, method).display()
     );
-    Ok(())
+    Ok(Trained {
+        method,
+        weights,
+        seconds: record.seconds,
+        report,
+    })
 }

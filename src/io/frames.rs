@@ -25,11 +25,16 @@ fn summary_frame(rows: &[SummaryRow]) -> PolarsResult<DataFrame> {
         "fusion" => rows.iter().map(|r| r.key.fusion.as_str()).collect::<Vec<_>>(),
         "n_instances" => rows.iter().map(|r| r.n_instances as u64).collect::<Vec<_>>(),
         "n_objects" => rows.iter().map(|r| r.n_objects as u64).collect::<Vec<_>>(),
+        "n_matched" => rows.iter().map(|r| r.n_matched as u64).collect::<Vec<_>>(),
         "precision" => rows.iter().map(|r| r.precision).collect::<Vec<_>>(),
         "recall" => rows.iter().map(|r| r.recall).collect::<Vec<_>>(),
         "f1" => rows.iter().map(|r| r.f1).collect::<Vec<_>>(),
         "de_single_m" => rows.iter().map(|r| r.de_single_m).collect::<Vec<_>>(),
         "de_fused_m" => rows.iter().map(|r| r.de_fused_m).collect::<Vec<_>>(),
+        "de_single_covis_m" => rows.iter().map(|r| r.de_single_covis_m).collect::<Vec<_>>(),
+        "de_fused_covis_m" => rows.iter().map(|r| r.de_fused_covis_m).collect::<Vec<_>>(),
+        "de_single_matched_m" => rows.iter().map(|r| r.de_single_matched_m).collect::<Vec<_>>(),
+        "de_fused_matched_m" => rows.iter().map(|r| r.de_fused_matched_m).collect::<Vec<_>>(),
     )
 }
 
@@ -46,6 +51,8 @@ fn objects_frame(results: &RunResults) -> PolarsResult<DataFrame> {
         "ego_id" => o.iter().map(|r| r.estimate.ego_id.as_str()).collect::<Vec<_>>(),
         "peer_id" => o.iter().map(|r| r.estimate.peer_id.as_str()).collect::<Vec<_>>(),
         "object_id" => o.iter().map(|r| r.estimate.object_id.as_str()).collect::<Vec<_>>(),
+        "covisible" => o.iter().map(|r| r.estimate.covisible).collect::<Vec<_>>(),
+        "matched" => o.iter().map(|r| r.estimate.matched).collect::<Vec<_>>(),
         "match_correct" => o.iter().map(|r| r.estimate.match_correct).collect::<Vec<_>>(),
         "pose_refined" => o.iter().map(|r| r.estimate.pose_refined).collect::<Vec<_>>(),
         "truth_x" => o.iter().map(|r| r.estimate.truth_m.x).collect::<Vec<_>>(),
@@ -64,6 +71,7 @@ fn table_frame(t: &Table) -> PolarsResult<DataFrame> {
         .map(|(name, col)| match col {
             TableColumn::Text(v) => Column::new(name.as_str().into(), v),
             TableColumn::Number(v) => Column::new(name.as_str().into(), v),
+            TableColumn::Count(v) => Column::new(name.as_str().into(), v),
         })
         .collect();
     DataFrame::new_infer_height(columns)
@@ -79,6 +87,7 @@ fn aggregate_frame(rows: &[AggregateRow]) -> PolarsResult<DataFrame> {
         "n_instances" => rows.iter().map(|r| r.n_instances).collect::<Vec<_>>(),
         "precision" => col(&|r| r.precision.0),
         "precision_ci95" => col(&|r| r.precision.1),
+        "n_runs_precision" => rows.iter().map(|r| r.n_runs_precision as u64).collect::<Vec<_>>(),
         "recall" => col(&|r| r.recall.0),
         "recall_ci95" => col(&|r| r.recall.1),
         "f1" => col(&|r| r.f1.0),
@@ -87,6 +96,12 @@ fn aggregate_frame(rows: &[AggregateRow]) -> PolarsResult<DataFrame> {
         "de_single_m_ci95" => col(&|r| r.de_single_m.1),
         "de_fused_m" => col(&|r| r.de_fused_m.0),
         "de_fused_m_ci95" => col(&|r| r.de_fused_m.1),
+        "de_single_covis_m" => col(&|r| r.de_single_covis_m.0),
+        "de_single_covis_m_ci95" => col(&|r| r.de_single_covis_m.1),
+        "de_fused_covis_m" => col(&|r| r.de_fused_covis_m.0),
+        "de_fused_covis_m_ci95" => col(&|r| r.de_fused_covis_m.1),
+        "de_fused_matched_m" => col(&|r| r.de_fused_matched_m.0),
+        "de_fused_matched_m_ci95" => col(&|r| r.de_fused_matched_m.1),
     )
 }
 
@@ -168,6 +183,8 @@ pub fn read_run_summary(path: &Path) -> Result<Vec<RunRow>, OutputError> {
         num("f1")?,
     );
     let (ds, dfu) = (num("de_single_m")?, num("de_fused_m")?);
+    let (dsc, dfc) = (num("de_single_covis_m")?, num("de_fused_covis_m")?);
+    let dfm = num("de_fused_matched_m")?;
     Ok((0..df.height())
         .map(|k| RunRow {
             method: m[k].clone(),
@@ -179,6 +196,9 @@ pub fn read_run_summary(path: &Path) -> Result<Vec<RunRow>, OutputError> {
             f1: f1[k],
             de_single_m: ds[k],
             de_fused_m: dfu[k],
+            de_single_covis_m: dsc[k],
+            de_fused_covis_m: dfc[k],
+            de_fused_matched_m: dfm[k],
         })
         .collect())
 }

@@ -3,7 +3,10 @@
 
 use std::fmt::Write as _;
 
+use std::collections::BTreeMap;
+
 use crate::config::Settings;
+use crate::matching::{LambdaChoice, Method};
 use crate::report::{AggregateRow, RunResults, SummaryRow, Table, TableColumn};
 
 /// A number with `digits` decimals, "n/a" when it is not finite.
@@ -44,43 +47,68 @@ pub fn run(settings: &Settings, results: &RunResults, rows: &[SummaryRow]) -> St
         results.n_steps,
         results.n_instances
     );
+    let _ = writeln!(s, "{RUN_PROTOCOL}\n");
     let _ = writeln!(
         s,
-        "- precision/recall pool all pairs of all instances; displacement errors are means over matched objects (metres, ground plane, ego frame)\n"
+        "| method | pose noise | fusion | instances | objects | matched | precision | recall | F1 | DE single (m) | DE fused (m) | DE single, covisible (m) | DE fused, covisible (m) |"
     );
     let _ = writeln!(
         s,
-        "| method | pose noise | fusion | instances | objects | precision | recall | F1 | DE single (m) | DE fused (m) |"
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     );
-    let _ = writeln!(s, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
+        let n = |v: f64| fmt_num(v, 4);
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.key.method.as_str(),
             r.key.pose_noise.as_str(),
             r.key.fusion.as_str(),
             r.n_instances,
             r.n_objects,
-            fmt_num(r.precision, 4),
-            fmt_num(r.recall, 4),
-            fmt_num(r.f1, 4),
-            fmt_num(r.de_single_m, 4),
-            fmt_num(r.de_fused_m, 4),
+            r.n_matched,
+            n(r.precision),
+            n(r.recall),
+            n(r.f1),
+            n(r.de_single_m),
+            n(r.de_fused_m),
+            n(r.de_single_covis_m),
+            n(r.de_fused_covis_m),
         );
     }
     s
 }
 
-/// The report of `coid eval`: the seeds, then every table.
-pub fn eval(settings: &Settings, tables: &[(&str, &Table)]) -> String {
+/// How a run's numbers are made, in one paragraph.
+const RUN_PROTOCOL: &str = "- precision and recall pool the pairs of all instances; precision is n/a when the method identified no pair\n\
+- displacement errors (metres, ground plane, ego frame) are means over every real object an ego detects, the same set for every method: fused = single where the method left the object unmatched, a wrong match counts as fused; `covisible`: the objects the peer detects too; `summary.csv` also has the mean over matched objects only (`de_*_matched_m`)";
+
+/// The report of `coid eval`: the seeds, the thresholds, then every table.
+pub fn eval(
+    settings: &Settings,
+    tables: &[(&str, &Table)],
+    lambdas: &BTreeMap<Method, f64>,
+) -> String {
     let mut md = String::new();
     let _ = writeln!(md, "# coid-sim evaluation\n");
     let _ = writeln!(md, "- config: `{}`", settings.source.display());
     let _ = writeln!(
         md,
-        "- test runs (traffic = sensor seed): {:?}; training runs: {:?}",
-        settings.eval.traffic_seeds, settings.train.traffic_seeds
+        "- evaluated runs (traffic = sensor seed): {:?}; training runs: {:?}; validation runs: {:?}",
+        settings.eval.traffic_seeds, settings.train.traffic_seeds, settings.train.validation_seeds
+    );
+    let chosen: Vec<String> = lambdas
+        .iter()
+        .map(|(m, l)| format!("{} {l:.2}", m.as_str()))
+        .collect();
+    let source = match settings.matching.lambda {
+        LambdaChoice::Validated => "each chosen on the validation runs by `coid train`",
+        LambdaChoice::Fixed(_) => "as configured",
+    };
+    let _ = writeln!(
+        md,
+        "- entropy thresholds lambda ({source}): {}",
+        chosen.join(", ")
     );
     let _ = writeln!(
         md,
@@ -101,6 +129,7 @@ pub fn table(t: &Table) -> String {
     let cell = |k: usize, r: usize| -> String {
         match &t.columns[k].1 {
             TableColumn::Text(v) => v[r].clone(),
+            TableColumn::Count(v) => v[r].to_string(),
             TableColumn::Number(v) => match t.column(&format!("{}_ci95", names[k])) {
                 Some(TableColumn::Number(c)) => with_ci(v[r], c[r]),
                 _ => fmt_num(v[r], 4),
@@ -128,14 +157,14 @@ pub fn batch(rows: &[AggregateRow], header: &str) -> String {
     let mut md = format!("# coid-sim batch\n\n{header}\n\n");
     let _ = writeln!(
         md,
-        "| method | pose noise | fusion | runs | instances | precision | recall | F1 | DE single (m) | DE fused (m) |"
+        "| method | pose noise | fusion | runs | instances | precision | recall | F1 | DE single (m) | DE fused (m) | DE fused, covisible (m) |"
     );
-    let _ = writeln!(md, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(md, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     let pm = |(m, c): (f64, f64)| with_ci(m, c);
     for r in rows {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.method,
             r.pose_noise,
             r.fusion,
@@ -145,7 +174,8 @@ pub fn batch(rows: &[AggregateRow], header: &str) -> String {
             pm(r.recall),
             pm(r.f1),
             pm(r.de_single_m),
-            pm(r.de_fused_m)
+            pm(r.de_fused_m),
+            pm(r.de_fused_covis_m)
         );
     }
     md
@@ -161,10 +191,10 @@ mod tests {
         t.text("method", vec!["ours".into(), "rgm".into()]);
         t.number("f1", vec![0.5, f64::NAN]);
         t.number("f1_ci95", vec![0.01, f64::NAN]);
-        t.number("n_runs", vec![2.0, 2.0]);
+        t.count("n_runs", vec![2, 2]);
         assert_eq!(
             table(&t),
-            "| method | f1 | n_runs |\n|---|---|---|\n| ours | 0.5000 ± 0.0100 | 2.0000 |\n| rgm | n/a | 2.0000 |\n"
+            "| method | f1 | n_runs |\n|---|---|---|\n| ours | 0.5000 ± 0.0100 | 2 |\n| rgm | n/a | 2 |\n"
         );
     }
 }

@@ -168,6 +168,7 @@ pub fn write_eval(
     out: &Path,
     settings: &Settings,
     tables: &[(&str, &Table)],
+    lambdas: &std::collections::BTreeMap<Method, f64>,
     force: bool,
     plots: impl FnOnce(&Path) -> Result<(), OutputError>,
 ) -> Result<(), OutputError> {
@@ -175,7 +176,10 @@ pub fn write_eval(
         for (name, t) in tables {
             frames::write_table(&dir.join(name), t)?;
         }
-        write_text(&dir.join("summary.md"), &markdown::eval(settings, tables))?;
+        write_text(
+            &dir.join("summary.md"),
+            &markdown::eval(settings, tables, lambdas),
+        )?;
         plots(dir)
     })
 }
@@ -220,6 +224,21 @@ pub struct TrainingRecord<'a> {
     pub n_examples: usize,
     pub report: &'a TrainReport,
     pub seconds: f64,
+    /// What was chosen on the validation runs (once they have run).
+    pub validation: Option<Validation>,
+}
+
+/// What `coid train` chose for one method on the validation runs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Validation {
+    /// The entropy threshold with the best mean F1 over the validation
+    /// runs and pose-noise levels.
+    pub lambda: f64,
+    /// That mean F1.
+    pub f1: f64,
+    pub seeds: Vec<u64>,
+    /// The uncertainty the threshold applies to.
+    pub uncertainty: &'static str,
 }
 
 /// The metadata file of a trained model: config, seeds, data size, loss.
@@ -244,11 +263,45 @@ fn model_metadata(record: &TrainingRecord) -> String {
     let _ = writeln!(meta, "seconds = {:.1}", record.seconds);
     let last = record.report.epoch_losses.last().copied();
     let _ = writeln!(meta, "final_epoch_loss = {}", last.unwrap_or(f64::NAN));
+    if let Some(v) = &record.validation {
+        let _ = writeln!(
+            meta,
+            "# Chosen on the validation runs (never on the eval seeds):"
+        );
+        let _ = writeln!(meta, "validation_seeds = {:?}", v.seeds);
+        let _ = writeln!(meta, "validation_uncertainty = {:?}", v.uncertainty);
+        // `{:?}` keeps a decimal point: 1.0, not the TOML integer 1.
+        let _ = writeln!(meta, "validated_lambda = {:?}", v.lambda);
+        let _ = writeln!(meta, "validation_f1 = {:.6}", v.f1);
+    }
     meta
 }
 
+/// The lambda `coid train` chose for `method` on the validation runs (its
+/// `<method>.toml`).
+pub fn read_validated_lambda(models_dir: &Path, method: Method) -> Result<f64, WeightsError> {
+    let path = models_dir.join(format!("{}.toml", method.as_str()));
+    let fail = |reason: String| WeightsError {
+        method: method.as_str(),
+        path: path.clone(),
+        reason,
+    };
+    let text = std::fs::read_to_string(&path).map_err(|e| fail(e.to_string()))?;
+    let table: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| fail(e.message().to_owned()))?;
+    let value = table.get("validated_lambda");
+    value
+        .and_then(|v| v.as_float().or_else(|| v.as_integer().map(|i| i as f64)))
+        .filter(|l| (0.0..=1.0).contains(l))
+        .ok_or_else(|| {
+            fail("no validated_lambda in [0, 1]: set [matching] lambda to a number".into())
+        })
+}
+
 /// Writes a trained model into `dir`: `<method>.bpk` (the weights),
-/// `<method>.toml` (config, seeds, data size, final loss) and
+/// `<method>.toml` (config, seeds, data size, final loss, and the
+/// validated lambda once known) and
 /// `<method>_loss.csv` (mean loss per epoch), each renamed into place
 /// when complete.
 pub fn write_model(dir: &Path, record: &TrainingRecord, weights: &[u8]) -> Result<(), OutputError> {

@@ -31,6 +31,10 @@ crate::label_enum! { "method";
         /// MC-dropout uncertainty, thresholding.
         #[strum(serialize = "ours")]
         Ours,
+        /// The paper's network as published: `ours` without the GPS
+        /// position term (appearance and graph structure only).
+        #[strum(serialize = "ours-noprior")]
+        OursNoPrior,
         /// Ablation: L_coid + L_non.
         #[strum(serialize = "coid+non")]
         CoidNon,
@@ -55,6 +59,10 @@ crate::label_enum! { "method";
         /// Hungarian assignment on Mahalanobis distance.
         #[strum(serialize = "gps-hungarian")]
         GpsHungarian,
+        /// GPS-Hungarian with appearance (class, colour, size) in the same
+        /// cost, gated: the baseline a practitioner writes first.
+        #[strum(serialize = "gps-app-hungarian")]
+        GpsAppHungarian,
         /// The true correspondences: an upper bound for fusion.
         #[strum(serialize = "oracle")]
         Oracle,
@@ -80,9 +88,21 @@ pub struct MatchingSettings {
     /// MC-dropout samples at inference (paper: T = 20).
     pub mc_samples: usize,
     /// Pairs whose uncertainty (binary entropy in bits, in [0, 1]) is at
-    /// least this are removed (paper: 0.7).
-    pub lambda: f64,
+    /// least lambda are removed by the methods that threshold.
+    pub lambda: LambdaChoice,
     pub uncertainty: UncertaintyKind,
+    /// Each sender is a node of its own graph (its V2X self-report).
+    pub sender_as_node: bool,
+}
+
+/// Where the entropy threshold lambda comes from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LambdaChoice {
+    /// Each method's own, chosen on validation seeds by `coid train` and
+    /// recorded beside its weights.
+    Validated,
+    /// This value for every method (the paper: 0.7).
+    Fixed(f64),
 }
 
 /// One vehicle's side of a matching problem: what that vehicle knows.
@@ -157,25 +177,28 @@ pub enum BuildError {
 }
 
 /// Builds the matcher of a method. Deep methods need their trained
-/// weights (`weights`, the bytes of `<method>.bpk`); MC-dropout masks are
-/// drawn from streams seeded with `dropout_seed`.
+/// weights (`weights`, the bytes of `<method>.bpk`) and, when they
+/// threshold, their `lambda`; MC-dropout masks are drawn from streams
+/// seeded with `dropout_seed`.
 pub fn build(
     method: Method,
     settings: &MatchingSettings,
+    lambda: f64,
     dropout_seed: u64,
     weights: Option<&[u8]>,
 ) -> Result<Box<dyn Matcher>, BuildError> {
     Ok(match method {
         Method::Mogm => Box::new(Mogm::default()),
         Method::Rgm => Box::new(Rgm::default()),
-        Method::GpsHungarian => Box::new(GpsHungarian {
+        Method::GpsHungarian | Method::GpsAppHungarian => Box::new(GpsHungarian {
             gate_chi2: settings.gate_chi2,
+            appearance: method == Method::GpsAppHungarian,
         }),
         Method::Oracle => return Err(BuildError::Oracle),
         deep_method => {
             let bytes = weights.ok_or(BuildError::NoWeights(deep_method.as_str()))?;
-            let threshold = deep::thresholds_by_default(deep_method)
-                .then_some((settings.uncertainty, settings.lambda));
+            let threshold =
+                deep::thresholds_by_default(deep_method).then_some((settings.uncertainty, lambda));
             let matcher = deep::DeepMatcher::from_weights(
                 deep_method,
                 bytes,
@@ -205,18 +228,24 @@ mod tests {
             gate_chi2: 9.21,
             models_dir: PathBuf::new(),
             mc_samples: 20,
-            lambda: 0.7,
+            lambda: LambdaChoice::Fixed(0.7),
             uncertainty: UncertaintyKind::Total,
+            sender_as_node: true,
         }
     }
 
     fn plain(method: Method) -> Box<dyn Matcher> {
-        build(method, &settings(), 1, None).unwrap()
+        build(method, &settings(), 0.7, 1, None).unwrap()
     }
 
     #[test]
     fn every_learning_free_matcher_matches_a_moved_copy_of_a_scene_to_itself() {
-        for method in [Method::Mogm, Method::Rgm, Method::GpsHungarian] {
+        for method in [
+            Method::Mogm,
+            Method::Rgm,
+            Method::GpsHungarian,
+            Method::GpsAppHungarian,
+        ] {
             assert_eq!(
                 testkit::self_match(plain(method).as_ref()),
                 (1.0, 0),
@@ -257,12 +286,14 @@ mod tests {
     #[test]
     fn the_oracle_is_not_a_matcher_and_deep_methods_need_weights() {
         assert!(matches!(
-            build(Method::Oracle, &settings(), 1, None),
+            build(Method::Oracle, &settings(), 0.7, 1, None),
             Err(BuildError::Oracle)
         ));
-        let e = build(Method::Ours, &settings(), 1, None).err().unwrap();
+        let e = build(Method::Ours, &settings(), 0.7, 1, None)
+            .err()
+            .unwrap();
         assert_eq!(e.to_string(), "'ours' needs trained weights");
-        let e = build(Method::Ours, &settings(), 1, Some(b"not a burnpack"))
+        let e = build(Method::Ours, &settings(), 0.7, 1, Some(b"not a burnpack"))
             .err()
             .unwrap();
         assert!(
@@ -278,6 +309,7 @@ mod tests {
             labels,
             [
                 "ours",
+                "ours-noprior",
                 "coid+non",
                 "coid+unc",
                 "dgmc",
@@ -285,6 +317,7 @@ mod tests {
                 "mogm",
                 "rgm",
                 "gps-hungarian",
+                "gps-app-hungarian",
                 "oracle"
             ]
         );

@@ -38,6 +38,7 @@ mod tests {
                     object_id: id.map(str::to_owned),
                     position_m: None,
                     visible_fraction: 1.0,
+                    sender: false,
                 })
                 .collect(),
         }

@@ -13,6 +13,13 @@ pub(crate) const EXACT: PoseNoiseLevel = PoseNoiseLevel {
     heading_sigma_rad: 0.0,
 };
 
+/// Plain GPS as in the default config: 1.2 m per axis, 0.2 deg.
+pub(crate) const GPS: PoseNoiseLevel = PoseNoiseLevel {
+    label: PoseNoiseLabel::Gps,
+    position_sigma_m: 1.2,
+    heading_sigma_rad: 0.2 * std::f64::consts::PI / 180.0,
+};
+
 /// The first vehicle of the fixtures sits at the origin...
 pub(crate) const POSE_A: Pose2Spec = (0.0, 0.0, 0.0);
 /// ...the second 54 m away, facing back.

@@ -24,21 +24,32 @@ use crate::rng::{self, Purpose};
 pub fn variant(method: Method) -> Option<(Architecture, LossTerms)> {
     let arch = Architecture::default();
     let (consensus, non, unc) = match method {
-        Method::Ours => (true, true, true),
+        Method::Ours | Method::OursNoPrior => (true, true, true),
         Method::CoidNon => (true, true, false),
         Method::CoidUnc => (true, false, true),
         Method::Dgmc => (true, false, false),
         Method::GcnGm => (false, false, false),
         _ => return None,
     };
-    Some((Architecture { consensus, ..arch }, LossTerms { non, unc }))
+    let gps_prior = method != Method::OursNoPrior;
+    Some((
+        Architecture {
+            consensus,
+            gps_prior,
+            ..arch
+        },
+        LossTerms { non, unc },
+    ))
 }
 
 /// Whether a method's decision removes uncertain pairs: the methods trained
 /// with the paper's uncertainty-aware losses do; DGMC and GCN-GM, as
 /// published, do not (their thresholded F1 is still reported in Table 2).
 pub fn thresholds_by_default(method: Method) -> bool {
-    matches!(method, Method::Ours | Method::CoidNon | Method::CoidUnc)
+    matches!(
+        method,
+        Method::Ours | Method::OursNoPrior | Method::CoidNon | Method::CoidUnc
+    )
 }
 
 /// Draws inverted-dropout masks (0 or 1 / (1 - p)) of the given shape.
@@ -360,11 +371,7 @@ mod tests {
             .unwrap()
     }
 
-    const GPS: crate::sensor::PoseNoiseLevel = crate::sensor::PoseNoiseLevel {
-        label: crate::sensor::PoseNoiseLabel::Gps,
-        position_sigma_m: 1.2,
-        heading_sigma_rad: 0.2 * std::f64::consts::PI / 180.0,
-    };
+    use crate::matching::testkit::GPS;
 
     /// A queue of six cars 5.5 m apart (colours differ), a pedestrian, a
     /// truck and a bicycle.

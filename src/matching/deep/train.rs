@@ -22,6 +22,9 @@ pub struct TrainSettings {
     /// same number). Must not overlap the evaluation's test seeds: train
     /// and test instances never come from the same run.
     pub traffic_seeds: Vec<u64>,
+    /// Seeds of the validation runs, from the same pool, disjoint from the
+    /// training and test runs: every choice (lambda) is made on them.
+    pub validation_seeds: Vec<u64>,
     pub methods: Vec<Method>,
     pub epochs: usize,
     pub learning_rate: f64,
