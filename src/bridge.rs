@@ -49,6 +49,37 @@ pub enum BridgeError {
     },
     #[error("a SUMO simulation is already running in this process (libsumo allows one)")]
     AlreadyRunning,
+    #[error("SUMO's {tool} failed in {dir}: {message}")]
+    Tool {
+        tool: &'static str,
+        dir: PathBuf,
+        message: String,
+    },
+}
+
+/// Runs SUMO's netconvert from the project environment in `dir` with
+/// `args` (paths in them relative to `dir`). Its console output is kept
+/// only for the error.
+pub fn netconvert(dir: &Path, args: &[String]) -> Result<(), BridgeError> {
+    let exe = venv_dir().join("bin").join("netconvert");
+    if !exe.is_file() {
+        return Err(BridgeError::NoEnvironment(venv_dir()));
+    }
+    let fail = |message: String| BridgeError::Tool {
+        tool: "netconvert",
+        dir: dir.to_owned(),
+        message,
+    };
+    let out = std::process::Command::new(&exe)
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .map_err(|e| fail(e.to_string()))?;
+    if out.status.success() {
+        return Ok(());
+    }
+    let text = String::from_utf8_lossy(&out.stderr);
+    Err(fail(text.lines().last().unwrap_or("no output").to_owned()))
 }
 
 /// `TypeName: message` of a Python exception, on one line.

@@ -28,6 +28,7 @@ pub mod pipeline;
 pub mod render;
 pub mod report;
 pub mod rng;
+pub mod scenarios;
 pub mod sensor;
 pub mod tables;
 pub mod traffic;

@@ -38,6 +38,8 @@ pub enum Purpose {
     Training = 5,
     /// Initial weights of a network, one stream per parameter.
     WeightInit = 6,
+    /// A generated scenario of the family (`coid scenarios`).
+    Scenario = 7,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.

@@ -7,6 +7,7 @@ mod batch;
 mod eval;
 mod render;
 mod run;
+mod scenarios;
 mod train;
 
 use std::path::{Path, PathBuf};
@@ -56,6 +57,12 @@ enum Command {
     /// Train the deep matchers on instances from the training runs
     /// ([train] traffic_seeds) and save their weights, config and loss curve.
     Train(train::Args),
+    /// Generate a seeded family of intersections with SUMO's netconvert
+    /// (3-5 legs at varied angles, 1-3 lanes, traffic light or priority,
+    /// sidewalks and crossings, building blocks or none, light to saturated
+    /// demand, pedestrians), one folder each with a coid.toml that runs as
+    /// it is; the same seed gives the same bytes.
+    Scenarios(scenarios::Args),
 }
 
 /// Runs the parsed command.
@@ -67,6 +74,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<()> {
         Command::Render(a) => render::render(a),
         Command::Eval(a) => eval::eval(a),
         Command::Train(a) => train::train(a),
+        Command::Scenarios(a) => scenarios::scenarios(a),
     }
 }
 

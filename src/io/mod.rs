@@ -139,6 +139,28 @@ pub fn publish_files(
     Ok(())
 }
 
+/// Writes each `(file name, text)` into `dir`.
+pub fn write_texts(dir: &Path, files: &[(&str, String)]) -> Result<(), OutputError> {
+    files
+        .iter()
+        .try_for_each(|(name, text)| write_text(&dir.join(name), text))
+}
+
+/// Removes the comment SUMO's tools put at the top of an XML file (the
+/// tool version, the time it ran and the absolute paths of its options), so
+/// that the same inputs give the same bytes.
+pub fn strip_generator_comment(path: &Path) -> Result<(), OutputError> {
+    let text = std::fs::read_to_string(path).map_err(io(path))?;
+    let stripped = match (text.find("<!-- generated on"), text.find("-->")) {
+        (Some(a), Some(b)) if a < b => {
+            let rest = text[b + 3..].trim_start_matches(['\r', '\n']);
+            format!("{}{rest}", &text[..a])
+        }
+        _ => return Ok(()),
+    };
+    write_text(path, &stripped)
+}
+
 fn write_text(path: &Path, text: &str) -> Result<(), OutputError> {
     std::fs::write(path, text).map_err(io(path))
 }

@@ -32,7 +32,7 @@ out="$(cd "$out" && pwd)"
 demand() { # net, prefix, period, seed
     local net="$1" dir; dir="$(dirname "$net")"
     "$py" "$sumo_home/tools/randomTrips.py" -n "$net" -o "$dir/trips.xml" -r "$dir/routes.rou.xml" \
-        --additional-file "$here/vtypes.add.xml" --trip-attributes 'type="mix" departLane="best"' \
+        --additional-file "$here/../vtypes.add.xml" --trip-attributes 'type="mix" departLane="best"' \
         --period "$3" --seed "$4" --fringe-factor 5 --end 400 --validate --prefix "$2" >/dev/null
     "$py" "$sumo_home/tools/randomTrips.py" -n "$net" -o "$dir/walks.rou.xml" --pedestrians \
         --period 4 --seed "$4" --end 400 --prefix "${2}p" >/dev/null
