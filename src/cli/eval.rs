@@ -1,12 +1,18 @@
 //! `coid eval`: every method on the test runs, the paper's tables and
-//! plots.
+//! plots; with `--suite`, over several scenarios, per scenario and pooled.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use indicatif::ProgressBar;
 
 use super::{CommonArgs, progress_bar};
+use crate::config::Settings;
 use crate::experiments;
 use crate::io::{self, OutputError};
 use crate::matching::Method;
+use crate::tables::RunEval;
 use crate::{pipeline, render, tables};
 
 #[derive(clap::Args)]
@@ -18,56 +24,212 @@ pub struct Args {
     /// runs every choice (lambda, the sensor-noise calibration) is made on.
     #[arg(long)]
     validation: bool,
+    /// More scenario configs to evaluate beside --config, each on its own
+    /// runs ([eval] traffic_seeds): the tables are written per scenario
+    /// (<out>/<name>/, the name being the config's folder for a coid.toml,
+    /// else its file stem) and pooled over every run (<out>/pooled/). The
+    /// configs must share the models, pose-noise levels and fusion variants.
+    #[arg(long, num_args = 1.., value_name = "CONFIG")]
+    suite: Vec<PathBuf>,
+}
+
+/// One scenario of the evaluation: its name, settings and evaluated runs.
+struct Scenario {
+    name: String,
+    settings: Settings,
+    runs: Vec<RunEval>,
 }
 
 pub fn eval(a: Args) -> anyhow::Result<()> {
     let suffix = if a.validation { "-validation" } else { "-eval" };
-    let (mut settings, out) = a.common.prepare(suffix)?;
-    if a.validation {
-        // The tables' header names the runs evaluated.
-        settings.eval.traffic_seeds = settings.train.validation_seeds.clone();
+    let (settings, out) = a.common.prepare(suffix)?;
+    let mut scenarios = vec![scenario(&a.common.config.config, settings, a.validation)];
+    for path in &a.suite {
+        let s = Settings::load(path)?;
+        compatible(&scenarios[0].settings, &s)
+            .with_context(|| format!("{} cannot join the suite", path.display()))?;
+        scenarios.push(scenario(path, s, a.validation));
     }
-    let seeds = settings.eval.traffic_seeds.clone();
+    let paths: Vec<&Path> = std::iter::once(a.common.config.config.as_path())
+        .chain(a.suite.iter().map(PathBuf::as_path))
+        .collect();
+    unique_names(&mut scenarios, &paths);
+    let total: usize = scenarios
+        .iter()
+        .map(|s| s.settings.eval.traffic_seeds.len())
+        .sum();
     let pb = progress_bar(
         a.common.quiet.quiet,
-        seeds.len() as u64,
+        total as u64,
         "{spinner} evaluating: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
     );
     // Every method of the paper's Table 1 plus the practical ones.
     let methods = Method::all();
-    let lambdas = pipeline::lambdas(&settings, methods)?;
+    let lambdas = pipeline::lambdas(&scenarios[0].settings, methods)?;
+    for s in &mut scenarios {
+        s.runs = evaluate(s, methods, &lambdas, &pb)?;
+    }
+    pb.finish_and_clear();
+    let force = a.common.force;
+    if let [only] = scenarios.as_slice() {
+        write(&out, &only.settings, &only.runs, &lambdas, None, force)?;
+    } else {
+        let names: Vec<&str> = scenarios.iter().map(|s| s.name.as_str()).collect();
+        let all: Vec<RunEval> = scenarios.iter().flat_map(|s| s.runs.clone()).collect();
+        io::atomic_dir(&out, force, |dir| -> anyhow::Result<()> {
+            for s in &scenarios {
+                write(
+                    &dir.join(&s.name),
+                    &s.settings,
+                    &s.runs,
+                    &lambdas,
+                    None,
+                    false,
+                )?;
+            }
+            let pooled = Some(names.join(", "));
+            let first = &scenarios[0].settings;
+            write(
+                &dir.join("pooled"),
+                first,
+                &all,
+                &lambdas,
+                pooled.as_deref(),
+                false,
+            )?;
+            Ok(())
+        })?;
+    }
+    let runs: usize = scenarios.iter().map(|s| s.runs.len()).sum();
+    let instances: usize = scenarios
+        .iter()
+        .flat_map(|s| &s.runs)
+        .map(|r| r.instances)
+        .sum();
+    eprintln!(
+        "coid: evaluated {} methods on {runs} {} runs of {} scenario(s) ({instances} instances); wrote {}",
+        methods.len(),
+        if a.validation { "validation" } else { "test" },
+        scenarios.len(),
+        out.display()
+    );
+    Ok(())
+}
+
+/// A scenario to evaluate on its test (or validation) runs, named by its
+/// config's file stem (by its folder for a `coid.toml`).
+fn scenario(path: &Path, mut settings: Settings, validation: bool) -> Scenario {
+    if validation {
+        // The tables' header names the runs evaluated.
+        settings.eval.traffic_seeds = settings.train.validation_seeds.clone();
+    }
+    let stem = path
+        .file_stem()
+        .map_or_else(|| "scenario".into(), |s| s.to_string_lossy().into_owned());
+    let folder = folder_of(path);
+    let name = match folder {
+        Some(f) if stem == "coid" => f,
+        _ => stem,
+    };
+    Scenario {
+        name,
+        settings,
+        runs: Vec::new(),
+    }
+}
+
+/// The name of the folder that holds `path`.
+fn folder_of(path: &Path) -> Option<String> {
+    let full = path.canonicalize().ok()?;
+    Some(full.parent()?.file_name()?.to_string_lossy().into_owned())
+}
+
+/// Folder names: a name that repeats gets its config's folder in front
+/// (`s002-short`), and `-2`, `-3`, ... if it still repeats; `pooled` is
+/// taken.
+fn unique_names(scenarios: &mut [Scenario], paths: &[&Path]) {
+    let mut count: BTreeMap<String, usize> = BTreeMap::new();
+    for s in scenarios.iter() {
+        *count.entry(s.name.clone()).or_insert(0) += 1;
+    }
+    for (s, path) in scenarios.iter_mut().zip(paths) {
+        if (count[&s.name] > 1 || s.name == "pooled")
+            && let Some(f) = folder_of(path)
+        {
+            s.name = format!("{f}-{}", s.name);
+        }
+    }
+    let mut seen: BTreeMap<String, usize> = BTreeMap::new();
+    seen.insert("pooled".into(), 1);
+    for s in scenarios {
+        let n = seen.entry(s.name.clone()).or_insert(0);
+        *n += 1;
+        if *n > 1 {
+            s.name = format!("{}-{n}", s.name);
+        }
+    }
+}
+
+/// Pooling needs the same methods, weights and levels in every scenario.
+fn compatible(first: &Settings, other: &Settings) -> anyhow::Result<()> {
+    let labels = |s: &Settings| s.pose_noise.iter().map(|l| l.label).collect::<Vec<_>>();
+    if labels(first) != labels(other) {
+        anyhow::bail!("its pose-noise levels differ from the first config's");
+    }
+    if first.fusion.variants != other.fusion.variants {
+        anyhow::bail!("its fusion variants differ from the first config's");
+    }
+    if first.matching.models_dir != other.matching.models_dir
+        || first.matching.lambda != other.matching.lambda
+        || first.matching.uncertainty != other.matching.uncertainty
+    {
+        anyhow::bail!("its models, lambda or uncertainty type differ from the first config's");
+    }
+    Ok(())
+}
+
+/// Every run of one scenario.
+fn evaluate(
+    s: &Scenario,
+    methods: &[Method],
+    lambdas: &BTreeMap<Method, f64>,
+    pb: &ProgressBar,
+) -> anyhow::Result<Vec<RunEval>> {
     let mut runs = Vec::new();
-    for &seed in &seeds {
-        let run = experiments::settings_for_seed(&settings, seed);
-        pb.set_message(format!("seed {seed}"));
-        let r = experiments::eval_run(&run, methods, &lambdas, |_| {})
-            .with_context(|| format!("test run with seed {seed} failed"))?;
+    for &seed in &s.settings.eval.traffic_seeds {
+        let run = experiments::settings_for_seed(&s.settings, seed);
+        pb.set_message(format!("{} seed {seed}", s.name));
+        let r = experiments::eval_run(&run, methods, lambdas, |_| {})
+            .with_context(|| format!("{}: run with seed {seed} failed", s.name))?;
         runs.push(r);
         pb.inc(1);
     }
-    pb.finish_and_clear();
-    let tables = tables::eval_tables(&settings, &runs, &lambdas);
-    let plots = tables::plot_data(&settings, &runs, &lambdas);
+    Ok(runs)
+}
+
+/// The tables and plots of `runs` into `out`.
+fn write(
+    out: &Path,
+    settings: &Settings,
+    runs: &[RunEval],
+    lambdas: &BTreeMap<Method, f64>,
+    pooled: Option<&str>,
+    force: bool,
+) -> Result<(), OutputError> {
+    let tables = tables::eval_tables(settings, runs, lambdas);
+    let plots = tables::plot_data(settings, runs, lambdas);
     io::write_eval(
-        &out,
-        &settings,
+        out,
+        settings,
         &tables.files(),
-        &lambdas,
-        a.common.force,
+        lambdas,
+        pooled,
+        force,
         |dir| {
             render::eval_plots(dir, &plots).map_err(|e| OutputError::Picture {
                 path: dir.to_owned(),
                 message: e.to_string(),
             })
         },
-    )?;
-    let instances: usize = runs.iter().map(|r| r.instances).sum();
-    eprintln!(
-        "coid: evaluated {} methods on {} {} runs ({instances} instances); wrote {}",
-        methods.len(),
-        runs.len(),
-        if a.validation { "validation" } else { "test" },
-        out.display()
-    );
-    Ok(())
+    )
 }

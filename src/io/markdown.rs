@@ -88,15 +88,32 @@ pub fn eval(
     settings: &Settings,
     tables: &[(&str, &Table)],
     lambdas: &BTreeMap<Method, f64>,
+    pooled: Option<&str>,
 ) -> String {
     let mut md = String::new();
     let _ = writeln!(md, "# coid-sim evaluation\n");
-    let _ = writeln!(md, "- config: `{}`", settings.source.display());
-    let _ = writeln!(
-        md,
-        "- evaluated runs (traffic = sensor seed): {:?}; training runs: {:?}; validation runs: {:?}",
-        settings.eval.traffic_seeds, settings.train.traffic_seeds, settings.train.validation_seeds
-    );
+    if let Some(scenarios) = pooled {
+        let _ = writeln!(
+            md,
+            "- pooled over the runs of every scenario of the suite: {scenarios}"
+        );
+        let _ = writeln!(
+            md,
+            "- training runs: {:?}; validation runs: {:?} (of `{}`)",
+            settings.train.traffic_seeds,
+            settings.train.validation_seeds,
+            settings.source.display()
+        );
+    } else {
+        let _ = writeln!(md, "- config: `{}`", settings.source.display());
+        let _ = writeln!(
+            md,
+            "- evaluated runs (traffic = sensor seed): {:?}; training runs: {:?}; validation runs: {:?}",
+            settings.eval.traffic_seeds,
+            settings.train.traffic_seeds,
+            settings.train.validation_seeds
+        );
+    }
     let chosen: Vec<String> = lambdas
         .iter()
         .map(|(m, l)| format!("{} {l:.2}", m.as_str()))

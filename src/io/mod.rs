@@ -191,6 +191,7 @@ pub fn write_eval(
     settings: &Settings,
     tables: &[(&str, &Table)],
     lambdas: &std::collections::BTreeMap<Method, f64>,
+    pooled: Option<&str>,
     force: bool,
     plots: impl FnOnce(&Path) -> Result<(), OutputError>,
 ) -> Result<(), OutputError> {
@@ -200,7 +201,7 @@ pub fn write_eval(
         }
         write_text(
             &dir.join("summary.md"),
-            &markdown::eval(settings, tables, lambdas),
+            &markdown::eval(settings, tables, lambdas, pooled),
         )?;
         plots(dir)
     })
