@@ -179,7 +179,12 @@ fn compatible(first: &Settings, other: &Settings) -> anyhow::Result<()> {
     if first.fusion.variants != other.fusion.variants {
         anyhow::bail!("its fusion variants differ from the first config's");
     }
-    if first.matching.models_dir != other.matching.models_dir
+    // The same folder may be named by different paths.
+    let models = |s: &Settings| {
+        let dir = &s.matching.models_dir;
+        dir.canonicalize().unwrap_or_else(|_| dir.clone())
+    };
+    if models(first) != models(other)
         || first.matching.lambda != other.matching.lambda
         || first.matching.uncertainty != other.matching.uncertainty
     {
@@ -232,4 +237,27 @@ fn write(
             })
         },
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shipped default config (models named relative to `configs/`)
+    /// and a user's config elsewhere (models from the compiled-in defaults)
+    /// use the same models, so they can be pooled.
+    #[test]
+    fn the_shipped_config_and_a_user_config_are_compatible() {
+        // Named as a user in the project folder names it (tests run there).
+        let shipped = Settings::load(Path::new("configs/default.toml")).unwrap();
+        let user = Settings::from_toml(
+            "[scenario]\nend_s = 10.0\n",
+            Path::new("/tmp/somewhere/user.toml"),
+        )
+        .unwrap();
+        compatible(&shipped, &user).unwrap();
+        let mut fewer = user.clone();
+        fewer.pose_noise.pop();
+        assert!(compatible(&shipped, &fewer).is_err());
+    }
 }
