@@ -512,7 +512,7 @@ mod tests {
         fn the_object_set_does_not_depend_on_the_method(
             seen_a in proptest::collection::vec(proptest::bool::ANY, 6),
             seen_b in proptest::collection::vec(proptest::bool::ANY, 6),
-            shuffle in proptest::collection::vec(0usize..100, 12),
+            shuffle in proptest::collection::vec(0usize..100, 13),
         ) {
             let world: Vec<(Option<&str>, Vec2)> = ["o0", "o1", "o2", "o3", "o4", "o5"]
                 .iter()

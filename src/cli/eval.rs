@@ -70,6 +70,7 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
         s.runs = evaluate(s, methods, &lambdas, &pb)?;
     }
     pb.finish_and_clear();
+    warn_empty(&scenarios);
     let force = a.common.force;
     if let [only] = scenarios.as_slice() {
         write(&out, &only.settings, &only.runs, &lambdas, None, force)?;
@@ -114,6 +115,21 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
         out.display()
     );
     Ok(())
+}
+
+/// Says which scenarios had no instance at all (their tables are empty).
+fn warn_empty(scenarios: &[Scenario]) {
+    for s in scenarios
+        .iter()
+        .filter(|s| s.runs.iter().all(|r| r.instances == 0))
+    {
+        eprintln!(
+            "coid: warning: {} has no instance in its {} run(s) (no two connected vehicles \
+             near the junction seeing a common object); its tables are empty",
+            s.name,
+            s.runs.len()
+        );
+    }
 }
 
 /// A scenario to evaluate on its test (or validation) runs, named by its
