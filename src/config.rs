@@ -14,6 +14,7 @@
 //! shipped models are found from any folder).
 
 use std::borrow::Cow;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
@@ -180,12 +181,16 @@ struct RawTrain {
     epochs: usize,
     learning_rate: f64,
     seed: u64,
+    scenarios: Vec<PathBuf>,
+    validation_scenarios: Vec<PathBuf>,
+    runs_per_scenario: usize,
 }
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawEval {
     traffic_seeds: Vec<u64>,
+    scenarios: Vec<PathBuf>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -627,6 +632,19 @@ fn train_and_eval(
     if e.traffic_seeds.is_empty() {
         return Err(c.invalid("eval.traffic_seeds", "need at least one run".into()));
     }
+    let runs = t.runs_per_scenario;
+    let too_many = (!t.scenarios.is_empty() && runs > t.traffic_seeds.len())
+        || (!t.validation_scenarios.is_empty() && runs > t.validation_seeds.len());
+    if runs == 0 || too_many {
+        return Err(c.invalid(
+            "train.runs_per_scenario",
+            format!(
+                "must be between 1 and the number of training (validation) seeds that listed \
+                 training (validation) scenarios run, got {runs}"
+            ),
+        ));
+    }
+    let lists = scenario_lists(c, &t, &e)?;
     let train = TrainSettings {
         traffic_seeds: t.traffic_seeds,
         validation_seeds: t.validation_seeds,
@@ -634,13 +652,125 @@ fn train_and_eval(
         epochs: t.epochs,
         learning_rate: t.learning_rate,
         seed: t.seed,
+        scenarios: lists.train,
+        validation_scenarios: lists.validation,
+        runs_per_scenario: runs,
     };
     Ok((
         train,
         EvalSettings {
             traffic_seeds: e.traffic_seeds,
+            scenarios: lists.test,
         },
     ))
+}
+
+/// The scenario configs of each role, folders expanded.
+struct ScenarioLists {
+    train: Vec<PathBuf>,
+    validation: Vec<PathBuf>,
+    test: Vec<PathBuf>,
+}
+
+/// Expands the scenario lists and checks that no scenario (no SUMO
+/// configuration) has two roles: training, validation and test scenarios
+/// are disjoint.
+fn scenario_lists(c: &Checker, t: &RawTrain, e: &RawEval) -> Result<ScenarioLists, ConfigError> {
+    let lists = ScenarioLists {
+        train: expand_scenarios(c, "train.scenarios", &t.scenarios)?,
+        validation: expand_scenarios(c, "train.validation_scenarios", &t.validation_scenarios)?,
+        test: expand_scenarios(c, "eval.scenarios", &e.scenarios)?,
+    };
+    let mut role: BTreeMap<PathBuf, &'static str> = BTreeMap::new();
+    for (key, list) in [
+        ("train.scenarios", &lists.train),
+        ("train.validation_scenarios", &lists.validation),
+        ("eval.scenarios", &lists.test),
+    ] {
+        for path in list {
+            let sumocfg = scenario_identity(path).map_err(|m| c.invalid(key, m))?;
+            if let Some(other) = role.get(&sumocfg).filter(|&&o| o != key) {
+                return Err(c.invalid(
+                    key,
+                    format!(
+                        "{} is also in {other} (the same SUMO scenario {}): training, \
+                         validation and test scenarios must be disjoint",
+                        path.display(),
+                        sumocfg.display()
+                    ),
+                ));
+            }
+            role.insert(sumocfg, key);
+        }
+    }
+    Ok(lists)
+}
+
+/// The files of a scenario list: a file stays, a scenario folder stands
+/// for its `coid.toml`, another folder for every scenario folder in it
+/// (sorted).
+fn expand_scenarios(
+    c: &Checker,
+    key: &'static str,
+    list: &[PathBuf],
+) -> Result<Vec<PathBuf>, ConfigError> {
+    let mut out = Vec::new();
+    for p in list.iter().map(|p| c.resolve(p)) {
+        if p.is_file() {
+            out.push(p);
+        } else if p.join("coid.toml").is_file() {
+            // A scenario folder itself.
+            out.push(p.join("coid.toml"));
+        } else if p.is_dir() {
+            let mut found: Vec<PathBuf> = std::fs::read_dir(&p)
+                .map_err(|e| c.invalid(key, format!("cannot list {}: {e}", p.display())))?
+                .filter_map(|d| d.ok().map(|d| d.path().join("coid.toml")))
+                .filter(|f| f.is_file())
+                .collect();
+            if found.is_empty() {
+                return Err(c.invalid(
+                    key,
+                    format!("{} holds no scenario folder with a coid.toml", p.display()),
+                ));
+            }
+            found.sort();
+            out.extend(found);
+        } else {
+            return Err(c.invalid(key, format!("no such file or folder: {}", p.display())));
+        }
+    }
+    Ok(out)
+}
+
+/// What makes two scenario configs the same scenario: the SUMO
+/// configuration they run (canonical path), read from `[scenario] sumocfg`
+/// without loading the rest.
+fn scenario_identity(path: &Path) -> Result<PathBuf, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let table: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| format!("{}: {}", path.display(), e.message()))?;
+    let sumocfg = table
+        .get("scenario")
+        .and_then(|s| s.get("sumocfg"))
+        .and_then(|v| v.as_str())
+        .ok_or_else(|| format!("{} has no [scenario] sumocfg", path.display()))?;
+    let full = path.parent().unwrap_or(Path::new(".")).join(sumocfg);
+    full.canonicalize()
+        .map_err(|e| format!("{}: {}: {e}", path.display(), full.display()))
+}
+
+impl Settings {
+    /// These settings with the scenario and connected vehicles of another
+    /// config (a scenario of a training, validation or test list).
+    pub fn with_scenario_of(&self, path: &Path) -> Result<Settings, ConfigError> {
+        let other = Settings::load(path)?;
+        let mut s = self.clone();
+        s.scenario = other.scenario;
+        s.connected = other.connected;
+        s.source = other.source;
+        Ok(s)
+    }
 }
 
 fn fusion(c: &Checker, f: RawFusion) -> Result<FusionSettings, ConfigError> {
@@ -679,6 +809,79 @@ mod tests {
     }
 
     const MINIMAL: &str = "[scenario]\nsumocfg = \"scenario.sumocfg\"\njunction = \"J1\"\n";
+
+    /// A folder of scenario folders `s0`, `s1`, ... each with its own SUMO
+    /// configuration and a `coid.toml`.
+    fn family(dir: &Path, n: usize) {
+        for k in 0..n {
+            let d = dir.join("fam").join(format!("s{k}"));
+            std::fs::create_dir_all(&d).unwrap();
+            write_cfg(&d, MINIMAL);
+            std::fs::rename(d.join("c.toml"), d.join("coid.toml")).unwrap();
+        }
+    }
+
+    #[test]
+    fn scenario_lists_expand_folders_and_keep_roles_apart() {
+        let dir = tempfile::tempdir().unwrap();
+        family(dir.path(), 3);
+        let body = format!("{MINIMAL}[train]\nscenarios = [\"fam\"]\nruns_per_scenario = 2\n");
+        let s = Settings::load(&write_cfg(dir.path(), &body)).unwrap();
+        let names: Vec<String> = s
+            .train
+            .scenarios
+            .iter()
+            .map(|p| {
+                p.parent()
+                    .unwrap()
+                    .file_name()
+                    .unwrap()
+                    .to_string_lossy()
+                    .into_owned()
+            })
+            .collect();
+        assert_eq!(names, ["s0", "s1", "s2"]);
+        assert_eq!(s.train.runs_per_scenario, 2);
+        // A scenario folder names itself.
+        let body = format!("{MINIMAL}[eval]\nscenarios = [\"fam/s1\"]\n");
+        let s = Settings::load(&write_cfg(dir.path(), &body)).unwrap();
+        assert!(s.eval.scenarios[0].ends_with("s1/coid.toml"));
+        // One scenario in two roles, named by a folder and by a file.
+        let body = format!(
+            "{MINIMAL}[train]\nscenarios = [\"fam\"]\n[eval]\nscenarios = [\"fam/s1/coid.toml\"]\n"
+        );
+        let err = Settings::load(&write_cfg(dir.path(), &body))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("eval.scenarios") && err.contains("disjoint"),
+            "{err}"
+        );
+        let body = format!(
+            "{MINIMAL}[train]\nscenarios = [\"fam/s0/coid.toml\"]\nvalidation_scenarios = [\"fam/s0/coid.toml\"]\n"
+        );
+        let err = Settings::load(&write_cfg(dir.path(), &body))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("validation_scenarios"), "{err}");
+        // Missing paths, empty folders and impossible run counts.
+        for (extra, key) in [
+            ("[train]\nscenarios = [\"nowhere\"]\n", "no such file"),
+            ("[train]\nscenarios = [\".\"]\n", "holds no scenario folder"),
+            ("[train]\nruns_per_scenario = 0\n", "runs_per_scenario"),
+            (
+                "[train]\nruns_per_scenario = 11\nvalidation_scenarios = [\"../fam/s2\"]\n",
+                "runs_per_scenario",
+            ),
+        ] {
+            let empty = dir.path().join("empty");
+            std::fs::create_dir_all(&empty).unwrap();
+            let err = Settings::load(&write_cfg(&empty, &format!("{MINIMAL}{extra}")))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(key), "{extra}: {err}");
+        }
+    }
 
     #[test]
     fn the_defaults_are_the_shipped_file_and_valid() {

@@ -19,6 +19,9 @@ pub struct EvalSettings {
     /// Traffic (= sensor) seeds of the test runs; disjoint from the
     /// training runs.
     pub traffic_seeds: Vec<u64>,
+    /// More scenarios (config files) to test on, each on `traffic_seeds`;
+    /// disjoint from the training and validation scenarios.
+    pub scenarios: Vec<std::path::PathBuf>,
 }
 
 /// Correspondence counts of one or more instances.

@@ -22,28 +22,60 @@ pub fn settings_for_seed(settings: &Settings, seed: u64) -> Settings {
     s
 }
 
-/// Labelled pairs from every training run, at every configured pose-noise
+/// The training runs: every training seed of the config's own scenario,
+/// then the first `runs_per_scenario` training seeds of each scenario of
+/// `[train] scenarios`.
+pub fn training_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
+    let t = &settings.train;
+    runs_of(settings, &t.traffic_seeds, &t.scenarios)
+}
+
+/// The validation runs: every validation seed of the config's own
+/// scenario, then the first `runs_per_scenario` validation seeds of each
+/// scenario of `[train] validation_scenarios`.
+pub fn validation_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
+    let t = &settings.train;
+    runs_of(settings, &t.validation_seeds, &t.validation_scenarios)
+}
+
+fn runs_of(
+    settings: &Settings,
+    seeds: &[u64],
+    scenarios: &[std::path::PathBuf],
+) -> Result<Vec<Settings>, RunError> {
+    let mut runs: Vec<Settings> = seeds
+        .iter()
+        .map(|&s| settings_for_seed(settings, s))
+        .collect();
+    let first = &seeds[..settings.train.runs_per_scenario.min(seeds.len())];
+    for path in scenarios {
+        let other = settings.with_scenario_of(path)?;
+        runs.extend(first.iter().map(|&s| settings_for_seed(&other, s)));
+    }
+    Ok(runs)
+}
+
+/// Labelled pairs from every run of `runs`, at every configured pose-noise
 /// level (the same pair under each level's GPS error, so the network learns
 /// how far to trust the GPS position prior). `progress(run, runs, examples
 /// so far)`.
 pub fn collect_examples(
-    settings: &Settings,
+    runs: &[Settings],
     mut progress: impl FnMut(usize, usize, usize),
 ) -> Result<Vec<Example>, RunError> {
-    let seeds = &settings.train.traffic_seeds;
-    // Labels only: the oracle's pairs, nothing fused.
-    let no_fusion = FusionSettings {
-        variants: vec![],
-        align_min_matches: settings.fusion.align_min_matches,
-    };
     let mut examples = Vec::new();
-    for (k, &seed) in seeds.iter().enumerate() {
-        let run = settings_for_seed(settings, seed);
+    for (k, run) in runs.iter().enumerate() {
+        // Labels only: the oracle's pairs, nothing fused.
+        let no_fusion = FusionSettings {
+            variants: vec![],
+            align_min_matches: run.fusion.align_min_matches,
+        };
+        let seed = run.seeds.sensor;
         pipeline::simulate(
-            &run,
+            run,
             |_: Progress| {},
             |inst| {
-                for level in &settings.pose_noise {
+                for level in &run.pose_noise {
                     let pair = inst.at_level(seed, level);
                     let labels = evaluate::evaluate(&pair, &Runner::Oracle, &no_fusion);
                     let truth = &labels.identification.matches;
@@ -52,7 +84,7 @@ pub fn collect_examples(
                 Ok(())
             },
         )?;
-        progress(k + 1, seeds.len(), examples.len());
+        progress(k + 1, runs.len(), examples.len());
     }
     Ok(examples)
 }
@@ -126,12 +158,11 @@ pub fn validate(
     // The default decision is not used: every threshold is counted.
     let mut s = settings.clone();
     s.matching.lambda = LambdaChoice::Fixed(0.7);
-    let seeds = &settings.train.validation_seeds;
+    let validation = validation_runs(&s)?;
     let mut runs = Vec::new();
-    for (k, &seed) in seeds.iter().enumerate() {
-        let run = settings_for_seed(&s, seed);
-        runs.push(eval_run(&run, methods, &BTreeMap::new(), |_| {})?);
-        progress(k + 1, seeds.len());
+    for (k, run) in validation.iter().enumerate() {
+        runs.push(eval_run(run, methods, &BTreeMap::new(), |_| {})?);
+        progress(k + 1, validation.len());
     }
     let grid = lambda_grid(&[]);
     let kind = settings.matching.uncertainty;

@@ -33,6 +33,8 @@ pub enum RunError {
     Render(String),
     #[error("connected vehicle(s) {0:?} never appeared in the simulation before its end")]
     MissingConnectedVehicles(Vec<String>),
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
 }
 
 /// Progress reported once per simulation step.

@@ -43,17 +43,7 @@ struct Scenario {
 pub fn eval(a: Args) -> anyhow::Result<()> {
     let suffix = if a.validation { "-validation" } else { "-eval" };
     let (settings, out) = a.common.prepare(suffix)?;
-    let mut scenarios = vec![scenario(&a.common.config.config, settings, a.validation)];
-    for path in &a.suite {
-        let s = Settings::load(path)?;
-        compatible(&scenarios[0].settings, &s)
-            .with_context(|| format!("{} cannot join the suite", path.display()))?;
-        scenarios.push(scenario(path, s, a.validation));
-    }
-    let paths: Vec<&Path> = std::iter::once(a.common.config.config.as_path())
-        .chain(a.suite.iter().map(PathBuf::as_path))
-        .collect();
-    unique_names(&mut scenarios, &paths);
+    let mut scenarios = gather(&a, settings)?;
     let total: usize = scenarios
         .iter()
         .map(|s| s.settings.eval.traffic_seeds.len())
@@ -115,6 +105,39 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
         out.display()
     );
     Ok(())
+}
+
+/// The scenarios of the evaluation: the config's own, the scenarios its
+/// config lists (`[eval] scenarios`, or `[train] validation_scenarios` with
+/// `--validation`), then `--suite`; named uniquely.
+fn gather(a: &Args, settings: Settings) -> anyhow::Result<Vec<Scenario>> {
+    let listed = if a.validation {
+        settings.train.validation_scenarios.clone()
+    } else {
+        settings.eval.scenarios.clone()
+    };
+    let mut scenarios = vec![scenario(&a.common.config.config, settings, a.validation)];
+    let primary = scenarios[0].settings.clone();
+    for path in &listed {
+        // The config's own scenario lists: its settings, that scenario.
+        let mut s = primary.with_scenario_of(path)?;
+        if a.validation {
+            s.eval.traffic_seeds.truncate(s.train.runs_per_scenario);
+        }
+        scenarios.push(scenario(path, s, false));
+    }
+    for path in &a.suite {
+        let s = Settings::load(path)?;
+        compatible(&primary, &s)
+            .with_context(|| format!("{} cannot join the suite", path.display()))?;
+        scenarios.push(scenario(path, s, a.validation));
+    }
+    let paths: Vec<&Path> = std::iter::once(a.common.config.config.as_path())
+        .chain(listed.iter().map(PathBuf::as_path))
+        .chain(a.suite.iter().map(PathBuf::as_path))
+        .collect();
+    unique_names(&mut scenarios, &paths);
+    Ok(scenarios)
 }
 
 /// Says which scenarios had no instance at all (their tables are empty).

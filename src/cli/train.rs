@@ -38,13 +38,14 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     if let Some(m) = methods.iter().find(|m| deep::variant(**m).is_none()) {
         anyhow::bail!("'{}' is not a trainable (deep) method", m.as_str());
     }
-    let runs = settings.train.traffic_seeds.len() as u64;
+    let training = experiments::training_runs(&settings)?;
+    let runs = training.len();
     let pb = progress_bar(
         a.quiet.quiet,
-        runs,
+        runs as u64,
         "{spinner} collecting training pairs: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
     );
-    let examples = experiments::collect_examples(&settings, |_, _, n| {
+    let examples = experiments::collect_examples(&training, |_, _, n| {
         pb.inc(1);
         pb.set_message(format!("{n} pairs"));
     })
@@ -90,7 +91,7 @@ fn validate(
     let seeds = &settings.train.validation_seeds;
     let pb = progress_bar(
         quiet,
-        seeds.len() as u64,
+        experiments::validation_runs(settings)?.len() as u64,
         "{spinner} choosing lambda on the validation runs: run {pos}/{len} [{bar:30}] eta {eta}",
     );
     let mut on_models = settings.clone();

@@ -276,6 +276,13 @@ fn model_metadata(record: &TrainingRecord) -> String {
     let source = record.settings.source.display().to_string();
     let _ = writeln!(meta, "config = {source:?}");
     let _ = writeln!(meta, "train_traffic_seeds = {:?}", t.traffic_seeds);
+    if !t.scenarios.is_empty() {
+        let _ = writeln!(meta, "train_scenarios = {:?}", t.scenarios);
+        let _ = writeln!(meta, "runs_per_scenario = {}", t.runs_per_scenario);
+    }
+    if !t.validation_scenarios.is_empty() {
+        let _ = writeln!(meta, "validation_scenarios = {:?}", t.validation_scenarios);
+    }
     let eval_seeds = &record.settings.eval.traffic_seeds;
     let _ = writeln!(meta, "eval_traffic_seeds = {eval_seeds:?}");
     let _ = writeln!(meta, "epochs = {}", t.epochs);

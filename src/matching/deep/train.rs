@@ -30,6 +30,14 @@ pub struct TrainSettings {
     pub learning_rate: f64,
     /// Weight initialisation, shuffling and training dropout.
     pub seed: u64,
+    /// More scenarios (config files) to train on, each on the first
+    /// `runs_per_scenario` training seeds; disjoint from the validation and
+    /// test scenarios.
+    pub scenarios: Vec<std::path::PathBuf>,
+    /// Scenarios held out for validation, each on the first
+    /// `runs_per_scenario` validation seeds.
+    pub validation_scenarios: Vec<std::path::PathBuf>,
+    pub runs_per_scenario: usize,
 }
 
 /// One training pair with its labels.
