@@ -103,6 +103,7 @@ fn main() {
         epochs: 1,
         learning_rate: 1e-3,
         seed: 1,
+        patience: 0,
     };
     let mut trainer = Trainer::new(Method::Ours, &opts).unwrap();
     let mut times = Vec::new();

@@ -184,6 +184,7 @@ struct RawTrain {
     scenarios: Vec<PathBuf>,
     validation_scenarios: Vec<PathBuf>,
     runs_per_scenario: usize,
+    patience: usize,
 }
 
 #[derive(Debug, Deserialize)]
@@ -632,6 +633,31 @@ fn train_and_eval(
     if e.traffic_seeds.is_empty() {
         return Err(c.invalid("eval.traffic_seeds", "need at least one run".into()));
     }
+    let runs = runs_per_scenario(c, &t)?;
+    let lists = scenario_lists(c, &t, &e)?;
+    let train = TrainSettings {
+        traffic_seeds: t.traffic_seeds,
+        validation_seeds: t.validation_seeds,
+        methods: dedup_sorted(t.methods),
+        epochs: t.epochs,
+        learning_rate: t.learning_rate,
+        seed: t.seed,
+        scenarios: lists.train,
+        validation_scenarios: lists.validation,
+        runs_per_scenario: runs,
+        patience: t.patience,
+    };
+    Ok((
+        train,
+        EvalSettings {
+            traffic_seeds: e.traffic_seeds,
+            scenarios: lists.test,
+        },
+    ))
+}
+
+/// `[train] runs_per_scenario`, checked against the seeds it takes from.
+fn runs_per_scenario(c: &Checker, t: &RawTrain) -> Result<usize, ConfigError> {
     let runs = t.runs_per_scenario;
     let too_many = (!t.scenarios.is_empty() && runs > t.traffic_seeds.len())
         || (!t.validation_scenarios.is_empty() && runs > t.validation_seeds.len());
@@ -644,25 +670,7 @@ fn train_and_eval(
             ),
         ));
     }
-    let lists = scenario_lists(c, &t, &e)?;
-    let train = TrainSettings {
-        traffic_seeds: t.traffic_seeds,
-        validation_seeds: t.validation_seeds,
-        methods: dedup_sorted(t.methods),
-        epochs: t.epochs,
-        learning_rate: t.learning_rate,
-        seed: t.seed,
-        scenarios: lists.train,
-        validation_scenarios: lists.validation,
-        runs_per_scenario: runs,
-    };
-    Ok((
-        train,
-        EvalSettings {
-            traffic_seeds: e.traffic_seeds,
-            scenarios: lists.test,
-        },
-    ))
+    Ok(runs)
 }
 
 /// The scenario configs of each role, folders expanded.

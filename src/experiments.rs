@@ -89,20 +89,23 @@ pub fn collect_examples(
     Ok(examples)
 }
 
-/// Trains one deep method on the collected examples; returns its weights
+/// Trains one deep method on the collected examples (with early stopping
+/// on `validation` when `[train] patience` > 0); returns its weights
 /// (bytes) and loss curve.
 pub fn train_method(
     settings: &Settings,
     method: Method,
     examples: &[Example],
+    validation: &[Example],
     progress: impl FnMut(usize, usize, f32),
 ) -> Result<(Vec<u8>, TrainReport), String> {
     let opts = TrainOptions {
         epochs: settings.train.epochs,
         learning_rate: settings.train.learning_rate,
         seed: settings.train.seed,
+        patience: settings.train.patience,
     };
-    train::train(method, examples, &opts, progress)
+    train::train(method, examples, validation, &opts, progress)
 }
 
 /// Evaluates `methods` on one test run (`settings` already carries the

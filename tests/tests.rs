@@ -535,6 +535,35 @@ mod learned {
         assert!(strs(&summary, "method").iter().any(|m| m == "gcn-gm"));
     }
 
+    /// Training lowers the loss on held-out validation runs of real SUMO
+    /// data (one training run, one validation run; early stopping keeps
+    /// the epoch with the lowest validation loss and records it).
+    #[test]
+    fn training_lowers_the_validation_loss_on_real_runs() {
+        let fx = Fixture::new();
+        let cfg = fx.config(
+            "t.toml",
+            80.0,
+            &format!(
+                "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 3\npatience = 2\n\
+                 methods = [\"gcn-gm\"]\n[matching]\nmodels_dir = {:?}\n[pose_noise]\nlevels = [\"gps\"]\n",
+                fx.path("models").to_string_lossy()
+            ),
+        );
+        assert_ok(&fx.coid(&["train", "-q", "--config", cfg.to_str().unwrap()]));
+        let curve = read_csv(&fx.path("models/gcn-gm_loss.csv"));
+        let v = f64s(&curve, "validation_loss");
+        assert!(v.len() >= 2 && v.iter().all(|l| l.is_finite()), "{v:?}");
+        let best = v[1..].iter().copied().fold(f64::INFINITY, f64::min);
+        assert!(
+            best < v[0],
+            "validation loss before training {} never beaten: {v:?}",
+            v[0]
+        );
+        let meta = std::fs::read_to_string(fx.path("models/gcn-gm.toml")).unwrap();
+        assert!(meta.contains("best_epoch = "), "{meta}");
+    }
+
     #[test]
     fn missing_weights_are_a_clear_error() {
         let fx = Fixture::new();

@@ -52,12 +52,13 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     .context("collecting training data failed")?;
     pb.finish_and_clear();
     eprintln!("coid: {} training pairs from {runs} runs", examples.len());
+    let validation = validation_examples(&settings, a.quiet.quiet)?;
     let mut trained = Vec::new();
     for &method in &methods {
         trained.push(train_one(
             &settings,
             method,
-            &examples,
+            (&examples, &validation),
             &models_dir,
             a.quiet.quiet,
         )?);
@@ -69,6 +70,30 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         examples.len(),
         a.quiet.quiet,
     )
+}
+
+/// The validation runs' labelled pairs, for early stopping (none when
+/// `[train] patience` is 0).
+fn validation_examples(
+    settings: &Settings,
+    quiet: bool,
+) -> anyhow::Result<Vec<deep::train::Example>> {
+    if settings.train.patience == 0 {
+        return Ok(Vec::new());
+    }
+    let runs = experiments::validation_runs(settings)?;
+    let pb = progress_bar(
+        quiet,
+        runs.len() as u64,
+        "{spinner} collecting validation pairs: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
+    );
+    let examples = experiments::collect_examples(&runs, |_, _, n| {
+        pb.inc(1);
+        pb.set_message(format!("{n} pairs"));
+    })
+    .context("collecting validation data failed")?;
+    pb.finish_and_clear();
+    Ok(examples)
 }
 
 /// One trained method, kept until its validation is recorded.
@@ -129,7 +154,7 @@ fn validate(
 fn train_one(
     settings: &Settings,
     method: Method,
-    examples: &[deep::train::Example],
+    (examples, validation): (&[deep::train::Example], &[deep::train::Example]),
     models_dir: &std::path::Path,
     quiet: bool,
 ) -> anyhow::Result<Trained> {
@@ -144,7 +169,7 @@ fn train_one(
     );
     let mut smooth = f32::NAN;
     let (weights, report) =
-        experiments::train_method(settings, method, examples, |step, _, loss| {
+        experiments::train_method(settings, method, examples, validation, |step, _, loss| {
             smooth = if smooth.is_nan() {
                 loss
             } else {

@@ -293,6 +293,13 @@ fn model_metadata(record: &TrainingRecord) -> String {
     let _ = writeln!(meta, "seconds = {:.1}", record.seconds);
     let last = record.report.epoch_losses.last().copied();
     let _ = writeln!(meta, "final_epoch_loss = {}", last.unwrap_or(f64::NAN));
+    if let Some(best) = record.report.best_epoch {
+        let _ = writeln!(meta, "patience = {}", t.patience);
+        let _ = writeln!(
+            meta,
+            "best_epoch = {best}  # kept: lowest loss on the validation runs"
+        );
+    }
     if let Some(v) = &record.validation {
         let _ = writeln!(
             meta,
@@ -332,14 +339,31 @@ pub fn read_validated_lambda(models_dir: &Path, method: Method) -> Result<f64, W
 /// Writes a trained model into `dir`: `<method>.bpk` (the weights),
 /// `<method>.toml` (config, seeds, data size, final loss, and the
 /// validated lambda once known) and
-/// `<method>_loss.csv` (mean loss per epoch), each renamed into place
+/// `<method>_loss.csv` (mean loss per epoch, and the validation loss with
+/// early stopping: epoch 0 is before training), each renamed into place
 /// when complete.
+fn loss_curve(report: &TrainReport) -> String {
+    if report.validation_losses.is_empty() {
+        let mut curve = String::from("epoch,mean_loss\n");
+        for (k, l) in report.epoch_losses.iter().enumerate() {
+            let _ = writeln!(curve, "{},{l:.6}", k + 1);
+        }
+        return curve;
+    }
+    let mut curve = String::from("epoch,mean_loss,validation_loss\n");
+    for (k, v) in report.validation_losses.iter().enumerate() {
+        let train = k
+            .checked_sub(1)
+            .and_then(|e| report.epoch_losses.get(e))
+            .map_or(String::new(), |l| format!("{l:.6}"));
+        let _ = writeln!(curve, "{k},{train},{v:.6}");
+    }
+    curve
+}
+
 pub fn write_model(dir: &Path, record: &TrainingRecord, weights: &[u8]) -> Result<(), OutputError> {
     let method = record.method.as_str();
-    let mut curve = String::from("epoch,mean_loss\n");
-    for (k, l) in record.report.epoch_losses.iter().enumerate() {
-        let _ = writeln!(curve, "{},{l:.6}", k + 1);
-    }
+    let curve = loss_curve(record.report);
     publish_files(dir, |tmp| {
         let bpk = tmp.join(format!("{method}.bpk"));
         std::fs::write(&bpk, weights).map_err(io(&bpk))?;

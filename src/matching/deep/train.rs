@@ -38,6 +38,8 @@ pub struct TrainSettings {
     /// `runs_per_scenario` validation seeds.
     pub validation_scenarios: Vec<std::path::PathBuf>,
     pub runs_per_scenario: usize,
+    /// Early stopping on the validation runs' loss (0 = off).
+    pub patience: usize,
 }
 
 /// One training pair with its labels.
@@ -101,6 +103,10 @@ pub struct TrainOptions {
     pub epochs: usize,
     pub learning_rate: f64,
     pub seed: u64,
+    /// Early stopping: stop after this many epochs without a lower
+    /// validation loss and keep the weights of the lowest; 0 = off (every
+    /// epoch runs, the last weights are kept, no validation loss).
+    pub patience: usize,
 }
 
 /// Mean loss per epoch.
@@ -108,6 +114,12 @@ pub struct TrainOptions {
 pub struct TrainReport {
     pub epoch_losses: Vec<f64>,
     pub steps: usize,
+    /// With early stopping: the mean validation loss before training, then
+    /// after each epoch; empty without.
+    pub validation_losses: Vec<f64>,
+    /// With early stopping: the epoch whose weights were kept (0 = none
+    /// improved on the initial weights).
+    pub best_epoch: Option<usize>,
 }
 
 /// A network being trained, with its optimizer and random stream.
@@ -120,6 +132,7 @@ pub struct Trainer {
     /// Shuffling and dropout masks: `(seed, Training, hash(method label))`.
     stream: ChaCha8Rng,
     learning_rate: f64,
+    seed: u64,
 }
 
 impl Trainer {
@@ -140,6 +153,7 @@ impl Trainer {
                 &[rng::hash_str(method.as_str())],
             ),
             learning_rate: opts.learning_rate,
+            seed: opts.seed,
         })
     }
 
@@ -177,6 +191,39 @@ impl Trainer {
         Ok(value)
     }
 
+    /// The mean loss over `examples` without changing the network: one
+    /// dropout sample per pair from a stream that is the same at every
+    /// call, so that values of different epochs compare.
+    pub fn validation_loss(&self, examples: &[Example]) -> f64 {
+        let mut stream = rng::stream(self.seed, Purpose::Training, &[rng::hash_str("validation")]);
+        let device = &self.device;
+        let sum: f64 = examples
+            .iter()
+            .map(|ex| {
+                let (n1, n2) = (ex.g1.n, ex.g2.n);
+                let g1 = GraphTensors::new(&ex.g1, device);
+                let g2 = GraphTensors::new(&ex.g2, device);
+                let masks = draw_masks(&mut stream, &self.arch, 1, n1, n2, device);
+                let matrix = |v: &[f32]| {
+                    Tensor::<2>::from_data(TensorData::new(v.to_vec(), [n1, n2]), device)
+                };
+                let cost = matrix(&ex.position_cost).unsqueeze::<3>();
+                let log_p = self
+                    .net
+                    .forward(&g1, &g2, masks, cost, self.arch.sinkhorn_iters);
+                let loss = model::loss(
+                    log_p,
+                    matrix(&ex.y_star),
+                    matrix(&ex.non),
+                    ex.n_true,
+                    self.terms,
+                );
+                f64::from(loss.into_scalar::<f32>())
+            })
+            .sum();
+        sum / examples.len().max(1) as f64
+    }
+
     /// The trained weights as bytes (what a `.bpk` file holds).
     pub fn weights(&self) -> Result<Vec<u8>, String> {
         model::to_bytes(&self.net)
@@ -184,10 +231,13 @@ impl Trainer {
 }
 
 /// Trains a deep method on `examples`; returns its weights (bytes) and the
-/// loss curve. `progress(step, total, loss)` is called after every step.
+/// loss curve. With `opts.patience > 0` and `validation` examples, stops
+/// early on the validation loss and returns the best weights.
+/// `progress(step, total, loss)` is called after every step.
 pub fn train(
     method: Method,
     examples: &[Example],
+    validation: &[Example],
     opts: &TrainOptions,
     mut progress: impl FnMut(usize, usize, f32),
 ) -> Result<(Vec<u8>, TrainReport), String> {
@@ -195,10 +245,18 @@ pub fn train(
     if examples.is_empty() {
         return Err("no training examples (no instance with a covisible object)".into());
     }
+    let stopping = opts.patience > 0 && !validation.is_empty();
+    let mut report = TrainReport::default();
+    let mut best = None;
+    if stopping {
+        report
+            .validation_losses
+            .push(trainer.validation_loss(validation));
+        best = Some((0, report.validation_losses[0], trainer.weights()?));
+    }
     let mut order: Vec<usize> = (0..examples.len()).collect();
     let total = opts.epochs * examples.len();
-    let mut report = TrainReport::default();
-    for _ in 0..opts.epochs {
+    for epoch in 1..=opts.epochs {
         trainer.shuffle(&mut order);
         let mut sum = 0.0;
         for &k in &order {
@@ -210,8 +268,23 @@ pub fn train(
             progress(report.steps, total, value);
         }
         report.epoch_losses.push(sum / examples.len() as f64);
+        if let Some((best_epoch, best_loss, weights)) = &mut best {
+            let loss = trainer.validation_loss(validation);
+            report.validation_losses.push(loss);
+            if loss < *best_loss {
+                (*best_epoch, *best_loss, *weights) = (epoch, loss, trainer.weights()?);
+            } else if epoch - *best_epoch >= opts.patience {
+                break;
+            }
+        }
     }
-    Ok((trainer.weights()?, report))
+    match best {
+        Some((epoch, _, weights)) => {
+            report.best_epoch = Some(epoch);
+            Ok((weights, report))
+        }
+        None => Ok((trainer.weights()?, report)),
+    }
 }
 
 #[cfg(test)]
@@ -261,13 +334,37 @@ mod tests {
             epochs: 30,
             learning_rate: 1e-3,
             seed: 3,
+            patience: 0,
         };
         let examples = vec![ex];
-        let (w1, report) = train(Method::GcnGm, &examples, &opts, |_, _, _| {}).unwrap();
+        let (w1, report) = train(Method::GcnGm, &examples, &[], &opts, |_, _, _| {}).unwrap();
         let first = report.epoch_losses[0];
         let last = *report.epoch_losses.last().unwrap();
         assert!(last < 0.5 * first, "loss {first} -> {last}");
-        let (w2, _) = train(Method::GcnGm, &examples, &opts, |_, _, _| {}).unwrap();
+        let (w2, _) = train(Method::GcnGm, &examples, &[], &opts, |_, _, _| {}).unwrap();
         assert_eq!(w1, w2);
+        assert!(report.validation_losses.is_empty() && report.best_epoch.is_none());
+        // Early stopping: the validation loss before training and after
+        // each epoch; the kept epoch has the lowest, below the initial one;
+        // training stops `patience` epochs after it at the latest; the
+        // training stream is untouched, so the kept weights are those of
+        // plain training stopped at that epoch.
+        let stopping = TrainOptions {
+            patience: 3,
+            ..opts
+        };
+        let (kept, report) =
+            train(Method::GcnGm, &examples, &examples, &stopping, |_, _, _| {}).unwrap();
+        let v = &report.validation_losses;
+        let best = report.best_epoch.unwrap();
+        assert_eq!(v.len(), report.epoch_losses.len() + 1);
+        assert!(v.iter().all(|&l| l >= v[best]) && v[best] < v[0], "{v:?}");
+        assert!(v.len() - 1 - best <= 3, "{v:?}");
+        let plain = TrainOptions {
+            epochs: best,
+            ..opts
+        };
+        let (same, _) = train(Method::GcnGm, &examples, &[], &plain, |_, _, _| {}).unwrap();
+        assert_eq!(kept, same);
     }
 }
