@@ -104,6 +104,7 @@ fn main() {
         learning_rate: 1e-3,
         seed: 1,
         patience: 0,
+        dustbin_loss: false,
     };
     let mut trainer = Trainer::new(Method::Ours, &opts).unwrap();
     let mut times = Vec::new();

@@ -185,6 +185,7 @@ struct RawTrain {
     validation_scenarios: Vec<PathBuf>,
     runs_per_scenario: usize,
     patience: usize,
+    dustbin_loss: bool,
 }
 
 #[derive(Debug, Deserialize)]
@@ -646,6 +647,7 @@ fn train_and_eval(
         validation_scenarios: lists.validation,
         runs_per_scenario: runs,
         patience: t.patience,
+        dustbin_loss: t.dustbin_loss,
     };
     Ok((
         train,

@@ -104,6 +104,7 @@ pub fn train_method(
         learning_rate: settings.train.learning_rate,
         seed: settings.train.seed,
         patience: settings.train.patience,
+        dustbin_loss: settings.train.dustbin_loss,
     };
     train::train(method, examples, validation, &opts, progress)
 }

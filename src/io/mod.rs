@@ -293,6 +293,9 @@ fn model_metadata(record: &TrainingRecord) -> String {
     let _ = writeln!(meta, "seconds = {:.1}", record.seconds);
     let last = record.report.epoch_losses.last().copied();
     let _ = writeln!(meta, "final_epoch_loss = {}", last.unwrap_or(f64::NAN));
+    if t.dustbin_loss {
+        let _ = writeln!(meta, "dustbin_loss = true");
+    }
     if let Some(best) = record.report.best_epoch {
         let _ = writeln!(meta, "patience = {}", t.patience);
         let _ = writeln!(

@@ -38,7 +38,11 @@ pub fn variant(method: Method) -> Option<(Architecture, LossTerms)> {
             gps_prior,
             ..arch
         },
-        LossTerms { non, unc },
+        LossTerms {
+            non,
+            unc,
+            dustbin: false,
+        },
     ))
 }
 

@@ -346,6 +346,10 @@ pub fn log_sinkhorn(scores: Tensor<3>, dustbin: Tensor<1>, iters: usize) -> Tens
 pub struct LossTerms {
     pub non: bool,
     pub unc: bool,
+    /// Supervise "no match": `-mean(log P_dustbin)` over the rows and
+    /// columns without a true partner (SuperGlue-style), a mean of its own
+    /// so that it weighs as much as the true pairs however many there are.
+    pub dustbin: bool,
 }
 
 /// The training loss of one pair. `log_assign`: `[T, N1 + 1, N2 + 1]`;
@@ -369,15 +373,16 @@ pub fn loss(
 ) -> Tensor<1> {
     let [_, r, c] = log_assign.dims();
     let (n1, n2) = (r - 1, c - 1);
-    let p = log_assign
-        .exp()
-        .mean_dim(0)
-        .reshape([r, c])
-        .slice([0..n1, 0..n2]); // [N1, N2]
+    let p_full = log_assign.exp().mean_dim(0).reshape([r, c]); // [N1 + 1, N2 + 1]
+    let p = p_full.clone().slice([0..n1, 0..n2]); // [N1, N2]
+    let y_star_full = y_star.clone();
     let matched = (p.clone() * y_star).sum() / (n_true.max(1) as f32);
     let mut total = -matched.clamp_min(1e-9).log();
     if terms.non {
         total = total - (-(p.clone() * non)).exp().mean().log();
+    }
+    if terms.dustbin {
+        total = total + dustbin_term(&p_full, &y_star_full, n_true);
     }
     if terms.unc {
         let q = p.clamp(1e-6, 1.0 - 1e-6);
@@ -387,6 +392,25 @@ pub fn loss(
         total = total - h.neg().exp().mean().log();
     }
     total
+}
+
+/// `-mean(log P)` of the dustbin entries of the rows and columns of the
+/// mean assignment `p_full` (`[N1 + 1, N2 + 1]`) that have no true
+/// partner in `y_star`; 0 when every row and column has one.
+fn dustbin_term(p_full: &Tensor<2>, y_star: &Tensor<2>, n_true: usize) -> Tensor<1> {
+    let [r, c] = p_full.dims();
+    let (n1, n2) = (r - 1, c - 1);
+    let unmatched = (n1 + n2).saturating_sub(2 * n_true);
+    let device = p_full.device();
+    if unmatched == 0 {
+        return Tensor::<1>::zeros([1], &device);
+    }
+    let log = |t: Tensor<2>| t.clamp_min(1e-9).log();
+    let row_free = y_star.clone().sum_dim(1).neg() + 1.0; // [N1, 1]
+    let col_free = y_star.clone().sum_dim(0).neg() + 1.0; // [1, N2]
+    let rows = (log(p_full.clone().slice([0..n1, n2..c])) * row_free).sum();
+    let cols = (log(p_full.clone().slice([n1..r, 0..n2])) * col_free).sum();
+    -(rows + cols) / (unmatched as f32)
 }
 
 /// The network's weights as bytes (burn's burnpack format, what a
@@ -440,6 +464,7 @@ mod tests {
             let terms = LossTerms {
                 non: non_term,
                 unc: unc_term,
+                dustbin: false,
             };
             f64::from(
                 loss(two_samples(&device), y.clone(), non.clone(), 1, terms).into_scalar::<f32>(),
@@ -450,6 +475,35 @@ mod tests {
         assert!((value(true, false) - coid - 0.200777).abs() < 1e-5);
         assert!((value(false, true) - coid - 0.742119).abs() < 1e-5);
         assert!((value(true, true) - 1.299571).abs() < 1e-5);
+    }
+
+    /// The dustbin term by hand: one true pair (0, 0), so row 1 and
+    /// column 1 have no partner; their dustbin probabilities are 0.1 in
+    /// both samples: -(ln 0.1 + ln 0.1) / 2 = ln 10. With every row and
+    /// column matched it vanishes.
+    #[test]
+    fn dustbin_loss_of_a_hand_made_case() {
+        let device = Device::flex();
+        let matrix = |v: Vec<f32>| Tensor::<2>::from_data(TensorData::new(v, [2, 2]), &device);
+        let value = |y: Vec<f32>, n_true: usize, dustbin: bool| {
+            let terms = LossTerms {
+                non: false,
+                unc: false,
+                dustbin,
+            };
+            let non = matrix(vec![0.; 4]);
+            f64::from(
+                loss(two_samples(&device), matrix(y), non, n_true, terms).into_scalar::<f32>(),
+            )
+        };
+        let one = vec![1., 0., 0., 0.];
+        let extra = value(one.clone(), 1, true) - value(one, 1, false);
+        assert!(
+            (extra - std::f64::consts::LN_10).abs() < 1e-5,
+            "dustbin term {extra}"
+        );
+        let both = vec![1., 0., 0., 1.];
+        assert!((value(both.clone(), 2, true) - value(both, 2, false)).abs() < 1e-9);
     }
 
     #[test]

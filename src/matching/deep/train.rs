@@ -40,6 +40,8 @@ pub struct TrainSettings {
     pub runs_per_scenario: usize,
     /// Early stopping on the validation runs' loss (0 = off).
     pub patience: usize,
+    /// Supervise "no match" (the dustbin term of the loss).
+    pub dustbin_loss: bool,
 }
 
 /// One training pair with its labels.
@@ -107,6 +109,8 @@ pub struct TrainOptions {
     /// validation loss and keep the weights of the lowest; 0 = off (every
     /// epoch runs, the last weights are kept, no validation loss).
     pub patience: usize,
+    /// Add the dustbin ("no match") term to the method's losses.
+    pub dustbin_loss: bool,
 }
 
 /// Mean loss per epoch.
@@ -138,8 +142,9 @@ pub struct Trainer {
 impl Trainer {
     /// A fresh network of `method` (initial weights from `opts.seed`).
     pub fn new(method: Method, opts: &TrainOptions) -> Result<Self, String> {
-        let (arch, terms) =
+        let (arch, mut terms) =
             variant(method).ok_or_else(|| format!("{} is not a deep method", method.as_str()))?;
+        terms.dustbin = opts.dustbin_loss;
         let device = Device::flex().autodiff();
         Ok(Self {
             arch,
@@ -335,6 +340,7 @@ mod tests {
             learning_rate: 1e-3,
             seed: 3,
             patience: 0,
+            dustbin_loss: false,
         };
         let examples = vec![ex];
         let (w1, report) = train(Method::GcnGm, &examples, &[], &opts, |_, _, _| {}).unwrap();
