@@ -105,6 +105,7 @@ fn main() {
         seed: 1,
         patience: 0,
         dustbin_loss: false,
+        samples: 1,
     };
     let mut trainer = Trainer::new(Method::Ours, &opts).unwrap();
     let mut times = Vec::new();

@@ -186,6 +186,7 @@ struct RawTrain {
     runs_per_scenario: usize,
     patience: usize,
     dustbin_loss: bool,
+    mc_samples: usize,
 }
 
 #[derive(Debug, Deserialize)]
@@ -630,6 +631,9 @@ fn train_and_eval(
     if t.epochs == 0 {
         return Err(c.invalid("train.epochs", "need at least one epoch".into()));
     }
+    if t.mc_samples == 0 {
+        return Err(c.invalid("train.mc_samples", "need at least one sample".into()));
+    }
     c.positive("train.learning_rate", t.learning_rate)?;
     if e.traffic_seeds.is_empty() {
         return Err(c.invalid("eval.traffic_seeds", "need at least one run".into()));
@@ -648,6 +652,7 @@ fn train_and_eval(
         runs_per_scenario: runs,
         patience: t.patience,
         dustbin_loss: t.dustbin_loss,
+        mc_samples: t.mc_samples,
     };
     Ok((
         train,

@@ -105,6 +105,7 @@ pub fn train_method(
         seed: settings.train.seed,
         patience: settings.train.patience,
         dustbin_loss: settings.train.dustbin_loss,
+        samples: settings.train.mc_samples,
     };
     train::train(method, examples, validation, &opts, progress)
 }

@@ -296,6 +296,9 @@ fn model_metadata(record: &TrainingRecord) -> String {
     if t.dustbin_loss {
         let _ = writeln!(meta, "dustbin_loss = true");
     }
+    if t.mc_samples > 1 {
+        let _ = writeln!(meta, "mc_samples = {}", t.mc_samples);
+    }
     if let Some(best) = record.report.best_epoch {
         let _ = writeln!(meta, "patience = {}", t.patience);
         let _ = writeln!(
