@@ -51,11 +51,14 @@ enum Command {
     /// Evaluate every method on the test runs ([eval] traffic_seeds) and write
     /// the paper's tables: table1.csv (P/R/F1 per method and pose noise),
     /// table2.csv (F1 before/after uncertainty thresholding), table3.csv
-    /// (uncertainty types), lambda_sweep.csv, case_study.csv; means with 95%
-    /// confidence intervals over runs.
+    /// (uncertainty types), lambda_sweep.csv, case_study.csv,
+    /// calibration.csv; means with 95% confidence intervals over runs. With
+    /// [eval] scenarios or --suite: per scenario and pooled.
     Eval(eval::Args),
     /// Train the deep matchers on instances from the training runs
-    /// ([train] traffic_seeds) and save their weights, config and loss curve.
+    /// ([train] traffic_seeds, and [train] scenarios) and save their weights,
+    /// config and loss curve; then choose each one's lambda on the
+    /// validation runs.
     Train(train::Args),
     /// Generate a seeded family of intersections with SUMO's netconvert
     /// (3-5 legs at varied angles, 1-3 lanes, traffic light or priority,
