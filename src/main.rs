@@ -1,6 +1,7 @@
 //! The `coid` binary: parses the command line, runs the command (see
 //! `cli`), and maps any error to one line on stderr (the cause chain joined
-//! by ": ") and exit code 1. Usage errors are clap's (exit code 2).
+//! by ": ", causes already quoted left out) and exit code 1. Usage errors
+//! are clap's (exit code 2).
 
 use std::process::ExitCode;
 
@@ -11,8 +12,17 @@ fn main() -> ExitCode {
     match coid_sim::cli::execute(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            let chain: Vec<String> = e.chain().map(|c| c.to_string()).collect();
-            eprintln!("error: {}", chain.join(": "));
+            // A cause that an outer message already quotes is not repeated.
+            let mut line = String::new();
+            for cause in e.chain().map(|c| c.to_string()) {
+                if !line.contains(&cause) {
+                    if !line.is_empty() {
+                        line.push_str(": ");
+                    }
+                    line.push_str(&cause);
+                }
+            }
+            eprintln!("error: {line}");
             ExitCode::FAILURE
         }
     }

@@ -39,20 +39,22 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         anyhow::bail!("'{}' is not a trainable (deep) method", m.as_str());
     }
     let training = experiments::training_runs(&settings)?;
-    let runs = training.len();
-    let pb = progress_bar(
-        a.quiet.quiet,
-        runs as u64,
-        "{spinner} collecting training pairs: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
+    let examples = collect(&training, "training", a.quiet.quiet)?;
+    eprintln!(
+        "coid: {} training pairs from {} runs",
+        examples.len(),
+        training.len()
     );
-    let examples = experiments::collect_examples(&training, |_, _, n| {
-        pb.inc(1);
-        pb.set_message(format!("{n} pairs"));
-    })
-    .context("collecting training data failed")?;
-    pb.finish_and_clear();
-    eprintln!("coid: {} training pairs from {runs} runs", examples.len());
-    let validation = validation_examples(&settings, a.quiet.quiet)?;
+    // The validation runs' pairs, for early stopping only.
+    let validation = if settings.train.patience == 0 {
+        Vec::new()
+    } else {
+        collect(
+            &experiments::validation_runs(&settings)?,
+            "validation",
+            a.quiet.quiet,
+        )?
+    };
     let mut trained = Vec::new();
     for &method in &methods {
         trained.push(train_one(
@@ -72,26 +74,25 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     )
 }
 
-/// The validation runs' labelled pairs, for early stopping (none when
-/// `[train] patience` is 0).
-fn validation_examples(
-    settings: &Settings,
+/// The labelled pairs of `runs` (`what`: training or validation), with a
+/// progress bar.
+fn collect(
+    runs: &[Settings],
+    what: &str,
     quiet: bool,
 ) -> anyhow::Result<Vec<deep::train::Example>> {
-    if settings.train.patience == 0 {
-        return Ok(Vec::new());
-    }
-    let runs = experiments::validation_runs(settings)?;
     let pb = progress_bar(
         quiet,
         runs.len() as u64,
-        "{spinner} collecting validation pairs: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
+        &format!(
+            "{{spinner}} collecting {what} pairs: run {{pos}}/{{len}} [{{bar:30}}] {{msg}} eta {{eta}}"
+        ),
     );
-    let examples = experiments::collect_examples(&runs, |_, _, n| {
+    let examples = experiments::collect_examples(runs, |_, _, n| {
         pb.inc(1);
         pb.set_message(format!("{n} pairs"));
     })
-    .context("collecting validation data failed")?;
+    .with_context(|| format!("collecting {what} data failed"))?;
     pb.finish_and_clear();
     Ok(examples)
 }

@@ -10,7 +10,7 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
 use super::features::{GraphInput, graph_input};
-use super::model::{self, Architecture, GraphTensors, Init, LossTerms, Network};
+use super::model::{self, Architecture, GraphTensors, Init, LossTerms, Masks, Network};
 use super::{draw_masks, variant};
 use crate::matching::{Correspondence, MatchView, Method};
 use crate::rng::{self, Purpose};
@@ -174,26 +174,40 @@ impl Trainer {
         order.shuffle(&mut self.stream);
     }
 
-    /// One Adam step on one pair; returns the loss before the step.
-    pub fn step(&mut self, ex: &Example) -> Result<f32, String> {
+    /// The loss of one pair under `masks` (the losses use the mean over
+    /// their samples).
+    fn loss(&self, ex: &Example, masks: Masks) -> Tensor<1> {
         let (n1, n2) = (ex.g1.n, ex.g2.n);
         let device = &self.device;
         let g1 = GraphTensors::new(&ex.g1, device);
         let g2 = GraphTensors::new(&ex.g2, device);
-        let masks = draw_masks(&mut self.stream, &self.arch, self.samples, n1, n2, device);
         let matrix =
             |v: &[f32]| Tensor::<2>::from_data(TensorData::new(v.to_vec(), [n1, n2]), device);
         let cost = matrix(&ex.position_cost).unsqueeze::<3>();
         let log_p = self
             .net
             .forward(&g1, &g2, masks, cost, self.arch.sinkhorn_iters);
-        let loss = model::loss(
+        model::loss(
             log_p,
             matrix(&ex.y_star),
             matrix(&ex.non),
             ex.n_true,
             self.terms,
+        )
+    }
+
+    /// One Adam step on one pair; returns the loss before the step.
+    pub fn step(&mut self, ex: &Example) -> Result<f32, String> {
+        let (n1, n2) = (ex.g1.n, ex.g2.n);
+        let masks = draw_masks(
+            &mut self.stream,
+            &self.arch,
+            self.samples,
+            n1,
+            n2,
+            &self.device,
         );
+        let loss = self.loss(ex, masks);
         let value = loss.clone().into_scalar::<f32>();
         if !value.is_finite() {
             return Err(format!("training diverged (loss {value})"));
@@ -208,29 +222,11 @@ impl Trainer {
     /// call, so that values of different epochs compare.
     pub fn validation_loss(&self, examples: &[Example]) -> f64 {
         let mut stream = rng::stream(self.seed, Purpose::Training, &[rng::hash_str("validation")]);
-        let device = &self.device;
         let sum: f64 = examples
             .iter()
             .map(|ex| {
-                let (n1, n2) = (ex.g1.n, ex.g2.n);
-                let g1 = GraphTensors::new(&ex.g1, device);
-                let g2 = GraphTensors::new(&ex.g2, device);
-                let masks = draw_masks(&mut stream, &self.arch, 1, n1, n2, device);
-                let matrix = |v: &[f32]| {
-                    Tensor::<2>::from_data(TensorData::new(v.to_vec(), [n1, n2]), device)
-                };
-                let cost = matrix(&ex.position_cost).unsqueeze::<3>();
-                let log_p = self
-                    .net
-                    .forward(&g1, &g2, masks, cost, self.arch.sinkhorn_iters);
-                let loss = model::loss(
-                    log_p,
-                    matrix(&ex.y_star),
-                    matrix(&ex.non),
-                    ex.n_true,
-                    self.terms,
-                );
-                f64::from(loss.into_scalar::<f32>())
+                let masks = draw_masks(&mut stream, &self.arch, 1, ex.g1.n, ex.g2.n, &self.device);
+                f64::from(self.loss(ex, masks).into_scalar::<f32>())
             })
             .sum();
         sum / examples.len().max(1) as f64
