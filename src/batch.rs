@@ -9,9 +9,11 @@
 //! run folders in run order, so it is byte-identical whatever the number of
 //! workers, the interruptions or the sharding.
 
-use std::io::Read;
+use std::ffi::OsString;
+use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
 
 use crate::io::{self, OutputError};
 use crate::render;
@@ -85,64 +87,132 @@ pub fn execute(
     workers: usize,
     mut done: impl FnMut(usize, bool),
 ) -> std::io::Result<Vec<Failure>> {
-    let mut queue = pending.iter().copied();
-    let mut active: Vec<(usize, Child)> = Vec::new();
+    let jobs: Vec<Vec<OsString>> = pending
+        .iter()
+        .map(|&i| {
+            let (traffic, sensor) = run_seeds(master, i);
+            let mut args: Vec<OsString> = ["run", "--quiet", "--force", "--config"]
+                .map(OsString::from)
+                .to_vec();
+            args.push(config.into());
+            args.push("--out".into());
+            args.push(run_dir(batch_dir, i).into());
+            for a in [
+                "--traffic-seed".to_owned(),
+                traffic.to_string(),
+                "--sensor-seed".to_owned(),
+                sensor.to_string(),
+            ] {
+                args.push(a.into());
+            }
+            args
+        })
+        .collect();
+    let mut failures = run_children(
+        exe,
+        &jobs,
+        workers,
+        |_, _| {},
+        |k, ok| {
+            let i = pending[k];
+            let ok = ok && io::run_is_complete(&run_dir(batch_dir, i));
+            done(i, ok);
+            ok
+        },
+    )?;
+    for f in &mut failures {
+        f.run = pending[f.run];
+    }
+    Ok(failures)
+}
+
+/// Runs each job (the arguments of one child process of `exe`) on up to
+/// `workers` processes at once, in job order. `line(job, text)` receives
+/// each line the child prints on stdout, as it comes; `done(job, exited
+/// ok) -> ok` is called as each child ends and decides whether the job
+/// counts as failed. Returns the failures (`run` = job index, the message
+/// = the child's last stderr line), sorted.
+pub fn run_children(
+    exe: &Path,
+    jobs: &[Vec<OsString>],
+    workers: usize,
+    mut line: impl FnMut(usize, &str),
+    mut done: impl FnMut(usize, bool) -> bool,
+) -> std::io::Result<Vec<Failure>> {
+    let (tx, rx) = mpsc::channel::<(usize, String)>();
+    let mut queue = 0..jobs.len();
+    let mut active: Vec<(usize, Child, std::thread::JoinHandle<String>)> = Vec::new();
     let mut failures = Vec::new();
     loop {
         while active.len() < workers.max(1) {
-            let Some(i) = queue.next() else { break };
-            let (traffic, sensor) = run_seeds(master, i);
-            let child = Command::new(exe)
-                .args(["run", "--quiet", "--force", "--config"])
-                .arg(config)
-                .arg("--out")
-                .arg(run_dir(batch_dir, i))
-                .args([
-                    "--traffic-seed",
-                    &traffic.to_string(),
-                    "--sensor-seed",
-                    &sensor.to_string(),
-                ])
-                .stdout(Stdio::null())
+            let Some(k) = queue.next() else { break };
+            let mut child = Command::new(exe)
+                .args(&jobs[k])
+                .stdout(Stdio::piped())
                 .stderr(Stdio::piped())
                 .spawn()?;
-            active.push((i, child));
+            // Both pipes are drained while the child runs (a full pipe
+            // would block it): stdout line by line to `line`, stderr kept.
+            let stdout = child.stdout.take().map(BufReader::new);
+            let tx = tx.clone();
+            std::thread::spawn(move || {
+                for l in stdout
+                    .into_iter()
+                    .flat_map(BufRead::lines)
+                    .map_while(Result::ok)
+                {
+                    if tx.send((k, l)).is_err() {
+                        break;
+                    }
+                }
+            });
+            let mut stderr = child.stderr.take();
+            let err = std::thread::spawn(move || {
+                let mut text = String::new();
+                if let Some(e) = stderr.as_mut() {
+                    let _ = e.read_to_string(&mut text);
+                }
+                text
+            });
+            active.push((k, child, err));
         }
         if active.is_empty() {
             break;
         }
-        // Wait for whichever child ends first (polling: the children run for
-        // seconds, a few milliseconds of latency do not matter).
+        // Forward output and wait for whichever child ends first (polling:
+        // the children run for seconds, some milliseconds do not matter).
         let mut finished = None;
         while finished.is_none() {
-            for (k, (_, child)) in active.iter_mut().enumerate() {
+            if let Ok((k, l)) = rx.recv_timeout(std::time::Duration::from_millis(20)) {
+                line(k, &l);
+                while let Ok((k, l)) = rx.try_recv() {
+                    line(k, &l);
+                }
+            }
+            for (a, (_, child, _)) in active.iter_mut().enumerate() {
                 if let Some(status) = child.try_wait()? {
-                    finished = Some((k, status));
+                    finished = Some((a, status));
                     break;
                 }
             }
-            if finished.is_none() {
-                std::thread::sleep(std::time::Duration::from_millis(20));
-            }
         }
-        let (k, status) = finished.expect("set above");
-        let (i, mut child) = active.swap_remove(k);
-        let ok = status.success() && io::run_is_complete(&run_dir(batch_dir, i));
-        if !ok {
-            let mut err = String::new();
-            if let Some(mut e) = child.stderr.take() {
-                let _ = e.read_to_string(&mut err);
-            }
-            let message = err
+        let (a, status) = finished.expect("set above");
+        let (k, _child, err) = active.swap_remove(a);
+        let text = err.join().unwrap_or_default();
+        // Lines the child printed just before it ended.
+        while let Ok((j, l)) = rx.try_recv() {
+            line(j, &l);
+        }
+        if !done(k, status.success()) {
+            let message = text
                 .lines()
                 .rev()
                 .find(|l| !l.trim().is_empty())
-                .unwrap_or("the run exited without a message")
+                .unwrap_or("the child process exited without a message")
                 .trim()
                 .to_owned();
-            failures.push(Failure { run: i, message });
+            failures.push(Failure { run: k, message });
         }
-        done(i, ok);
     }
     failures.sort_by_key(|f| f.run);
     Ok(failures)

@@ -187,6 +187,7 @@ struct RawTrain {
     patience: usize,
     dustbin_loss: bool,
     mc_samples: usize,
+    sample_every_s: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -635,6 +636,7 @@ fn train_and_eval(
         return Err(c.invalid("train.mc_samples", "need at least one sample".into()));
     }
     c.positive("train.learning_rate", t.learning_rate)?;
+    c.positive("train.sample_every_s", t.sample_every_s)?;
     if e.traffic_seeds.is_empty() {
         return Err(c.invalid("eval.traffic_seeds", "need at least one run".into()));
     }
@@ -653,6 +655,7 @@ fn train_and_eval(
         patience: t.patience,
         dustbin_loss: t.dustbin_loss,
         mc_samples: t.mc_samples,
+        sample_every_s: t.sample_every_s,
     };
     Ok((
         train,

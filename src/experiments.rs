@@ -25,9 +25,27 @@ pub fn settings_for_seed(settings: &Settings, seed: u64) -> Settings {
 /// The training runs: every training seed of the config's own scenario,
 /// then the first `runs_per_scenario` training seeds of each scenario of
 /// `[train] scenarios`.
+/// Instances at most every `[train] sample_every_s`.
 pub fn training_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
     let t = &settings.train;
-    runs_of(settings, &t.traffic_seeds, &t.scenarios)
+    Ok(sampled_for_training(runs_of(
+        settings,
+        &t.traffic_seeds,
+        &t.scenarios,
+    )?))
+}
+
+/// The validation runs as the training loss sees them (early stopping):
+/// instances at most every `[train] sample_every_s`, like training runs.
+pub fn validation_loss_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
+    Ok(sampled_for_training(validation_runs(settings)?))
+}
+
+fn sampled_for_training(mut runs: Vec<Settings>) -> Vec<Settings> {
+    for r in &mut runs {
+        r.scenario.sample_every_s = r.scenario.sample_every_s.max(r.train.sample_every_s);
+    }
+    runs
 }
 
 /// The validation runs: every validation seed of the config's own

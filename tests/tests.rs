@@ -564,6 +564,47 @@ mod learned {
         assert!(meta.contains("best_epoch = "), "{meta}");
     }
 
+    /// Two methods trained in two child processes give the same weights,
+    /// losses and lambdas as one after the other in one process.
+    #[test]
+    fn training_in_child_processes_gives_the_same_models() {
+        let fx = Fixture::new();
+        let cfg = fx.config(
+            "t.toml",
+            60.0,
+            "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 1\n\
+             methods = [\"gcn-gm\", \"dgmc\"]\n[pose_noise]\nlevels = [\"gps\"]\n",
+        );
+        let c = cfg.to_str().unwrap();
+        let two = fx.coid(&["train", "-q", "--config", c, "--out", "two", "-j", "2"]);
+        assert_ok(&two);
+        assert_ok(&fx.coid(&["train", "-q", "--config", c, "--out", "one", "-j", "1"]));
+        for m in ["gcn-gm", "dgmc"] {
+            let read =
+                |dir: &str, ext: &str| std::fs::read(fx.path(&format!("{dir}/{m}{ext}"))).unwrap();
+            assert_eq!(
+                read("two", ".bpk"),
+                read("one", ".bpk"),
+                "{m} weights differ"
+            );
+            assert_eq!(
+                read("two", "_loss.csv"),
+                read("one", "_loss.csv"),
+                "{m} losses differ"
+            );
+            let lambda = |dir: &str| {
+                String::from_utf8(read(dir, ".toml"))
+                    .unwrap()
+                    .lines()
+                    .find(|l| l.starts_with("validated_lambda"))
+                    .map(str::to_owned)
+            };
+            assert!(lambda("two").is_some());
+            assert_eq!(lambda("two"), lambda("one"));
+        }
+        assert!(stderr(&two).contains("trained dgmc"), "{}", stderr(&two));
+    }
+
     #[test]
     fn missing_weights_are_a_clear_error() {
         let fx = Fixture::new();

@@ -1,11 +1,16 @@
 //! `coid train`: the deep matchers on the training runs; weights, config
-//! and loss curve into the models folder.
+//! and loss curve into the models folder, then each one's lambda chosen on
+//! the validation runs. Several methods train at once in child `coid
+//! train` processes (burn's CPU backend trains on one core), which report
+//! their progress to this one as lines on stdout.
 
-use std::path::PathBuf;
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
 use super::{ConfigArg, QuietArg, label_arg, progress_bar};
+use crate::batch;
 use crate::config::Settings;
 use crate::experiments;
 use crate::io::{self, TrainingRecord};
@@ -21,130 +26,256 @@ pub struct Args {
     /// Train only these methods [default: [train] methods].
     #[arg(long, value_delimiter = ',', value_parser = label_arg::<Method>("method"))]
     methods: Vec<Method>,
+    /// Methods trained at once, each group in its own process (the weights
+    /// do not depend on this) [default: the number of cores].
+    #[arg(long, short = 'j')]
+    workers: Option<usize>,
+    /// Train only: choose no lambda (a later `coid train --validate-only`
+    /// or a number in [matching] lambda is then needed).
+    #[arg(long, conflicts_with = "validate_only")]
+    skip_validation: bool,
+    /// Train nothing: choose the lambda of the weights already in the
+    /// models folder on the validation runs, and record it beside them.
+    #[arg(long)]
+    validate_only: bool,
+    /// Report progress as lines on stdout (for a parent `coid train`).
+    #[arg(long, hide = true)]
+    progress_lines: bool,
     #[command(flatten)]
     quiet: QuietArg,
+}
+
+/// How a command shows its progress.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Show {
+    Bars,
+    /// Lines on stdout for a parent process: `collect <run> <runs>`,
+    /// `progress <method> <step> <steps> <loss>`, `note <text>`.
+    Lines,
+    Quiet,
+}
+
+impl Show {
+    fn note(self, text: &str) {
+        match self {
+            Show::Lines => println!("note {text}"),
+            _ => eprintln!("{text}"),
+        }
+    }
 }
 
 pub fn train(a: Args) -> anyhow::Result<()> {
     let settings = Settings::load(&a.config.config)?;
     let models_dir = a
         .out
+        .clone()
         .unwrap_or_else(|| settings.matching.models_dir.clone());
     let methods = if a.methods.is_empty() {
         settings.train.methods.clone()
     } else {
-        a.methods
+        a.methods.clone()
     };
     if let Some(m) = methods.iter().find(|m| deep::variant(**m).is_none()) {
         anyhow::bail!("'{}' is not a trainable (deep) method", m.as_str());
     }
-    let training = experiments::training_runs(&settings)?;
-    let examples = collect(&training, "training", a.quiet.quiet)?;
-    eprintln!(
+    let show = match (a.progress_lines, a.quiet.quiet) {
+        (true, _) => Show::Lines,
+        (false, true) => Show::Quiet,
+        (false, false) => Show::Bars,
+    };
+    let workers = a
+        .workers
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .clamp(1, methods.len().max(1));
+    let started = std::time::Instant::now();
+    if a.validate_only {
+        return validate(&settings, &models_dir, &methods, show == Show::Bars);
+    }
+    if workers > 1 {
+        train_in_children(&a, &models_dir, &methods, workers)?;
+    } else {
+        train_here(&settings, &methods, &models_dir, show)?;
+    }
+    if !a.skip_validation {
+        validate(&settings, &models_dir, &methods, show == Show::Bars)?;
+    }
+    if show != Show::Lines {
+        eprintln!(
+            "coid: training took {:.1} min in all; models in {}",
+            started.elapsed().as_secs_f64() / 60.0,
+            models_dir.display()
+        );
+    }
+    Ok(())
+}
+
+/// Collects the data and trains `methods` one after another in this
+/// process, writing each model (without its lambda).
+fn train_here(
+    settings: &Settings,
+    methods: &[Method],
+    models_dir: &Path,
+    show: Show,
+) -> anyhow::Result<()> {
+    let training = experiments::training_runs(settings)?;
+    let examples = collect(&training, "training", show)?;
+    show.note(&format!(
         "coid: {} training pairs from {} runs",
         examples.len(),
         training.len()
-    );
+    ));
     // The validation runs' pairs, for early stopping only.
     let validation = if settings.train.patience == 0 {
         Vec::new()
     } else {
         collect(
-            &experiments::validation_runs(&settings)?,
+            &experiments::validation_loss_runs(settings)?,
             "validation",
-            a.quiet.quiet,
+            show,
         )?
     };
-    let mut trained = Vec::new();
-    for &method in &methods {
-        trained.push(train_one(
-            &settings,
-            method,
-            (&examples, &validation),
-            &models_dir,
-            a.quiet.quiet,
-        )?);
+    for &method in methods {
+        train_one(settings, method, (&examples, &validation), models_dir, show)?;
     }
-    validate(
-        &settings,
-        &models_dir,
-        trained,
-        examples.len(),
-        a.quiet.quiet,
-    )
+    Ok(())
 }
 
-/// The labelled pairs of `runs` (`what`: training or validation), with a
-/// progress bar.
-fn collect(
-    runs: &[Settings],
-    what: &str,
-    quiet: bool,
-) -> anyhow::Result<Vec<deep::train::Example>> {
+/// Trains `methods` in `workers` child processes (method k in group k mod
+/// workers), showing one progress bar per child.
+fn train_in_children(
+    a: &Args,
+    models_dir: &Path,
+    methods: &[Method],
+    workers: usize,
+) -> anyhow::Result<()> {
+    let exe = std::env::current_exe().context("cannot locate the coid executable")?;
+    let groups: Vec<Vec<Method>> = (0..workers)
+        .map(|g| methods.iter().copied().skip(g).step_by(workers).collect())
+        .collect();
+    let jobs: Vec<Vec<OsString>> = groups
+        .iter()
+        .map(|group| {
+            let names: Vec<&str> = group.iter().map(|m| m.as_str()).collect();
+            let mut args: Vec<OsString> = vec!["train".into(), "--config".into()];
+            args.push(a.config.config.clone().into());
+            args.push("--out".into());
+            args.push(models_dir.into());
+            args.push("--methods".into());
+            args.push(names.join(",").into());
+            for flag in ["-j", "1", "--skip-validation", "--progress-lines"] {
+                args.push(flag.into());
+            }
+            args
+        })
+        .collect();
+    let bars = if a.quiet.quiet {
+        indicatif::MultiProgress::with_draw_target(indicatif::ProgressDrawTarget::hidden())
+    } else {
+        indicatif::MultiProgress::new()
+    };
+    let style = indicatif::ProgressStyle::with_template(
+        "{spinner} {prefix:<9} [{bar:30}] {pos}/{len} {msg} eta {eta}",
+    )
+    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+    .progress_chars("=> ");
+    let pbs: Vec<indicatif::ProgressBar> = groups
+        .iter()
+        .map(|_| {
+            let pb = bars.add(indicatif::ProgressBar::new(0));
+            pb.set_style(style.clone());
+            pb.set_prefix("starting");
+            pb
+        })
+        .collect();
+    let on_line = |k: usize, line: &str| {
+        let pb = &pbs[k];
+        let mut w = line.split_whitespace();
+        match w.next() {
+            Some("collect") => {
+                pb.set_prefix("data");
+                pb.set_message("runs collected");
+                pb.set_position(w.next().and_then(|x| x.parse().ok()).unwrap_or(0));
+                pb.set_length(w.next().and_then(|x| x.parse().ok()).unwrap_or(0));
+            }
+            Some("progress") => {
+                let method = w.next().unwrap_or("?").to_owned();
+                if pb.prefix() != method {
+                    pb.reset();
+                    pb.set_prefix(method);
+                }
+                pb.set_position(w.next().and_then(|x| x.parse().ok()).unwrap_or(0));
+                pb.set_length(w.next().and_then(|x| x.parse().ok()).unwrap_or(0));
+                pb.set_message(format!("steps, loss {}", w.next().unwrap_or("?")));
+            }
+            Some("note") => bars.suspend(|| eprintln!("{}", line[4..].trim())),
+            _ => {}
+        }
+    };
+    let failures = batch::run_children(&exe, &jobs, workers, on_line, |k, ok| {
+        pbs[k].finish_and_clear();
+        ok
+    })
+    .context("cannot start a training process")?;
+    if let Some(f) = failures.first() {
+        let names: Vec<&str> = groups[f.run].iter().map(|m| m.as_str()).collect();
+        anyhow::bail!("training {} failed: {}", names.join(", "), f.message);
+    }
+    Ok(())
+}
+
+/// The labelled pairs of `runs` (`what`: training or validation), with
+/// progress.
+fn collect(runs: &[Settings], what: &str, show: Show) -> anyhow::Result<Vec<deep::train::Example>> {
     let pb = progress_bar(
-        quiet,
+        show != Show::Bars,
         runs.len() as u64,
         &format!(
             "{{spinner}} collecting {what} pairs: run {{pos}}/{{len}} [{{bar:30}}] {{msg}} eta {{eta}}"
         ),
     );
-    let examples = experiments::collect_examples(runs, |_, _, n| {
+    let examples = experiments::collect_examples(runs, |k, n_runs, n| {
         pb.inc(1);
         pb.set_message(format!("{n} pairs"));
+        if show == Show::Lines {
+            println!("collect {k} {n_runs}");
+        }
     })
     .with_context(|| format!("collecting {what} data failed"))?;
     pb.finish_and_clear();
     Ok(examples)
 }
 
-/// One trained method, kept until its validation is recorded.
-struct Trained {
-    method: Method,
-    weights: Vec<u8>,
-    report: deep::train::TrainReport,
-    seconds: f64,
-}
-
-/// Chooses each trained method's lambda on the validation runs and records
-/// it beside the weights.
+/// Chooses each method's lambda on the validation runs and records it
+/// beside its weights.
 fn validate(
     settings: &Settings,
-    models_dir: &std::path::Path,
-    trained: Vec<Trained>,
-    n_examples: usize,
-    quiet: bool,
+    models_dir: &Path,
+    methods: &[Method],
+    bars: bool,
 ) -> anyhow::Result<()> {
     let seeds = &settings.train.validation_seeds;
     let pb = progress_bar(
-        quiet,
+        !bars,
         experiments::validation_runs(settings)?.len() as u64,
         "{spinner} choosing lambda on the validation runs: run {pos}/{len} [{bar:30}] eta {eta}",
     );
     let mut on_models = settings.clone();
     on_models.matching.models_dir = models_dir.to_owned();
-    let methods: Vec<Method> = trained.iter().map(|t| t.method).collect();
-    let chosen = experiments::validate(&on_models, &methods, |_, _| pb.inc(1))
+    let chosen = experiments::validate(&on_models, methods, |_, _| pb.inc(1))
         .context("validation runs failed")?;
     pb.finish_and_clear();
-    for t in trained {
-        let c = chosen[&t.method];
-        let record = TrainingRecord {
-            method: t.method,
-            settings,
-            n_examples,
-            report: &t.report,
-            seconds: t.seconds,
-            validation: Some(io::Validation {
-                lambda: c.lambda,
-                f1: c.f1,
-                seeds: seeds.clone(),
-                uncertainty: settings.matching.uncertainty.as_str(),
-            }),
+    for &method in methods {
+        let c = chosen[&method];
+        let validation = io::Validation {
+            lambda: c.lambda,
+            f1: c.f1,
+            seeds: seeds.clone(),
+            uncertainty: settings.matching.uncertainty.as_str(),
         };
-        io::write_model(models_dir, &record, &t.weights)?;
+        io::record_validation(models_dir, method, &validation)?;
         eprintln!(
-            "coid: {}: lambda {:.2} (mean F1 {:.3} on validation runs {seeds:?})",
-            t.method.as_str(),
+            "coid: {}: lambda {:.2} (mean F1 {:.3} on the validation runs)",
+            method.as_str(),
             c.lambda,
             c.f1
         );
@@ -156,12 +287,12 @@ fn train_one(
     settings: &Settings,
     method: Method,
     (examples, validation): (&[deep::train::Example], &[deep::train::Example]),
-    models_dir: &std::path::Path,
-    quiet: bool,
-) -> anyhow::Result<Trained> {
+    models_dir: &Path,
+    show: Show,
+) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let pb = progress_bar(
-        quiet,
+        show != Show::Bars,
         (settings.train.epochs * examples.len()) as u64,
         &format!(
             "{{spinner}} training {:<9} [{{bar:30}}] {{pos}}/{{len}} steps, {{msg}} eta {{eta}}",
@@ -169,8 +300,12 @@ fn train_one(
         ),
     );
     let mut smooth = f32::NAN;
-    let (weights, report) =
-        experiments::train_method(settings, method, examples, validation, |step, _, loss| {
+    let (weights, report) = experiments::train_method(
+        settings,
+        method,
+        examples,
+        validation,
+        |step, total, loss| {
             smooth = if smooth.is_nan() {
                 loss
             } else {
@@ -180,8 +315,12 @@ fn train_one(
             if step % 20 == 0 {
                 pb.set_message(format!("loss {smooth:.3}"));
             }
-        })
-        .map_err(|e| anyhow::anyhow!("training {} failed: {e}", method.as_str()))?;
+            if show == Show::Lines && (step % 50 == 0 || step == total) {
+                println!("progress {} {step} {total} {smooth:.3}", method.as_str());
+            }
+        },
+    )
+    .map_err(|e| anyhow::anyhow!("training {} failed: {e}", method.as_str()))?;
     pb.finish_and_clear();
     let record = TrainingRecord {
         method,
@@ -189,7 +328,6 @@ fn train_one(
         n_examples: examples.len(),
         report: &report,
         seconds: started.elapsed().as_secs_f64(),
-        validation: None,
     };
     io::write_model(models_dir, &record, &weights)?;
     let losses: Vec<f64> = report
@@ -197,17 +335,15 @@ fn train_one(
         .iter()
         .map(|l| (l * 1000.0).round() / 1000.0)
         .collect();
-    eprintln!(
-        "coid: trained {} in {:.0} s ({} steps), loss per epoch {losses:?}; wrote {}",
+    show.note(&format!(
+        "coid: trained {} in {:.0} s ({} steps{}), loss per epoch {losses:?}; wrote {}",
         method.as_str(),
         record.seconds,
         report.steps,
+        report
+            .best_epoch
+            .map_or(String::new(), |e| format!(", kept epoch {e}")),
         io::weights_path(models_dir, method).display()
-    );
-    Ok(Trained {
-        method,
-        weights,
-        seconds: record.seconds,
-        report,
-    })
+    ));
+    Ok(())
 }

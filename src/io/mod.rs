@@ -247,8 +247,6 @@ pub struct TrainingRecord<'a> {
     pub n_examples: usize,
     pub report: &'a TrainReport,
     pub seconds: f64,
-    /// What was chosen on the validation runs (once they have run).
-    pub validation: Option<Validation>,
 }
 
 /// What `coid train` chose for one method on the validation runs.
@@ -293,6 +291,15 @@ fn model_metadata(record: &TrainingRecord) -> String {
     let _ = writeln!(meta, "seconds = {:.1}", record.seconds);
     let last = record.report.epoch_losses.last().copied();
     let _ = writeln!(meta, "final_epoch_loss = {}", last.unwrap_or(f64::NAN));
+    let edges = &record.report.edges;
+    let _ = writeln!(
+        meta,
+        "edge_median_m = {:.2}\nedge_p95_m = {:.2}\nedge_clipped_share = {:.4}  # larger axis component beyond the outer knot, {} m",
+        edges.median_m,
+        edges.p95_m,
+        edges.clipped_share,
+        crate::matching::deep::features::MAX_EDGE_M
+    );
     if t.dustbin_loss {
         let _ = writeln!(meta, "dustbin_loss = true");
     }
@@ -306,18 +313,34 @@ fn model_metadata(record: &TrainingRecord) -> String {
             "best_epoch = {best}  # kept: lowest loss on the validation runs"
         );
     }
-    if let Some(v) = &record.validation {
-        let _ = writeln!(
-            meta,
-            "# Chosen on the validation runs (never on the eval seeds):"
-        );
-        let _ = writeln!(meta, "validation_seeds = {:?}", v.seeds);
-        let _ = writeln!(meta, "validation_uncertainty = {:?}", v.uncertainty);
-        // `{:?}` keeps a decimal point: 1.0, not the TOML integer 1.
-        let _ = writeln!(meta, "validated_lambda = {:?}", v.lambda);
-        let _ = writeln!(meta, "validation_f1 = {:.6}", v.f1);
-    }
     meta
+}
+
+/// What the validation runs chose, as the last lines of `<method>.toml`.
+fn validation_metadata(v: &Validation) -> String {
+    let mut meta = String::new();
+    let _ = writeln!(
+        meta,
+        "# Chosen on the validation runs (never on the eval seeds):"
+    );
+    let _ = writeln!(meta, "validation_seeds = {:?}", v.seeds);
+    let _ = writeln!(meta, "validation_uncertainty = {:?}", v.uncertainty);
+    // `{:?}` keeps a decimal point: 1.0, not the TOML integer 1.
+    let _ = writeln!(meta, "validated_lambda = {:?}", v.lambda);
+    let _ = writeln!(meta, "validation_f1 = {:.6}", v.f1);
+    meta
+}
+
+/// Adds what the validation runs chose to the `<method>.toml` that
+/// [`write_model`] wrote (replacing an earlier choice), renamed into place.
+pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(), OutputError> {
+    let path = dir.join(format!("{}.toml", method.as_str()));
+    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
+    let marker = "# Chosen on the validation runs";
+    let kept = text.find(marker).map_or(text.as_str(), |at| &text[..at]);
+    let name = format!("{}.toml", method.as_str());
+    let body = format!("{kept}{}", validation_metadata(v));
+    publish_files(dir, |tmp| write_text(&tmp.join(&name), &body))
 }
 
 /// The lambda `coid train` chose for `method` on the validation runs (its

@@ -11,6 +11,13 @@
 //! over samples of the binary entropy of each sample's p_t (expected data
 //! uncertainty); epistemic = total - aleatoric (the mutual information
 //! between the pair's outcome and the weights, >= 0).
+//!
+//! Binary entropy is symmetric: a pair with p = 0.1 is as "certain" as one
+//! with p = 0.9, but certain of the opposite. The decision asks how sure we
+//! are that a kept pair *is* a match, so a mutual-best pair whose mean
+//! probability is below one half counts as maximally uncertain (1 bit, of
+//! every kind): thresholding at any lambda <= 1 removes it, and the
+//! uncertainty it reports (for calibration and AUROC) says so.
 
 use crate::matching::{Correspondence, binary_entropy_bits};
 
@@ -72,7 +79,13 @@ impl MatchDistribution {
         binary_entropy_bits(f64::from(self.p(i, j)))
     }
 
+    /// The uncertainty of `kind` that the decision uses for pair (i, j):
+    /// 1 bit when E[Y]_ij < 0.5 (more likely not a match; see the module
+    /// docs), else the paper's entropy or its part.
     pub fn uncertainty(&self, i: usize, j: usize, kind: UncertaintyKind) -> f64 {
+        if self.p(i, j) < 0.5 {
+            return 1.0;
+        }
         let total = self.total(i, j);
         let aleatoric = f64::from(self.aleatoric[i * self.n2 + j]).min(total);
         match kind {
@@ -112,7 +125,7 @@ impl MatchDistribution {
                 a: i,
                 b: j,
                 probability: f64::from(self.p(i, j)),
-                uncertainty: self.total(i, j),
+                uncertainty: self.uncertainty(i, j, UncertaintyKind::Total),
             });
         }
         out
@@ -161,5 +174,27 @@ mod tests {
         let kept = d.decide(Some((UncertaintyKind::Total, 0.7)));
         assert_eq!(kept.len(), 1);
         assert_eq!((kept[0].a, kept[0].b), (1, 1));
+    }
+
+    #[test]
+    fn an_unlikely_mutual_best_pair_is_uncertain_not_certain() {
+        // Row 0's best is column 0 at p = 0.1 (binary entropy 0.47 bits,
+        // "certain" by symmetry); everything else prefers the dustbins.
+        let s = vec![
+            0.1, 0.0, 0.09, //
+            0.0, 0.05, 0.95, //
+            0.05, 0.95, 0.0,
+        ];
+        let d = dist(&[s]);
+        assert!(d.total(0, 0) < 0.5);
+        assert_eq!(d.uncertainty(0, 0, UncertaintyKind::Total), 1.0);
+        assert_eq!(d.uncertainty(0, 0, UncertaintyKind::Epistemic), 1.0);
+        // Kept without a threshold, and then reported as 1 bit uncertain.
+        let m = d.decide(None);
+        assert_eq!(m.len(), 1);
+        assert_eq!(m[0].uncertainty, 1.0);
+        // Removed at lambda 0.7 and at lambda 1 (>= lambda is removed).
+        assert!(d.decide(Some((UncertaintyKind::Total, 0.7))).is_empty());
+        assert!(d.decide(Some((UncertaintyKind::Total, 1.0))).is_empty());
     }
 }

@@ -5,9 +5,14 @@
 //!
 //! Pseudo-coordinates: the edge vector i -> j rotated into world-aligned
 //! axes with the vehicle's *reported* heading (GPS heading noise is 0.2 deg;
-//! GPS position error does not enter), scaled from [-max_edge, max_edge] to
-//! [0, 1] per axis. Open B-splines of degree 1 with `KERNEL` knots per axis
-//! (SplineCNN, Fey et al. 2018) give 4 non-zero basis weights per edge.
+//! GPS position error does not enter). Open B-splines of degree 1 with
+//! `KERNEL` knots per axis (SplineCNN, Fey et al. 2018) give 4 non-zero
+//! basis weights per edge. The knots sit where edges actually are, not on
+//! an even grid over one junction's extent: at 0, at +-the median and at
+//! +-the 95th percentile of the edges' larger world-axis component, as
+//! measured over the training family (`coid train` records the measured
+//! values in each model's toml, `edge_median_m` and `edge_p95_m`); longer
+//! components are clipped onto the outer knot.
 
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::SceneGraph;
@@ -20,8 +25,13 @@ pub const KERNEL: usize = 5;
 pub const KERNEL_2D: usize = KERNEL * KERNEL;
 /// Node attribute length: class one-hot (7), colour (3), size (3).
 pub const NODE_FEATURES: usize = 13;
-/// Edge vectors are scaled by this half-range (longer edges are clipped).
-pub const MAX_EDGE_M: f64 = 60.0;
+/// The knots per axis, in metres: 0, +-median and +-95th percentile of the
+/// edges' larger world-axis component over the training family (17.7 m
+/// and 48.1 m measured on `sumo_nets/family/train` s000-s007 and the
+/// default intersection).
+pub const KNOTS_M: [f64; KERNEL] = [-48.0, -18.0, 0.0, 18.0, 48.0];
+/// Longer edge components are clipped onto the outer knots.
+pub const MAX_EDGE_M: f64 = KNOTS_M[KERNEL - 1];
 
 /// One vehicle's graph, ready for the network. Every undirected edge
 /// appears twice, once per direction; message `e` goes from `src[e]` to
@@ -40,6 +50,9 @@ pub struct GraphInput {
     /// `n x E`, row-major: `1 / deg(i)` where `dst[e] == i` (mean
     /// aggregation of incoming messages).
     pub aggregate: Vec<f32>,
+    /// `E`: each edge vector in world-aligned axes (metres), before
+    /// scaling; kept for the edge-length statistics of `coid train`.
+    pub edge_world_m: Vec<[f32; 2]>,
 }
 
 impl GraphInput {
@@ -64,22 +77,23 @@ pub fn node_features(d: &Detection) -> [f32; NODE_FEATURES] {
     f
 }
 
-/// Degree-1 open B-spline weights of a coordinate in [0, 1]: the two
-/// active knots and their weights.
-fn linear_basis(u: f64) -> [(usize, f64); 2] {
-    let s = u.clamp(0.0, 1.0) * (KERNEL - 1) as f64;
-    let left = (s.floor() as usize).min(KERNEL - 2);
-    let frac = s - left as f64;
+/// Degree-1 B-spline weights of an edge component (metres) on the knots
+/// `KNOTS_M`: the two active knots and their weights (clipped at the ends).
+fn linear_basis(d_m: f64) -> [(usize, f64); 2] {
+    let d = d_m.clamp(KNOTS_M[0], KNOTS_M[KERNEL - 1]);
+    let left = (0..KERNEL - 1)
+        .rfind(|&k| KNOTS_M[k] <= d)
+        .unwrap_or(0)
+        .min(KERNEL - 2);
+    let frac = (d - KNOTS_M[left]) / (KNOTS_M[left + 1] - KNOTS_M[left]);
     [(left, 1.0 - frac), (left + 1, frac)]
 }
 
 /// The 4 non-zero (kernel index, weight) pairs of an edge vector given in
 /// world-aligned axes.
 pub fn edge_basis(d_world_m: &Vec2) -> [(usize, f64); 4] {
-    let ux = d_world_m.x / (2.0 * MAX_EDGE_M) + 0.5;
-    let uy = d_world_m.y / (2.0 * MAX_EDGE_M) + 0.5;
-    let bx = linear_basis(ux);
-    let by = linear_basis(uy);
+    let bx = linear_basis(d_world_m.x);
+    let by = linear_basis(d_world_m.y);
     [
         (bx[0].0 * KERNEL + by[0].0, bx[0].1 * by[0].1),
         (bx[0].0 * KERNEL + by[1].0, bx[0].1 * by[1].1),
@@ -100,13 +114,14 @@ pub fn graph_input(
     }
     let neighbours = graph.neighbours();
     let heading = Pose2::new(Vec2::zeros(), pose_reported.heading_rad());
-    let (mut src, mut dst, mut basis_index, mut basis_weight) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut src, mut dst, mut basis_index, mut basis_weight, mut edge_world_m) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for (i, nb) in neighbours.iter().enumerate() {
         for &j in nb {
             let d_world = heading.to_parent(&(graph.positions_m[j] - graph.positions_m[i]));
             src.push(j as i64);
             dst.push(i as i64);
+            edge_world_m.push([d_world.x as f32, d_world.y as f32]);
             for (k, w) in edge_basis(&d_world) {
                 basis_index.push(k as i64);
                 basis_weight.push(w as f32);
@@ -127,6 +142,7 @@ pub fn graph_input(
         basis_index,
         basis_weight,
         aggregate,
+        edge_world_m,
     }
 }
 
@@ -168,6 +184,21 @@ mod tests {
             prop_assert!((sum - 1.0).abs() < 1e-12);
             prop_assert!(b.iter().all(|&(k, w)| k < KERNEL_2D && (0.0..=1.0).contains(&w)));
         }
+    }
+
+    #[test]
+    fn knots_are_hit_exactly_and_interpolated_between() {
+        for (k, &t) in KNOTS_M.iter().enumerate() {
+            let b = linear_basis(t);
+            let w: f64 = b.iter().filter(|&&(i, _)| i == k).map(|&(_, w)| w).sum();
+            assert!((w - 1.0).abs() < 1e-12, "knot {k}");
+        }
+        // Halfway between the centre and the median knot.
+        let b = linear_basis(KNOTS_M[3] / 2.0);
+        assert_eq!(b, [(2, 0.5), (3, 0.5)]);
+        // Clipped beyond the outer knots.
+        assert_eq!(linear_basis(500.0), linear_basis(KNOTS_M[KERNEL - 1]));
+        assert_eq!(linear_basis(-500.0), linear_basis(KNOTS_M[0]));
     }
 
     #[test]

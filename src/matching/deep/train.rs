@@ -9,7 +9,7 @@ use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
-use super::features::{GraphInput, graph_input};
+use super::features::{self, GraphInput, graph_input};
 use super::model::{self, Architecture, GraphTensors, Init, LossTerms, Masks, Network};
 use super::{draw_masks, variant};
 use crate::matching::{Correspondence, MatchView, Method};
@@ -44,6 +44,11 @@ pub struct TrainSettings {
     pub dustbin_loss: bool,
     /// MC-dropout samples per training step (losses on their mean).
     pub mc_samples: usize,
+    /// Training pairs are sampled at most this often per vehicle pair
+    /// (simulated seconds; the scenario's own `sample_every_s` if that is
+    /// longer): consecutive instances differ little, so long runs of busy
+    /// scenarios give more variety per training step this way.
+    pub sample_every_s: f64,
 }
 
 /// One training pair with its labels.
@@ -129,6 +134,40 @@ pub struct TrainReport {
     /// With early stopping: the epoch whose weights were kept (0 = none
     /// improved on the initial weights).
     pub best_epoch: Option<usize>,
+    /// The edges the network saw: see [`EdgeStats`].
+    pub edges: EdgeStats,
+}
+
+/// How the training graphs' edge vectors fill the pseudo-coordinate range
+/// (`features::MAX_EDGE_M` per axis): the median and 95th percentile of
+/// each edge's larger absolute world-axis component, and the share of
+/// edges beyond the range (clipped onto its border).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EdgeStats {
+    pub median_m: f64,
+    pub p95_m: f64,
+    pub clipped_share: f64,
+}
+
+impl EdgeStats {
+    pub fn of(examples: &[Example]) -> Self {
+        let mut m: Vec<f64> = examples
+            .iter()
+            .flat_map(|e| e.g1.edge_world_m.iter().chain(&e.g2.edge_world_m))
+            .map(|v| f64::from(v[0].abs().max(v[1].abs())))
+            .collect();
+        if m.is_empty() {
+            return Self::default();
+        }
+        m.sort_by(f64::total_cmp);
+        let at = |q: f64| m[((m.len() - 1) as f64 * q).round() as usize];
+        let clipped = m.iter().filter(|&&x| x > features::MAX_EDGE_M).count();
+        Self {
+            median_m: at(0.5),
+            p95_m: at(0.95),
+            clipped_share: clipped as f64 / m.len() as f64,
+        }
+    }
 }
 
 /// A network being trained, with its optimizer and random stream.
@@ -254,7 +293,10 @@ pub fn train(
         return Err("no training examples (no instance with a covisible object)".into());
     }
     let stopping = opts.patience > 0 && !validation.is_empty();
-    let mut report = TrainReport::default();
+    let mut report = TrainReport {
+        edges: EdgeStats::of(examples),
+        ..TrainReport::default()
+    };
     let mut best = None;
     if stopping {
         report
