@@ -10,7 +10,12 @@
 
 use crate::fusion::{FusionSettings, FusionVariant, Measurement, align, fuse, relative_pose_prior};
 use crate::geometry::Vec2;
-use crate::matching::{Correspondence, Identification, MatchView, Matcher, Method, oracle};
+use crate::matching::synchronize::{
+    Association, PairwiseMatches, TripleCounts, synchronize, triple_consistency,
+};
+use crate::matching::{
+    Correspondence, Identification, MatchView, Matcher, Method, MultiVehicle, oracle,
+};
 use crate::sensor::{Observation, ObservationTruth, PoseNoiseLevel};
 
 /// `[eval]`: the test runs of `coid eval`.
@@ -211,7 +216,16 @@ pub struct MethodEval {
 /// Runs `runner` on `pair`, counts its correspondences and fuses them with
 /// every variant of `fusion`.
 pub fn evaluate(pair: &PairAtLevel, runner: &Runner, fusion: &FusionSettings) -> MethodEval {
-    let identification = runner.identify(pair);
+    score(pair, runner.method(), runner.identify(pair), fusion)
+}
+
+/// Counts `identification`'s correspondences on `pair` and fuses them.
+fn score(
+    pair: &PairAtLevel,
+    method: Method,
+    identification: Identification,
+    fusion: &FusionSettings,
+) -> MethodEval {
     let matches = &identification.matches;
     let counts = count_pairs(pair.first.truth, pair.second.truth, matches);
     let ab: Vec<(usize, usize)> = matches.iter().map(|c| (c.a, c.b)).collect();
@@ -234,11 +248,180 @@ pub fn evaluate(pair: &PairAtLevel, runner: &Runner, fusion: &FusionSettings) ->
         })
         .collect();
     MethodEval {
-        method: runner.method(),
+        method,
         identification,
         counts,
         fused,
     }
+}
+
+/// How consistent one method's matches of a frame are across vehicles.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Consistency {
+    /// Chains x~y~z over vehicle triples whose three pairs are instances,
+    /// and how many of them the third pair contradicts.
+    pub triples: TripleCounts,
+    /// The objects the matches imply (the transitive closure of the pairs
+    /// for `pairwise`, the synchronised assignment otherwise), scored as a
+    /// clustering: over every pair of detections of an instance's two
+    /// vehicles, "same object" against the truth (pair-counting precision,
+    /// recall and F1).
+    pub objects: PairCounts,
+}
+
+impl Consistency {
+    pub fn add(&mut self, other: Consistency) {
+        self.triples.add(other.triples);
+        self.objects.add(other.objects);
+    }
+}
+
+/// What one method did on the instances of one frame at one pose-noise
+/// level.
+#[derive(Clone, Debug)]
+pub struct FrameEval {
+    pub method: Method,
+    /// One per instance, in input order.
+    pub pairs: Vec<MethodEval>,
+    pub consistency: Consistency,
+}
+
+/// Runs `runner` on every instance of one frame (`pairs`: one step, one
+/// pose-noise level, vehicles ordered by id within each pair) and, with
+/// `multi_vehicle = synchronized`, replaces each pair's matches by those of
+/// one consistent assignment of the frame's detections to objects before
+/// counting and fusing. With two vehicles both modes agree with
+/// [`evaluate`] up to the probabilities of pairs the association dropped.
+pub fn evaluate_frame(
+    pairs: &[PairAtLevel],
+    runner: &Runner,
+    fusion: &FusionSettings,
+    multi_vehicle: MultiVehicle,
+) -> FrameEval {
+    let method = runner.method();
+    let mut identifications: Vec<Identification> =
+        pairs.iter().map(|p| runner.identify(p)).collect();
+    let vehicles = FrameVehicles::new(pairs);
+    let pairwise: Vec<PairwiseMatches> = pairs
+        .iter()
+        .zip(&identifications)
+        .map(|(p, id)| vehicles.pairwise(p, id.matches.clone()))
+        .collect();
+    let association = match multi_vehicle {
+        MultiVehicle::Pairwise => Association::closure(&vehicles.n_detections, &pairwise),
+        MultiVehicle::Synchronized => synchronize(&vehicles.n_detections, &pairwise),
+    };
+    let decided = match multi_vehicle {
+        MultiVehicle::Pairwise => pairwise,
+        MultiVehicle::Synchronized => {
+            let implied = association.implied(&pairwise);
+            for (id, p) in identifications.iter_mut().zip(&implied) {
+                id.matches = p.matches.clone();
+            }
+            implied
+        }
+    };
+    let consistency = Consistency {
+        triples: triple_consistency(&decided),
+        objects: pairs
+            .iter()
+            .map(|p| object_counts(p, &association, &vehicles))
+            .fold(PairCounts::default(), |mut acc, c| {
+                acc.add(c);
+                acc
+            }),
+    };
+    let pairs = pairs
+        .iter()
+        .zip(identifications)
+        .map(|(p, id)| score(p, method, id, fusion))
+        .collect();
+    FrameEval {
+        method,
+        pairs,
+        consistency,
+    }
+}
+
+/// The connected vehicles of a frame's instances, indexed in id order.
+struct FrameVehicles<'a> {
+    ids: Vec<&'a str>,
+    n_detections: Vec<usize>,
+}
+
+impl<'a> FrameVehicles<'a> {
+    fn new(pairs: &[PairAtLevel<'a>]) -> Self {
+        let mut sides: Vec<(&'a str, usize)> = pairs
+            .iter()
+            .flat_map(|p| [p.first, p.second])
+            .map(|s| (s.obs.ego_id.as_str(), s.obs.detections.len()))
+            .collect();
+        sides.sort();
+        sides.dedup();
+        let (ids, n_detections) = sides.into_iter().unzip();
+        Self { ids, n_detections }
+    }
+
+    fn index(&self, id: &str) -> usize {
+        self.ids
+            .binary_search(&id)
+            .expect("every side is a frame vehicle")
+    }
+
+    /// A pair's matches between frame vehicle indices, the smaller first.
+    fn pairwise(&self, pair: &PairAtLevel, matches: Vec<Correspondence>) -> PairwiseMatches {
+        let (i, j) = (
+            self.index(&pair.first.obs.ego_id),
+            self.index(&pair.second.obs.ego_id),
+        );
+        if i < j {
+            PairwiseMatches {
+                first: i,
+                second: j,
+                matches,
+            }
+        } else {
+            let swapped = matches
+                .into_iter()
+                .map(|c| Correspondence {
+                    a: c.b,
+                    b: c.a,
+                    ..c
+                })
+                .collect();
+            PairwiseMatches {
+                first: j,
+                second: i,
+                matches: swapped,
+            }
+        }
+    }
+}
+
+/// Object-level counts on one instance: every (first, second) detection
+/// pair the association puts in one object, against the true pairs.
+fn object_counts(
+    pair: &PairAtLevel,
+    association: &Association,
+    vehicles: &FrameVehicles,
+) -> PairCounts {
+    let (first, second) = (pair.first.truth, pair.second.truth);
+    let i = vehicles.index(&pair.first.obs.ego_id);
+    let j = vehicles.index(&pair.second.obs.ego_id);
+    let mut together = Vec::new();
+    for a in 0..first.detections.len() {
+        for b in 0..second.detections.len() {
+            if association.same((i, a), (j, b)) {
+                together.push(Correspondence {
+                    a,
+                    b,
+                    probability: 1.0,
+                    uncertainty: 0.0,
+                });
+            }
+        }
+    }
+    count_pairs(first, second, &together)
 }
 
 /// How one ego fuses: the pose-noise level, the variant and its setting.
@@ -503,6 +686,108 @@ mod tests {
                 position_sigma_m: 1.2,
                 heading_sigma_rad: 0.0035,
             },
+        }
+    }
+
+    /// Pairs by the reported x position of the two egos: (a, b) and
+    /// (b, c) right and confident, (a, c) crossed and less sure.
+    struct Contradicting;
+
+    impl Matcher for Contradicting {
+        fn method(&self) -> Method {
+            Method::Mogm
+        }
+        fn identify(&self, first: &MatchView, second: &MatchView) -> Identification {
+            let c = |a, b, probability| Correspondence {
+                a,
+                b,
+                probability,
+                uncertainty: 0.0,
+            };
+            let xs = (
+                first.pose_reported.position_m().x,
+                second.pose_reported.position_m().x,
+            );
+            Identification::plain(if xs == (0.0, 20.0) {
+                vec![c(0, 1, 0.6), c(1, 0, 0.6)]
+            } else {
+                vec![c(0, 0, 0.9), c(1, 1, 0.9)]
+            })
+        }
+    }
+
+    #[test]
+    fn a_contradictory_triple_is_counted_and_synchronisation_resolves_it() {
+        let objects = [
+            (Some("x"), Vec2::new(5.0, 8.0)),
+            (Some("y"), Vec2::new(12.0, -3.0)),
+        ];
+        let poses = [0.0, 10.0, 20.0].map(|x| Pose2::new(Vec2::new(x, -10.0), 0.1));
+        let sensed: Vec<(Observation, ObservationTruth)> = ["a", "b", "c"]
+            .iter()
+            .zip(&poses)
+            .map(|(id, p)| sensed(id, *p, &objects))
+            .collect();
+        let graphs: Vec<SceneGraph> = sensed
+            .iter()
+            .map(|(o, _)| {
+                SceneGraph::delaunay(
+                    &o.detections
+                        .iter()
+                        .map(|d| d.position_m)
+                        .collect::<Vec<_>>(),
+                )
+                .unwrap()
+            })
+            .collect();
+        let side = |k: usize| Side {
+            view: exact_view(&sensed[k].0, &graphs[k], poses[k]),
+            obs: &sensed[k].0,
+            truth: &sensed[k].1,
+        };
+        let level = side(0).view.pose_noise;
+        let pairs: Vec<PairAtLevel> = [(0, 1), (0, 2), (1, 2)]
+            .iter()
+            .map(|&(i, j)| PairAtLevel {
+                first: side(i),
+                second: side(j),
+                level,
+            })
+            .collect();
+        let fusion = FusionSettings {
+            variants: vec![FusionVariant::Paper],
+            align_min_matches: 3,
+        };
+        let runner = Runner::Matcher(Box::new(Contradicting));
+        let pairwise = evaluate_frame(&pairs, &runner, &fusion, MultiVehicle::Pairwise);
+        // As decided: (a, c) wrong, so every chain through b is broken;
+        // the closure puts all six detections into one object.
+        let correct: Vec<usize> = pairwise.pairs.iter().map(|e| e.counts.correct).collect();
+        assert_eq!(correct, [2, 0, 2]);
+        let t = pairwise.consistency.triples;
+        assert_eq!((t.chains, t.inconsistent), (6, 6));
+        let o = pairwise.consistency.objects;
+        assert_eq!((o.identified, o.correct, o.ground_truth), (12, 6, 6));
+        // Synchronised: the weak crossed pairs lose, (a, c) is implied by
+        // the chains through b with probability 0.9 * 0.9.
+        let synced = evaluate_frame(&pairs, &runner, &fusion, MultiVehicle::Synchronized);
+        let correct: Vec<usize> = synced.pairs.iter().map(|e| e.counts.correct).collect();
+        assert_eq!(correct, [2, 2, 2]);
+        let ac = &synced.pairs[1].identification.matches;
+        assert_eq!(
+            ac.iter().map(|c| (c.a, c.b)).collect::<Vec<_>>(),
+            [(0, 0), (1, 1)]
+        );
+        assert!((ac[0].probability - 0.81).abs() < 1e-12);
+        let t = synced.consistency.triples;
+        assert_eq!((t.chains, t.inconsistent), (6, 0));
+        let o = synced.consistency.objects;
+        assert_eq!((o.identified, o.correct, o.ground_truth), (6, 6, 6));
+        // Fused from the consistent matches: exact views, exact result.
+        for e in &synced.pairs {
+            for x in &e.fused[0].1 {
+                assert!(x.match_correct && x.fused_error_m() < 1e-9, "{x:?}");
+            }
         }
     }
 

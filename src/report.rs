@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
-use crate::evaluate::{ObjectEstimate, PairCounts};
+use crate::evaluate::{Consistency, ObjectEstimate, PairCounts};
 use crate::fusion::FusionVariant;
 use crate::matching::Method;
 use crate::sensor::PoseNoiseLabel;
@@ -135,15 +135,29 @@ pub struct SummaryRow {
     /// Means over the matched objects only (method-dependent).
     pub de_single_matched_m: f64,
     pub de_fused_matched_m: f64,
+    /// Chains x~y~z across three vehicles, and the share the third pair
+    /// contradicts (NaN without any chain).
+    pub triple_chains: usize,
+    pub inconsistent_triple_share: f64,
+    /// The implied objects as a clustering (pair counting).
+    pub object_precision: f64,
+    pub object_recall: f64,
+    pub object_f1: f64,
 }
 
 /// A run's summary: counts and errors pooled over its instances.
 #[derive(Clone, Debug, Default)]
 pub struct Summary {
     pub rows: BTreeMap<RowKey, Accumulator>,
+    /// Per (method, pose noise): consistency across vehicles.
+    pub consistency: BTreeMap<(Method, PoseNoiseLabel), Consistency>,
 }
 
 impl Summary {
+    pub fn record_consistency(&mut self, method: Method, level: PoseNoiseLabel, c: Consistency) {
+        self.consistency.entry((method, level)).or_default().add(c);
+    }
+
     pub fn record(&mut self, key: RowKey, counts: PairCounts, estimates: &[ObjectEstimate]) {
         let acc = self.rows.entry(key).or_default();
         acc.instances += 1;
@@ -157,6 +171,11 @@ impl Summary {
             .iter()
             .map(|(key, acc)| {
                 let e = &acc.errors;
+                let c = self
+                    .consistency
+                    .get(&(key.method, key.pose_noise))
+                    .copied()
+                    .unwrap_or_default();
                 SummaryRow {
                     key: *key,
                     n_instances: acc.instances,
@@ -171,6 +190,11 @@ impl Summary {
                     de_fused_covis_m: e.covisible.mean_fused_m(),
                     de_single_matched_m: e.matched.mean_single_m(),
                     de_fused_matched_m: e.matched.mean_fused_m(),
+                    triple_chains: c.triples.chains,
+                    inconsistent_triple_share: c.triples.share(),
+                    object_precision: c.objects.precision(),
+                    object_recall: c.objects.recall(),
+                    object_f1: c.objects.f1(),
                 }
             })
             .collect()

@@ -76,8 +76,41 @@ pub fn run(settings: &Settings, results: &RunResults, rows: &[SummaryRow]) -> St
             n(r.de_fused_covis_m),
         );
     }
+    consistency(&mut s, settings, results);
     s
 }
+
+/// The run's consistency across vehicles, per method and pose noise.
+fn consistency(s: &mut String, settings: &Settings, results: &RunResults) {
+    let _ = writeln!(
+        s,
+        "\n## Across vehicles (`multi_vehicle = \"{}\"`)\n\n{CONSISTENCY_PROTOCOL}\n",
+        settings.matching.multi_vehicle.as_str()
+    );
+    let _ = writeln!(
+        s,
+        "| method | pose noise | triple chains | inconsistent share | object precision | object recall | object F1 |"
+    );
+    let _ = writeln!(s, "|---|---|---:|---:|---:|---:|---:|");
+    for ((m, l), c) in &results.summary.consistency {
+        let n = |v: f64| fmt_num(v, 4);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} |",
+            m.as_str(),
+            l.as_str(),
+            c.triples.chains,
+            n(c.triples.share()),
+            n(c.objects.precision()),
+            n(c.objects.recall()),
+            n(c.objects.f1()),
+        );
+    }
+}
+
+/// How the consistency numbers are made.
+const CONSISTENCY_PROTOCOL: &str = "- triple chains: detections x~y~z matched across three connected vehicles whose three pairs are all instances of the step; inconsistent: the pair of x and z contradicts the chain (n/a without any chain)\n\
+- object precision, recall, F1: the objects the matches imply (the transitive closure of the pairs, or the synchronised assignment) scored as a clustering: every detection pair of an instance's two vehicles, same object or not, against the truth";
 
 /// How a run's numbers are made, in one paragraph.
 const RUN_PROTOCOL: &str = "- precision and recall pool the pairs of all instances; precision is n/a when the method identified no pair\n\
