@@ -8,6 +8,8 @@
 //! This module, the oracle and the pictures are the only readers of the
 //! ground truth ([`ObservationTruth`]); matchers receive [`MatchView`]s.
 
+use std::collections::BTreeMap;
+
 use crate::fusion::{FusionSettings, FusionVariant, Measurement, align, fuse, relative_pose_prior};
 use crate::geometry::Vec2;
 use crate::matching::synchronize::{
@@ -284,6 +286,28 @@ pub struct FrameEval {
     /// One per instance, in input order.
     pub pairs: Vec<MethodEval>,
     pub consistency: Consistency,
+    /// Per configured fusion variant, every (ego, object) of the frame
+    /// fused from all the views matched to it.
+    pub views: Vec<(FusionVariant, Vec<ViewEstimate>)>,
+}
+
+/// One (ego, real object) of a frame, fused from every vehicle that
+/// matched it (Eq. 14-16 with N terms), beside the pairwise estimates of
+/// the same object: the object set is every real object an ego of the
+/// frame detects, the same for every method.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewEstimate {
+    pub ego_id: String,
+    pub object_id: String,
+    /// Vehicles that detect the object: the ego and those of its instance
+    /// peers that do (from the truth, the same for every method).
+    pub seen_by: usize,
+    /// Measurements fused: the ego's and one per peer that matched it.
+    pub views: usize,
+    pub single_error_m: f64,
+    /// The mean over the ego's instances of the pairwise fused error.
+    pub pairwise_error_m: f64,
+    pub fused_error_m: f64,
 }
 
 /// Runs `runner` on every instance of one frame (`pairs`: one step, one
@@ -331,16 +355,125 @@ pub fn evaluate_frame(
                 acc
             }),
     };
-    let pairs = pairs
+    let scored: Vec<MethodEval> = pairs
         .iter()
         .zip(identifications)
         .map(|(p, id)| score(p, method, id, fusion))
         .collect();
+    let views = fusion
+        .variants
+        .iter()
+        .map(|&variant| {
+            let ctx = FusionContext {
+                level: &pairs[0].level,
+                variant,
+                align_min_matches: fusion.align_min_matches,
+            };
+            (variant, all_views(pairs, &scored, &vehicles, &ctx))
+        })
+        .collect();
     FrameEval {
         method,
-        pairs,
+        pairs: scored,
         consistency,
+        views,
     }
+}
+
+/// Every ego of the frame fuses each real object it detects from all the
+/// peers (of its instances) whose detection the decided matches pair with
+/// its own; beside it, the mean of the pairwise fused errors of `scored`.
+fn all_views(
+    pairs: &[PairAtLevel],
+    scored: &[MethodEval],
+    vehicles: &FrameVehicles,
+    ctx: &FusionContext,
+) -> Vec<ViewEstimate> {
+    let mut pairwise: BTreeMap<(&str, &str), (f64, usize)> = BTreeMap::new();
+    for e in scored {
+        for (v, est) in &e.fused {
+            if *v == ctx.variant {
+                for x in est {
+                    let sum = pairwise.entry((&x.ego_id, &x.object_id)).or_default();
+                    sum.0 += x.fused_error_m();
+                    sum.1 += 1;
+                }
+            }
+        }
+    }
+    let mut out = Vec::new();
+    for ego_id in &vehicles.ids {
+        let mut ego = None;
+        let mut peers: Vec<(Side, Vec<(usize, usize)>)> = Vec::new();
+        for (p, e) in pairs.iter().zip(scored) {
+            let m = &e.identification.matches;
+            if p.first.obs.ego_id == *ego_id {
+                ego = Some(p.first);
+                peers.push((p.second, m.iter().map(|c| (c.a, c.b)).collect()));
+            } else if p.second.obs.ego_id == *ego_id {
+                ego = Some(p.second);
+                peers.push((p.first, m.iter().map(|c| (c.b, c.a)).collect()));
+            }
+        }
+        let Some(ego) = ego else { continue };
+        for mut v in fuse_all_views(&ego, &peers, ctx) {
+            let (sum, n) = pairwise[&(v.ego_id.as_str(), v.object_id.as_str())];
+            v.pairwise_error_m = sum / n as f64;
+            out.push(v);
+        }
+    }
+    out
+}
+
+/// `ego`'s estimate of every real object it detects, fused with the
+/// matched detection of every peer (`peers`: each with its matched (ego
+/// detection, peer detection)), each peer's pose from the variant of
+/// `ctx`; the ego's own where no peer matched it. `pairwise_error_m` is
+/// left NaN for the caller.
+fn fuse_all_views(
+    ego: &Side,
+    peers: &[(Side, Vec<(usize, usize)>)],
+    ctx: &FusionContext,
+) -> Vec<ViewEstimate> {
+    let poses: Vec<PeerPose> = peers
+        .iter()
+        .map(|(peer, pairs)| peer_pose(ego, peer, pairs, ctx).1)
+        .collect();
+    let mut out = Vec::new();
+    for (a, truth) in ego.truth.detections.iter().enumerate() {
+        let (Some(id), Some(truth_m)) = (truth.object_id.as_deref(), truth.position_m) else {
+            continue;
+        };
+        if truth.sender {
+            continue;
+        }
+        let own = measured(ego.obs, a);
+        let mut measurements = vec![own];
+        for ((peer, pairs), pose) in peers.iter().zip(&poses) {
+            if let Some(&(_, b)) = pairs.iter().find(|(x, _)| *x == a) {
+                measurements.push(pose.move_measurement(&measured(peer.obs, b)));
+            }
+        }
+        let fused = if measurements.len() > 1 {
+            fuse(&measurements).map_or(own.position_m, |f| f.position_m)
+        } else {
+            own.position_m
+        };
+        let error = |p: &Vec2| (ego.truth.ego_pose.to_parent(p) - truth_m).norm();
+        out.push(ViewEstimate {
+            ego_id: ego.obs.ego_id.clone(),
+            object_id: id.to_owned(),
+            seen_by: 1 + peers
+                .iter()
+                .filter(|(peer, _)| peer.truth.find(id).is_some())
+                .count(),
+            views: measurements.len(),
+            single_error_m: error(&own.position_m),
+            pairwise_error_m: f64::NAN,
+            fused_error_m: error(&fused),
+        });
+    }
+    out
 }
 
 /// The connected vehicles of a frame's instances, indexed in id order.
@@ -439,6 +572,52 @@ enum PeerPose {
     Aligned(crate::fusion::PoseEstimate),
 }
 
+/// Detection `k` of `obs` as a measurement in that vehicle's frame.
+fn measured(obs: &Observation, k: usize) -> Measurement {
+    Measurement {
+        position_m: obs.detections[k].position_m,
+        cov_m2: obs.detections[k].cov_m2,
+    }
+}
+
+impl PeerPose {
+    /// A peer's measurement moved into the ego's frame.
+    fn move_measurement(&self, m: &Measurement) -> Measurement {
+        match self {
+            PeerPose::Reported(pose) => m.moved(pose),
+            PeerPose::Aligned(estimate) => m.moved_uncertain(estimate),
+        }
+    }
+}
+
+/// Where `peer` sits in `ego`'s frame for the variant of `ctx` (`pairs`:
+/// the matched (ego detection, peer detection)), and whether it was
+/// refined from the matches.
+fn peer_pose(
+    ego: &Side,
+    peer: &Side,
+    pairs: &[(usize, usize)],
+    ctx: &FusionContext,
+) -> (bool, PeerPose) {
+    let prior = relative_pose_prior(
+        &ego.view.pose_reported,
+        &peer.view.pose_reported,
+        ctx.level.position_sigma_m,
+        ctx.level.heading_sigma_rad,
+    );
+    match ctx.variant {
+        FusionVariant::Paper => (false, PeerPose::Reported(prior.pose)),
+        FusionVariant::Aligned => {
+            let matched: Vec<(Measurement, Measurement)> = pairs
+                .iter()
+                .map(|&(a, b)| (measured(ego.obs, a), measured(peer.obs, b)))
+                .collect();
+            let al = align(&matched, &prior, ctx.align_min_matches);
+            (al.refined, PeerPose::Aligned(al.estimate))
+        }
+    }
+}
+
 /// The estimates of every real object `ego` detected (false positives have
 /// no truth; the ego's own node is not a detection): fused with the peer's detection the correspondences pair it
 /// with (`pairs` index `(ego detection, peer detection)`), or the ego's own
@@ -452,31 +631,8 @@ fn fuse_for_ego(
     pairs: &[(usize, usize)],
     ctx: &FusionContext,
 ) -> Vec<ObjectEstimate> {
-    let prior = relative_pose_prior(
-        &ego.view.pose_reported,
-        &peer.view.pose_reported,
-        ctx.level.position_sigma_m,
-        ctx.level.heading_sigma_rad,
-    );
-    let measured = |obs: &Observation, k: usize| Measurement {
-        position_m: obs.detections[k].position_m,
-        cov_m2: obs.detections[k].cov_m2,
-    };
-    let (refined, peer_pose) = match ctx.variant {
-        FusionVariant::Paper => (false, PeerPose::Reported(prior.pose)),
-        FusionVariant::Aligned => {
-            let matched: Vec<(Measurement, Measurement)> = pairs
-                .iter()
-                .map(|&(a, b)| (measured(ego.obs, a), measured(peer.obs, b)))
-                .collect();
-            let al = align(&matched, &prior, ctx.align_min_matches);
-            (al.refined, PeerPose::Aligned(al.estimate))
-        }
-    };
-    let moved = |m: &Measurement| match &peer_pose {
-        PeerPose::Reported(pose) => m.moved(pose),
-        PeerPose::Aligned(estimate) => m.moved_uncertain(estimate),
-    };
+    let (refined, peer_pose) = peer_pose(ego, peer, pairs, ctx);
+    let moved = |m: &Measurement| peer_pose.move_measurement(m);
     let mut partner: Vec<Option<usize>> = vec![None; ego.obs.detections.len()];
     for &(a, b) in pairs {
         partner[a] = Some(b);
@@ -689,6 +845,17 @@ mod tests {
         }
     }
 
+    /// The Delaunay graph of each observation.
+    fn graphs_of(sensed: &[(Observation, ObservationTruth)]) -> Vec<SceneGraph> {
+        sensed
+            .iter()
+            .map(|(o, _)| {
+                let positions: Vec<Vec2> = o.detections.iter().map(|d| d.position_m).collect();
+                SceneGraph::delaunay(&positions).unwrap()
+            })
+            .collect()
+    }
+
     /// Pairs by the reported x position of the two egos: (a, b) and
     /// (b, c) right and confident, (a, c) crossed and less sure.
     struct Contradicting;
@@ -728,18 +895,7 @@ mod tests {
             .zip(&poses)
             .map(|(id, p)| sensed(id, *p, &objects))
             .collect();
-        let graphs: Vec<SceneGraph> = sensed
-            .iter()
-            .map(|(o, _)| {
-                SceneGraph::delaunay(
-                    &o.detections
-                        .iter()
-                        .map(|d| d.position_m)
-                        .collect::<Vec<_>>(),
-                )
-                .unwrap()
-            })
-            .collect();
+        let graphs = graphs_of(&sensed);
         let side = |k: usize| Side {
             view: exact_view(&sensed[k].0, &graphs[k], poses[k]),
             obs: &sensed[k].0,
@@ -788,6 +944,83 @@ mod tests {
             for x in &e.fused[0].1 {
                 assert!(x.match_correct && x.fused_error_m() < 1e-9, "{x:?}");
             }
+        }
+    }
+
+    #[test]
+    fn fusion_from_every_view_reduces_to_the_pair_for_two_vehicles() {
+        let objects = [
+            (Some("x"), Vec2::new(5.0, 8.0)),
+            (Some("y"), Vec2::new(12.0, -3.0)),
+            (Some("z"), Vec2::new(-4.0, 6.0)),
+        ];
+        let poses = [(0.0, 0.1), (15.0, 2.0), (-10.0, -1.2)]
+            .map(|(x, h)| Pose2::new(Vec2::new(x, -12.0), h));
+        // Measurements off by a different vector for every detection.
+        let sensed: Vec<(Observation, ObservationTruth)> = ["a", "b", "c"]
+            .iter()
+            .zip(&poses)
+            .enumerate()
+            .map(|(v, (id, p))| {
+                let (mut obs, truth) = sensed(id, *p, &objects);
+                for (k, d) in obs.detections.iter_mut().enumerate() {
+                    let t = (3 * v + k) as f64;
+                    d.position_m += Vec2::new(0.4 * t.sin(), 0.3 * t.cos());
+                }
+                (obs, truth)
+            })
+            .collect();
+        let graphs = graphs_of(&sensed);
+        let side = |k: usize| Side {
+            view: exact_view(&sensed[k].0, &graphs[k], poses[k]),
+            obs: &sensed[k].0,
+            truth: &sensed[k].1,
+        };
+        let level = side(0).view.pose_noise;
+        let pair = |i: usize, j: usize| PairAtLevel {
+            first: side(i),
+            second: side(j),
+            level,
+        };
+        let fusion = FusionSettings {
+            variants: vec![FusionVariant::Paper],
+            align_min_matches: 3,
+        };
+        // Two vehicles: every view estimate is the pairwise one.
+        let two = evaluate_frame(
+            &[pair(0, 1)],
+            &Runner::Oracle,
+            &fusion,
+            MultiVehicle::Pairwise,
+        );
+        let views = &two.views[0].1;
+        assert_eq!(views.len(), 6);
+        for v in views {
+            assert_eq!((v.views, v.seen_by), (2, 2));
+            assert_eq!(v.fused_error_m, v.pairwise_error_m, "{v:?}");
+            assert!(v.fused_error_m < v.single_error_m + 0.3);
+        }
+        // Three vehicles: each ego fuses all three measurements, which is
+        // the fusion of the three moved into the world frame.
+        let three = [pair(0, 1), pair(0, 2), pair(1, 2)];
+        let all = evaluate_frame(&three, &Runner::Oracle, &fusion, MultiVehicle::Pairwise);
+        let views = &all.views[0].1;
+        assert_eq!(views.len(), 9);
+        for v in views {
+            assert_eq!((v.views, v.seen_by), (3, 3));
+            let k = objects
+                .iter()
+                .position(|o| o.0 == Some(v.object_id.as_str()))
+                .unwrap();
+            let world: Vec<Measurement> = (0..3)
+                .map(|u| measured(&sensed[u].0, k).moved(&poses[u]))
+                .collect();
+            let expected = (fuse(&world).unwrap().position_m - objects[k].1).norm();
+            assert!(
+                (v.fused_error_m - expected).abs() < 1e-9,
+                "{v:?} vs {expected}"
+            );
+            assert!(v.fused_error_m != v.pairwise_error_m);
         }
     }
 

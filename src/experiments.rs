@@ -156,6 +156,7 @@ pub fn eval_run(
                     settings.matching.multi_vehicle,
                 );
                 out.record_consistency(f.method, level.label, f.consistency);
+                out.record_views(f.method, level.label, &f.views);
                 for (pair, e) in pairs.iter().zip(&f.pairs) {
                     out.record(e, level.label, (pair.first.truth, pair.second.truth), &grid);
                 }

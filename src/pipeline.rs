@@ -378,6 +378,14 @@ fn record_frame(
                 }));
         }
     }
+    for (fusion, views) in &f.views {
+        let key = RowKey {
+            method: f.method,
+            pose_noise,
+            fusion: *fusion,
+        };
+        results.summary.record_views(key, views);
+    }
     results
         .summary
         .record_consistency(f.method, pose_noise, f.consistency);

@@ -11,14 +11,14 @@
 use std::collections::BTreeMap;
 
 use crate::config::Settings;
-use crate::evaluate::{Consistency, MethodEval, PairCounts, count_pairs, is_correct};
+use crate::evaluate::{Consistency, MethodEval, PairCounts, ViewEstimate, count_pairs, is_correct};
 use crate::fusion::FusionVariant;
 use crate::matching::Method;
 use crate::matching::deep::{self, decision::UncertaintyKind};
 use crate::matching::synchronize::TripleCounts;
 use crate::report::{
-    ObjectErrors, PlotData, ScoredPair, Table, brier_score, expected_calibration_error, mean_ci95,
-    reliability, uncertainty_auroc,
+    ObjectErrors, PlotData, ScoredPair, Table, ViewSums, brier_score, expected_calibration_error,
+    mean_ci95, reliability, seen_by_group, seen_by_label, uncertainty_auroc,
 };
 use crate::sensor::{ObservationTruth, PoseNoiseLabel};
 
@@ -71,10 +71,27 @@ pub struct RunEval {
     pub scored: BTreeMap<(Method, PoseNoiseLabel), Vec<ScoredPair>>,
     /// Consistency across vehicles of each method's decided matches.
     pub consistency: BTreeMap<(Method, PoseNoiseLabel), Consistency>,
+    /// Fusion from every view per (method, level, fusion, seen-by group).
+    pub views: BTreeMap<(Method, PoseNoiseLabel, FusionVariant, usize), ViewSums>,
     pub instances: usize,
 }
 
 impl RunEval {
+    /// Adds one method's all-view estimates of one frame at one level.
+    pub fn record_views(
+        &mut self,
+        method: Method,
+        level: PoseNoiseLabel,
+        views: &[(FusionVariant, Vec<ViewEstimate>)],
+    ) {
+        for (variant, est) in views {
+            for v in est {
+                let key = (method, level, *variant, seen_by_group(v.seen_by));
+                self.views.entry(key).or_default().add(v);
+            }
+        }
+    }
+
     /// Adds one method's consistency on one frame at one level.
     pub fn record_consistency(&mut self, method: Method, level: PoseNoiseLabel, c: Consistency) {
         self.consistency.entry((method, level)).or_default().add(c);
@@ -145,6 +162,7 @@ pub struct EvalTables {
     pub case_study: Table,
     pub calibration: Table,
     pub consistency: Table,
+    pub views: Table,
 }
 
 impl EvalTables {
@@ -158,6 +176,7 @@ impl EvalTables {
             ("case_study.csv", &self.case_study),
             ("calibration.csv", &self.calibration),
             ("consistency.csv", &self.consistency),
+            ("views.csv", &self.views),
         ];
         files.retain(|(_, t)| !t.columns.is_empty());
         files
@@ -242,7 +261,50 @@ pub fn eval_tables(
         case_study: if_ours(case_study),
         calibration: calibration(&inp),
         consistency: consistency(&inp),
+        views: views(&inp),
     }
+}
+
+/// Fusion from every view: per method, level, fusion variant and number
+/// of vehicles that see the object (1, 2, 3, 4+), the displacement error
+/// of the same (ego, object) set single, fused pairwise (mean over the
+/// ego's instances) and fused from every matched view; means over the
+/// runs with their 95% intervals, the object count summed.
+fn views(inp: &Inputs) -> Table {
+    let mut t = Table::default();
+    let (mut names, mut noise, mut fusion, mut seen) = (vec![], vec![], vec![], vec![]);
+    let mut n = vec![];
+    let mut de: [Vec<Vec<f64>>; 3] = Default::default();
+    for &m in &inp.methods {
+        for &l in &inp.levels {
+            for &v in &inp.variants {
+                for group in 1..=4 {
+                    let get = |run: &RunEval| run.views.get(&(m, l, v, group)).copied();
+                    let total: usize = inp.runs.iter().filter_map(get).map(|s| s.n).sum();
+                    if total == 0 {
+                        continue;
+                    }
+                    names.push(m.as_str().to_owned());
+                    noise.push(l.as_str().to_owned());
+                    fusion.push(v.as_str().to_owned());
+                    seen.push(seen_by_label(group));
+                    n.push(total as u64);
+                    de[0].push(inp.per_run(|run| get(run).map(|s| s.means().0)));
+                    de[1].push(inp.per_run(|run| get(run).map(|s| s.means().1)));
+                    de[2].push(inp.per_run(|run| get(run).map(|s| s.means().2)));
+                }
+            }
+        }
+    }
+    t.text("method", names);
+    t.text("pose_noise", noise);
+    t.text("fusion", fusion);
+    t.text("seen_by", seen);
+    t.count("n_objects", n);
+    t.stat("de_single_m", &de[0]);
+    t.stat("de_fused_pairwise_m", &de[1]);
+    t.stat("de_fused_all_views_m", &de[2]);
+    t
 }
 
 /// Consistency across vehicles of each method's decided matches: triple

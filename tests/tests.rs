@@ -322,6 +322,24 @@ mod run {
             row(synced, "gps-hungarian", "inconsistent_triple_share"),
             0.0
         );
+        // The oracle's objects fused from every view beat the pairwise
+        // fusion of the same (ego, object) set (aligned fusion, which
+        // weighs each peer's pose uncertainty).
+        let aligned = |df: &DataFrame, col: &str| {
+            let (m, f) = (strs(df, "method"), strs(df, "fusion"));
+            let i = (0..df.height())
+                .position(|i| m[i] == "oracle" && f[i] == "aligned")
+                .unwrap();
+            f64s(df, col)[i]
+        };
+        let (pairwise_de, all_views_de) = (
+            aligned(synced, "de_fused_pairwise_per_ego_m"),
+            aligned(synced, "de_fused_all_views_m"),
+        );
+        assert!(
+            all_views_de < pairwise_de,
+            "all views {all_views_de} >= pairwise {pairwise_de}"
+        );
         for (object, pair) in [
             ("object_precision", "precision"),
             ("object_recall", "recall"),
