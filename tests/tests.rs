@@ -895,6 +895,8 @@ mod batch {
         assert_ok(&batch(&fx, &cfg, "5", "1", "s2", &["--shard", "2/2"]));
         assert_ok(&fx.coid(&["merge", "s1", "s2", "--out", "merged"]));
         assert_eq!(bytes(&fx, "merged"), bytes(&fx, "all"));
+        let report = |dir: &str| std::fs::read(fx.path(dir).join("summary.md")).unwrap();
+        assert_eq!(report("merged"), report("all"));
     }
 
     #[test]
