@@ -305,7 +305,9 @@ pub struct ViewEstimate {
     /// Measurements fused: the ego's and one per peer that matched it.
     pub views: usize,
     pub single_error_m: f64,
-    /// The mean over the ego's instances of the pairwise fused error.
+    /// The mean pairwise fused error over the ego's instances whose peer
+    /// sees the object too (over all its instances when none does): what
+    /// fusing with one covisible peer at a time gives.
     pub pairwise_error_m: f64,
     pub fused_error_m: f64,
 }
@@ -382,21 +384,29 @@ pub fn evaluate_frame(
 
 /// Every ego of the frame fuses each real object it detects from all the
 /// peers (of its instances) whose detection the decided matches pair with
-/// its own; beside it, the mean of the pairwise fused errors of `scored`.
+/// its own; beside it, the mean of the pairwise fused errors of `scored`
+/// over the peers that see the object.
 fn all_views(
     pairs: &[PairAtLevel],
     scored: &[MethodEval],
     vehicles: &FrameVehicles,
     ctx: &FusionContext,
 ) -> Vec<ViewEstimate> {
-    let mut pairwise: BTreeMap<(&str, &str), (f64, usize)> = BTreeMap::new();
+    // Per (ego, object): sums of the pairwise fused errors over the peers
+    // that see the object too, and over all peers.
+    let mut pairwise: BTreeMap<(&str, &str), [(f64, usize); 2]> = BTreeMap::new();
     for e in scored {
         for (v, est) in &e.fused {
             if *v == ctx.variant {
                 for x in est {
-                    let sum = pairwise.entry((&x.ego_id, &x.object_id)).or_default();
-                    sum.0 += x.fused_error_m();
-                    sum.1 += 1;
+                    let sums = pairwise.entry((&x.ego_id, &x.object_id)).or_default();
+                    let err = x.fused_error_m();
+                    if x.covisible {
+                        sums[0].0 += err;
+                        sums[0].1 += 1;
+                    }
+                    sums[1].0 += err;
+                    sums[1].1 += 1;
                 }
             }
         }
@@ -417,7 +427,8 @@ fn all_views(
         }
         let Some(ego) = ego else { continue };
         for mut v in fuse_all_views(&ego, &peers, ctx) {
-            let (sum, n) = pairwise[&(v.ego_id.as_str(), v.object_id.as_str())];
+            let [covisible, all] = pairwise[&(v.ego_id.as_str(), v.object_id.as_str())];
+            let (sum, n) = if covisible.1 > 0 { covisible } else { all };
             v.pairwise_error_m = sum / n as f64;
             out.push(v);
         }

@@ -197,7 +197,7 @@ pub struct SummaryRow {
     pub object_recall: f64,
     pub object_f1: f64,
     /// Every (ego, real object) of the frames once: single, pairwise fused
-    /// (mean over the ego's instances) and fused from every view.
+    /// (mean over the ego's peers that see the object) and fused from every view.
     pub n_ego_objects: usize,
     pub de_single_per_ego_m: f64,
     pub de_fused_pairwise_per_ego_m: f64,

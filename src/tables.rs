@@ -268,7 +268,8 @@ pub fn eval_tables(
 /// Fusion from every view: per method, level, fusion variant and number
 /// of vehicles that see the object (1, 2, 3, 4+), the displacement error
 /// of the same (ego, object) set single, fused pairwise (mean over the
-/// ego's instances) and fused from every matched view; means over the
+/// ego's peers that see the object) and fused from every matched view;
+/// means over the
 /// runs with their 95% intervals, the object count summed.
 fn views(inp: &Inputs) -> Table {
     let mut t = Table::default();

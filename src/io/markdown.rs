@@ -85,7 +85,7 @@ pub fn run(settings: &Settings, results: &RunResults, rows: &[SummaryRow]) -> St
 fn all_views(s: &mut String, rows: &[SummaryRow]) {
     let _ = writeln!(
         s,
-        "\n## Fusion from every view\n\n- every (ego, real object) of a step once; pairwise: the mean over the ego's instances of the object's pairwise fused error; all views: fused from the ego's and every matched peer's detection (Eq. 14-16 with N terms)\n"
+        "\n## Fusion from every view\n\n- every (ego, real object) of a step once; pairwise: the mean of the object's pairwise fused error over the ego's instances whose peer sees it (over all its instances if none does); all views: fused from the ego's and every matched peer's detection (Eq. 14-16 with N terms)\n"
     );
     let _ = writeln!(
         s,
