@@ -227,6 +227,28 @@ pub fn identity(config: &Path, runs: usize, master_seed: u64) -> String {
     )
 }
 
+/// The batch a `batch.toml` names ([`identity`] read back).
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+pub struct Identity {
+    pub config: std::path::PathBuf,
+    pub runs: usize,
+    pub master_seed: u64,
+}
+
+/// Reads [`identity`]'s text back.
+pub fn parse_identity(text: &str) -> Result<Identity, String> {
+    toml::from_str(text).map_err(|e| e.to_string())
+}
+
+/// The provenance line of a batch's `summary.md`: the same for a batch run
+/// in one folder and for its shards merged.
+pub fn provenance(config: &Path, master_seed: u64, runs: usize, complete: usize) -> String {
+    format!(
+        "- config: `{}`; master seed {master_seed}; {complete} of {runs} runs complete",
+        config.display()
+    )
+}
+
 /// The aggregate over the complete run folders of `dir` (read in run order,
 /// so it does not depend on workers, interruptions or shards), and how many
 /// runs it covers.

@@ -24,7 +24,7 @@ use crate::evaluate::EvalSettings;
 use crate::fusion::{FusionSettings, FusionVariant};
 use crate::matching::deep::decision::UncertaintyKind;
 use crate::matching::deep::{self, train::TrainSettings};
-use crate::matching::{LambdaChoice, MatchingSettings, Method};
+use crate::matching::{LambdaChoice, MatchingSettings, Method, MultiVehicle};
 use crate::rng::Seeds;
 use crate::sensor::{
     CameraSettings, ConnectedSelection, PoseNoiseLabel, PoseNoiseLevel, SensorSettings,
@@ -162,6 +162,7 @@ struct RawMatching {
     lambda: RawLambda,
     uncertainty: UncertaintyKind,
     sender_as_node: bool,
+    multi_vehicle: MultiVehicle,
 }
 
 /// `lambda = 0.7` or `lambda = "validated"`.
@@ -579,6 +580,7 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
         lambda,
         uncertainty: m.uncertainty,
         sender_as_node: m.sender_as_node,
+        multi_vehicle: m.multi_vehicle,
     })
 }
 

@@ -8,9 +8,16 @@
 //! This module, the oracle and the pictures are the only readers of the
 //! ground truth ([`ObservationTruth`]); matchers receive [`MatchView`]s.
 
+use std::collections::BTreeMap;
+
 use crate::fusion::{FusionSettings, FusionVariant, Measurement, align, fuse, relative_pose_prior};
 use crate::geometry::Vec2;
-use crate::matching::{Correspondence, Identification, MatchView, Matcher, Method, oracle};
+use crate::matching::synchronize::{
+    Association, PairwiseMatches, TripleCounts, synchronize, triple_consistency,
+};
+use crate::matching::{
+    Correspondence, Identification, MatchView, Matcher, Method, MultiVehicle, oracle,
+};
 use crate::sensor::{Observation, ObservationTruth, PoseNoiseLevel};
 
 /// `[eval]`: the test runs of `coid eval`.
@@ -211,7 +218,16 @@ pub struct MethodEval {
 /// Runs `runner` on `pair`, counts its correspondences and fuses them with
 /// every variant of `fusion`.
 pub fn evaluate(pair: &PairAtLevel, runner: &Runner, fusion: &FusionSettings) -> MethodEval {
-    let identification = runner.identify(pair);
+    score(pair, runner.method(), runner.identify(pair), fusion)
+}
+
+/// Counts `identification`'s correspondences on `pair` and fuses them.
+fn score(
+    pair: &PairAtLevel,
+    method: Method,
+    identification: Identification,
+    fusion: &FusionSettings,
+) -> MethodEval {
     let matches = &identification.matches;
     let counts = count_pairs(pair.first.truth, pair.second.truth, matches);
     let ab: Vec<(usize, usize)> = matches.iter().map(|c| (c.a, c.b)).collect();
@@ -234,11 +250,322 @@ pub fn evaluate(pair: &PairAtLevel, runner: &Runner, fusion: &FusionSettings) ->
         })
         .collect();
     MethodEval {
-        method: runner.method(),
+        method,
         identification,
         counts,
         fused,
     }
+}
+
+/// How consistent one method's matches of a frame are across vehicles.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Consistency {
+    /// Chains x~y~z over vehicle triples whose three pairs are instances,
+    /// and how many of them the third pair contradicts.
+    pub triples: TripleCounts,
+    /// The objects the matches imply (the transitive closure of the pairs
+    /// for `pairwise`, the synchronised assignment otherwise), scored as a
+    /// clustering: over every pair of detections of an instance's two
+    /// vehicles, "same object" against the truth (pair-counting precision,
+    /// recall and F1).
+    pub objects: PairCounts,
+}
+
+impl Consistency {
+    pub fn add(&mut self, other: Consistency) {
+        self.triples.add(other.triples);
+        self.objects.add(other.objects);
+    }
+}
+
+/// What one method did on the instances of one frame at one pose-noise
+/// level.
+#[derive(Clone, Debug)]
+pub struct FrameEval {
+    pub method: Method,
+    /// One per instance, in input order.
+    pub pairs: Vec<MethodEval>,
+    pub consistency: Consistency,
+    /// Per configured fusion variant, every (ego, object) of the frame
+    /// fused from all the views matched to it.
+    pub views: Vec<(FusionVariant, Vec<ViewEstimate>)>,
+}
+
+/// One (ego, real object) of a frame, fused from every vehicle that
+/// matched it (Eq. 14-16 with N terms), beside the pairwise estimates of
+/// the same object: the object set is every real object an ego of the
+/// frame detects, the same for every method.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewEstimate {
+    pub ego_id: String,
+    pub object_id: String,
+    /// Vehicles that detect the object: the ego and those of its instance
+    /// peers that do (from the truth, the same for every method).
+    pub seen_by: usize,
+    /// Measurements fused: the ego's and one per peer that matched it.
+    pub views: usize,
+    pub single_error_m: f64,
+    /// The mean pairwise fused error over the ego's instances whose peer
+    /// sees the object too (over all its instances when none does): what
+    /// fusing with one covisible peer at a time gives.
+    pub pairwise_error_m: f64,
+    pub fused_error_m: f64,
+}
+
+/// Runs `runner` on every instance of one frame (`pairs`: one step, one
+/// pose-noise level, vehicles ordered by id within each pair) and, with
+/// `multi_vehicle = synchronized`, replaces each pair's matches by those of
+/// one consistent assignment of the frame's detections to objects before
+/// counting and fusing. With two vehicles both modes agree with
+/// [`evaluate`] up to the probabilities of pairs the association dropped.
+pub fn evaluate_frame(
+    pairs: &[PairAtLevel],
+    runner: &Runner,
+    fusion: &FusionSettings,
+    multi_vehicle: MultiVehicle,
+) -> FrameEval {
+    let method = runner.method();
+    let mut identifications: Vec<Identification> =
+        pairs.iter().map(|p| runner.identify(p)).collect();
+    let vehicles = FrameVehicles::new(pairs);
+    let pairwise: Vec<PairwiseMatches> = pairs
+        .iter()
+        .zip(&identifications)
+        .map(|(p, id)| vehicles.pairwise(p, id.matches.clone()))
+        .collect();
+    let association = match multi_vehicle {
+        MultiVehicle::Pairwise => Association::closure(&vehicles.n_detections, &pairwise),
+        MultiVehicle::Synchronized => synchronize(&vehicles.n_detections, &pairwise),
+    };
+    let decided = match multi_vehicle {
+        MultiVehicle::Pairwise => pairwise,
+        MultiVehicle::Synchronized => {
+            let implied = association.implied(&pairwise);
+            for (id, p) in identifications.iter_mut().zip(&implied) {
+                id.matches = p.matches.clone();
+            }
+            implied
+        }
+    };
+    let consistency = Consistency {
+        triples: triple_consistency(&decided),
+        objects: pairs
+            .iter()
+            .map(|p| object_counts(p, &association, &vehicles))
+            .fold(PairCounts::default(), |mut acc, c| {
+                acc.add(c);
+                acc
+            }),
+    };
+    let scored: Vec<MethodEval> = pairs
+        .iter()
+        .zip(identifications)
+        .map(|(p, id)| score(p, method, id, fusion))
+        .collect();
+    let views = fusion
+        .variants
+        .iter()
+        .map(|&variant| {
+            let ctx = FusionContext {
+                level: &pairs[0].level,
+                variant,
+                align_min_matches: fusion.align_min_matches,
+            };
+            (variant, all_views(pairs, &scored, &vehicles, &ctx))
+        })
+        .collect();
+    FrameEval {
+        method,
+        pairs: scored,
+        consistency,
+        views,
+    }
+}
+
+/// Every ego of the frame fuses each real object it detects from all the
+/// peers (of its instances) whose detection the decided matches pair with
+/// its own; beside it, the mean of the pairwise fused errors of `scored`
+/// over the peers that see the object.
+fn all_views(
+    pairs: &[PairAtLevel],
+    scored: &[MethodEval],
+    vehicles: &FrameVehicles,
+    ctx: &FusionContext,
+) -> Vec<ViewEstimate> {
+    // Per (ego, object): sums of the pairwise fused errors over the peers
+    // that see the object too, and over all peers.
+    let mut pairwise: BTreeMap<(&str, &str), [(f64, usize); 2]> = BTreeMap::new();
+    for e in scored {
+        for (v, est) in &e.fused {
+            if *v == ctx.variant {
+                for x in est {
+                    let sums = pairwise.entry((&x.ego_id, &x.object_id)).or_default();
+                    let err = x.fused_error_m();
+                    if x.covisible {
+                        sums[0].0 += err;
+                        sums[0].1 += 1;
+                    }
+                    sums[1].0 += err;
+                    sums[1].1 += 1;
+                }
+            }
+        }
+    }
+    let mut out = Vec::new();
+    for ego_id in &vehicles.ids {
+        let mut ego = None;
+        let mut peers: Vec<(Side, Vec<(usize, usize)>)> = Vec::new();
+        for (p, e) in pairs.iter().zip(scored) {
+            let m = &e.identification.matches;
+            if p.first.obs.ego_id == *ego_id {
+                ego = Some(p.first);
+                peers.push((p.second, m.iter().map(|c| (c.a, c.b)).collect()));
+            } else if p.second.obs.ego_id == *ego_id {
+                ego = Some(p.second);
+                peers.push((p.first, m.iter().map(|c| (c.b, c.a)).collect()));
+            }
+        }
+        let Some(ego) = ego else { continue };
+        for mut v in fuse_all_views(&ego, &peers, ctx) {
+            let [covisible, all] = pairwise[&(v.ego_id.as_str(), v.object_id.as_str())];
+            let (sum, n) = if covisible.1 > 0 { covisible } else { all };
+            v.pairwise_error_m = sum / n as f64;
+            out.push(v);
+        }
+    }
+    out
+}
+
+/// `ego`'s estimate of every real object it detects, fused with the
+/// matched detection of every peer (`peers`: each with its matched (ego
+/// detection, peer detection)), each peer's pose from the variant of
+/// `ctx`; the ego's own where no peer matched it. `pairwise_error_m` is
+/// left NaN for the caller.
+fn fuse_all_views(
+    ego: &Side,
+    peers: &[(Side, Vec<(usize, usize)>)],
+    ctx: &FusionContext,
+) -> Vec<ViewEstimate> {
+    let poses: Vec<PeerPose> = peers
+        .iter()
+        .map(|(peer, pairs)| peer_pose(ego, peer, pairs, ctx).1)
+        .collect();
+    let mut out = Vec::new();
+    for (a, truth) in ego.truth.detections.iter().enumerate() {
+        let (Some(id), Some(truth_m)) = (truth.object_id.as_deref(), truth.position_m) else {
+            continue;
+        };
+        if truth.sender {
+            continue;
+        }
+        let own = measured(ego.obs, a);
+        let mut measurements = vec![own];
+        for ((peer, pairs), pose) in peers.iter().zip(&poses) {
+            if let Some(&(_, b)) = pairs.iter().find(|(x, _)| *x == a) {
+                measurements.push(pose.move_measurement(&measured(peer.obs, b)));
+            }
+        }
+        let fused = if measurements.len() > 1 {
+            fuse(&measurements).map_or(own.position_m, |f| f.position_m)
+        } else {
+            own.position_m
+        };
+        let error = |p: &Vec2| (ego.truth.ego_pose.to_parent(p) - truth_m).norm();
+        out.push(ViewEstimate {
+            ego_id: ego.obs.ego_id.clone(),
+            object_id: id.to_owned(),
+            seen_by: 1 + peers
+                .iter()
+                .filter(|(peer, _)| peer.truth.find(id).is_some())
+                .count(),
+            views: measurements.len(),
+            single_error_m: error(&own.position_m),
+            pairwise_error_m: f64::NAN,
+            fused_error_m: error(&fused),
+        });
+    }
+    out
+}
+
+/// The connected vehicles of a frame's instances, indexed in id order.
+struct FrameVehicles<'a> {
+    ids: Vec<&'a str>,
+    n_detections: Vec<usize>,
+}
+
+impl<'a> FrameVehicles<'a> {
+    fn new(pairs: &[PairAtLevel<'a>]) -> Self {
+        let mut sides: Vec<(&'a str, usize)> = pairs
+            .iter()
+            .flat_map(|p| [p.first, p.second])
+            .map(|s| (s.obs.ego_id.as_str(), s.obs.detections.len()))
+            .collect();
+        sides.sort();
+        sides.dedup();
+        let (ids, n_detections) = sides.into_iter().unzip();
+        Self { ids, n_detections }
+    }
+
+    fn index(&self, id: &str) -> usize {
+        self.ids
+            .binary_search(&id)
+            .expect("every side is a frame vehicle")
+    }
+
+    /// A pair's matches between frame vehicle indices, the smaller first.
+    fn pairwise(&self, pair: &PairAtLevel, matches: Vec<Correspondence>) -> PairwiseMatches {
+        let (i, j) = (
+            self.index(&pair.first.obs.ego_id),
+            self.index(&pair.second.obs.ego_id),
+        );
+        if i < j {
+            PairwiseMatches {
+                first: i,
+                second: j,
+                matches,
+            }
+        } else {
+            let swapped = matches
+                .into_iter()
+                .map(|c| Correspondence {
+                    a: c.b,
+                    b: c.a,
+                    ..c
+                })
+                .collect();
+            PairwiseMatches {
+                first: j,
+                second: i,
+                matches: swapped,
+            }
+        }
+    }
+}
+
+/// Object-level counts on one instance: every (first, second) detection
+/// pair the association puts in one object, against the true pairs.
+fn object_counts(
+    pair: &PairAtLevel,
+    association: &Association,
+    vehicles: &FrameVehicles,
+) -> PairCounts {
+    let (first, second) = (pair.first.truth, pair.second.truth);
+    let i = vehicles.index(&pair.first.obs.ego_id);
+    let j = vehicles.index(&pair.second.obs.ego_id);
+    let mut together = Vec::new();
+    for a in 0..first.detections.len() {
+        for b in 0..second.detections.len() {
+            if association.same((i, a), (j, b)) {
+                together.push(Correspondence {
+                    a,
+                    b,
+                    probability: 1.0,
+                    uncertainty: 0.0,
+                });
+            }
+        }
+    }
+    count_pairs(first, second, &together)
 }
 
 /// How one ego fuses: the pose-noise level, the variant and its setting.
@@ -256,6 +583,52 @@ enum PeerPose {
     Aligned(crate::fusion::PoseEstimate),
 }
 
+/// Detection `k` of `obs` as a measurement in that vehicle's frame.
+fn measured(obs: &Observation, k: usize) -> Measurement {
+    Measurement {
+        position_m: obs.detections[k].position_m,
+        cov_m2: obs.detections[k].cov_m2,
+    }
+}
+
+impl PeerPose {
+    /// A peer's measurement moved into the ego's frame.
+    fn move_measurement(&self, m: &Measurement) -> Measurement {
+        match self {
+            PeerPose::Reported(pose) => m.moved(pose),
+            PeerPose::Aligned(estimate) => m.moved_uncertain(estimate),
+        }
+    }
+}
+
+/// Where `peer` sits in `ego`'s frame for the variant of `ctx` (`pairs`:
+/// the matched (ego detection, peer detection)), and whether it was
+/// refined from the matches.
+fn peer_pose(
+    ego: &Side,
+    peer: &Side,
+    pairs: &[(usize, usize)],
+    ctx: &FusionContext,
+) -> (bool, PeerPose) {
+    let prior = relative_pose_prior(
+        &ego.view.pose_reported,
+        &peer.view.pose_reported,
+        ctx.level.position_sigma_m,
+        ctx.level.heading_sigma_rad,
+    );
+    match ctx.variant {
+        FusionVariant::Paper => (false, PeerPose::Reported(prior.pose)),
+        FusionVariant::Aligned => {
+            let matched: Vec<(Measurement, Measurement)> = pairs
+                .iter()
+                .map(|&(a, b)| (measured(ego.obs, a), measured(peer.obs, b)))
+                .collect();
+            let al = align(&matched, &prior, ctx.align_min_matches);
+            (al.refined, PeerPose::Aligned(al.estimate))
+        }
+    }
+}
+
 /// The estimates of every real object `ego` detected (false positives have
 /// no truth; the ego's own node is not a detection): fused with the peer's detection the correspondences pair it
 /// with (`pairs` index `(ego detection, peer detection)`), or the ego's own
@@ -269,31 +642,8 @@ fn fuse_for_ego(
     pairs: &[(usize, usize)],
     ctx: &FusionContext,
 ) -> Vec<ObjectEstimate> {
-    let prior = relative_pose_prior(
-        &ego.view.pose_reported,
-        &peer.view.pose_reported,
-        ctx.level.position_sigma_m,
-        ctx.level.heading_sigma_rad,
-    );
-    let measured = |obs: &Observation, k: usize| Measurement {
-        position_m: obs.detections[k].position_m,
-        cov_m2: obs.detections[k].cov_m2,
-    };
-    let (refined, peer_pose) = match ctx.variant {
-        FusionVariant::Paper => (false, PeerPose::Reported(prior.pose)),
-        FusionVariant::Aligned => {
-            let matched: Vec<(Measurement, Measurement)> = pairs
-                .iter()
-                .map(|&(a, b)| (measured(ego.obs, a), measured(peer.obs, b)))
-                .collect();
-            let al = align(&matched, &prior, ctx.align_min_matches);
-            (al.refined, PeerPose::Aligned(al.estimate))
-        }
-    };
-    let moved = |m: &Measurement| match &peer_pose {
-        PeerPose::Reported(pose) => m.moved(pose),
-        PeerPose::Aligned(estimate) => m.moved_uncertain(estimate),
-    };
+    let (refined, peer_pose) = peer_pose(ego, peer, pairs, ctx);
+    let moved = |m: &Measurement| peer_pose.move_measurement(m);
     let mut partner: Vec<Option<usize>> = vec![None; ego.obs.detections.len()];
     for &(a, b) in pairs {
         partner[a] = Some(b);
@@ -503,6 +853,185 @@ mod tests {
                 position_sigma_m: 1.2,
                 heading_sigma_rad: 0.0035,
             },
+        }
+    }
+
+    /// The Delaunay graph of each observation.
+    fn graphs_of(sensed: &[(Observation, ObservationTruth)]) -> Vec<SceneGraph> {
+        sensed
+            .iter()
+            .map(|(o, _)| {
+                let positions: Vec<Vec2> = o.detections.iter().map(|d| d.position_m).collect();
+                SceneGraph::delaunay(&positions).unwrap()
+            })
+            .collect()
+    }
+
+    /// Pairs by the reported x position of the two egos: (a, b) and
+    /// (b, c) right and confident, (a, c) crossed and less sure.
+    struct Contradicting;
+
+    impl Matcher for Contradicting {
+        fn method(&self) -> Method {
+            Method::Mogm
+        }
+        fn identify(&self, first: &MatchView, second: &MatchView) -> Identification {
+            let c = |a, b, probability| Correspondence {
+                a,
+                b,
+                probability,
+                uncertainty: 0.0,
+            };
+            let xs = (
+                first.pose_reported.position_m().x,
+                second.pose_reported.position_m().x,
+            );
+            Identification::plain(if xs == (0.0, 20.0) {
+                vec![c(0, 1, 0.6), c(1, 0, 0.6)]
+            } else {
+                vec![c(0, 0, 0.9), c(1, 1, 0.9)]
+            })
+        }
+    }
+
+    #[test]
+    fn a_contradictory_triple_is_counted_and_synchronisation_resolves_it() {
+        let objects = [
+            (Some("x"), Vec2::new(5.0, 8.0)),
+            (Some("y"), Vec2::new(12.0, -3.0)),
+        ];
+        let poses = [0.0, 10.0, 20.0].map(|x| Pose2::new(Vec2::new(x, -10.0), 0.1));
+        let sensed: Vec<(Observation, ObservationTruth)> = ["a", "b", "c"]
+            .iter()
+            .zip(&poses)
+            .map(|(id, p)| sensed(id, *p, &objects))
+            .collect();
+        let graphs = graphs_of(&sensed);
+        let side = |k: usize| Side {
+            view: exact_view(&sensed[k].0, &graphs[k], poses[k]),
+            obs: &sensed[k].0,
+            truth: &sensed[k].1,
+        };
+        let level = side(0).view.pose_noise;
+        let pairs: Vec<PairAtLevel> = [(0, 1), (0, 2), (1, 2)]
+            .iter()
+            .map(|&(i, j)| PairAtLevel {
+                first: side(i),
+                second: side(j),
+                level,
+            })
+            .collect();
+        let fusion = FusionSettings {
+            variants: vec![FusionVariant::Paper],
+            align_min_matches: 3,
+        };
+        let runner = Runner::Matcher(Box::new(Contradicting));
+        let pairwise = evaluate_frame(&pairs, &runner, &fusion, MultiVehicle::Pairwise);
+        // As decided: (a, c) wrong, so every chain through b is broken;
+        // the closure puts all six detections into one object.
+        let correct: Vec<usize> = pairwise.pairs.iter().map(|e| e.counts.correct).collect();
+        assert_eq!(correct, [2, 0, 2]);
+        let t = pairwise.consistency.triples;
+        assert_eq!((t.chains, t.inconsistent), (6, 6));
+        let o = pairwise.consistency.objects;
+        assert_eq!((o.identified, o.correct, o.ground_truth), (12, 6, 6));
+        // Synchronised: the weak crossed pairs lose, (a, c) is implied by
+        // the chains through b with probability 0.9 * 0.9.
+        let synced = evaluate_frame(&pairs, &runner, &fusion, MultiVehicle::Synchronized);
+        let correct: Vec<usize> = synced.pairs.iter().map(|e| e.counts.correct).collect();
+        assert_eq!(correct, [2, 2, 2]);
+        let ac = &synced.pairs[1].identification.matches;
+        assert_eq!(
+            ac.iter().map(|c| (c.a, c.b)).collect::<Vec<_>>(),
+            [(0, 0), (1, 1)]
+        );
+        assert!((ac[0].probability - 0.81).abs() < 1e-12);
+        let t = synced.consistency.triples;
+        assert_eq!((t.chains, t.inconsistent), (6, 0));
+        let o = synced.consistency.objects;
+        assert_eq!((o.identified, o.correct, o.ground_truth), (6, 6, 6));
+        // Fused from the consistent matches: exact views, exact result.
+        for e in &synced.pairs {
+            for x in &e.fused[0].1 {
+                assert!(x.match_correct && x.fused_error_m() < 1e-9, "{x:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn fusion_from_every_view_reduces_to_the_pair_for_two_vehicles() {
+        let objects = [
+            (Some("x"), Vec2::new(5.0, 8.0)),
+            (Some("y"), Vec2::new(12.0, -3.0)),
+            (Some("z"), Vec2::new(-4.0, 6.0)),
+        ];
+        let poses = [(0.0, 0.1), (15.0, 2.0), (-10.0, -1.2)]
+            .map(|(x, h)| Pose2::new(Vec2::new(x, -12.0), h));
+        // Measurements off by a different vector for every detection.
+        let sensed: Vec<(Observation, ObservationTruth)> = ["a", "b", "c"]
+            .iter()
+            .zip(&poses)
+            .enumerate()
+            .map(|(v, (id, p))| {
+                let (mut obs, truth) = sensed(id, *p, &objects);
+                for (k, d) in obs.detections.iter_mut().enumerate() {
+                    let t = (3 * v + k) as f64;
+                    d.position_m += Vec2::new(0.4 * t.sin(), 0.3 * t.cos());
+                }
+                (obs, truth)
+            })
+            .collect();
+        let graphs = graphs_of(&sensed);
+        let side = |k: usize| Side {
+            view: exact_view(&sensed[k].0, &graphs[k], poses[k]),
+            obs: &sensed[k].0,
+            truth: &sensed[k].1,
+        };
+        let level = side(0).view.pose_noise;
+        let pair = |i: usize, j: usize| PairAtLevel {
+            first: side(i),
+            second: side(j),
+            level,
+        };
+        let fusion = FusionSettings {
+            variants: vec![FusionVariant::Paper],
+            align_min_matches: 3,
+        };
+        // Two vehicles: every view estimate is the pairwise one.
+        let two = evaluate_frame(
+            &[pair(0, 1)],
+            &Runner::Oracle,
+            &fusion,
+            MultiVehicle::Pairwise,
+        );
+        let views = &two.views[0].1;
+        assert_eq!(views.len(), 6);
+        for v in views {
+            assert_eq!((v.views, v.seen_by), (2, 2));
+            assert_eq!(v.fused_error_m, v.pairwise_error_m, "{v:?}");
+            assert!(v.fused_error_m < v.single_error_m + 0.3);
+        }
+        // Three vehicles: each ego fuses all three measurements, which is
+        // the fusion of the three moved into the world frame.
+        let three = [pair(0, 1), pair(0, 2), pair(1, 2)];
+        let all = evaluate_frame(&three, &Runner::Oracle, &fusion, MultiVehicle::Pairwise);
+        let views = &all.views[0].1;
+        assert_eq!(views.len(), 9);
+        for v in views {
+            assert_eq!((v.views, v.seen_by), (3, 3));
+            let k = objects
+                .iter()
+                .position(|o| o.0 == Some(v.object_id.as_str()))
+                .unwrap();
+            let world: Vec<Measurement> = (0..3)
+                .map(|u| measured(&sensed[u].0, k).moved(&poses[u]))
+                .collect();
+            let expected = (fuse(&world).unwrap().position_m - objects[k].1).norm();
+            assert!(
+                (v.fused_error_m - expected).abs() < 1e-9,
+                "{v:?} vs {expected}"
+            );
+            assert!(v.fused_error_m != v.pairwise_error_m);
         }
     }
 

@@ -7,7 +7,7 @@
 use std::collections::BTreeMap;
 
 use crate::config::Settings;
-use crate::evaluate::{self, Runner};
+use crate::evaluate::{self, PairAtLevel, Runner};
 use crate::fusion::FusionSettings;
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainReport};
 use crate::matching::{LambdaChoice, Method};
@@ -129,7 +129,8 @@ pub fn train_method(
 }
 
 /// Evaluates `methods` on one test run (`settings` already carries the
-/// run's seeds): every instance, every pose-noise level; deep methods are
+/// run's seeds): every instance, every pose-noise level, frame by frame
+/// with `[matching] multi_vehicle`; deep methods are
 /// also counted at every threshold of the lambda sweep (whose grid holds
 /// `lambdas`).
 pub fn eval_run(
@@ -141,17 +142,24 @@ pub fn eval_run(
     let runners = pipeline::runners(settings, methods)?;
     let grid = lambda_grid(lambdas.values());
     let mut out = RunEval::default();
-    let stats = pipeline::simulate(settings, progress, |inst| {
+    let stats = pipeline::simulate_frames(settings, progress, |instances| {
         for level in &settings.pose_noise {
-            let pair = inst.at_level(settings.seeds.sensor, level);
+            let pairs: Vec<PairAtLevel> = instances
+                .iter()
+                .map(|i| i.at_level(settings.seeds.sensor, level))
+                .collect();
             for runner in &runners {
-                let e = evaluate::evaluate(&pair, runner, &settings.fusion);
-                out.record(
-                    &e,
-                    level.label,
-                    (pair.first.truth, pair.second.truth),
-                    &grid,
+                let f = evaluate::evaluate_frame(
+                    &pairs,
+                    runner,
+                    &settings.fusion,
+                    settings.matching.multi_vehicle,
                 );
+                out.record_consistency(f.method, level.label, f.consistency);
+                out.record_views(f.method, level.label, &f.views);
+                for (pair, e) in pairs.iter().zip(&f.pairs) {
+                    out.record(e, level.label, (pair.first.truth, pair.second.truth), &grid);
+                }
             }
         }
         Ok(())

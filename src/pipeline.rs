@@ -117,8 +117,21 @@ impl<'a> Instance<'a> {
 /// ids).
 pub fn simulate(
     settings: &Settings,
-    mut progress: impl FnMut(Progress),
+    progress: impl FnMut(Progress),
     mut on_instance: impl FnMut(&Instance) -> Result<(), RunError>,
+) -> Result<SimStats, RunError> {
+    simulate_frames(settings, progress, |instances| {
+        instances.iter().try_for_each(&mut on_instance)
+    })
+}
+
+/// Runs the scenario of `settings` from start to end and hands the
+/// instances of every sampled step to `on_frame` at once (never an empty
+/// list), in a fixed order (by step, then by vehicle ids).
+pub fn simulate_frames(
+    settings: &Settings,
+    mut progress: impl FnMut(Progress),
+    mut on_frame: impl FnMut(&[Instance]) -> Result<(), RunError>,
 ) -> Result<SimStats, RunError> {
     let sc = &settings.scenario;
     let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s)?;
@@ -140,27 +153,10 @@ pub fn simulate(
         }
         if frame.time_s + eps >= next_sample_s {
             let egos = sense(settings, &scene, &frame)?;
-            let mut found = 0;
-            for i in 0..egos.len() {
-                for j in (i + 1)..egos.len() {
-                    let (a, b) = (&egos[i], &egos[j]);
-                    if !evaluate::share_a_detected_object(&a.sensed.truth, &b.sensed.truth) {
-                        continue;
-                    }
-                    let index = stats.n_instances;
-                    let (scene, frame) = (&scene, &frame);
-                    on_instance(&Instance {
-                        index,
-                        scene,
-                        frame,
-                        a,
-                        b,
-                    })?;
-                    stats.n_instances += 1;
-                    found += 1;
-                }
-            }
-            if found > 0 {
+            let instances = frame_instances(&scene, &frame, &egos, stats.n_instances);
+            if !instances.is_empty() {
+                on_frame(&instances)?;
+                stats.n_instances += instances.len();
                 next_sample_s = frame.time_s + sc.sample_every_s;
             }
         }
@@ -174,6 +170,31 @@ pub fn simulate(
     sumo.close()?;
     check_connected_appeared(&settings.connected, &seen_connected)?;
     Ok(stats)
+}
+
+/// The instances of one step: every pair of `egos` (sorted by id) whose
+/// cameras detect a common object, numbered from `first_index`.
+fn frame_instances<'a>(
+    scene: &'a StaticScene,
+    frame: &'a TrafficFrame,
+    egos: &'a [Ego],
+    first_index: usize,
+) -> Vec<Instance<'a>> {
+    let mut out = Vec::new();
+    for (i, a) in egos.iter().enumerate() {
+        for b in &egos[i + 1..] {
+            if evaluate::share_a_detected_object(&a.sensed.truth, &b.sensed.truth) {
+                out.push(Instance {
+                    index: first_index + out.len(),
+                    scene,
+                    frame,
+                    a,
+                    b,
+                });
+            }
+        }
+    }
+    out
 }
 
 /// Named connected vehicles must all have appeared.
@@ -298,33 +319,26 @@ pub fn runners(settings: &Settings, methods: &[Method]) -> Result<Vec<Runner>, R
 }
 
 /// Runs the scenario and evaluates every configured method, pose-noise
-/// level and fusion variant on every instance.
+/// level and fusion variant on every instance, frame by frame
+/// ([`evaluate::evaluate_frame`], with `[matching] multi_vehicle`).
 pub fn run(settings: &Settings, progress: impl FnMut(Progress)) -> Result<RunResults, RunError> {
     let started = Instant::now();
     let runners = runners(settings, &settings.matching.methods)?;
     let mut results = RunResults::default();
-    let stats = simulate(settings, progress, |inst| {
+    let stats = simulate_frames(settings, progress, |instances| {
         for level in &settings.pose_noise {
-            let pair = inst.at_level(settings.seeds.sensor, level);
+            let pairs: Vec<PairAtLevel> = instances
+                .iter()
+                .map(|i| i.at_level(settings.seeds.sensor, level))
+                .collect();
             for runner in &runners {
-                let e = evaluate::evaluate(&pair, runner, &settings.fusion);
-                for (fusion, est) in e.fused {
-                    let key = RowKey {
-                        method: e.method,
-                        pose_noise: level.label,
-                        fusion,
-                    };
-                    results.summary.record(key, e.counts, &est);
-                    results
-                        .objects
-                        .extend(est.into_iter().map(|estimate| ObjectRow {
-                            instance: inst.index,
-                            step: inst.frame.step,
-                            time_s: inst.frame.time_s,
-                            key,
-                            estimate,
-                        }));
-                }
+                let f = evaluate::evaluate_frame(
+                    &pairs,
+                    runner,
+                    &settings.fusion,
+                    settings.matching.multi_vehicle,
+                );
+                record_frame(&mut results, instances, level.label, f);
             }
         }
         Ok(())
@@ -336,4 +350,43 @@ pub fn run(settings: &Settings, progress: impl FnMut(Progress)) -> Result<RunRes
     results.objects_read = stats.objects_read;
     results.wall_time = started.elapsed();
     Ok(results)
+}
+
+/// Adds one method's evaluation of a frame at one level to `results`.
+fn record_frame(
+    results: &mut RunResults,
+    instances: &[Instance],
+    pose_noise: crate::sensor::PoseNoiseLabel,
+    f: evaluate::FrameEval,
+) {
+    for (inst, e) in instances.iter().zip(f.pairs) {
+        for (fusion, est) in e.fused {
+            let key = RowKey {
+                method: e.method,
+                pose_noise,
+                fusion,
+            };
+            results.summary.record(key, e.counts, &est);
+            results
+                .objects
+                .extend(est.into_iter().map(|estimate| ObjectRow {
+                    instance: inst.index,
+                    step: inst.frame.step,
+                    time_s: inst.frame.time_s,
+                    key,
+                    estimate,
+                }));
+        }
+    }
+    for (fusion, views) in &f.views {
+        let key = RowKey {
+            method: f.method,
+            pose_noise,
+            fusion: *fusion,
+        };
+        results.summary.record_views(key, views);
+    }
+    results
+        .summary
+        .record_consistency(f.method, pose_noise, f.consistency);
 }

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
-use crate::evaluate::{ObjectEstimate, PairCounts};
+use crate::evaluate::{Consistency, ObjectEstimate, PairCounts, ViewEstimate};
 use crate::fusion::FusionVariant;
 use crate::matching::Method;
 use crate::sensor::PoseNoiseLabel;
@@ -81,6 +81,59 @@ impl ErrorSums {
     }
 }
 
+/// Sums of displacement errors of (ego, object) estimates fused from
+/// every view ([`ViewEstimate`]), beside their pairwise estimates.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ViewSums {
+    pub n: usize,
+    pub single_m: f64,
+    pub pairwise_m: f64,
+    pub all_views_m: f64,
+}
+
+impl ViewSums {
+    pub fn add(&mut self, v: &ViewEstimate) {
+        self.n += 1;
+        self.single_m += v.single_error_m;
+        self.pairwise_m += v.pairwise_error_m;
+        self.all_views_m += v.fused_error_m;
+    }
+
+    pub fn merge(&mut self, other: &ViewSums) {
+        self.n += other.n;
+        self.single_m += other.single_m;
+        self.pairwise_m += other.pairwise_m;
+        self.all_views_m += other.all_views_m;
+    }
+
+    /// (single, pairwise fused, all-views fused) means; NaN when empty.
+    pub fn means(&self) -> (f64, f64, f64) {
+        let m = |sum: f64| {
+            if self.n == 0 {
+                f64::NAN
+            } else {
+                sum / self.n as f64
+            }
+        };
+        (m(self.single_m), m(self.pairwise_m), m(self.all_views_m))
+    }
+}
+
+/// The group of an (ego, object) by how many vehicles of the frame see it:
+/// 1, 2, 3, or 4 and more.
+pub fn seen_by_group(seen_by: usize) -> usize {
+    seen_by.clamp(1, 4)
+}
+
+/// The label of a [`seen_by_group`].
+pub fn seen_by_label(group: usize) -> String {
+    if group >= 4 {
+        "4+".into()
+    } else {
+        group.to_string()
+    }
+}
+
 /// Displacement errors over the three object sets of the protocol.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ObjectErrors {
@@ -135,15 +188,44 @@ pub struct SummaryRow {
     /// Means over the matched objects only (method-dependent).
     pub de_single_matched_m: f64,
     pub de_fused_matched_m: f64,
+    /// Chains x~y~z across three vehicles, and the share the third pair
+    /// contradicts (NaN without any chain).
+    pub triple_chains: usize,
+    pub inconsistent_triple_share: f64,
+    /// The implied objects as a clustering (pair counting).
+    pub object_precision: f64,
+    pub object_recall: f64,
+    pub object_f1: f64,
+    /// Every (ego, real object) of the frames once: single, pairwise fused
+    /// (mean over the ego's peers that see the object) and fused from every view.
+    pub n_ego_objects: usize,
+    pub de_single_per_ego_m: f64,
+    pub de_fused_pairwise_per_ego_m: f64,
+    pub de_fused_all_views_m: f64,
 }
 
 /// A run's summary: counts and errors pooled over its instances.
 #[derive(Clone, Debug, Default)]
 pub struct Summary {
     pub rows: BTreeMap<RowKey, Accumulator>,
+    /// Per (method, pose noise): consistency across vehicles.
+    pub consistency: BTreeMap<(Method, PoseNoiseLabel), Consistency>,
+    /// Fusion from every view, per row.
+    pub views: BTreeMap<RowKey, ViewSums>,
 }
 
 impl Summary {
+    pub fn record_views(&mut self, key: RowKey, views: &[ViewEstimate]) {
+        let sums = self.views.entry(key).or_default();
+        for v in views {
+            sums.add(v);
+        }
+    }
+
+    pub fn record_consistency(&mut self, method: Method, level: PoseNoiseLabel, c: Consistency) {
+        self.consistency.entry((method, level)).or_default().add(c);
+    }
+
     pub fn record(&mut self, key: RowKey, counts: PairCounts, estimates: &[ObjectEstimate]) {
         let acc = self.rows.entry(key).or_default();
         acc.instances += 1;
@@ -157,6 +239,13 @@ impl Summary {
             .iter()
             .map(|(key, acc)| {
                 let e = &acc.errors;
+                let c = self
+                    .consistency
+                    .get(&(key.method, key.pose_noise))
+                    .copied()
+                    .unwrap_or_default();
+                let v = self.views.get(key).copied().unwrap_or_default();
+                let (v_single, v_pairwise, v_all) = v.means();
                 SummaryRow {
                     key: *key,
                     n_instances: acc.instances,
@@ -171,6 +260,15 @@ impl Summary {
                     de_fused_covis_m: e.covisible.mean_fused_m(),
                     de_single_matched_m: e.matched.mean_single_m(),
                     de_fused_matched_m: e.matched.mean_fused_m(),
+                    triple_chains: c.triples.chains,
+                    inconsistent_triple_share: c.triples.share(),
+                    object_precision: c.objects.precision(),
+                    object_recall: c.objects.recall(),
+                    object_f1: c.objects.f1(),
+                    n_ego_objects: v.n,
+                    de_single_per_ego_m: v_single,
+                    de_fused_pairwise_per_ego_m: v_pairwise,
+                    de_fused_all_views_m: v_all,
                 }
             })
             .collect()

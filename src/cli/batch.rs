@@ -92,10 +92,8 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
         .map(|s| format!(" (this folder: shard {}/{})", s.index, s.count))
         .unwrap_or_default();
     let header = format!(
-        "- config: `{}`; master seed {}; {complete} of {} runs complete{shard_note}\n{CI_NOTE}",
-        config.display(),
-        a.seed,
-        a.runs,
+        "{}{shard_note}\n{CI_NOTE}",
+        batch::provenance(&config, a.seed, a.runs, complete)
     );
     batch::write_aggregate(&out, &rows, &header)?;
     eprintln!(
@@ -141,14 +139,20 @@ pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
             total += 1;
         }
     }
-    if let Some(id) = identity {
-        io::write_batch_identity(&a.out, &id)?;
+    if let Some(id) = &identity {
+        io::write_batch_identity(&a.out, id)?;
     }
     let (rows, complete) = batch::aggregate(&a.out)?;
-    let header = format!(
-        "- merged from {} shard folders; {complete} runs\n{CI_NOTE}",
-        a.dirs.len()
-    );
+    // The same report as the unsharded batch, so the merged folder is
+    // byte-identical to it.
+    let line = match identity.as_deref().map(batch::parse_identity) {
+        Some(Ok(b)) => batch::provenance(&b.config, b.master_seed, b.runs, complete),
+        _ => format!(
+            "- merged from {} shard folders; {complete} runs",
+            a.dirs.len()
+        ),
+    };
+    let header = format!("{line}\n{CI_NOTE}");
     batch::write_aggregate(&a.out, &rows, &header)?;
     eprintln!("coid: merged {total} runs into {}", a.out.display());
     Ok(())

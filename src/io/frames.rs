@@ -35,6 +35,15 @@ fn summary_frame(rows: &[SummaryRow]) -> PolarsResult<DataFrame> {
         "de_fused_covis_m" => rows.iter().map(|r| r.de_fused_covis_m).collect::<Vec<_>>(),
         "de_single_matched_m" => rows.iter().map(|r| r.de_single_matched_m).collect::<Vec<_>>(),
         "de_fused_matched_m" => rows.iter().map(|r| r.de_fused_matched_m).collect::<Vec<_>>(),
+        "triple_chains" => rows.iter().map(|r| r.triple_chains as u64).collect::<Vec<_>>(),
+        "inconsistent_triple_share" => rows.iter().map(|r| r.inconsistent_triple_share).collect::<Vec<_>>(),
+        "object_precision" => rows.iter().map(|r| r.object_precision).collect::<Vec<_>>(),
+        "object_recall" => rows.iter().map(|r| r.object_recall).collect::<Vec<_>>(),
+        "object_f1" => rows.iter().map(|r| r.object_f1).collect::<Vec<_>>(),
+        "n_ego_objects" => rows.iter().map(|r| r.n_ego_objects as u64).collect::<Vec<_>>(),
+        "de_single_per_ego_m" => rows.iter().map(|r| r.de_single_per_ego_m).collect::<Vec<_>>(),
+        "de_fused_pairwise_per_ego_m" => rows.iter().map(|r| r.de_fused_pairwise_per_ego_m).collect::<Vec<_>>(),
+        "de_fused_all_views_m" => rows.iter().map(|r| r.de_fused_all_views_m).collect::<Vec<_>>(),
     )
 }
 

@@ -10,6 +10,7 @@ pub mod deep;
 mod gps_hungarian;
 pub mod learning_free;
 pub mod oracle;
+pub mod synchronize;
 #[cfg(test)]
 pub(crate) mod testkit;
 
@@ -76,6 +77,21 @@ impl Method {
     }
 }
 
+crate::label_enum! { "multi-vehicle mode";
+    /// How the pairwise matches of a frame with three or more connected
+    /// vehicles are combined.
+    #[strum(serialize_all = "lowercase")]
+    pub enum MultiVehicle {
+        /// Each pair on its own, as the method decided (may contradict
+        /// itself across three vehicles).
+        Pairwise,
+        /// One consistent assignment of detections to objects per frame
+        /// ([`synchronize::synchronize`]); two detections match exactly when
+        /// they share an object.
+        Synchronized,
+    }
+}
+
 /// `[matching]`: which methods run and how they decide.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MatchingSettings {
@@ -93,6 +109,8 @@ pub struct MatchingSettings {
     pub uncertainty: UncertaintyKind,
     /// Each sender is a node of its own graph (its V2X self-report).
     pub sender_as_node: bool,
+    /// Pairwise matches as decided, or synchronised per frame.
+    pub multi_vehicle: MultiVehicle,
 }
 
 /// Where the entropy threshold lambda comes from.
@@ -231,6 +249,7 @@ mod tests {
             lambda: LambdaChoice::Fixed(0.7),
             uncertainty: UncertaintyKind::Total,
             sender_as_node: true,
+            multi_vehicle: MultiVehicle::Pairwise,
         }
     }
 
