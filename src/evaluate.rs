@@ -451,13 +451,7 @@ fn fuse_all_views(
         .map(|(peer, pairs)| peer_pose(ego, peer, pairs, ctx).1)
         .collect();
     let mut out = Vec::new();
-    for (a, truth) in ego.truth.detections.iter().enumerate() {
-        let (Some(id), Some(truth_m)) = (truth.object_id.as_deref(), truth.position_m) else {
-            continue;
-        };
-        if truth.sender {
-            continue;
-        }
+    for (a, id, truth_m) in real_detections(ego) {
         let own = measured(ego.obs, a);
         let mut measurements = vec![own];
         for ((peer, pairs), pose) in peers.iter().zip(&poses) {
@@ -583,6 +577,18 @@ enum PeerPose {
     Aligned(crate::fusion::PoseEstimate),
 }
 
+/// The ego's detections of real objects (false positives have no truth;
+/// the ego's own node is not a detection): index, object id, true
+/// position (world frame).
+fn real_detections<'a>(ego: &Side<'a>) -> impl Iterator<Item = (usize, &'a str, Vec2)> {
+    ego.truth
+        .detections
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| !t.sender)
+        .filter_map(|(a, t)| Some((a, t.object_id.as_deref()?, t.position_m?)))
+}
+
 /// Detection `k` of `obs` as a measurement in that vehicle's frame.
 fn measured(obs: &Observation, k: usize) -> Measurement {
     Measurement {
@@ -650,13 +656,7 @@ fn fuse_for_ego(
     }
     let to_world = |p: &Vec2| ego.truth.ego_pose.to_parent(p);
     let mut out = Vec::new();
-    for (a, truth) in ego.truth.detections.iter().enumerate() {
-        let (Some(id), Some(truth_m)) = (truth.object_id.as_deref(), truth.position_m) else {
-            continue;
-        };
-        if truth.sender {
-            continue;
-        }
+    for (a, id, truth_m) in real_detections(ego) {
         let own = measured(ego.obs, a);
         let fused = partner[a]
             .and_then(|b| fuse(&[own, moved(&measured(peer.obs, b))]))

@@ -7,7 +7,7 @@
 use std::collections::BTreeMap;
 
 use crate::config::Settings;
-use crate::evaluate::{self, PairAtLevel, Runner};
+use crate::evaluate::{self, Runner};
 use crate::fusion::FusionSettings;
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainReport};
 use crate::matching::{LambdaChoice, Method};
@@ -142,27 +142,12 @@ pub fn eval_run(
     let runners = pipeline::runners(settings, methods)?;
     let grid = lambda_grid(lambdas.values());
     let mut out = RunEval::default();
-    let stats = pipeline::simulate_frames(settings, progress, |instances| {
-        for level in &settings.pose_noise {
-            let pairs: Vec<PairAtLevel> = instances
-                .iter()
-                .map(|i| i.at_level(settings.seeds.sensor, level))
-                .collect();
-            for runner in &runners {
-                let f = evaluate::evaluate_frame(
-                    &pairs,
-                    runner,
-                    &settings.fusion,
-                    settings.matching.multi_vehicle,
-                );
-                out.record_consistency(f.method, level.label, f.consistency);
-                out.record_views(f.method, level.label, &f.views);
-                for (pair, e) in pairs.iter().zip(&f.pairs) {
-                    out.record(e, level.label, (pair.first.truth, pair.second.truth), &grid);
-                }
-            }
+    let stats = pipeline::evaluate_frames(settings, &runners, progress, |_, pairs, level, f| {
+        out.record_consistency(f.method, level, f.consistency);
+        out.record_views(f.method, level, &f.views);
+        for (pair, e) in pairs.iter().zip(&f.pairs) {
+            out.record(e, level, (pair.first.truth, pair.second.truth), &grid);
         }
-        Ok(())
     })?;
     out.instances = stats.n_instances;
     Ok(out)

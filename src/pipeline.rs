@@ -16,7 +16,7 @@ use crate::io::{self, WeightsError};
 use crate::matching::{self, BuildError, LambdaChoice, MatchView, Method};
 use crate::report::{ObjectRow, RowKey, RunResults};
 use crate::rng::{self, Purpose};
-use crate::sensor::{self, ConnectedSelection, PoseNoiseLevel, Sensed};
+use crate::sensor::{self, ConnectedSelection, PoseNoiseLabel, PoseNoiseLevel, Sensed};
 use crate::traffic::{StaticScene, TrafficFrame};
 
 #[derive(Debug, thiserror::Error)]
@@ -325,23 +325,8 @@ pub fn run(settings: &Settings, progress: impl FnMut(Progress)) -> Result<RunRes
     let started = Instant::now();
     let runners = runners(settings, &settings.matching.methods)?;
     let mut results = RunResults::default();
-    let stats = simulate_frames(settings, progress, |instances| {
-        for level in &settings.pose_noise {
-            let pairs: Vec<PairAtLevel> = instances
-                .iter()
-                .map(|i| i.at_level(settings.seeds.sensor, level))
-                .collect();
-            for runner in &runners {
-                let f = evaluate::evaluate_frame(
-                    &pairs,
-                    runner,
-                    &settings.fusion,
-                    settings.matching.multi_vehicle,
-                );
-                record_frame(&mut results, instances, level.label, f);
-            }
-        }
-        Ok(())
+    let stats = evaluate_frames(settings, &runners, progress, |instances, _, level, f| {
+        record_frame(&mut results, instances, level, f);
     })?;
     results.n_instances = stats.n_instances;
     results.n_steps = stats.n_steps;
@@ -352,11 +337,42 @@ pub fn run(settings: &Settings, progress: impl FnMut(Progress)) -> Result<RunRes
     Ok(results)
 }
 
+/// Runs the scenario and hands every frame's evaluation to `on_eval`: for
+/// each sampled step, each pose-noise level and each runner in order, the
+/// step's instances, their pairs at that level, the level, and what
+/// [`evaluate::evaluate_frame`] made of them (with `[matching]
+/// multi_vehicle`).
+pub fn evaluate_frames(
+    settings: &Settings,
+    runners: &[Runner],
+    progress: impl FnMut(Progress),
+    mut on_eval: impl FnMut(&[Instance], &[PairAtLevel], PoseNoiseLabel, evaluate::FrameEval),
+) -> Result<SimStats, RunError> {
+    simulate_frames(settings, progress, |instances| {
+        for level in &settings.pose_noise {
+            let pairs: Vec<PairAtLevel> = instances
+                .iter()
+                .map(|i| i.at_level(settings.seeds.sensor, level))
+                .collect();
+            for runner in runners {
+                let f = evaluate::evaluate_frame(
+                    &pairs,
+                    runner,
+                    &settings.fusion,
+                    settings.matching.multi_vehicle,
+                );
+                on_eval(instances, &pairs, level.label, f);
+            }
+        }
+        Ok(())
+    })
+}
+
 /// Adds one method's evaluation of a frame at one level to `results`.
 fn record_frame(
     results: &mut RunResults,
     instances: &[Instance],
-    pose_noise: crate::sensor::PoseNoiseLabel,
+    pose_noise: PoseNoiseLabel,
     f: evaluate::FrameEval,
 ) {
     for (inst, e) in instances.iter().zip(f.pairs) {
