@@ -21,6 +21,10 @@ seed="${COID_SEED:-7}"
 shards="${SHARDS:-2}"
 timeout_s="${TIMEOUT_S:-1800}"
 say() { printf 'check-slurm: %s\n' "$*"; }
+if [ "$(id -u)" -ne 0 ]; then
+    say "needs root (it installs slurm-wlm and starts munged, slurmctld, slurmd)" >&2
+    exit 1
+fi
 
 if ! command -v slurmctld >/dev/null || ! command -v munged >/dev/null; then
     say "installing slurm-wlm from Debian"
