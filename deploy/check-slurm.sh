@@ -81,8 +81,11 @@ fi
 if ! pgrep -x munged >/dev/null; then
     mkdir -p /run/munge /var/log/munge /var/lib/munge
     munged --force
-    started+=("$(pgrep -x munged | head -1)")
+    sleep 1
+    started+=("$(cat /run/munge/munged.pid)")
 fi
+for _ in $(seq 10); do munge -n >/dev/null 2>&1 && break; sleep 1; done
+munge -n >/dev/null || { say "munge does not answer; see /var/log/munge"; exit 1; }
 slurmctld -i
 sleep 1
 started+=("$(cat "$work/slurmctld.pid")")
