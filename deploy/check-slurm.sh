@@ -21,6 +21,10 @@ seed="${COID_SEED:-7}"
 shards="${SHARDS:-2}"
 timeout_s="${TIMEOUT_S:-1800}"
 say() { printf 'check-slurm: %s\n' "$*"; }
+if [ "$(id -u)" -ne 0 ]; then
+    say "needs root (it installs slurm-wlm and starts munged, slurmctld, slurmd)" >&2
+    exit 1
+fi
 
 if ! command -v slurmctld >/dev/null || ! command -v munged >/dev/null; then
     say "installing slurm-wlm from Debian"
@@ -77,8 +81,11 @@ fi
 if ! pgrep -x munged >/dev/null; then
     mkdir -p /run/munge /var/log/munge /var/lib/munge
     munged --force
-    started+=("$(pgrep -x munged | head -1)")
+    sleep 1
+    started+=("$(cat /run/munge/munged.pid)")
 fi
+for _ in $(seq 10); do munge -n >/dev/null 2>&1 && break; sleep 1; done
+munge -n >/dev/null || { say "munge does not answer; see /var/log/munge"; exit 1; }
 slurmctld -i
 sleep 1
 started+=("$(cat "$work/slurmctld.pid")")

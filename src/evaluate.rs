@@ -856,15 +856,45 @@ mod tests {
         }
     }
 
-    /// The Delaunay graph of each observation.
-    fn graphs_of(sensed: &[(Observation, ObservationTruth)]) -> Vec<SceneGraph> {
-        sensed
-            .iter()
-            .map(|(o, _)| {
-                let positions: Vec<Vec2> = o.detections.iter().map(|d| d.position_m).collect();
-                SceneGraph::delaunay(&positions).unwrap()
-            })
-            .collect()
+    /// Connected vehicles of a hand-made frame (exact views at GPS level).
+    struct TestFrame {
+        sensed: Vec<(Observation, ObservationTruth)>,
+        graphs: Vec<SceneGraph>,
+        poses: Vec<Pose2>,
+    }
+
+    impl TestFrame {
+        fn new(sensed: Vec<(Observation, ObservationTruth)>, poses: &[Pose2]) -> Self {
+            let graphs = sensed
+                .iter()
+                .map(|(o, _)| {
+                    let positions: Vec<Vec2> = o.detections.iter().map(|d| d.position_m).collect();
+                    SceneGraph::delaunay(&positions).unwrap()
+                })
+                .collect();
+            Self {
+                sensed,
+                graphs,
+                poses: poses.to_vec(),
+            }
+        }
+
+        fn side(&self, k: usize) -> Side<'_> {
+            Side {
+                view: exact_view(&self.sensed[k].0, &self.graphs[k], self.poses[k]),
+                obs: &self.sensed[k].0,
+                truth: &self.sensed[k].1,
+            }
+        }
+
+        fn pair(&self, i: usize, j: usize) -> PairAtLevel<'_> {
+            let (first, second) = (self.side(i), self.side(j));
+            PairAtLevel {
+                first,
+                second,
+                level: first.view.pose_noise,
+            }
+        }
     }
 
     /// Pairs by the reported x position of the two egos: (a, b) and
@@ -906,20 +936,10 @@ mod tests {
             .zip(&poses)
             .map(|(id, p)| sensed(id, *p, &objects))
             .collect();
-        let graphs = graphs_of(&sensed);
-        let side = |k: usize| Side {
-            view: exact_view(&sensed[k].0, &graphs[k], poses[k]),
-            obs: &sensed[k].0,
-            truth: &sensed[k].1,
-        };
-        let level = side(0).view.pose_noise;
+        let frame = TestFrame::new(sensed, &poses);
         let pairs: Vec<PairAtLevel> = [(0, 1), (0, 2), (1, 2)]
             .iter()
-            .map(|&(i, j)| PairAtLevel {
-                first: side(i),
-                second: side(j),
-                level,
-            })
+            .map(|&(i, j)| frame.pair(i, j))
             .collect();
         let fusion = FusionSettings {
             variants: vec![FusionVariant::Paper],
@@ -981,18 +1001,8 @@ mod tests {
                 (obs, truth)
             })
             .collect();
-        let graphs = graphs_of(&sensed);
-        let side = |k: usize| Side {
-            view: exact_view(&sensed[k].0, &graphs[k], poses[k]),
-            obs: &sensed[k].0,
-            truth: &sensed[k].1,
-        };
-        let level = side(0).view.pose_noise;
-        let pair = |i: usize, j: usize| PairAtLevel {
-            first: side(i),
-            second: side(j),
-            level,
-        };
+        let frame = TestFrame::new(sensed, &poses);
+        let pair = |i: usize, j: usize| frame.pair(i, j);
         let fusion = FusionSettings {
             variants: vec![FusionVariant::Paper],
             align_min_matches: 3,
@@ -1024,7 +1034,7 @@ mod tests {
                 .position(|o| o.0 == Some(v.object_id.as_str()))
                 .unwrap();
             let world: Vec<Measurement> = (0..3)
-                .map(|u| measured(&sensed[u].0, k).moved(&poses[u]))
+                .map(|u| measured(&frame.sensed[u].0, k).moved(&poses[u]))
                 .collect();
             let expected = (fuse(&world).unwrap().position_m - objects[k].1).norm();
             assert!(
