@@ -10,13 +10,16 @@ pub mod features;
 pub mod model;
 pub mod train;
 
+use std::sync::{Arc, Mutex};
+
 use burn::prelude::*;
 use rand::{Rng, RngCore};
 use rand_chacha::ChaCha8Rng;
 
 use self::decision::{MatchDistribution, UncertaintyKind};
+use self::features::GraphInput;
 use self::features::graph_input;
-use self::model::{Architecture, GraphTensors, Init, LossTerms, Masks, Network};
+use self::model::{Architecture, GraphTensors, Init, LossTerms, Masks, Network, PairMasks};
 use super::{Identification, MatchView, Matcher, Method};
 use crate::rng::{self, Purpose};
 
@@ -121,6 +124,93 @@ fn draw_masks(
     }
 }
 
+/// The conv dropout masks of one vehicle's embedding with `t` samples,
+/// `[t, n, hidden]` and `[t, n, out]`.
+fn draw_embedding_masks(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    t: usize,
+    n: usize,
+    device: &Device,
+) -> (Tensor<3>, Tensor<3>) {
+    let mut mask = |d: usize| {
+        Tensor::<3>::from_data(
+            TensorData::new(dropout_mask(rng, t * n * d, arch.dropout_conv), [t, n, d]),
+            device,
+        )
+    };
+    (mask(arch.hidden), mask(arch.out))
+}
+
+/// The consensus masks of one pair with `t` samples.
+fn draw_pair_masks(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    t: usize,
+    n1: usize,
+    n2: usize,
+    device: &Device,
+) -> PairMasks {
+    let r = arch.consensus_dim;
+    let phi = if arch.consensus {
+        Tensor::<4>::from_data(
+            TensorData::new(
+                dropout_mask(rng, t * n1 * n2 * r, arch.dropout_phi),
+                [t, n1, n2, r],
+            ),
+            device,
+        )
+    } else {
+        Tensor::<4>::ones([1, 1, 1, 1], device)
+    };
+    let normal = rand_distr::StandardNormal;
+    let indicators: Vec<f32> = (0..n1 * r)
+        .map(|_| rng.sample::<f64, _>(normal) as f32)
+        .collect();
+    PairMasks {
+        phi,
+        indicators: Tensor::from_data(TensorData::new(indicators, [1, n1, r]), device),
+    }
+}
+
+/// A key of everything one vehicle's embedding depends on: its network
+/// input (node features and edges with their B-spline bases, which carry
+/// the reported heading) and the number of samples.
+fn embedding_key(input: &GraphInput, samples: usize) -> u64 {
+    let mut parts = vec![input.n as u64, samples as u64, input.edge_count() as u64];
+    parts.extend(input.node_features.iter().map(|v| u64::from(v.to_bits())));
+    parts.extend(
+        input
+            .src
+            .iter()
+            .chain(&input.dst)
+            .chain(&input.basis_index)
+            .map(|&v| v as u64),
+    );
+    parts.extend(input.basis_weight.iter().map(|v| u64::from(v.to_bits())));
+    rng::key(&parts)
+}
+
+/// One vehicle's embedding at inference: its graph tensors and the node
+/// embeddings of every MC-dropout sample, `[T, N, out]`.
+struct Embedded {
+    graph: GraphTensors,
+    h: Tensor<3>,
+}
+
+/// Embeddings computed for recent views, by [`embedding_key`]: a vehicle
+/// seen in several pairs of a frame is embedded once. Bounded; a hit is
+/// bit-identical to recomputing (same input, same dropout stream).
+#[derive(Default)]
+struct EmbeddingCache {
+    entries: std::collections::HashMap<u64, Arc<Embedded>>,
+    hits: u64,
+}
+
+/// At most this many embeddings are kept (a frame of a town holds a few
+/// dozen vehicles x pose-noise levels).
+const CACHE_CAPACITY: usize = 256;
+
 /// A stable key of a matching problem's inputs: the masks of a pair depend
 /// only on the pair, not on what was matched before.
 fn problem_key(first: &MatchView, second: &MatchView) -> u64 {
@@ -147,6 +237,9 @@ pub struct DeepMatcher {
     pub threshold: Option<(UncertaintyKind, f64)>,
     /// Seed of the dropout-mask streams.
     pub seed: u64,
+    /// Reuse each vehicle's embedding across the pairs it is in.
+    share_embeddings: bool,
+    cache: Mutex<EmbeddingCache>,
 }
 
 impl DeepMatcher {
@@ -166,7 +259,50 @@ impl DeepMatcher {
             samples,
             threshold,
             seed,
+            share_embeddings: true,
+            cache: Mutex::default(),
         }
+    }
+
+    /// Computes every pair's embeddings afresh (the per-pair path; results
+    /// are bit-identical either way).
+    pub fn without_shared_embeddings(mut self) -> Self {
+        self.share_embeddings = false;
+        self
+    }
+
+    /// How many embeddings were reused so far.
+    pub fn shared_embeddings(&self) -> u64 {
+        self.cache.lock().map_or(0, |c| c.hits)
+    }
+
+    /// One vehicle's embedding: from the cache, or computed with the
+    /// conv dropout masks of its own stream (keyed by its input).
+    fn embedding(&self, view: &MatchView) -> Arc<Embedded> {
+        let input = graph_input(view.detections, view.graph, &view.pose_reported);
+        let key = embedding_key(&input, self.samples);
+        if self.share_embeddings
+            && let Ok(mut cache) = self.cache.lock()
+            && let Some(e) = cache.entries.get(&key).cloned()
+        {
+            cache.hits += 1;
+            return e;
+        }
+        let graph = GraphTensors::new(&input, &self.device);
+        let mut stream = rng::stream(self.seed, Purpose::EmbeddingDropout, &[key]);
+        let (m1, m2) =
+            draw_embedding_masks(&mut stream, &self.arch, self.samples, input.n, &self.device);
+        let h = self.net.embed(&graph, m1, m2);
+        let e = Arc::new(Embedded { graph, h });
+        if self.share_embeddings
+            && let Ok(mut cache) = self.cache.lock()
+        {
+            if cache.entries.len() >= CACHE_CAPACITY {
+                cache.entries.clear();
+            }
+            cache.entries.insert(key, Arc::clone(&e));
+        }
+        e
     }
 
     /// A deep method with trained weights (the bytes of its `.bpk` file);
@@ -206,23 +342,20 @@ impl DeepMatcher {
     /// row-major; both sides must be non-empty.
     pub fn samples(&self, first: &MatchView, second: &MatchView) -> Vec<Vec<f32>> {
         let (n1, n2) = (first.detections.len(), second.detections.len());
-        let g1 = GraphTensors::new(
-            &graph_input(first.detections, first.graph, &first.pose_reported),
-            &self.device,
-        );
-        let g2 = GraphTensors::new(
-            &graph_input(second.detections, second.graph, &second.pose_reported),
-            &self.device,
-        );
+        let (e1, e2) = (self.embedding(first), self.embedding(second));
         let mut stream = rng::stream(self.seed, Purpose::Dropout, &[problem_key(first, second)]);
-        let masks = draw_masks(&mut stream, &self.arch, self.samples, n1, n2, &self.device);
+        let masks = draw_pair_masks(&mut stream, &self.arch, self.samples, n1, n2, &self.device);
         let cost = Tensor::<3>::from_data(
             TensorData::new(features::position_cost(first, second), [1, n1, n2]),
             &self.device,
         );
-        let log_p = self
-            .net
-            .forward(&g1, &g2, masks, cost, self.arch.sinkhorn_iters);
+        let log_p = self.net.match_embeddings(
+            (&e1.h, &e1.graph),
+            (&e2.h, &e2.graph),
+            masks,
+            cost,
+            self.arch.sinkhorn_iters,
+        );
         let p: Vec<f32> = log_p.exp().try_into_vec_as::<f32>().unwrap_or_default();
         p.chunks((n1 + 1) * (n2 + 1)).map(<[f32]>::to_vec).collect()
     }
@@ -401,6 +534,35 @@ mod tests {
         v.push((Vec2::new(30.0, -9.0), ObjectClass::Truck, [0.7, 0.1, 0.1]));
         v.push((Vec2::new(24.0, 15.0), ObjectClass::Bicycle, [0.1; 3]));
         v
+    }
+
+    /// Three vehicles, three pairs: sharing each vehicle's embedding across
+    /// its pairs gives the same bits as computing it for every pair, and
+    /// it is reused (each vehicle is in two pairs).
+    #[test]
+    fn shared_embeddings_are_bit_identical_to_the_per_pair_path() {
+        let objects = testkit::world_objects();
+        let all: Vec<usize> = (0..objects.len()).collect();
+        let sides = [
+            Side::of(testkit::POSE_A, &objects, &all, GPS),
+            Side::of(testkit::POSE_B, &objects, &[5, 2, 7, 0, 3, 6, 1, 4], GPS),
+            Side::of((20.0, 40.0, -1.2), &objects, &[1, 3, 4, 6, 7], GPS),
+        ];
+        let pairs = [(0, 1), (0, 2), (1, 2)];
+        let run = |m: &DeepMatcher| -> Vec<Vec<Vec<f32>>> {
+            pairs
+                .iter()
+                .map(|&(i, j)| m.samples(&sides[i].view(), &sides[j].view()))
+                .collect()
+        };
+        let shared = shipped(Method::Ours);
+        let per_pair = shipped(Method::Ours).without_shared_embeddings();
+        let (a, b) = (run(&shared), run(&per_pair));
+        assert_eq!(a, b);
+        assert_eq!(shared.shared_embeddings(), 3);
+        assert_eq!(per_pair.shared_embeddings(), 0);
+        // The MC samples differ from each other (dropout is on).
+        assert_ne!(a[0][0], a[0][1]);
     }
 
     /// The shipped model matches a scene seen from across the junction when

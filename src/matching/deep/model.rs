@@ -101,9 +101,10 @@ pub struct GraphTensors {
     pub e: usize,
     /// `[1, N, F]`
     pub x: Tensor<3>,
-    /// `[1, N, KERNEL_2D * N]`: entry `[i, k N + j]` is the k-th B-spline
-    /// basis weight of edge j -> i over the degree of i (zero when j is not
-    /// a neighbour of i).
+    /// `[1, N, N * KERNEL_2D]`: entry `[i, j KERNEL_2D + k]` is the k-th
+    /// B-spline basis weight of edge j -> i over the degree of i (zero when
+    /// j is not a neighbour of i). Columns run node-major so that the
+    /// messages `x W` (`[T, N, KERNEL_2D * out]`) need only a reshape.
     pub mixing: Tensor<3>,
 }
 
@@ -117,7 +118,8 @@ impl GraphTensors {
             let inv_deg = g.aggregate[i * e + k];
             for c in 0..4 {
                 let cell = g.basis_index[4 * k + c] as usize;
-                mixing[i * KERNEL_2D * n + cell * n + j] += g.basis_weight[4 * k + c] * inv_deg;
+                mixing[i * KERNEL_2D * n + j * KERNEL_2D + cell] +=
+                    g.basis_weight[4 * k + c] * inv_deg;
             }
         }
         Self {
@@ -158,8 +160,9 @@ impl SplineConv {
     /// `x: [T, N, in] -> [T, N, out]`:
     /// `root x_i + mean_j sum_k B_k(u_ij) W_k x_j + b`, as two dense
     /// products: `XW = x [W_1 .. W_K]` for all kernel cells at once, then the
-    /// kernel-and-neighbour mixing `A [K N]` (degree-normalised basis
-    /// weights of every edge) against `XW` regrouped by kernel cell.
+    /// neighbour-and-kernel mixing `A [N K]` (degree-normalised basis
+    /// weights of every edge) against `XW` read as one row per (neighbour,
+    /// cell).
     pub fn forward(&self, x: Tensor<3>, g: &GraphTensors) -> Tensor<3> {
         let d_out = self.d_out;
         let [t, n, _] = x.dims();
@@ -170,10 +173,8 @@ impl SplineConv {
         }
         let xw = x
             .matmul(self.weight.val().unsqueeze::<3>()) // [T, N, K2 * out]
-            .reshape([t, n, KERNEL_2D, d_out])
-            .swap_dims(1, 2) // [T, K2, N, out]
-            .reshape([t, KERNEL_2D * n, d_out]);
-        root + g.mixing.clone().matmul(xw) + bias // [1, N, K2 N] x [T, K2 N, out]
+            .reshape([t, n * KERNEL_2D, d_out]); // rows (j, k), no copy
+        root + g.mixing.clone().matmul(xw) + bias // [1, N, N K2] x [T, N K2, out]
     }
 }
 
@@ -211,6 +212,15 @@ impl Default for Architecture {
             gps_prior: true,
         }
     }
+}
+
+/// The masks of the pair part of a forward pass: consensus dropout and
+/// the random node indicators.
+pub struct PairMasks {
+    /// `[T, N1, N2, consensus_dim]`.
+    pub phi: Tensor<4>,
+    /// `[1, N1, consensus_dim]`.
+    pub indicators: Tensor<3>,
 }
 
 /// The dropout masks of one forward pass with T samples (values 0 or
@@ -265,7 +275,7 @@ impl Network {
     }
 
     /// Psi: node embeddings `[T, N, out]` for T dropout samples.
-    fn embed(&self, g: &GraphTensors, mask1: Tensor<3>, mask2: Tensor<3>) -> Tensor<3> {
+    pub fn embed(&self, g: &GraphTensors, mask1: Tensor<3>, mask2: Tensor<3>) -> Tensor<3> {
         // The first layer's input is the same for every sample: compute once.
         let h = activation::relu(self.conv1.forward(g.x.clone(), g)) * mask1; // [T, N, hidden]
         activation::relu(self.conv2.forward(h, g)) * mask2 // [T, N, out]
@@ -285,7 +295,25 @@ impl Network {
         let [c2a, c2b] = masks.conv2;
         let h1 = self.embed(g1, c1a, c2a); // [T, N1, out]
         let h2 = self.embed(g2, c1b, c2b); // [T, N2, out]
-        let mut s = h1.matmul(h2.swap_dims(1, 2)); // [T, N1, N2]
+        let pair = PairMasks {
+            phi: masks.phi,
+            indicators: masks.indicators,
+        };
+        self.match_embeddings((&h1, g1), (&h2, g2), pair, position_cost, sinkhorn_iters)
+    }
+
+    /// [`Self::forward`] from both graphs' embeddings ([`Self::embed`]):
+    /// similarity, neighbourhood consensus, GPS term, Sinkhorn.
+    pub fn match_embeddings(
+        &self,
+        first: (&Tensor<3>, &GraphTensors),
+        second: (&Tensor<3>, &GraphTensors),
+        masks: PairMasks,
+        position_cost: Tensor<3>,
+        sinkhorn_iters: usize,
+    ) -> Tensor<3> {
+        let ((h1, g1), (h2, g2)) = (first, second);
+        let mut s = h1.clone().matmul(h2.clone().swap_dims(1, 2)); // [T, N1, N2]
         if let (Some(conv), Some(phi_in), Some(phi_out)) =
             (&self.consensus_conv, &self.phi_in, &self.phi_out)
         {
@@ -438,6 +466,74 @@ pub fn from_bytes(arch: &Architecture, bytes: &[u8], device: &Device) -> Result<
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The dense spline convolution equals the message sum written out per
+    /// edge: `root x_i + sum over edges j -> i of 1/deg(i) sum_c b_c
+    /// W_(k_c) x_j + bias` (kernel cell k_c, basis weight b_c).
+    #[test]
+    fn spline_conv_equals_the_per_edge_sum() {
+        use crate::geometry::Vec2;
+        use crate::graph::SceneGraph;
+        let device = Device::flex();
+        let positions = [
+            (0.0, 0.0),
+            (12.0, 3.0),
+            (5.0, 20.0),
+            (-9.0, 14.0),
+            (30.0, -20.0),
+        ]
+        .map(|(x, y)| Vec2::new(x, y));
+        let graph = SceneGraph::delaunay(&positions).unwrap();
+        let detections: Vec<crate::sensor::Detection> = positions
+            .iter()
+            .map(|p| {
+                crate::matching::testkit::detection(*p, crate::traffic::ObjectClass::Car, [0.3; 3])
+            })
+            .collect();
+        let input = super::super::features::graph_input(
+            &detections,
+            &graph,
+            &crate::geometry::Pose2::new(Vec2::zeros(), 0.4),
+        );
+        let g = GraphTensors::new(&input, &device);
+        let (d_in, d_out, n) = (3, 2, input.n);
+        let conv = SplineConv::new("test", d_in, d_out, Init::Seeded(3), &device);
+        let x: Vec<f32> = (0..n * d_in).map(|v| (v as f32 * 0.37).sin()).collect();
+        let out = conv.forward(
+            Tensor::from_data(TensorData::new(x.clone(), [1, n, d_in]), &device),
+            &g,
+        );
+        let out: Vec<f32> = out.try_into_vec_as::<f32>().unwrap();
+        let w: Vec<f32> = conv.weight.val().try_into_vec_as::<f32>().unwrap();
+        let root: Vec<f32> = conv.root.val().try_into_vec_as::<f32>().unwrap();
+        for i in 0..n {
+            for o in 0..d_out {
+                let mut expected: f32 = (0..d_in)
+                    .map(|c| x[i * d_in + c] * root[c * d_out + o])
+                    .sum();
+                for e in 0..input.edge_count() {
+                    if input.dst[e] as usize != i {
+                        continue;
+                    }
+                    let j = input.src[e] as usize;
+                    let inv_deg = input.aggregate[i * input.edge_count() + e];
+                    for c in 0..4 {
+                        let k = input.basis_index[4 * e + c] as usize;
+                        let b = input.basis_weight[4 * e + c];
+                        let msg: f32 = (0..d_in)
+                            .map(|f| x[j * d_in + f] * w[f * KERNEL_2D * d_out + k * d_out + o])
+                            .sum();
+                        expected += inv_deg * b * msg;
+                    }
+                }
+                let got = out[i * d_out + o];
+                assert!(
+                    (got - expected).abs() < 1e-5,
+                    "node {i}, out {o}: {got} vs {expected}"
+                );
+            }
+        }
+    }
 
     /// Two MC samples of a 2 x 2 assignment (dustbins padded with 0.1),
     /// whose real blocks average to P = [[0.7, 0.2], [0.1, 0.6]].
