@@ -77,6 +77,28 @@ fn dropout_mask(rng: &mut ChaCha8Rng, len: usize, p: f64) -> Vec<f32> {
     out
 }
 
+/// Inference masks: [`dropout_mask`] with two units per 32-bit draw (the
+/// keep probability rounded to 1/65536: 0.8 becomes 0.800003), half the
+/// random numbers of the training masks.
+fn dropout_mask_16(rng: &mut ChaCha8Rng, len: usize, p: f64) -> Vec<f32> {
+    if p <= 0.0 {
+        return vec![1.0; len];
+    }
+    let keep = 1.0 - p;
+    let scale = (1.0 / keep) as f32;
+    let threshold = (keep * 65_536.0).round().min(65_536.0) as u32;
+    let mut out = vec![0f32; len];
+    for pair in out.chunks_mut(2) {
+        let r = rng.next_u32();
+        for (k, v) in pair.iter_mut().enumerate() {
+            if (r >> (16 * k)) & 0xFFFF < threshold {
+                *v = scale;
+            }
+        }
+    }
+    out
+}
+
 /// All masks of one forward pass with `t` samples, from one stream.
 fn draw_masks(
     rng: &mut ChaCha8Rng,
@@ -135,7 +157,10 @@ fn draw_embedding_masks(
 ) -> (Tensor<3>, Tensor<3>) {
     let mut mask = |d: usize| {
         Tensor::<3>::from_data(
-            TensorData::new(dropout_mask(rng, t * n * d, arch.dropout_conv), [t, n, d]),
+            TensorData::new(
+                dropout_mask_16(rng, t * n * d, arch.dropout_conv),
+                [t, n, d],
+            ),
             device,
         )
     };
@@ -155,7 +180,7 @@ fn draw_pair_masks(
     let phi = if arch.consensus {
         Tensor::<4>::from_data(
             TensorData::new(
-                dropout_mask(rng, t * n1 * n2 * r, arch.dropout_phi),
+                dropout_mask_16(rng, t * n1 * n2 * r, arch.dropout_phi),
                 [t, n1, n2, r],
             ),
             device,
@@ -481,6 +506,11 @@ mod tests {
         assert!((kept - 0.6).abs() < 0.01, "{kept}");
         assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.6).abs() < 1e-6));
         assert!(dropout_mask(&mut rng, 10, 0.0).iter().all(|&v| v == 1.0));
+        let m = dropout_mask_16(&mut rng, 100_001, 0.2);
+        let kept = m.iter().filter(|&&v| v > 0.0).count() as f64 / m.len() as f64;
+        assert!((kept - 0.8).abs() < 0.01, "{kept}");
+        assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.8).abs() < 1e-6));
+        assert!(dropout_mask_16(&mut rng, 7, 0.0).iter().all(|&v| v == 1.0));
     }
 
     #[test]
