@@ -87,15 +87,14 @@ fn dropout_mask_16(rng: &mut ChaCha8Rng, len: usize, p: f64) -> Vec<f32> {
     let keep = 1.0 - p;
     let scale = (1.0 / keep) as f32;
     let threshold = (keep * 65_536.0).round().min(65_536.0) as u32;
-    let mut out = vec![0f32; len];
-    for pair in out.chunks_mut(2) {
-        let r = rng.next_u32();
-        for (k, v) in pair.iter_mut().enumerate() {
-            if (r >> (16 * k)) & 0xFFFF < threshold {
-                *v = scale;
-            }
-        }
+    let mut words = vec![0u32; len.div_ceil(2)];
+    rng.fill(&mut words[..]);
+    let mut out = vec![0f32; 2 * words.len()];
+    for (o, &w) in out.chunks_exact_mut(2).zip(&words) {
+        o[0] = scale * f32::from(u8::from((w & 0xFFFF) < threshold));
+        o[1] = scale * f32::from(u8::from((w >> 16) < threshold));
     }
+    out.truncate(len);
     out
 }
 
@@ -313,7 +312,7 @@ impl DeepMatcher {
             cache.hits += 1;
             return e;
         }
-        let graph = GraphTensors::new(&input, &self.device);
+        let graph = GraphTensors::used_cells(&input, &self.device);
         let mut stream = rng::stream(self.seed, Purpose::EmbeddingDropout, &[key]);
         let (m1, m2) =
             draw_embedding_masks(&mut stream, &self.arch, self.samples, input.n, &self.device);

@@ -101,32 +101,59 @@ pub struct GraphTensors {
     pub e: usize,
     /// `[1, N, F]`
     pub x: Tensor<3>,
-    /// `[1, N, N * KERNEL_2D]`: entry `[i, j KERNEL_2D + k]` is the k-th
-    /// B-spline basis weight of edge j -> i over the degree of i (zero when
-    /// j is not a neighbour of i). Columns run node-major so that the
-    /// messages `x W` (`[T, N, KERNEL_2D * out]`) need only a reshape.
+    /// The kernel cells whose messages are computed (ascending), as
+    /// indices `[C]`: all of them, or only those some edge of this graph
+    /// uses (the others contribute nothing).
+    pub cells: Tensor<1, Int>,
+    /// `[1, N, N * C]`: entry `[i, j C + c]` is the basis weight of cell
+    /// `cells[c]` of edge j -> i over the degree of i (zero when j is not a
+    /// neighbour of i). Columns run node-major so that the messages `x W`
+    /// (`[T, N, C * out]`) need only a reshape.
     pub mixing: Tensor<3>,
 }
 
 impl GraphTensors {
+    /// With every kernel cell (training: the gradient of a cell selection
+    /// costs more than the messages it saves).
     pub fn new(g: &GraphInput, device: &Device) -> Self {
+        Self::with_cells(g, [true; KERNEL_2D], device)
+    }
+
+    /// With only the kernel cells some edge uses (inference).
+    pub fn used_cells(g: &GraphInput, device: &Device) -> Self {
+        let mut used = [false; KERNEL_2D];
+        for &k in &g.basis_index {
+            used[k as usize] = true;
+        }
+        Self::with_cells(g, used, device)
+    }
+
+    fn with_cells(g: &GraphInput, used: [bool; KERNEL_2D], device: &Device) -> Self {
         let (n, e) = (g.n, g.edge_count());
         let f = g.node_features.len() / n.max(1);
-        let mut mixing = vec![0f32; n * KERNEL_2D * n];
+        let cells: Vec<i64> = (0..KERNEL_2D as i64)
+            .filter(|&k| used[k as usize])
+            .collect();
+        let c = cells.len();
+        let mut position = [0usize; KERNEL_2D];
+        for (p, &k) in cells.iter().enumerate() {
+            position[k as usize] = p;
+        }
+        let mut mixing = vec![0f32; n * c * n];
         for k in 0..e {
             let (i, j) = (g.dst[k] as usize, g.src[k] as usize);
             let inv_deg = g.aggregate[i * e + k];
-            for c in 0..4 {
-                let cell = g.basis_index[4 * k + c] as usize;
-                mixing[i * KERNEL_2D * n + j * KERNEL_2D + cell] +=
-                    g.basis_weight[4 * k + c] * inv_deg;
+            for b in 0..4 {
+                let cell = position[g.basis_index[4 * k + b] as usize];
+                mixing[i * c * n + j * c + cell] += g.basis_weight[4 * k + b] * inv_deg;
             }
         }
         Self {
             n,
             e,
             x: Tensor::from_data(TensorData::new(g.node_features.clone(), [1, n, f]), device),
-            mixing: Tensor::from_data(TensorData::new(mixing, [1, n, KERNEL_2D * n]), device),
+            cells: Tensor::from_data(TensorData::new(cells, [c]), device),
+            mixing: Tensor::from_data(TensorData::new(mixing, [1, n, c * n]), device),
         }
     }
 }
@@ -159,10 +186,10 @@ impl SplineConv {
 
     /// `x: [T, N, in] -> [T, N, out]`:
     /// `root x_i + mean_j sum_k B_k(u_ij) W_k x_j + b`, as two dense
-    /// products: `XW = x [W_1 .. W_K]` for all kernel cells at once, then the
-    /// neighbour-and-kernel mixing `A [N K]` (degree-normalised basis
-    /// weights of every edge) against `XW` read as one row per (neighbour,
-    /// cell).
+    /// products: `XW = x [W_k ..]` for every kernel cell the graph uses at
+    /// once, then the neighbour-and-cell mixing `A [N C]` (degree-normalised
+    /// basis weights of every edge) against `XW` read as one row per
+    /// (neighbour, cell).
     pub fn forward(&self, x: Tensor<3>, g: &GraphTensors) -> Tensor<3> {
         let d_out = self.d_out;
         let [t, n, _] = x.dims();
@@ -171,10 +198,20 @@ impl SplineConv {
         if g.e == 0 {
             return root + bias;
         }
-        let xw = x
-            .matmul(self.weight.val().unsqueeze::<3>()) // [T, N, K2 * out]
-            .reshape([t, n * KERNEL_2D, d_out]); // rows (j, k), no copy
-        root + g.mixing.clone().matmul(xw) + bias // [1, N, N K2] x [T, N K2, out]
+        let d_in = self.root.val().dims()[0];
+        let c = g.cells.dims()[0];
+        let w = if c == KERNEL_2D {
+            self.weight.val().unsqueeze::<3>()
+        } else {
+            // The weights of the cells this graph uses.
+            self.weight
+                .val()
+                .reshape([d_in, KERNEL_2D, d_out])
+                .select(1, g.cells.clone())
+                .reshape([1, d_in, c * d_out])
+        };
+        let xw = x.matmul(w).reshape([t, n * c, d_out]); // rows (j, cell), no copy
+        root + g.mixing.clone().matmul(xw) + bias // [1, N, N C] x [T, N C, out]
     }
 }
 
@@ -495,42 +532,46 @@ mod tests {
             &graph,
             &crate::geometry::Pose2::new(Vec2::zeros(), 0.4),
         );
-        let g = GraphTensors::new(&input, &device);
         let (d_in, d_out, n) = (3, 2, input.n);
         let conv = SplineConv::new("test", d_in, d_out, Init::Seeded(3), &device);
         let x: Vec<f32> = (0..n * d_in).map(|v| (v as f32 * 0.37).sin()).collect();
-        let out = conv.forward(
-            Tensor::from_data(TensorData::new(x.clone(), [1, n, d_in]), &device),
-            &g,
-        );
-        let out: Vec<f32> = out.try_into_vec_as::<f32>().unwrap();
-        let w: Vec<f32> = conv.weight.val().try_into_vec_as::<f32>().unwrap();
-        let root: Vec<f32> = conv.root.val().try_into_vec_as::<f32>().unwrap();
-        for i in 0..n {
-            for o in 0..d_out {
-                let mut expected: f32 = (0..d_in)
-                    .map(|c| x[i * d_in + c] * root[c * d_out + o])
-                    .sum();
-                for e in 0..input.edge_count() {
-                    if input.dst[e] as usize != i {
-                        continue;
+        let all = GraphTensors::new(&input, &device);
+        let used = GraphTensors::used_cells(&input, &device);
+        assert!(used.cells.dims()[0] < KERNEL_2D, "every cell used");
+        for g in [all, used] {
+            let out = conv.forward(
+                Tensor::from_data(TensorData::new(x.clone(), [1, n, d_in]), &device),
+                &g,
+            );
+            let out: Vec<f32> = out.try_into_vec_as::<f32>().unwrap();
+            let w: Vec<f32> = conv.weight.val().try_into_vec_as::<f32>().unwrap();
+            let root: Vec<f32> = conv.root.val().try_into_vec_as::<f32>().unwrap();
+            for i in 0..n {
+                for o in 0..d_out {
+                    let mut expected: f32 = (0..d_in)
+                        .map(|c| x[i * d_in + c] * root[c * d_out + o])
+                        .sum();
+                    for e in 0..input.edge_count() {
+                        if input.dst[e] as usize != i {
+                            continue;
+                        }
+                        let j = input.src[e] as usize;
+                        let inv_deg = input.aggregate[i * input.edge_count() + e];
+                        for c in 0..4 {
+                            let k = input.basis_index[4 * e + c] as usize;
+                            let b = input.basis_weight[4 * e + c];
+                            let msg: f32 = (0..d_in)
+                                .map(|f| x[j * d_in + f] * w[f * KERNEL_2D * d_out + k * d_out + o])
+                                .sum();
+                            expected += inv_deg * b * msg;
+                        }
                     }
-                    let j = input.src[e] as usize;
-                    let inv_deg = input.aggregate[i * input.edge_count() + e];
-                    for c in 0..4 {
-                        let k = input.basis_index[4 * e + c] as usize;
-                        let b = input.basis_weight[4 * e + c];
-                        let msg: f32 = (0..d_in)
-                            .map(|f| x[j * d_in + f] * w[f * KERNEL_2D * d_out + k * d_out + o])
-                            .sum();
-                        expected += inv_deg * b * msg;
-                    }
+                    let got = out[i * d_out + o];
+                    assert!(
+                        (got - expected).abs() < 1e-5,
+                        "node {i}, out {o}: {got} vs {expected}"
+                    );
                 }
-                let got = out[i * d_out + o];
-                assert!(
-                    (got - expected).abs() < 1e-5,
-                    "node {i}, out {o}: {got} vs {expected}"
-                );
             }
         }
     }
