@@ -263,6 +263,8 @@ pub struct DeepMatcher {
     pub seed: u64,
     /// Reuse each vehicle's embedding across the pairs it is in.
     share_embeddings: bool,
+    /// The network's dustbin score, read once.
+    dustbin: f32,
     cache: Mutex<EmbeddingCache>,
 }
 
@@ -275,16 +277,19 @@ impl DeepMatcher {
         threshold: Option<(UncertaintyKind, f64)>,
         seed: u64,
     ) -> Self {
+        let net = net.valid();
+        let dustbin = net.dustbin_score();
         Self {
             method,
             arch,
-            net: net.valid(),
+            net,
             device: Device::flex(),
             samples,
             threshold,
             seed,
             share_embeddings: true,
             cache: Mutex::default(),
+            dustbin,
         }
     }
 
@@ -373,14 +378,16 @@ impl DeepMatcher {
             TensorData::new(features::position_cost(first, second), [1, n1, n2]),
             &self.device,
         );
-        let log_p = self.net.match_embeddings(
-            (&e1.h, &e1.graph),
-            (&e2.h, &e2.graph),
-            masks,
-            cost,
+        let scores = self
+            .net
+            .pair_scores((&e1.h, &e1.graph), (&e2.h, &e2.graph), masks, cost);
+        let scores: Vec<f32> = scores.try_into_vec_as::<f32>().unwrap_or_default();
+        let p = model::sinkhorn_probabilities(
+            &scores,
+            [self.samples, n1, n2],
+            self.dustbin,
             self.arch.sinkhorn_iters,
         );
-        let p: Vec<f32> = log_p.exp().try_into_vec_as::<f32>().unwrap_or_default();
         p.chunks((n1 + 1) * (n2 + 1)).map(<[f32]>::to_vec).collect()
     }
 

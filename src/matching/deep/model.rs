@@ -10,7 +10,8 @@
 //!   correspondence, embedded by a consensus `SplineConv`, compared, and
 //!   scored by an MLP with dropout 0.2.
 //! - Log-domain Sinkhorn with a learnable dustbin row and column (Eq. 4
-//!   with "no match", as SuperGlue).
+//!   with "no match", as SuperGlue). Inference runs the same iterations
+//!   without tensors, in the scaling domain ([`sinkhorn_probabilities`]).
 //!
 //! Dropout masks are drawn by the caller from a seeded stream and applied
 //! here as tensors, on any device: burn's `Dropout` is a no-op outside
@@ -349,6 +350,24 @@ impl Network {
         position_cost: Tensor<3>,
         sinkhorn_iters: usize,
     ) -> Tensor<3> {
+        let scores = self.pair_scores(first, second, masks, position_cost);
+        log_sinkhorn(scores, self.dustbin.val(), sinkhorn_iters)
+    }
+
+    /// The learned dustbin score (Sinkhorn's "no match" entry).
+    pub fn dustbin_score(&self) -> f32 {
+        self.dustbin.val().into_scalar::<f32>()
+    }
+
+    /// The scores Sinkhorn normalises, `[T, N1, N2]`: similarity,
+    /// neighbourhood consensus and GPS term from both graphs' embeddings.
+    pub fn pair_scores(
+        &self,
+        first: (&Tensor<3>, &GraphTensors),
+        second: (&Tensor<3>, &GraphTensors),
+        masks: PairMasks,
+        position_cost: Tensor<3>,
+    ) -> Tensor<3> {
         let ((h1, g1), (h2, g2)) = (first, second);
         let mut s = h1.clone().matmul(h2.clone().swap_dims(1, 2)); // [T, N1, N2]
         if let (Some(conv), Some(phi_in), Some(phi_out)) =
@@ -368,7 +387,7 @@ impl Network {
             let w = self.log_position_weight.val().exp().reshape([1, 1, 1]);
             s = s - position_cost * w;
         }
-        log_sinkhorn(s, self.dustbin.val(), sinkhorn_iters)
+        s
     }
 }
 
@@ -403,6 +422,88 @@ pub fn log_sinkhorn(scores: Tensor<3>, dustbin: Tensor<1>, iters: usize) -> Tens
         v = log_nu.clone() - logsumexp(z.clone() + u.clone(), 1);
     }
     z + u + v - norm
+}
+
+/// [`log_sinkhorn`] for inference, without tensors or gradients: the
+/// same iterations in the scaling domain, in f64. `scores` holds T
+/// row-major `N1 x N2` blocks; the result holds T row-major
+/// `(N1 + 1) x (N2 + 1)` assignments (probabilities, not logs).
+///
+/// With `K = exp(z - rowmax)` (every row of the padded scores `z` keeps
+/// an entry 1, and so does every column: the dustbin row is constant),
+/// `u = mu / K v` and `v = nu / K^T u` are `exp` of the log-domain
+/// potentials up to the row shift, so `P = u K v / exp(norm)` is the
+/// log-domain result up to rounding, with one `exp` per entry instead of
+/// two per entry and iteration.
+pub fn sinkhorn_probabilities(
+    scores: &[f32],
+    [t, n1, n2]: [usize; 3],
+    dustbin: f32,
+    iters: usize,
+) -> Vec<f32> {
+    debug_assert_eq!(scores.len(), t * n1 * n2);
+    let (rows, cols) = (n1 + 1, n2 + 1);
+    let norm = -((n1 + n2) as f64).ln();
+    let mu = |i: usize| {
+        if i == n1 {
+            n2 as f64 / (n1 + n2) as f64
+        } else {
+            norm.exp()
+        }
+    };
+    let nu = |j: usize| {
+        if j == n2 {
+            n1 as f64 / (n1 + n2) as f64
+        } else {
+            norm.exp()
+        }
+    };
+    let alpha = f64::from(dustbin);
+    let mut out = Vec::with_capacity(t * rows * cols);
+    let mut kernel = vec![0f64; rows * cols];
+    let (mut u, mut v) = (vec![0f64; rows], vec![1f64; cols]);
+    let mut column_sums = vec![0f64; cols];
+    for sample in 0..t {
+        let block = &scores[sample * n1 * n2..(sample + 1) * n1 * n2];
+        for i in 0..rows {
+            let z = |j: usize| {
+                if i < n1 && j < n2 {
+                    f64::from(block[i * n2 + j])
+                } else {
+                    alpha
+                }
+            };
+            let row_max = (0..cols).map(z).fold(f64::NEG_INFINITY, f64::max);
+            for j in 0..cols {
+                kernel[i * cols + j] = (z(j) - row_max).exp();
+            }
+        }
+        v.fill(1.0);
+        for _ in 0..iters {
+            for (i, ui) in u.iter_mut().enumerate() {
+                let row = &kernel[i * cols..(i + 1) * cols];
+                *ui = mu(i) / row.iter().zip(&v).map(|(k, vj)| k * vj).sum::<f64>();
+            }
+            column_sums.fill(0.0);
+            for (row, ui) in kernel.chunks_exact(cols).zip(&u) {
+                for (sum, k) in column_sums.iter_mut().zip(row) {
+                    *sum += k * ui;
+                }
+            }
+            for (j, vj) in v.iter_mut().enumerate() {
+                *vj = nu(j) / column_sums[j];
+            }
+        }
+        let scale = (-norm).exp();
+        for (row, ui) in kernel.chunks_exact(cols).zip(&u) {
+            out.extend(
+                row.iter()
+                    .zip(&v)
+                    .map(|(k, vj)| (ui * k * vj * scale) as f32),
+            );
+        }
+    }
+    out
 }
 
 /// Which terms of the paper's loss (Eq. 11-13) a variant trains with;
@@ -503,6 +604,40 @@ pub fn from_bytes(arch: &Architecture, bytes: &[u8], device: &Device) -> Result<
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::SeedableRng;
+
+    /// The tensor-free inference Sinkhorn gives the assignment of the
+    /// training one (log domain, tensors), on scores from mild to far
+    /// apart (a row or column far below the dustbin), square and not.
+    #[test]
+    fn inference_sinkhorn_equals_the_log_domain_one() {
+        let device = Device::flex();
+        let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for (shape, spread, dustbin) in [
+            ([3, 5, 4], 6.0f32, 1.0f32),
+            ([2, 7, 9], 60.0, -2.5),
+            ([4, 1, 6], 300.0, 4.0),
+            ([1, 20, 18], 30.0, 0.3),
+        ] {
+            let [t, n1, n2] = shape;
+            let mut scores: Vec<f32> = (0..t * n1 * n2)
+                .map(|_| r.random_range(-spread..spread / 4.0))
+                .collect();
+            scores[0] = -10.0 * spread; // far below everything else
+            let expected = log_sinkhorn(
+                Tensor::<3>::from_data(TensorData::new(scores.clone(), shape), &device),
+                Tensor::from_data(TensorData::new(vec![dustbin], [1]), &device),
+                20,
+            )
+            .exp();
+            let expected: Vec<f32> = expected.try_into_vec_as::<f32>().unwrap();
+            let got = sinkhorn_probabilities(&scores, shape, dustbin, 20);
+            assert_eq!(got.len(), t * (n1 + 1) * (n2 + 1));
+            for (k, (g, e)) in got.iter().zip(&expected).enumerate() {
+                assert!((g - e).abs() < 1e-4, "{shape:?} entry {k}: {g} vs {e}");
+            }
+        }
+    }
 
     /// The dense spline convolution equals the message sum written out per
     /// edge: `root x_i + sum over edges j -> i of 1/deg(i) sum_c b_c
