@@ -10,6 +10,7 @@ pub mod features;
 pub mod model;
 pub mod train;
 
+use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 use burn::prelude::*;
@@ -19,7 +20,9 @@ use rand_chacha::ChaCha8Rng;
 use self::decision::{MatchDistribution, UncertaintyKind};
 use self::features::GraphInput;
 use self::features::graph_input;
-use self::model::{Architecture, GraphTensors, Init, LossTerms, Masks, Network, PairMasks};
+use self::model::{
+    Architecture, CellWeights, GraphTensors, Init, LossTerms, Masks, Network, PairMasks,
+};
 use super::{Identification, MatchView, Matcher, Method};
 use crate::rng::{self, Purpose};
 
@@ -227,13 +230,16 @@ struct Embedded {
 /// bit-identical to recomputing (same input, same dropout stream).
 #[derive(Default)]
 struct EmbeddingCache {
-    entries: std::collections::HashMap<u64, Arc<Embedded>>,
+    entries: HashMap<u64, Arc<Embedded>>,
     hits: u64,
 }
 
 /// At most this many embeddings are kept (a frame of a town holds a few
 /// dozen vehicles x pose-noise levels).
 const CACHE_CAPACITY: usize = 256;
+
+/// How many kernel-cell sets' weights a matcher keeps (each up to 0.8 MB).
+const CELL_SETS_KEPT: usize = 48;
 
 /// A stable key of a matching problem's inputs: the masks of a pair depend
 /// only on the pair, not on what was matched before.
@@ -263,6 +269,8 @@ pub struct DeepMatcher {
     pub seed: u64,
     /// Reuse each vehicle's embedding across the pairs it is in.
     share_embeddings: bool,
+    /// The spline layers' weights per set of kernel cells (bit mask).
+    cell_weights: Mutex<HashMap<u32, Arc<CellWeights>>>,
     /// The network's dustbin score, read once.
     dustbin: f32,
     cache: Mutex<EmbeddingCache>,
@@ -289,6 +297,7 @@ impl DeepMatcher {
             seed,
             share_embeddings: true,
             cache: Mutex::default(),
+            cell_weights: Mutex::default(),
             dustbin,
         }
     }
@@ -318,6 +327,10 @@ impl DeepMatcher {
             return e;
         }
         let graph = GraphTensors::used_cells(&input, &self.device);
+        let graph = match self.cell_weights(&graph) {
+            Some(weights) => graph.with_weights(weights),
+            None => graph,
+        };
         let mut stream = rng::stream(self.seed, Purpose::EmbeddingDropout, &[key]);
         let (m1, m2) =
             draw_embedding_masks(&mut stream, &self.arch, self.samples, input.n, &self.device);
@@ -332,6 +345,21 @@ impl DeepMatcher {
             cache.entries.insert(key, Arc::clone(&e));
         }
         e
+    }
+
+    /// The spline layers' weights of `graph`'s kernel cells, kept per cell
+    /// set (a scenario's graphs use a few dozen sets): selecting them anew
+    /// for every graph cost as much as a tenth of inference. `None` when
+    /// the cache is unavailable (the layers then select them).
+    fn cell_weights(&self, graph: &GraphTensors) -> Option<Arc<CellWeights>> {
+        let mut cache = self.cell_weights.lock().ok()?;
+        if cache.len() >= CELL_SETS_KEPT && !cache.contains_key(&graph.cell_mask) {
+            cache.clear();
+        }
+        let weights = cache
+            .entry(graph.cell_mask)
+            .or_insert_with(|| Arc::new(self.net.cell_weights(graph)));
+        Some(Arc::clone(weights))
     }
 
     /// A deep method with trained weights (the bytes of its `.bpk` file);

@@ -29,6 +29,7 @@ use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::activation;
 use rand::Rng;
+use std::sync::Arc;
 
 use super::features::{GraphInput, KERNEL_2D};
 use crate::rng::{self, Purpose};
@@ -111,6 +112,20 @@ pub struct GraphTensors {
     /// neighbour of i). Columns run node-major so that the messages `x W`
     /// (`[T, N, C * out]`) need only a reshape.
     pub mixing: Tensor<3>,
+    /// Bit k set when kernel cell k is in `cells`.
+    pub cell_mask: u32,
+    /// The spline layers' weights of exactly these cells, when the caller
+    /// has them ([`Network::cell_weights`]); else each layer selects them.
+    pub weights: Option<Arc<CellWeights>>,
+}
+
+/// Every spline layer's weights of one set of kernel cells (`[1, in, C *
+/// out]` each): what [`SplineConv::forward`] would select, kept by a caller
+/// that sees the same cell set many times (inference).
+pub struct CellWeights {
+    conv1: Tensor<3>,
+    conv2: Tensor<3>,
+    consensus: Option<Tensor<3>>,
 }
 
 impl GraphTensors {
@@ -153,9 +168,18 @@ impl GraphTensors {
             n,
             e,
             x: Tensor::from_data(TensorData::new(g.node_features.clone(), [1, n, f]), device),
+            cell_mask: cells.iter().map(|&k| 1u32 << k).sum(),
             cells: Tensor::from_data(TensorData::new(cells, [c]), device),
             mixing: Tensor::from_data(TensorData::new(mixing, [1, n, c * n]), device),
+            weights: None,
         }
+    }
+
+    /// With the spline layers' weights of this graph's cells (which must be
+    /// the ones [`Network::cell_weights`] was given).
+    pub fn with_weights(mut self, weights: Arc<CellWeights>) -> Self {
+        self.weights = Some(weights);
+        self
     }
 }
 
@@ -191,7 +215,15 @@ impl SplineConv {
     /// once, then the neighbour-and-cell mixing `A [N C]` (degree-normalised
     /// basis weights of every edge) against `XW` read as one row per
     /// (neighbour, cell).
-    pub fn forward(&self, x: Tensor<3>, g: &GraphTensors) -> Tensor<3> {
+    ///
+    /// `selected`: this layer's weights of the graph's cells, if the caller
+    /// keeps them ([`CellWeights`]).
+    pub fn forward(
+        &self,
+        x: Tensor<3>,
+        g: &GraphTensors,
+        selected: Option<&Tensor<3>>,
+    ) -> Tensor<3> {
         let d_out = self.d_out;
         let [t, n, _] = x.dims();
         let root = x.clone().matmul(self.root.val().unsqueeze::<3>()); // [T, N, out]
@@ -199,20 +231,27 @@ impl SplineConv {
         if g.e == 0 {
             return root + bias;
         }
-        let d_in = self.root.val().dims()[0];
         let c = g.cells.dims()[0];
-        let w = if c == KERNEL_2D {
-            self.weight.val().unsqueeze::<3>()
-        } else {
-            // The weights of the cells this graph uses.
-            self.weight
-                .val()
-                .reshape([d_in, KERNEL_2D, d_out])
-                .select(1, g.cells.clone())
-                .reshape([1, d_in, c * d_out])
+        let w = match selected {
+            Some(w) => w.clone(),
+            None => self.cell_weights(&g.cells),
         };
         let xw = x.matmul(w).reshape([t, n * c, d_out]); // rows (j, cell), no copy
         root + g.mixing.clone().matmul(xw) + bias // [1, N, N C] x [T, N C, out]
+    }
+
+    /// The weights of the kernel cells `cells`, `[1, in, C * out]`.
+    fn cell_weights(&self, cells: &Tensor<1, Int>) -> Tensor<3> {
+        let c = cells.dims()[0];
+        if c == KERNEL_2D {
+            return self.weight.val().unsqueeze::<3>();
+        }
+        let d_in = self.root.val().dims()[0];
+        self.weight
+            .val()
+            .reshape([d_in, KERNEL_2D, self.d_out])
+            .select(1, cells.clone())
+            .reshape([1, d_in, c * self.d_out])
     }
 }
 
@@ -315,8 +354,23 @@ impl Network {
     /// Psi: node embeddings `[T, N, out]` for T dropout samples.
     pub fn embed(&self, g: &GraphTensors, mask1: Tensor<3>, mask2: Tensor<3>) -> Tensor<3> {
         // The first layer's input is the same for every sample: compute once.
-        let h = activation::relu(self.conv1.forward(g.x.clone(), g)) * mask1; // [T, N, hidden]
-        activation::relu(self.conv2.forward(h, g)) * mask2 // [T, N, out]
+        let w = g.weights.as_deref();
+        let h = activation::relu(self.conv1.forward(g.x.clone(), g, w.map(|w| &w.conv1)));
+        let h = h * mask1; // [T, N, hidden]
+        activation::relu(self.conv2.forward(h, g, w.map(|w| &w.conv2))) * mask2 // [T, N, out]
+    }
+
+    /// Every spline layer's weights of the kernel cells of `g`, for
+    /// [`GraphTensors::with_weights`] on graphs with the same cells.
+    pub fn cell_weights(&self, g: &GraphTensors) -> CellWeights {
+        CellWeights {
+            conv1: self.conv1.cell_weights(&g.cells),
+            conv2: self.conv2.cell_weights(&g.cells),
+            consensus: self
+                .consensus_conv
+                .as_ref()
+                .map(|c| c.cell_weights(&g.cells)),
+        }
     }
 
     /// Log of the soft assignment with dustbins, `[T, N1 + 1, N2 + 1]`.
@@ -377,8 +431,9 @@ impl Network {
             let soft = activation::softmax(s.clone(), 2); // [T, N1, N2]
             let r1 = masks.indicators; // [1, N1, r]
             let r2 = soft.swap_dims(1, 2).matmul(r1.clone()); // [T, N2, r]
-            let z1 = activation::relu(conv.forward(r1, g1)); // [1, N1, r]
-            let z2 = activation::relu(conv.forward(r2, g2)); // [T, N2, r]
+            let w = |g: &GraphTensors| g.weights.as_ref().and_then(|w| w.consensus.clone());
+            let z1 = activation::relu(conv.forward(r1, g1, w(g1).as_ref())); // [1, N1, r]
+            let z2 = activation::relu(conv.forward(r2, g2, w(g2).as_ref())); // [T, N2, r]
             let d = z1.unsqueeze_dim::<4>(2) - z2.unsqueeze_dim::<4>(1); // [T, N1, N2, r]
             let hidden = activation::relu(phi_in.forward(d)) * masks.phi; // [T, N1, N2, r]
             s = s + phi_out.forward(hidden).reshape([t, n1, n2]);
@@ -673,10 +728,12 @@ mod tests {
         let all = GraphTensors::new(&input, &device);
         let used = GraphTensors::used_cells(&input, &device);
         assert!(used.cells.dims()[0] < KERNEL_2D, "every cell used");
-        for g in [all, used] {
+        let kept = conv.cell_weights(&used.cells); // as an inference cache keeps them
+        for (g, selected) in [(&all, None), (&used, None), (&used, Some(&kept))] {
             let out = conv.forward(
                 Tensor::from_data(TensorData::new(x.clone(), [1, n, d_in]), &device),
-                &g,
+                g,
+                selected,
             );
             let out: Vec<f32> = out.try_into_vec_as::<f32>().unwrap();
             let w: Vec<f32> = conv.weight.val().try_into_vec_as::<f32>().unwrap();
