@@ -124,27 +124,12 @@ fn draw_masks(
         mask(n1, arch.out, arch.dropout_conv),
         mask(n2, arch.out, arch.dropout_conv),
     ];
-    let r = arch.consensus_dim;
-    let phi = if arch.consensus {
-        Tensor::<4>::from_data(
-            TensorData::new(
-                dropout_mask(rng, t * n1 * n2 * r, arch.dropout_phi),
-                [t, n1, n2, r],
-            ),
-            device,
-        )
-    } else {
-        Tensor::<4>::ones([1, 1, 1, 1], device)
-    };
-    let normal = rand_distr::StandardNormal;
-    let indicators: Vec<f32> = (0..n1 * r)
-        .map(|_| rng.sample::<f64, _>(normal) as f32)
-        .collect();
+    let pair = draw_consensus_masks(rng, arch, [t, n1, n2], dropout_mask, device);
     Masks {
         conv1,
         conv2,
-        phi,
-        indicators: Tensor::from_data(TensorData::new(indicators, [1, n1, r]), device),
+        phi: pair.phi,
+        indicators: pair.indicators,
     }
 }
 
@@ -169,22 +154,20 @@ fn draw_embedding_masks(
     (mask(arch.hidden), mask(arch.out))
 }
 
-/// The consensus masks of one pair with `t` samples.
-fn draw_pair_masks(
+/// The consensus masks of one pair with `t` samples: the phi dropout
+/// (drawn by `draw`: the training or the inference mask) and the random
+/// node indicators.
+fn draw_consensus_masks(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
-    t: usize,
-    n1: usize,
-    n2: usize,
+    [t, n1, n2]: [usize; 3],
+    draw: fn(&mut ChaCha8Rng, usize, f64) -> Vec<f32>,
     device: &Device,
 ) -> PairMasks {
     let r = arch.consensus_dim;
     let phi = if arch.consensus {
         Tensor::<4>::from_data(
-            TensorData::new(
-                dropout_mask_16(rng, t * n1 * n2 * r, arch.dropout_phi),
-                [t, n1, n2, r],
-            ),
+            TensorData::new(draw(rng, t * n1 * n2 * r, arch.dropout_phi), [t, n1, n2, r]),
             device,
         )
     } else {
@@ -401,7 +384,14 @@ impl DeepMatcher {
         let (n1, n2) = (first.detections.len(), second.detections.len());
         let (e1, e2) = (self.embedding(first), self.embedding(second));
         let mut stream = rng::stream(self.seed, Purpose::Dropout, &[problem_key(first, second)]);
-        let masks = draw_pair_masks(&mut stream, &self.arch, self.samples, n1, n2, &self.device);
+        let shape = [self.samples, n1, n2];
+        let masks = draw_consensus_masks(
+            &mut stream,
+            &self.arch,
+            shape,
+            dropout_mask_16,
+            &self.device,
+        );
         let cost = Tensor::<3>::from_data(
             TensorData::new(features::position_cost(first, second), [1, n1, n2]),
             &self.device,
