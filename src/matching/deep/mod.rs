@@ -221,8 +221,9 @@ struct EmbeddingCache {
 /// dozen vehicles x pose-noise levels).
 const CACHE_CAPACITY: usize = 256;
 
-/// How many kernel-cell sets' weights a matcher keeps (each up to 0.8 MB).
-const CELL_SETS_KEPT: usize = 48;
+/// How many kernel-cell sets' weights a matcher keeps (each up to 0.8 MB;
+/// a scenario's few most common sets cover most graphs).
+const CELL_SETS_KEPT: usize = 16;
 
 /// A stable key of a matching problem's inputs: the masks of a pair depend
 /// only on the pair, not on what was matched before.
@@ -332,17 +333,19 @@ impl DeepMatcher {
 
     /// The spline layers' weights of `graph`'s kernel cells, kept per cell
     /// set (a scenario's graphs use a few dozen sets): selecting them anew
-    /// for every graph cost as much as a tenth of inference. `None` when
-    /// the cache is unavailable (the layers then select them).
+    /// for every graph cost as much as a tenth of inference. `None` for a
+    /// set not kept (the layers then select them).
     fn cell_weights(&self, graph: &GraphTensors) -> Option<Arc<CellWeights>> {
         let mut cache = self.cell_weights.lock().ok()?;
-        if cache.len() >= CELL_SETS_KEPT && !cache.contains_key(&graph.cell_mask) {
-            cache.clear();
+        if let Some(weights) = cache.get(&graph.cell_mask) {
+            return Some(Arc::clone(weights));
         }
-        let weights = cache
-            .entry(graph.cell_mask)
-            .or_insert_with(|| Arc::new(self.net.cell_weights(graph)));
-        Some(Arc::clone(weights))
+        // The first sets seen are kept: the common ones come early.
+        (cache.len() < CELL_SETS_KEPT).then(|| {
+            let weights = Arc::new(self.net.cell_weights(graph));
+            cache.insert(graph.cell_mask, Arc::clone(&weights));
+            weights
+        })
     }
 
     /// A deep method with trained weights (the bytes of its `.bpk` file);
