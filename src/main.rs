@@ -7,6 +7,11 @@ use std::process::ExitCode;
 
 use clap::Parser;
 
+/// mimalloc: the matchers allocate many short-lived tensor buffers; glibc
+/// returns the large ones to the system and faults them in again.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 fn main() -> ExitCode {
     let cli = coid_sim::cli::Cli::parse();
     match coid_sim::cli::execute(cli) {

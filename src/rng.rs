@@ -40,6 +40,9 @@ pub enum Purpose {
     WeightInit = 6,
     /// A generated scenario of the family (`coid scenarios`).
     Scenario = 7,
+    /// MC-dropout masks of one vehicle's graph embedding at inference
+    /// (shared by every pair the vehicle is in).
+    EmbeddingDropout = 8,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.

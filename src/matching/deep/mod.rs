@@ -10,13 +10,19 @@ pub mod features;
 pub mod model;
 pub mod train;
 
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
 use burn::prelude::*;
 use rand::{Rng, RngCore};
 use rand_chacha::ChaCha8Rng;
 
 use self::decision::{MatchDistribution, UncertaintyKind};
+use self::features::GraphInput;
 use self::features::graph_input;
-use self::model::{Architecture, GraphTensors, Init, LossTerms, Masks, Network};
+use self::model::{
+    Architecture, CellWeights, GraphTensors, Init, LossTerms, Masks, Network, PairMasks,
+};
 use super::{Identification, MatchView, Matcher, Method};
 use crate::rng::{self, Purpose};
 
@@ -74,6 +80,27 @@ fn dropout_mask(rng: &mut ChaCha8Rng, len: usize, p: f64) -> Vec<f32> {
     out
 }
 
+/// Inference masks: [`dropout_mask`] with two units per 32-bit draw (the
+/// keep probability rounded to 1/65536: 0.8 becomes 0.800003), half the
+/// random numbers of the training masks.
+fn dropout_mask_16(rng: &mut ChaCha8Rng, len: usize, p: f64) -> Vec<f32> {
+    if p <= 0.0 {
+        return vec![1.0; len];
+    }
+    let keep = 1.0 - p;
+    let scale = (1.0 / keep) as f32;
+    let threshold = (keep * 65_536.0).round().min(65_536.0) as u32;
+    let mut words = vec![0u32; len.div_ceil(2)];
+    rng.fill(&mut words[..]);
+    let mut out = vec![0f32; 2 * words.len()];
+    for (o, &w) in out.chunks_exact_mut(2).zip(&words) {
+        o[0] = scale * f32::from(u8::from((w & 0xFFFF) < threshold));
+        o[1] = scale * f32::from(u8::from((w >> 16) < threshold));
+    }
+    out.truncate(len);
+    out
+}
+
 /// All masks of one forward pass with `t` samples, from one stream.
 fn draw_masks(
     rng: &mut ChaCha8Rng,
@@ -97,13 +124,50 @@ fn draw_masks(
         mask(n1, arch.out, arch.dropout_conv),
         mask(n2, arch.out, arch.dropout_conv),
     ];
+    let pair = draw_consensus_masks(rng, arch, [t, n1, n2], dropout_mask, device);
+    Masks {
+        conv1,
+        conv2,
+        phi: pair.phi,
+        indicators: pair.indicators,
+    }
+}
+
+/// The conv dropout masks of one vehicle's embedding with `t` samples,
+/// `[t, n, hidden]` and `[t, n, out]`.
+fn draw_embedding_masks(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    t: usize,
+    n: usize,
+    device: &Device,
+) -> (Tensor<3>, Tensor<3>) {
+    let mut mask = |d: usize| {
+        Tensor::<3>::from_data(
+            TensorData::new(
+                dropout_mask_16(rng, t * n * d, arch.dropout_conv),
+                [t, n, d],
+            ),
+            device,
+        )
+    };
+    (mask(arch.hidden), mask(arch.out))
+}
+
+/// The consensus masks of one pair with `t` samples: the phi dropout
+/// (drawn by `draw`: the training or the inference mask) and the random
+/// node indicators.
+fn draw_consensus_masks(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    [t, n1, n2]: [usize; 3],
+    draw: fn(&mut ChaCha8Rng, usize, f64) -> Vec<f32>,
+    device: &Device,
+) -> PairMasks {
     let r = arch.consensus_dim;
     let phi = if arch.consensus {
         Tensor::<4>::from_data(
-            TensorData::new(
-                dropout_mask(rng, t * n1 * n2 * r, arch.dropout_phi),
-                [t, n1, n2, r],
-            ),
+            TensorData::new(draw(rng, t * n1 * n2 * r, arch.dropout_phi), [t, n1, n2, r]),
             device,
         )
     } else {
@@ -113,13 +177,53 @@ fn draw_masks(
     let indicators: Vec<f32> = (0..n1 * r)
         .map(|_| rng.sample::<f64, _>(normal) as f32)
         .collect();
-    Masks {
-        conv1,
-        conv2,
+    PairMasks {
         phi,
         indicators: Tensor::from_data(TensorData::new(indicators, [1, n1, r]), device),
     }
 }
+
+/// A key of everything one vehicle's embedding depends on: its network
+/// input (node features and edges with their B-spline bases, which carry
+/// the reported heading) and the number of samples.
+fn embedding_key(input: &GraphInput, samples: usize) -> u64 {
+    let mut parts = vec![input.n as u64, samples as u64, input.edge_count() as u64];
+    parts.extend(input.node_features.iter().map(|v| u64::from(v.to_bits())));
+    parts.extend(
+        input
+            .src
+            .iter()
+            .chain(&input.dst)
+            .chain(&input.basis_index)
+            .map(|&v| v as u64),
+    );
+    parts.extend(input.basis_weight.iter().map(|v| u64::from(v.to_bits())));
+    rng::key(&parts)
+}
+
+/// One vehicle's embedding at inference: its graph tensors and the node
+/// embeddings of every MC-dropout sample, `[T, N, out]`.
+struct Embedded {
+    graph: GraphTensors,
+    h: Tensor<3>,
+}
+
+/// Embeddings computed for recent views, by [`embedding_key`]: a vehicle
+/// seen in several pairs of a frame is embedded once. Bounded; a hit is
+/// bit-identical to recomputing (same input, same dropout stream).
+#[derive(Default)]
+struct EmbeddingCache {
+    entries: HashMap<u64, Arc<Embedded>>,
+    hits: u64,
+}
+
+/// At most this many embeddings are kept (a frame of a town holds a few
+/// dozen vehicles x pose-noise levels).
+const CACHE_CAPACITY: usize = 256;
+
+/// How many kernel-cell sets' weights a matcher keeps (each up to 0.8 MB;
+/// a scenario's few most common sets cover most graphs).
+const CELL_SETS_KEPT: usize = 16;
 
 /// A stable key of a matching problem's inputs: the masks of a pair depend
 /// only on the pair, not on what was matched before.
@@ -147,6 +251,13 @@ pub struct DeepMatcher {
     pub threshold: Option<(UncertaintyKind, f64)>,
     /// Seed of the dropout-mask streams.
     pub seed: u64,
+    /// Reuse each vehicle's embedding across the pairs it is in.
+    share_embeddings: bool,
+    /// The spline layers' weights per set of kernel cells (bit mask).
+    cell_weights: Mutex<HashMap<u32, Arc<CellWeights>>>,
+    /// The network's dustbin score, read once.
+    dustbin: f32,
+    cache: Mutex<EmbeddingCache>,
 }
 
 impl DeepMatcher {
@@ -158,15 +269,83 @@ impl DeepMatcher {
         threshold: Option<(UncertaintyKind, f64)>,
         seed: u64,
     ) -> Self {
+        let net = net.valid();
+        let dustbin = net.dustbin_score();
         Self {
             method,
             arch,
-            net: net.valid(),
+            net,
             device: Device::flex(),
             samples,
             threshold,
             seed,
+            share_embeddings: true,
+            cache: Mutex::default(),
+            cell_weights: Mutex::default(),
+            dustbin,
         }
+    }
+
+    /// Computes every pair's embeddings afresh (the per-pair path; results
+    /// are bit-identical either way).
+    pub fn without_shared_embeddings(mut self) -> Self {
+        self.share_embeddings = false;
+        self
+    }
+
+    /// How many embeddings were reused so far.
+    pub fn shared_embeddings(&self) -> u64 {
+        self.cache.lock().map_or(0, |c| c.hits)
+    }
+
+    /// One vehicle's embedding: from the cache, or computed with the
+    /// conv dropout masks of its own stream (keyed by its input).
+    fn embedding(&self, view: &MatchView) -> Arc<Embedded> {
+        let input = graph_input(view.detections, view.graph, &view.pose_reported);
+        let key = embedding_key(&input, self.samples);
+        if self.share_embeddings
+            && let Ok(mut cache) = self.cache.lock()
+            && let Some(e) = cache.entries.get(&key).cloned()
+        {
+            cache.hits += 1;
+            return e;
+        }
+        let graph = GraphTensors::used_cells(&input, &self.device);
+        let graph = match self.cell_weights(&graph) {
+            Some(weights) => graph.with_weights(weights),
+            None => graph,
+        };
+        let mut stream = rng::stream(self.seed, Purpose::EmbeddingDropout, &[key]);
+        let (m1, m2) =
+            draw_embedding_masks(&mut stream, &self.arch, self.samples, input.n, &self.device);
+        let h = self.net.embed(&graph, m1, m2);
+        let e = Arc::new(Embedded { graph, h });
+        if self.share_embeddings
+            && let Ok(mut cache) = self.cache.lock()
+        {
+            if cache.entries.len() >= CACHE_CAPACITY {
+                cache.entries.clear();
+            }
+            cache.entries.insert(key, Arc::clone(&e));
+        }
+        e
+    }
+
+    /// The spline layers' weights of `graph`'s kernel cells, kept per cell
+    /// set (a scenario's graphs use a few dozen sets): selecting them anew
+    /// for every graph cost as much as a tenth of inference. `None` for a
+    /// set not kept (the layers then select them).
+    fn cell_weights(&self, graph: &GraphTensors) -> Option<Arc<CellWeights>> {
+        let mut cache = self.cell_weights.lock().ok()?;
+        if let Some(weights) = cache.get(&graph.cell_mask) {
+            return Some(Arc::clone(weights));
+        }
+        // The first sets seen are kept: the common ones come early.
+        (cache.len() < CELL_SETS_KEPT).then(|| {
+            let weights = Arc::new(self.net.cell_weights(graph));
+            cache.insert(graph.cell_mask, Arc::clone(&weights));
+            weights
+        })
     }
 
     /// A deep method with trained weights (the bytes of its `.bpk` file);
@@ -206,24 +385,30 @@ impl DeepMatcher {
     /// row-major; both sides must be non-empty.
     pub fn samples(&self, first: &MatchView, second: &MatchView) -> Vec<Vec<f32>> {
         let (n1, n2) = (first.detections.len(), second.detections.len());
-        let g1 = GraphTensors::new(
-            &graph_input(first.detections, first.graph, &first.pose_reported),
-            &self.device,
-        );
-        let g2 = GraphTensors::new(
-            &graph_input(second.detections, second.graph, &second.pose_reported),
-            &self.device,
-        );
+        let (e1, e2) = (self.embedding(first), self.embedding(second));
         let mut stream = rng::stream(self.seed, Purpose::Dropout, &[problem_key(first, second)]);
-        let masks = draw_masks(&mut stream, &self.arch, self.samples, n1, n2, &self.device);
+        let shape = [self.samples, n1, n2];
+        let masks = draw_consensus_masks(
+            &mut stream,
+            &self.arch,
+            shape,
+            dropout_mask_16,
+            &self.device,
+        );
         let cost = Tensor::<3>::from_data(
             TensorData::new(features::position_cost(first, second), [1, n1, n2]),
             &self.device,
         );
-        let log_p = self
+        let scores = self
             .net
-            .forward(&g1, &g2, masks, cost, self.arch.sinkhorn_iters);
-        let p: Vec<f32> = log_p.exp().try_into_vec_as::<f32>().unwrap_or_default();
+            .pair_scores((&e1.h, &e1.graph), (&e2.h, &e2.graph), masks, cost);
+        let scores: Vec<f32> = scores.try_into_vec_as::<f32>().unwrap_or_default();
+        let p = model::sinkhorn_probabilities(
+            &scores,
+            [self.samples, n1, n2],
+            self.dustbin,
+            self.arch.sinkhorn_iters,
+        );
         p.chunks((n1 + 1) * (n2 + 1)).map(<[f32]>::to_vec).collect()
     }
 
@@ -348,6 +533,11 @@ mod tests {
         assert!((kept - 0.6).abs() < 0.01, "{kept}");
         assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.6).abs() < 1e-6));
         assert!(dropout_mask(&mut rng, 10, 0.0).iter().all(|&v| v == 1.0));
+        let m = dropout_mask_16(&mut rng, 100_001, 0.2);
+        let kept = m.iter().filter(|&&v| v > 0.0).count() as f64 / m.len() as f64;
+        assert!((kept - 0.8).abs() < 0.01, "{kept}");
+        assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.8).abs() < 1e-6));
+        assert!(dropout_mask_16(&mut rng, 7, 0.0).iter().all(|&v| v == 1.0));
     }
 
     #[test]
@@ -401,6 +591,35 @@ mod tests {
         v.push((Vec2::new(30.0, -9.0), ObjectClass::Truck, [0.7, 0.1, 0.1]));
         v.push((Vec2::new(24.0, 15.0), ObjectClass::Bicycle, [0.1; 3]));
         v
+    }
+
+    /// Three vehicles, three pairs: sharing each vehicle's embedding across
+    /// its pairs gives the same bits as computing it for every pair, and
+    /// it is reused (each vehicle is in two pairs).
+    #[test]
+    fn shared_embeddings_are_bit_identical_to_the_per_pair_path() {
+        let objects = testkit::world_objects();
+        let all: Vec<usize> = (0..objects.len()).collect();
+        let sides = [
+            Side::of(testkit::POSE_A, &objects, &all, GPS),
+            Side::of(testkit::POSE_B, &objects, &[5, 2, 7, 0, 3, 6, 1, 4], GPS),
+            Side::of((20.0, 40.0, -1.2), &objects, &[1, 3, 4, 6, 7], GPS),
+        ];
+        let pairs = [(0, 1), (0, 2), (1, 2)];
+        let run = |m: &DeepMatcher| -> Vec<Vec<Vec<f32>>> {
+            pairs
+                .iter()
+                .map(|&(i, j)| m.samples(&sides[i].view(), &sides[j].view()))
+                .collect()
+        };
+        let shared = shipped(Method::Ours);
+        let per_pair = shipped(Method::Ours).without_shared_embeddings();
+        let (a, b) = (run(&shared), run(&per_pair));
+        assert_eq!(a, b);
+        assert_eq!(shared.shared_embeddings(), 3);
+        assert_eq!(per_pair.shared_embeddings(), 0);
+        // The MC samples differ from each other (dropout is on).
+        assert_ne!(a[0][0], a[0][1]);
     }
 
     /// The shipped model matches a scene seen from across the junction when

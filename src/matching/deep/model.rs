@@ -10,7 +10,8 @@
 //!   correspondence, embedded by a consensus `SplineConv`, compared, and
 //!   scored by an MLP with dropout 0.2.
 //! - Log-domain Sinkhorn with a learnable dustbin row and column (Eq. 4
-//!   with "no match", as SuperGlue).
+//!   with "no match", as SuperGlue). Inference runs the same iterations
+//!   without tensors, in the scaling domain ([`sinkhorn_probabilities`]).
 //!
 //! Dropout masks are drawn by the caller from a seeded stream and applied
 //! here as tensors, on any device: burn's `Dropout` is a no-op outside
@@ -28,6 +29,7 @@ use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::activation;
 use rand::Rng;
+use std::sync::Arc;
 
 use super::features::{GraphInput, KERNEL_2D};
 use crate::rng::{self, Purpose};
@@ -101,31 +103,83 @@ pub struct GraphTensors {
     pub e: usize,
     /// `[1, N, F]`
     pub x: Tensor<3>,
-    /// `[1, N, KERNEL_2D * N]`: entry `[i, k N + j]` is the k-th B-spline
-    /// basis weight of edge j -> i over the degree of i (zero when j is not
-    /// a neighbour of i).
+    /// The kernel cells whose messages are computed (ascending), as
+    /// indices `[C]`: all of them, or only those some edge of this graph
+    /// uses (the others contribute nothing).
+    pub cells: Tensor<1, Int>,
+    /// `[1, N, N * C]`: entry `[i, j C + c]` is the basis weight of cell
+    /// `cells[c]` of edge j -> i over the degree of i (zero when j is not a
+    /// neighbour of i). Columns run node-major so that the messages `x W`
+    /// (`[T, N, C * out]`) need only a reshape.
     pub mixing: Tensor<3>,
+    /// Bit k set when kernel cell k is in `cells`.
+    pub cell_mask: u32,
+    /// The spline layers' weights of exactly these cells, when the caller
+    /// has them ([`Network::cell_weights`]); else each layer selects them.
+    pub weights: Option<Arc<CellWeights>>,
+}
+
+/// Every spline layer's weights of one set of kernel cells (`[1, in, C *
+/// out]` each): what [`SplineConv::forward`] would select, kept by a caller
+/// that sees the same cell set many times (inference).
+pub struct CellWeights {
+    conv1: Tensor<3>,
+    conv2: Tensor<3>,
+    consensus: Option<Tensor<3>>,
 }
 
 impl GraphTensors {
+    /// With every kernel cell (training: the gradient of a cell selection
+    /// costs more than the messages it saves).
     pub fn new(g: &GraphInput, device: &Device) -> Self {
+        Self::with_cells(g, [true; KERNEL_2D], device)
+    }
+
+    /// With only the kernel cells some edge uses (inference).
+    pub fn used_cells(g: &GraphInput, device: &Device) -> Self {
+        let mut used = [false; KERNEL_2D];
+        for &k in &g.basis_index {
+            used[k as usize] = true;
+        }
+        Self::with_cells(g, used, device)
+    }
+
+    fn with_cells(g: &GraphInput, used: [bool; KERNEL_2D], device: &Device) -> Self {
         let (n, e) = (g.n, g.edge_count());
         let f = g.node_features.len() / n.max(1);
-        let mut mixing = vec![0f32; n * KERNEL_2D * n];
+        let cells: Vec<i64> = (0..KERNEL_2D as i64)
+            .filter(|&k| used[k as usize])
+            .collect();
+        let c = cells.len();
+        let mut position = [0usize; KERNEL_2D];
+        for (p, &k) in cells.iter().enumerate() {
+            position[k as usize] = p;
+        }
+        let mut mixing = vec![0f32; n * c * n];
         for k in 0..e {
             let (i, j) = (g.dst[k] as usize, g.src[k] as usize);
             let inv_deg = g.aggregate[i * e + k];
-            for c in 0..4 {
-                let cell = g.basis_index[4 * k + c] as usize;
-                mixing[i * KERNEL_2D * n + cell * n + j] += g.basis_weight[4 * k + c] * inv_deg;
+            for b in 0..4 {
+                let cell = position[g.basis_index[4 * k + b] as usize];
+                mixing[i * c * n + j * c + cell] += g.basis_weight[4 * k + b] * inv_deg;
             }
         }
         Self {
             n,
             e,
             x: Tensor::from_data(TensorData::new(g.node_features.clone(), [1, n, f]), device),
-            mixing: Tensor::from_data(TensorData::new(mixing, [1, n, KERNEL_2D * n]), device),
+            cell_mask: cells.iter().map(|&k| 1u32 << k).sum(),
+            cells: Tensor::from_data(TensorData::new(cells, [c]), device),
+            mixing: Tensor::from_data(TensorData::new(mixing, [1, n, c * n]), device),
+            weights: None,
         }
+    }
+
+    /// With the spline layers' weights of this graph's cells (which must be
+    /// the ones [`Network::cell_weights`] was given).
+    pub fn with_weights(mut self, weights: Arc<CellWeights>) -> Self {
+        self.weights = Some(weights);
+        self
     }
 }
 
@@ -157,10 +211,19 @@ impl SplineConv {
 
     /// `x: [T, N, in] -> [T, N, out]`:
     /// `root x_i + mean_j sum_k B_k(u_ij) W_k x_j + b`, as two dense
-    /// products: `XW = x [W_1 .. W_K]` for all kernel cells at once, then the
-    /// kernel-and-neighbour mixing `A [K N]` (degree-normalised basis
-    /// weights of every edge) against `XW` regrouped by kernel cell.
-    pub fn forward(&self, x: Tensor<3>, g: &GraphTensors) -> Tensor<3> {
+    /// products: `XW = x [W_k ..]` for every kernel cell the graph uses at
+    /// once, then the neighbour-and-cell mixing `A [N C]` (degree-normalised
+    /// basis weights of every edge) against `XW` read as one row per
+    /// (neighbour, cell).
+    ///
+    /// `selected`: this layer's weights of the graph's cells, if the caller
+    /// keeps them ([`CellWeights`]).
+    pub fn forward(
+        &self,
+        x: Tensor<3>,
+        g: &GraphTensors,
+        selected: Option<&Tensor<3>>,
+    ) -> Tensor<3> {
         let d_out = self.d_out;
         let [t, n, _] = x.dims();
         let root = x.clone().matmul(self.root.val().unsqueeze::<3>()); // [T, N, out]
@@ -168,12 +231,27 @@ impl SplineConv {
         if g.e == 0 {
             return root + bias;
         }
-        let xw = x
-            .matmul(self.weight.val().unsqueeze::<3>()) // [T, N, K2 * out]
-            .reshape([t, n, KERNEL_2D, d_out])
-            .swap_dims(1, 2) // [T, K2, N, out]
-            .reshape([t, KERNEL_2D * n, d_out]);
-        root + g.mixing.clone().matmul(xw) + bias // [1, N, K2 N] x [T, K2 N, out]
+        let c = g.cells.dims()[0];
+        let w = match selected {
+            Some(w) => w.clone(),
+            None => self.cell_weights(&g.cells),
+        };
+        let xw = x.matmul(w).reshape([t, n * c, d_out]); // rows (j, cell), no copy
+        root + g.mixing.clone().matmul(xw) + bias // [1, N, N C] x [T, N C, out]
+    }
+
+    /// The weights of the kernel cells `cells`, `[1, in, C * out]`.
+    fn cell_weights(&self, cells: &Tensor<1, Int>) -> Tensor<3> {
+        let c = cells.dims()[0];
+        if c == KERNEL_2D {
+            return self.weight.val().unsqueeze::<3>();
+        }
+        let d_in = self.root.val().dims()[0];
+        self.weight
+            .val()
+            .reshape([d_in, KERNEL_2D, self.d_out])
+            .select(1, cells.clone())
+            .reshape([1, d_in, c * self.d_out])
     }
 }
 
@@ -211,6 +289,15 @@ impl Default for Architecture {
             gps_prior: true,
         }
     }
+}
+
+/// The masks of the pair part of a forward pass: consensus dropout and
+/// the random node indicators.
+pub struct PairMasks {
+    /// `[T, N1, N2, consensus_dim]`.
+    pub phi: Tensor<4>,
+    /// `[1, N1, consensus_dim]`.
+    pub indicators: Tensor<3>,
 }
 
 /// The dropout masks of one forward pass with T samples (values 0 or
@@ -265,10 +352,25 @@ impl Network {
     }
 
     /// Psi: node embeddings `[T, N, out]` for T dropout samples.
-    fn embed(&self, g: &GraphTensors, mask1: Tensor<3>, mask2: Tensor<3>) -> Tensor<3> {
+    pub fn embed(&self, g: &GraphTensors, mask1: Tensor<3>, mask2: Tensor<3>) -> Tensor<3> {
         // The first layer's input is the same for every sample: compute once.
-        let h = activation::relu(self.conv1.forward(g.x.clone(), g)) * mask1; // [T, N, hidden]
-        activation::relu(self.conv2.forward(h, g)) * mask2 // [T, N, out]
+        let w = g.weights.as_deref();
+        let h = activation::relu(self.conv1.forward(g.x.clone(), g, w.map(|w| &w.conv1)));
+        let h = h * mask1; // [T, N, hidden]
+        activation::relu(self.conv2.forward(h, g, w.map(|w| &w.conv2))) * mask2 // [T, N, out]
+    }
+
+    /// Every spline layer's weights of the kernel cells of `g`, for
+    /// [`GraphTensors::with_weights`] on graphs with the same cells.
+    pub fn cell_weights(&self, g: &GraphTensors) -> CellWeights {
+        CellWeights {
+            conv1: self.conv1.cell_weights(&g.cells),
+            conv2: self.conv2.cell_weights(&g.cells),
+            consensus: self
+                .consensus_conv
+                .as_ref()
+                .map(|c| c.cell_weights(&g.cells)),
+        }
     }
 
     /// Log of the soft assignment with dustbins, `[T, N1 + 1, N2 + 1]`.
@@ -285,7 +387,43 @@ impl Network {
         let [c2a, c2b] = masks.conv2;
         let h1 = self.embed(g1, c1a, c2a); // [T, N1, out]
         let h2 = self.embed(g2, c1b, c2b); // [T, N2, out]
-        let mut s = h1.matmul(h2.swap_dims(1, 2)); // [T, N1, N2]
+        let pair = PairMasks {
+            phi: masks.phi,
+            indicators: masks.indicators,
+        };
+        self.match_embeddings((&h1, g1), (&h2, g2), pair, position_cost, sinkhorn_iters)
+    }
+
+    /// [`Self::forward`] from both graphs' embeddings ([`Self::embed`]):
+    /// similarity, neighbourhood consensus, GPS term, Sinkhorn.
+    pub fn match_embeddings(
+        &self,
+        first: (&Tensor<3>, &GraphTensors),
+        second: (&Tensor<3>, &GraphTensors),
+        masks: PairMasks,
+        position_cost: Tensor<3>,
+        sinkhorn_iters: usize,
+    ) -> Tensor<3> {
+        let scores = self.pair_scores(first, second, masks, position_cost);
+        log_sinkhorn(scores, self.dustbin.val(), sinkhorn_iters)
+    }
+
+    /// The learned dustbin score (Sinkhorn's "no match" entry).
+    pub fn dustbin_score(&self) -> f32 {
+        self.dustbin.val().into_scalar::<f32>()
+    }
+
+    /// The scores Sinkhorn normalises, `[T, N1, N2]`: similarity,
+    /// neighbourhood consensus and GPS term from both graphs' embeddings.
+    pub fn pair_scores(
+        &self,
+        first: (&Tensor<3>, &GraphTensors),
+        second: (&Tensor<3>, &GraphTensors),
+        masks: PairMasks,
+        position_cost: Tensor<3>,
+    ) -> Tensor<3> {
+        let ((h1, g1), (h2, g2)) = (first, second);
+        let mut s = h1.clone().matmul(h2.clone().swap_dims(1, 2)); // [T, N1, N2]
         if let (Some(conv), Some(phi_in), Some(phi_out)) =
             (&self.consensus_conv, &self.phi_in, &self.phi_out)
         {
@@ -293,8 +431,9 @@ impl Network {
             let soft = activation::softmax(s.clone(), 2); // [T, N1, N2]
             let r1 = masks.indicators; // [1, N1, r]
             let r2 = soft.swap_dims(1, 2).matmul(r1.clone()); // [T, N2, r]
-            let z1 = activation::relu(conv.forward(r1, g1)); // [1, N1, r]
-            let z2 = activation::relu(conv.forward(r2, g2)); // [T, N2, r]
+            let w = |g: &GraphTensors| g.weights.as_ref().and_then(|w| w.consensus.clone());
+            let z1 = activation::relu(conv.forward(r1, g1, w(g1).as_ref())); // [1, N1, r]
+            let z2 = activation::relu(conv.forward(r2, g2, w(g2).as_ref())); // [T, N2, r]
             let d = z1.unsqueeze_dim::<4>(2) - z2.unsqueeze_dim::<4>(1); // [T, N1, N2, r]
             let hidden = activation::relu(phi_in.forward(d)) * masks.phi; // [T, N1, N2, r]
             s = s + phi_out.forward(hidden).reshape([t, n1, n2]);
@@ -303,7 +442,7 @@ impl Network {
             let w = self.log_position_weight.val().exp().reshape([1, 1, 1]);
             s = s - position_cost * w;
         }
-        log_sinkhorn(s, self.dustbin.val(), sinkhorn_iters)
+        s
     }
 }
 
@@ -338,6 +477,88 @@ pub fn log_sinkhorn(scores: Tensor<3>, dustbin: Tensor<1>, iters: usize) -> Tens
         v = log_nu.clone() - logsumexp(z.clone() + u.clone(), 1);
     }
     z + u + v - norm
+}
+
+/// [`log_sinkhorn`] for inference, without tensors or gradients: the
+/// same iterations in the scaling domain, in f64. `scores` holds T
+/// row-major `N1 x N2` blocks; the result holds T row-major
+/// `(N1 + 1) x (N2 + 1)` assignments (probabilities, not logs).
+///
+/// With `K = exp(z - rowmax)` (every row of the padded scores `z` keeps
+/// an entry 1, and so does every column: the dustbin row is constant),
+/// `u = mu / K v` and `v = nu / K^T u` are `exp` of the log-domain
+/// potentials up to the row shift, so `P = u K v / exp(norm)` is the
+/// log-domain result up to rounding, with one `exp` per entry instead of
+/// two per entry and iteration.
+pub fn sinkhorn_probabilities(
+    scores: &[f32],
+    [t, n1, n2]: [usize; 3],
+    dustbin: f32,
+    iters: usize,
+) -> Vec<f32> {
+    debug_assert_eq!(scores.len(), t * n1 * n2);
+    let (rows, cols) = (n1 + 1, n2 + 1);
+    let norm = -((n1 + n2) as f64).ln();
+    let mu = |i: usize| {
+        if i == n1 {
+            n2 as f64 / (n1 + n2) as f64
+        } else {
+            norm.exp()
+        }
+    };
+    let nu = |j: usize| {
+        if j == n2 {
+            n1 as f64 / (n1 + n2) as f64
+        } else {
+            norm.exp()
+        }
+    };
+    let alpha = f64::from(dustbin);
+    let mut out = Vec::with_capacity(t * rows * cols);
+    let mut kernel = vec![0f64; rows * cols];
+    let (mut u, mut v) = (vec![0f64; rows], vec![1f64; cols]);
+    let mut column_sums = vec![0f64; cols];
+    for sample in 0..t {
+        let block = &scores[sample * n1 * n2..(sample + 1) * n1 * n2];
+        for i in 0..rows {
+            let z = |j: usize| {
+                if i < n1 && j < n2 {
+                    f64::from(block[i * n2 + j])
+                } else {
+                    alpha
+                }
+            };
+            let row_max = (0..cols).map(z).fold(f64::NEG_INFINITY, f64::max);
+            for j in 0..cols {
+                kernel[i * cols + j] = (z(j) - row_max).exp();
+            }
+        }
+        v.fill(1.0);
+        for _ in 0..iters {
+            for (i, ui) in u.iter_mut().enumerate() {
+                let row = &kernel[i * cols..(i + 1) * cols];
+                *ui = mu(i) / row.iter().zip(&v).map(|(k, vj)| k * vj).sum::<f64>();
+            }
+            column_sums.fill(0.0);
+            for (row, ui) in kernel.chunks_exact(cols).zip(&u) {
+                for (sum, k) in column_sums.iter_mut().zip(row) {
+                    *sum += k * ui;
+                }
+            }
+            for (j, vj) in v.iter_mut().enumerate() {
+                *vj = nu(j) / column_sums[j];
+            }
+        }
+        let scale = (-norm).exp();
+        for (row, ui) in kernel.chunks_exact(cols).zip(&u) {
+            out.extend(
+                row.iter()
+                    .zip(&v)
+                    .map(|(k, vj)| (ui * k * vj * scale) as f32),
+            );
+        }
+    }
+    out
 }
 
 /// Which terms of the paper's loss (Eq. 11-13) a variant trains with;
@@ -438,6 +659,114 @@ pub fn from_bytes(arch: &Architecture, bytes: &[u8], device: &Device) -> Result<
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::SeedableRng;
+
+    /// The tensor-free inference Sinkhorn gives the assignment of the
+    /// training one (log domain, tensors), on scores from mild to far
+    /// apart (a row or column far below the dustbin), square and not.
+    #[test]
+    fn inference_sinkhorn_equals_the_log_domain_one() {
+        let device = Device::flex();
+        let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for (shape, spread, dustbin) in [
+            ([3, 5, 4], 6.0f32, 1.0f32),
+            ([2, 7, 9], 60.0, -2.5),
+            ([4, 1, 6], 300.0, 4.0),
+            ([1, 20, 18], 30.0, 0.3),
+        ] {
+            let [t, n1, n2] = shape;
+            let mut scores: Vec<f32> = (0..t * n1 * n2)
+                .map(|_| r.random_range(-spread..spread / 4.0))
+                .collect();
+            scores[0] = -10.0 * spread; // far below everything else
+            let expected = log_sinkhorn(
+                Tensor::<3>::from_data(TensorData::new(scores.clone(), shape), &device),
+                Tensor::from_data(TensorData::new(vec![dustbin], [1]), &device),
+                20,
+            )
+            .exp();
+            let expected: Vec<f32> = expected.try_into_vec_as::<f32>().unwrap();
+            let got = sinkhorn_probabilities(&scores, shape, dustbin, 20);
+            assert_eq!(got.len(), t * (n1 + 1) * (n2 + 1));
+            for (k, (g, e)) in got.iter().zip(&expected).enumerate() {
+                assert!((g - e).abs() < 1e-4, "{shape:?} entry {k}: {g} vs {e}");
+            }
+        }
+    }
+
+    /// The dense spline convolution equals the message sum written out per
+    /// edge: `root x_i + sum over edges j -> i of 1/deg(i) sum_c b_c
+    /// W_(k_c) x_j + bias` (kernel cell k_c, basis weight b_c).
+    #[test]
+    fn spline_conv_equals_the_per_edge_sum() {
+        use crate::geometry::Vec2;
+        use crate::graph::SceneGraph;
+        let device = Device::flex();
+        let positions = [
+            (0.0, 0.0),
+            (12.0, 3.0),
+            (5.0, 20.0),
+            (-9.0, 14.0),
+            (30.0, -20.0),
+        ]
+        .map(|(x, y)| Vec2::new(x, y));
+        let graph = SceneGraph::delaunay(&positions).unwrap();
+        let detections: Vec<crate::sensor::Detection> = positions
+            .iter()
+            .map(|p| {
+                crate::matching::testkit::detection(*p, crate::traffic::ObjectClass::Car, [0.3; 3])
+            })
+            .collect();
+        let input = super::super::features::graph_input(
+            &detections,
+            &graph,
+            &crate::geometry::Pose2::new(Vec2::zeros(), 0.4),
+        );
+        let (d_in, d_out, n) = (3, 2, input.n);
+        let conv = SplineConv::new("test", d_in, d_out, Init::Seeded(3), &device);
+        let x: Vec<f32> = (0..n * d_in).map(|v| (v as f32 * 0.37).sin()).collect();
+        let all = GraphTensors::new(&input, &device);
+        let used = GraphTensors::used_cells(&input, &device);
+        assert!(used.cells.dims()[0] < KERNEL_2D, "every cell used");
+        let kept = conv.cell_weights(&used.cells); // as an inference cache keeps them
+        for (g, selected) in [(&all, None), (&used, None), (&used, Some(&kept))] {
+            let out = conv.forward(
+                Tensor::from_data(TensorData::new(x.clone(), [1, n, d_in]), &device),
+                g,
+                selected,
+            );
+            let out: Vec<f32> = out.try_into_vec_as::<f32>().unwrap();
+            let w: Vec<f32> = conv.weight.val().try_into_vec_as::<f32>().unwrap();
+            let root: Vec<f32> = conv.root.val().try_into_vec_as::<f32>().unwrap();
+            for i in 0..n {
+                for o in 0..d_out {
+                    let mut expected: f32 = (0..d_in)
+                        .map(|c| x[i * d_in + c] * root[c * d_out + o])
+                        .sum();
+                    for e in 0..input.edge_count() {
+                        if input.dst[e] as usize != i {
+                            continue;
+                        }
+                        let j = input.src[e] as usize;
+                        let inv_deg = input.aggregate[i * input.edge_count() + e];
+                        for c in 0..4 {
+                            let k = input.basis_index[4 * e + c] as usize;
+                            let b = input.basis_weight[4 * e + c];
+                            let msg: f32 = (0..d_in)
+                                .map(|f| x[j * d_in + f] * w[f * KERNEL_2D * d_out + k * d_out + o])
+                                .sum();
+                            expected += inv_deg * b * msg;
+                        }
+                    }
+                    let got = out[i * d_out + o];
+                    assert!(
+                        (got - expected).abs() < 1e-5,
+                        "node {i}, out {o}: {got} vs {expected}"
+                    );
+                }
+            }
+        }
+    }
 
     /// Two MC samples of a 2 x 2 assignment (dustbins padded with 0.1),
     /// whose real blocks average to P = [[0.7, 0.2], [0.1, 0.6]].
