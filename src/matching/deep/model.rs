@@ -123,6 +123,8 @@ pub struct GraphTensors {
 /// out]` each): what [`SplineConv::forward`] would select, kept by a caller
 /// that sees the same cell set many times (inference).
 pub struct CellWeights {
+    /// The cell set, as [`GraphTensors::cell_mask`].
+    cell_mask: u32,
     conv1: Tensor<3>,
     conv2: Tensor<3>,
     consensus: Option<Tensor<3>>,
@@ -175,10 +177,12 @@ impl GraphTensors {
         }
     }
 
-    /// With the spline layers' weights of this graph's cells (which must be
-    /// the ones [`Network::cell_weights`] was given).
+    /// With the spline layers' weights of this graph's cells; weights of
+    /// another cell set are ignored (the layers then select their own).
     pub fn with_weights(mut self, weights: Arc<CellWeights>) -> Self {
-        self.weights = Some(weights);
+        if weights.cell_mask == self.cell_mask {
+            self.weights = Some(weights);
+        }
         self
     }
 }
@@ -364,6 +368,7 @@ impl Network {
     /// [`GraphTensors::with_weights`] on graphs with the same cells.
     pub fn cell_weights(&self, g: &GraphTensors) -> CellWeights {
         CellWeights {
+            cell_mask: g.cell_mask,
             conv1: self.conv1.cell_weights(&g.cells),
             conv2: self.conv2.cell_weights(&g.cells),
             consensus: self
@@ -692,6 +697,52 @@ mod tests {
                 assert!((g - e).abs() < 1e-4, "{shape:?} entry {k}: {g} vs {e}");
             }
         }
+    }
+
+    /// Kept cell weights give the embedding the layers give by selecting
+    /// their own; weights kept for another cell set are ignored.
+    #[test]
+    fn kept_cell_weights_change_nothing_and_foreign_ones_are_ignored() {
+        use crate::geometry::{Pose2, Vec2};
+        use crate::graph::SceneGraph;
+        let device = Device::flex();
+        let graph = |points: &[(f64, f64)]| {
+            let positions: Vec<Vec2> = points.iter().map(|&(x, y)| Vec2::new(x, y)).collect();
+            let scene = SceneGraph::delaunay(&positions).unwrap();
+            let detections: Vec<crate::sensor::Detection> = positions
+                .iter()
+                .map(|p| {
+                    let class = crate::traffic::ObjectClass::Car;
+                    crate::matching::testkit::detection(*p, class, [0.3; 3])
+                })
+                .collect();
+            let input = super::super::features::graph_input(
+                &detections,
+                &scene,
+                &Pose2::new(Vec2::zeros(), 0.4),
+            );
+            GraphTensors::used_cells(&input, &device)
+        };
+        let near = [(0.0, 0.0), (12.0, 3.0), (5.0, 20.0), (-9.0, 14.0)];
+        let far = [(0.0, 0.0), (45.0, -30.0), (-40.0, 44.0), (10.0, 60.0)];
+        let arch = Architecture::default();
+        let net = Network::new(&arch, Init::Seeded(5), &device);
+        let (a, b) = (graph(&near), graph(&far));
+        assert_ne!(a.cell_mask, b.cell_mask);
+        let (kept_a, kept_b) = (
+            Arc::new(net.cell_weights(&a)),
+            Arc::new(net.cell_weights(&b)),
+        );
+        let embed = |g: &GraphTensors| -> Vec<f32> {
+            let ones = |d: usize| Tensor::<3>::ones([2, g.n, d], &device);
+            let h = net.embed(g, ones(arch.hidden), ones(arch.out));
+            h.try_into_vec_as::<f32>().unwrap()
+        };
+        let own = embed(&a);
+        assert_eq!(embed(&graph(&near).with_weights(kept_a)), own);
+        let foreign = graph(&near).with_weights(kept_b);
+        assert!(foreign.weights.is_none());
+        assert_eq!(embed(&foreign), own);
     }
 
     /// The dense spline convolution equals the message sum written out per
