@@ -396,20 +396,7 @@ impl Network {
             phi: masks.phi,
             indicators: masks.indicators,
         };
-        self.match_embeddings((&h1, g1), (&h2, g2), pair, position_cost, sinkhorn_iters)
-    }
-
-    /// [`Self::forward`] from both graphs' embeddings ([`Self::embed`]):
-    /// similarity, neighbourhood consensus, GPS term, Sinkhorn.
-    pub fn match_embeddings(
-        &self,
-        first: (&Tensor<3>, &GraphTensors),
-        second: (&Tensor<3>, &GraphTensors),
-        masks: PairMasks,
-        position_cost: Tensor<3>,
-        sinkhorn_iters: usize,
-    ) -> Tensor<3> {
-        let scores = self.pair_scores(first, second, masks, position_cost);
+        let scores = self.pair_scores((&h1, g1), (&h2, g2), pair, position_cost);
         log_sinkhorn(scores, self.dustbin.val(), sinkhorn_iters)
     }
 
@@ -419,7 +406,8 @@ impl Network {
     }
 
     /// The scores Sinkhorn normalises, `[T, N1, N2]`: similarity,
-    /// neighbourhood consensus and GPS term from both graphs' embeddings.
+    /// neighbourhood consensus and GPS term from both graphs' embeddings
+    /// ([`Self::embed`]); [`Self::forward`] and inference share it.
     pub fn pair_scores(
         &self,
         first: (&Tensor<3>, &GraphTensors),
@@ -519,6 +507,7 @@ pub fn sinkhorn_probabilities(
         }
     };
     let alpha = f64::from(dustbin);
+    let scale = (-norm).exp();
     let mut out = Vec::with_capacity(t * rows * cols);
     let mut kernel = vec![0f64; rows * cols];
     let (mut u, mut v) = (vec![0f64; rows], vec![1f64; cols]);
@@ -554,7 +543,6 @@ pub fn sinkhorn_probabilities(
                 *vj = nu(j) / column_sums[j];
             }
         }
-        let scale = (-norm).exp();
         for (row, ui) in kernel.chunks_exact(cols).zip(&u) {
             out.extend(
                 row.iter()
