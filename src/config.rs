@@ -23,8 +23,9 @@ use toml::de::{DeTable, DeValue};
 use crate::evaluate::EvalSettings;
 use crate::fusion::{FusionSettings, FusionVariant};
 use crate::matching::deep::decision::UncertaintyKind;
+use crate::matching::deep::model::PairLoss;
 use crate::matching::deep::{self, train::TrainSettings};
-use crate::matching::{LambdaChoice, MatchingSettings, Method, MultiVehicle};
+use crate::matching::{DecisionChoice, LambdaChoice, MatchingSettings, Method, MultiVehicle};
 use crate::rng::Seeds;
 use crate::sensor::{
     CameraSettings, ConnectedSelection, PoseNoiseLabel, PoseNoiseLevel, SensorSettings,
@@ -160,9 +161,11 @@ struct RawMatching {
     models_dir: PathBuf,
     mc_samples: usize,
     lambda: RawLambda,
+    decision: String,
     uncertainty: UncertaintyKind,
     sender_as_node: bool,
     multi_vehicle: MultiVehicle,
+    rematch: usize,
 }
 
 /// `lambda = 0.7` or `lambda = "validated"`.
@@ -186,8 +189,9 @@ struct RawTrain {
     validation_scenarios: Vec<PathBuf>,
     runs_per_scenario: usize,
     patience: usize,
-    dustbin_loss: bool,
+    loss: PairLoss,
     mc_samples: usize,
+    batch_size: usize,
     sample_every_s: f64,
 }
 
@@ -558,6 +562,7 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
     }
     let lambda = match m.lambda {
         RawLambda::Word(w) if w == "validated" => LambdaChoice::Validated,
+        RawLambda::Word(w) if w == "none" => LambdaChoice::Fixed(f64::INFINITY),
         RawLambda::Value(v) if (0.0..=1.0).contains(&v) => LambdaChoice::Fixed(v),
         RawLambda::Value(v) => {
             return Err(c.invalid(
@@ -568,21 +573,42 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
         RawLambda::Word(w) => {
             return Err(c.invalid(
                 "matching.lambda",
-                format!("must be a number in [0, 1] or \"validated\", got \"{w}\""),
+                format!("must be a number in [0, 1], \"none\" or \"validated\", got \"{w}\""),
             ));
         }
     };
+    let decision = match m.decision.as_str() {
+        "validated" => DecisionChoice::Validated,
+        word => DecisionChoice::Fixed(word.parse().map_err(|_| {
+            c.invalid(
+                "matching.decision",
+                format!("must be \"validated\", \"assignment\" or \"mutual\", got \"{word}\""),
+            )
+        })?),
+    };
+    if m.rematch > MAX_REMATCH {
+        return Err(c.invalid(
+            "matching.rematch",
+            format!("at most {MAX_REMATCH} rounds, got {}", m.rematch),
+        ));
+    }
     Ok(MatchingSettings {
         methods: dedup_sorted(m.methods),
         gate_chi2: m.gate_chi2,
         models_dir: c.resolve(&m.models_dir),
         mc_samples: m.mc_samples,
         lambda,
+        decision,
         uncertainty: m.uncertainty,
         sender_as_node: m.sender_as_node,
         multi_vehicle: m.multi_vehicle,
+        rematch: m.rematch,
     })
 }
+
+/// More rounds of match-align-rematch than this change nothing but the
+/// run time (the alignment settles after two or three).
+const MAX_REMATCH: usize = 10;
 
 fn train_and_eval(
     c: &Checker,
@@ -624,21 +650,7 @@ fn train_and_eval(
     if t.validation_seeds.is_empty() {
         return Err(c.invalid("train.validation_seeds", "need at least one run".into()));
     }
-    if t.methods.iter().any(|m| deep::variant(*m).is_none()) {
-        return Err(c.invalid(
-            "train.methods",
-            "only deep methods (ours, ours-noprior, coid+non, coid+unc, dgmc, gcn-gm) are trained"
-                .into(),
-        ));
-    }
-    if t.epochs == 0 {
-        return Err(c.invalid("train.epochs", "need at least one epoch".into()));
-    }
-    if t.mc_samples == 0 {
-        return Err(c.invalid("train.mc_samples", "need at least one sample".into()));
-    }
-    c.positive("train.learning_rate", t.learning_rate)?;
-    c.positive("train.sample_every_s", t.sample_every_s)?;
+    fitting(c, &t)?;
     if e.traffic_seeds.is_empty() {
         return Err(c.invalid("eval.traffic_seeds", "need at least one run".into()));
     }
@@ -655,8 +667,9 @@ fn train_and_eval(
         validation_scenarios: lists.validation,
         runs_per_scenario: runs,
         patience: t.patience,
-        dustbin_loss: t.dustbin_loss,
+        loss: t.loss,
         mc_samples: t.mc_samples,
+        batch_size: t.batch_size,
         sample_every_s: t.sample_every_s,
     };
     Ok((
@@ -666,6 +679,31 @@ fn train_and_eval(
             scenarios: lists.test,
         },
     ))
+}
+
+/// `[train]`'s methods and fitting settings.
+fn fitting(c: &Checker, t: &RawTrain) -> Result<(), ConfigError> {
+    if t.methods.iter().any(|m| deep::variant(*m).is_none()) {
+        return Err(c.invalid(
+            "train.methods",
+            "only deep methods (ours, ours-noprior, coid+non, coid+unc, dgmc, gcn-gm) are trained"
+                .into(),
+        ));
+    }
+    if t.epochs == 0 {
+        return Err(c.invalid("train.epochs", "need at least one epoch".into()));
+    }
+    if t.mc_samples == 0 {
+        return Err(c.invalid("train.mc_samples", "need at least one sample".into()));
+    }
+    if !(1..=1024).contains(&t.batch_size) {
+        return Err(c.invalid(
+            "train.batch_size",
+            format!("must be 1-1024 pairs, got {}", t.batch_size),
+        ));
+    }
+    c.positive("train.learning_rate", t.learning_rate)?;
+    c.positive("train.sample_every_s", t.sample_every_s)
 }
 
 /// `[train] runs_per_scenario`, checked against the seeds it takes from.
@@ -1009,6 +1047,8 @@ mod tests {
             ),
             ("[matching]\nlambda = \"best\"\n", "matching.lambda"),
             ("[matching]\nlambda = 1.5\n", "matching.lambda"),
+            ("[matching]\nrematch = 11\n", "matching.rematch"),
+            ("[matching]\ndecision = \"best\"\n", "matching.decision"),
             (
                 "[fusion]\nalign_min_matches = 1\n",
                 "fusion.align_min_matches",

@@ -838,7 +838,12 @@ mod tests {
         fn method(&self) -> Method {
             Method::Mogm
         }
-        fn identify(&self, _: &MatchView, _: &MatchView) -> Identification {
+        fn identify_with(
+            &self,
+            _: &MatchView,
+            _: &MatchView,
+            _: &crate::fusion::PoseEstimate,
+        ) -> Identification {
             Identification::plain(self.0.clone())
         }
     }
@@ -905,7 +910,12 @@ mod tests {
         fn method(&self) -> Method {
             Method::Mogm
         }
-        fn identify(&self, first: &MatchView, second: &MatchView) -> Identification {
+        fn identify_with(
+            &self,
+            first: &MatchView,
+            second: &MatchView,
+            _: &crate::fusion::PoseEstimate,
+        ) -> Identification {
             let c = |a, b, probability| Correspondence {
                 a,
                 b,

@@ -9,8 +9,9 @@ use std::collections::BTreeMap;
 use crate::config::Settings;
 use crate::evaluate::{self, Runner};
 use crate::fusion::FusionSettings;
-use crate::matching::deep::train::{self, Example, TrainOptions, TrainReport};
-use crate::matching::{LambdaChoice, Method};
+use crate::matching::deep::decision::Decision;
+use crate::matching::deep::train::{self, Example, TrainOptions, TrainProgress, TrainReport};
+use crate::matching::{DecisionChoice, LambdaChoice, Method};
 use crate::pipeline::{self, Progress, RunError};
 use crate::tables::{RunEval, lambda_grid};
 
@@ -115,15 +116,18 @@ pub fn train_method(
     method: Method,
     examples: &[Example],
     validation: &[Example],
-    progress: impl FnMut(usize, usize, f32),
+    progress: &mut impl TrainProgress,
 ) -> Result<(Vec<u8>, TrainReport), String> {
+    let t = &settings.train;
     let opts = TrainOptions {
-        epochs: settings.train.epochs,
-        learning_rate: settings.train.learning_rate,
-        seed: settings.train.seed,
-        patience: settings.train.patience,
-        dustbin_loss: settings.train.dustbin_loss,
-        samples: settings.train.mc_samples,
+        epochs: t.epochs,
+        learning_rate: t.learning_rate,
+        seed: t.seed,
+        patience: t.patience,
+        loss: t.loss,
+        samples: t.mc_samples,
+        batch_size: t.batch_size,
+        gate_chi2: settings.matching.gate_chi2,
     };
     train::train(method, examples, validation, &opts, progress)
 }
@@ -153,27 +157,30 @@ pub fn eval_run(
     Ok(out)
 }
 
-/// What the validation runs say about one deep method: the lambda with the
-/// best mean F1 (over the runs, of the mean over pose-noise levels), and
-/// that F1.
+/// What the validation runs say about one deep method: the decision rule
+/// and lambda (infinite: no threshold) with the best mean F1 (over the
+/// runs, of the mean over pose-noise levels), and that F1.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Chosen {
     pub lambda: f64,
+    pub decision: Decision,
     pub f1: f64,
 }
 
-/// Chooses each deep method's lambda on the validation runs (`[train]
-/// validation_seeds`), never on the test runs: the grid 0..1 by 0.05, the
-/// configured uncertainty type; ties go to the smaller lambda.
-/// `progress(run, runs)` after each run.
+/// Chooses each deep method's decision rule and lambda on the validation
+/// runs (`[train] validation_seeds` and scenarios), never on the test
+/// runs: both rules, the grid 0..1 by 0.05 and no threshold, the
+/// configured uncertainty type; ties go to the assignment rule, then to
+/// the smaller lambda. `progress(run, runs)` after each run.
 pub fn validate(
     settings: &Settings,
     methods: &[Method],
     mut progress: impl FnMut(usize, usize),
 ) -> Result<BTreeMap<Method, Chosen>, RunError> {
-    // The default decision is not used: every threshold is counted.
+    // The default decision is not used: every rule and threshold is counted.
     let mut s = settings.clone();
-    s.matching.lambda = LambdaChoice::Fixed(0.7);
+    s.matching.lambda = LambdaChoice::Fixed(f64::INFINITY);
+    s.matching.decision = DecisionChoice::Fixed(Decision::Assignment);
     let validation = validation_runs(&s)?;
     let mut runs = Vec::new();
     for (k, run) in validation.iter().enumerate() {
@@ -182,14 +189,14 @@ pub fn validate(
     }
     let grid = lambda_grid(&[]);
     let kind = settings.matching.uncertainty;
-    let mean_f1 = |m: Method, k: usize| {
+    let mean_f1 = |m: Method, d: Decision, k: usize| {
         let per_run: Vec<f64> = runs
             .iter()
             .map(|r| {
                 let f: Vec<f64> = settings
                     .pose_noise
                     .iter()
-                    .filter_map(|l| r.thresholded.get(&(m, l.label, kind, k)).map(|c| c.f1()))
+                    .filter_map(|l| r.thresholded.get(&(m, l.label, d, kind, k)).map(|c| c.f1()))
                     .collect();
                 f.iter().sum::<f64>() / f.len().max(1) as f64
             })
@@ -200,19 +207,24 @@ pub fn validate(
         .iter()
         .filter(|m| crate::matching::deep::variant(**m).is_some())
         .map(|&m| {
-            let (k, f1) = (0..grid.len()).map(|k| (k, mean_f1(m, k))).fold(
-                (0, f64::NEG_INFINITY),
-                |best, (k, f)| {
-                    if f > best.1 { (k, f) } else { best }
-                },
-            );
-            (
-                m,
-                Chosen {
-                    lambda: grid[k],
-                    f1,
-                },
-            )
+            let mut best = Chosen {
+                lambda: grid[0],
+                decision: Decision::Assignment,
+                f1: f64::NEG_INFINITY,
+            };
+            for decision in [Decision::Assignment, Decision::Mutual] {
+                for (k, &lambda) in grid.iter().enumerate() {
+                    let f1 = mean_f1(m, decision, k);
+                    if f1 > best.f1 {
+                        best = Chosen {
+                            lambda,
+                            decision,
+                            f1,
+                        };
+                    }
+                }
+            }
+            (m, best)
         })
         .collect())
 }

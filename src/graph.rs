@@ -81,6 +81,33 @@ impl SceneGraph {
         self.positions_m.len()
     }
 
+    /// The same graph with its nodes listed in `order` (new node k is old
+    /// node `order[k]`; `order` is a permutation of the nodes).
+    pub fn permuted(&self, order: &[usize]) -> SceneGraph {
+        debug_assert_eq!(order.len(), self.node_count());
+        let mut new_index = vec![0; order.len()];
+        for (k, &old) in order.iter().enumerate() {
+            new_index[old] = k;
+        }
+        let mut edges: Vec<Edge> = self
+            .edges
+            .iter()
+            .map(|e| {
+                let (a, b) = (new_index[e.a], new_index[e.b]);
+                Edge {
+                    a: a.min(b),
+                    b: a.max(b),
+                    length_m: e.length_m,
+                }
+            })
+            .collect();
+        edges.sort_by_key(|e| (e.a, e.b));
+        SceneGraph {
+            positions_m: order.iter().map(|&k| self.positions_m[k]).collect(),
+            edges,
+        }
+    }
+
     /// Neighbour lists, one per node.
     pub fn neighbours(&self) -> Vec<Vec<usize>> {
         let mut n = vec![Vec::new(); self.node_count()];
@@ -133,6 +160,22 @@ mod tests {
         let g = SceneGraph::delaunay(&pts(&[(0.0, 0.0), (5.0, 0.0), (0.0, 0.0)])).unwrap();
         assert_eq!(pairs(&g), vec![(0, 1), (0, 2)]);
         assert_eq!(g.edges[1].length_m, 0.0);
+    }
+
+    #[test]
+    fn a_permuted_graph_is_the_same_graph_relabelled() {
+        let p = pts(&[
+            (0.0, 0.0),
+            (10.0, 1.0),
+            (4.0, 9.0),
+            (-3.0, 6.0),
+            (8.0, -7.0),
+        ]);
+        let g = SceneGraph::delaunay(&p).unwrap();
+        let order = [3, 0, 4, 1, 2];
+        let moved: Vec<Vec2> = order.iter().map(|&k| p[k]).collect();
+        assert_eq!(g.permuted(&order), SceneGraph::delaunay(&moved).unwrap());
+        assert_eq!(g.permuted(&[0, 1, 2, 3, 4]), g);
     }
 
     #[test]

@@ -13,7 +13,10 @@ use crate::evaluate::{self, PairAtLevel, Runner, Side};
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::{GraphError, SceneGraph};
 use crate::io::{self, WeightsError};
-use crate::matching::{self, BuildError, LambdaChoice, MatchView, Method};
+use crate::matching::deep::decision::Decision;
+use crate::matching::{
+    self, BuildError, DecisionChoice, DeepChoice, LambdaChoice, MatchView, Method,
+};
 use crate::report::{ObjectRow, RowKey, RunResults};
 use crate::rng::{self, Purpose};
 use crate::sensor::{self, ConnectedSelection, PoseNoiseLabel, PoseNoiseLevel, Sensed};
@@ -236,6 +239,11 @@ fn sense(
         if settings.matching.sender_as_node {
             sensed.add_sender(o);
         }
+        sensed.shuffle(&mut rng::stream(
+            settings.seeds.sensor,
+            Purpose::NodeOrder,
+            &[frame.step, id_hash],
+        ));
         let positions: Vec<Vec2> = sensed
             .observation
             .detections
@@ -258,17 +266,21 @@ fn sense(
     Ok(egos)
 }
 
-/// The entropy threshold of a deep method: the configured number, or the
-/// one `coid train` chose on the validation runs (recorded beside the
-/// weights).
-pub fn lambda_for(settings: &Settings, method: Method) -> Result<f64, RunError> {
-    match settings.matching.lambda {
-        LambdaChoice::Fixed(v) => Ok(v),
-        LambdaChoice::Validated => Ok(io::read_validated_lambda(
-            &settings.matching.models_dir,
-            method,
-        )?),
-    }
+/// How a deep method decides: its entropy threshold and decision rule as
+/// configured, or as `coid train` chose them on the validation runs
+/// (recorded beside the weights).
+pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, RunError> {
+    let m = &settings.matching;
+    let validated = || io::read_validated(&m.models_dir, method);
+    let lambda = match m.lambda {
+        LambdaChoice::Fixed(v) => v,
+        LambdaChoice::Validated => validated()?.lambda,
+    };
+    let decision = match m.decision {
+        DecisionChoice::Fixed(d) => d,
+        DecisionChoice::Validated => validated()?.decision,
+    };
+    Ok(DeepChoice { lambda, decision })
 }
 
 /// The lambda of every deep method among `methods`.
@@ -276,29 +288,27 @@ pub fn lambdas(settings: &Settings, methods: &[Method]) -> Result<BTreeMap<Metho
     methods
         .iter()
         .filter(|m| matching::deep::variant(**m).is_some())
-        .map(|&m| Ok((m, lambda_for(settings, m)?)))
+        .map(|&m| Ok((m, choice_for(settings, m)?.lambda)))
         .collect()
 }
 
 /// How `method` runs with `settings`: deep methods get their weights from
-/// `[matching] models_dir` and their lambda ([`lambda_for`]); MC-dropout
-/// masks are seeded with the sensor seed.
+/// `[matching] models_dir` and their lambda and decision rule
+/// ([`choice_for`]); MC-dropout masks are seeded with the sensor seed.
 pub fn runner(settings: &Settings, method: Method) -> Result<Runner, RunError> {
     if method == Method::Oracle {
         return Ok(Runner::Oracle);
     }
     let m = &settings.matching;
-    let (weights, lambda) = if matching::deep::variant(method).is_some() {
-        let lambda = if matching::deep::thresholds_by_default(method) {
-            lambda_for(settings, method)?
-        } else {
-            f64::NAN
-        };
-        (Some(io::read_weights(&m.models_dir, method)?), lambda)
+    let (weights, choice) = if matching::deep::variant(method).is_some() {
+        (
+            Some(io::read_weights(&m.models_dir, method)?),
+            choice_for(settings, method)?,
+        )
     } else {
-        (None, f64::NAN)
+        (None, NO_CHOICE)
     };
-    let matcher = matching::build(method, m, lambda, settings.seeds.sensor, weights.as_deref())
+    let matcher = matching::build(method, m, choice, settings.seeds.sensor, weights.as_deref())
         .map_err(|e| match e {
             BuildError::BadWeights {
                 method: label,
@@ -312,6 +322,12 @@ pub fn runner(settings: &Settings, method: Method) -> Result<Runner, RunError> {
         })?;
     Ok(Runner::Matcher(matcher))
 }
+
+/// What a method that is not deep is built with (it reads neither).
+const NO_CHOICE: DeepChoice = DeepChoice {
+    lambda: f64::NAN,
+    decision: Decision::Assignment,
+};
 
 /// The runners of `methods`, in order.
 pub fn runners(settings: &Settings, methods: &[Method]) -> Result<Vec<Runner>, RunError> {

@@ -43,6 +43,9 @@ pub enum Purpose {
     /// MC-dropout masks of one vehicle's graph embedding at inference
     /// (shared by every pair the vehicle is in).
     EmbeddingDropout = 8,
+    /// The order in which one connected vehicle lists its detections at
+    /// one step (a seeded shuffle, so that no order carries labels).
+    NodeOrder = 9,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.
@@ -107,11 +110,14 @@ mod tests {
             Purpose::Dropout,
             Purpose::Training,
             Purpose::WeightInit,
+            Purpose::Scenario,
+            Purpose::EmbeddingDropout,
+            Purpose::NodeOrder,
         ]
         .iter()
         .map(|&p| p as u64)
         .collect();
-        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6]);
+        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9]);
     }
 
     const GOLDEN_KEY_123: u64 = 17_067_510_238_710_318_979;

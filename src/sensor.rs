@@ -235,6 +235,26 @@ impl Sensed {
     }
 }
 
+impl Sensed {
+    /// Lists the detections (and their truths, in step) in a random order
+    /// drawn from `rng`: the sensor model finds objects in SUMO's order,
+    /// false positives after them and the sender's own node last, and two
+    /// vehicles would list their shared objects in the same order. No
+    /// matcher may learn from that; after this, no order carries labels.
+    pub fn shuffle(&mut self, rng: &mut impl Rng) {
+        let mut order: Vec<usize> = (0..self.observation.detections.len()).collect();
+        rand::seq::SliceRandom::shuffle(&mut order[..], rng);
+        self.observation.detections = order
+            .iter()
+            .map(|&k| self.observation.detections[k].clone())
+            .collect();
+        self.truth.detections = order
+            .iter()
+            .map(|&k| self.truth.detections[k].clone())
+            .collect();
+    }
+}
+
 /// Samples on an object's footprint used for the visibility test: centre,
 /// corners and edge midpoints, in the body frame of a unit box.
 const FOOTPRINT_SAMPLES: [(f64, f64); 9] = [

@@ -14,7 +14,8 @@ use crate::config::Settings;
 use crate::evaluate::{Consistency, MethodEval, PairCounts, ViewEstimate, count_pairs, is_correct};
 use crate::fusion::FusionVariant;
 use crate::matching::Method;
-use crate::matching::deep::{self, decision::UncertaintyKind};
+use crate::matching::deep;
+use crate::matching::deep::decision::{Decision, MatchDistribution, UncertaintyKind};
 use crate::matching::synchronize::TripleCounts;
 use crate::report::{
     ObjectErrors, PlotData, ScoredPair, Table, ViewSums, brier_score, expected_calibration_error,
@@ -30,18 +31,23 @@ const TABLE3_KINDS: [UncertaintyKind; 3] = [
 ];
 
 /// The threshold grid of the lambda sweep (binary entropy in bits): 0 to 1
-/// by 0.05, plus the methods' own lambdas.
+/// by 0.05, the methods' own lambdas, and "no threshold" (infinite) last.
 pub fn lambda_grid<'a>(lambdas: impl IntoIterator<Item = &'a f64>) -> Vec<f64> {
     let mut g: Vec<f64> = (0..=20).map(|k| f64::from(k) / 20.0).collect();
     g.extend(lambdas.into_iter().filter(|l| l.is_finite()));
     g.sort_by(f64::total_cmp);
     g.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    g.push(f64::INFINITY);
     g
 }
 
-/// The index of `lambda` in `grid` (the nearest value).
+/// The index of `lambda` in `grid` (the same value, else the nearest).
 fn grid_index(grid: &[f64], lambda: f64) -> usize {
+    if let Some(k) = grid.iter().position(|&g| g == lambda) {
+        return k;
+    }
     (0..grid.len())
+        .filter(|&k| grid[k].is_finite())
         .min_by(|&a, &b| {
             (grid[a] - lambda)
                 .abs()
@@ -50,16 +56,26 @@ fn grid_index(grid: &[f64], lambda: f64) -> usize {
         .unwrap_or(0)
 }
 
+/// The uncertainty types, in the order of [`RunEval::thresholded`]'s counts.
+const KINDS: [UncertaintyKind; 3] = [
+    UncertaintyKind::Total,
+    UncertaintyKind::Epistemic,
+    UncertaintyKind::Aleatoric,
+];
+
 /// What one test run contributes to the tables.
 #[derive(Clone, Debug, Default)]
 pub struct RunEval {
     /// Table 1: each method with its default decision.
     pub table1: BTreeMap<(Method, PoseNoiseLabel), PairCounts>,
-    /// Deep methods without thresholding.
-    pub unthresholded: BTreeMap<(Method, PoseNoiseLabel), PairCounts>,
-    /// Deep methods thresholded: (method, level, kind, index into
-    /// [`lambda_grid`]).
-    pub thresholded: BTreeMap<(Method, PoseNoiseLabel, UncertaintyKind, usize), PairCounts>,
+    /// Deep methods without thresholding, per decision rule.
+    pub unthresholded: BTreeMap<(Method, PoseNoiseLabel, Decision), PairCounts>,
+    /// Deep methods thresholded: (method, level, decision rule, kind,
+    /// index into [`lambda_grid`]).
+    pub thresholded:
+        BTreeMap<(Method, PoseNoiseLabel, Decision, UncertaintyKind, usize), PairCounts>,
+    /// Each deep method's own decision rule, as it ran.
+    pub decisions: BTreeMap<Method, Decision>,
     /// Displacement errors per (method, level, fusion) over the object
     /// sets of the protocol.
     pub errors: BTreeMap<(Method, PoseNoiseLabel, FusionVariant), ObjectErrors>,
@@ -97,6 +113,42 @@ impl RunEval {
         self.consistency.entry((method, level)).or_default().add(c);
     }
 
+    /// Counts one distribution's pairs under `decision` without a
+    /// threshold and at every threshold of `grid` and every uncertainty
+    /// type.
+    fn record_thresholds(
+        &mut self,
+        method: Method,
+        level: PoseNoiseLabel,
+        (ta, tb): (&ObservationTruth, &ObservationTruth),
+        (dist, decision): (&MatchDistribution, Decision),
+        grid: &[f64],
+    ) {
+        let pairs = dist.decide_with(decision, None);
+        let before = count_pairs(ta, tb, &pairs);
+        let key = (method, level, decision);
+        self.unthresholded.entry(key).or_default().add(before);
+        let correct: Vec<bool> = pairs.iter().map(|c| is_correct(ta, tb, c)).collect();
+        for kind in KINDS {
+            let u: Vec<f64> = pairs
+                .iter()
+                .map(|c| dist.uncertainty(c.a, c.b, kind))
+                .collect();
+            for (k, &lambda) in grid.iter().enumerate() {
+                let kept = u.iter().zip(&correct).filter(|&(&u, _)| u < lambda);
+                let counts = PairCounts {
+                    identified: kept.clone().count(),
+                    correct: kept.filter(|&(_, &c)| c).count(),
+                    ground_truth: before.ground_truth,
+                };
+                self.thresholded
+                    .entry((method, level, decision, kind, k))
+                    .or_default()
+                    .add(counts);
+            }
+        }
+    }
+
     /// Adds one method's evaluation of one instance at one level; deep
     /// methods also count every threshold of `grid` and every uncertainty
     /// type on the same distribution.
@@ -109,21 +161,9 @@ impl RunEval {
     ) {
         let (ta, tb) = truths;
         if let Some(dist) = &e.identification.distribution {
-            let key = (e.method, level);
-            let before = count_pairs(ta, tb, &dist.decide(None));
-            self.unthresholded.entry(key).or_default().add(before);
-            for kind in [
-                UncertaintyKind::Total,
-                UncertaintyKind::Epistemic,
-                UncertaintyKind::Aleatoric,
-            ] {
-                for (k, &lambda) in grid.iter().enumerate() {
-                    let c = count_pairs(ta, tb, &dist.decide(Some((kind, lambda))));
-                    self.thresholded
-                        .entry((e.method, level, kind, k))
-                        .or_default()
-                        .add(c);
-                }
+            self.decisions.insert(e.method, dist.decision);
+            for decision in [Decision::Assignment, Decision::Mutual] {
+                self.record_thresholds(e.method, level, (ta, tb), (dist, decision), grid);
             }
         }
         self.table1
@@ -205,6 +245,14 @@ impl Inputs<'_> {
     /// A deep method's lambda index (0 when it has none).
     fn at(&self, m: Method) -> usize {
         self.at.get(&m).copied().unwrap_or(0)
+    }
+
+    /// A deep method's own decision rule, as it ran.
+    fn decision(&self, m: Method) -> Decision {
+        self.runs
+            .iter()
+            .find_map(|r| r.decisions.get(&m).copied())
+            .unwrap_or(Decision::Assignment)
     }
 
     fn deep_methods(&self) -> Vec<Method> {
@@ -409,8 +457,9 @@ fn table2(inp: &Inputs) -> Table {
         for &l in &inp.levels {
             names.push(m.as_str().to_owned());
             noise.push(l.as_str().to_owned());
-            before.push(inp.per_run(|run| run.unthresholded.get(&(m, l)).map(|c| c.f1())));
-            let key = (m, l, inp.kind, inp.at(m));
+            let d = inp.decision(m);
+            before.push(inp.per_run(|run| run.unthresholded.get(&(m, l, d)).map(|c| c.f1())));
+            let key = (m, l, d, inp.kind, inp.at(m));
             after.push(inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())));
         }
     }
@@ -428,7 +477,13 @@ fn table3(inp: &Inputs) -> Table {
         for k in TABLE3_KINDS {
             kinds.push(k.as_str().to_owned());
             noise.push(l.as_str().to_owned());
-            let key = (Method::Ours, l, k, inp.at(Method::Ours));
+            let key = (
+                Method::Ours,
+                l,
+                inp.decision(Method::Ours),
+                k,
+                inp.at(Method::Ours),
+            );
             f.push(inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())));
         }
     }
@@ -446,8 +501,9 @@ fn sweep(inp: &Inputs) -> Table {
             lam.push(g);
             noise.push(l.as_str().to_owned());
             let get = |run: &RunEval| {
+                let d = inp.decision(Method::Ours);
                 run.thresholded
-                    .get(&(Method::Ours, l, inp.kind, k))
+                    .get(&(Method::Ours, l, d, inp.kind, k))
                     .copied()
             };
             p.push(inp.per_run(|run| get(run).map(|c| c.precision())));
@@ -519,7 +575,8 @@ pub fn plot_data(
         .map(|&l| {
             let point = |k: usize, g: f64| {
                 let get = |f: fn(&PairCounts) -> f64| {
-                    mean(inp.per_run(|r| r.thresholded.get(&(Method::Ours, l, inp.kind, k)).map(f)))
+                    let key = (Method::Ours, l, inp.decision(Method::Ours), inp.kind, k);
+                    mean(inp.per_run(|r| r.thresholded.get(&key).map(f)))
                 };
                 (
                     g,
@@ -604,13 +661,15 @@ mod tests {
     use crate::sensor::DetectionTruth;
 
     #[test]
-    fn the_lambda_grid_has_every_twentieth_and_each_lambda_once() {
+    fn the_lambda_grid_has_every_twentieth_each_lambda_once_and_no_threshold() {
         let g = lambda_grid(&[0.7]);
-        assert_eq!(g.len(), 21);
-        assert_eq!((g[0], g[20]), (0.0, 1.0));
+        assert_eq!(g.len(), 22);
+        assert_eq!((g[0], g[20], g[21]), (0.0, 1.0, f64::INFINITY));
         assert!(g.windows(2).all(|w| w[0] < w[1]));
-        let g = lambda_grid(&[0.72, 0.72, 0.33, f64::NAN]);
-        assert_eq!(g.len(), 23);
+        assert_eq!(grid_index(&g, f64::INFINITY), 21);
+        assert_eq!(grid_index(&g, 0.96), 19);
+        let g = lambda_grid(&[0.72, 0.72, 0.33, f64::NAN, f64::INFINITY]);
+        assert_eq!(g.len(), 24);
         assert!(g.contains(&0.72) && g.contains(&0.33));
         assert_eq!(
             grid_index(&g, 0.72),

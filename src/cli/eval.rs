@@ -53,8 +53,9 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
         total as u64,
         "{spinner} evaluating: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
     );
-    // Every method of the paper's Table 1 plus the practical ones.
-    let methods = Method::all();
+    // The configured methods (by default every method of the paper's
+    // Table 1 plus the practical ones).
+    let methods = &scenarios[0].settings.matching.methods.clone();
     let lambdas = pipeline::lambdas(&scenarios[0].settings, methods)?;
     for s in &mut scenarios {
         s.runs = evaluate(s, methods, &lambdas, &pb)?;

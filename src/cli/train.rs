@@ -268,19 +268,77 @@ fn validate(
         let c = chosen[&method];
         let validation = io::Validation {
             lambda: c.lambda,
+            decision: c.decision,
             f1: c.f1,
             seeds: seeds.clone(),
             uncertainty: settings.matching.uncertainty.as_str(),
         };
         io::record_validation(models_dir, method, &validation)?;
         eprintln!(
-            "coid: {}: lambda {:.2} (mean F1 {:.3} on the validation runs)",
+            "coid: {}: decision {}, lambda {} (mean F1 {:.3} on the validation runs)",
             method.as_str(),
-            c.lambda,
+            c.decision.as_str(),
+            if c.lambda.is_finite() {
+                format!("{:.2}", c.lambda)
+            } else {
+                "none".to_owned()
+            },
             c.f1
         );
     }
     Ok(())
+}
+
+/// Training progress on a bar (or as lines for a parent process), with
+/// one line per epoch: the curve as it grows.
+struct Progress<'a> {
+    pb: indicatif::ProgressBar,
+    show: Show,
+    method: Method,
+    smooth: f32,
+    best: f64,
+    lines: &'a mut Vec<String>,
+}
+
+impl deep::train::TrainProgress for Progress<'_> {
+    fn step(&mut self, step: usize, total: usize, loss: f32) {
+        self.smooth = if self.smooth.is_nan() {
+            loss
+        } else {
+            0.95 * self.smooth + 0.05 * loss
+        };
+        self.pb.set_length(total as u64);
+        self.pb.set_position(step as u64);
+        if step.is_multiple_of(10) {
+            self.pb.set_message(format!("loss {:.3}", self.smooth));
+        }
+        if self.show == Show::Lines && (step.is_multiple_of(20) || step == total) {
+            println!(
+                "progress {} {step} {total} {:.3}",
+                self.method.as_str(),
+                self.smooth
+            );
+        }
+    }
+
+    fn epoch(&mut self, epoch: usize, train_loss: f64, validation_loss: Option<f64>) {
+        let line = match validation_loss {
+            Some(v) => {
+                let mark = if v < self.best { " (best so far)" } else { "" };
+                self.best = self.best.min(v);
+                format!(
+                    "coid: {} epoch {epoch:>2}: training loss {train_loss:.4}, validation loss {v:.4}{mark}",
+                    self.method.as_str()
+                )
+            }
+            None => format!(
+                "coid: {} epoch {epoch:>2}: training loss {train_loss:.4}",
+                self.method.as_str()
+            ),
+        };
+        self.pb.suspend(|| self.show.note(&line));
+        self.lines.push(line);
+    }
 }
 
 fn train_one(
@@ -293,34 +351,24 @@ fn train_one(
     let started = std::time::Instant::now();
     let pb = progress_bar(
         show != Show::Bars,
-        (settings.train.epochs * examples.len()) as u64,
+        0,
         &format!(
-            "{{spinner}} training {:<9} [{{bar:30}}] {{pos}}/{{len}} steps, {{msg}} eta {{eta}}",
+            "{{spinner}} training {:<12} [{{bar:30}}] {{pos}}/{{len}} steps, {{msg}} eta {{eta}}",
             method.as_str()
         ),
     );
-    let mut smooth = f32::NAN;
-    let (weights, report) = experiments::train_method(
-        settings,
+    let mut lines = Vec::new();
+    let mut progress = Progress {
+        pb: pb.clone(),
+        show,
         method,
-        examples,
-        validation,
-        |step, total, loss| {
-            smooth = if smooth.is_nan() {
-                loss
-            } else {
-                0.98 * smooth + 0.02 * loss
-            };
-            pb.set_position(step as u64);
-            if step % 20 == 0 {
-                pb.set_message(format!("loss {smooth:.3}"));
-            }
-            if show == Show::Lines && (step % 50 == 0 || step == total) {
-                println!("progress {} {step} {total} {smooth:.3}", method.as_str());
-            }
-        },
-    )
-    .map_err(|e| anyhow::anyhow!("training {} failed: {e}", method.as_str()))?;
+        smooth: f32::NAN,
+        best: f64::INFINITY,
+        lines: &mut lines,
+    };
+    let (weights, report) =
+        experiments::train_method(settings, method, examples, validation, &mut progress)
+            .map_err(|e| anyhow::anyhow!("training {} failed: {e}", method.as_str()))?;
     pb.finish_and_clear();
     let record = TrainingRecord {
         method,
@@ -330,20 +378,18 @@ fn train_one(
         seconds: started.elapsed().as_secs_f64(),
     };
     io::write_model(models_dir, &record, &weights)?;
-    let losses: Vec<f64> = report
-        .epoch_losses
-        .iter()
-        .map(|l| (l * 1000.0).round() / 1000.0)
-        .collect();
     show.note(&format!(
-        "coid: trained {} in {:.0} s ({} steps{}), loss per epoch {losses:?}; wrote {}",
+        "coid: trained {} in {:.1} min ({} steps{}); wrote {} and its loss curve {}",
         method.as_str(),
-        record.seconds,
+        record.seconds / 60.0,
         report.steps,
         report
             .best_epoch
             .map_or(String::new(), |e| format!(", kept epoch {e}")),
-        io::weights_path(models_dir, method).display()
+        io::weights_path(models_dir, method).display(),
+        models_dir
+            .join(format!("{}_loss.csv", method.as_str()))
+            .display()
     ));
     Ok(())
 }

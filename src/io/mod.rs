@@ -22,8 +22,9 @@ use std::path::{Path, PathBuf};
 use polars::prelude::PolarsError;
 
 use crate::config::Settings;
-use crate::matching::Method;
+use crate::matching::deep::decision::Decision;
 use crate::matching::deep::train::TrainReport;
+use crate::matching::{DeepChoice, Method};
 use crate::report::{AggregateRow, RunResults, RunRow, Table};
 
 #[derive(Debug, thiserror::Error)]
@@ -253,8 +254,10 @@ pub struct TrainingRecord<'a> {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Validation {
     /// The entropy threshold with the best mean F1 over the validation
-    /// runs and pose-noise levels.
+    /// runs and pose-noise levels (infinite: no threshold).
     pub lambda: f64,
+    /// The decision rule chosen with it.
+    pub decision: Decision,
     /// That mean F1.
     pub f1: f64,
     pub seeds: Vec<u64>,
@@ -300,12 +303,9 @@ fn model_metadata(record: &TrainingRecord) -> String {
         edges.clipped_share,
         crate::matching::deep::features::MAX_EDGE_M
     );
-    if t.dustbin_loss {
-        let _ = writeln!(meta, "dustbin_loss = true");
-    }
-    if t.mc_samples > 1 {
-        let _ = writeln!(meta, "mc_samples = {}", t.mc_samples);
-    }
+    let _ = writeln!(meta, "loss = {:?}", t.loss.as_str());
+    let _ = writeln!(meta, "mc_samples = {}", t.mc_samples);
+    let _ = writeln!(meta, "batch_size = {}", t.batch_size);
     if let Some(best) = record.report.best_epoch {
         let _ = writeln!(meta, "patience = {}", t.patience);
         let _ = writeln!(
@@ -325,8 +325,13 @@ fn validation_metadata(v: &Validation) -> String {
     );
     let _ = writeln!(meta, "validation_seeds = {:?}", v.seeds);
     let _ = writeln!(meta, "validation_uncertainty = {:?}", v.uncertainty);
-    // `{:?}` keeps a decimal point: 1.0, not the TOML integer 1.
-    let _ = writeln!(meta, "validated_lambda = {:?}", v.lambda);
+    if v.lambda.is_finite() {
+        // `{:?}` keeps a decimal point: 1.0, not the TOML integer 1.
+        let _ = writeln!(meta, "validated_lambda = {:?}", v.lambda);
+    } else {
+        let _ = writeln!(meta, "validated_lambda = \"none\"");
+    }
+    let _ = writeln!(meta, "validated_decision = {:?}", v.decision.as_str());
     let _ = writeln!(meta, "validation_f1 = {:.6}", v.f1);
     meta
 }
@@ -343,9 +348,9 @@ pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(
     publish_files(dir, |tmp| write_text(&tmp.join(&name), &body))
 }
 
-/// The lambda `coid train` chose for `method` on the validation runs (its
-/// `<method>.toml`).
-pub fn read_validated_lambda(models_dir: &Path, method: Method) -> Result<f64, WeightsError> {
+/// The lambda (infinite: no threshold) and decision rule `coid train`
+/// chose for `method` on the validation runs (its `<method>.toml`).
+pub fn read_validated(models_dir: &Path, method: Method) -> Result<DeepChoice, WeightsError> {
     let path = models_dir.join(format!("{}.toml", method.as_str()));
     let fail = |reason: String| WeightsError {
         method: method.as_str(),
@@ -356,13 +361,23 @@ pub fn read_validated_lambda(models_dir: &Path, method: Method) -> Result<f64, W
     let table: toml::Table = text
         .parse()
         .map_err(|e: toml::de::Error| fail(e.message().to_owned()))?;
-    let value = table.get("validated_lambda");
-    value
-        .and_then(|v| v.as_float().or_else(|| v.as_integer().map(|i| i as f64)))
-        .filter(|l| (0.0..=1.0).contains(l))
-        .ok_or_else(|| {
-            fail("no validated_lambda in [0, 1]: set [matching] lambda to a number".into())
-        })
+    let lambda = match table.get("validated_lambda") {
+        Some(toml::Value::String(w)) if w == "none" => Some(f64::INFINITY),
+        Some(v) => v
+            .as_float()
+            .or_else(|| v.as_integer().map(|i| i as f64))
+            .filter(|l| (0.0..=1.0).contains(l)),
+        None => None,
+    }
+    .ok_or_else(|| {
+        fail("no validated_lambda in [0, 1] or \"none\": set [matching] lambda".into())
+    })?;
+    let decision = table
+        .get("validated_decision")
+        .and_then(toml::Value::as_str)
+        .and_then(|w| w.parse::<Decision>().ok())
+        .ok_or_else(|| fail("no validated_decision: set [matching] decision".into()))?;
+    Ok(DeepChoice { lambda, decision })
 }
 
 /// Writes a trained model into `dir`: `<method>.bpk` (the weights),

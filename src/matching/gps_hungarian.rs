@@ -8,11 +8,12 @@
 //! `gps-hungarian` uses position only. `gps-app-hungarian`, the baseline a
 //! practitioner writes first, adds the appearance (class, colour, size) to
 //! the same cost as a log-likelihood term, `-2 ln s`, and gates pairs whose
-//! appearance is incompatible.
+//! appearance is incompatible. Both are [`super::likelihood`]'s pair
+//! log-likelihood and assignment, which the deep matchers start from too.
 
-use super::learning_free::{AffinityParams, appearance_similarity};
+use super::likelihood::{LikelihoodTerms, assign, pair_terms};
 use super::{Correspondence, Identification, MatchView, Matcher, Method, binary_entropy_bits};
-use crate::fusion::{Measurement, relative_pose_prior};
+use crate::fusion::PoseEstimate;
 
 pub struct GpsHungarian {
     /// Gate on the squared Mahalanobis distance.
@@ -30,105 +31,41 @@ impl Matcher for GpsHungarian {
         }
     }
 
-    fn identify(&self, first: &MatchView, second: &MatchView) -> Identification {
-        Identification::plain(self.assign(first, second))
-    }
-}
-
-/// One candidate pair: its squared Mahalanobis distance and appearance
-/// similarity.
-#[derive(Clone, Copy)]
-struct Candidate {
-    d2: f64,
-    appearance: f64,
-}
-
-impl GpsHungarian {
-    /// The pairs that pass the gates, `n x m` row-major (`None`: gated).
-    fn candidates(&self, first: &MatchView, second: &MatchView) -> Vec<Option<Candidate>> {
-        let level = &first.pose_noise;
-        let pose = relative_pose_prior(
-            &first.pose_reported,
-            &second.pose_reported,
-            level.position_sigma_m,
-            level.heading_sigma_rad,
-        );
-        let moved: Vec<Measurement> = second
-            .detections
-            .iter()
-            .map(|d| {
-                let m = Measurement {
-                    position_m: d.position_m,
-                    cov_m2: d.cov_m2,
-                };
-                m.moved_uncertain(&pose)
-            })
-            .collect();
-        let min_appearance = AffinityParams::default().min_appearance;
-        let mut out = Vec::with_capacity(first.detections.len() * moved.len());
-        for da in first.detections {
-            for (db, mb) in second.detections.iter().zip(&moved) {
-                let r = da.position_m - mb.position_m;
-                let d2 = (da.cov_m2 + mb.cov_m2)
-                    .try_inverse()
-                    .map(|s_inv| (r.transpose() * s_inv * r)[(0, 0)]);
-                let appearance = if self.appearance {
-                    appearance_similarity(&da.appearance, &db.appearance)
-                } else {
-                    1.0
-                };
-                out.push(match d2 {
-                    Some(d2)
-                        if d2.is_finite()
-                            && d2 <= self.gate_chi2
-                            && appearance >= min_appearance =>
-                    {
-                        Some(Candidate { d2, appearance })
-                    }
-                    _ => None,
-                });
-            }
-        }
-        out
+    fn uses_positions(&self) -> bool {
+        true
     }
 
-    fn assign(&self, first: &MatchView, second: &MatchView) -> Vec<Correspondence> {
-        let (n, m) = (first.detections.len(), second.detections.len());
-        if n == 0 || m == 0 {
-            return Vec::new();
-        }
-        let candidates = self.candidates(first, second);
-        // Cost: -2 ln(likelihood ratio) = d2 - 2 ln(appearance). Gated pairs
-        // cost more than any pair that passes, so the solver never trades a
-        // good pair for a gated one.
-        let cost_of = |c: &Candidate| c.d2 - 2.0 * c.appearance.ln();
-        let worst = self.gate_chi2 - 2.0 * AffinityParams::default().min_appearance.ln();
-        let blocked = worst.max(1.0) * 1e3;
-        let cost: Vec<f64> = candidates
-            .iter()
-            .map(|c| c.as_ref().map_or(blocked, cost_of))
-            .collect();
-        let Ok((rows, cols)) = lsap::solve(n, m, &cost, false) else {
-            return Vec::new();
+    fn identify_with(
+        &self,
+        first: &MatchView,
+        second: &MatchView,
+        relative: &PoseEstimate,
+    ) -> Identification {
+        let terms = LikelihoodTerms {
+            appearance: self.appearance,
+            ..LikelihoodTerms::full(self.gate_chi2)
         };
-        let mut out: Vec<Correspondence> = rows
+        let pairs = pair_terms(first, second, relative, &terms);
+        let m = second.detections.len();
+        let scores: Vec<Option<f64>> = pairs
+            .iter()
+            .map(|p| p.map(|p| p.log_likelihood()))
+            .collect();
+        let matches = assign(first.detections.len(), m, &scores)
             .into_iter()
-            .zip(cols)
-            .filter_map(|(a, b)| {
-                let c = candidates[a * m + b]?;
-                // Likelihood ratio against the gate: 1 at zero distance and
-                // identical looks, about 0 at the gate.
-                let probability = (-0.5 * c.d2).exp() * c.appearance;
-                Some(Correspondence {
+            .map(|(a, b)| {
+                // Likelihood ratio against a perfect pair: 1 at zero
+                // distance and identical looks, about 0 at the gate.
+                let probability = scores[a * m + b].map_or(0.0, f64::exp);
+                Correspondence {
                     a,
                     b,
                     probability,
                     uncertainty: binary_entropy_bits(probability),
-                })
+                }
             })
             .collect();
-        out.sort_by_key(|c| c.a);
-        out
+        Identification::plain(matches)
     }
 }
 

@@ -27,6 +27,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::{Correspondence, Identification, MatchView, Matcher, Method, binary_entropy_bits};
+use crate::fusion::PoseEstimate;
 use crate::geometry::{Vec2, wrap_angle};
 use crate::sensor::{Appearance, Detection};
 
@@ -209,7 +210,12 @@ impl Matcher for Mogm {
         Method::Mogm
     }
 
-    fn identify(&self, first: &MatchView, second: &MatchView) -> Identification {
+    fn identify_with(
+        &self,
+        first: &MatchView,
+        second: &MatchView,
+        _: &PoseEstimate,
+    ) -> Identification {
         let problem = build(first, second, &self.params);
         let x = principal_eigenvector(&problem.affinity);
         let mut order: Vec<usize> = (0..x.len()).collect();
@@ -291,7 +297,12 @@ impl Matcher for Rgm {
         Method::Rgm
     }
 
-    fn identify(&self, first: &MatchView, second: &MatchView) -> Identification {
+    fn identify_with(
+        &self,
+        first: &MatchView,
+        second: &MatchView,
+        _: &PoseEstimate,
+    ) -> Identification {
         let problem = build(first, second, &self.params);
         let k = problem.candidates.len();
         if k == 0 {

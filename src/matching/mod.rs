@@ -7,8 +7,10 @@
 //! ground truth ([`oracle::true_pairs`]) and only the evaluation calls it.
 
 pub mod deep;
+mod drive;
 mod gps_hungarian;
 pub mod learning_free;
+pub mod likelihood;
 pub mod oracle;
 pub mod synchronize;
 #[cfg(test)]
@@ -19,7 +21,8 @@ pub use learning_free::{Mogm, Rgm};
 
 use std::path::PathBuf;
 
-use self::deep::decision::{MatchDistribution, UncertaintyKind};
+use self::deep::decision::{Decision, MatchDistribution, UncertaintyKind};
+use crate::fusion::{PoseEstimate, relative_pose_prior};
 use crate::geometry::Pose2;
 use crate::graph::SceneGraph;
 use crate::sensor::{Detection, PoseNoiseLevel};
@@ -106,11 +109,17 @@ pub struct MatchingSettings {
     /// Pairs whose uncertainty (binary entropy in bits, in [0, 1]) is at
     /// least lambda are removed by the methods that threshold.
     pub lambda: LambdaChoice,
+    /// How the deep methods choose their pairs from the MC samples.
+    pub decision: DecisionChoice,
     pub uncertainty: UncertaintyKind,
     /// Each sender is a node of its own graph (its V2X self-report).
     pub sender_as_node: bool,
     /// Pairwise matches as decided, or synchronised per frame.
     pub multi_vehicle: MultiVehicle,
+    /// Rounds of match-align-rematch for the methods that use positions:
+    /// the relative pose re-estimated from the matches ([`crate::fusion::align`])
+    /// and the pair matched again with it (0 = one pass with the GPS pose).
+    pub rematch: usize,
 }
 
 /// Where the entropy threshold lambda comes from.
@@ -119,8 +128,19 @@ pub enum LambdaChoice {
     /// Each method's own, chosen on validation seeds by `coid train` and
     /// recorded beside its weights.
     Validated,
-    /// This value for every method (the paper: 0.7).
+    /// This value for every method (the paper: 0.7; infinite: no
+    /// threshold).
     Fixed(f64),
+}
+
+/// Where a deep method's decision rule comes from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum DecisionChoice {
+    /// Each method's own, chosen on validation seeds by `coid train` and
+    /// recorded beside its weights.
+    Validated,
+    /// This rule for every deep method.
+    Fixed(Decision),
 }
 
 /// One vehicle's side of a matching problem: what that vehicle knows.
@@ -170,7 +190,45 @@ impl Identification {
 /// A one-to-one correspondence method between two vehicles' detections.
 pub trait Matcher: Send + Sync {
     fn method(&self) -> Method;
-    fn identify(&self, first: &MatchView, second: &MatchView) -> Identification;
+
+    /// The correspondences between `first`'s and `second`'s detections,
+    /// given `relative`: the second vehicle's pose in the first one's body
+    /// frame with its uncertainty, as far as it is known (from both GPS
+    /// poses, [`gps_relative_pose`], or refined by aligning a first
+    /// matching). Methods that match on appearance and structure alone
+    /// ignore it.
+    fn identify_with(
+        &self,
+        first: &MatchView,
+        second: &MatchView,
+        relative: &PoseEstimate,
+    ) -> Identification;
+
+    /// Whether `relative` enters [`Self::identify_with`], so that
+    /// match-align-rematch can change the result.
+    fn uses_positions(&self) -> bool {
+        false
+    }
+
+    /// The correspondences with the relative pose both GPS receivers
+    /// report.
+    fn identify(&self, first: &MatchView, second: &MatchView) -> Identification {
+        self.identify_with(first, second, &gps_relative_pose(first, second))
+    }
+}
+
+/// The second vehicle's pose in the first vehicle's body frame from both
+/// reported GPS poses, with the uncertainty their claimed accuracy gives
+/// (both position errors, and the heading errors times the lever arm;
+/// [`relative_pose_prior`]).
+pub fn gps_relative_pose(first: &MatchView, second: &MatchView) -> PoseEstimate {
+    let level = &first.pose_noise;
+    relative_pose_prior(
+        &first.pose_reported,
+        &second.pose_reported,
+        level.position_sigma_m,
+        level.heading_sigma_rad,
+    )
 }
 
 /// Binary entropy in bits, 0 at p in {0, 1} and 1 at p = 0.5.
@@ -194,18 +252,28 @@ pub enum BuildError {
     },
 }
 
-/// Builds the matcher of a method. Deep methods need their trained
-/// weights (`weights`, the bytes of `<method>.bpk`) and, when they
-/// threshold, their `lambda`; MC-dropout masks are drawn from streams
-/// seeded with `dropout_seed`.
+/// How a deep method decides: its entropy threshold lambda (when it
+/// thresholds; infinite: no threshold) and its decision rule, each chosen
+/// on validation runs or fixed by the config.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DeepChoice {
+    pub lambda: f64,
+    pub decision: Decision,
+}
+
+/// Builds the matcher of a method, in canonical node order and with the
+/// configured rounds of match-align-rematch. Deep methods need their
+/// trained weights (`weights`, the bytes of `<method>.bpk`) and their
+/// `choice`; MC-dropout masks are drawn from streams seeded with
+/// `dropout_seed`.
 pub fn build(
     method: Method,
     settings: &MatchingSettings,
-    lambda: f64,
+    choice: DeepChoice,
     dropout_seed: u64,
     weights: Option<&[u8]>,
 ) -> Result<Box<dyn Matcher>, BuildError> {
-    Ok(match method {
+    let inner: Box<dyn Matcher> = match method {
         Method::Mogm => Box::new(Mogm::default()),
         Method::Rgm => Box::new(Rgm::default()),
         Method::GpsHungarian | Method::GpsAppHungarian => Box::new(GpsHungarian {
@@ -215,22 +283,26 @@ pub fn build(
         Method::Oracle => return Err(BuildError::Oracle),
         deep_method => {
             let bytes = weights.ok_or(BuildError::NoWeights(deep_method.as_str()))?;
-            let threshold =
-                deep::thresholds_by_default(deep_method).then_some((settings.uncertainty, lambda));
-            let matcher = deep::DeepMatcher::from_weights(
-                deep_method,
-                bytes,
-                settings.mc_samples,
+            let threshold = deep::thresholds_by_default(deep_method)
+                .then_some((settings.uncertainty, choice.lambda));
+            let run = deep::Inference {
+                samples: settings.mc_samples,
                 threshold,
-                dropout_seed,
-            )
-            .map_err(|reason| BuildError::BadWeights {
-                method: deep_method.as_str(),
-                reason,
-            })?;
+                decision: choice.decision,
+                seed: dropout_seed,
+                gate_chi2: settings.gate_chi2,
+            };
+            let matcher =
+                deep::DeepMatcher::from_weights(deep_method, bytes, run).map_err(|reason| {
+                    BuildError::BadWeights {
+                        method: deep_method.as_str(),
+                        reason,
+                    }
+                })?;
             Box::new(matcher)
         }
-    })
+    };
+    Ok(Box::new(drive::Driven::new(inner, settings.rematch)))
 }
 
 #[cfg(test)]
@@ -247,14 +319,21 @@ mod tests {
             models_dir: PathBuf::new(),
             mc_samples: 20,
             lambda: LambdaChoice::Fixed(0.7),
+            decision: DecisionChoice::Fixed(Decision::Assignment),
             uncertainty: UncertaintyKind::Total,
             sender_as_node: true,
             multi_vehicle: MultiVehicle::Pairwise,
+            rematch: 0,
         }
     }
 
+    const CHOICE: DeepChoice = DeepChoice {
+        lambda: 0.7,
+        decision: Decision::Assignment,
+    };
+
     fn plain(method: Method) -> Box<dyn Matcher> {
-        build(method, &settings(), 0.7, 1, None).unwrap()
+        build(method, &settings(), CHOICE, 1, None).unwrap()
     }
 
     #[test]
@@ -271,6 +350,91 @@ mod tests {
                 "{method:?}"
             );
         }
+    }
+
+    /// A vehicle's detections in another order: `order[k]` is the old
+    /// index of new detection k.
+    fn permuted(side: &Side, order: &[usize]) -> Side {
+        Side {
+            detections: order.iter().map(|&k| side.detections[k].clone()).collect(),
+            objects: order.iter().map(|&k| side.objects[k]).collect(),
+            graph: side.graph.permuted(order),
+            pose: side.pose,
+            level: side.level,
+        }
+    }
+
+    /// Permuting one vehicle's detections permutes every method's matches
+    /// (and a deep method's distribution) and changes nothing else, bit for
+    /// bit: with one pass and with match-align-rematch, on a scene with GPS
+    /// error, look-alikes and objects only one vehicle sees.
+    #[test]
+    fn permuting_detections_permutes_every_methods_matches_and_nothing_else() {
+        let mut world = testkit::world_objects();
+        world.extend(
+            testkit::world_objects()
+                .iter()
+                .map(|&(p, c, col)| (p + Vec2::new(30.0, -25.0), c, col)),
+        );
+        let all: Vec<usize> = (0..world.len()).collect();
+        let a = Side::of(testkit::POSE_A, &world, &all, testkit::GPS);
+        let mut b = Side::of(
+            testkit::POSE_B,
+            &world,
+            &[3, 9, 12, 0, 5, 14, 2, 10, 7],
+            testkit::GPS,
+        );
+        b.pose = crate::geometry::Pose2::new(b.pose.position_m() + Vec2::new(1.5, -1.0), -2.395);
+        let order_a: Vec<usize> = (0..a.detections.len()).rev().collect();
+        let order_b = [4, 0, 8, 2, 6, 1, 7, 3, 5];
+        for rematch in [0, 2] {
+            let s = MatchingSettings {
+                rematch,
+                ..settings()
+            };
+            for &method in Method::all() {
+                if method == Method::Oracle {
+                    continue;
+                }
+                let weights = deep::variant(method).map(|_| deep::opened_weights(method, 3));
+                let all_pairs = DeepChoice {
+                    lambda: f64::INFINITY,
+                    ..CHOICE
+                };
+                let m = build(method, &s, all_pairs, 1, weights.as_deref()).unwrap();
+                let before = m.identify(&a.view(), &b.view());
+                let (pa, pb) = (permuted(&a, &order_a), permuted(&b, &order_b));
+                let after = m.identify(&pa.view(), &pb.view());
+                // Map the permuted answer back to the original indices.
+                let mut back: Vec<Correspondence> = after
+                    .matches
+                    .iter()
+                    .map(|c| Correspondence {
+                        a: order_a[c.a],
+                        b: order_b[c.b],
+                        ..*c
+                    })
+                    .collect();
+                back.sort_by_key(|c| c.a);
+                assert_eq!(back, before.matches, "{method:?}, rematch {rematch}");
+                assert!(
+                    !before.matches.is_empty() || method == Method::Rgm,
+                    "{method:?}"
+                );
+                if let (Some(d0), Some(d1)) = (&before.distribution, &after.distribution) {
+                    let (ra, rb) = (inverse(&order_a), inverse(&order_b));
+                    assert_eq!(&d1.relabelled(&ra, &rb), d0, "{method:?}");
+                }
+            }
+        }
+    }
+
+    fn inverse(p: &[usize]) -> Vec<usize> {
+        let mut q = vec![0; p.len()];
+        for (k, &i) in p.iter().enumerate() {
+            q[i] = k;
+        }
+        q
     }
 
     #[test]
@@ -305,16 +469,22 @@ mod tests {
     #[test]
     fn the_oracle_is_not_a_matcher_and_deep_methods_need_weights() {
         assert!(matches!(
-            build(Method::Oracle, &settings(), 0.7, 1, None),
+            build(Method::Oracle, &settings(), CHOICE, 1, None),
             Err(BuildError::Oracle)
         ));
-        let e = build(Method::Ours, &settings(), 0.7, 1, None)
+        let e = build(Method::Ours, &settings(), CHOICE, 1, None)
             .err()
             .unwrap();
         assert_eq!(e.to_string(), "'ours' needs trained weights");
-        let e = build(Method::Ours, &settings(), 0.7, 1, Some(b"not a burnpack"))
-            .err()
-            .unwrap();
+        let e = build(
+            Method::Ours,
+            &settings(),
+            CHOICE,
+            1,
+            Some(b"not a burnpack"),
+        )
+        .err()
+        .unwrap();
         assert!(
             e.to_string().starts_with("'ours': the weights do not fit"),
             "{e}"

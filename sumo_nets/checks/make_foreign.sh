@@ -34,8 +34,11 @@ demand() { # net, prefix, period, seed
     "$py" "$sumo_home/tools/randomTrips.py" -n "$net" -o "$dir/trips.xml" -r "$dir/routes.rou.xml" \
         --additional-file "$here/../vtypes.add.xml" --trip-attributes 'type="mix" departLane="best"' \
         --period "$3" --seed "$4" --fringe-factor 5 --end 400 --validate --prefix "$2" >/dev/null
-    "$py" "$sumo_home/tools/randomTrips.py" -n "$net" -o "$dir/walks.rou.xml" --pedestrians \
-        --period 4 --seed "$4" --end 400 --prefix "${2}p" >/dev/null
+    # -r: with --pedestrians, randomTrips also routes the walks, by default
+    # into routes.rou.xml of the working directory; SUMO routes them itself.
+    "$py" "$sumo_home/tools/randomTrips.py" -n "$net" -o "$dir/walks.rou.xml" -r "$dir/walks.routed.xml" \
+        --pedestrians --period 4 --seed "$4" --end 400 --prefix "${2}p" >/dev/null
+    rm -f "$dir/walks.routed.xml"
 }
 
 sumocfg() { # dir, net, additional files (the routes carry the vehicle types)

@@ -33,7 +33,23 @@ crate::label_enum! { "uncertainty";
     }
 }
 
-/// The summary of T samples of a soft assignment with dustbins.
+crate::label_enum! { "decision";
+    /// How a deep method chooses its pairs from the MC samples.
+    #[strum(serialize_all = "lowercase")]
+    pub enum Decision {
+        /// The optimal one-to-one assignment of the mean scores (the shared
+        /// likelihood plus the mean learned residual), with the gates of
+        /// the likelihood: GPS+appearance Hungarian's decision on the
+        /// network's scores.
+        Assignment,
+        /// i and j are paired when each is the other's most likely partner
+        /// in E[Y], dustbins included.
+        Mutual,
+    }
+}
+
+/// The summary of T samples of a soft assignment with dustbins, and the
+/// pairs a decision chose from them before any threshold.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MatchDistribution {
     pub n1: usize,
@@ -43,10 +59,16 @@ pub struct MatchDistribution {
     pub mean: Vec<f32>,
     /// `n1 x n2` mean over samples of each sample's binary entropy (bits).
     pub aleatoric: Vec<f32>,
+    /// The optimal assignment of the mean scores, `(i, j)` sorted by `i`
+    /// (what [`Decision::Assignment`] pairs before any threshold).
+    pub assigned: Vec<(usize, usize)>,
+    /// The rule [`Self::decide`] applies.
+    pub decision: Decision,
 }
 
 impl MatchDistribution {
-    /// Summarises `samples`, each `(n1 + 1) x (n2 + 1)` row-major.
+    /// Summarises `samples`, each `(n1 + 1) x (n2 + 1)` row-major; nothing
+    /// decided yet.
     pub fn from_samples(n1: usize, n2: usize, samples: &[Vec<f32>]) -> Self {
         let cols = n2 + 1;
         let mut mean = vec![0f32; (n1 + 1) * cols];
@@ -68,6 +90,27 @@ impl MatchDistribution {
             n2,
             mean,
             aleatoric,
+            assigned: Vec::new(),
+            decision: Decision::Mutual,
+        }
+    }
+
+    /// Everything in the dustbins (a side without detections).
+    pub fn all_unmatched(n1: usize, n2: usize) -> Self {
+        let mut mean = vec![0f32; (n1 + 1) * (n2 + 1)];
+        for i in 0..n1 {
+            mean[i * (n2 + 1) + n2] = 1.0;
+        }
+        for j in 0..n2 {
+            mean[n1 * (n2 + 1) + j] = 1.0;
+        }
+        Self {
+            n1,
+            n2,
+            mean,
+            aleatoric: vec![0.0; n1 * n2],
+            assigned: Vec::new(),
+            decision: Decision::Assignment,
         }
     }
 
@@ -95,10 +138,9 @@ impl MatchDistribution {
         }
     }
 
-    /// One-to-one decision with "no match": i and j are paired when each is
-    /// the other's most likely partner in E[Y] (dustbins included), then
-    /// pairs whose uncertainty of `kind` is at least `lambda` are removed.
-    pub fn decide(&self, threshold: Option<(UncertaintyKind, f64)>) -> Vec<Correspondence> {
+    /// The mutual-best pairs of E[Y] (dustbins included): each is the
+    /// other's most likely partner.
+    pub fn mutual_best(&self) -> Vec<(usize, usize)> {
         let (n1, n2) = (self.n1, self.n2);
         let best_in_row = |i: usize| {
             (0..=n2)
@@ -110,25 +152,47 @@ impl MatchDistribution {
                 .max_by(|&a, &b| self.p(a, j).total_cmp(&self.p(b, j)).then(b.cmp(&a)))
                 .unwrap_or(n1)
         };
-        let mut out = Vec::new();
-        for i in 0..n1 {
-            let j = best_in_row(i);
-            if j == n2 || best_in_col(j) != i {
-                continue;
-            }
-            if let Some((kind, lambda)) = threshold
-                && self.uncertainty(i, j, kind) >= lambda
-            {
-                continue;
-            }
-            out.push(Correspondence {
+        (0..n1)
+            .filter_map(|i| {
+                let j = best_in_row(i);
+                (j < n2 && best_in_col(j) == i).then_some((i, j))
+            })
+            .collect()
+    }
+
+    /// The pairs `decision` chooses, before any threshold.
+    pub fn decided(&self, decision: Decision) -> Vec<(usize, usize)> {
+        match decision {
+            Decision::Assignment => self.assigned.clone(),
+            Decision::Mutual => self.mutual_best(),
+        }
+    }
+
+    /// The pairs of this distribution's own decision rule whose
+    /// uncertainty of `kind` is below `lambda` (all of them without a
+    /// threshold; an infinite lambda keeps all).
+    pub fn decide(&self, threshold: Option<(UncertaintyKind, f64)>) -> Vec<Correspondence> {
+        self.decide_with(self.decision, threshold)
+    }
+
+    /// [`Self::decide`] with another decision rule.
+    pub fn decide_with(
+        &self,
+        decision: Decision,
+        threshold: Option<(UncertaintyKind, f64)>,
+    ) -> Vec<Correspondence> {
+        self.decided(decision)
+            .into_iter()
+            .filter(|&(i, j)| {
+                threshold.is_none_or(|(kind, lambda)| self.uncertainty(i, j, kind) < lambda)
+            })
+            .map(|(i, j)| Correspondence {
                 a: i,
                 b: j,
                 probability: f64::from(self.p(i, j)),
                 uncertainty: self.uncertainty(i, j, UncertaintyKind::Total),
-            });
-        }
-        out
+            })
+            .collect()
     }
 }
 

@@ -14,8 +14,12 @@
 //! values in each model's toml, `edge_median_m` and `edge_p95_m`); longer
 //! components are clipped onto the outer knot.
 
+use crate::fusion::PoseEstimate;
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::SceneGraph;
+use crate::matching::MatchView;
+use crate::matching::learning_free::appearance_similarity;
+use crate::matching::likelihood::{LikelihoodTerms, pair_terms};
 use crate::sensor::Detection;
 use crate::traffic::ObjectClass;
 
@@ -146,29 +150,139 @@ pub fn graph_input(
     }
 }
 
-/// The GPS position prior of every pair, `n1 x n2` row-major: both
-/// detections placed in the world with their vehicle's *reported* pose, and
-/// their squared distance over twice its expected variance (the detections'
-/// own covariances plus both vehicles' claimed GPS position variance):
-/// `d^2 / (2 (tr(P_i + P_j) / 2 + 2 sigma_gps^2))`. 0 = same place.
-pub fn position_cost(
-    first: &crate::matching::MatchView,
-    second: &crate::matching::MatchView,
-) -> Vec<f32> {
-    let gps_var =
-        first.pose_noise.position_sigma_m.powi(2) + second.pose_noise.position_sigma_m.powi(2);
-    let mut cost = Vec::with_capacity(first.detections.len() * second.detections.len());
-    for a in first.detections {
-        let pa = first.pose_reported.to_parent(&a.position_m);
-        let ca = first.pose_reported.cov_to_parent(&a.cov_m2);
-        for b in second.detections {
-            let pb = second.pose_reported.to_parent(&b.position_m);
-            let cb = second.pose_reported.cov_to_parent(&b.cov_m2);
-            let var = 0.5 * (ca + cb).trace() + gps_var;
-            cost.push(((pa - pb).norm_squared() / (2.0 * var.max(1e-6))) as f32);
+/// Pair features per (i, j): see [`pair_input`].
+pub const PAIR_FEATURES: usize = 11;
+/// Per-node features of the learned "no match" score: see [`pair_input`].
+pub const DUST_FEATURES: usize = 13;
+/// Ranges are given in units of this (the default camera range).
+const RANGE_SCALE_M: f64 = 70.0;
+
+/// What the pair part of the network sees of one pair of vehicles, beside
+/// the two graphs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairInput {
+    pub n1: usize,
+    pub n2: usize,
+    /// `n1 x n2` row-major: the shared pair log-likelihood
+    /// ([`crate::matching::likelihood`]) where the pair passes its gates.
+    pub log_likelihood: Vec<Option<f64>>,
+    /// `n1 x n2 x PAIR_FEATURES`: squared Mahalanobis distance over the
+    /// gate (0 without positions), log appearance similarity, same class,
+    /// confusable class, absolute colour difference per channel, chroma
+    /// difference (colour over its brightness, which lighting scales),
+    /// relative length, width and height differences.
+    pub pair_features: Vec<f32>,
+    /// `n x DUST_FEATURES` per vehicle: the node's range and bearing (cos,
+    /// sin) from its own vehicle; its range and bearing from the other
+    /// vehicle, through the relative pose (zeros without positions); its
+    /// class, one-hot. What tells whether the other vehicle can see it.
+    pub dust_features: [Vec<f32>; 2],
+}
+
+impl PairInput {
+    /// Pairs that pass the gates.
+    pub fn candidates(&self) -> usize {
+        self.log_likelihood.iter().flatten().count()
+    }
+}
+
+/// The pair input of two views, with `relative` the second vehicle's pose
+/// in the first one's frame and `terms` the likelihood's terms and gates.
+pub fn pair_input(
+    first: &MatchView,
+    second: &MatchView,
+    relative: &PoseEstimate,
+    terms: &LikelihoodTerms,
+) -> PairInput {
+    let (n1, n2) = (first.detections.len(), second.detections.len());
+    let pairs = pair_terms(first, second, relative, terms);
+    let mut pair_features = Vec::with_capacity(n1 * n2 * PAIR_FEATURES);
+    for (i, a) in first.detections.iter().enumerate() {
+        for (j, b) in second.detections.iter().enumerate() {
+            let term = pairs[i * n2 + j];
+            let d2 = term.map_or(terms.gate_chi2, |t| t.d2);
+            let d2 = if terms.position { d2 } else { 0.0 };
+            let s = appearance_similarity(&a.appearance, &b.appearance).max(1e-6);
+            pair_features.extend(appearance_pair(a, b, d2 / terms.gate_chi2, s.ln() / 5.0));
         }
     }
-    cost
+    let inverse = relative.pose.inverse();
+    let dust = |view: &MatchView, other: &Pose2| -> Vec<f32> {
+        let mut v = Vec::with_capacity(view.detections.len() * DUST_FEATURES);
+        for d in view.detections {
+            let across = if terms.position {
+                other.to_parent(&d.position_m)
+            } else {
+                Vec2::zeros()
+            };
+            v.extend(range_bearing(&d.position_m));
+            v.extend(range_bearing(&across));
+            v.extend(class_one_hot(d));
+        }
+        v
+    };
+    PairInput {
+        n1,
+        n2,
+        log_likelihood: pairs
+            .iter()
+            .map(|p| p.map(|p| p.log_likelihood()))
+            .collect(),
+        pair_features,
+        // A node of the first vehicle in the second one's frame, and back.
+        dust_features: [dust(first, &inverse), dust(second, &relative.pose)],
+    }
+}
+
+/// The appearance part of one pair's features, after the two given ones.
+fn appearance_pair(a: &Detection, b: &Detection, d2_over_gate: f64, log_s: f64) -> [f32; 11] {
+    let (x, y) = (&a.appearance, &b.appearance);
+    let colour = |k: usize| (x.colour_rgb[k] - y.colour_rgb[k]).abs();
+    let chroma = |c: &[f64; 3]| {
+        let mean = (c[0] + c[1] + c[2]) / 3.0;
+        c.map(|v| v / mean.max(0.05))
+    };
+    let (cx, cy) = (chroma(&x.colour_rgb), chroma(&y.colour_rgb));
+    let chroma_diff = (0..3).map(|k| (cx[k] - cy[k]).powi(2)).sum::<f64>().sqrt();
+    let rel = |p: f64, q: f64| (p - q).abs() / (0.5 * (p + q)).max(0.1);
+    let flag = |b: bool| if b { 1.0 } else { 0.0 };
+    [
+        d2_over_gate,
+        log_s,
+        flag(x.class == y.class),
+        flag(x.class.confusable() == y.class || y.class.confusable() == x.class),
+        colour(0),
+        colour(1),
+        colour(2),
+        chroma_diff.min(3.0),
+        rel(x.length_m, y.length_m),
+        rel(x.width_m, y.width_m),
+        rel(x.height_m, y.height_m),
+    ]
+    .map(|v| v as f32)
+}
+
+/// Range (in units of the default camera range) and bearing (cos, sin)
+/// of a point in a body frame; the bearing of the origin is (1, 0).
+fn range_bearing(p: &Vec2) -> [f32; 3] {
+    let r = p.norm();
+    let (c, s) = if r > 1e-9 {
+        (p.x / r, p.y / r)
+    } else {
+        (1.0, 0.0)
+    };
+    [(r / RANGE_SCALE_M) as f32, c as f32, s as f32]
+}
+
+fn class_one_hot(d: &Detection) -> [f32; 7] {
+    let mut f = [0f32; 7];
+    if let Some(k) = ObjectClass::ALL
+        .iter()
+        .position(|&c| c == d.appearance.class)
+    {
+        f[k] = 1.0;
+    }
+    f
 }
 
 #[cfg(test)]

@@ -4,6 +4,11 @@
 //! are the only code in the crate that see tensors (burn). Callers get
 //! [`MatchDistribution`]s, correspondences, and weights as bytes: reading
 //! and writing weight files is the caller's business (`io`).
+//!
+//! Every variant scores pairs with the shared pair log-likelihood
+//! ([`crate::matching::likelihood`]) plus a gated residual it learns, so
+//! that an untrained network decides exactly as GPS+appearance Hungarian
+//! does (`ours-noprior`: as an appearance-only Hungarian).
 
 pub mod decision;
 pub mod features;
@@ -17,13 +22,15 @@ use burn::prelude::*;
 use rand::{Rng, RngCore};
 use rand_chacha::ChaCha8Rng;
 
-use self::decision::{MatchDistribution, UncertaintyKind};
-use self::features::GraphInput;
-use self::features::graph_input;
+use self::decision::{Decision, MatchDistribution, UncertaintyKind};
+use self::features::{GraphInput, graph_input, pair_input};
 use self::model::{
-    Architecture, CellWeights, GraphTensors, Init, LossTerms, Masks, Network, PairMasks,
+    Architecture, CellWeights, Combination, GraphBatch, Init, LossTerms, Masks, Network, PairLoss,
+    PairMasks, PairTensors,
 };
+use super::likelihood::{LikelihoodTerms, assign};
 use super::{Identification, MatchView, Matcher, Method};
+use crate::fusion::PoseEstimate;
 use crate::rng::{self, Purpose};
 
 /// Architecture and loss terms of each deep method (paper Table 1 rows).
@@ -37,19 +44,28 @@ pub fn variant(method: Method) -> Option<(Architecture, LossTerms)> {
         Method::GcnGm => (false, false, false),
         _ => return None,
     };
-    let gps_prior = method != Method::OursNoPrior;
+    let positions = method != Method::OursNoPrior;
     Some((
         Architecture {
             consensus,
-            gps_prior,
+            positions,
             ..arch
         },
         LossTerms {
+            pairs: PairLoss::Likelihood,
             non,
             unc,
-            dustbin: false,
         },
     ))
+}
+
+/// The terms and gates of the shared likelihood that a variant starts
+/// from: position and appearance, or appearance alone (`ours-noprior`).
+pub fn likelihood_terms(arch: &Architecture, gate_chi2: f64) -> LikelihoodTerms {
+    LikelihoodTerms {
+        position: arch.positions,
+        ..LikelihoodTerms::full(gate_chi2)
+    }
 }
 
 /// Whether a method's decision removes uncertain pairs: the methods trained
@@ -101,85 +117,89 @@ fn dropout_mask_16(rng: &mut ChaCha8Rng, len: usize, p: f64) -> Vec<f32> {
     out
 }
 
-/// All masks of one forward pass with `t` samples, from one stream.
+/// A mask draw: the training or the inference one.
+type MaskDraw = fn(&mut ChaCha8Rng, usize, f64) -> Vec<f32>;
+
+/// A `[B, T, N, D]` mask tensor.
+fn mask4(
+    rng: &mut ChaCha8Rng,
+    draw: MaskDraw,
+    shape: [usize; 4],
+    p: f64,
+    device: &Device,
+) -> Tensor<4> {
+    let len = shape.iter().product();
+    Tensor::from_data(TensorData::new(draw(rng, len, p), shape), device)
+}
+
+/// All masks of one training forward pass over a batch of `b` pairs with
+/// `t` samples each, from one stream.
 fn draw_masks(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
-    t: usize,
-    n1: usize,
-    n2: usize,
+    [b, t]: [usize; 2],
+    graphs: [&GraphBatch; 2],
     device: &Device,
 ) -> Masks {
-    let mut mask = |n: usize, d: usize, p: f64| {
-        Tensor::<3>::from_data(
-            TensorData::new(dropout_mask(rng, t * n * d, p), [t, n, d]),
-            device,
-        )
-    };
+    let [n1, n2] = graphs.map(GraphBatch::n);
+    let (h, o, p) = (arch.hidden, arch.out, arch.dropout_conv);
     let conv1 = [
-        mask(n1, arch.hidden, arch.dropout_conv),
-        mask(n2, arch.hidden, arch.dropout_conv),
+        mask4(rng, dropout_mask, [b, t, n1, h], p, device),
+        mask4(rng, dropout_mask, [b, t, n2, h], p, device),
     ];
     let conv2 = [
-        mask(n1, arch.out, arch.dropout_conv),
-        mask(n2, arch.out, arch.dropout_conv),
+        mask4(rng, dropout_mask, [b, t, n1, o], p, device),
+        mask4(rng, dropout_mask, [b, t, n2, o], p, device),
     ];
-    let pair = draw_consensus_masks(rng, arch, [t, n1, n2], dropout_mask, device);
-    Masks {
-        conv1,
-        conv2,
-        phi: pair.phi,
-        indicators: pair.indicators,
-    }
+    let pair = draw_pair_masks(rng, arch, [b, t, n1, n2], dropout_mask, device);
+    Masks { conv1, conv2, pair }
 }
 
 /// The conv dropout masks of one vehicle's embedding with `t` samples,
-/// `[t, n, hidden]` and `[t, n, out]`.
+/// `[1, t, n, hidden]` and `[1, t, n, out]`.
 fn draw_embedding_masks(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
     t: usize,
     n: usize,
     device: &Device,
-) -> (Tensor<3>, Tensor<3>) {
-    let mut mask = |d: usize| {
-        Tensor::<3>::from_data(
-            TensorData::new(
-                dropout_mask_16(rng, t * n * d, arch.dropout_conv),
-                [t, n, d],
-            ),
-            device,
-        )
-    };
-    (mask(arch.hidden), mask(arch.out))
+) -> (Tensor<4>, Tensor<4>) {
+    let p = arch.dropout_conv;
+    (
+        mask4(rng, dropout_mask_16, [1, t, n, arch.hidden], p, device),
+        mask4(rng, dropout_mask_16, [1, t, n, arch.out], p, device),
+    )
 }
 
-/// The consensus masks of one pair with `t` samples: the phi dropout
-/// (drawn by `draw`: the training or the inference mask) and the random
-/// node indicators.
-fn draw_consensus_masks(
+/// The consensus masks of `b` pairs with `t` samples each: the phi
+/// dropout (drawn by `draw`: the training or the inference mask) and the
+/// random node indicators.
+fn draw_pair_masks(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
-    [t, n1, n2]: [usize; 3],
-    draw: fn(&mut ChaCha8Rng, usize, f64) -> Vec<f32>,
+    [b, t, n1, n2]: [usize; 4],
+    draw: MaskDraw,
     device: &Device,
 ) -> PairMasks {
     let r = arch.consensus_dim;
     let phi = if arch.consensus {
-        Tensor::<4>::from_data(
-            TensorData::new(draw(rng, t * n1 * n2 * r, arch.dropout_phi), [t, n1, n2, r]),
+        Tensor::<5>::from_data(
+            TensorData::new(
+                draw(rng, b * t * n1 * n2 * r, arch.dropout_phi),
+                [b, t, n1, n2, r],
+            ),
             device,
         )
     } else {
-        Tensor::<4>::ones([1, 1, 1, 1], device)
+        Tensor::<5>::ones([1, 1, 1, 1, 1], device)
     };
     let normal = rand_distr::StandardNormal;
-    let indicators: Vec<f32> = (0..n1 * r)
+    let indicators: Vec<f32> = (0..b * n1 * r)
         .map(|_| rng.sample::<f64, _>(normal) as f32)
         .collect();
     PairMasks {
         phi,
-        indicators: Tensor::from_data(TensorData::new(indicators, [1, n1, r]), device),
+        indicators: Tensor::from_data(TensorData::new(indicators, [b, 1, n1, r]), device),
     }
 }
 
@@ -202,10 +222,10 @@ fn embedding_key(input: &GraphInput, samples: usize) -> u64 {
 }
 
 /// One vehicle's embedding at inference: its graph tensors and the node
-/// embeddings of every MC-dropout sample, `[T, N, out]`.
+/// embeddings of every MC-dropout sample, `[1, T, N, out]`.
 struct Embedded {
-    graph: GraphTensors,
-    h: Tensor<3>,
+    graph: GraphBatch,
+    h: Tensor<4>,
 }
 
 /// Embeddings computed for recent views, by [`embedding_key`]: a vehicle
@@ -239,6 +259,20 @@ fn problem_key(first: &MatchView, second: &MatchView) -> u64 {
     rng::key(&parts)
 }
 
+/// The T MC-dropout samples of one pair.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairSamples {
+    pub n1: usize,
+    pub n2: usize,
+    /// Each sample's scores, `T x n1 x n2` row-major (`None`: gated).
+    pub scores: Vec<Option<f64>>,
+    /// Each sample's soft assignment, `(n1 + 1) x (n2 + 1)` row-major.
+    pub assignments: Vec<Vec<f32>>,
+    /// The scores' mean over the samples, `n1 x n2`: the shared
+    /// likelihood plus the gated mean residual.
+    pub mean_scores: Vec<Option<f64>>,
+}
+
 /// A trained deep matcher with MC-dropout inference.
 pub struct DeepMatcher {
     pub method: Method,
@@ -249,40 +283,53 @@ pub struct DeepMatcher {
     pub samples: usize,
     /// Removal of uncertain pairs in [`Matcher::identify`].
     pub threshold: Option<(UncertaintyKind, f64)>,
+    /// How the pairs are chosen from the samples.
+    pub decision: Decision,
     /// Seed of the dropout-mask streams.
     pub seed: u64,
+    /// The shared likelihood's terms and gates.
+    terms: LikelihoodTerms,
     /// Reuse each vehicle's embedding across the pairs it is in.
     share_embeddings: bool,
     /// The spline layers' weights per set of kernel cells (bit mask).
     cell_weights: Mutex<HashMap<u32, Arc<CellWeights>>>,
-    /// The network's dustbin score, read once.
-    dustbin: f32,
+    /// The network's scalar parameters, read once.
+    combination: Combination,
     cache: Mutex<EmbeddingCache>,
 }
 
+/// How a deep matcher runs (beyond its weights).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Inference {
+    /// Monte Carlo samples (paper: T = 20).
+    pub samples: usize,
+    /// Removal of uncertain pairs (binary entropy of the kind >= lambda).
+    pub threshold: Option<(UncertaintyKind, f64)>,
+    pub decision: Decision,
+    /// Seed of the dropout-mask streams.
+    pub seed: u64,
+    /// The likelihood's gate on the squared Mahalanobis distance.
+    pub gate_chi2: f64,
+}
+
 impl DeepMatcher {
-    fn new(
-        method: Method,
-        net: Network,
-        arch: Architecture,
-        samples: usize,
-        threshold: Option<(UncertaintyKind, f64)>,
-        seed: u64,
-    ) -> Self {
+    fn new(method: Method, net: Network, arch: Architecture, run: Inference) -> Self {
         let net = net.valid();
-        let dustbin = net.dustbin_score();
+        let combination = net.combination();
         Self {
             method,
             arch,
             net,
             device: Device::flex(),
-            samples,
-            threshold,
-            seed,
+            samples: run.samples,
+            threshold: run.threshold,
+            decision: run.decision,
+            seed: run.seed,
+            terms: likelihood_terms(&arch, run.gate_chi2),
             share_embeddings: true,
             cache: Mutex::default(),
             cell_weights: Mutex::default(),
-            dustbin,
+            combination,
         }
     }
 
@@ -310,7 +357,7 @@ impl DeepMatcher {
             cache.hits += 1;
             return e;
         }
-        let graph = GraphTensors::used_cells(&input, &self.device);
+        let graph = GraphBatch::used_cells(&input, &self.device);
         let graph = match self.cell_weights(&graph) {
             Some(weights) => graph.with_weights(weights),
             None => graph,
@@ -335,7 +382,7 @@ impl DeepMatcher {
     /// set (a scenario's graphs use a few dozen sets): selecting them anew
     /// for every graph cost as much as a tenth of inference. `None` for a
     /// set not kept (the layers then select them).
-    fn cell_weights(&self, graph: &GraphTensors) -> Option<Arc<CellWeights>> {
+    fn cell_weights(&self, graph: &GraphBatch) -> Option<Arc<CellWeights>> {
         let mut cache = self.cell_weights.lock().ok()?;
         if let Some(weights) = cache.get(&graph.cell_mask) {
             return Some(Arc::clone(weights));
@@ -350,30 +397,17 @@ impl DeepMatcher {
 
     /// A deep method with trained weights (the bytes of its `.bpk` file);
     /// an error says why the bytes do not fit the method's network.
-    pub fn from_weights(
-        method: Method,
-        weights: &[u8],
-        samples: usize,
-        threshold: Option<(UncertaintyKind, f64)>,
-        seed: u64,
-    ) -> Result<Self, String> {
+    pub fn from_weights(method: Method, weights: &[u8], run: Inference) -> Result<Self, String> {
         let (arch, _) = variant(method).ok_or("not a deep method")?;
         let net = model::from_bytes(&arch, weights, &Device::flex())?;
-        Ok(Self::new(method, net, arch, samples, threshold, seed))
+        Ok(Self::new(method, net, arch, run))
     }
 
     /// A deep method with freshly initialised weights (`init_seed`), as
-    /// training starts from: for benchmarks, and for tests that must fail
-    /// without training.
-    pub fn untrained(
-        method: Method,
-        arch: Architecture,
-        init_seed: u64,
-        samples: usize,
-        seed: u64,
-    ) -> Self {
+    /// training starts from: for benchmarks, and for tests.
+    pub fn untrained(method: Method, arch: Architecture, init_seed: u64, run: Inference) -> Self {
         let net = Network::new(&arch, Init::Seeded(init_seed), &Device::flex());
-        Self::new(method, net, arch, samples, None, seed)
+        Self::new(method, net, arch, run)
     }
 
     /// The weights as bytes (what a `.bpk` file holds).
@@ -381,59 +415,114 @@ impl DeepMatcher {
         model::to_bytes(&self.net)
     }
 
-    /// The `samples` MC-dropout assignments, each `(n1 + 1) x (n2 + 1)`
-    /// row-major; both sides must be non-empty.
-    pub fn samples(&self, first: &MatchView, second: &MatchView) -> Vec<Vec<f32>> {
-        let (n1, n2) = (first.detections.len(), second.detections.len());
+    /// The `samples` MC-dropout passes over one pair (both sides
+    /// non-empty), with `relative` the second vehicle's pose in the first
+    /// one's frame.
+    pub fn samples(
+        &self,
+        first: &MatchView,
+        second: &MatchView,
+        relative: &PoseEstimate,
+    ) -> PairSamples {
+        let (n1, n2, t) = (
+            first.detections.len(),
+            second.detections.len(),
+            self.samples,
+        );
         let (e1, e2) = (self.embedding(first), self.embedding(second));
+        let input = pair_input(first, second, relative, &self.terms);
+        let tensors = PairTensors::new(&[&input], [n1, n2], &self.device);
         let mut stream = rng::stream(self.seed, Purpose::Dropout, &[problem_key(first, second)]);
-        let shape = [self.samples, n1, n2];
-        let masks = draw_consensus_masks(
+        let masks = draw_pair_masks(
             &mut stream,
             &self.arch,
-            shape,
+            [1, t, n1, n2],
             dropout_mask_16,
             &self.device,
         );
-        let cost = Tensor::<3>::from_data(
-            TensorData::new(features::position_cost(first, second), [1, n1, n2]),
-            &self.device,
-        );
-        let scores = self
+        let out = self
             .net
-            .pair_scores((&e1.h, &e1.graph), (&e2.h, &e2.graph), masks, cost);
-        let scores: Vec<f32> = scores.try_into_vec_as::<f32>().unwrap_or_default();
+            .pair((&e1.h, &e1.graph), (&e2.h, &e2.graph), &tensors, masks);
+        let to_vec = |x: Tensor<4>| x.try_into_vec_as::<f32>().unwrap_or_default();
+        let residual = to_vec(out.residual);
+        let c = self.combination;
+        let (scale, gate) = (f64::from(c.scale), f64::from(c.gate));
+        let score = |ll: Option<f64>, r: f64| ll.map(|l| scale * l + gate * r);
+        let mut scores = Vec::with_capacity(t * n1 * n2);
+        for sample in residual.chunks(n1 * n2) {
+            scores.extend(
+                input
+                    .log_likelihood
+                    .iter()
+                    .zip(sample)
+                    .map(|(&ll, &r)| score(ll, f64::from(r))),
+            );
+        }
+        let mean_scores: Vec<Option<f64>> = (0..n1 * n2)
+            .map(|k| {
+                let r = (0..t)
+                    .map(|s| f64::from(residual[s * n1 * n2 + k]))
+                    .sum::<f64>();
+                score(input.log_likelihood[k], r / t as f64)
+            })
+            .collect();
+        let dust = out.dust.map(|d| {
+            d.try_into_vec_as::<f32>()
+                .unwrap_or_default()
+                .iter()
+                .map(|&v| f64::from(c.dustbin) + f64::from(c.dust_gate) * f64::from(v))
+                .collect::<Vec<f64>>()
+        });
+        let finite: Vec<f64> = scores
+            .iter()
+            .map(|s| s.unwrap_or(f64::NEG_INFINITY))
+            .collect();
         let p = model::sinkhorn_probabilities(
-            &scores,
-            [self.samples, n1, n2],
-            self.dustbin,
+            &finite,
+            [t, n1, n2],
+            [&dust[0], &dust[1]],
+            f64::from(c.dustbin),
             self.arch.sinkhorn_iters,
         );
-        p.chunks((n1 + 1) * (n2 + 1)).map(<[f32]>::to_vec).collect()
+        PairSamples {
+            n1,
+            n2,
+            scores,
+            assignments: p.chunks((n1 + 1) * (n2 + 1)).map(<[f32]>::to_vec).collect(),
+            mean_scores,
+        }
     }
 
-    /// E[Y] and the per-pair uncertainties from `samples` MC-dropout passes.
-    pub fn distribution(&self, first: &MatchView, second: &MatchView) -> MatchDistribution {
+    /// E[Y], the per-pair uncertainties and the decided pairs from
+    /// `samples` MC-dropout passes.
+    pub fn distribution(
+        &self,
+        first: &MatchView,
+        second: &MatchView,
+        relative: &PoseEstimate,
+    ) -> MatchDistribution {
         let (n1, n2) = (first.detections.len(), second.detections.len());
         if n1 == 0 || n2 == 0 {
-            // Everything goes to the dustbin.
-            let mut mean = vec![0f32; (n1 + 1) * (n2 + 1)];
-            for i in 0..n1 {
-                mean[i * (n2 + 1) + n2] = 1.0;
-            }
-            for j in 0..n2 {
-                mean[n1 * (n2 + 1) + j] = 1.0;
-            }
-            return MatchDistribution {
-                n1,
-                n2,
-                mean,
-                aleatoric: vec![0.0; n1 * n2],
-            };
+            let mut d = MatchDistribution::all_unmatched(n1, n2);
+            d.decision = self.decision;
+            return d;
         }
-        let samples = self.samples(first, second);
-        MatchDistribution::from_samples(n1, n2, &samples)
+        let s = self.samples(first, second, relative);
+        let mut d = MatchDistribution::from_samples(n1, n2, &s.assignments);
+        d.assigned = assign(n1, n2, &s.mean_scores);
+        d.decision = self.decision;
+        d
     }
+}
+
+/// The weights of an untrained network of `method` whose gates are open
+/// (as after the first training steps): for tests of everything the
+/// learned parts touch, without training.
+#[cfg(test)]
+pub(crate) fn opened_weights(method: Method, seed: u64) -> Vec<u8> {
+    let (arch, _) = variant(method).expect("a deep method");
+    let net = Network::new(&arch, Init::Seeded(seed), &Device::flex()).with_gates(1.0);
+    model::to_bytes(&net).expect("weights")
 }
 
 impl Matcher for DeepMatcher {
@@ -441,8 +530,17 @@ impl Matcher for DeepMatcher {
         self.method
     }
 
-    fn identify(&self, first: &MatchView, second: &MatchView) -> Identification {
-        let distribution = self.distribution(first, second);
+    fn uses_positions(&self) -> bool {
+        self.arch.positions
+    }
+
+    fn identify_with(
+        &self,
+        first: &MatchView,
+        second: &MatchView,
+        relative: &PoseEstimate,
+    ) -> Identification {
+        let distribution = self.distribution(first, second, relative);
         Identification {
             matches: distribution.decide(self.threshold),
             distribution: Some(distribution),
@@ -454,17 +552,28 @@ impl Matcher for DeepMatcher {
 mod tests {
     use super::*;
     use crate::geometry::Vec2;
-    use crate::matching::testkit::{self, Side};
+    use crate::matching::gps_hungarian::GpsHungarian;
+    use crate::matching::testkit::{self, GPS, Side};
     use crate::traffic::ObjectClass;
     use rand::SeedableRng;
+
+    const RUN: Inference = Inference {
+        samples: 20,
+        threshold: None,
+        decision: Decision::Assignment,
+        seed: 3,
+        gate_chi2: 9.21,
+    };
 
     #[test]
     fn sinkhorn_rows_and_columns_sum_to_one_with_dustbins() {
         let device = Device::flex();
         let mut r = ChaCha8Rng::seed_from_u64(1);
         let scores: Vec<f32> = (0..48).map(|_| r.random_range(-6.0..6.0)).collect();
-        let scores = Tensor::<3>::from_data(TensorData::new(scores, [2, 4, 6]), &device);
-        let p = model::log_sinkhorn(scores, Tensor::ones([1], &device), 50).exp();
+        let scores = Tensor::<4>::from_data(TensorData::new(scores, [1, 2, 4, 6]), &device);
+        let dust = [4, 6].map(|n| Tensor::<3>::ones([1, 1, n], &device));
+        let p =
+            model::log_sinkhorn(scores, dust, Tensor::ones([1], &device), [&[4], &[6]], 50).exp();
         let v: Vec<f32> = p.try_into_vec_as::<f32>().unwrap();
         for t in 0..2 {
             let at = |i: usize, j: usize| v[t * 35 + i * 7 + j];
@@ -479,16 +588,20 @@ mod tests {
         }
     }
 
-    fn untrained(arch: Architecture, seed: u64) -> DeepMatcher {
-        DeepMatcher::untrained(Method::Ours, arch, seed, 20, seed)
+    /// An untrained network whose gates are open (as after the first
+    /// training steps), so that the residual and its dropout count.
+    fn opened(arch: Architecture, seed: u64) -> DeepMatcher {
+        let net = Network::new(&arch, Init::Seeded(seed), &Device::flex()).with_gates(1.0);
+        DeepMatcher::new(Method::Ours, net, arch, RUN)
     }
 
     /// The MC samples of the moved-copy scene.
     fn mc_samples(m: &DeepMatcher) -> Vec<Vec<f32>> {
         let (a, b) = testkit::moved_copy();
-        let samples = m.samples(&a.view(), &b.view());
-        assert_eq!(samples.len(), 20);
-        samples
+        let (va, vb) = (a.view(), b.view());
+        let s = m.samples(&va, &vb, &crate::matching::gps_relative_pose(&va, &vb));
+        assert_eq!(s.assignments.len(), 20);
+        s.assignments
     }
 
     /// Largest per-entry variance across samples.
@@ -508,7 +621,7 @@ mod tests {
 
     #[test]
     fn mc_dropout_samples_really_differ_at_inference() {
-        let v = max_variance(&mc_samples(&untrained(Architecture::default(), 3)));
+        let v = max_variance(&mc_samples(&opened(Architecture::default(), 3)));
         assert!(
             v > 1e-4,
             "p > 0 must give varying samples (max variance {v})"
@@ -518,7 +631,7 @@ mod tests {
             dropout_phi: 0.0,
             ..Architecture::default()
         };
-        let samples = mc_samples(&untrained(without, 3));
+        let samples = mc_samples(&opened(without, 3));
         assert!(
             samples.iter().all(|s| *s == samples[0]),
             "p = 0 must give identical samples"
@@ -542,30 +655,19 @@ mod tests {
 
     #[test]
     fn weights_as_bytes_give_identical_outputs() {
-        let m = untrained(Architecture::default(), 11);
-        let loaded =
-            DeepMatcher::from_weights(Method::Ours, &m.weights().unwrap(), 20, None, 11).unwrap();
+        let m = opened(Architecture::default(), 11);
+        let loaded = DeepMatcher::from_weights(Method::Ours, &m.weights().unwrap(), RUN).unwrap();
         let (a, b) = testkit::moved_copy();
+        let (va, vb) = (a.view(), b.view());
+        let relative = crate::matching::gps_relative_pose(&va, &vb);
         assert_eq!(
-            m.distribution(&a.view(), &b.view()),
-            loaded.distribution(&a.view(), &b.view())
+            m.distribution(&va, &vb, &relative),
+            loaded.distribution(&va, &vb, &relative)
         );
         // gcn-gm has no consensus: the weights of `ours` do not fit it.
-        let e = DeepMatcher::from_weights(Method::GcnGm, &m.weights().unwrap(), 20, None, 1);
+        let e = DeepMatcher::from_weights(Method::GcnGm, &m.weights().unwrap(), RUN);
         assert!(e.is_err());
     }
-
-    /// The shipped weights of `method` with their default threshold.
-    fn shipped(method: Method) -> DeepMatcher {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("models")
-            .join(format!("{}.bpk", method.as_str()));
-        let bytes = std::fs::read(path).expect("shipped weights");
-        DeepMatcher::from_weights(method, &bytes, 20, Some((UncertaintyKind::Total, 0.7)), 1)
-            .unwrap()
-    }
-
-    use crate::matching::testkit::GPS;
 
     /// A queue of six cars 5.5 m apart (colours differ), a pedestrian, a
     /// truck and a bicycle.
@@ -593,6 +695,81 @@ mod tests {
         v
     }
 
+    /// Untrained, every variant with positions scores each pair by the
+    /// shared likelihood alone, so that its assignment is GPS+appearance
+    /// Hungarian's, pair for pair, on scenes with GPS error, look-alikes
+    /// and objects only one vehicle sees; `ours-noprior` is the
+    /// appearance-only Hungarian. With the gates open it is not.
+    #[test]
+    fn untrained_decides_exactly_as_gps_appearance_hungarian() {
+        let scene = queue_scene();
+        let mut world = testkit::world_objects();
+        world.extend(
+            scene
+                .iter()
+                .map(|&(p, c, col)| (p + Vec2::new(40.0, 40.0), c, col)),
+        );
+        let all: Vec<usize> = (0..world.len()).collect();
+        let a = Side::of(testkit::POSE_A, &world, &all, GPS);
+        let mut b = Side::of(
+            testkit::POSE_B,
+            &world,
+            &[3, 9, 12, 0, 5, 14, 2, 10, 7, 16],
+            GPS,
+        );
+        b.pose = crate::geometry::Pose2::new(b.pose.position_m() + Vec2::new(2.0, -1.0), -2.39);
+        let (va, vb) = (a.view(), b.view());
+        let hungarian = |appearance_only: bool| {
+            let relative = crate::matching::gps_relative_pose(&va, &vb);
+            let terms = LikelihoodTerms {
+                position: !appearance_only,
+                ..LikelihoodTerms::full(9.21)
+            };
+            let s: Vec<Option<f64>> =
+                crate::matching::likelihood::pair_terms(&va, &vb, &relative, &terms)
+                    .iter()
+                    .map(|p| p.map(|p| p.log_likelihood()))
+                    .collect();
+            assign(va.detections.len(), vb.detections.len(), &s)
+        };
+        let pairs = |m: &dyn Matcher| -> Vec<(usize, usize)> {
+            m.identify(&va, &vb)
+                .matches
+                .iter()
+                .map(|c| (c.a, c.b))
+                .collect()
+        };
+        let expected = pairs(&GpsHungarian {
+            gate_chi2: 9.21,
+            appearance: true,
+        });
+        assert_eq!(expected, hungarian(false));
+        assert!(expected.len() >= 6, "{expected:?}");
+        for method in [
+            Method::Ours,
+            Method::CoidNon,
+            Method::CoidUnc,
+            Method::Dgmc,
+            Method::GcnGm,
+        ] {
+            let (arch, _) = variant(method).unwrap();
+            let m = DeepMatcher::untrained(method, arch, 5, RUN);
+            assert_eq!(pairs(&m), expected, "{method:?}");
+        }
+        let (arch, _) = variant(Method::OursNoPrior).unwrap();
+        let noprior = DeepMatcher::untrained(Method::OursNoPrior, arch, 5, RUN);
+        assert_eq!(pairs(&noprior), hungarian(true));
+        assert_ne!(hungarian(true), expected);
+        let net = Network::new(&Architecture::default(), Init::Seeded(5), &Device::flex());
+        let loud = DeepMatcher::new(
+            Method::Ours,
+            net.with_gates(30.0),
+            Architecture::default(),
+            RUN,
+        );
+        assert_ne!(pairs(&loud), expected);
+    }
+
     /// Three vehicles, three pairs: sharing each vehicle's embedding across
     /// its pairs gives the same bits as computing it for every pair, and
     /// it is reused (each vehicle is in two pairs).
@@ -609,11 +786,15 @@ mod tests {
         let run = |m: &DeepMatcher| -> Vec<Vec<Vec<f32>>> {
             pairs
                 .iter()
-                .map(|&(i, j)| m.samples(&sides[i].view(), &sides[j].view()))
+                .map(|&(i, j)| {
+                    let (a, b) = (sides[i].view(), sides[j].view());
+                    m.samples(&a, &b, &crate::matching::gps_relative_pose(&a, &b))
+                        .assignments
+                })
                 .collect()
         };
-        let shared = shipped(Method::Ours);
-        let per_pair = shipped(Method::Ours).without_shared_embeddings();
+        let shared = opened(Architecture::default(), 4);
+        let per_pair = opened(Architecture::default(), 4).without_shared_embeddings();
         let (a, b) = (run(&shared), run(&per_pair));
         assert_eq!(a, b);
         assert_eq!(shared.shared_embeddings(), 3);
@@ -622,61 +803,9 @@ mod tests {
         assert_ne!(a[0][0], a[0][1]);
     }
 
-    /// The shipped model matches a scene seen from across the junction when
-    /// the second vehicle's GPS is 2 m off along the queue (about what two
-    /// 1.2 m receivers give together): most objects, no wrong pair (the
-    /// family-trained weights leave two of the nine queued cars unpaired
-    /// rather than risk a shifted pair). An untrained network of the same
-    /// architecture finds few of them, so this tests the training, not the
-    /// GPS prior.
-    #[test]
-    fn shipped_model_matches_a_scene_under_gps_error_and_untrained_does_not() {
-        let scene = queue_scene();
-        let a = Side::of(testkit::POSE_A, &scene, &(0..9).collect::<Vec<_>>(), GPS);
-        let mut b = Side::of(
-            (50.0, -10.0, 2.6),
-            &scene,
-            &[8, 3, 0, 5, 7, 1, 6, 4, 2],
-            GPS,
-        );
-        b.pose = crate::geometry::Pose2::new(b.pose.position_m() + Vec2::new(2.0, 0.0), 2.6);
-        let score = |m: &DeepMatcher| {
-            let found = m.identify(&a.view(), &b.view()).matches;
-            (testkit::correct(&a, &b, &found), found.len())
-        };
-        let (correct, found) = score(&shipped(Method::Ours));
-        assert_eq!(correct, found, "a wrong pair");
-        assert!(correct >= 7, "only {correct} of 9 paired");
-        let untrained = untrained(Architecture::default(), 7);
-        assert!(score(&untrained).0 < 5, "{:?}", score(&untrained));
-    }
-
-    /// Partial overlap: the second vehicle shares four objects with the
-    /// first and sees four others; the shipped model pairs exactly the
-    /// shared ones ("no match" for the rest); untrained pairs none.
-    #[test]
-    fn shipped_model_pairs_the_shared_objects_and_no_others() {
-        let mut world = testkit::world_objects();
-        let only_b = [
-            (Vec2::new(60.0, 40.0), ObjectClass::Car, [0.95; 3]),
-            (Vec2::new(52.0, 48.0), ObjectClass::Van, [0.1; 3]),
-            (Vec2::new(66.0, 52.0), ObjectClass::Car, [0.7, 0.1, 0.1]),
-            (Vec2::new(58.0, 60.0), ObjectClass::Pedestrian, [0.2; 3]),
-        ];
-        world.extend(only_b);
-        let a = Side::of(testkit::POSE_A, &world, &[0, 1, 2, 3, 4, 5, 6, 7], GPS);
-        let b = Side::of(testkit::POSE_B, &world, &[9, 2, 10, 5, 8, 3, 11, 6], GPS);
-        let found = shipped(Method::Ours).identify(&a.view(), &b.view()).matches;
-        assert_eq!((testkit::correct(&a, &b, &found), found.len()), (4, 4));
-        let none = untrained(Architecture::default(), 7)
-            .identify(&a.view(), &b.view())
-            .matches;
-        assert!(testkit::correct(&a, &b, &none) < 4);
-    }
-
     #[test]
     fn empty_sides_send_everything_to_the_dustbin() {
-        let m = untrained(Architecture::default(), 1);
+        let m = opened(Architecture::default(), 1);
         let (a, b) = testkit::moved_copy();
         let empty = Side::new(vec![], vec![], b.pose, testkit::EXACT);
         let id = m.identify(&a.view(), &empty.view());

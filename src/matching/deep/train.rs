@@ -1,19 +1,27 @@
 //! Training of the deep matchers (burn autodiff on the `flex` CPU backend):
-//! Adam over single pairs, one dropout sample per step (the MC expectation
-//! is taken over steps), seeded initial weights, shuffling and masks.
-//! Labels come from the true correspondences, which the caller supplies
-//! (the oracle's pairs): nothing here reads ground truth itself.
+//! Adam over batches of pairs (padded to a common size, one tensor pass),
+//! a warm-up then cosine learning-rate schedule, `mc_samples` dropout
+//! samples per pair whose mean E[Y] the losses see, and early stopping on a
+//! multi-sample validation loss; seeded initial weights, shuffling and
+//! masks. Labels come from the true correspondences, which the caller
+//! supplies (the oracle's pairs): nothing here reads ground truth itself.
 
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
-use super::features::{self, GraphInput, graph_input};
-use super::model::{self, Architecture, GraphTensors, Init, LossTerms, Masks, Network};
-use super::{draw_masks, variant};
-use crate::matching::{Correspondence, MatchView, Method};
+use super::features::{self, GraphInput, PairInput, graph_input, pair_input};
+use super::model::{
+    self, Architecture, GraphBatch, Init, LabelTensors, LossTerms, Masks, Network, PairLoss,
+    PairTensors,
+};
+use super::{draw_masks, likelihood_terms, variant};
+use crate::geometry::Pose2;
+use crate::graph::SceneGraph;
+use crate::matching::{MatchView, Method, gps_relative_pose};
 use crate::rng::{self, Purpose};
+use crate::sensor::{Detection, PoseNoiseLevel};
 
 /// `[train]`: which runs make the training set and how to fit.
 #[derive(Clone, Debug, PartialEq)]
@@ -26,7 +34,9 @@ pub struct TrainSettings {
     /// training and test runs: every choice (lambda) is made on them.
     pub validation_seeds: Vec<u64>,
     pub methods: Vec<Method>,
+    /// At most this many epochs (the learning rate decays over them).
     pub epochs: usize,
+    /// Peak learning rate (Adam).
     pub learning_rate: f64,
     /// Weight initialisation, shuffling and training dropout.
     pub seed: u64,
@@ -38,12 +48,15 @@ pub struct TrainSettings {
     /// `runs_per_scenario` validation seeds.
     pub validation_scenarios: Vec<std::path::PathBuf>,
     pub runs_per_scenario: usize,
-    /// Early stopping on the validation runs' loss (0 = off).
+    /// Early stopping: epochs without a lower validation loss before
+    /// training stops (0 = off).
     pub patience: usize,
-    /// Supervise "no match" (the dustbin term of the loss).
-    pub dustbin_loss: bool,
-    /// MC-dropout samples per training step (losses on their mean).
+    /// The pair term of the loss.
+    pub loss: PairLoss,
+    /// MC-dropout samples per training pair (losses on their mean).
     pub mc_samples: usize,
+    /// Pairs per optimiser step.
+    pub batch_size: usize,
     /// Training pairs are sampled at most this often per vehicle pair
     /// (simulated seconds; the scenario's own `sample_every_s` if that is
     /// longer): consecutive instances differ little, so long runs of busy
@@ -51,76 +64,159 @@ pub struct TrainSettings {
     pub sample_every_s: f64,
 }
 
-/// One training pair with its labels.
+/// One vehicle's side of a training pair, owned.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Example {
-    pub g1: GraphInput,
-    pub g2: GraphInput,
-    /// `n1 x n2`: 1 for true correspondences.
-    pub y_star: Vec<f32>,
-    /// `n1 x n2`: 1 where row i or column j is a non-covisible object (a
-    /// false positive counts as non-covisible).
-    pub non: Vec<f32>,
-    pub n_true: usize,
-    /// `n1 x n2` GPS position cost (see `features::position_cost`).
-    pub position_cost: Vec<f32>,
+pub struct OwnedView {
+    pub detections: Vec<Detection>,
+    pub graph: SceneGraph,
+    pub pose_reported: Pose2,
+    pub pose_noise: PoseNoiseLevel,
 }
 
-/// Labels a pair with its true correspondences (`true_pairs`: detection
-/// `a` of the first vehicle is detection `b` of the second); `None` when a
-/// side is empty or nothing is shared (such a pair teaches nothing about
-/// matching).
+impl OwnedView {
+    pub fn of(view: &MatchView) -> Self {
+        Self {
+            detections: view.detections.to_vec(),
+            graph: view.graph.clone(),
+            pose_reported: view.pose_reported,
+            pose_noise: view.pose_noise,
+        }
+    }
+
+    pub fn view(&self) -> MatchView<'_> {
+        MatchView {
+            detections: &self.detections,
+            graph: &self.graph,
+            pose_reported: self.pose_reported,
+            pose_noise: self.pose_noise,
+        }
+    }
+}
+
+/// One training pair: what both vehicles know, and which of their
+/// detections are the same object.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Example {
+    pub first: OwnedView,
+    pub second: OwnedView,
+    /// `(a, b)`: detection `a` of the first vehicle is detection `b` of
+    /// the second.
+    pub true_pairs: Vec<(usize, usize)>,
+}
+
+/// A training pair from two views and their true correspondences; `None`
+/// when a side is empty or nothing is shared (such a pair teaches nothing
+/// about matching).
 pub fn example(
     first: &MatchView,
     second: &MatchView,
-    true_pairs: &[Correspondence],
+    true_pairs: &[crate::matching::Correspondence],
 ) -> Option<Example> {
-    let (n1, n2) = (first.detections.len(), second.detections.len());
-    if n1 == 0 || n2 == 0 || true_pairs.is_empty() {
+    if first.detections.is_empty() || second.detections.is_empty() || true_pairs.is_empty() {
         return None;
     }
-    let mut row_partner: Vec<Option<usize>> = vec![None; n1];
-    let mut col_has = vec![false; n2];
-    for c in true_pairs {
-        row_partner[c.a] = Some(c.b);
-        col_has[c.b] = true;
-    }
-    let mut y_star = vec![0f32; n1 * n2];
-    let mut non = vec![0f32; n1 * n2];
-    for i in 0..n1 {
-        if let Some(j) = row_partner[i] {
-            y_star[i * n2 + j] = 1.0;
+    Some(Example {
+        first: OwnedView::of(first),
+        second: OwnedView::of(second),
+        true_pairs: true_pairs.iter().map(|c| (c.a, c.b)).collect(),
+    })
+}
+
+/// A pair made ready for the network: both graphs, the pair input of the
+/// architecture, and the labels.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Prepared {
+    pub g1: GraphInput,
+    pub g2: GraphInput,
+    pub pair: PairInput,
+    /// `n1 x n2`: 1 for a true pair that passes the gates.
+    pub y: Vec<f32>,
+    /// Per node of each side: 1 when it has no true partner.
+    pub free: [Vec<f32>; 2],
+    /// `n1 x n2`: 1 where row i or column j is a non-covisible object (a
+    /// false positive counts as non-covisible).
+    pub non: Vec<f32>,
+}
+
+impl Example {
+    /// The network's inputs and labels with the likelihood of `arch` (a
+    /// true pair that its gates close is neither a target nor "no match":
+    /// no scoring can pair it).
+    pub fn prepare(&self, arch: &Architecture, gate_chi2: f64) -> Prepared {
+        let (a, b) = (self.first.view(), self.second.view());
+        let (n1, n2) = (a.detections.len(), b.detections.len());
+        let relative = gps_relative_pose(&a, &b);
+        let pair = pair_input(&a, &b, &relative, &likelihood_terms(arch, gate_chi2));
+        let mut partner_of_row: Vec<Option<usize>> = vec![None; n1];
+        let mut col_has = vec![false; n2];
+        for &(i, j) in &self.true_pairs {
+            partner_of_row[i] = Some(j);
+            col_has[j] = true;
         }
-        for j in 0..n2 {
-            if row_partner[i].is_none() || !col_has[j] {
-                non[i * n2 + j] = 1.0;
+        let mut y = vec![0f32; n1 * n2];
+        let mut non = vec![0f32; n1 * n2];
+        for i in 0..n1 {
+            for j in 0..n2 {
+                if partner_of_row[i] == Some(j) && pair.log_likelihood[i * n2 + j].is_some() {
+                    y[i * n2 + j] = 1.0;
+                }
+                if partner_of_row[i].is_none() || !col_has[j] {
+                    non[i * n2 + j] = 1.0;
+                }
             }
         }
+        let flag = |b: bool| if b { 0.0 } else { 1.0 };
+        Prepared {
+            g1: graph_input(a.detections, a.graph, &a.pose_reported),
+            g2: graph_input(b.detections, b.graph, &b.pose_reported),
+            pair,
+            y,
+            free: [
+                partner_of_row.iter().map(|p| flag(p.is_some())).collect(),
+                col_has.iter().map(|&h| flag(h)).collect(),
+            ],
+            non,
+        }
     }
-    Some(Example {
-        g1: graph_input(first.detections, first.graph, &first.pose_reported),
-        g2: graph_input(second.detections, second.graph, &second.pose_reported),
-        y_star,
-        non,
-        n_true: true_pairs.len(),
-        position_cost: super::features::position_cost(first, second),
-    })
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TrainOptions {
+    /// At most this many epochs.
     pub epochs: usize,
+    /// Peak learning rate.
     pub learning_rate: f64,
     pub seed: u64,
     /// Early stopping: stop after this many epochs without a lower
     /// validation loss and keep the weights of the lowest; 0 = off (every
     /// epoch runs, the last weights are kept, no validation loss).
     pub patience: usize,
-    /// Add the dustbin ("no match") term to the method's losses.
-    pub dustbin_loss: bool,
-    /// MC-dropout samples per training step: the losses are taken on their
-    /// mean assignment E[Y] (Eq. 11-13); 1 = one sample per step.
+    /// The pair term of the loss.
+    pub loss: PairLoss,
+    /// MC-dropout samples per pair: the losses are taken on their mean
+    /// assignment E[Y] (Eq. 11-13).
     pub samples: usize,
+    pub batch_size: usize,
+    /// The likelihood's gate on the squared Mahalanobis distance.
+    pub gate_chi2: f64,
+}
+
+/// MC-dropout samples of the validation loss.
+pub const VALIDATION_SAMPLES: usize = 4;
+
+/// Steps of linear warm-up before the cosine decay.
+const WARMUP_STEPS: usize = 200;
+
+/// The learning rate at `step` of `total`: a linear warm-up to `peak`,
+/// then a cosine decay to a twentieth of it at the end.
+pub fn learning_rate(peak: f64, step: usize, total: usize) -> f64 {
+    let warmup = WARMUP_STEPS.min(total / 10).max(1);
+    if step < warmup {
+        return peak * (step + 1) as f64 / warmup as f64;
+    }
+    let progress = (step - warmup) as f64 / (total.saturating_sub(warmup)).max(1) as f64;
+    let floor = peak / 20.0;
+    floor + 0.5 * (peak - floor) * (1.0 + (std::f64::consts::PI * progress.min(1.0)).cos())
 }
 
 /// Mean loss per epoch.
@@ -151,11 +247,17 @@ pub struct EdgeStats {
 
 impl EdgeStats {
     pub fn of(examples: &[Example]) -> Self {
-        let mut m: Vec<f64> = examples
-            .iter()
-            .flat_map(|e| e.g1.edge_world_m.iter().chain(&e.g2.edge_world_m))
-            .map(|v| f64::from(v[0].abs().max(v[1].abs())))
-            .collect();
+        let mut m: Vec<f64> = Vec::new();
+        for e in examples {
+            for side in [&e.first, &e.second] {
+                let g = graph_input(&side.detections, &side.graph, &side.pose_reported);
+                m.extend(
+                    g.edge_world_m
+                        .iter()
+                        .map(|v| f64::from(v[0].abs().max(v[1].abs()))),
+                );
+            }
+        }
         if m.is_empty() {
             return Self::default();
         }
@@ -170,6 +272,84 @@ impl EdgeStats {
     }
 }
 
+/// A batch of prepared pairs as tensors.
+struct BatchTensors {
+    graphs: [GraphBatch; 2],
+    pair: PairTensors,
+    labels: LabelTensors,
+}
+
+impl BatchTensors {
+    fn new(batch: &[&Prepared], device: &Device) -> Self {
+        let g1: Vec<&GraphInput> = batch.iter().map(|p| &p.g1).collect();
+        let g2: Vec<&GraphInput> = batch.iter().map(|p| &p.g2).collect();
+        let graphs = [GraphBatch::new(&g1, device), GraphBatch::new(&g2, device)];
+        let (n1, n2) = (graphs[0].n(), graphs[1].n());
+        let pairs: Vec<&PairInput> = batch.iter().map(|p| &p.pair).collect();
+        let pair = PairTensors::new(&pairs, [n1, n2], device);
+        let b = batch.len();
+        let (mut y, mut non, mut real) = (
+            vec![0f32; b * n1 * n2],
+            vec![0f32; b * n1 * n2],
+            vec![0f32; b * n1 * n2],
+        );
+        let (mut f1, mut f2) = (vec![0f32; b * n1], vec![0f32; b * n2]);
+        let mut counts = [Vec::new(), Vec::new(), Vec::new()];
+        for (k, p) in batch.iter().enumerate() {
+            let (m1, m2) = (p.pair.n1, p.pair.n2);
+            for i in 0..m1 {
+                let (src, dst) = (i * m2, k * n1 * n2 + i * n2);
+                y[dst..dst + m2].copy_from_slice(&p.y[src..src + m2]);
+                non[dst..dst + m2].copy_from_slice(&p.non[src..src + m2]);
+                real[dst..dst + m2].fill(1.0);
+            }
+            f1[k * n1..k * n1 + m1].copy_from_slice(&p.free[0]);
+            f2[k * n2..k * n2 + m2].copy_from_slice(&p.free[1]);
+            let sum = |v: &[f32]| v.iter().sum::<f32>().max(1.0);
+            counts[0].push(sum(&p.y));
+            counts[1].push((sum(&p.free[0]) + p.free[1].iter().sum::<f32>()).max(1.0));
+            counts[2].push((m1 * m2) as f32);
+        }
+        let t3 = |v: Vec<f32>| Tensor::<3>::from_data(TensorData::new(v, [b, n1, n2]), device);
+        let t2 = |v: Vec<f32>, n: usize| Tensor::<2>::from_data(TensorData::new(v, [b, n]), device);
+        let labels = LabelTensors {
+            y: t3(y),
+            free: [t2(f1, n1), t2(f2, n2)],
+            non: t3(non),
+            real: t3(real),
+            counts: counts.map(|c| Tensor::<1>::from_data(TensorData::new(c, [b]), device)),
+        };
+        Self {
+            graphs,
+            pair,
+            labels,
+        }
+    }
+}
+
+/// The batches of one pass over `n` pairs: shuffled, then grouped by size
+/// within windows of a few batches (less padding), the batch order
+/// shuffled again. `sizes[k]`: the padded cost of pair k.
+fn batches(sizes: &[usize], batch_size: usize, stream: Option<&mut ChaCha8Rng>) -> Vec<Vec<usize>> {
+    let mut order: Vec<usize> = (0..sizes.len()).collect();
+    let batch_size = batch_size.max(1);
+    match stream {
+        Some(s) => {
+            order.shuffle(s);
+            for window in order.chunks_mut(batch_size * 16) {
+                window.sort_by_key(|&k| sizes[k]);
+            }
+            let mut out: Vec<Vec<usize>> = order.chunks(batch_size).map(<[_]>::to_vec).collect();
+            out.shuffle(s);
+            out
+        }
+        None => {
+            order.sort_by_key(|&k| sizes[k]);
+            order.chunks(batch_size).map(<[_]>::to_vec).collect()
+        }
+    }
+}
+
 /// A network being trained, with its optimizer and random stream.
 pub struct Trainer {
     arch: Architecture,
@@ -179,9 +359,7 @@ pub struct Trainer {
     optim: ModuleOptimizer,
     /// Shuffling and dropout masks: `(seed, Training, hash(method label))`.
     stream: ChaCha8Rng,
-    learning_rate: f64,
-    seed: u64,
-    samples: usize,
+    opts: TrainOptions,
 }
 
 impl Trainer {
@@ -189,7 +367,7 @@ impl Trainer {
     pub fn new(method: Method, opts: &TrainOptions) -> Result<Self, String> {
         let (arch, mut terms) =
             variant(method).ok_or_else(|| format!("{} is not a deep method", method.as_str()))?;
-        terms.dustbin = opts.dustbin_loss;
+        terms.pairs = opts.loss;
         let device = Device::flex().autodiff();
         Ok(Self {
             arch,
@@ -202,73 +380,82 @@ impl Trainer {
                 Purpose::Training,
                 &[rng::hash_str(method.as_str())],
             ),
-            learning_rate: opts.learning_rate,
-            seed: opts.seed,
-            samples: opts.samples.max(1),
+            opts: *opts,
         })
     }
 
-    /// Shuffles an epoch's order from the trainer's stream.
-    pub fn shuffle(&mut self, order: &mut [usize]) {
-        order.shuffle(&mut self.stream);
+    /// The network's inputs and labels of `examples`.
+    pub fn prepare(&self, examples: &[Example]) -> Vec<Prepared> {
+        examples
+            .iter()
+            .map(|e| e.prepare(&self.arch, self.opts.gate_chi2))
+            .collect()
     }
 
-    /// The loss of one pair under `masks` (the losses use the mean over
-    /// their samples).
-    fn loss(&self, ex: &Example, masks: Masks) -> Tensor<1> {
-        let (n1, n2) = (ex.g1.n, ex.g2.n);
-        let device = &self.device;
-        let g1 = GraphTensors::new(&ex.g1, device);
-        let g2 = GraphTensors::new(&ex.g2, device);
-        let matrix =
-            |v: &[f32]| Tensor::<2>::from_data(TensorData::new(v.to_vec(), [n1, n2]), device);
-        let cost = matrix(&ex.position_cost).unsqueeze::<3>();
-        let log_p = self
-            .net
-            .forward(&g1, &g2, masks, cost, self.arch.sinkhorn_iters);
-        model::loss(
-            log_p,
-            matrix(&ex.y_star),
-            matrix(&ex.non),
-            ex.n_true,
-            self.terms,
-        )
+    /// The batches of one training epoch over `prepared`.
+    pub fn epoch_batches(&mut self, prepared: &[Prepared]) -> Vec<Vec<usize>> {
+        let sizes: Vec<usize> = prepared.iter().map(padded_size).collect();
+        batches(&sizes, self.opts.batch_size, Some(&mut self.stream))
     }
 
-    /// One Adam step on one pair; returns the loss before the step.
-    pub fn step(&mut self, ex: &Example) -> Result<f32, String> {
-        let (n1, n2) = (ex.g1.n, ex.g2.n);
-        let masks = draw_masks(
-            &mut self.stream,
-            &self.arch,
-            self.samples,
-            n1,
-            n2,
+    /// The mean loss of `batch` with `samples` dropout samples per pair,
+    /// masks from `stream`, on the network `net` and `device`.
+    fn loss(
+        &self,
+        net: &Network,
+        device: &Device,
+        batch: &[&Prepared],
+        samples: usize,
+        stream: &mut ChaCha8Rng,
+    ) -> Tensor<1> {
+        let tensors = BatchTensors::new(batch, device);
+        let [g1, g2] = &tensors.graphs;
+        let masks: Masks = draw_masks(stream, &self.arch, [batch.len(), samples], [g1, g2], device);
+        let log_p = net.forward([g1, g2], &tensors.pair, masks, self.arch.sinkhorn_iters);
+        model::loss(log_p, &tensors.labels, self.terms)
+    }
+
+    /// One Adam step on one batch at learning rate `lr`; returns the loss
+    /// before the step.
+    pub fn step(&mut self, batch: &[&Prepared], lr: f64) -> Result<f32, String> {
+        let mut stream = self.stream.clone();
+        let loss = self.loss(
+            &self.net,
             &self.device,
+            batch,
+            self.opts.samples,
+            &mut stream,
         );
-        let loss = self.loss(ex, masks);
+        self.stream = stream;
         let value = loss.clone().into_scalar::<f32>();
         if !value.is_finite() {
             return Err(format!("training diverged (loss {value})"));
         }
         let grads = GradientsParams::from_grads(loss.backward(), &self.net);
-        self.net = self.optim.step(self.learning_rate, self.net.clone(), grads);
+        self.net = self.optim.step(lr, self.net.clone(), grads);
         Ok(value)
     }
 
-    /// The mean loss over `examples` without changing the network: one
-    /// dropout sample per pair from a stream that is the same at every
-    /// call, so that values of different epochs compare.
-    pub fn validation_loss(&self, examples: &[Example]) -> f64 {
-        let mut stream = rng::stream(self.seed, Purpose::Training, &[rng::hash_str("validation")]);
-        let sum: f64 = examples
-            .iter()
-            .map(|ex| {
-                let masks = draw_masks(&mut stream, &self.arch, 1, ex.g1.n, ex.g2.n, &self.device);
-                f64::from(self.loss(ex, masks).into_scalar::<f32>())
-            })
-            .sum();
-        sum / examples.len().max(1) as f64
+    /// The mean loss over `prepared` without changing the network:
+    /// [`VALIDATION_SAMPLES`] dropout samples per pair from a stream that
+    /// is the same at every call, so that values of different epochs
+    /// compare.
+    pub fn validation_loss(&self, prepared: &[Prepared]) -> f64 {
+        let mut stream = rng::stream(
+            self.opts.seed,
+            Purpose::Training,
+            &[rng::hash_str("validation")],
+        );
+        let net = self.net.valid();
+        let device = Device::flex();
+        let sizes: Vec<usize> = prepared.iter().map(padded_size).collect();
+        let mut sum = 0.0;
+        for batch in batches(&sizes, self.opts.batch_size, None) {
+            let batch: Vec<&Prepared> = batch.iter().map(|&k| &prepared[k]).collect();
+            let loss = self.loss(&net, &device, &batch, VALIDATION_SAMPLES, &mut stream);
+            sum += f64::from(loss.into_scalar::<f32>()) * batch.len() as f64;
+        }
+        sum / prepared.len().max(1) as f64
     }
 
     /// The trained weights as bytes (what a `.bpk` file holds).
@@ -277,21 +464,35 @@ impl Trainer {
     }
 }
 
+/// The padded cost of a pair, for grouping pairs of similar size.
+fn padded_size(p: &Prepared) -> usize {
+    p.pair.n1.max(p.pair.n2)
+}
+
+/// What training reports as it goes: after every step, and after every
+/// epoch (its mean training loss and, with early stopping, the validation
+/// loss).
+pub trait TrainProgress {
+    fn step(&mut self, step: usize, total: usize, loss: f32);
+    fn epoch(&mut self, epoch: usize, train_loss: f64, validation_loss: Option<f64>);
+}
+
 /// Trains a deep method on `examples`; returns its weights (bytes) and the
 /// loss curve. With `opts.patience > 0` and `validation` examples, stops
 /// early on the validation loss and returns the best weights.
-/// `progress(step, total, loss)` is called after every step.
 pub fn train(
     method: Method,
     examples: &[Example],
     validation: &[Example],
     opts: &TrainOptions,
-    mut progress: impl FnMut(usize, usize, f32),
+    progress: &mut impl TrainProgress,
 ) -> Result<(Vec<u8>, TrainReport), String> {
     let mut trainer = Trainer::new(method, opts)?;
     if examples.is_empty() {
         return Err("no training examples (no instance with a covisible object)".into());
     }
+    let prepared = trainer.prepare(examples);
+    let validation = trainer.prepare(validation);
     let stopping = opts.patience > 0 && !validation.is_empty();
     let mut report = TrainReport {
         edges: EdgeStats::of(examples),
@@ -301,31 +502,36 @@ pub fn train(
     if stopping {
         report
             .validation_losses
-            .push(trainer.validation_loss(validation));
+            .push(trainer.validation_loss(&validation));
         best = Some((0, report.validation_losses[0], trainer.weights()?));
     }
-    let mut order: Vec<usize> = (0..examples.len()).collect();
-    let total = opts.epochs * examples.len();
+    let per_epoch = examples.len().div_ceil(opts.batch_size.max(1));
+    let total = opts.epochs * per_epoch;
     for epoch in 1..=opts.epochs {
-        trainer.shuffle(&mut order);
         let mut sum = 0.0;
-        for &k in &order {
+        for batch in trainer.epoch_batches(&prepared) {
+            let batch: Vec<&Prepared> = batch.iter().map(|&k| &prepared[k]).collect();
+            let lr = learning_rate(opts.learning_rate, report.steps, total);
             let value = trainer
-                .step(&examples[k])
+                .step(&batch, lr)
                 .map_err(|e| format!("{e} at step {}", report.steps))?;
-            sum += f64::from(value);
+            sum += f64::from(value) * batch.len() as f64;
             report.steps += 1;
-            progress(report.steps, total, value);
+            progress.step(report.steps, total, value);
         }
-        report.epoch_losses.push(sum / examples.len() as f64);
-        if let Some((best_epoch, best_loss, weights)) = &mut best {
-            let loss = trainer.validation_loss(validation);
-            report.validation_losses.push(loss);
-            if loss < *best_loss {
-                (*best_epoch, *best_loss, *weights) = (epoch, loss, trainer.weights()?);
-            } else if epoch - *best_epoch >= opts.patience {
-                break;
-            }
+        let train_loss = sum / examples.len() as f64;
+        report.epoch_losses.push(train_loss);
+        let Some((best_epoch, best_loss, weights)) = &mut best else {
+            progress.epoch(epoch, train_loss, None);
+            continue;
+        };
+        let loss = trainer.validation_loss(&validation);
+        report.validation_losses.push(loss);
+        progress.epoch(epoch, train_loss, Some(loss));
+        if loss < *best_loss {
+            (*best_epoch, *best_loss, *weights) = (epoch, loss, trainer.weights()?);
+        } else if epoch - *best_epoch >= opts.patience {
+            break;
         }
     }
     match best {
@@ -334,100 +540,5 @@ pub fn train(
             Ok((weights, report))
         }
         None => Ok((trainer.weights()?, report)),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::matching::testkit::{self, Side};
-
-    fn pairs(p: &[(usize, usize)]) -> Vec<Correspondence> {
-        p.iter()
-            .map(|&(a, b)| Correspondence {
-                a,
-                b,
-                probability: 1.0,
-                uncertainty: 0.0,
-            })
-            .collect()
-    }
-
-    #[test]
-    fn labels_mark_true_pairs_and_non_covisible_rows_and_columns() {
-        let objects = testkit::world_objects();
-        let a = Side::of(testkit::POSE_A, &objects, &[0, 1, 2], testkit::EXACT);
-        let b = Side::of(testkit::POSE_B, &objects, &[2, 0], testkit::EXACT);
-        let ex = example(&a.view(), &b.view(), &pairs(&[(0, 1), (2, 0)])).unwrap();
-        assert_eq!(ex.n_true, 2);
-        assert_eq!(ex.y_star, vec![0., 1., 0., 0., 1., 0.]);
-        // Row 1 (object 1) is seen by the first vehicle only.
-        assert_eq!(ex.non, vec![0., 0., 1., 1., 0., 0.]);
-        assert!(example(&a.view(), &b.view(), &[]).is_none());
-    }
-
-    /// Real training on a small set: the loss falls, and the same seed
-    /// gives the same weights, byte for byte.
-    #[test]
-    fn training_lowers_the_loss_and_is_reproducible() {
-        let (a, b) = testkit::moved_copy();
-        let all: Vec<(usize, usize)> = (0..a.detections.len())
-            .map(|i| {
-                (
-                    i,
-                    b.objects.iter().position(|&o| o == a.objects[i]).unwrap(),
-                )
-            })
-            .collect();
-        let ex = example(&a.view(), &b.view(), &pairs(&all)).unwrap();
-        let opts = TrainOptions {
-            epochs: 30,
-            learning_rate: 1e-3,
-            seed: 3,
-            patience: 0,
-            dustbin_loss: false,
-            samples: 1,
-        };
-        let examples = vec![ex];
-        let (w1, report) = train(Method::GcnGm, &examples, &[], &opts, |_, _, _| {}).unwrap();
-        let first = report.epoch_losses[0];
-        let last = *report.epoch_losses.last().unwrap();
-        assert!(last < 0.5 * first, "loss {first} -> {last}");
-        let (w2, _) = train(Method::GcnGm, &examples, &[], &opts, |_, _, _| {}).unwrap();
-        assert_eq!(w1, w2);
-        assert!(report.validation_losses.is_empty() && report.best_epoch.is_none());
-        // Early stopping: the validation loss before training and after
-        // each epoch; the kept epoch has the lowest, below the initial one;
-        // training stops `patience` epochs after it at the latest; the
-        // training stream is untouched, so the kept weights are those of
-        // plain training stopped at that epoch.
-        let stopping = TrainOptions {
-            patience: 3,
-            ..opts
-        };
-        let (kept, report) =
-            train(Method::GcnGm, &examples, &examples, &stopping, |_, _, _| {}).unwrap();
-        let v = &report.validation_losses;
-        let best = report.best_epoch.unwrap();
-        assert_eq!(v.len(), report.epoch_losses.len() + 1);
-        assert!(v.iter().all(|&l| l >= v[best]) && v[best] < v[0], "{v:?}");
-        assert!(v.len() - 1 - best <= 3, "{v:?}");
-        let plain = TrainOptions {
-            epochs: best,
-            ..opts
-        };
-        let (same, _) = train(Method::GcnGm, &examples, &[], &plain, |_, _, _| {}).unwrap();
-        assert_eq!(kept, same);
-        // Several MC samples per step (losses on their mean, as Eq. 13):
-        // the loss still falls, reproducibly, and the weights differ from
-        // one-sample training.
-        let mc = TrainOptions { samples: 4, ..opts };
-        let (m1, report) = train(Method::Ours, &examples, &[], &mc, |_, _, _| {}).unwrap();
-        let (m2, _) = train(Method::Ours, &examples, &[], &mc, |_, _, _| {}).unwrap();
-        let (one, _) = train(Method::Ours, &examples, &[], &opts, |_, _, _| {}).unwrap();
-        let (first, last) = (report.epoch_losses[0], *report.epoch_losses.last().unwrap());
-        assert!(last < 0.5 * first, "loss {first} -> {last}");
-        assert_eq!(m1, m2);
-        assert_ne!(m1, one);
     }
 }
