@@ -85,6 +85,7 @@ fn main() {
         samples: 20,
         threshold: None,
         decision: Decision::Assignment,
+        temperature: 1.0,
         seed: 1,
         gate_chi2: 9.21,
     };

@@ -757,6 +757,131 @@ mod tests {
         assert!(PairCounts::default().f1().is_nan());
     }
 
+    /// The same counts and, per fusion variant, the same estimates of the
+    /// same objects (in any order).
+    fn assert_same_evaluation(x: &MethodEval, y: &MethodEval) {
+        let method = x.method;
+        assert_eq!(x.counts, y.counts, "{method:?}");
+        assert!(x.counts.identified > 0);
+        for ((v, ex), (w, ey)) in x.fused.iter().zip(&y.fused) {
+            assert_eq!(v, w);
+            let key = |e: &ObjectEstimate| (e.ego_id.clone(), e.object_id.clone());
+            let (mut ex, mut ey) = (ex.clone(), ey.clone());
+            ex.sort_by_key(key);
+            ey.sort_by_key(key);
+            assert_eq!(ex.len(), ey.len());
+            for (p, q) in ex.iter().zip(&ey) {
+                assert_eq!(
+                    (key(p), p.matched, p.match_correct),
+                    (key(q), q.matched, q.match_correct)
+                );
+                assert!((p.fused_m - q.fused_m).norm() < 1e-9, "{method:?} {v:?}");
+                assert!((p.single_m - q.single_m).norm() < 1e-12);
+            }
+        }
+    }
+
+    /// A learning-free method as the pipeline builds it (canonical order,
+    /// two rounds of match-align-rematch).
+    fn built(method: Method) -> Runner {
+        let settings = crate::matching::MatchingSettings {
+            methods: vec![],
+            gate_chi2: 9.21,
+            models_dir: std::path::PathBuf::new(),
+            mc_samples: 20,
+            lambda: crate::matching::LambdaChoice::Fixed(0.7),
+            decision: crate::matching::DecisionChoice::Validated,
+            uncertainty: crate::matching::deep::decision::UncertaintyKind::Total,
+            sender_as_node: false,
+            multi_vehicle: MultiVehicle::Pairwise,
+            rematch: 2,
+        };
+        let choice = crate::matching::DeepChoice {
+            lambda: 0.7,
+            decision: crate::matching::deep::decision::Decision::Assignment,
+            temperature: 1.0,
+        };
+        Runner::Matcher(crate::matching::build(method, &settings, choice, 1, None).unwrap())
+    }
+
+    /// Permuting one vehicle's detections (with its truth and graph)
+    /// changes no count and no estimate of any method, fusion variant
+    /// included: under GPS error, with look-alikes and objects only one
+    /// vehicle sees, and match-align-rematch on.
+    #[test]
+    fn permuting_one_vehicles_detections_changes_no_count_and_no_estimate() {
+        let pa = Pose2::new(Vec2::new(0.0, 0.0), 0.3);
+        let pb = Pose2::new(Vec2::new(40.0, 12.0), 2.6);
+        let mut objects: Vec<(Option<&str>, Vec2)> = ["p", "q", "r", "s", "t", "u", "v"]
+            .iter()
+            .enumerate()
+            .map(|(k, id)| {
+                (
+                    Some(*id),
+                    Vec2::new(12.0 + 4.0 * k as f64, (k as f64 * 1.7).sin() * 6.0),
+                )
+            })
+            .collect();
+        let (oa, ta) = sensed("a", pa, &objects[..6]);
+        objects.push((None, Vec2::new(25.0, 9.0)));
+        let (ob, tb) = sensed("b", pb, &objects[1..]);
+        let order = [3, 0, 6, 1, 5, 2, 4];
+        let (ob2, tb2) = (
+            Observation {
+                ego_id: ob.ego_id.clone(),
+                detections: order.iter().map(|&k| ob.detections[k].clone()).collect(),
+            },
+            ObservationTruth {
+                ego_pose: tb.ego_pose,
+                detections: order.iter().map(|&k| tb.detections[k].clone()).collect(),
+            },
+        );
+        let graph = |o: &Observation| {
+            SceneGraph::delaunay(
+                &o.detections
+                    .iter()
+                    .map(|d| d.position_m)
+                    .collect::<Vec<_>>(),
+            )
+            .unwrap()
+        };
+        let (ga, gb, gb2) = (graph(&oa), graph(&ob), graph(&ob2));
+        let gps =
+            |p: Pose2, dx: f64| Pose2::new(p.position_m() + Vec2::new(dx, -0.7), p.heading_rad());
+        let level = exact_view(&oa, &ga, pa).pose_noise;
+        let first = Side {
+            view: exact_view(&oa, &ga, gps(pa, 0.4)),
+            obs: &oa,
+            truth: &ta,
+        };
+        let second = |obs, truth, graph| Side {
+            view: exact_view(obs, graph, gps(pb, -1.1)),
+            obs,
+            truth,
+        };
+        let pair = |second| PairAtLevel {
+            first,
+            second,
+            level,
+        };
+        let (before, after) = (pair(second(&ob, &tb, &gb)), pair(second(&ob2, &tb2, &gb2)));
+        let fusion = FusionSettings {
+            variants: vec![FusionVariant::Paper, FusionVariant::Aligned],
+            align_min_matches: 3,
+        };
+        for runner in [
+            built(Method::GpsAppHungarian),
+            built(Method::Mogm),
+            Runner::Oracle,
+        ] {
+            let (x, y) = (
+                evaluate(&before, &runner, &fusion),
+                evaluate(&after, &runner, &fusion),
+            );
+            assert_same_evaluation(&x, &y);
+        }
+    }
+
     #[test]
     fn zero_noise_gives_zero_error_single_and_fused_and_the_oracle_is_perfect() {
         // Two egos with exact measurements and exact poses.

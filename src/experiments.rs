@@ -7,13 +7,15 @@
 use std::collections::BTreeMap;
 
 use crate::config::Settings;
+use crate::evaluate::PairCounts;
 use crate::evaluate::{self, Runner};
 use crate::fusion::FusionSettings;
-use crate::matching::deep::decision::Decision;
+use crate::matching::deep::decision::{Decision, UncertaintyKind, calibrated, pair_uncertainty};
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainProgress, TrainReport};
 use crate::matching::{DecisionChoice, LambdaChoice, Method};
 use crate::pipeline::{self, Progress, RunError};
-use crate::tables::{RunEval, lambda_grid};
+use crate::sensor::PoseNoiseLabel;
+use crate::tables::{DecidedPair, RunEval, lambda_grid};
 
 /// The settings of run `seed`: traffic and sensor seeds both set to it.
 pub fn settings_for_seed(settings: &Settings, seed: u64) -> Settings {
@@ -143,9 +145,19 @@ pub fn eval_run(
     lambdas: &BTreeMap<Method, f64>,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
+    eval_run_into(RunEval::default(), settings, methods, lambdas, progress)
+}
+
+/// [`eval_run`] adding to `out`.
+fn eval_run_into(
+    mut out: RunEval,
+    settings: &Settings,
+    methods: &[Method],
+    lambdas: &BTreeMap<Method, f64>,
+    progress: impl FnMut(Progress),
+) -> Result<RunEval, RunError> {
     let runners = pipeline::runners(settings, methods)?;
     let grid = lambda_grid(lambdas.values());
-    let mut out = RunEval::default();
     let stats = pipeline::evaluate_frames(settings, &runners, progress, |_, pairs, level, f| {
         out.record_consistency(f.method, level, f.consistency);
         out.record_views(f.method, level, &f.views);
@@ -157,21 +169,56 @@ pub fn eval_run(
     Ok(out)
 }
 
-/// What the validation runs say about one deep method: the decision rule
-/// and lambda (infinite: no threshold) with the best mean F1 (over the
-/// runs, of the mean over pose-noise levels), and that F1.
+/// What the validation runs say about one deep method: the calibration
+/// temperature, decision rule and lambda (infinite: no threshold) with
+/// the best mean F1 (over the runs, of the mean over pose-noise levels),
+/// and that F1.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Chosen {
+    pub temperature: f64,
     pub lambda: f64,
     pub decision: Decision,
     pub f1: f64,
 }
 
-/// Chooses each deep method's decision rule and lambda on the validation
-/// runs (`[train] validation_seeds` and scenarios), never on the test
-/// runs: both rules, the grid 0..1 by 0.05 and no threshold, the
-/// configured uncertainty type; ties go to the assignment rule, then to
-/// the smaller lambda. `progress(run, runs)` after each run.
+/// The temperatures validation tries: 1/4 to 4, evenly in the log.
+fn temperature_grid() -> Vec<f64> {
+    (0..=80)
+        .map(|k| (f64::from(k - 40) / 40.0 * 4f64.ln()).exp())
+        .collect()
+}
+
+/// The temperature whose calibrated probabilities have the lowest log
+/// loss on `pairs` (the decided pairs of one method and rule).
+fn fit_temperature<'a>(pairs: impl Iterator<Item = &'a DecidedPair> + Clone) -> f64 {
+    let log_loss = |t: f64| -> f64 {
+        pairs
+            .clone()
+            .map(|d| {
+                let q = calibrated(f64::from(d.p), t).clamp(1e-6, 1.0 - 1e-6);
+                -(if d.correct { q } else { 1.0 - q }).ln()
+            })
+            .sum()
+    };
+    temperature_grid()
+        .into_iter()
+        .map(|t| (t, log_loss(t)))
+        .fold(
+            (1.0, f64::INFINITY),
+            |best, (t, l)| {
+                if l < best.1 { (t, l) } else { best }
+            },
+        )
+        .0
+}
+
+/// Chooses each deep method's calibration temperature, decision rule and
+/// lambda on the validation runs (`[train] validation_seeds` and
+/// scenarios), never on the test runs: per rule, the temperature with the
+/// lowest log loss of the decided pairs; then the rule and threshold (the
+/// grid 0..1 by 0.05 and no threshold, the configured uncertainty type, on
+/// calibrated entropies) with the best mean F1; ties go to the assignment
+/// rule, then to the smaller lambda. `progress(run, runs)` after each run.
 pub fn validate(
     settings: &Settings,
     methods: &[Method],
@@ -184,47 +231,106 @@ pub fn validate(
     let validation = validation_runs(&s)?;
     let mut runs = Vec::new();
     for (k, run) in validation.iter().enumerate() {
-        runs.push(eval_run(run, methods, &BTreeMap::new(), |_| {})?);
+        let kept = RunEval::keeping_pairs();
+        runs.push(eval_run_into(kept, run, methods, &BTreeMap::new(), |_| {})?);
         progress(k + 1, validation.len());
     }
-    let grid = lambda_grid(&[]);
+    let levels: Vec<_> = settings.pose_noise.iter().map(|l| l.label).collect();
     let kind = settings.matching.uncertainty;
-    let mean_f1 = |m: Method, d: Decision, k: usize| {
-        let per_run: Vec<f64> = runs
-            .iter()
-            .map(|r| {
-                let f: Vec<f64> = settings
-                    .pose_noise
-                    .iter()
-                    .filter_map(|l| r.thresholded.get(&(m, l.label, d, kind, k)).map(|c| c.f1()))
-                    .collect();
-                f.iter().sum::<f64>() / f.len().max(1) as f64
-            })
-            .collect();
-        per_run.iter().sum::<f64>() / per_run.len().max(1) as f64
-    };
     Ok(methods
         .iter()
         .filter(|m| crate::matching::deep::variant(**m).is_some())
-        .map(|&m| {
-            let mut best = Chosen {
-                lambda: grid[0],
-                decision: Decision::Assignment,
-                f1: f64::NEG_INFINITY,
-            };
-            for decision in [Decision::Assignment, Decision::Mutual] {
-                for (k, &lambda) in grid.iter().enumerate() {
-                    let f1 = mean_f1(m, decision, k);
-                    if f1 > best.f1 {
-                        best = Chosen {
-                            lambda,
-                            decision,
-                            f1,
-                        };
-                    }
-                }
-            }
-            (m, best)
-        })
+        .map(|&m| (m, choose(&runs, &levels, kind, m)))
         .collect())
+}
+
+/// A run's decided pairs of `key` (none when it kept none).
+fn decided(r: &RunEval, key: (Method, PoseNoiseLabel, Decision)) -> &[DecidedPair] {
+    r.decided
+        .as_ref()
+        .and_then(|d| d.get(&key))
+        .map_or(&[][..], Vec::as_slice)
+}
+
+/// The temperature, rule and lambda of [`validate`] for one method.
+fn choose(runs: &[RunEval], levels: &[PoseNoiseLabel], kind: UncertaintyKind, m: Method) -> Chosen {
+    let mut best = Chosen {
+        temperature: 1.0,
+        lambda: f64::INFINITY,
+        decision: Decision::Assignment,
+        f1: f64::NEG_INFINITY,
+    };
+    for decision in [Decision::Assignment, Decision::Mutual] {
+        let all = runs.iter().flat_map(|r| {
+            levels
+                .iter()
+                .flat_map(move |&l| decided(r, (m, l, decision)))
+        });
+        let temperature = fit_temperature(all);
+        for &lambda in &lambda_grid(&[]) {
+            // Mean over the runs of the mean F1 over the levels; a run
+            // (or level) without pairs to find or found has none.
+            let f1_of_run = |r: &RunEval| {
+                let f: Vec<f64> = levels
+                    .iter()
+                    .filter_map(|&l| {
+                        let truth = r.unthresholded.get(&(m, l, decision))?.ground_truth;
+                        let kept = decided(r, (m, l, decision)).iter().filter(|d| {
+                            let (p, a) = (f64::from(d.p), f64::from(d.aleatoric));
+                            pair_uncertainty(p, a, temperature, kind) < lambda
+                        });
+                        let counts = PairCounts {
+                            identified: kept.clone().count(),
+                            correct: kept.filter(|d| d.correct).count(),
+                            ground_truth: truth,
+                        };
+                        Some(counts.f1()).filter(|f| f.is_finite())
+                    })
+                    .collect();
+                (!f.is_empty()).then(|| f.iter().sum::<f64>() / f.len() as f64)
+            };
+            let per_run: Vec<f64> = runs.iter().filter_map(f1_of_run).collect();
+            let f1 = per_run.iter().sum::<f64>() / per_run.len().max(1) as f64;
+            if f1 > best.f1 {
+                best = Chosen {
+                    temperature,
+                    lambda,
+                    decision,
+                    f1,
+                };
+            }
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pairs(p: f32, right: usize, wrong: usize) -> Vec<DecidedPair> {
+        let pair = |correct| DecidedPair {
+            p,
+            aleatoric: 0.0,
+            correct,
+        };
+        (0..right)
+            .map(|_| pair(true))
+            .chain((0..wrong).map(|_| pair(false)))
+            .collect()
+    }
+
+    /// Pairs at E[Y] = 0.9 that are right 9 times in 10 keep their
+    /// probability (temperature 1); right 3 times in 4, they are
+    /// overconfident and the fit cools them to about 0.75 (ln 9 / ln 3 =
+    /// 2); right 99 times in 100, underconfident (below 1).
+    #[test]
+    fn the_temperature_fit_calibrates_the_decided_pairs() {
+        let fit = |right, wrong| fit_temperature(pairs(0.9, right, wrong).iter());
+        assert!((fit(90, 10) - 1.0).abs() < 0.02, "{}", fit(90, 10));
+        let hot = fit(75, 25);
+        assert!((hot - 2.0).abs() < 0.05, "{hot}");
+        assert!((calibrated(0.9, hot) - 0.75).abs() < 0.01);
+        assert!(fit(99, 1) < 0.7);
+    }
 }

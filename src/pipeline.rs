@@ -267,20 +267,46 @@ fn sense(
 }
 
 /// How a deep method decides: its entropy threshold and decision rule as
-/// configured, or as `coid train` chose them on the validation runs
-/// (recorded beside the weights).
+/// configured, or as `coid train` chose them on the validation runs, and
+/// the calibration temperature fitted there (recorded beside the weights;
+/// 1 when the models folder records none).
 pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, RunError> {
     let m = &settings.matching;
-    let validated = || io::read_validated(&m.models_dir, method);
+    let validated = match (m.lambda, m.decision) {
+        // Only the temperature is read: without it, the probabilities as
+        // they are.
+        (LambdaChoice::Fixed(_), DecisionChoice::Fixed(_)) => {
+            io::read_validated(&m.models_dir, method).ok()
+        }
+        _ => Some(io::read_validated(&m.models_dir, method)?),
+    };
+    let missing = |what: &str| {
+        RunError::Weights(WeightsError {
+            method: method.as_str(),
+            path: m.models_dir.join(format!("{}.toml", method.as_str())),
+            reason: format!(
+                "no validated_{what}: set [matching] {what}, or run `coid train --validate-only`"
+            ),
+        })
+    };
     let lambda = match m.lambda {
         LambdaChoice::Fixed(v) => v,
-        LambdaChoice::Validated => validated()?.lambda,
+        LambdaChoice::Validated => validated
+            .and_then(|v| v.lambda)
+            .ok_or_else(|| missing("lambda"))?,
     };
     let decision = match m.decision {
         DecisionChoice::Fixed(d) => d,
-        DecisionChoice::Validated => validated()?.decision,
+        DecisionChoice::Validated => validated
+            .and_then(|v| v.decision)
+            .ok_or_else(|| missing("decision"))?,
     };
-    Ok(DeepChoice { lambda, decision })
+    let temperature = validated.and_then(|v| v.temperature).unwrap_or(1.0);
+    Ok(DeepChoice {
+        lambda,
+        decision,
+        temperature,
+    })
 }
 
 /// The lambda of every deep method among `methods`.
@@ -327,6 +353,7 @@ pub fn runner(settings: &Settings, method: Method) -> Result<Runner, RunError> {
 const NO_CHOICE: DeepChoice = DeepChoice {
     lambda: f64::NAN,
     decision: Decision::Assignment,
+    temperature: 1.0,
 };
 
 /// The runners of `methods`, in order.

@@ -76,6 +76,9 @@ pub struct RunEval {
         BTreeMap<(Method, PoseNoiseLabel, Decision, UncertaintyKind, usize), PairCounts>,
     /// Each deep method's own decision rule, as it ran.
     pub decisions: BTreeMap<Method, Decision>,
+    /// With [`RunEval::keeping_pairs`]: every decided pair of the deep
+    /// methods under each rule, before any threshold (validation).
+    pub decided: Option<BTreeMap<(Method, PoseNoiseLabel, Decision), Vec<DecidedPair>>>,
     /// Displacement errors per (method, level, fusion) over the object
     /// sets of the protocol.
     pub errors: BTreeMap<(Method, PoseNoiseLabel, FusionVariant), ObjectErrors>,
@@ -92,7 +95,26 @@ pub struct RunEval {
     pub instances: usize,
 }
 
+/// One pair a deep method's rule decided on, before any threshold: what
+/// validation needs to calibrate and threshold it afresh.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DecidedPair {
+    /// E[Y] of the pair (uncalibrated).
+    pub p: f32,
+    /// Its aleatoric uncertainty (bits).
+    pub aleatoric: f32,
+    pub correct: bool,
+}
+
 impl RunEval {
+    /// An empty run that also keeps every decided pair (validation).
+    pub fn keeping_pairs() -> Self {
+        Self {
+            decided: Some(BTreeMap::new()),
+            ..Self::default()
+        }
+    }
+
     /// Adds one method's all-view estimates of one frame at one level.
     pub fn record_views(
         &mut self,
@@ -129,6 +151,16 @@ impl RunEval {
         let key = (method, level, decision);
         self.unthresholded.entry(key).or_default().add(before);
         let correct: Vec<bool> = pairs.iter().map(|c| is_correct(ta, tb, c)).collect();
+        if let Some(decided) = &mut self.decided {
+            decided
+                .entry((method, level, decision))
+                .or_default()
+                .extend(pairs.iter().zip(&correct).map(|(c, &correct)| DecidedPair {
+                    p: dist.p(c.a, c.b),
+                    aleatoric: dist.aleatoric[c.a * dist.n2 + c.b],
+                    correct,
+                }));
+        }
         for kind in KINDS {
             let u: Vec<f64> = pairs
                 .iter()

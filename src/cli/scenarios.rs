@@ -3,9 +3,10 @@
 
 use std::path::PathBuf;
 
+use super::label_arg;
 use crate::bridge;
 use crate::io;
-use crate::scenarios::{self, Scenario};
+use crate::scenarios::{self, Kind, Scenario};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -19,6 +20,15 @@ pub struct Args {
     /// families of one seed apart).
     #[arg(long, default_value_t = 0)]
     first: u64,
+    /// Only these kinds of layout (crossing, arterial, cluster,
+    /// roundabout, ramp) [default: all, drawn as the family mixes them].
+    #[arg(long, value_delimiter = ',', value_parser = label_arg::<Kind>("scenario kind"))]
+    kinds: Vec<Kind>,
+    /// Take the kinds in turn (scenario i is of kind i mod their number)
+    /// instead of drawing them: a family with every kind evenly, for
+    /// validation and test families.
+    #[arg(long)]
+    cycle_kinds: bool,
     /// Output folder.
     #[arg(long, short)]
     out: PathBuf,
@@ -38,15 +48,34 @@ pub fn scenarios(a: Args) -> anyhow::Result<()> {
     );
     let mut lines = Vec::new();
     for index in a.first..a.first + a.count {
-        let s = scenarios::generate(a.seed, index);
+        let s = if a.cycle_kinds {
+            let kinds = if a.kinds.is_empty() {
+                Kind::all()
+            } else {
+                &a.kinds[..]
+            };
+            let kind = kinds[(index % kinds.len() as u64) as usize];
+            scenarios::generate(a.seed, index, &[kind])
+        } else {
+            scenarios::generate(a.seed, index, &a.kinds)
+        };
         write(&a, &s)?;
         lines.push(format!("- {}", s.describe()));
         bar.inc(1);
     }
     bar.finish_and_clear();
+    let mut kinds = if a.kinds.is_empty() {
+        String::new()
+    } else {
+        let names: Vec<&str> = a.kinds.iter().map(|k| k.as_str()).collect();
+        format!(" --kinds {}", names.join(","))
+    };
+    if a.cycle_kinds {
+        kinds.push_str(" --cycle-kinds");
+    }
     let index = format!(
-        "# Generated scenarios\n\n`coid scenarios --count {} --seed {} --first {}`; each folder \
-         runs with `coid run --config <folder>/coid.toml`.\n\n{}\n",
+        "# Generated scenarios\n\n`coid scenarios --count {} --seed {} --first {}{kinds}`; each \
+         folder runs with `coid run --config <folder>/coid.toml`.\n\n{}\n",
         a.count,
         a.seed,
         a.first,
@@ -65,7 +94,7 @@ pub fn scenarios(a: Args) -> anyhow::Result<()> {
 fn write(a: &Args, s: &Scenario) -> anyhow::Result<()> {
     io::atomic_dir(&a.out.join(&s.name), a.force, |dir| -> anyhow::Result<()> {
         io::write_texts(dir, &s.files())?;
-        bridge::netconvert(dir, &Scenario::netconvert_args())?;
+        bridge::netconvert(dir, &s.netconvert_args())?;
         io::strip_generator_comment(&dir.join("net.net.xml"))?;
         Ok(())
     })

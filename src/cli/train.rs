@@ -269,14 +269,17 @@ fn validate(
         let validation = io::Validation {
             lambda: c.lambda,
             decision: c.decision,
+            temperature: c.temperature,
             f1: c.f1,
             seeds: seeds.clone(),
             uncertainty: settings.matching.uncertainty.as_str(),
         };
         io::record_validation(models_dir, method, &validation)?;
         eprintln!(
-            "coid: {}: decision {}, lambda {} (mean F1 {:.3} on the validation runs)",
+            "coid: {}: temperature {:.2}, decision {}, lambda {} (mean F1 {:.3} on the \
+             validation runs)",
             method.as_str(),
+            c.temperature,
             c.decision.as_str(),
             if c.lambda.is_finite() {
                 format!("{:.2}", c.lambda)

@@ -22,9 +22,9 @@ use std::path::{Path, PathBuf};
 use polars::prelude::PolarsError;
 
 use crate::config::Settings;
+use crate::matching::Method;
 use crate::matching::deep::decision::Decision;
 use crate::matching::deep::train::TrainReport;
-use crate::matching::{DeepChoice, Method};
 use crate::report::{AggregateRow, RunResults, RunRow, Table};
 
 #[derive(Debug, thiserror::Error)]
@@ -258,6 +258,8 @@ pub struct Validation {
     pub lambda: f64,
     /// The decision rule chosen with it.
     pub decision: Decision,
+    /// The calibration temperature fitted before both.
+    pub temperature: f64,
     /// That mean F1.
     pub f1: f64,
     pub seeds: Vec<u64>,
@@ -332,6 +334,7 @@ fn validation_metadata(v: &Validation) -> String {
         let _ = writeln!(meta, "validated_lambda = \"none\"");
     }
     let _ = writeln!(meta, "validated_decision = {:?}", v.decision.as_str());
+    let _ = writeln!(meta, "validated_temperature = {:?}", v.temperature);
     let _ = writeln!(meta, "validation_f1 = {:.6}", v.f1);
     meta
 }
@@ -348,9 +351,21 @@ pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(
     publish_files(dir, |tmp| write_text(&tmp.join(&name), &body))
 }
 
-/// The lambda (infinite: no threshold) and decision rule `coid train`
-/// chose for `method` on the validation runs (its `<method>.toml`).
-pub fn read_validated(models_dir: &Path, method: Method) -> Result<DeepChoice, WeightsError> {
+/// What `coid train` chose for a deep method on the validation runs, as
+/// its `<method>.toml` records it (each `None` when it records none).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Validated {
+    /// The entropy threshold (infinite: no threshold).
+    pub lambda: Option<f64>,
+    pub decision: Option<Decision>,
+    /// The calibration temperature of the reported probabilities.
+    pub temperature: Option<f64>,
+}
+
+/// What `coid train` chose for `method` on the validation runs (its
+/// `<method>.toml`); an error when the file is missing or malformed, or a
+/// value it records is out of range.
+pub fn read_validated(models_dir: &Path, method: Method) -> Result<Validated, WeightsError> {
     let path = models_dir.join(format!("{}.toml", method.as_str()));
     let fail = |reason: String| WeightsError {
         method: method.as_str(),
@@ -361,23 +376,37 @@ pub fn read_validated(models_dir: &Path, method: Method) -> Result<DeepChoice, W
     let table: toml::Table = text
         .parse()
         .map_err(|e: toml::de::Error| fail(e.message().to_owned()))?;
+    let number = |v: &toml::Value| v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
     let lambda = match table.get("validated_lambda") {
         Some(toml::Value::String(w)) if w == "none" => Some(f64::INFINITY),
-        Some(v) => v
-            .as_float()
-            .or_else(|| v.as_integer().map(|i| i as f64))
-            .filter(|l| (0.0..=1.0).contains(l)),
+        Some(v) => Some(
+            number(v)
+                .filter(|l| (0.0..=1.0).contains(l))
+                .ok_or_else(|| fail("validated_lambda is not in [0, 1] or \"none\"".into()))?,
+        ),
         None => None,
-    }
-    .ok_or_else(|| {
-        fail("no validated_lambda in [0, 1] or \"none\": set [matching] lambda".into())
-    })?;
-    let decision = table
-        .get("validated_decision")
-        .and_then(toml::Value::as_str)
-        .and_then(|w| w.parse::<Decision>().ok())
-        .ok_or_else(|| fail("no validated_decision: set [matching] decision".into()))?;
-    Ok(DeepChoice { lambda, decision })
+    };
+    let decision = match table.get("validated_decision") {
+        Some(v) => Some(
+            v.as_str()
+                .and_then(|w| w.parse::<Decision>().ok())
+                .ok_or_else(|| fail("validated_decision is not a decision rule".into()))?,
+        ),
+        None => None,
+    };
+    let temperature = match table.get("validated_temperature") {
+        Some(v) => Some(
+            number(v)
+                .filter(|t| t.is_finite() && *t > 0.0)
+                .ok_or_else(|| fail("validated_temperature is not a positive number".into()))?,
+        ),
+        None => None,
+    };
+    Ok(Validated {
+        lambda,
+        decision,
+        temperature,
+    })
 }
 
 /// Writes a trained model into `dir`: `<method>.bpk` (the weights),

@@ -221,6 +221,7 @@ impl MatchDistribution {
             aleatoric,
             assigned,
             decision: self.decision,
+            temperature: self.temperature,
         }
     }
 }
@@ -232,4 +233,66 @@ fn inverse(p: &[usize]) -> Vec<usize> {
         q[i] = k;
     }
     q
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Pose2, Vec2};
+    use crate::matching::GpsHungarian;
+    use crate::matching::testkit::{self, GPS, Side};
+    use crate::traffic::ObjectClass;
+
+    /// Three look-alike pedestrians 3 m apart, seen by both vehicles (the
+    /// second also sees a fourth, 3 m after the row), and five objects
+    /// that look unlike anything else. The second vehicle's GPS is 2 m off
+    /// along the row: matched once, each pedestrian pairs with its
+    /// neighbour (1 m off) instead of itself (2 m off), as many pairs
+    /// either way; aligned on the first matching, where the five distinct
+    /// objects outweigh the row, and matched again, every pair is right.
+    #[test]
+    fn match_align_rematch_recovers_pairs_that_one_pass_misses() {
+        let grey = [0.5; 3];
+        let mut world: Vec<(Vec2, ObjectClass, [f64; 3])> = (0..4)
+            .map(|k| {
+                (
+                    Vec2::new(20.0 + 3.0 * f64::from(k), 4.0),
+                    ObjectClass::Pedestrian,
+                    grey,
+                )
+            })
+            .collect();
+        world.extend([
+            (Vec2::new(12.0, -8.0), ObjectClass::Truck, [0.8, 0.1, 0.1]),
+            (Vec2::new(30.0, 14.0), ObjectClass::Bus, [0.9, 0.8, 0.1]),
+            (Vec2::new(38.0, -6.0), ObjectClass::Van, [0.1, 0.2, 0.8]),
+            (Vec2::new(8.0, 12.0), ObjectClass::Bicycle, [0.1, 0.6, 0.2]),
+            (
+                Vec2::new(44.0, 8.0),
+                ObjectClass::Motorcycle,
+                [0.95, 0.95, 0.95],
+            ),
+        ]);
+        let a = Side::of(testkit::POSE_A, &world, &[0, 1, 2, 4, 5, 6, 7, 8], GPS);
+        let mut b = Side::of((60.0, 10.0, 3.0), &world, &[0, 1, 2, 3, 4, 5, 6, 7, 8], GPS);
+        // The row runs along x; the second vehicle's GPS puts everything it
+        // sees 2 m further along it.
+        b.pose = Pose2::new(b.pose.position_m() - Vec2::new(2.0, 0.0), 3.0);
+        let hungarian = || -> Box<dyn Matcher> {
+            Box::new(GpsHungarian {
+                gate_chi2: 9.21,
+                appearance: true,
+            })
+        };
+        let right = |rematch: usize| {
+            let m = Driven::new(hungarian(), rematch)
+                .identify(&a.view(), &b.view())
+                .matches;
+            (testkit::correct(&a, &b, &m), m.len())
+        };
+        assert_eq!(right(0), (5, 8), "one pass: the three pedestrians shifted");
+        assert_eq!(right(2), (8, 8), "aligned and matched again: all right");
+        // A method that does not use positions is not re-matched.
+        assert!(!crate::matching::Mogm::default().uses_positions());
+    }
 }

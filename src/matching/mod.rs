@@ -259,6 +259,9 @@ pub enum BuildError {
 pub struct DeepChoice {
     pub lambda: f64,
     pub decision: Decision,
+    /// The calibration temperature of the reported probabilities (1: as
+    /// they are).
+    pub temperature: f64,
 }
 
 /// Builds the matcher of a method, in canonical node order and with the
@@ -289,6 +292,7 @@ pub fn build(
                 samples: settings.mc_samples,
                 threshold,
                 decision: choice.decision,
+                temperature: choice.temperature,
                 seed: dropout_seed,
                 gate_chi2: settings.gate_chi2,
             };
@@ -330,6 +334,7 @@ mod tests {
     const CHOICE: DeepChoice = DeepChoice {
         lambda: 0.7,
         decision: Decision::Assignment,
+        temperature: 1.0,
     };
 
     fn plain(method: Method) -> Box<dyn Matcher> {

@@ -12,6 +12,13 @@
 //! uncertainty); epistemic = total - aleatoric (the mutual information
 //! between the pair's outcome and the weights, >= 0).
 //!
+//! Calibration: a temperature `tau`, fitted on validation runs (log loss
+//! of the decided pairs), maps a pair's E[Y] to the probability it
+//! reports, `sigmoid(logit(p) / tau)`; its total entropy is that
+//! probability's. The map is monotone and keeps 0.5 where it is, so it
+//! changes no decision and no ranking; the aleatoric part stays the mean
+//! entropy of the raw samples, capped at the total.
+//!
 //! Binary entropy is symmetric: a pair with p = 0.1 is as "certain" as one
 //! with p = 0.9, but certain of the opposite. The decision asks how sure we
 //! are that a kept pair *is* a match, so a mutual-best pair whose mean
@@ -64,6 +71,36 @@ pub struct MatchDistribution {
     pub assigned: Vec<(usize, usize)>,
     /// The rule [`Self::decide`] applies.
     pub decision: Decision,
+    /// The calibration temperature of the reported probabilities (1: as
+    /// they are).
+    pub temperature: f64,
+}
+
+/// The uncertainty of `kind` of a pair with mean probability `p` (E[Y])
+/// and aleatoric part `aleatoric` (bits), calibrated by `temperature`: 1
+/// bit when `p` < 0.5 (more likely not a match; see the module docs),
+/// else the binary entropy of the calibrated probability, its aleatoric
+/// part (capped at it) or the rest (epistemic).
+pub fn pair_uncertainty(p: f64, aleatoric: f64, temperature: f64, kind: UncertaintyKind) -> f64 {
+    if p < 0.5 {
+        return 1.0;
+    }
+    let total = binary_entropy_bits(calibrated(p, temperature));
+    let aleatoric = aleatoric.min(total);
+    match kind {
+        UncertaintyKind::Total => total,
+        UncertaintyKind::Aleatoric => aleatoric,
+        UncertaintyKind::Epistemic => (total - aleatoric).max(0.0),
+    }
+}
+
+/// `sigmoid(logit(p) / tau)`: a probability calibrated by a temperature.
+pub fn calibrated(p: f64, temperature: f64) -> f64 {
+    if temperature == 1.0 || p <= 0.0 || p >= 1.0 {
+        return p;
+    }
+    let logit = (p / (1.0 - p)).ln() / temperature;
+    1.0 / (1.0 + (-logit).exp())
 }
 
 impl MatchDistribution {
@@ -92,6 +129,7 @@ impl MatchDistribution {
             aleatoric,
             assigned: Vec::new(),
             decision: Decision::Mutual,
+            temperature: 1.0,
         }
     }
 
@@ -111,6 +149,7 @@ impl MatchDistribution {
             aleatoric: vec![0.0; n1 * n2],
             assigned: Vec::new(),
             decision: Decision::Assignment,
+            temperature: 1.0,
         }
     }
 
@@ -118,24 +157,26 @@ impl MatchDistribution {
         self.mean[i * (self.n2 + 1) + j]
     }
 
+    /// The probability pair (i, j) reports: E[Y]_ij calibrated.
+    pub fn probability(&self, i: usize, j: usize) -> f64 {
+        calibrated(f64::from(self.p(i, j)), self.temperature)
+    }
+
+    /// The total uncertainty of pair (i, j): the binary entropy of its
+    /// probability, in bits.
     pub fn total(&self, i: usize, j: usize) -> f64 {
-        binary_entropy_bits(f64::from(self.p(i, j)))
+        binary_entropy_bits(self.probability(i, j))
     }
 
     /// The uncertainty of `kind` that the decision uses for pair (i, j):
-    /// 1 bit when E[Y]_ij < 0.5 (more likely not a match; see the module
-    /// docs), else the paper's entropy or its part.
+    /// [`pair_uncertainty`] of its E[Y] and aleatoric part.
     pub fn uncertainty(&self, i: usize, j: usize, kind: UncertaintyKind) -> f64 {
-        if self.p(i, j) < 0.5 {
-            return 1.0;
-        }
-        let total = self.total(i, j);
-        let aleatoric = f64::from(self.aleatoric[i * self.n2 + j]).min(total);
-        match kind {
-            UncertaintyKind::Total => total,
-            UncertaintyKind::Aleatoric => aleatoric,
-            UncertaintyKind::Epistemic => (total - aleatoric).max(0.0),
-        }
+        pair_uncertainty(
+            f64::from(self.p(i, j)),
+            f64::from(self.aleatoric[i * self.n2 + j]),
+            self.temperature,
+            kind,
+        )
     }
 
     /// The mutual-best pairs of E[Y] (dustbins included): each is the
@@ -189,7 +230,7 @@ impl MatchDistribution {
             .map(|(i, j)| Correspondence {
                 a: i,
                 b: j,
-                probability: f64::from(self.p(i, j)),
+                probability: self.probability(i, j),
                 uncertainty: self.uncertainty(i, j, UncertaintyKind::Total),
             })
             .collect()
@@ -216,6 +257,26 @@ mod tests {
         let m = d.decide(None);
         assert_eq!(m.len(), 1);
         assert_eq!((m[0].a, m[0].b), (0, 1));
+    }
+
+    /// A temperature above 1 pulls probabilities towards 1/2 and lowers
+    /// none across it; it changes the entropy, not the decision.
+    #[test]
+    fn temperature_calibrates_the_probability_not_the_decision() {
+        assert_eq!(calibrated(0.8, 1.0), 0.8);
+        assert!((calibrated(0.5, 2.0) - 0.5).abs() < 1e-12);
+        let (hot, cold) = (calibrated(0.9, 2.0), calibrated(0.9, 0.5));
+        assert!(0.5 < hot && hot < 0.9 && cold > 0.9, "{hot} {cold}");
+        // logit(0.9) = ln 9; halved: sigmoid(ln 3) = 0.75.
+        assert!((hot - 0.75).abs() < 1e-12);
+        let s = vec![0.9, 0.0, 0.1, 0.0, 0.7, 0.3, 0.1, 0.3, 0.0];
+        let mut d = dist(&[s]);
+        let before = d.decide(None);
+        d.temperature = 2.0;
+        let after = d.decide(None);
+        assert_eq!(before.len(), after.len());
+        assert!((after[0].probability - 0.75).abs() < 1e-6);
+        assert!(after[0].uncertainty > before[0].uncertainty);
     }
 
     #[test]

@@ -151,7 +151,7 @@ pub fn graph_input(
 }
 
 /// Pair features per (i, j): see [`pair_input`].
-pub const PAIR_FEATURES: usize = 11;
+pub const PAIR_FEATURES: usize = 12;
 /// Per-node features of the learned "no match" score: see [`pair_input`].
 pub const DUST_FEATURES: usize = 13;
 /// Ranges are given in units of this (the default camera range).
@@ -170,7 +170,8 @@ pub struct PairInput {
     /// gate (0 without positions), log appearance similarity, same class,
     /// confusable class, absolute colour difference per channel, chroma
     /// difference (colour over its brightness, which lighting scales),
-    /// relative length, width and height differences.
+    /// relative length, width and height differences, and the pair's
+    /// offset vote ([`offset_votes`]).
     pub pair_features: Vec<f32>,
     /// `n x DUST_FEATURES` per vehicle: the node's range and bearing (cos,
     /// sin) from its own vehicle; its range and bearing from the other
@@ -196,14 +197,26 @@ pub fn pair_input(
 ) -> PairInput {
     let (n1, n2) = (first.detections.len(), second.detections.len());
     let pairs = pair_terms(first, second, relative, terms);
+    let similarity: Vec<f64> = first
+        .detections
+        .iter()
+        .flat_map(|a| {
+            second
+                .detections
+                .iter()
+                .map(|b| appearance_similarity(&a.appearance, &b.appearance))
+        })
+        .collect();
+    let votes = offset_votes(first, second, relative, terms, &similarity);
     let mut pair_features = Vec::with_capacity(n1 * n2 * PAIR_FEATURES);
     for (i, a) in first.detections.iter().enumerate() {
         for (j, b) in second.detections.iter().enumerate() {
-            let term = pairs[i * n2 + j];
-            let d2 = term.map_or(terms.gate_chi2, |t| t.d2);
+            let k = i * n2 + j;
+            let d2 = pairs[k].map_or(terms.gate_chi2, |t| t.d2);
             let d2 = if terms.position { d2 } else { 0.0 };
-            let s = appearance_similarity(&a.appearance, &b.appearance).max(1e-6);
+            let s = similarity[k].max(1e-6);
             pair_features.extend(appearance_pair(a, b, d2 / terms.gate_chi2, s.ln() / 5.0));
+            pair_features.push(votes[k].ln_1p() as f32);
         }
     }
     let inverse = relative.pose.inverse();
@@ -232,6 +245,75 @@ pub fn pair_input(
         // A node of the first vehicle in the second one's frame, and back.
         dust_features: [dust(first, &inverse), dust(second, &relative.pose)],
     }
+}
+
+/// How much the other candidate pairs agree with each pair's offset (a
+/// Hough vote), `n1 x n2`. A pair's offset is the first vehicle's
+/// detection minus the second's, moved into the first vehicle's frame by
+/// the relative pose: its heading always (GPS gives it to 0.2 deg), its
+/// position only when the likelihood has the position term. The true
+/// pairs share one offset (the vehicles' relative position, unknown
+/// without positions; with them, the error common to the relative pose),
+/// so each pair's vote is `sum w_kb exp(-|o_ij - o_kb|^2 / 2 (v_ij +
+/// v_kb))` over the other candidates (k != i, b != j) that pass the
+/// appearance gate, `w` their appearance similarity and `v` the mean
+/// per-axis variance of their two detections. A shared error cancels in
+/// the differences, which is what no pair's likelihood alone can use.
+pub fn offset_votes(
+    first: &MatchView,
+    second: &MatchView,
+    relative: &PoseEstimate,
+    terms: &LikelihoodTerms,
+    similarity: &[f64],
+) -> Vec<f64> {
+    let (n1, n2) = (first.detections.len(), second.detections.len());
+    let pose = if terms.position {
+        relative.pose
+    } else {
+        Pose2::new(Vec2::zeros(), relative.pose.heading_rad())
+    };
+    let moved: Vec<(Vec2, f64)> = second
+        .detections
+        .iter()
+        .map(|d| {
+            let cov = pose.cov_to_parent(&d.cov_m2);
+            (pose.to_parent(&d.position_m), cov.trace() / 2.0)
+        })
+        .collect();
+    // Candidates as (i, j, offset, variance, weight), by offset x.
+    let mut c: Vec<(usize, usize, Vec2, f64, f64)> = Vec::new();
+    for (i, a) in first.detections.iter().enumerate() {
+        for (j, (p, v)) in moved.iter().enumerate() {
+            let w = similarity[i * n2 + j];
+            if w >= terms.min_appearance {
+                c.push((i, j, a.position_m - p, a.cov_m2.trace() / 2.0 + v, w));
+            }
+        }
+    }
+    c.sort_by(|x, y| x.2.x.total_cmp(&y.2.x));
+    let widest = c.iter().map(|x| x.3).fold(0.0, f64::max);
+    let mut votes = vec![0.0; n1 * n2];
+    for (u, &(i, j, o, v, _)) in c.iter().enumerate() {
+        // Candidates further apart in x than 5 sigma add nothing.
+        let reach = 5.0 * (v + widest).sqrt();
+        let mut sum = 0.0;
+        let mut add = |&(k, b, q, w_var, w): &(usize, usize, Vec2, f64, f64)| {
+            if k != i && b != j {
+                sum += w * (-(o - q).norm_squared() / (2.0 * (v + w_var))).exp();
+            }
+        };
+        c[u + 1..]
+            .iter()
+            .take_while(|x| x.2.x - o.x <= reach)
+            .for_each(&mut add);
+        c[..u]
+            .iter()
+            .rev()
+            .take_while(|x| o.x - x.2.x <= reach)
+            .for_each(&mut add);
+        votes[i * n2 + j] = sum;
+    }
+    votes
 }
 
 /// The appearance part of one pair's features, after the two given ones.
@@ -325,6 +407,58 @@ mod tests {
             .map(|&(_, w)| w)
             .sum();
         assert!((w - 1.0).abs() < 1e-12);
+    }
+
+    /// True pairs share one offset, so they vote for each other: with the
+    /// GPS 2 m off (positions) and without positions at all (only the
+    /// heading), every true pair gets more votes than any wrong pair of its
+    /// row, among look-alikes.
+    #[test]
+    fn true_pairs_get_the_offset_votes() {
+        use crate::matching::gps_relative_pose;
+        use crate::matching::likelihood::LikelihoodTerms;
+        use crate::matching::testkit::{self, GPS, Side};
+        let world = testkit::world_objects();
+        let all: Vec<usize> = (0..world.len()).collect();
+        let a = Side::of(testkit::POSE_A, &world, &all, GPS);
+        let mut b = Side::of(testkit::POSE_B, &world, &[5, 2, 7, 0, 3, 6, 1, 4], GPS);
+        b.pose = Pose2::new(
+            b.pose.position_m() + Vec2::new(2.0, -0.5),
+            b.pose.heading_rad(),
+        );
+        let (va, vb) = (a.view(), b.view());
+        let similarity: Vec<f64> = a
+            .detections
+            .iter()
+            .flat_map(|x| {
+                b.detections.iter().map(|y| {
+                    crate::matching::learning_free::appearance_similarity(
+                        &x.appearance,
+                        &y.appearance,
+                    )
+                })
+            })
+            .collect();
+        let n2 = b.detections.len();
+        for position in [true, false] {
+            let terms = LikelihoodTerms {
+                position,
+                ..LikelihoodTerms::full(9.21)
+            };
+            let votes = offset_votes(&va, &vb, &gps_relative_pose(&va, &vb), &terms, &similarity);
+            for (i, object) in a.objects.iter().enumerate() {
+                let j = b.objects.iter().position(|o| o == object).unwrap();
+                let truth = votes[i * n2 + j];
+                let best_wrong = (0..n2)
+                    .filter(|&k| k != j)
+                    .map(|k| votes[i * n2 + k])
+                    .fold(0.0, f64::max);
+                assert!(
+                    truth > best_wrong,
+                    "position {position}, row {i}: {truth} vs {best_wrong}"
+                );
+            }
+        }
     }
 
     #[test]

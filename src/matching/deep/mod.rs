@@ -285,6 +285,8 @@ pub struct DeepMatcher {
     pub threshold: Option<(UncertaintyKind, f64)>,
     /// How the pairs are chosen from the samples.
     pub decision: Decision,
+    /// The calibration temperature of the reported probabilities.
+    pub temperature: f64,
     /// Seed of the dropout-mask streams.
     pub seed: u64,
     /// The shared likelihood's terms and gates.
@@ -306,6 +308,8 @@ pub struct Inference {
     /// Removal of uncertain pairs (binary entropy of the kind >= lambda).
     pub threshold: Option<(UncertaintyKind, f64)>,
     pub decision: Decision,
+    /// The calibration temperature of the reported probabilities.
+    pub temperature: f64,
     /// Seed of the dropout-mask streams.
     pub seed: u64,
     /// The likelihood's gate on the squared Mahalanobis distance.
@@ -324,6 +328,7 @@ impl DeepMatcher {
             samples: run.samples,
             threshold: run.threshold,
             decision: run.decision,
+            temperature: run.temperature,
             seed: run.seed,
             terms: likelihood_terms(&arch, run.gate_chi2),
             share_embeddings: true,
@@ -505,12 +510,14 @@ impl DeepMatcher {
         if n1 == 0 || n2 == 0 {
             let mut d = MatchDistribution::all_unmatched(n1, n2);
             d.decision = self.decision;
+            d.temperature = self.temperature;
             return d;
         }
         let s = self.samples(first, second, relative);
         let mut d = MatchDistribution::from_samples(n1, n2, &s.assignments);
         d.assigned = assign(n1, n2, &s.mean_scores);
         d.decision = self.decision;
+        d.temperature = self.temperature;
         d
     }
 }
@@ -561,6 +568,7 @@ mod tests {
         samples: 20,
         threshold: None,
         decision: Decision::Assignment,
+        temperature: 1.0,
         seed: 3,
         gate_chi2: 9.21,
     };
