@@ -309,13 +309,24 @@ pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, Run
     })
 }
 
-/// The lambda of every deep method among `methods`.
-pub fn lambdas(settings: &Settings, methods: &[Method]) -> Result<BTreeMap<Method, f64>, RunError> {
+/// The choice of every deep method among `methods` ([`choice_for`]).
+pub fn choices(
+    settings: &Settings,
+    methods: &[Method],
+) -> Result<BTreeMap<Method, DeepChoice>, RunError> {
     methods
         .iter()
         .filter(|m| matching::deep::variant(**m).is_some())
-        .map(|&m| Ok((m, choice_for(settings, m)?.lambda)))
+        .map(|&m| Ok((m, choice_for(settings, m)?)))
         .collect()
+}
+
+/// The lambda of every deep method among `methods`.
+pub fn lambdas(settings: &Settings, methods: &[Method]) -> Result<BTreeMap<Method, f64>, RunError> {
+    Ok(choices(settings, methods)?
+        .into_iter()
+        .map(|(m, c)| (m, c.lambda))
+        .collect())
 }
 
 /// How `method` runs with `settings`: deep methods get their weights from

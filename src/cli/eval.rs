@@ -11,7 +11,7 @@ use super::{CommonArgs, progress_bar};
 use crate::config::Settings;
 use crate::experiments;
 use crate::io::{self, OutputError};
-use crate::matching::Method;
+use crate::matching::{DeepChoice, Method};
 use crate::tables::RunEval;
 use crate::{pipeline, render, tables};
 
@@ -56,7 +56,8 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
     // The configured methods (by default every method of the paper's
     // Table 1 plus the practical ones).
     let methods = &scenarios[0].settings.matching.methods.clone();
-    let lambdas = pipeline::lambdas(&scenarios[0].settings, methods)?;
+    let choices = pipeline::choices(&scenarios[0].settings, methods)?;
+    let lambdas: BTreeMap<Method, f64> = choices.iter().map(|(&m, c)| (m, c.lambda)).collect();
     for s in &mut scenarios {
         s.runs = evaluate(s, methods, &lambdas, &pb)?;
     }
@@ -64,7 +65,7 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
     warn_empty(&scenarios);
     let force = a.common.force;
     if let [only] = scenarios.as_slice() {
-        write(&out, &only.settings, &only.runs, &lambdas, None, force)?;
+        write(&out, &only.settings, &only.runs, &choices, None, force)?;
     } else {
         let names: Vec<&str> = scenarios.iter().map(|s| s.name.as_str()).collect();
         let all: Vec<RunEval> = scenarios.iter().flat_map(|s| s.runs.clone()).collect();
@@ -74,7 +75,7 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
                     &dir.join(&s.name),
                     &s.settings,
                     &s.runs,
-                    &lambdas,
+                    &choices,
                     None,
                     false,
                 )?;
@@ -85,7 +86,7 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
                 &dir.join("pooled"),
                 first,
                 &all,
-                &lambdas,
+                &choices,
                 pooled.as_deref(),
                 false,
             )?;
@@ -257,17 +258,18 @@ fn write(
     out: &Path,
     settings: &Settings,
     runs: &[RunEval],
-    lambdas: &BTreeMap<Method, f64>,
+    choices: &BTreeMap<Method, DeepChoice>,
     pooled: Option<&str>,
     force: bool,
 ) -> Result<(), OutputError> {
-    let tables = tables::eval_tables(settings, runs, lambdas);
-    let plots = tables::plot_data(settings, runs, lambdas);
+    let lambdas: BTreeMap<Method, f64> = choices.iter().map(|(&m, c)| (m, c.lambda)).collect();
+    let tables = tables::eval_tables(settings, runs, &lambdas);
+    let plots = tables::plot_data(settings, runs, &lambdas);
     io::write_eval(
         out,
         settings,
         &tables.files(),
-        lambdas,
+        choices,
         pooled,
         force,
         |dir| {

@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use std::collections::BTreeMap;
 
 use crate::config::Settings;
-use crate::matching::{LambdaChoice, Method};
+use crate::matching::{DeepChoice, LambdaChoice, Method};
 use crate::report::{AggregateRow, RunResults, SummaryRow, Table, TableColumn};
 
 /// A number with `digits` decimals, "n/a" when it is not finite.
@@ -148,7 +148,7 @@ const RUN_PROTOCOL: &str = "- precision and recall pool the pairs of all instanc
 pub fn eval(
     settings: &Settings,
     tables: &[(&str, &Table)],
-    lambdas: &BTreeMap<Method, f64>,
+    choices: &BTreeMap<Method, DeepChoice>,
     pooled: Option<&str>,
 ) -> String {
     let mut md = String::new();
@@ -175,9 +175,17 @@ pub fn eval(
             settings.train.validation_seeds
         );
     }
-    let chosen: Vec<String> = lambdas
+    let chosen: Vec<String> = choices
         .iter()
-        .map(|(m, l)| format!("{} {l:.2}", m.as_str()))
+        .map(|(m, c)| {
+            format!(
+                "{} {} (decision {}, temperature {:.2})",
+                m.as_str(),
+                lambda_text(c.lambda),
+                c.decision.as_str(),
+                c.temperature
+            )
+        })
         .collect();
     let source = match settings.matching.lambda {
         LambdaChoice::Validated => "each chosen on the validation runs by `coid train`",
@@ -198,7 +206,17 @@ pub fn eval(
     md
 }
 
-/// A table in Markdown, `x ± ci` for each `x` with an `x_ci95` column.
+/// A threshold lambda as a person reads it: "none" when infinite.
+fn lambda_text(lambda: f64) -> String {
+    if lambda.is_infinite() {
+        "none".to_owned()
+    } else {
+        format!("{lambda:.2}")
+    }
+}
+
+/// A table in Markdown, `x ± ci` for each `x` with an `x_ci95` column
+/// (a `lambda` column's infinity, "no threshold", as "none").
 pub fn table(t: &Table) -> String {
     let names: Vec<&String> = t.columns.iter().map(|(n, _)| n).collect();
     let shown: Vec<usize> = (0..names.len())
@@ -208,6 +226,7 @@ pub fn table(t: &Table) -> String {
         match &t.columns[k].1 {
             TableColumn::Text(v) => v[r].clone(),
             TableColumn::Count(v) => v[r].to_string(),
+            TableColumn::Number(v) if names[k] == "lambda" => lambda_text(v[r]),
             TableColumn::Number(v) => match t.column(&format!("{}_ci95", names[k])) {
                 Some(TableColumn::Number(c)) => with_ci(v[r], c[r]),
                 _ => fmt_num(v[r], 4),

@@ -22,9 +22,9 @@ use std::path::{Path, PathBuf};
 use polars::prelude::PolarsError;
 
 use crate::config::Settings;
-use crate::matching::Method;
 use crate::matching::deep::decision::Decision;
 use crate::matching::deep::train::TrainReport;
+use crate::matching::{DeepChoice, Method};
 use crate::report::{AggregateRow, RunResults, RunRow, Table};
 
 #[derive(Debug, thiserror::Error)]
@@ -191,7 +191,7 @@ pub fn write_eval(
     out: &Path,
     settings: &Settings,
     tables: &[(&str, &Table)],
-    lambdas: &std::collections::BTreeMap<Method, f64>,
+    choices: &std::collections::BTreeMap<Method, DeepChoice>,
     pooled: Option<&str>,
     force: bool,
     plots: impl FnOnce(&Path) -> Result<(), OutputError>,
@@ -202,7 +202,7 @@ pub fn write_eval(
         }
         write_text(
             &dir.join("summary.md"),
-            &markdown::eval(settings, tables, lambdas, pooled),
+            &markdown::eval(settings, tables, choices, pooled),
         )?;
         plots(dir)
     })
