@@ -57,14 +57,14 @@ enum Command {
     Eval(eval::Args),
     /// Train the deep matchers on instances from the training runs
     /// ([train] traffic_seeds, and [train] scenarios) and save their weights,
-    /// config and loss curve; then choose each one's lambda on the
-    /// validation runs.
+    /// config and loss curve; then choose each one's calibration
+    /// temperature, decision rule and lambda on the validation runs.
     Train(train::Args),
-    /// Generate a seeded family of intersections with SUMO's netconvert
-    /// (3-5 legs at varied angles, 1-3 lanes, traffic light or priority,
-    /// sidewalks and crossings, building blocks or none, light to saturated
-    /// demand, pedestrians), one folder each with a coid.toml that runs as
-    /// it is; the same seed gives the same bytes.
+    /// Generate a seeded family of junctions with SUMO's netconvert
+    /// (crossings of 3-5 legs, arterials with turn pockets, joined junction
+    /// clusters, roundabouts, motorway merges; building blocks or none;
+    /// light to saturated demand, pedestrians), one folder each with a
+    /// coid.toml that runs as it is; the same seed gives the same bytes.
     Scenarios(scenarios::Args),
 }
 

@@ -30,12 +30,14 @@ pub struct Args {
     /// do not depend on this) [default: the number of cores].
     #[arg(long, short = 'j')]
     workers: Option<usize>,
-    /// Train only: choose no lambda (a later `coid train --validate-only`
-    /// or a number in [matching] lambda is then needed).
+    /// Train only: choose no temperature, decision rule or lambda (a
+    /// later `coid train --validate-only`, or numbers in [matching], are
+    /// then needed).
     #[arg(long, conflicts_with = "validate_only")]
     skip_validation: bool,
-    /// Train nothing: choose the lambda of the weights already in the
-    /// models folder on the validation runs, and record it beside them.
+    /// Train nothing: choose the temperature, decision rule and lambda of
+    /// the weights already in the models folder on the validation runs,
+    /// and record them beside the weights.
     #[arg(long)]
     validate_only: bool,
     /// Report progress as lines on stdout (for a parent `coid train`).
@@ -257,7 +259,7 @@ fn validate(
     let pb = progress_bar(
         !bars,
         experiments::validation_runs(settings)?.len() as u64,
-        "{spinner} choosing lambda on the validation runs: run {pos}/{len} [{bar:30}] eta {eta}",
+        "{spinner} choosing temperature, decision and lambda on the validation runs: run {pos}/{len} [{bar:30}] eta {eta}",
     );
     let mut on_models = settings.clone();
     on_models.matching.models_dir = models_dir.to_owned();
