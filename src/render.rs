@@ -322,9 +322,15 @@ fn draw_panels<DB: DrawingBackend>(
             .map_err(e)?;
         for (k, (name, points)) in panel.series.iter().enumerate() {
             let colour = SERIES_COLOURS[k % SERIES_COLOURS.len()];
+            // An undefined value (a precision with no pair identified,
+            // the "no threshold" row of a sweep) is left out, not drawn
+            // at some made-up height.
             chart
                 .draw_series(LineSeries::new(
-                    points.iter().copied(),
+                    points
+                        .iter()
+                        .copied()
+                        .filter(|(x, y)| x.is_finite() && y.is_finite()),
                     colour.stroke_width(2),
                 ))
                 .map_err(e)?
