@@ -686,6 +686,12 @@ mod tests {
     use crate::matching::testkit;
     use crate::sensor::{DetectionTruth, PoseNoiseLabel};
 
+    /// The Delaunay graph of an observation's detections.
+    fn graph(o: &Observation) -> SceneGraph {
+        let positions: Vec<Vec2> = o.detections.iter().map(|d| d.position_m).collect();
+        SceneGraph::delaunay(&positions).unwrap()
+    }
+
     /// An observation of `objects` (id, world position) from `pose`, exact.
     fn sensed(
         ego: &str,
@@ -836,15 +842,6 @@ mod tests {
                 detections: order.iter().map(|&k| tb.detections[k].clone()).collect(),
             },
         );
-        let graph = |o: &Observation| {
-            SceneGraph::delaunay(
-                &o.detections
-                    .iter()
-                    .map(|d| d.position_m)
-                    .collect::<Vec<_>>(),
-            )
-            .unwrap()
-        };
         let (ga, gb, gb2) = (graph(&oa), graph(&ob), graph(&ob2));
         let gps =
             |p: Pose2, dx: f64| Pose2::new(p.position_m() + Vec2::new(dx, -0.7), p.heading_rad());
@@ -894,15 +891,6 @@ mod tests {
         ];
         let (oa, ta) = sensed("a", pa, &objects);
         let (ob, tb) = sensed("b", pb, &objects);
-        let graph = |o: &Observation| {
-            SceneGraph::delaunay(
-                &o.detections
-                    .iter()
-                    .map(|d| d.position_m)
-                    .collect::<Vec<_>>(),
-            )
-            .unwrap()
-        };
         let (ga, gb) = (graph(&oa), graph(&ob));
         let level = PoseNoiseLevel {
             label: PoseNoiseLabel::None,
@@ -1203,7 +1191,6 @@ mod tests {
             let (pa, pb) = (Pose2::new(Vec2::zeros(), 0.2), Pose2::new(Vec2::new(50.0, 5.0), 2.9));
             let (oa, ta) = sensed("a", pa, &pick(&seen_a));
             let (ob, tb) = sensed("b", pb, &pick(&seen_b));
-            let graph = |o: &Observation| SceneGraph::delaunay(&o.detections.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
             let (ga, gb) = (graph(&oa), graph(&ob));
             let pair = PairAtLevel {
                 first: Side { view: exact_view(&oa, &ga, pa), obs: &oa, truth: &ta },
