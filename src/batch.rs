@@ -76,15 +76,23 @@ pub fn pending_runs(batch_dir: &Path, runs: usize, shard: Option<Shard>) -> Vec<
         .collect()
 }
 
-/// Runs `pending` on up to `workers` child processes of `exe`; returns the
-/// failures. `done(run, ok)` is called as each run ends.
+/// How a batch uses the cores: worker processes, and threads inside each.
+#[derive(Clone, Copy, Debug)]
+pub struct Parallel {
+    pub workers: usize,
+    pub threads: usize,
+}
+
+/// Runs `pending` on up to `parallel.workers` child processes of `exe`,
+/// each with `parallel.threads` threads; returns the failures.
+/// `done(run, ok)` is called as each run ends.
 pub fn execute(
     exe: &Path,
     config: &Path,
     batch_dir: &Path,
     master: u64,
     pending: &[usize],
-    workers: usize,
+    parallel: Parallel,
     mut done: impl FnMut(usize, bool),
 ) -> std::io::Result<Vec<Failure>> {
     let jobs: Vec<Vec<OsString>> = pending
@@ -102,6 +110,8 @@ pub fn execute(
                 traffic.to_string(),
                 "--sensor-seed".to_owned(),
                 sensor.to_string(),
+                "--threads".to_owned(),
+                parallel.threads.to_string(),
             ] {
                 args.push(a.into());
             }
@@ -111,7 +121,7 @@ pub fn execute(
     let mut failures = run_children(
         exe,
         &jobs,
-        workers,
+        parallel.workers,
         |_, _| {},
         |k, ok| {
             let i = pending[k];

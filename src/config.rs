@@ -28,7 +28,8 @@ use crate::matching::deep::{self, train::TrainSettings};
 use crate::matching::{DecisionChoice, LambdaChoice, MatchingSettings, Method, MultiVehicle};
 use crate::rng::Seeds;
 use crate::sensor::{
-    CameraSettings, ConnectedSelection, PoseNoiseLabel, PoseNoiseLevel, SensorSettings,
+    CameraSettings, ConnectedSelection, LinkSettings, PoseNoiseLabel, PoseNoiseLevel,
+    SensorSettings,
 };
 use crate::traffic::ScenarioSettings;
 
@@ -101,6 +102,10 @@ struct RawConnected {
     ids: Option<Vec<String>>,
     #[serde(default)]
     penetration: Option<f64>,
+    #[serde(default)]
+    comm_range_m: Option<f64>,
+    #[serde(default)]
+    max_peers: Option<usize>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -220,6 +225,8 @@ pub struct Settings {
     pub source: PathBuf,
     pub scenario: ScenarioSettings,
     pub connected: ConnectedSelection,
+    /// `[connected] comm_range_m`, `max_peers`.
+    pub link: LinkSettings,
     pub seeds: Seeds,
     pub camera: CameraSettings,
     pub sensor: SensorSettings,
@@ -375,6 +382,7 @@ fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
     Ok(Settings {
         source: path.to_owned(),
         scenario: scenario(&c, raw.scenario)?,
+        link: link(&c, &raw.connected)?,
         connected: connected(&c, raw.connected)?,
         seeds: Seeds {
             traffic: raw.seeds.traffic,
@@ -419,6 +427,22 @@ fn scenario(c: &Checker, s: RawScenario) -> Result<ScenarioSettings, ConfigError
         end_s: s.end_s,
         radius_m: s.radius_m,
         sample_every_s: s.sample_every_s,
+    })
+}
+
+fn link(c: &Checker, raw: &RawConnected) -> Result<LinkSettings, ConfigError> {
+    if let Some(r) = raw.comm_range_m {
+        c.positive("connected.comm_range_m", r)?;
+    }
+    if raw.max_peers == Some(0) {
+        return Err(c.invalid(
+            "connected.max_peers",
+            "must be at least 1 (leave it out for no limit)".into(),
+        ));
+    }
+    Ok(LinkSettings {
+        comm_range_m: raw.comm_range_m,
+        max_peers: raw.max_peers,
     })
 }
 
@@ -1031,6 +1055,14 @@ mod tests {
             ("[camera]\nfov_deg = 200.0\n", "camera.fov_deg"),
             ("[connected]\npenetration = 1.5\n", "connected.penetration"),
             ("[connected]\nids = [\"a\"]\n", "connected.ids"),
+            (
+                "[connected]\npenetration = 0.3\ncomm_range_m = -5.0\n",
+                "connected.comm_range_m",
+            ),
+            (
+                "[connected]\npenetration = 0.3\nmax_peers = 0\n",
+                "connected.max_peers",
+            ),
             (
                 "[connected]\nids = [\"a\", \"b\"]\npenetration = 0.3\n",
                 "connected",

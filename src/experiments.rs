@@ -143,9 +143,17 @@ pub fn eval_run(
     settings: &Settings,
     methods: &[Method],
     lambdas: &BTreeMap<Method, f64>,
+    threads: usize,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
-    eval_run_into(RunEval::default(), settings, methods, lambdas, progress)
+    eval_run_into(
+        RunEval::default(),
+        settings,
+        methods,
+        lambdas,
+        threads,
+        progress,
+    )
 }
 
 /// [`eval_run`] adding to `out`.
@@ -154,17 +162,25 @@ fn eval_run_into(
     settings: &Settings,
     methods: &[Method],
     lambdas: &BTreeMap<Method, f64>,
+    threads: usize,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
     let runners = pipeline::runners(settings, methods)?;
     let grid = lambda_grid(lambdas.values());
-    let stats = pipeline::evaluate_frames(settings, &runners, progress, |_, pairs, level, f| {
-        out.record_consistency(f.method, level, f.consistency);
-        out.record_views(f.method, level, &f.views);
-        for (pair, e) in pairs.iter().zip(&f.pairs) {
-            out.record(e, level, (pair.first.truth, pair.second.truth), &grid);
-        }
-    })?;
+    let stats = pipeline::evaluate_frames(
+        settings,
+        &runners,
+        threads,
+        progress,
+        |_, pairs, level, f| {
+            out.record_consistency(f.method, level, f.consistency);
+            out.record_views(f.method, level, &f.views);
+            for (pair, e) in pairs.iter().zip(&f.pairs) {
+                out.record(e, level, (pair.first.truth, pair.second.truth), &grid);
+            }
+            Ok(())
+        },
+    )?;
     out.instances = stats.n_instances;
     Ok(out)
 }
@@ -222,6 +238,7 @@ fn fit_temperature<'a>(pairs: impl Iterator<Item = &'a DecidedPair> + Clone) -> 
 pub fn validate(
     settings: &Settings,
     methods: &[Method],
+    threads: usize,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<BTreeMap<Method, Chosen>, RunError> {
     // The default decision is not used: every rule and threshold is counted.
@@ -232,7 +249,15 @@ pub fn validate(
     let mut runs = Vec::new();
     for (k, run) in validation.iter().enumerate() {
         let kept = RunEval::keeping_pairs();
-        runs.push(eval_run_into(kept, run, methods, &BTreeMap::new(), |_| {})?);
+        let no_lambdas = BTreeMap::new();
+        runs.push(eval_run_into(
+            kept,
+            run,
+            methods,
+            &no_lambdas,
+            threads,
+            |_| {},
+        )?);
         progress(k + 1, validation.len());
     }
     let levels: Vec<_> = settings.pose_noise.iter().map(|l| l.label).collect();

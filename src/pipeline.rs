@@ -5,6 +5,7 @@
 //! `io`; it writes nothing (the caller writes the results).
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::bridge::{BridgeError, Sumo};
@@ -12,14 +13,16 @@ use crate::config::Settings;
 use crate::evaluate::{self, PairAtLevel, Runner, Side};
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::{GraphError, SceneGraph};
-use crate::io::{self, WeightsError};
+use crate::io::{self, OutputError, WeightsError};
 use crate::matching::deep::decision::Decision;
 use crate::matching::{
     self, BuildError, DecisionChoice, DeepChoice, LambdaChoice, MatchView, Method,
 };
 use crate::report::{ObjectRow, RowKey, RunResults};
 use crate::rng::{self, Purpose};
-use crate::sensor::{self, ConnectedSelection, PoseNoiseLabel, PoseNoiseLevel, Sensed};
+use crate::sensor::{
+    self, ConnectedSelection, LinkSettings, PoseNoiseLabel, PoseNoiseLevel, Sensed,
+};
 use crate::traffic::{StaticScene, TrafficFrame};
 
 #[derive(Debug, thiserror::Error)]
@@ -38,6 +41,10 @@ pub enum RunError {
     MissingConnectedVehicles(Vec<String>),
     #[error(transparent)]
     Config(#[from] crate::config::ConfigError),
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    #[error("{0}")]
+    Worker(String),
 }
 
 /// Progress reported once per simulation step.
@@ -133,12 +140,51 @@ pub fn simulate(
 /// list), in a fixed order (by step, then by vehicle ids).
 pub fn simulate_frames(
     settings: &Settings,
-    mut progress: impl FnMut(Progress),
+    progress: impl FnMut(Progress),
     mut on_frame: impl FnMut(&[Instance]) -> Result<(), RunError>,
+) -> Result<SimStats, RunError> {
+    simulate_steps(settings, progress, |step| on_frame(&step.instances()))
+}
+
+/// A sampled step with at least one instance, owning what its instances
+/// borrow, so that it can be evaluated on another thread.
+pub struct Step {
+    scene: Arc<StaticScene>,
+    frame: TrafficFrame,
+    egos: Vec<Ego>,
+    /// The instances' vehicles, as indices into `egos` (ordered by id).
+    pairs: Vec<(usize, usize)>,
+    /// The running index of the step's first instance.
+    first_index: usize,
+}
+
+impl Step {
+    /// The step's instances, in order.
+    pub fn instances(&self) -> Vec<Instance<'_>> {
+        self.pairs
+            .iter()
+            .enumerate()
+            .map(|(k, &(a, b))| Instance {
+                index: self.first_index + k,
+                scene: &self.scene,
+                frame: &self.frame,
+                a: &self.egos[a],
+                b: &self.egos[b],
+            })
+            .collect()
+    }
+}
+
+/// Runs the scenario of `settings` from start to end and hands every
+/// sampled step that has an instance to `on_step`, in order.
+pub fn simulate_steps(
+    settings: &Settings,
+    mut progress: impl FnMut(Progress),
+    mut on_step: impl FnMut(Step) -> Result<(), RunError>,
 ) -> Result<SimStats, RunError> {
     let sc = &settings.scenario;
     let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s)?;
-    let scene = sumo.static_scene(&sc.junction)?;
+    let scene = Arc::new(sumo.static_scene(&sc.junction)?);
     let mut stats = SimStats::default();
     let mut seen_connected: BTreeSet<String> = BTreeSet::new();
     let mut next_sample_s = f64::NEG_INFINITY;
@@ -154,17 +200,25 @@ pub fn simulate_frames(
                 seen_connected.insert(o.id.clone());
             }
         }
-        if frame.time_s + eps >= next_sample_s {
+        let time_s = frame.time_s;
+        if time_s + eps >= next_sample_s {
             let egos = sense(settings, &scene, &frame)?;
-            let instances = frame_instances(&scene, &frame, &egos, stats.n_instances);
-            if !instances.is_empty() {
-                on_frame(&instances)?;
-                stats.n_instances += instances.len();
-                next_sample_s = frame.time_s + sc.sample_every_s;
+            let pairs = instance_pairs(&egos, &settings.link);
+            if !pairs.is_empty() {
+                let n = pairs.len();
+                on_step(Step {
+                    scene: Arc::clone(&scene),
+                    frame,
+                    egos,
+                    pairs,
+                    first_index: stats.n_instances,
+                })?;
+                stats.n_instances += n;
+                next_sample_s = time_s + sc.sample_every_s;
             }
         }
         progress(Progress {
-            time_s: frame.time_s,
+            time_s,
             end_s: sc.end_s,
             instances: stats.n_instances,
         });
@@ -176,24 +230,20 @@ pub fn simulate_frames(
 }
 
 /// The instances of one step: every pair of `egos` (sorted by id) whose
-/// cameras detect a common object, numbered from `first_index`.
-fn frame_instances<'a>(
-    scene: &'a StaticScene,
-    frame: &'a TrafficFrame,
-    egos: &'a [Ego],
-    first_index: usize,
-) -> Vec<Instance<'a>> {
+/// cameras detect a common object and that `link` lets talk to each other.
+fn instance_pairs(egos: &[Ego], link: &LinkSettings) -> Vec<(usize, usize)> {
+    let positions: Vec<Vec2> = egos
+        .iter()
+        .map(|e| e.sensed.truth.ego_pose.position_m())
+        .collect();
+    let links = link.links(&positions);
     let mut out = Vec::new();
     for (i, a) in egos.iter().enumerate() {
-        for b in &egos[i + 1..] {
-            if evaluate::share_a_detected_object(&a.sensed.truth, &b.sensed.truth) {
-                out.push(Instance {
-                    index: first_index + out.len(),
-                    scene,
-                    frame,
-                    a,
-                    b,
-                });
+        for (j, b) in egos.iter().enumerate().skip(i + 1) {
+            if links.linked(i, j)
+                && evaluate::share_a_detected_object(&a.sensed.truth, &b.sensed.truth)
+            {
+                out.push((i, j));
             }
         }
     }
@@ -374,14 +424,32 @@ pub fn runners(settings: &Settings, methods: &[Method]) -> Result<Vec<Runner>, R
 
 /// Runs the scenario and evaluates every configured method, pose-noise
 /// level and fusion variant on every instance, frame by frame
-/// ([`evaluate::evaluate_frame`], with `[matching] multi_vehicle`).
-pub fn run(settings: &Settings, progress: impl FnMut(Progress)) -> Result<RunResults, RunError> {
+/// ([`evaluate::evaluate_frame`], with `[matching] multi_vehicle`) on
+/// `threads` threads. The summary is accumulated as the frames come;
+/// every per-object row goes to `on_objects` in a fixed order (by step,
+/// pose-noise level, method, instance), whatever the number of threads, and
+/// is not kept.
+pub fn run(
+    settings: &Settings,
+    threads: usize,
+    progress: impl FnMut(Progress),
+    mut on_objects: impl FnMut(&[ObjectRow]) -> Result<(), OutputError>,
+) -> Result<RunResults, RunError> {
     let started = Instant::now();
     let runners = runners(settings, &settings.matching.methods)?;
     let mut results = RunResults::default();
-    let stats = evaluate_frames(settings, &runners, progress, |instances, _, level, f| {
-        record_frame(&mut results, instances, level, f);
-    })?;
+    let mut rows = Vec::new();
+    let stats = evaluate_frames(
+        settings,
+        &runners,
+        threads,
+        progress,
+        |instances, _, level, f| {
+            rows.clear();
+            record_frame(&mut results, &mut rows, instances, level, f);
+            Ok(on_objects(&rows)?)
+        },
+    )?;
     results.n_instances = stats.n_instances;
     results.n_steps = stats.n_steps;
     results.sim_end_s = stats.sim_end_s;
@@ -391,40 +459,271 @@ pub fn run(settings: &Settings, progress: impl FnMut(Progress)) -> Result<RunRes
     Ok(results)
 }
 
+/// What [`evaluate_frames`] hands on: a step's instances, their pairs at a
+/// level, the level, and one runner's evaluation of them.
+pub type OnEval<'a> = dyn FnMut(&[Instance], &[PairAtLevel], PoseNoiseLabel, evaluate::FrameEval) -> Result<(), RunError>
+    + 'a;
+
 /// Runs the scenario and hands every frame's evaluation to `on_eval`: for
 /// each sampled step, each pose-noise level and each runner in order, the
 /// step's instances, their pairs at that level, the level, and what
 /// [`evaluate::evaluate_frame`] made of them (with `[matching]
-/// multi_vehicle`).
+/// multi_vehicle`). With `threads` > 1, SUMO and sensing go on in this
+/// thread while `threads` others evaluate the steps already sensed (a
+/// runner's levels of one step are one task); `on_eval` still sees
+/// everything in the same order, so the results do not depend on the
+/// number of threads.
 pub fn evaluate_frames(
     settings: &Settings,
     runners: &[Runner],
+    threads: usize,
     progress: impl FnMut(Progress),
-    mut on_eval: impl FnMut(&[Instance], &[PairAtLevel], PoseNoiseLabel, evaluate::FrameEval),
+    mut on_eval: impl FnMut(
+        &[Instance],
+        &[PairAtLevel],
+        PoseNoiseLabel,
+        evaluate::FrameEval,
+    ) -> Result<(), RunError>,
 ) -> Result<SimStats, RunError> {
-    simulate_frames(settings, progress, |instances| {
-        for level in &settings.pose_noise {
-            let pairs: Vec<PairAtLevel> = instances
+    if threads <= 1 {
+        return simulate_steps(settings, progress, |step| {
+            let evals = runners
                 .iter()
-                .map(|i| i.at_level(settings.seeds.sensor, level))
+                .map(|r| evaluate_step(settings, &step, r))
                 .collect();
-            for runner in runners {
-                let f = evaluate::evaluate_frame(
-                    &pairs,
-                    runner,
-                    &settings.fusion,
-                    settings.matching.multi_vehicle,
-                );
-                on_eval(instances, &pairs, level.label, f);
-            }
-        }
-        Ok(())
-    })
+            hand_on(settings, &step, evals, &mut on_eval)
+        });
+    }
+    parallel::evaluate_frames(settings, runners, threads, progress, &mut on_eval)
 }
 
-/// Adds one method's evaluation of a frame at one level to `results`.
+/// One runner's evaluation of a step at every pose-noise level, in order.
+fn evaluate_step(settings: &Settings, step: &Step, runner: &Runner) -> Vec<evaluate::FrameEval> {
+    let instances = step.instances();
+    settings
+        .pose_noise
+        .iter()
+        .map(|level| {
+            let pairs = pairs_at(settings, &instances, level);
+            evaluate::evaluate_frame(
+                &pairs,
+                runner,
+                &settings.fusion,
+                settings.matching.multi_vehicle,
+            )
+        })
+        .collect()
+}
+
+fn pairs_at<'a>(
+    settings: &Settings,
+    instances: &[Instance<'a>],
+    level: &PoseNoiseLevel,
+) -> Vec<PairAtLevel<'a>> {
+    instances
+        .iter()
+        .map(|i| i.at_level(settings.seeds.sensor, level))
+        .collect()
+}
+
+/// Hands a step's evaluations (`evals[runner][level]`) to `on_eval`,
+/// level by level, runner by runner.
+fn hand_on(
+    settings: &Settings,
+    step: &Step,
+    evals: Vec<Vec<evaluate::FrameEval>>,
+    on_eval: &mut OnEval,
+) -> Result<(), RunError> {
+    let instances = step.instances();
+    let mut by_runner: Vec<std::vec::IntoIter<evaluate::FrameEval>> =
+        evals.into_iter().map(Vec::into_iter).collect();
+    for level in &settings.pose_noise {
+        let pairs = pairs_at(settings, &instances, level);
+        for r in &mut by_runner {
+            let f = r.next().expect("one evaluation per level");
+            on_eval(&instances, &pairs, level.label, f)?;
+        }
+    }
+    Ok(())
+}
+
+/// The threaded form of [`evaluate_frames`].
+mod parallel {
+    use std::collections::BTreeMap;
+    use std::panic::{AssertUnwindSafe, catch_unwind};
+    use std::sync::mpsc::{self, Receiver, Sender};
+    use std::sync::{Arc, Mutex};
+
+    use super::{OnEval, Progress, RunError, SimStats, Step, evaluate_step, hand_on};
+    use crate::config::Settings;
+    use crate::evaluate::{FrameEval, Runner};
+
+    /// One task: a runner on a step.
+    struct Task {
+        seq: usize,
+        step: Arc<Step>,
+        runner: usize,
+    }
+
+    /// A finished task (`None`: it panicked).
+    struct Done {
+        seq: usize,
+        runner: usize,
+        evals: Option<Vec<FrameEval>>,
+    }
+
+    /// A step handed out, with the evaluations that are in (one slot per
+    /// runner).
+    struct Pending {
+        step: Arc<Step>,
+        evals: Vec<Option<Vec<FrameEval>>>,
+    }
+
+    /// Steps handed out and not yet handed on, by sequence number.
+    struct InFlight {
+        runners: usize,
+        next: usize,
+        steps: BTreeMap<usize, Pending>,
+    }
+
+    impl InFlight {
+        fn put(&mut self, d: Done) -> Result<(), RunError> {
+            let evals = d.evals.ok_or_else(|| {
+                RunError::Worker("an evaluation thread panicked (a bug: please report it)".into())
+            })?;
+            let pending = self
+                .steps
+                .get_mut(&d.seq)
+                .expect("a task of a step in flight");
+            pending.evals[d.runner] = Some(evals);
+            Ok(())
+        }
+
+        /// Hands on every complete step at the front, in order.
+        fn hand_on_ready(
+            &mut self,
+            settings: &Settings,
+            on_eval: &mut OnEval,
+        ) -> Result<(), RunError> {
+            while let Some(entry) = self.steps.first_entry() {
+                if *entry.key() != self.next || entry.get().evals.iter().any(Option::is_none) {
+                    break;
+                }
+                let Pending { step, evals } = entry.remove();
+                let evals = evals.into_iter().map(Option::unwrap).collect();
+                hand_on(settings, &step, evals, on_eval)?;
+                self.next += 1;
+            }
+            Ok(())
+        }
+    }
+
+    fn worker(
+        settings: &Settings,
+        runners: &[Runner],
+        tasks: &Mutex<Receiver<Task>>,
+        done: Sender<Done>,
+    ) {
+        loop {
+            let task = match tasks.lock() {
+                Ok(rx) => rx.recv(),
+                Err(_) => return,
+            };
+            let Ok(t) = task else { return };
+            let evals = catch_unwind(AssertUnwindSafe(|| {
+                evaluate_step(settings, &t.step, &runners[t.runner])
+            }))
+            .ok();
+            let d = Done {
+                seq: t.seq,
+                runner: t.runner,
+                evals,
+            };
+            if done.send(d).is_err() {
+                return;
+            }
+        }
+    }
+
+    pub(super) fn evaluate_frames(
+        settings: &Settings,
+        runners: &[Runner],
+        threads: usize,
+        progress: impl FnMut(Progress),
+        on_eval: &mut OnEval,
+    ) -> Result<SimStats, RunError> {
+        // Steps sensed ahead of the one handed on next: enough to keep every
+        // thread busy, few enough to bound the memory.
+        let max_in_flight = 2 * threads;
+        let (task_tx, task_rx) = mpsc::channel::<Task>();
+        let (done_tx, done_rx) = mpsc::channel::<Done>();
+        let task_rx = Mutex::new(task_rx);
+        let mut flight = InFlight {
+            runners: runners.len(),
+            next: 0,
+            steps: BTreeMap::new(),
+        };
+        std::thread::scope(|scope| {
+            for _ in 0..threads {
+                let done = done_tx.clone();
+                let tasks = &task_rx;
+                scope.spawn(move || worker(settings, runners, tasks, done));
+            }
+            drop(done_tx);
+            let mut seq = 0;
+            let result = super::simulate_steps(settings, progress, |step| {
+                let step = Arc::new(step);
+                let evals = (0..flight.runners).map(|_| None).collect();
+                let pending = Pending {
+                    step: Arc::clone(&step),
+                    evals,
+                };
+                flight.steps.insert(seq, pending);
+                for runner in 0..runners.len() {
+                    let t = Task {
+                        seq,
+                        step: Arc::clone(&step),
+                        runner,
+                    };
+                    task_tx.send(t).map_err(|_| {
+                        RunError::Worker("the evaluation threads ended early".into())
+                    })?;
+                }
+                seq += 1;
+                while let Ok(d) = done_rx.try_recv() {
+                    flight.put(d)?;
+                }
+                flight.hand_on_ready(settings, on_eval)?;
+                while flight.steps.len() >= max_in_flight {
+                    wait_one(&done_rx, &mut flight)?;
+                    flight.hand_on_ready(settings, on_eval)?;
+                }
+                Ok(())
+            });
+            // No more tasks: the threads end once the queue is empty.
+            drop(task_tx);
+            let stats = result?;
+            while !flight.steps.is_empty() {
+                wait_one(&done_rx, &mut flight)?;
+                flight.hand_on_ready(settings, on_eval)?;
+            }
+            Ok(stats)
+        })
+    }
+
+    fn wait_one(rx: &Receiver<Done>, flight: &mut InFlight) -> Result<(), RunError> {
+        let d = rx
+            .recv()
+            .map_err(|_| RunError::Worker("the evaluation threads ended early".into()))?;
+        flight.put(d)
+    }
+}
+
+/// Adds one method's evaluation of a frame at one level to `results`, and
+/// its per-object rows to `rows`.
 fn record_frame(
     results: &mut RunResults,
+    rows: &mut Vec<ObjectRow>,
     instances: &[Instance],
     pose_noise: PoseNoiseLabel,
     f: evaluate::FrameEval,
@@ -437,15 +736,13 @@ fn record_frame(
                 fusion,
             };
             results.summary.record(key, e.counts, &est);
-            results
-                .objects
-                .extend(est.into_iter().map(|estimate| ObjectRow {
-                    instance: inst.index,
-                    step: inst.frame.step,
-                    time_s: inst.frame.time_s,
-                    key,
-                    estimate,
-                }));
+            rows.extend(est.into_iter().map(|estimate| ObjectRow {
+                instance: inst.index,
+                step: inst.frame.step,
+                time_s: inst.frame.time_s,
+                key,
+                estimate,
+            }));
         }
     }
     for (fusion, views) in &f.views {

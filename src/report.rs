@@ -285,11 +285,11 @@ pub struct ObjectRow {
     pub estimate: ObjectEstimate,
 }
 
-/// Everything a run produced.
+/// What a run keeps: its summary, accumulated as it goes, and its
+/// counters (the per-object rows are streamed to disk, not kept).
 #[derive(Clone, Debug, Default)]
 pub struct RunResults {
     pub summary: Summary,
-    pub objects: Vec<ObjectRow>,
     pub n_instances: usize,
     pub n_steps: u64,
     pub sim_end_s: f64,

@@ -41,6 +41,55 @@ impl ConnectedSelection {
     }
 }
 
+/// `[connected] comm_range_m`, `max_peers`: which connected vehicles
+/// exchange detections (a V2X link), from their true positions. Both unset
+/// (the default): every pair does.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LinkSettings {
+    /// Vehicles farther apart than this do not exchange (metres).
+    pub comm_range_m: Option<f64>,
+    /// Each vehicle exchanges with at most this many peers, nearest first
+    /// (ties by position in the list): a pair is linked when each is among
+    /// the other's nearest peers in range.
+    pub max_peers: Option<usize>,
+}
+
+impl LinkSettings {
+    /// The links among vehicles at `positions_m` (one frame's).
+    pub fn links(&self, positions_m: &[Vec2]) -> Links {
+        let n = positions_m.len();
+        let dist = |i: usize, j: usize| (positions_m[i] - positions_m[j]).norm();
+        let in_range = |i: usize, j: usize| self.comm_range_m.is_none_or(|r| dist(i, j) <= r);
+        let mut linked = vec![false; n * n];
+        for i in 0..n {
+            let mut peers: Vec<usize> = (0..n).filter(|&j| j != i && in_range(i, j)).collect();
+            if let Some(k) = self.max_peers {
+                peers.sort_by(|&a, &b| dist(i, a).total_cmp(&dist(i, b)).then(a.cmp(&b)));
+                peers.truncate(k);
+            }
+            for j in peers {
+                linked[i * n + j] = true;
+            }
+        }
+        Links { n, linked }
+    }
+}
+
+/// Which vehicles of a frame exchange detections ([`LinkSettings::links`]).
+#[derive(Clone, Debug)]
+pub struct Links {
+    n: usize,
+    /// Row i: the peers i selected.
+    linked: Vec<bool>,
+}
+
+impl Links {
+    /// Whether `i` and `j` exchange detections (each selected the other).
+    pub fn linked(&self, i: usize, j: usize) -> bool {
+        self.linked[i * self.n + j] && self.linked[j * self.n + i]
+    }
+}
+
 /// `[camera]`: the camera rig every connected vehicle carries.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CameraSettings {
@@ -842,5 +891,67 @@ mod tests {
         let ids = ConnectedSelection::Ids(vec!["a".into()]);
         assert!(ids.carries_rig(1, &car("a", 9.0, 9.0, 0.0)));
         assert!(!ids.carries_rig(1, &car("b", 0.0, 0.0, 0.0)));
+    }
+
+    fn linked_pairs(link: LinkSettings, positions: &[(f64, f64)]) -> Vec<(usize, usize)> {
+        let p: Vec<Vec2> = positions.iter().map(|&(x, y)| Vec2::new(x, y)).collect();
+        let links = link.links(&p);
+        let mut out = Vec::new();
+        for i in 0..p.len() {
+            for j in i + 1..p.len() {
+                if links.linked(i, j) {
+                    out.push((i, j));
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_communication_range_drops_exactly_the_pairs_beyond_it() {
+        // Distances: 0-1 50 m, 0-2 100 m, 0-3 150.5 m, 1-2 50 m,
+        // 1-3 100.5 m, 2-3 50.5 m.
+        let at = [(0.0, 0.0), (50.0, 0.0), (100.0, 0.0), (150.5, 0.0)];
+        let all = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
+        assert_eq!(linked_pairs(LinkSettings::default(), &at), all);
+        let within = |r: f64| LinkSettings {
+            comm_range_m: Some(r),
+            max_peers: None,
+        };
+        // A pair exactly at the range is kept; one just beyond is dropped.
+        assert_eq!(
+            linked_pairs(within(100.0), &at),
+            vec![(0, 1), (0, 2), (1, 2), (2, 3)]
+        );
+        assert_eq!(
+            linked_pairs(within(99.9), &at),
+            vec![(0, 1), (1, 2), (2, 3)]
+        );
+        assert!(linked_pairs(within(10.0), &at).is_empty());
+    }
+
+    #[test]
+    fn at_most_k_peers_nearest_first_and_both_ways() {
+        // 1 is nearest to 0; 2 is nearest to 1 (10 m) and to 3 (20 m).
+        let at = [(0.0, 0.0), (30.0, 0.0), (40.0, 0.0), (60.0, 0.0)];
+        let k = |k: usize| LinkSettings {
+            comm_range_m: None,
+            max_peers: Some(k),
+        };
+        // k = 1: 0 picks 1, 1 picks 2, 2 picks 1, 3 picks 2: only 1-2 is
+        // chosen by both.
+        assert_eq!(linked_pairs(k(1), &at), vec![(1, 2)]);
+        // k = 2: 0 {1, 2}, 1 {2, 0}, 2 {1, 3}, 3 {2, 1}.
+        assert_eq!(linked_pairs(k(2), &at), vec![(0, 1), (1, 2), (2, 3)]);
+        assert_eq!(linked_pairs(k(3), &at).len(), 6);
+        // Range first, then the nearest among those in range.
+        let both = LinkSettings {
+            comm_range_m: Some(25.0),
+            max_peers: Some(1),
+        };
+        assert_eq!(linked_pairs(both, &at), vec![(1, 2),]);
+        // Ties go to the vehicle listed first.
+        let tie = [(0.0, 0.0), (-10.0, 0.0), (10.0, 0.0)];
+        assert_eq!(linked_pairs(k(1), &tie), vec![(0, 1)]);
     }
 }

@@ -354,6 +354,90 @@ mod run {
         }
     }
 
+    /// A run evaluates its steps on several threads while SUMO advances;
+    /// the bytes it writes do not depend on how many (every method,
+    /// several row groups of `objects.parquet`, both multi-vehicle modes).
+    #[test]
+    fn one_and_two_threads_give_identical_bytes() {
+        let fx = Fixture::new();
+        for mode in ["pairwise", "synchronized"] {
+            let extra =
+                format!("[connected]\npenetration = 0.3\n[matching]\nmulti_vehicle = \"{mode}\"\n");
+            let cfg = fx.config(&format!("{mode}.toml"), 65.0, &extra);
+            for threads in ["1", "2"] {
+                let out = format!("{mode}-{threads}");
+                let args = ["run", "-q", "--threads", threads, "--config"];
+                let o = fx.coid(&[&args[..], &[cfg.to_str().unwrap(), "--out", &out]].concat());
+                assert_ok(&o);
+            }
+            let objects = read_parquet(&fx.path(&format!("{mode}-1/objects.parquet")));
+            assert!(
+                objects.height() > 65_536,
+                "{} rows: one row group",
+                objects.height()
+            );
+            for f in ["summary.csv", "objects.parquet", "summary.md"] {
+                let bytes = |t: &str| std::fs::read(fx.path(&format!("{mode}-{t}/{f}"))).unwrap();
+                assert!(
+                    bytes("1") == bytes("2"),
+                    "{mode}: {f} differs between 1 and 2 threads"
+                );
+            }
+        }
+    }
+
+    /// A run killed while its rows stream to disk leaves no results
+    /// folder (only its hidden staging folder), and the same command then
+    /// completes.
+    #[test]
+    fn a_killed_run_leaves_no_half_written_folder() {
+        use std::time::{Duration, Instant};
+        let fx = Fixture::new();
+        let cfg = fx.config("k.toml", 120.0, "[connected]\npenetration = 0.3\n");
+        let args = [
+            "run",
+            "-q",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--out",
+            "res/k",
+        ];
+        let mut child = Command::new(BIN)
+            .args(args)
+            .current_dir(fx.dir.path())
+            .spawn()
+            .unwrap();
+        // Killed once its staging folder holds rows (a row group or more).
+        let started = Instant::now();
+        let staged_bytes = || -> u64 {
+            std::fs::read_dir(fx.path("res"))
+                .into_iter()
+                .flatten()
+                .flatten()
+                .filter(|e| e.file_name().to_string_lossy().starts_with(".k.tmp-"))
+                .filter_map(|e| std::fs::metadata(e.path().join("objects.parquet")).ok())
+                .map(|m| m.len())
+                .sum()
+        };
+        while staged_bytes() < 100_000 {
+            assert!(
+                child.try_wait().unwrap().is_none(),
+                "the run ended before it was killed"
+            );
+            assert!(
+                started.elapsed() < Duration::from_secs(120),
+                "no rows streamed"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        child.kill().unwrap();
+        child.wait().unwrap();
+        assert!(!fx.path("res/k").exists(), "a half-written results folder");
+        assert_ok(&fx.coid(&args));
+        let objects = read_parquet(&fx.path("res/k/objects.parquet"));
+        assert!(objects.height() > 0);
+    }
+
     #[test]
     fn help_lists_the_run_command() {
         let fx = Fixture::new();

@@ -20,6 +20,10 @@ pub struct Args {
     /// Worker processes [default: the number of cores].
     #[arg(long, short)]
     workers: Option<usize>,
+    /// Threads inside each run (the results do not depend on it)
+    /// [default: the cores shared among the workers, at least 1].
+    #[arg(long)]
+    threads: Option<std::num::NonZeroUsize>,
     /// Master seed: run i gets traffic and sensor seeds derived from it.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -59,10 +63,11 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
         .canonicalize()
         .with_context(|| format!("cannot resolve {}", a.config.config.display()))?;
     let out = super::out_dir(a.out, &config, "-batch");
-    let workers = a
-        .workers
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
-        .max(1);
+    let workers = a.workers.unwrap_or_else(super::cores).max(1);
+    // Workers x threads stay within the cores unless asked otherwise.
+    let threads = a
+        .threads
+        .map_or_else(|| (super::cores() / workers).max(1), |t| t.get());
     io::claim_batch_folder(&out, &batch::identity(&config, a.runs, a.seed))?;
     let pending = batch::pending_runs(&out, a.runs, a.shard);
     let mine = (0..a.runs)
@@ -77,7 +82,8 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
     let exe = std::env::current_exe().context("cannot find the coid executable")?;
     let started = std::time::Instant::now();
     let mut failed_count = 0;
-    let failures = batch::execute(&exe, &config, &out, a.seed, &pending, workers, |_, ok| {
+    let parallel = batch::Parallel { workers, threads };
+    let failures = batch::execute(&exe, &config, &out, a.seed, &pending, parallel, |_, ok| {
         pb.inc(1);
         if !ok {
             failed_count += 1;

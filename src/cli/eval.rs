@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use indicatif::ProgressBar;
 
-use super::{CommonArgs, progress_bar};
+use super::{CommonArgs, ThreadsArg, progress_bar};
 use crate::config::Settings;
 use crate::experiments;
 use crate::io::{self, OutputError};
@@ -19,6 +19,8 @@ use crate::{pipeline, render, tables};
 pub struct Args {
     #[command(flatten)]
     common: CommonArgs,
+    #[command(flatten)]
+    threads: ThreadsArg,
     /// Evaluate on the validation runs ([train] validation_seeds) instead
     /// of the test runs, into results/<config file stem>-validation: the
     /// runs every choice (lambda, the sensor-noise calibration) is made on.
@@ -59,7 +61,7 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
     let choices = pipeline::choices(&scenarios[0].settings, methods)?;
     let lambdas: BTreeMap<Method, f64> = choices.iter().map(|(&m, c)| (m, c.lambda)).collect();
     for s in &mut scenarios {
-        s.runs = evaluate(s, methods, &lambdas, &pb)?;
+        s.runs = evaluate(s, methods, &lambdas, a.threads.get(), &pb)?;
     }
     pb.finish_and_clear();
     warn_empty(&scenarios);
@@ -239,13 +241,14 @@ fn evaluate(
     s: &Scenario,
     methods: &[Method],
     lambdas: &BTreeMap<Method, f64>,
+    threads: usize,
     pb: &ProgressBar,
 ) -> anyhow::Result<Vec<RunEval>> {
     let mut runs = Vec::new();
     for &seed in &s.settings.eval.traffic_seeds {
         let run = experiments::settings_for_seed(&s.settings, seed);
         pb.set_message(format!("{} seed {seed}", s.name));
-        let r = experiments::eval_run(&run, methods, lambdas, |_| {})
+        let r = experiments::eval_run(&run, methods, lambdas, threads, |_| {})
             .with_context(|| format!("{}: run with seed {seed} failed", s.name))?;
         runs.push(r);
         pb.inc(1);

@@ -91,6 +91,26 @@ struct ConfigArg {
     config: PathBuf,
 }
 
+/// Threads inside one run.
+#[derive(clap::Args)]
+struct ThreadsArg {
+    /// Threads that evaluate a run's steps while SUMO advances; the
+    /// results do not depend on it [default: the number of cores].
+    #[arg(long)]
+    threads: Option<std::num::NonZeroUsize>,
+}
+
+impl ThreadsArg {
+    fn get(&self) -> usize {
+        self.threads.map_or_else(cores, std::num::NonZeroUsize::get)
+    }
+}
+
+/// The cores this process may use.
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+}
+
 /// What `run`, `eval` and `render` share: a config, a results folder, a
 /// progress bar.
 #[derive(clap::Args)]

@@ -2,7 +2,7 @@
 
 use anyhow::Context;
 
-use super::{CommonArgs, show_sim_progress};
+use super::{CommonArgs, ThreadsArg, show_sim_progress};
 use crate::fusion::FusionVariant;
 use crate::matching::Method;
 use crate::report::RunResults;
@@ -13,6 +13,8 @@ use crate::{io, pipeline};
 pub struct Args {
     #[command(flatten)]
     common: CommonArgs,
+    #[command(flatten)]
+    threads: ThreadsArg,
     /// Override [seeds] traffic (SUMO's seed).
     #[arg(long)]
     traffic_seed: Option<u64>,
@@ -29,10 +31,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(s) = a.sensor_seed {
         settings.seeds.sensor = s;
     }
+    // The folder is claimed (and checked writable) before the simulation.
+    let mut folder = io::RunFolder::create(&out, a.common.force)?;
     let bar = a.common.sim_bar(settings.scenario.end_s);
-    let results = pipeline::run(&settings, |p| show_sim_progress(&bar, p)).context("run failed")?;
+    let results = pipeline::run(
+        &settings,
+        a.threads.get(),
+        |p| show_sim_progress(&bar, p),
+        |rows| folder.objects(rows),
+    )
+    .context("run failed")?;
     bar.finish_and_clear();
-    io::write_run(&out, &settings, &results, a.common.force)?;
+    folder.finish(&settings, &results)?;
     eprintln!("{}; wrote {}", one_line(&results), out.display());
     Ok(())
 }

@@ -87,7 +87,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     };
     let workers = a
         .workers
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .unwrap_or_else(super::cores)
         .clamp(1, methods.len().max(1));
     let started = std::time::Instant::now();
     if a.validate_only {
@@ -263,7 +263,7 @@ fn validate(
     );
     let mut on_models = settings.clone();
     on_models.matching.models_dir = models_dir.to_owned();
-    let chosen = experiments::validate(&on_models, methods, |_, _| pb.inc(1))
+    let chosen = experiments::validate(&on_models, methods, super::cores(), |_, _| pb.inc(1))
         .context("validation runs failed")?;
     pb.finish_and_clear();
     for &method in methods {

@@ -3,12 +3,13 @@
 //! `summary.csv` read back for a batch aggregate.
 
 use std::fs::File;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
+use polars::io::parquet::write::BatchedWriter;
 use polars::prelude::*;
 
 use super::{OutputError, io};
-use crate::report::{AggregateRow, RunResults, RunRow, SummaryRow, Table, TableColumn};
+use crate::report::{AggregateRow, ObjectRow, RunRow, SummaryRow, Table, TableColumn};
 
 fn polars_err(path: &Path) -> impl FnOnce(PolarsError) -> OutputError + '_ {
     move |source| OutputError::Polars {
@@ -47,9 +48,8 @@ fn summary_frame(rows: &[SummaryRow]) -> PolarsResult<DataFrame> {
     )
 }
 
-/// The per-object table of a run.
-fn objects_frame(results: &RunResults) -> PolarsResult<DataFrame> {
-    let o = &results.objects;
+/// Per-object rows as a data frame (the columns of `objects.parquet`).
+fn objects_frame(o: &[ObjectRow]) -> PolarsResult<DataFrame> {
     df!(
         "instance" => o.iter().map(|r| r.instance as u64).collect::<Vec<_>>(),
         "step" => o.iter().map(|r| r.step).collect::<Vec<_>>(),
@@ -131,14 +131,80 @@ pub fn write_summary(path: &Path, rows: &[SummaryRow]) -> Result<(), OutputError
     write_csv(path, summary_frame(rows))
 }
 
-/// `objects.parquet` of a run.
-pub fn write_objects(path: &Path, results: &RunResults) -> Result<(), OutputError> {
-    let mut df = objects_frame(results).map_err(polars_err(path))?;
-    let f = File::create(path).map_err(io(path))?;
-    ParquetWriter::new(&f)
-        .finish(&mut df)
-        .map_err(polars_err(path))?;
-    f.sync_all().map_err(io(path))
+/// Rows per row group of `objects.parquet`: what is held in memory before
+/// it is written.
+pub const OBJECT_ROWS_PER_GROUP: usize = 65_536;
+
+/// `objects.parquet` written as the rows come, one row group of
+/// [`OBJECT_ROWS_PER_GROUP`] rows at a time (the last one shorter).
+pub struct ObjectsWriter {
+    path: PathBuf,
+    file: File,
+    writer: BatchedWriter<File>,
+    buffer: Vec<ObjectRow>,
+    rows_per_group: usize,
+}
+
+impl ObjectsWriter {
+    pub fn create(path: &Path) -> Result<Self, OutputError> {
+        Self::with_rows_per_group(path, OBJECT_ROWS_PER_GROUP)
+    }
+
+    /// With row groups of `rows_per_group` rows (at least 1).
+    fn with_rows_per_group(path: &Path, rows_per_group: usize) -> Result<Self, OutputError> {
+        let rows_per_group = rows_per_group.max(1);
+        let file = File::create(path).map_err(io(path))?;
+        let handle = file.try_clone().map_err(io(path))?;
+        let schema = objects_frame(&[])
+            .map_err(polars_err(path))?
+            .schema()
+            .as_ref()
+            .clone();
+        let writer = ParquetWriter::new(handle)
+            .batched(&schema)
+            .map_err(polars_err(path))?;
+        Ok(Self {
+            path: path.to_owned(),
+            file,
+            writer,
+            buffer: Vec::with_capacity(rows_per_group),
+            rows_per_group,
+        })
+    }
+
+    /// Adds rows; every full row group goes to the file.
+    pub fn write(&mut self, rows: &[ObjectRow]) -> Result<(), OutputError> {
+        let mut rest = rows;
+        while !rest.is_empty() {
+            let room = self.rows_per_group - self.buffer.len();
+            let (now, later) = rest.split_at(room.min(rest.len()));
+            self.buffer.extend_from_slice(now);
+            if self.buffer.len() == self.rows_per_group {
+                self.flush()?;
+            }
+            rest = later;
+        }
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), OutputError> {
+        if self.buffer.is_empty() {
+            return Ok(());
+        }
+        let df = objects_frame(&self.buffer).map_err(polars_err(&self.path))?;
+        self.writer
+            .write_batch(&df)
+            .map_err(polars_err(&self.path))?;
+        self.buffer.clear();
+        Ok(())
+    }
+
+    /// Writes the last row group and the footer, flushed to disk.
+    pub fn finish(mut self) -> Result<(), OutputError> {
+        self.flush()?;
+        self.writer.finish().map_err(polars_err(&self.path))?;
+        self.file.sync_all().map_err(io(&self.path))
+    }
 }
 
 /// One of `coid eval`'s tables as CSV.
@@ -210,4 +276,176 @@ pub fn read_run_summary(path: &Path) -> Result<Vec<RunRow>, OutputError> {
             de_fused_matched_m: dfm[k],
         })
         .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use proptest::prelude::*;
+
+    use super::*;
+    use crate::evaluate::{ObjectEstimate, PairCounts};
+    use crate::fusion::FusionVariant;
+    use crate::geometry::Vec2;
+    use crate::matching::Method;
+    use crate::report::{RowKey, Summary};
+    use crate::sensor::PoseNoiseLabel;
+
+    /// One random estimate: (key index, covisible, matched, single and
+    /// fused offsets from the truth).
+    type Raw = (usize, bool, bool, (f64, f64), (f64, f64));
+
+    fn key(k: usize) -> RowKey {
+        let methods = [Method::Ours, Method::Mogm, Method::Oracle];
+        let levels = [PoseNoiseLabel::None, PoseNoiseLabel::Gps];
+        let variants = [FusionVariant::Paper, FusionVariant::Aligned];
+        RowKey {
+            method: methods[k % 3],
+            pose_noise: levels[(k / 3) % 2],
+            fusion: variants[(k / 6) % 2],
+        }
+    }
+
+    fn row(instance: usize, n: usize, raw: &Raw) -> ObjectRow {
+        let &(k, covisible, matched, (sx, sy), (fx, fy)) = raw;
+        let truth_m = Vec2::new(n as f64, -(n as f64) / 3.0);
+        ObjectRow {
+            instance,
+            step: instance as u64,
+            time_s: instance as f64 * 0.5,
+            key: key(k),
+            estimate: ObjectEstimate {
+                ego_id: format!("v{}", n % 4),
+                peer_id: format!("v{}", (n + 1) % 4),
+                object_id: format!("o{n}"),
+                covisible,
+                matched,
+                match_correct: matched && n.is_multiple_of(2),
+                pose_refined: false,
+                truth_m,
+                single_m: truth_m + Vec2::new(sx, sy),
+                fused_m: truth_m + Vec2::new(fx, fy),
+            },
+        }
+    }
+
+    /// (n, mean single error, mean fused error) of one object set.
+    type SetMeans = (usize, f64, f64);
+
+    /// Per key: (n, mean single, mean fused) over all, covisible and
+    /// matched rows, recomputed from the data frame.
+    fn recompute(df: &DataFrame) -> BTreeMap<(String, String, String), [SetMeans; 3]> {
+        let text = |c: &str| -> Vec<String> {
+            let col = df.column(c).unwrap().str().unwrap();
+            col.iter().map(|v| v.unwrap().to_owned()).collect()
+        };
+        let num = |c: &str| -> Vec<f64> {
+            let col = df.column(c).unwrap().f64().unwrap();
+            col.iter().map(Option::unwrap).collect()
+        };
+        let flag = |c: &str| -> Vec<bool> {
+            let col = df.column(c).unwrap().bool().unwrap();
+            col.iter().map(Option::unwrap).collect()
+        };
+        let (m, l, f) = (text("method"), text("pose_noise"), text("fusion"));
+        let (cov, mat) = (flag("covisible"), flag("matched"));
+        let (tx, ty, sx, sy, fx, fy) = (
+            num("truth_x"),
+            num("truth_y"),
+            num("single_x"),
+            num("single_y"),
+            num("fused_x"),
+            num("fused_y"),
+        );
+        let mut sums: BTreeMap<_, [SetMeans; 3]> = BTreeMap::new();
+        for i in 0..df.height() {
+            let single = (sx[i] - tx[i]).hypot(sy[i] - ty[i]);
+            let fused = (fx[i] - tx[i]).hypot(fy[i] - ty[i]);
+            let s = sums
+                .entry((m[i].clone(), l[i].clone(), f[i].clone()))
+                .or_default();
+            for (set, member) in [(0, true), (1, cov[i]), (2, mat[i])] {
+                if member {
+                    s[set].0 += 1;
+                    s[set].1 += single;
+                    s[set].2 += fused;
+                }
+            }
+        }
+        for s in sums.values_mut() {
+            for set in s.iter_mut() {
+                set.1 /= set.0 as f64;
+                set.2 /= set.0 as f64;
+            }
+        }
+        sums
+    }
+
+    fn close(a: f64, b: f64) -> bool {
+        (a.is_nan() && b.is_nan()) || (a - b).abs() <= 1e-9 * (1.0 + a.abs())
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(40))]
+        /// The summary accumulated instance by instance equals what
+        /// `objects.parquet`, streamed in row groups of any size and
+        /// chunks of any size, gives when recomputed.
+        #[test]
+        fn streamed_rows_recompute_to_the_incremental_summary(
+            instances in proptest::collection::vec(
+                proptest::collection::vec(
+                    (0usize..12, any::<bool>(), any::<bool>(),
+                     (-5.0..5.0f64, -5.0..5.0f64), (-5.0..5.0f64, -5.0..5.0f64)),
+                    0..12),
+                1..20),
+            group in 1usize..40,
+            chunk in 1usize..30,
+        ) {
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("objects.parquet");
+            let mut writer = ObjectsWriter::with_rows_per_group(&path, group).unwrap();
+            let mut summary = Summary::default();
+            let mut n = 0;
+            for (i, raws) in instances.iter().enumerate() {
+                let mut by_key: BTreeMap<RowKey, Vec<ObjectEstimate>> = BTreeMap::new();
+                let mut rows = Vec::new();
+                for raw in raws {
+                    let r = row(i, n, raw);
+                    n += 1;
+                    by_key.entry(r.key).or_default().push(r.estimate.clone());
+                    rows.push(r);
+                }
+                for (k, est) in &by_key {
+                    summary.record(*k, PairCounts::default(), est);
+                }
+                for c in rows.chunks(chunk) {
+                    writer.write(c).unwrap();
+                }
+            }
+            writer.finish().unwrap();
+            let df = ParquetReader::new(File::open(&path).unwrap()).finish().unwrap();
+            prop_assert_eq!(df.height(), n);
+            let recomputed = recompute(&df);
+            let rows = summary.rows();
+            prop_assert_eq!(rows.len(), recomputed.len());
+            for r in &rows {
+                let k = (
+                    r.key.method.as_str().to_owned(),
+                    r.key.pose_noise.as_str().to_owned(),
+                    r.key.fusion.as_str().to_owned(),
+                );
+                let [all, covis, matched] = recomputed[&k];
+                prop_assert_eq!(r.n_objects, all.0);
+                prop_assert_eq!(r.n_matched, matched.0);
+                for (mine, theirs) in [
+                    (r.de_single_m, all.1), (r.de_fused_m, all.2),
+                    (r.de_single_covis_m, covis.1), (r.de_fused_covis_m, covis.2),
+                    (r.de_single_matched_m, matched.1), (r.de_fused_matched_m, matched.2),
+                ] {
+                    prop_assert!(close(mine, theirs), "{:?}: {} != {}", k, mine, theirs);
+                }
+            }
+        }
+    }
 }

@@ -25,7 +25,7 @@ use crate::config::Settings;
 use crate::matching::deep::decision::Decision;
 use crate::matching::deep::train::TrainReport;
 use crate::matching::{DeepChoice, Method};
-use crate::report::{AggregateRow, RunResults, RunRow, Table};
+use crate::report::{AggregateRow, ObjectRow, RunResults, RunRow, Table};
 
 #[derive(Debug, thiserror::Error)]
 pub enum OutputError {
@@ -75,22 +75,85 @@ pub fn atomic_dir<E: From<OutputError>>(
     force: bool,
     fill: impl FnOnce(&Path) -> Result<(), E>,
 ) -> Result<(), E> {
-    if out.exists() && !force {
-        return Err(OutputError::Exists(out.to_owned()).into());
-    }
-    let parent = match out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&parent).map_err(io(&parent))?;
-    let name = out
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let staged = staging_dir(&parent, &name)?;
-    fill(staged.path())?;
-    replace_dir(staged, out, &parent, &name)?;
+    let staged = Staged::new(out, force)?;
+    fill(staged.dir.path())?;
+    staged.publish()?;
     Ok(())
+}
+
+/// A folder being filled under a temporary name beside `out`.
+struct Staged {
+    out: PathBuf,
+    parent: PathBuf,
+    name: String,
+    dir: tempfile::TempDir,
+}
+
+impl Staged {
+    /// Refused when `out` exists and not `force`.
+    fn new(out: &Path, force: bool) -> Result<Self, OutputError> {
+        if out.exists() && !force {
+            return Err(OutputError::Exists(out.to_owned()));
+        }
+        let parent = match out.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
+            _ => PathBuf::from("."),
+        };
+        std::fs::create_dir_all(&parent).map_err(io(&parent))?;
+        let name = out
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "out".into());
+        let dir = staging_dir(&parent, &name)?;
+        Ok(Self {
+            out: out.to_owned(),
+            parent,
+            name,
+            dir,
+        })
+    }
+
+    fn publish(self) -> Result<(), OutputError> {
+        replace_dir(self.dir, &self.out, &self.parent, &self.name)
+    }
+}
+
+/// A run's results folder while the run goes on: `objects.parquet` grows
+/// in a temporary folder beside `out`, row group by row group;
+/// [`RunFolder::finish`] adds `summary.csv` and `summary.md` and renames
+/// the folder into place. Dropped unfinished (an error, a panic), it
+/// leaves nothing behind and `out` untouched.
+pub struct RunFolder {
+    staged: Staged,
+    objects: frames::ObjectsWriter,
+}
+
+impl RunFolder {
+    /// Refused at once when `out` exists and not `force`, or cannot be
+    /// written.
+    pub fn create(out: &Path, force: bool) -> Result<Self, OutputError> {
+        let staged = Staged::new(out, force)?;
+        let objects = frames::ObjectsWriter::create(&staged.dir.path().join("objects.parquet"))?;
+        Ok(Self { staged, objects })
+    }
+
+    /// Adds per-object rows to `objects.parquet`.
+    pub fn objects(&mut self, rows: &[ObjectRow]) -> Result<(), OutputError> {
+        self.objects.write(rows)
+    }
+
+    /// Completes the folder: `objects.parquet`, `summary.csv`, `summary.md`.
+    pub fn finish(self, settings: &Settings, results: &RunResults) -> Result<(), OutputError> {
+        self.objects.finish()?;
+        let dir = self.staged.dir.path();
+        let rows = results.summary.rows();
+        frames::write_summary(&dir.join("summary.csv"), &rows)?;
+        write_text(
+            &dir.join("summary.md"),
+            &markdown::run(settings, results, &rows),
+        )?;
+        self.staged.publish()
+    }
 }
 
 /// Renames the complete `staged` folder to `out`; an old `out` moves into a
@@ -164,25 +227,6 @@ pub fn strip_generator_comment(path: &Path) -> Result<(), OutputError> {
 
 fn write_text(path: &Path, text: &str) -> Result<(), OutputError> {
     std::fs::write(path, text).map_err(io(path))
-}
-
-/// Writes a run's results into `out`: `summary.csv`, `objects.parquet`,
-/// `summary.md` (atomically, see [`atomic_dir`]).
-pub fn write_run(
-    out: &Path,
-    settings: &Settings,
-    results: &RunResults,
-    force: bool,
-) -> Result<(), OutputError> {
-    atomic_dir(out, force, |dir| -> Result<(), OutputError> {
-        let rows = results.summary.rows();
-        frames::write_summary(&dir.join("summary.csv"), &rows)?;
-        frames::write_objects(&dir.join("objects.parquet"), results)?;
-        write_text(
-            &dir.join("summary.md"),
-            &markdown::run(settings, results, &rows),
-        )
-    })
 }
 
 /// Writes `coid eval`'s tables (CSV), its `summary.md` and whatever `plots`
