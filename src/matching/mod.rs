@@ -92,6 +92,11 @@ crate::label_enum! { "multi-vehicle mode";
         /// ([`synchronize::synchronize`]); two detections match exactly when
         /// they share an object.
         Synchronized,
+        /// Each vehicle in turn (by id) matched once against the step's
+        /// object map, built from the vehicles already matched that it
+        /// exchanges with: cost linear in the vehicles, consistent by
+        /// construction (`evaluate::map`).
+        Map,
     }
 }
 

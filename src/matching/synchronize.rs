@@ -123,13 +123,25 @@ impl Association {
     /// [`Self::matches_between`] for every vehicle pair of `pairs`, in
     /// order: what the association says each pair matched.
     pub fn implied(&self, pairs: &[PairwiseMatches]) -> Vec<PairwiseMatches> {
+        let wanted: Vec<(usize, usize)> = pairs.iter().map(|p| (p.first, p.second)).collect();
+        self.implied_for(&wanted, pairs)
+    }
+
+    /// [`Self::matches_between`] for every vehicle pair of `wanted`
+    /// (`first < second`), in order, with the probabilities of the chains
+    /// of `pairs`.
+    pub fn implied_for(
+        &self,
+        wanted: &[(usize, usize)],
+        pairs: &[PairwiseMatches],
+    ) -> Vec<PairwiseMatches> {
         let chains = ChainProbabilities::new(self, pairs);
-        pairs
+        wanted
             .iter()
-            .map(|p| PairwiseMatches {
-                first: p.first,
-                second: p.second,
-                matches: self.between(p.first, p.second, &chains),
+            .map(|&(first, second)| PairwiseMatches {
+                first,
+                second,
+                matches: self.between(first, second, &chains),
             })
             .collect()
     }

@@ -10,6 +10,9 @@
 #                with netconvert and polyconvert and SUMO's OSM typemaps, so
 #                buildings have polygon types building.*; the junction is
 #                named by one of the joined node ids.
+#   <out>/densetown/  the same town with three times the traffic, departing
+#                until 900 s: the city-scale benchmark's network
+#                (benches/scale.sh).
 #
 # Demand for both: randomTrips (seeded) with the shipped intersection's
 # vehicle classes and colours (vtypes.add.xml) and pedestrians. Each folder
@@ -29,15 +32,15 @@ export PROJ_DATA="$sumo_home/data/proj" PROJ_LIB="$sumo_home/data/proj"
 mkdir -p "$out/grid" "$out/town"
 out="$(cd "$out" && pwd)"
 
-demand() { # net, prefix, period, seed
-    local net="$1" dir; dir="$(dirname "$net")"
+demand() { # net, prefix, period, seed, [end of departures, s]
+    local net="$1" end="${5:-400}" dir; dir="$(dirname "$net")"
     "$py" "$sumo_home/tools/randomTrips.py" -n "$net" -o "$dir/trips.xml" -r "$dir/routes.rou.xml" \
         --additional-file "$here/../vtypes.add.xml" --trip-attributes 'type="mix" departLane="best"' \
-        --period "$3" --seed "$4" --fringe-factor 5 --end 400 --validate --prefix "$2" >/dev/null
+        --period "$3" --seed "$4" --fringe-factor 5 --end "$end" --validate --prefix "$2" >/dev/null
     # -r: with --pedestrians, randomTrips also routes the walks, by default
     # into routes.rou.xml of the working directory; SUMO routes them itself.
     "$py" "$sumo_home/tools/randomTrips.py" -n "$net" -o "$dir/walks.rou.xml" -r "$dir/walks.routed.xml" \
-        --pedestrians --period 4 --seed "$4" --end 400 --prefix "${2}p" >/dev/null
+        --pedestrians --period 4 --seed "$4" --end "$end" --prefix "${2}p" >/dev/null
     rm -f "$dir/walks.routed.xml"
 }
 
@@ -159,4 +162,17 @@ end_s = 300
 [connected]
 penetration = 0.3
 EOF
-echo "made $out/grid and $out/town"
+# --- densetown: the town with three times the traffic --------------------------
+mkdir -p "$out/densetown"
+cp "$out/town/town.net.xml" "$out/town/town.poly.xml" "$out/densetown/"
+demand "$out/densetown/town.net.xml" d 0.33 13 900
+sumocfg "$out/densetown" town.net.xml town.poly.xml
+cat > "$out/densetown/coid.toml" <<EOF
+[scenario]
+sumocfg = "scenario.sumocfg"
+junction = "1007"
+end_s = 300
+[connected]
+penetration = 0.3
+EOF
+echo "made $out/grid, $out/town and $out/densetown"

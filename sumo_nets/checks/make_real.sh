@@ -16,11 +16,15 @@
 #     bs          Braunschweig (bs3d game): 4-leg joined cluster, 8 incoming lanes
 #     a10kw       an OSM extract around a motorway junction (A10KW game), with buildings
 #
-#   sumo_nets/checks/make_real.sh /tmp/real
+# Demand departs until 400 s (coid.toml runs 300 s); a second argument
+# sets another end, for longer runs (the city-scale benchmark runs 800 s).
+#
+#   sumo_nets/checks/make_real.sh /tmp/real [DEMAND_END_S]
 #   ./coid eval --config /tmp/real/ingolstadt/coid.toml
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
-out="${1:?usage: make_real.sh OUT_DIR}"
+out="${1:?usage: make_real.sh OUT_DIR [DEMAND_END_S]}"
+demand_end="${2:-400}"
 py="$here/../../.venv/bin/python"
 sumo_home="$("$py" -c 'import sumo; print(sumo.SUMO_HOME)')"
 export SUMO_HOME="$sumo_home" PYTHONPATH="$sumo_home/tools"
@@ -44,11 +48,11 @@ make() {
     "$py" "$sumo_home/tools/randomTrips.py" -n "$dir/net.net.xml" -o "$dir/trips.xml" \
         -r "$dir/routes.rou.xml" --additional-file "$here/../vtypes.add.xml" \
         --trip-attributes 'type="mix" departLane="best"' --period "$period" --seed "$seed" \
-        --fringe-factor 5 --end 400 --validate --prefix v >/dev/null 2>&1
+        --fringe-factor 5 --end "$demand_end" --validate --prefix v >/dev/null 2>&1
     # -r: with --pedestrians, randomTrips also routes the walks, by default
     # into routes.rou.xml of the working directory; SUMO routes them itself.
     "$py" "$sumo_home/tools/randomTrips.py" -n "$dir/net.net.xml" -o "$dir/walks.rou.xml" \
-        -r "$dir/walks.routed.xml" --pedestrians --period 2 --seed "$seed" --end 400 --prefix p \
+        -r "$dir/walks.routed.xml" --pedestrians --period 2 --seed "$seed" --end "$demand_end" --prefix p \
         >/dev/null 2>&1
     rm -f "$dir/walks.routed.xml"
     cat > "$dir/scenario.sumocfg" <<EOF

@@ -8,6 +8,8 @@
 //! This module, the oracle and the pictures are the only readers of the
 //! ground truth ([`ObservationTruth`]); matchers receive [`MatchView`]s.
 
+mod map;
+
 use std::collections::BTreeMap;
 
 use crate::fusion::{FusionSettings, FusionVariant, Measurement, align, fuse, relative_pose_prior};
@@ -316,7 +318,9 @@ pub struct ViewEstimate {
 /// pose-noise level, vehicles ordered by id within each pair) and, with
 /// `multi_vehicle = synchronized`, replaces each pair's matches by those of
 /// one consistent assignment of the frame's detections to objects before
-/// counting and fusing. With two vehicles both modes agree with
+/// counting and fusing; with `map`, matches each vehicle once against the
+/// frame's object map instead ([`map`]) and scores every pair by the
+/// objects it implies. With two vehicles all modes agree with
 /// [`evaluate`] up to the probabilities of pairs the association dropped.
 pub fn evaluate_frame(
     pairs: &[PairAtLevel],
@@ -325,28 +329,12 @@ pub fn evaluate_frame(
     multi_vehicle: MultiVehicle,
 ) -> FrameEval {
     let method = runner.method();
-    let mut identifications: Vec<Identification> =
-        pairs.iter().map(|p| runner.identify(p)).collect();
     let vehicles = FrameVehicles::new(pairs);
-    let pairwise: Vec<PairwiseMatches> = pairs
-        .iter()
-        .zip(&identifications)
-        .map(|(p, id)| vehicles.pairwise(p, id.matches.clone()))
-        .collect();
-    let association = match multi_vehicle {
-        MultiVehicle::Pairwise => Association::closure(&vehicles.n_detections, &pairwise),
-        MultiVehicle::Synchronized => synchronize(&vehicles.n_detections, &pairwise),
-    };
-    let decided = match multi_vehicle {
-        MultiVehicle::Pairwise => pairwise,
-        MultiVehicle::Synchronized => {
-            let implied = association.implied(&pairwise);
-            for (id, p) in identifications.iter_mut().zip(&implied) {
-                id.matches = p.matches.clone();
-            }
-            implied
-        }
-    };
+    let Decided {
+        identifications,
+        pairwise: decided,
+        association,
+    } = decide(pairs, runner, &vehicles, multi_vehicle);
     let consistency = Consistency {
         triples: triple_consistency(&decided),
         objects: pairs
@@ -379,6 +367,72 @@ pub fn evaluate_frame(
         pairs: scored,
         consistency,
         views,
+    }
+}
+
+/// What a method decided on a frame's instances.
+struct Decided {
+    /// One per instance, in input order, oriented as the instance.
+    identifications: Vec<Identification>,
+    /// The same matches between frame vehicle indices.
+    pairwise: Vec<PairwiseMatches>,
+    /// The objects they imply.
+    association: Association,
+}
+
+/// Runs `runner` on a frame's instances as `multi_vehicle` says.
+fn decide(
+    pairs: &[PairAtLevel],
+    runner: &Runner,
+    vehicles: &FrameVehicles,
+    multi_vehicle: MultiVehicle,
+) -> Decided {
+    if multi_vehicle == MultiVehicle::Map {
+        let joins = map::joins(pairs, runner, vehicles);
+        let association = Association::closure(&vehicles.n_detections, &joins);
+        let wanted: Vec<(usize, usize)> = pairs
+            .iter()
+            .map(|p| {
+                let (i, j) = vehicles.indices(p);
+                (i.min(j), i.max(j))
+            })
+            .collect();
+        let pairwise = association.implied_for(&wanted, &joins);
+        let identifications = pairs
+            .iter()
+            .zip(&pairwise)
+            .map(|(p, m)| Identification::plain(vehicles.oriented(p, m)))
+            .collect();
+        return Decided {
+            identifications,
+            pairwise,
+            association,
+        };
+    }
+    let mut identifications: Vec<Identification> =
+        pairs.iter().map(|p| runner.identify(p)).collect();
+    let pairwise: Vec<PairwiseMatches> = pairs
+        .iter()
+        .zip(&identifications)
+        .map(|(p, id)| vehicles.pairwise(p, id.matches.clone()))
+        .collect();
+    if multi_vehicle == MultiVehicle::Pairwise {
+        let association = Association::closure(&vehicles.n_detections, &pairwise);
+        return Decided {
+            identifications,
+            pairwise,
+            association,
+        };
+    }
+    let association = synchronize(&vehicles.n_detections, &pairwise);
+    let implied = association.implied(&pairwise);
+    for (id, p) in identifications.iter_mut().zip(&implied) {
+        id.matches = p.matches.clone();
+    }
+    Decided {
+        identifications,
+        pairwise: implied,
+        association,
     }
 }
 
@@ -506,12 +560,38 @@ impl<'a> FrameVehicles<'a> {
             .expect("every side is a frame vehicle")
     }
 
-    /// A pair's matches between frame vehicle indices, the smaller first.
-    fn pairwise(&self, pair: &PairAtLevel, matches: Vec<Correspondence>) -> PairwiseMatches {
-        let (i, j) = (
+    /// The frame vehicle indices of a pair's first and second vehicle.
+    fn indices(&self, pair: &PairAtLevel) -> (usize, usize) {
+        (
             self.index(&pair.first.obs.ego_id),
             self.index(&pair.second.obs.ego_id),
-        );
+        )
+    }
+
+    /// Matches between frame vehicle indices (the smaller first) as the
+    /// pair's own (`a` a detection of its first vehicle): the inverse of
+    /// [`Self::pairwise`].
+    fn oriented(&self, pair: &PairAtLevel, m: &PairwiseMatches) -> Vec<Correspondence> {
+        let (i, _) = self.indices(pair);
+        let mut out: Vec<Correspondence> = if i == m.first {
+            m.matches.clone()
+        } else {
+            m.matches
+                .iter()
+                .map(|c| Correspondence {
+                    a: c.b,
+                    b: c.a,
+                    ..*c
+                })
+                .collect()
+        };
+        out.sort_by_key(|c| c.a);
+        out
+    }
+
+    /// A pair's matches between frame vehicle indices, the smaller first.
+    fn pairwise(&self, pair: &PairAtLevel, matches: Vec<Correspondence>) -> PairwiseMatches {
+        let (i, j) = self.indices(pair);
         if i < j {
             PairwiseMatches {
                 first: i,
@@ -1098,6 +1178,69 @@ mod tests {
             for x in &e.fused[0].1 {
                 assert!(x.match_correct && x.fused_error_m() < 1e-9, "{x:?}");
             }
+        }
+    }
+
+    /// [`Contradicting`], counting its calls.
+    struct Counted(std::sync::Arc<std::sync::atomic::AtomicUsize>);
+
+    impl Matcher for Counted {
+        fn method(&self) -> Method {
+            Method::Mogm
+        }
+        fn identify_with(
+            &self,
+            first: &MatchView,
+            second: &MatchView,
+            relative: &crate::fusion::PoseEstimate,
+        ) -> Identification {
+            self.0.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            Contradicting.identify_with(first, second, relative)
+        }
+    }
+
+    #[test]
+    fn the_map_matches_each_vehicle_once_and_is_consistent() {
+        let objects = [
+            (Some("x"), Vec2::new(5.0, 8.0)),
+            (Some("y"), Vec2::new(12.0, -3.0)),
+        ];
+        let poses = [0.0, 10.0, 20.0].map(|x| Pose2::new(Vec2::new(x, -10.0), 0.1));
+        let sensed: Vec<(Observation, ObservationTruth)> = ["a", "b", "c"]
+            .iter()
+            .zip(&poses)
+            .map(|(id, p)| sensed(id, *p, &objects))
+            .collect();
+        let frame = TestFrame::new(sensed, &poses);
+        let pairs: Vec<PairAtLevel> = [(0, 1), (0, 2), (1, 2)]
+            .iter()
+            .map(|&(i, j)| frame.pair(i, j))
+            .collect();
+        let fusion = FusionSettings {
+            variants: vec![FusionVariant::Paper],
+            align_min_matches: 3,
+        };
+        // b meets the map of a (in a's frame), c the map of a and b in the
+        // frame of b, its nearest peer: the crossed (a, c) matching, which
+        // pairwise matching gets wrong, is never asked for.
+        let calls = std::sync::Arc::default();
+        let runner = Runner::Matcher(Box::new(Counted(std::sync::Arc::clone(&calls))));
+        let map = evaluate_frame(&pairs, &runner, &fusion, MultiVehicle::Map);
+        assert_eq!(calls.load(std::sync::atomic::Ordering::Relaxed), 2);
+        let correct: Vec<usize> = map.pairs.iter().map(|e| e.counts.correct).collect();
+        assert_eq!(correct, [2, 2, 2]);
+        let t = map.consistency.triples;
+        assert_eq!((t.chains, t.inconsistent), (6, 0));
+        let o = map.consistency.objects;
+        assert_eq!((o.identified, o.correct, o.ground_truth), (6, 6, 6));
+        // Joins are with each object's first detection (a's): (a, c) at
+        // c's own probability, (b, c) through a.
+        let p = |k: usize| map.pairs[k].identification.matches[0].probability;
+        assert!((p(1) - 0.9).abs() < 1e-12 && (p(2) - 0.81).abs() < 1e-12);
+        // The oracle finds every pair through the map, too.
+        let oracle = evaluate_frame(&pairs, &Runner::Oracle, &fusion, MultiVehicle::Map);
+        for e in &oracle.pairs {
+            assert_eq!((e.counts.correct, e.counts.identified), (2, 2));
         }
     }
 
