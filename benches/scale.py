@@ -105,7 +105,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", type=Path, help="a coid.toml (default: OUT/nets/densetown/coid.toml)")
     ap.add_argument("--pens", type=float, nargs="+", default=[0.1, 0.3, 0.5, 1.0])
-    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2],
+                    help="threads of each run; 0: leave --threads out (a build from before it existed)")
     ap.add_argument("--end-s", type=float, nargs="+", default=[300.0])
     ap.add_argument("--variant", action="append", default=[], help="NAME:TOML (see above)")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "scale")
@@ -131,7 +132,8 @@ def main() -> None:
                 cfg.write_text(config_text(config, pen, end_s, toml.replace("\\n", "\n")))
                 for threads in a.threads:
                     res = a.out / f"{cfg.stem}-t{threads}"
-                    m = measured([str(exe), "run", "-q", "--force", "--threads", str(threads),
+                    flag = ["--threads", str(threads)] if threads else []
+                    m = measured([str(exe), "run", "-q", "--force", *flag,
                                   "--config", str(cfg), "--out", str(res)])
                     if m["rc"] != 0:
                         sys.exit(f"error: coid run failed ({cfg}): {m['stderr']}")
