@@ -1085,6 +1085,15 @@ mod tests {
             }
         }
 
+        /// (0, 1), (0, 2), (1, 2), ...: every pair, as a frame lists them.
+        fn every_pair(&self) -> Vec<PairAtLevel<'_>> {
+            let n = self.sensed.len();
+            (0..n)
+                .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+                .map(|(i, j)| self.pair(i, j))
+                .collect()
+        }
+
         fn pair(&self, i: usize, j: usize) -> PairAtLevel<'_> {
             let (first, second) = (self.side(i), self.side(j));
             PairAtLevel {
@@ -1127,8 +1136,9 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_contradictory_triple_is_counted_and_synchronisation_resolves_it() {
+    /// Vehicles a, b and c 10 m apart in a row, each seeing objects x and
+    /// y exactly.
+    fn three_in_a_row() -> TestFrame {
         let objects = [
             (Some("x"), Vec2::new(5.0, 8.0)),
             (Some("y"), Vec2::new(12.0, -3.0)),
@@ -1139,15 +1149,21 @@ mod tests {
             .zip(&poses)
             .map(|(id, p)| sensed(id, *p, &objects))
             .collect();
-        let frame = TestFrame::new(sensed, &poses);
-        let pairs: Vec<PairAtLevel> = [(0, 1), (0, 2), (1, 2)]
-            .iter()
-            .map(|&(i, j)| frame.pair(i, j))
-            .collect();
-        let fusion = FusionSettings {
+        TestFrame::new(sensed, &poses)
+    }
+
+    fn paper_fusion() -> FusionSettings {
+        FusionSettings {
             variants: vec![FusionVariant::Paper],
             align_min_matches: 3,
-        };
+        }
+    }
+
+    #[test]
+    fn a_contradictory_triple_is_counted_and_synchronisation_resolves_it() {
+        let frame = three_in_a_row();
+        let pairs = frame.every_pair();
+        let fusion = paper_fusion();
         let runner = Runner::Matcher(Box::new(Contradicting));
         let pairwise = evaluate_frame(&pairs, &runner, &fusion, MultiVehicle::Pairwise);
         // As decided: (a, c) wrong, so every chain through b is broken;
@@ -1201,25 +1217,9 @@ mod tests {
 
     #[test]
     fn the_map_matches_each_vehicle_once_and_is_consistent() {
-        let objects = [
-            (Some("x"), Vec2::new(5.0, 8.0)),
-            (Some("y"), Vec2::new(12.0, -3.0)),
-        ];
-        let poses = [0.0, 10.0, 20.0].map(|x| Pose2::new(Vec2::new(x, -10.0), 0.1));
-        let sensed: Vec<(Observation, ObservationTruth)> = ["a", "b", "c"]
-            .iter()
-            .zip(&poses)
-            .map(|(id, p)| sensed(id, *p, &objects))
-            .collect();
-        let frame = TestFrame::new(sensed, &poses);
-        let pairs: Vec<PairAtLevel> = [(0, 1), (0, 2), (1, 2)]
-            .iter()
-            .map(|&(i, j)| frame.pair(i, j))
-            .collect();
-        let fusion = FusionSettings {
-            variants: vec![FusionVariant::Paper],
-            align_min_matches: 3,
-        };
+        let frame = three_in_a_row();
+        let pairs = frame.every_pair();
+        let fusion = paper_fusion();
         // b meets the map of a (in a's frame), c the map of a and b in the
         // frame of b, its nearest peer: the crossed (a, c) matching, which
         // pairwise matching gets wrong, is never asked for.

@@ -167,12 +167,5 @@ mkdir -p "$out/densetown"
 cp "$out/town/town.net.xml" "$out/town/town.poly.xml" "$out/densetown/"
 demand "$out/densetown/town.net.xml" d 0.33 13 900
 sumocfg "$out/densetown" town.net.xml town.poly.xml
-cat > "$out/densetown/coid.toml" <<EOF
-[scenario]
-sumocfg = "scenario.sumocfg"
-junction = "1007"
-end_s = 300
-[connected]
-penetration = 0.3
-EOF
+cp "$out/town/coid.toml" "$out/densetown/coid.toml"
 echo "made $out/grid, $out/town and $out/densetown"
