@@ -18,6 +18,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyModule;
 
 use crate::geometry::{Polygon, Pose2, Vec2};
+use crate::paths;
 use crate::traffic::{Lane, ObjectClass, StaticScene, TrafficFrame, TrafficObject};
 
 const SHIM: &str = include_str!("../bridge/coid_bridge.py");
@@ -28,7 +29,7 @@ static RUNNING: AtomicBool = AtomicBool::new(false);
 #[derive(Debug, thiserror::Error)]
 pub enum BridgeError {
     #[error(
-        "no project Python environment with libsumo at {0} (run bridge/setup.sh, or set COID_VENV)"
+        "no Python environment with libsumo at {0} (remove it to have coid make it again, or set COID_VENV)"
     )]
     NoEnvironment(PathBuf),
     #[error("Python set-up failed: {0}")]
@@ -61,9 +62,10 @@ pub enum BridgeError {
 /// `args` (paths in them relative to `dir`). Its console output is kept
 /// only for the error.
 pub fn netconvert(dir: &Path, args: &[String]) -> Result<(), BridgeError> {
-    let exe = venv_dir().join("bin").join("netconvert");
+    let venv = environment()?;
+    let exe = venv.join("bin").join("netconvert");
     if !exe.is_file() {
-        return Err(BridgeError::NoEnvironment(venv_dir()));
+        return Err(BridgeError::NoEnvironment(venv));
     }
     let fail = |message: String| BridgeError::Tool {
         tool: "netconvert",
@@ -98,12 +100,119 @@ fn describe(py: Python<'_>, err: &PyErr) -> String {
     }
 }
 
-/// Where the project-local Python environment lives: `COID_VENV`, else the
-/// `.venv` in the source tree this binary was built from.
+/// Where SUMO's Python environment lives ([`paths::venv_dir`]).
 pub fn venv_dir() -> PathBuf {
-    std::env::var_os("COID_VENV")
+    paths::venv_dir().unwrap_or_else(|_| PathBuf::from(".venv"))
+}
+
+/// The pinned SUMO packages (what `bridge/setup.sh` installs too).
+const REQUIREMENTS: &str = include_str!("../bridge/requirements.txt");
+/// Inside the environment: the requirements it was made with, written
+/// last (the same stamp `bridge/setup.sh` writes).
+const STAMP: &str = ".coid-requirements";
+
+/// SUMO's Python environment, made on first use when it is missing or
+/// incomplete: `python -m venv` with the interpreter the binary was
+/// linked against (`COID_PYTHON` overrides it), then pip with the pinned
+/// requirements. One process makes it while others wait (a lock file
+/// beside it).
+pub fn environment() -> Result<PathBuf, BridgeError> {
+    let venv = paths::venv_dir().map_err(|e| BridgeError::Setup(e.to_string()))?;
+    if is_complete(&venv) {
+        return Ok(venv);
+    }
+    let parent = venv.parent().map(Path::to_owned).unwrap_or_default();
+    let setup = |what: &str, e: &dyn std::fmt::Display| {
+        BridgeError::Setup(format!("{what} {}: {e}", venv.display()))
+    };
+    std::fs::create_dir_all(&parent).map_err(|e| setup("cannot make the folder of", &e))?;
+    let lock = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(parent.join(".venv.lock"))
+        .map_err(|e| setup("cannot lock", &e))?;
+    lock.lock().map_err(|e| setup("cannot lock", &e))?;
+    if is_complete(&venv) {
+        return Ok(venv);
+    }
+    eprintln!(
+        "coid: setting up SUMO's Python environment in {} (libsumo and eclipse-sumo from PyPI, ~250 MB, once)",
+        venv.display()
+    );
+    if venv.exists() {
+        std::fs::remove_dir_all(&venv).map_err(|e| setup("cannot replace", &e))?;
+    }
+    let python = std::env::var_os("COID_PYTHON")
         .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv"))
+        .unwrap_or_else(|| {
+            let built = PathBuf::from(paths::BUILD_PYTHON);
+            if built.is_file() {
+                built
+            } else {
+                PathBuf::from("python3")
+            }
+        });
+    run_setup(&python, &["-m", "venv"], &venv)?;
+    let req = venv.join("requirements.txt");
+    std::fs::write(&req, REQUIREMENTS).map_err(|e| setup("cannot write into", &e))?;
+    let py = venv.join("bin").join("python");
+    let pip = [
+        "-m",
+        "pip",
+        "install",
+        "--disable-pip-version-check",
+        "--quiet",
+        "-r",
+    ];
+    run_setup(&py, &pip, &req)?;
+    check_version(&py)?;
+    std::fs::write(venv.join(STAMP), REQUIREMENTS).map_err(|e| setup("cannot write into", &e))?;
+    Ok(venv)
+}
+
+fn is_complete(venv: &Path) -> bool {
+    venv.join("bin").join("python").is_file()
+        && std::fs::read_to_string(venv.join(STAMP)).is_ok_and(|s| s == REQUIREMENTS)
+}
+
+/// Runs `program args path` for the environment's set-up; its output is
+/// kept for the error.
+fn run_setup(program: &Path, args: &[&str], path: &Path) -> Result<(), BridgeError> {
+    let out = std::process::Command::new(program)
+        .args(args)
+        .arg(path)
+        .output()
+        .map_err(|e| BridgeError::Setup(format!("cannot run {}: {e}", program.display())))?;
+    if out.status.success() {
+        return Ok(());
+    }
+    let text = String::from_utf8_lossy(&out.stderr);
+    Err(BridgeError::Setup(format!(
+        "{} {} failed: {}",
+        program.display(),
+        args.join(" "),
+        text.lines().last().unwrap_or("no output")
+    )))
+}
+
+/// The environment's Python must be the one the binary links against.
+fn check_version(python: &Path) -> Result<(), BridgeError> {
+    if paths::BUILD_PYTHON_VERSION.is_empty() {
+        return Ok(());
+    }
+    let out = std::process::Command::new(python)
+        .args(["-c", "import sys; print('%d.%d' % sys.version_info[:2])"])
+        .output()
+        .map_err(|e| BridgeError::Setup(format!("cannot run {}: {e}", python.display())))?;
+    let version = String::from_utf8_lossy(&out.stdout).trim().to_owned();
+    if version == paths::BUILD_PYTHON_VERSION {
+        return Ok(());
+    }
+    Err(BridgeError::Setup(format!(
+        "the environment's Python is {version}, but coid was built for Python {} (set COID_PYTHON to a python{0})",
+        paths::BUILD_PYTHON_VERSION
+    )))
 }
 
 fn site_packages(venv: &Path) -> Option<PathBuf> {
@@ -122,7 +231,7 @@ fn site_packages(venv: &Path) -> Option<PathBuf> {
 /// site-packages, its python as `sys.executable`, and `SUMO_HOME` (in
 /// Python's and the process environment). Idempotent.
 fn prepare_python(py: Python<'_>) -> Result<Bound<'_, PyModule>, BridgeError> {
-    let venv = venv_dir();
+    let venv = environment()?;
     let site = site_packages(&venv).ok_or_else(|| BridgeError::NoEnvironment(venv.clone()))?;
     let setup = format!(
         "import os, site, sys\n\

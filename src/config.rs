@@ -36,10 +36,18 @@ use crate::traffic::ScenarioSettings;
 /// The defaults: every key, with its documentation.
 pub const DEFAULTS_TOML: &str = include_str!("../configs/default.toml");
 
-/// Where the defaults' relative paths are anchored: the installation's
-/// `configs/` folder.
+/// Where the defaults' relative paths are anchored: the `configs/` folder
+/// of this build's files in the user's data folder (written out by
+/// `io::assets::install`, which every command calls first), so the
+/// default scenario and weights are the ones this binary carries, from
+/// any folder. The library's own tests read the checkout's `configs/`.
 pub fn defaults_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("configs")
+    if cfg!(test) {
+        return Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+    }
+    crate::paths::install_dir()
+        .map(|d| d.join("configs"))
+        .unwrap_or_else(|_| PathBuf::from("configs"))
 }
 
 /// Why a configuration could not be used. Each message is one line and names

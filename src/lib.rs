@@ -2,7 +2,8 @@
 //! intersections. The modules read as the pipeline, bottom to top (see
 //! ARCHITECTURE.md; a module uses only modules below it):
 //!
-//! - foundations: [`geometry`], [`rng`], [`label`], [`traffic`];
+//! - foundations: [`geometry`], [`rng`], [`label`], [`paths`] (where coid
+//!   keeps its files), [`traffic`];
 //! - stages: [`bridge`] (SUMO), [`sensor`], [`graph`], [`fusion`],
 //!   [`matching`];
 //! - [`evaluate`]: one instance, one method: match, count, fuse;
@@ -24,6 +25,7 @@ pub mod graph;
 pub mod io;
 pub mod label;
 pub mod matching;
+pub mod paths;
 pub mod pipeline;
 pub mod render;
 pub mod report;

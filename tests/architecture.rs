@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 /// Top-level modules by layer: a module may use only modules of lower
 /// layers (and its own submodules).
 const LAYERS: &[&[&str]] = &[
-    &["geometry", "rng", "label"],
+    &["geometry", "rng", "label", "paths"],
     &["traffic", "scenarios"],
     &["bridge", "sensor", "graph", "fusion"],
     &["matching"],
@@ -75,30 +75,183 @@ fn layer(module: &str) -> Option<usize> {
     LAYERS.iter().position(|l| l.contains(&module))
 }
 
-/// The top-level modules a file names through `crate::` paths (in `use`
-/// lines and inline).
-fn crate_deps(code: &str) -> Vec<String> {
-    let mut deps = Vec::new();
-    for line in code.lines().filter(|l| !l.trim_start().starts_with("//")) {
-        let mut rest = line;
-        while let Some(k) = rest.find("crate::") {
-            rest = &rest[k + "crate::".len()..];
-            let name: String = rest
-                .chars()
-                .take_while(|c| c.is_alphanumeric() || *c == '_')
-                .collect();
-            // `crate::label_enum!` is the label module's macro.
-            let name = if name == "label_enum" {
-                "label".into()
-            } else {
-                name
-            };
-            if !name.is_empty() && !deps.contains(&name) {
-                deps.push(name);
+/// The `crate::` dependencies found so far.
+#[derive(Default)]
+struct Deps(std::collections::BTreeSet<String>);
+
+fn is_test(attrs: &[syn::Attribute]) -> bool {
+    attrs.iter().any(|a| {
+        a.path().is_ident("cfg")
+            && a.meta
+                .require_list()
+                .is_ok_and(|l| l.tokens.to_string().split_whitespace().any(|t| t == "test"))
+    })
+}
+
+impl Deps {
+    fn add(&mut self, name: &str) {
+        // `crate::label_enum!` is the label module's macro.
+        let name = if name == "label_enum" { "label" } else { name };
+        self.0.insert(name.to_owned());
+    }
+
+    fn tree(&mut self, t: &syn::UseTree, under_crate: bool) {
+        match t {
+            syn::UseTree::Path(p) if !under_crate => {
+                let root = p.ident == "crate" || p.ident == "coid_sim";
+                if root {
+                    self.tree(&p.tree, true);
+                }
+            }
+            syn::UseTree::Path(p) => self.add(&p.ident.to_string()),
+            syn::UseTree::Name(n) if under_crate => self.add(&n.ident.to_string()),
+            syn::UseTree::Rename(r) if under_crate => self.add(&r.ident.to_string()),
+            syn::UseTree::Group(g) => {
+                for t in &g.items {
+                    self.tree(t, under_crate);
+                }
+            }
+            _ => {}
+        }
+    }
+}
+
+impl<'ast> syn::visit::Visit<'ast> for Deps {
+    fn visit_item(&mut self, i: &'ast syn::Item) {
+        let attrs = match i {
+            syn::Item::Mod(m) => &m.attrs,
+            syn::Item::Fn(f) => &f.attrs,
+            syn::Item::Impl(m) => &m.attrs,
+            syn::Item::Use(u) => &u.attrs,
+            syn::Item::Struct(s) => &s.attrs,
+            syn::Item::Const(c) => &c.attrs,
+            _ => return syn::visit::visit_item(self, i),
+        };
+        if !is_test(attrs) {
+            syn::visit::visit_item(self, i);
+        }
+    }
+
+    fn visit_impl_item_fn(&mut self, f: &'ast syn::ImplItemFn) {
+        if !is_test(&f.attrs) {
+            syn::visit::visit_impl_item_fn(self, f);
+        }
+    }
+
+    fn visit_item_use(&mut self, u: &'ast syn::ItemUse) {
+        self.tree(&u.tree, false);
+    }
+
+    fn visit_path(&mut self, p: &'ast syn::Path) {
+        let mut segs = p.segments.iter();
+        if let (Some(first), Some(second)) = (segs.next(), segs.next())
+            && (first.ident == "crate" || first.ident == "coid_sim")
+        {
+            self.add(&second.ident.to_string());
+        }
+        syn::visit::visit_path(self, p);
+    }
+
+    fn visit_macro(&mut self, m: &'ast syn::Macro) {
+        self.visit_path(&m.path);
+        // Paths inside a macro's tokens (format!, assert!, ...).
+        let tokens: Vec<String> = m
+            .tokens
+            .clone()
+            .into_iter()
+            .map(|t| t.to_string())
+            .collect();
+        for w in tokens.windows(4) {
+            if (w[0] == "crate" || w[0] == "coid_sim") && w[1] == ":" && w[2] == ":" {
+                self.add(&w[3]);
             }
         }
     }
-    deps
+}
+
+/// The top-level modules a file names through `crate::` paths (in `use`
+/// trees, groups included, in paths inline and in macro paths), outside
+/// items marked `#[cfg(test)]`; `coid_sim::` counts too (the binary's
+/// `main.rs` names the library that way).
+fn crate_deps(code: &str) -> Vec<String> {
+    use syn::visit::Visit;
+    let file = syn::parse_file(code).unwrap_or_else(|e| panic!("cannot parse: {e}"));
+    let mut deps = Deps::default();
+    deps.visit_file(&file);
+    deps.0.into_iter().collect()
+}
+
+/// The code map's entries of ARCHITECTURE.md: (path under `src/`, the
+/// modules its "Uses:" line lists).
+fn code_map() -> Vec<(String, Vec<String>)> {
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("ARCHITECTURE.md"))
+            .unwrap();
+    let mut out = Vec::new();
+    for entry in text.split("\n\n").filter(|p| p.starts_with("**`src/")) {
+        let path = entry["**`src/".len()..]
+            .split('`')
+            .next()
+            .unwrap()
+            .to_owned();
+        let flat = entry.split_whitespace().collect::<Vec<_>>().join(" ");
+        let uses = flat
+            .rsplit_once("Uses: ")
+            .unwrap_or_else(|| panic!("the entry of src/{path} has no Uses: line"))
+            .1;
+        let uses = &uses[..uses.find('.').unwrap_or(uses.len())];
+        let names = uses
+            .split('`')
+            .skip(1)
+            .step_by(2)
+            .map(str::to_owned)
+            .collect();
+        out.push((path, names));
+    }
+    out
+}
+
+#[test]
+fn the_code_map_says_what_each_module_uses() {
+    let map = code_map();
+    let sources = sources();
+    let mut wrong = Vec::new();
+    for (path, listed) in &map {
+        // The files of this entry: the most specific entry covers a file.
+        let covers = |rel: &str, p: &str| rel == p || (p.ends_with('/') && rel.starts_with(p));
+        let mut used = std::collections::BTreeSet::new();
+        for (rel, code) in &sources {
+            let best = map
+                .iter()
+                .filter(|(p, _)| covers(rel, p))
+                .max_by_key(|(p, _)| p.len());
+            if best.is_some_and(|(p, _)| p == path) {
+                used.extend(crate_deps(code));
+            }
+        }
+        used.remove(&module_of(path));
+        let listed: std::collections::BTreeSet<String> = listed.iter().cloned().collect();
+        if used != listed {
+            wrong.push(format!(
+                "src/{path}: the code uses {used:?}, the map says {listed:?}"
+            ));
+        }
+    }
+    assert!(
+        wrong.is_empty(),
+        "ARCHITECTURE.md's Uses: lines are wrong:\n{}",
+        wrong.join("\n")
+    );
+    // Every top-level module has an entry.
+    for (rel, _) in &sources {
+        let m = module_of(rel);
+        if m != "lib" {
+            assert!(
+                map.iter().any(|(p, _)| module_of(p) == m),
+                "src/{rel}: no entry in ARCHITECTURE.md's code map"
+            );
+        }
+    }
 }
 
 #[test]
@@ -215,15 +368,27 @@ fn only_io_writes_files_and_only_batch_and_bridge_start_processes() {
             "tempfile",
             "std::fs::copy",
         ],
-        &["io/mod.rs", "io/frames.rs", "bridge.rs"],
+        &["io/mod.rs", "io/frames.rs", "io/assets.rs", "bridge.rs"],
     );
-    // The bridge only removes its own capture of SUMO's stderr.
+    // The bridge writes only inside SUMO's Python environment (its
+    // requirements and stamp) and removes its own capture of SUMO's stderr.
     let bridge = std::fs::read_to_string(src().join("bridge.rs")).unwrap();
-    assert!(!bridge.contains("std::fs::write") && !bridge.contains("create_dir"));
+    for line in bridge.lines().filter(|l| l.contains("std::fs::write")) {
+        assert!(
+            line.contains("std::fs::write(&req") || line.contains("venv.join(STAMP)"),
+            "{line}"
+        );
+    }
     // Reading: the config file, weights, batch folders, the venv.
     only_in(
         &["std::fs::read", "File::open", "read_dir"],
-        &["config.rs", "io/mod.rs", "io/frames.rs", "bridge.rs"],
+        &[
+            "config.rs",
+            "io/mod.rs",
+            "io/frames.rs",
+            "io/assets.rs",
+            "bridge.rs",
+        ],
     );
     // Batch starts its workers; the bridge runs SUMO's netconvert.
     only_in(
@@ -288,4 +453,15 @@ fn main_is_thin() {
         "main.rs has {} lines",
         main.lines().count()
     );
+}
+
+#[test]
+fn the_dependency_reader_sees_groups_inline_paths_and_macros_but_not_tests() {
+    let code = "use crate::{io, geometry::Vec2};\n\
+                use std::fmt;\n\
+                fn f() { crate::rng::stream(); let _ = format!(\"{}\", crate::label::X); }\n\
+                crate::label_enum! { \"x\"; pub enum E { A } }\n\
+                #[cfg(test)]\nmod tests { use crate::cli; }\n\
+                #[cfg(test)]\nfn helper() { crate::batch::run(); }\n";
+    assert_eq!(crate_deps(code), ["geometry", "io", "label", "rng"]);
 }

@@ -17,6 +17,18 @@ fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The `coid` binary in `dir`, with its data folder there too (each test
+/// writes out the carried files for itself) and SUMO's environment from
+/// `COID_VENV` or the checkout's `.venv` (never a new download).
+fn coid_in(dir: &Path) -> Command {
+    let mut c = Command::new(BIN);
+    c.current_dir(dir).env("COID_HOME", dir.join(".coid-home"));
+    if std::env::var_os("COID_VENV").is_none() {
+        c.env("COID_VENV", repo().join(".venv"));
+    }
+    c
+}
+
 fn shipped_sumocfg() -> PathBuf {
     repo().join("sumo_nets/intersection/intersection.sumocfg")
 }
@@ -55,9 +67,8 @@ impl Fixture {
     }
 
     fn coid(&self, args: &[&str]) -> Output {
-        Command::new(BIN)
+        coid_in(self.dir.path())
             .args(args)
-            .current_dir(self.dir.path())
             .output()
             .expect("run coid")
     }
@@ -402,11 +413,7 @@ mod run {
             "--out",
             "res/k",
         ];
-        let mut child = Command::new(BIN)
-            .args(args)
-            .current_dir(fx.dir.path())
-            .spawn()
-            .unwrap();
+        let mut child = coid_in(fx.dir.path()).args(args).spawn().unwrap();
         // Killed once its staging folder holds rows (a row group or more).
         let started = Instant::now();
         let staged_bytes = || -> u64 {
@@ -436,6 +443,64 @@ mod run {
         assert_ok(&fx.coid(&args));
         let objects = read_parquet(&fx.path("res/k/objects.parquet"));
         assert!(objects.height() > 0);
+    }
+
+    /// A copy of the binary outside the checkout, run from an empty folder
+    /// without `--config`: the defaults are compiled in, the default
+    /// scenario and the shipped weights come out of the binary into its
+    /// data folder, and the results land in the working folder.
+    #[test]
+    fn an_installed_coid_runs_from_any_folder_without_a_config() {
+        let fx = Fixture::new();
+        let bin = fx.path("prefix/bin/coid");
+        std::fs::create_dir_all(bin.parent().unwrap()).unwrap();
+        std::fs::copy(BIN, &bin).unwrap();
+        let work = fx.path("somewhere/else");
+        std::fs::create_dir_all(&work).unwrap();
+        let venv =
+            std::env::var_os("COID_VENV").map_or_else(|| repo().join(".venv"), PathBuf::from);
+        let out = Command::new(&bin)
+            .args(["run", "--quiet"])
+            .current_dir(&work)
+            .env("COID_HOME", fx.path("home"))
+            .env("COID_VENV", venv)
+            .output()
+            .unwrap();
+        assert_ok(&out);
+        let summary = read_csv(&work.join("results/default/summary.csv"));
+        check_summary(&summary);
+        let installed: Vec<PathBuf> = std::fs::read_dir(fx.path("home"))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| {
+                p.file_name()
+                    .unwrap()
+                    .to_string_lossy()
+                    .starts_with("install-")
+            })
+            .collect();
+        assert_eq!(installed.len(), 1, "{installed:?}");
+        for f in [
+            "models/ours.bpk",
+            "sumo_nets/intersection/intersection.sumocfg",
+            "configs/default.toml",
+        ] {
+            assert!(installed[0].join(f).is_file(), "{f}");
+        }
+        // The same bytes as a run of the checkout's default config.
+        let checkout = fx.coid(&[
+            "run",
+            "-q",
+            "--config",
+            repo().join("configs/default.toml").to_str().unwrap(),
+            "--out",
+            "ref",
+        ]);
+        assert_ok(&checkout);
+        assert_eq!(
+            std::fs::read(work.join("results/default/summary.csv")).unwrap(),
+            std::fs::read(fx.path("ref/summary.csv")).unwrap()
+        );
     }
 
     #[test]
@@ -667,7 +732,14 @@ mod learned {
                 fx.path("models").to_string_lossy()
             ),
         );
-        let out = fx.coid(&["train", "-q", "--config", cfg.to_str().unwrap()]);
+        let out = fx.coid(&[
+            "train",
+            "-q",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--out",
+            "models",
+        ]);
         assert_ok(&out);
         for f in ["gcn-gm.bpk", "gcn-gm.toml", "gcn-gm_loss.csv"] {
             assert!(fx.path("models").join(f).is_file(), "{f} missing");
@@ -704,7 +776,14 @@ mod learned {
                 fx.path("models").to_string_lossy()
             ),
         );
-        assert_ok(&fx.coid(&["train", "-q", "--config", cfg.to_str().unwrap()]));
+        assert_ok(&fx.coid(&[
+            "train",
+            "-q",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--out",
+            "models",
+        ]));
         let curve = read_csv(&fx.path("models/gcn-gm_loss.csv"));
         let v = f64s(&curve, "validation_loss");
         assert!(v.len() >= 2 && v.iter().all(|l| l.is_finite()), "{v:?}");
@@ -730,9 +809,9 @@ mod learned {
              methods = [\"gcn-gm\", \"dgmc\"]\n[pose_noise]\nlevels = [\"gps\"]\n",
         );
         let c = cfg.to_str().unwrap();
-        let two = fx.coid(&["train", "-q", "--config", c, "--out", "two", "-j", "2"]);
+        let two = fx.coid(&["train", "-q", "--config", c, "--out", "two", "-w", "2"]);
         assert_ok(&two);
-        assert_ok(&fx.coid(&["train", "-q", "--config", c, "--out", "one", "-j", "1"]));
+        assert_ok(&fx.coid(&["train", "-q", "--config", c, "--out", "one", "-w", "1"]));
         for m in ["gcn-gm", "dgmc"] {
             let read =
                 |dir: &str, ext: &str| std::fs::read(fx.path(&format!("{dir}/{m}{ext}"))).unwrap();
@@ -972,7 +1051,7 @@ mod batch {
     /// Starts `coid batch` of `runs` runs on one worker into `out` without
     /// waiting for it.
     fn spawn_batch(fx: &Fixture, cfg: &Path, runs: &str, out: &str) -> std::process::Child {
-        Command::new(BIN)
+        coid_in(fx.dir.path())
             .args([
                 "batch",
                 "-q",
@@ -982,7 +1061,6 @@ mod batch {
                 runs,
             ])
             .args(["--workers", "1", "--out", out])
-            .current_dir(fx.dir.path())
             .stderr(std::process::Stdio::piped())
             .spawn()
             .unwrap()

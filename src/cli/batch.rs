@@ -43,9 +43,14 @@ pub struct MergeArgs {
     /// Shard folders (each made by `coid batch --shard k/n`).
     #[arg(required = true)]
     dirs: Vec<PathBuf>,
-    /// Output folder.
+    /// Output folder: the merged batch (refused when it exists, unless
+    /// --force).
     #[arg(long, short)]
     out: PathBuf,
+    /// Replace the output folder if it exists (the old one is removed only
+    /// after the new one is complete).
+    #[arg(long)]
+    force: bool,
 }
 
 const CI_NOTE: &str =
@@ -53,15 +58,14 @@ const CI_NOTE: &str =
 
 pub fn batch(a: Args) -> anyhow::Result<()> {
     // Validate the config once here, so a bad config fails before any run.
-    Settings::load(&a.config.config)?;
+    let path = a.config.path();
+    Settings::load(&path)?;
     if a.runs == 0 {
         anyhow::bail!("--runs must be at least 1");
     }
-    let config = a
-        .config
-        .config
+    let config = path
         .canonicalize()
-        .with_context(|| format!("cannot resolve {}", a.config.config.display()))?;
+        .with_context(|| format!("cannot resolve {}", path.display()))?;
     let out = super::out_dir(a.out, &config, "-batch");
     let workers = a.workers.unwrap_or_else(super::cores).max(1);
     // Workers x threads stay within the cores unless asked otherwise.
@@ -138,28 +142,31 @@ pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
         }
     }
     let mut total = 0;
-    for d in &a.dirs {
-        for run in io::completed_runs(d)? {
-            let dst = a.out.join("runs").join(run.file_name().unwrap_or_default());
-            io::copy_run(&run, &dst)?;
-            total += 1;
+    io::atomic_dir(&a.out, a.force, |out| -> anyhow::Result<()> {
+        for d in &a.dirs {
+            for run in io::completed_runs(d)? {
+                let dst = out.join("runs").join(run.file_name().unwrap_or_default());
+                io::copy_run(&run, &dst)?;
+                total += 1;
+            }
         }
-    }
-    if let Some(id) = &identity {
-        io::write_batch_identity(&a.out, id)?;
-    }
-    let (rows, complete) = batch::aggregate(&a.out)?;
-    // The same report as the unsharded batch, so the merged folder is
-    // byte-identical to it.
-    let line = match identity.as_deref().map(batch::parse_identity) {
-        Some(Ok(b)) => batch::provenance(&b.config, b.master_seed, b.runs, complete),
-        _ => format!(
-            "- merged from {} shard folders; {complete} runs",
-            a.dirs.len()
-        ),
-    };
-    let header = format!("{line}\n{CI_NOTE}");
-    batch::write_aggregate(&a.out, &rows, &header)?;
+        if let Some(id) = &identity {
+            io::write_batch_identity(out, id)?;
+        }
+        let (rows, complete) = batch::aggregate(out)?;
+        // The same report as the unsharded batch, so the merged folder is
+        // byte-identical to it.
+        let line = match identity.as_deref().map(batch::parse_identity) {
+            Some(Ok(b)) => batch::provenance(&b.config, b.master_seed, b.runs, complete),
+            _ => format!(
+                "- merged from {} shard folders; {complete} runs",
+                a.dirs.len()
+            ),
+        };
+        let header = format!("{line}\n{CI_NOTE}");
+        batch::write_aggregate(out, &rows, &header)?;
+        Ok(())
+    })?;
     eprintln!("coid: merged {total} runs into {}", a.out.display());
     Ok(())
 }

@@ -120,7 +120,8 @@ fn gather(a: &Args, settings: Settings) -> anyhow::Result<Vec<Scenario>> {
     } else {
         settings.eval.scenarios.clone()
     };
-    let mut scenarios = vec![scenario(&a.common.config.config, settings, a.validation)];
+    let config = a.common.config.path();
+    let mut scenarios = vec![scenario(&config, settings, a.validation)];
     let primary = scenarios[0].settings.clone();
     for path in &listed {
         // The config's own scenario lists: its settings, that scenario.
@@ -136,7 +137,7 @@ fn gather(a: &Args, settings: Settings) -> anyhow::Result<Vec<Scenario>> {
             .with_context(|| format!("{} cannot join the suite", path.display()))?;
         scenarios.push(scenario(path, s, a.validation));
     }
-    let paths: Vec<&Path> = std::iter::once(a.common.config.config.as_path())
+    let paths: Vec<&Path> = std::iter::once(config.as_path())
         .chain(listed.iter().map(PathBuf::as_path))
         .chain(a.suite.iter().map(PathBuf::as_path))
         .collect();

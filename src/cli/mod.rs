@@ -34,42 +34,64 @@ pub struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Run one scenario headless and write summary.csv, objects.parquet and summary.md.
+    /// Run one scenario headless. Writes into --out: summary.csv (P/R/F1
+    /// and displacement errors per method, pose noise and fusion),
+    /// objects.parquet (every (ego, object) estimate), summary.md.
     Run(run::Args),
     /// Run a Monte Carlo batch: N runs with seeds derived from one master
     /// seed, on W worker processes, resumable (run the same command again to
-    /// finish a killed batch), aggregated into <out>/summary.csv with 95%
-    /// confidence intervals. Each run keeps its own folder in <out>/runs/.
+    /// finish a killed batch), aggregated with 95% confidence intervals.
+    /// Writes into --out: batch.toml (what the batch is), runs/run-NNNNNN/
+    /// (each run's folder, as `coid run` writes it), summary.csv,
+    /// summary.md, f1_per_method.png and .svg.
     Batch(batch::Args),
     /// Combine batch shard folders into one aggregate, identical to the
-    /// unsharded batch's.
+    /// unsharded batch's. Writes into --out what `coid batch` writes.
     Merge(batch::MergeArgs),
-    /// Draw chosen instances top-down (PNG and SVG): roads, buildings, road
-    /// users, camera frustums, detections and the correspondences of one
-    /// method (green right, red wrong, thicker = more uncertain).
+    /// Draw chosen instances top-down: roads, buildings, road users, camera
+    /// frustums, detections and the correspondences of one method (green
+    /// right, red wrong, thicker = more uncertain). Writes into --out:
+    /// instance-NNNN.png and .svg per instance.
     Render(render::Args),
-    /// Evaluate every method on the test runs ([eval] traffic_seeds) and write
-    /// the paper's tables: table1.csv (P/R/F1 per method and pose noise),
-    /// table2.csv (F1 before/after uncertainty thresholding), table3.csv
-    /// (uncertainty types), lambda_sweep.csv, case_study.csv,
-    /// calibration.csv; means with 95% confidence intervals over runs. With
-    /// [eval] scenarios or --suite: per scenario and pooled.
+    /// Evaluate every method on the test runs ([eval] traffic_seeds) and
+    /// write the paper's tables, means with 95% confidence intervals over
+    /// runs. Writes into --out: table1.csv (P/R/F1 per method and pose
+    /// noise), table2.csv (F1 before/after uncertainty thresholding),
+    /// table3.csv (uncertainty types), lambda_sweep.csv, case_study.csv
+    /// (displacement errors), calibration.csv, consistency.csv, views.csv,
+    /// summary.md, and pictures (f1_per_method, lambda_sweep, error_cdf,
+    /// reliability_<method>; PNG and SVG). With [eval] scenarios or
+    /// --suite: one such folder per scenario, and pooled/.
     Eval(eval::Args),
     /// Train the deep matchers on instances from the training runs
-    /// ([train] traffic_seeds, and [train] scenarios) and save their weights,
-    /// config and loss curve; then choose each one's calibration
-    /// temperature, decision rule and lambda on the validation runs.
+    /// ([train] traffic_seeds, and [train] scenarios), then choose each
+    /// one's calibration temperature, decision rule and lambda on the
+    /// validation runs. Writes into --out: <method>.bpk (weights),
+    /// <method>.toml (its record), <method>_loss.csv (loss per epoch).
     Train(train::Args),
     /// Generate a seeded family of junctions with SUMO's netconvert
     /// (crossings of 3-5 legs, arterials with turn pockets, joined junction
     /// clusters, roundabouts, motorway merges; building blocks or none;
-    /// light to saturated demand, pedestrians), one folder each with a
-    /// coid.toml that runs as it is; the same seed gives the same bytes.
+    /// light to saturated demand, pedestrians); the same seed gives the
+    /// same bytes. Writes into --out: one folder per scenario (net, its
+    /// plain sources, buildings, demand, .sumocfg, a coid.toml that runs
+    /// as it is, README.md) and README.md (the family).
     Scenarios(scenarios::Args),
+    /// Print a shell completion script for coid to stdout (e.g. `coid
+    /// completions bash > ~/.local/share/bash-completion/completions/coid`).
+    Completions {
+        /// The shell.
+        shell: clap_complete::Shell,
+    },
 }
 
 /// Runs the parsed command.
 pub fn execute(cli: Cli) -> anyhow::Result<()> {
+    // The default scenario and the shipped weights, where the defaults
+    // point (written out once per build).
+    if !matches!(cli.command, Command::Completions { .. }) {
+        crate::io::assets::install()?;
+    }
     match cli.command {
         Command::Run(a) => run::run(a),
         Command::Batch(a) => batch::batch(a),
@@ -78,17 +100,34 @@ pub fn execute(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => eval::eval(a),
         Command::Train(a) => train::train(a),
         Command::Scenarios(a) => scenarios::scenarios(a),
+        Command::Completions { shell } => {
+            use clap::CommandFactory;
+            let mut cmd = Cli::command();
+            clap_complete::generate(shell, &mut cmd, "coid", &mut std::io::stdout());
+            Ok(())
+        }
     }
 }
 
 /// The configuration file, for every command that reads one.
 #[derive(clap::Args)]
 struct ConfigArg {
-    /// Configuration file (TOML): only what differs from
-    /// configs/default.toml; relative paths inside it resolve against its
-    /// folder.
-    #[arg(long, short, default_value = "configs/default.toml")]
-    config: PathBuf,
+    /// Configuration file (TOML): only what differs from the defaults
+    /// (configs/default.toml, compiled in); relative paths inside it
+    /// resolve against its folder [default: the defaults alone: the
+    /// default intersection with the shipped weights].
+    #[arg(long, short)]
+    config: Option<PathBuf>,
+}
+
+impl ConfigArg {
+    /// The file to read: `--config`, else the defaults as this build
+    /// wrote them out (named `default.toml`).
+    fn path(&self) -> PathBuf {
+        self.config
+            .clone()
+            .unwrap_or_else(|| crate::config::defaults_dir().join("default.toml"))
+    }
 }
 
 /// Threads inside one run.
@@ -133,9 +172,9 @@ impl CommonArgs {
     /// The settings, and the results folder (`results/<stem><suffix>` by
     /// default), refused when it exists and `--force` was not given.
     fn prepare(&self, suffix: &str) -> anyhow::Result<(crate::config::Settings, PathBuf)> {
-        let config = &self.config.config;
-        let settings = crate::config::Settings::load(config)?;
-        let out = out_dir(self.out.clone(), config, suffix);
+        let config = self.config.path();
+        let settings = crate::config::Settings::load(&config)?;
+        let out = out_dir(self.out.clone(), &config, suffix);
         if out.exists() && !self.force {
             return Err(crate::io::OutputError::Exists(out).into());
         }

@@ -20,15 +20,27 @@ use crate::matching::{Method, deep};
 pub struct Args {
     #[command(flatten)]
     config: ConfigArg,
-    /// Models folder [default: [matching] models_dir of the config].
+    /// The models folder written: weights (<method>.bpk), their record
+    /// (<method>.toml: architecture, training and validation settings,
+    /// loss per epoch, validated temperature, decision rule and lambda)
+    /// and loss curve (<method>_loss.csv) [default: results/<config file
+    /// stem>-models]. Point [matching] models_dir at it to use the
+    /// weights; `--out models --force` in the checkout replaces the
+    /// shipped ones.
     #[arg(long, short)]
     out: Option<PathBuf>,
+    /// Write into the models folder although it exists (its weights of the
+    /// trained methods are replaced; with --validate-only, their records
+    /// are updated).
+    #[arg(long)]
+    force: bool,
     /// Train only these methods [default: [train] methods].
     #[arg(long, value_delimiter = ',', value_parser = label_arg::<Method>("method"))]
     methods: Vec<Method>,
-    /// Methods trained at once, each group in its own process (the weights
-    /// do not depend on this) [default: the number of cores].
-    #[arg(long, short = 'j')]
+    /// Worker processes: methods trained at once, each group in its own
+    /// process (the weights do not depend on this) [default: the number
+    /// of cores].
+    #[arg(long, short)]
     workers: Option<usize>,
     /// Train only: choose no temperature, decision rule or lambda (a
     /// later `coid train --validate-only`, or numbers in [matching], are
@@ -67,11 +79,18 @@ impl Show {
 }
 
 pub fn train(a: Args) -> anyhow::Result<()> {
-    let settings = Settings::load(&a.config.config)?;
-    let models_dir = a
-        .out
-        .clone()
-        .unwrap_or_else(|| settings.matching.models_dir.clone());
+    let config = a.config.path();
+    let settings = Settings::load(&config)?;
+    let models_dir = super::out_dir(a.out.clone(), &config, "-models");
+    if a.validate_only && !models_dir.is_dir() {
+        anyhow::bail!(
+            "no models folder {} to validate (give the folder with --out)",
+            models_dir.display()
+        );
+    }
+    if models_dir.exists() && !a.force {
+        return Err(io::OutputError::Exists(models_dir).into());
+    }
     let methods = if a.methods.is_empty() {
         settings.train.methods.clone()
     } else {
@@ -159,12 +178,18 @@ fn train_in_children(
         .map(|group| {
             let names: Vec<&str> = group.iter().map(|m| m.as_str()).collect();
             let mut args: Vec<OsString> = vec!["train".into(), "--config".into()];
-            args.push(a.config.config.clone().into());
+            args.push(a.config.path().into());
             args.push("--out".into());
             args.push(models_dir.into());
             args.push("--methods".into());
             args.push(names.join(",").into());
-            for flag in ["-j", "1", "--skip-validation", "--progress-lines"] {
+            for flag in [
+                "--workers",
+                "1",
+                "--force",
+                "--skip-validation",
+                "--progress-lines",
+            ] {
                 args.push(flag.into());
             }
             args

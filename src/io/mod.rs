@@ -13,6 +13,7 @@
 //! `frames` is the only code that touches polars; `markdown` writes the
 //! human-readable reports.
 
+pub mod assets;
 pub mod frames;
 pub mod markdown;
 
@@ -44,6 +45,8 @@ pub enum OutputError {
     Picture { path: PathBuf, message: String },
     #[error("{0}")]
     Batch(String),
+    #[error("{0}")]
+    Install(String),
 }
 
 pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {

@@ -1,0 +1,108 @@
+//! The files the binary carries (the shipped weights, the default scenario,
+//! the defaults), written out once into
+//! this build's folder of the user's data folder ([`paths::install_dir`]),
+//! where the defaults' relative paths point: so an installed or moved
+//! `coid` works from any folder and reads exactly the files it was built
+//! with.
+
+use std::path::{Path, PathBuf};
+
+use super::{OutputError, io};
+use crate::config::DEFAULTS_TOML;
+use crate::paths;
+
+include!(concat!(env!("OUT_DIR"), "/assets.rs"));
+
+/// Written last: a folder without it is incomplete.
+const STAMP: &str = ".coid-assets";
+
+/// This build's folder, written out first if it is missing or incomplete
+/// (into a temporary sibling, then renamed, so that concurrent first uses
+/// never see half a folder).
+pub fn install() -> Result<PathBuf, OutputError> {
+    let dir = paths::install_dir().map_err(|e| OutputError::Install(e.to_string()))?;
+    if is_complete(&dir) {
+        return Ok(dir);
+    }
+    let parent = dir.parent().map(Path::to_owned).unwrap_or_default();
+    std::fs::create_dir_all(&parent).map_err(io(&parent))?;
+    let staged = tempfile::Builder::new()
+        .prefix(".install-")
+        .tempdir_in(&parent)
+        .map_err(io(&parent))?;
+    write_all(staged.path())?;
+    if dir.exists() && !is_complete(&dir) {
+        std::fs::remove_dir_all(&dir).map_err(io(&dir))?;
+    }
+    let staged = staged.keep();
+    if let Err(e) = std::fs::rename(&staged, &dir) {
+        let _ = std::fs::remove_dir_all(&staged);
+        // Another process may have put a complete one there first.
+        if !is_complete(&dir) {
+            return Err(io(&dir)(e));
+        }
+    }
+    Ok(dir)
+}
+
+fn is_complete(dir: &Path) -> bool {
+    std::fs::read_to_string(dir.join(STAMP)).is_ok_and(|s| s.trim() == paths::ASSETS_ID)
+}
+
+fn write_all(root: &Path) -> Result<(), OutputError> {
+    let mut files: Vec<(&str, &[u8])> = ASSETS.to_vec();
+    files.push(("configs/default.toml", DEFAULTS_TOML.as_bytes()));
+    for (name, bytes) in files {
+        let path = root.join(name);
+        if let Some(p) = path.parent() {
+            std::fs::create_dir_all(p).map_err(io(p))?;
+        }
+        std::fs::write(&path, bytes).map_err(io(&path))?;
+    }
+    let stamp = root.join(STAMP);
+    std::fs::write(&stamp, paths::ASSETS_ID).map_err(io(&stamp))
+}
+
+/// The bytes of a carried file (`models/ours.toml`, ...).
+pub fn carried(name: &str) -> Option<&'static [u8]> {
+    ASSETS.iter().find(|(n, _)| *n == name).map(|(_, b)| *b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_binary_carries_every_shipped_model_and_the_default_scenario() {
+        let names: Vec<&str> = ASSETS.iter().map(|(n, _)| *n).collect();
+        for m in [
+            "ours",
+            "ours-noprior",
+            "coid+non",
+            "coid+unc",
+            "dgmc",
+            "gcn-gm",
+        ] {
+            assert!(names.contains(&format!("models/{m}.bpk").as_str()), "{m}");
+            assert!(names.contains(&format!("models/{m}.toml").as_str()), "{m}");
+        }
+        assert!(names.contains(&"sumo_nets/intersection/intersection.sumocfg"));
+        assert!(carried("models/ours.toml").is_some());
+        // The same bytes as the checkout's files.
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        for (name, bytes) in ASSETS {
+            assert_eq!(std::fs::read(root.join(name)).unwrap(), *bytes, "{name}");
+        }
+    }
+
+    #[test]
+    fn writing_out_makes_a_complete_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        write_all(dir.path()).unwrap();
+        assert!(is_complete(dir.path()));
+        assert!(dir.path().join("configs/default.toml").is_file());
+        assert!(dir.path().join("models/ours.bpk").is_file());
+        std::fs::write(dir.path().join(STAMP), "another build").unwrap();
+        assert!(!is_complete(dir.path()));
+    }
+}
