@@ -142,6 +142,30 @@ pub fn execute(
 /// ok) -> ok` is called as each child ends and decides whether the job
 /// counts as failed. Returns the failures (`run` = job index, the message
 /// = the child's last stderr line), sorted.
+/// A worker ends when its parent does (Linux: the kernel sends it
+/// SIGTERM), so that a killed batch leaves no orphans.
+fn dies_with_parent(command: &mut Command) {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        let parent = std::process::id();
+        // SAFETY: prctl and getppid are async-signal-safe; nothing is
+        // allocated between fork and exec.
+        unsafe {
+            command.pre_exec(move || {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                // The parent may have died before the call.
+                if libc::getppid() as u32 != parent {
+                    libc::_exit(143);
+                }
+                Ok(())
+            });
+        }
+    }
+}
+
 pub fn run_children(
     exe: &Path,
     jobs: &[Vec<OsString>],
@@ -156,11 +180,13 @@ pub fn run_children(
     loop {
         while active.len() < workers.max(1) {
             let Some(k) = queue.next() else { break };
-            let mut child = Command::new(exe)
+            let mut command = Command::new(exe);
+            command
                 .args(&jobs[k])
                 .stdout(Stdio::piped())
-                .stderr(Stdio::piped())
-                .spawn()?;
+                .stderr(Stdio::piped());
+            dies_with_parent(&mut command);
+            let mut child = command.spawn()?;
             // Both pipes are drained while the child runs (a full pipe
             // would block it): stdout line by line to `line`, stderr kept.
             let stdout = child.stdout.take().map(BufReader::new);

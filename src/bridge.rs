@@ -100,6 +100,31 @@ fn describe(py: Python<'_>, err: &PyErr) -> String {
     }
 }
 
+/// Ctrl-C (SIGINT) and SIGTERM end the process at once with 130 and 143,
+/// like a shell would report them, instead of a Python KeyboardInterrupt
+/// inside SUMO: every result folder is renamed into place only when
+/// complete, so nothing half-written is left (a staging folder is, and
+/// the next command in that folder removes it). Installed again after
+/// Python starts, in case an imported module took the signal.
+pub fn exit_on_interrupt() {
+    extern "C" fn on_signal(signal: libc::c_int) {
+        // SAFETY: _exit is async-signal-safe.
+        unsafe { libc::_exit(128 + signal) }
+    }
+    for signal in [libc::SIGINT, libc::SIGTERM] {
+        // SAFETY: a plain handler that only calls _exit.
+        unsafe {
+            libc::signal(signal, on_signal as *const () as libc::sighandler_t);
+        }
+    }
+    // A closed pipe on stdout (`coid ... | head`) ends the process
+    // quietly, as it does any Unix tool, instead of a panic in println!.
+    // SAFETY: restores the default disposition.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 /// Where SUMO's Python environment lives ([`paths::venv_dir`]).
 pub fn venv_dir() -> PathBuf {
     paths::venv_dir().unwrap_or_else(|_| PathBuf::from(".venv"))
@@ -246,8 +271,10 @@ fn prepare_python(py: Python<'_>) -> Result<Bound<'_, PyModule>, BridgeError> {
     py.run(&setup, None, None)
         .map_err(|e| BridgeError::Setup(describe(py, &e)))?;
     let code = CString::new(SHIM).map_err(|e| BridgeError::Setup(e.to_string()))?;
-    PyModule::from_code(py, &code, c"coid_bridge.py", c"coid_bridge")
-        .map_err(|e| BridgeError::Setup(describe(py, &e)))
+    let shim = PyModule::from_code(py, &code, c"coid_bridge.py", c"coid_bridge")
+        .map_err(|e| BridgeError::Setup(describe(py, &e)))?;
+    exit_on_interrupt();
+    Ok(shim)
 }
 
 /// SUMO's report for a road user: front-bumper position (m), navigational
@@ -334,7 +361,7 @@ fn close_and_describe(py: Python<'_>, err: &PyErr, stderr_capture: &Path) -> Str
 /// An open libsumo simulation.
 pub struct Sumo {
     shim: Py<PyModule>,
-    stderr_capture: PathBuf,
+    stderr_capture: tempfile::TempPath,
     step_length_s: f64,
     time_s: f64,
     steps: u64,
@@ -348,9 +375,20 @@ impl Sumo {
         if RUNNING.swap(true, Ordering::SeqCst) {
             return Err(BridgeError::AlreadyRunning);
         }
-        let stderr_capture =
-            std::env::temp_dir().join(format!("coid-sumo-stderr-{}.log", std::process::id()));
-        let _ = std::fs::remove_file(&stderr_capture);
+        // An unpredictable name, removed when the simulation is dropped.
+        let stderr_capture = match tempfile::Builder::new()
+            .prefix("coid-sumo-stderr-")
+            .suffix(".log")
+            .tempfile()
+        {
+            Ok(f) => f.into_temp_path(),
+            Err(e) => {
+                RUNNING.store(false, Ordering::SeqCst);
+                return Err(BridgeError::Setup(format!(
+                    "cannot make a file for SUMO's messages: {e}"
+                )));
+            }
+        };
         let result = Python::attach(|py| -> Result<Sumo, BridgeError> {
             let shim = prepare_python(py)?;
             let args: Vec<String> = vec![
@@ -380,7 +418,7 @@ impl Sumo {
                 })?;
             Ok(Sumo {
                 shim: shim.unbind(),
-                stderr_capture: stderr_capture.clone(),
+                stderr_capture,
                 step_length_s,
                 time_s: 0.0,
                 steps: 0,
@@ -388,7 +426,6 @@ impl Sumo {
             })
         });
         if result.is_err() {
-            let _ = std::fs::remove_file(&stderr_capture);
             RUNNING.store(false, Ordering::SeqCst);
         }
         result
@@ -488,7 +525,6 @@ impl Sumo {
         .inspect_err(|_| {
             // Already closed above; nothing left to close on drop.
             self.open = false;
-            let _ = std::fs::remove_file(&self.stderr_capture);
             RUNNING.store(false, Ordering::SeqCst);
         })?;
         self.time_s = time_s;
@@ -529,7 +565,6 @@ impl Sumo {
         }
         self.open = false;
         let closed = self.call("close", |_, s| s.call_method0("close").map(|_| ()));
-        let _ = std::fs::remove_file(&self.stderr_capture);
         RUNNING.store(false, Ordering::SeqCst);
         closed
     }

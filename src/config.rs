@@ -337,6 +337,13 @@ fn merge_under<'i>(user: &mut DeTable<'i>, defaults: DeTable<'i>) {
 }
 
 /// Names the file in validation errors and resolves its relative paths.
+/// The largest traffic seed: SUMO's `--seed` is a signed 32-bit int.
+pub const MAX_TRAFFIC_SEED: u64 = i32::MAX as u64;
+
+/// More false positives per camera and frame than this are refused: each
+/// is a node of every graph (and a sample of memory per step).
+const MAX_FALSE_POSITIVES_PER_FRAME: f64 = 100.0;
+
 struct Checker<'a> {
     path: &'a Path,
 }
@@ -374,6 +381,29 @@ impl Checker<'_> {
         }
     }
 
+    /// A traffic seed SUMO accepts (`--seed` is a 32-bit int).
+    fn traffic_seed(&self, key: &'static str, seed: u64) -> Result<(), ConfigError> {
+        if seed <= MAX_TRAFFIC_SEED {
+            Ok(())
+        } else {
+            Err(self.invalid(
+                key,
+                format!("{seed} is beyond SUMO's seed range (0 to {MAX_TRAFFIC_SEED})"),
+            ))
+        }
+    }
+
+    /// A list of run seeds: each in SUMO's range, none twice.
+    fn seed_list(&self, key: &'static str, seeds: &[u64]) -> Result<(), ConfigError> {
+        for (k, &s) in seeds.iter().enumerate() {
+            self.traffic_seed(key, s)?;
+            if seeds[..k].contains(&s) {
+                return Err(self.invalid(key, format!("seed {s} is listed twice")));
+            }
+        }
+        Ok(())
+    }
+
     /// A path relative to the config file's folder.
     fn resolve(&self, p: &Path) -> PathBuf {
         if p.is_absolute() {
@@ -386,6 +416,7 @@ impl Checker<'_> {
 
 fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
     let c = Checker { path };
+    c.traffic_seed("seeds.traffic", raw.seeds.traffic)?;
     let (train, eval) = train_and_eval(&c, raw.train, raw.eval)?;
     Ok(Settings {
         source: path.to_owned(),
@@ -530,6 +561,15 @@ fn sensor(c: &Checker, s: RawSensor) -> Result<SensorSettings, ConfigError> {
         "sensor.false_positives_per_frame",
         s.false_positives_per_frame,
     )?;
+    if s.false_positives_per_frame > MAX_FALSE_POSITIVES_PER_FRAME {
+        return Err(c.invalid(
+            "sensor.false_positives_per_frame",
+            format!(
+                "at most {MAX_FALSE_POSITIVES_PER_FRAME} per camera and frame, got {}",
+                s.false_positives_per_frame
+            ),
+        ));
+    }
     c.non_negative("sensor.colour_sigma", s.colour_sigma)?;
     c.non_negative("sensor.size_sigma_fraction", s.size_sigma_fraction)?;
     if s.range_sigma_base_m + s.bearing_sigma_base_deg <= 0.0 {
@@ -650,6 +690,9 @@ fn train_and_eval(
     if t.traffic_seeds.is_empty() {
         return Err(c.invalid("train.traffic_seeds", "need at least one run".into()));
     }
+    c.seed_list("train.traffic_seeds", &t.traffic_seeds)?;
+    c.seed_list("train.validation_seeds", &t.validation_seeds)?;
+    c.seed_list("eval.traffic_seeds", &e.traffic_seeds)?;
     for (key, a, b, what) in [
         (
             "train.traffic_seeds",
@@ -1062,6 +1105,20 @@ mod tests {
         for (extra, key) in [
             ("[camera]\nfov_deg = 200.0\n", "camera.fov_deg"),
             ("[connected]\npenetration = 1.5\n", "connected.penetration"),
+            ("[seeds]\ntraffic = 2147483648\n", "seeds.traffic"),
+            ("[eval]\ntraffic_seeds = [1, 2, 1]\n", "eval.traffic_seeds"),
+            (
+                "[eval]\ntraffic_seeds = [3000000000]\n",
+                "eval.traffic_seeds",
+            ),
+            (
+                "[train]\nvalidation_seeds = [125, 125]\n",
+                "train.validation_seeds",
+            ),
+            (
+                "[sensor]\nfalse_positives_per_frame = 1e9\n",
+                "sensor.false_positives_per_frame",
+            ),
             ("[connected]\nids = [\"a\"]\n", "connected.ids"),
             (
                 "[connected]\npenetration = 0.3\ncomm_range_m = -5.0\n",

@@ -440,9 +440,44 @@ mod run {
         child.kill().unwrap();
         child.wait().unwrap();
         assert!(!fx.path("res/k").exists(), "a half-written results folder");
+        assert!(
+            staged_bytes() > 0,
+            "the killed run's staging folder is there"
+        );
         assert_ok(&fx.coid(&args));
         let objects = read_parquet(&fx.path("res/k/objects.parquet"));
         assert!(objects.height() > 0);
+        // The next command in that folder removed the dead run's staging.
+        assert_eq!(staged_bytes(), 0);
+    }
+
+    /// Ctrl-C ends a run with exit code 130 (not a Python
+    /// KeyboardInterrupt), leaving no results folder.
+    #[test]
+    fn ctrl_c_exits_130_and_leaves_no_results_folder() {
+        use std::time::Duration;
+        let fx = Fixture::new();
+        let cfg = fx.config("c.toml", 120.0, "[connected]\npenetration = 0.3\n");
+        let mut child = coid_in(fx.dir.path())
+            .args(["run", "-q", "--config", cfg.to_str().unwrap(), "--out", "c"])
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(2500));
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended too soon"
+        );
+        let pid = child.id().to_string();
+        assert!(
+            Command::new("kill")
+                .args(["-INT", &pid])
+                .status()
+                .unwrap()
+                .success()
+        );
+        let status = child.wait().unwrap();
+        assert_eq!(status.code(), Some(130), "{status:?}");
+        assert!(!fx.path("c").exists());
     }
 
     /// A copy of the binary outside the checkout, run from an empty folder
@@ -713,6 +748,122 @@ mod bad_input {
                 .unwrap()
                 .starts_with("method,")
         );
+    }
+
+    /// A command refused with one line, no panic, a non-zero exit.
+    fn refused(out: &Output, expect: &str) {
+        let err = stderr(out);
+        assert!(!out.status.success(), "expected a refusal ({expect})");
+        assert!(!err.contains("panicked"), "panic: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "not one line: {err}");
+        assert!(err.contains(expect), "expected {expect:?} in: {err}");
+    }
+
+    /// `--force` replaces only what the same command wrote: never a
+    /// user's folder (here the one holding the run's own config), nor a
+    /// batch's or another command's results.
+    #[test]
+    fn force_replaces_only_results_of_the_same_kind() {
+        let fx = Fixture::new();
+        std::fs::create_dir_all(fx.path("mine")).unwrap();
+        let cfg = fx.write(
+            "mine/c.toml",
+            &std::fs::read_to_string(fx.config("c.toml", 60.0, "")).unwrap(),
+        );
+        let c = cfg.to_str().unwrap();
+        refused(
+            &fx.coid(&["run", "-q", "--force", "--config", c, "--out", "mine"]),
+            "it holds c.toml",
+        );
+        assert!(cfg.is_file(), "the config was removed");
+        assert_ok(&fx.coid(&["run", "-q", "--config", c, "--out", "r"]));
+        refused(
+            &fx.coid(&["eval", "-q", "--force", "--config", c, "--out", "r"]),
+            "not an evaluation",
+        );
+        refused(
+            &fx.coid(&["batch", "-q", "--config", c, "--runs", "1", "--out", "r"]),
+            "not a batch folder",
+        );
+        refused(
+            &fx.coid(&["scenarios", "-q", "--count", "1", "--out", "mine"]),
+            "it holds c.toml",
+        );
+        assert_ok(&fx.coid(&["run", "-q", "--force", "--config", c, "--out", "r"]));
+    }
+
+    /// Bounds that would exhaust memory or wrap around, and seeds SUMO
+    /// cannot take, are refused before anything runs.
+    #[test]
+    fn out_of_range_arguments_are_refused() {
+        let fx = Fixture::new();
+        let c = fx.config("c.toml", 60.0, "");
+        let c = c.to_str().unwrap();
+        for (args, expect) in [
+            (
+                vec!["run", "--config", c, "--traffic-seed", "3000000000"],
+                "3000000000",
+            ),
+            (
+                vec!["batch", "--config", c, "--runs", "18446744073709551615"],
+                "--runs",
+            ),
+            (vec!["batch", "--config", c, "--runs", "0"], "--runs"),
+            (
+                vec!["scenarios", "--first", "18446744073709551615", "--out", "s"],
+                "--first",
+            ),
+        ] {
+            let out = fx.coid(&args);
+            assert_eq!(out.status.code(), Some(2), "{args:?}: {}", stderr(&out));
+            assert!(stderr(&out).contains(expect), "{args:?}: {}", stderr(&out));
+        }
+        assert!(!fx.path("s").exists());
+    }
+
+    /// A run in which no two connected vehicles see a common object says
+    /// so (and still writes its empty tables).
+    #[test]
+    fn a_run_without_instances_says_so() {
+        let fx = Fixture::new();
+        let cfg = fx.config("z.toml", 30.0, "[connected]\npenetration = 0.01\n");
+        let out = fx.run(&cfg, "z");
+        assert_ok(&out);
+        assert!(stderr(&out).contains("no instance"), "{}", stderr(&out));
+    }
+
+    /// Output into a pipe whose reader is gone (`coid ... | head`) ends
+    /// quietly: by SIGPIPE (13), as any Unix tool does, not by a panic.
+    #[test]
+    fn a_closed_pipe_ends_quietly() {
+        use std::os::unix::process::ExitStatusExt;
+        let mut child = coid_in(&repo())
+            .args(["completions", "bash"])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stdout.take());
+        let out = child.wait_with_output().unwrap();
+        assert!(!String::from_utf8_lossy(&out.stderr).contains("panicked"));
+        assert_eq!(out.status.signal(), Some(13), "{out:?}");
+    }
+
+    /// One shard folder given twice would count its runs twice.
+    #[test]
+    fn merge_refuses_a_shard_given_twice() {
+        let fx = Fixture::new();
+        let cfg = fx.config("m.toml", 60.0, "[matching]\nmethods = [\"oracle\"]\n");
+        let c = cfg.to_str().unwrap();
+        let args = [
+            "batch", "-q", "--config", c, "--runs", "2", "--shard", "1/2", "--out", "s1",
+        ];
+        assert_ok(&fx.coid(&args));
+        refused(
+            &fx.coid(&["merge", "s1", "./s1", "--out", "m"]),
+            "given twice",
+        );
+        assert!(!fx.path("m").exists());
     }
 }
 
@@ -1122,6 +1273,64 @@ mod batch {
             before
         );
         assert_eq!(bytes(&fx, "killed"), bytes(&fx, "whole"));
+    }
+
+    /// Killing `coid batch` ends its workers too (no orphans).
+    #[test]
+    fn the_workers_of_a_killed_batch_end_with_it() {
+        let fx = Fixture::new();
+        let cfg = fx.config("slow.toml", 200.0, "[connected]\npenetration = 0.3\n");
+        let mut parent = coid_in(fx.dir.path())
+            .args([
+                "batch",
+                "-q",
+                "--config",
+                cfg.to_str().unwrap(),
+                "--runs",
+                "4",
+            ])
+            .args(["--workers", "2", "--out", "b"])
+            .spawn()
+            .unwrap();
+        let children_of = |pid: u32| -> Vec<u32> {
+            let tasks = format!("/proc/{pid}/task");
+            std::fs::read_dir(tasks)
+                .into_iter()
+                .flatten()
+                .flatten()
+                .filter_map(|t| std::fs::read_to_string(t.path().join("children")).ok())
+                .flat_map(|c| {
+                    c.split_whitespace()
+                        .filter_map(|p| p.parse().ok())
+                        .collect::<Vec<u32>>()
+                })
+                .collect()
+        };
+        let started = Instant::now();
+        let workers = loop {
+            let w = children_of(parent.id());
+            if w.len() == 2 {
+                break w;
+            }
+            assert!(
+                started.elapsed() < Duration::from_secs(60),
+                "no workers started"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        parent.kill().unwrap(); // SIGKILL: no chance to clean up
+        parent.wait().unwrap();
+        let gone = |pid: &u32| {
+            std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                .map_or(true, |s| s.split_whitespace().nth(2) == Some("Z"))
+        };
+        while !workers.iter().all(gone) {
+            assert!(
+                started.elapsed() < Duration::from_secs(90),
+                "orphaned workers {workers:?}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 
     #[test]

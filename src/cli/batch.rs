@@ -14,8 +14,8 @@ use crate::io;
 pub struct Args {
     #[command(flatten)]
     config: ConfigArg,
-    /// Number of runs.
-    #[arg(long)]
+    /// Number of runs (1 to 1 000 000).
+    #[arg(long, value_parser = runs_in_range)]
     runs: usize,
     /// Worker processes [default: the number of cores].
     #[arg(long, short)]
@@ -51,6 +51,16 @@ pub struct MergeArgs {
     /// after the new one is complete).
     #[arg(long)]
     force: bool,
+}
+
+/// `--runs`: 1 to 1 000 000 (each run is a folder; more would only
+/// exhaust the disk and the bookkeeping).
+fn runs_in_range(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (1..=1_000_000).contains(&n) => Ok(n),
+        Ok(n) => Err(format!("{n} is not in 1..=1000000")),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 const CI_NOTE: &str =
@@ -129,6 +139,18 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
 }
 
 pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
+    let mut seen = std::collections::BTreeSet::new();
+    for d in &a.dirs {
+        let full = d
+            .canonicalize()
+            .with_context(|| format!("cannot read {}", d.display()))?;
+        if !seen.insert(full) {
+            anyhow::bail!(
+                "{} is given twice (its runs would count twice)",
+                d.display()
+            );
+        }
+    }
     let mut identity: Option<String> = None;
     for d in &a.dirs {
         let id = io::batch_identity(d)?;
@@ -142,7 +164,8 @@ pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
         }
     }
     let mut total = 0;
-    io::atomic_dir(&a.out, a.force, |out| -> anyhow::Result<()> {
+    let existing = io::Existing::when(a.force, io::ResultKind::Batch);
+    io::atomic_dir(&a.out, existing, |out| -> anyhow::Result<()> {
         for d in &a.dirs {
             for run in io::completed_runs(d)? {
                 let dst = out.join("runs").join(run.file_name().unwrap_or_default());

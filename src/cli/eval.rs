@@ -44,7 +44,7 @@ struct Scenario {
 
 pub fn eval(a: Args) -> anyhow::Result<()> {
     let suffix = if a.validation { "-validation" } else { "-eval" };
-    let (settings, out) = a.common.prepare(suffix)?;
+    let (settings, out) = a.common.prepare(suffix, io::ResultKind::Eval)?;
     let mut scenarios = gather(&a, settings)?;
     let total: usize = scenarios
         .iter()
@@ -65,13 +65,13 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
     }
     pb.finish_and_clear();
     warn_empty(&scenarios);
-    let force = a.common.force;
+    let existing = io::Existing::when(a.common.force, io::ResultKind::Eval);
     if let [only] = scenarios.as_slice() {
-        write(&out, &only.settings, &only.runs, &choices, None, force)?;
+        write(&out, &only.settings, &only.runs, &choices, None, existing)?;
     } else {
         let names: Vec<&str> = scenarios.iter().map(|s| s.name.as_str()).collect();
         let all: Vec<RunEval> = scenarios.iter().flat_map(|s| s.runs.clone()).collect();
-        io::atomic_dir(&out, force, |dir| -> anyhow::Result<()> {
+        io::atomic_dir(&out, existing, |dir| -> anyhow::Result<()> {
             for s in &scenarios {
                 write(
                     &dir.join(&s.name),
@@ -79,7 +79,7 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
                     &s.runs,
                     &choices,
                     None,
-                    false,
+                    io::Existing::Refuse,
                 )?;
             }
             let pooled = Some(names.join(", "));
@@ -90,7 +90,7 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
                 &all,
                 &choices,
                 pooled.as_deref(),
-                false,
+                io::Existing::Refuse,
             )?;
             Ok(())
         })?;
@@ -264,7 +264,7 @@ fn write(
     runs: &[RunEval],
     choices: &BTreeMap<Method, DeepChoice>,
     pooled: Option<&str>,
-    force: bool,
+    existing: io::Existing,
 ) -> Result<(), OutputError> {
     let lambdas: BTreeMap<Method, f64> = choices.iter().map(|(&m, c)| (m, c.lambda)).collect();
     let tables = tables::eval_tables(settings, runs, &lambdas);
@@ -275,7 +275,7 @@ fn write(
         &tables.files(),
         choices,
         pooled,
-        force,
+        existing,
         |dir| {
             render::eval_plots(dir, &plots).map_err(|e| OutputError::Picture {
                 path: dir.to_owned(),

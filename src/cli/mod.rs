@@ -87,6 +87,7 @@ enum Command {
 
 /// Runs the parsed command.
 pub fn execute(cli: Cli) -> anyhow::Result<()> {
+    crate::bridge::exit_on_interrupt();
     // The default scenario and the shipped weights, where the defaults
     // point (written out once per build).
     if !matches!(cli.command, Command::Completions { .. }) {
@@ -171,13 +172,15 @@ struct CommonArgs {
 impl CommonArgs {
     /// The settings, and the results folder (`results/<stem><suffix>` by
     /// default), refused when it exists and `--force` was not given.
-    fn prepare(&self, suffix: &str) -> anyhow::Result<(crate::config::Settings, PathBuf)> {
+    fn prepare(
+        &self,
+        suffix: &str,
+        kind: crate::io::ResultKind,
+    ) -> anyhow::Result<(crate::config::Settings, PathBuf)> {
         let config = self.config.path();
         let settings = crate::config::Settings::load(&config)?;
         let out = out_dir(self.out.clone(), &config, suffix);
-        if out.exists() && !self.force {
-            return Err(crate::io::OutputError::Exists(out).into());
-        }
+        crate::io::check_output(&out, crate::io::Existing::when(self.force, kind))?;
         Ok((settings, out))
     }
 

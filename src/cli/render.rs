@@ -27,7 +27,7 @@ pub struct Args {
 }
 
 pub fn render(a: Args) -> anyhow::Result<()> {
-    let (settings, out) = a.common.prepare("-render")?;
+    let (settings, out) = a.common.prepare("-render", io::ResultKind::Render)?;
     let level = *settings
         .pose_noise
         .iter()
@@ -41,7 +41,8 @@ pub fn render(a: Args) -> anyhow::Result<()> {
     let runner = pipeline::runner(&settings, a.method)?;
     let mut drawn = Vec::new();
     let bar = a.common.sim_bar(settings.scenario.end_s);
-    io::atomic_dir(&out, a.common.force, |tmp| -> anyhow::Result<()> {
+    let existing = io::Existing::when(a.common.force, io::ResultKind::Render);
+    io::atomic_dir(&out, existing, |tmp| -> anyhow::Result<()> {
         pipeline::simulate(
             &settings,
             |p| show_sim_progress(&bar, p),

@@ -15,8 +15,8 @@ pub struct Args {
     common: CommonArgs,
     #[command(flatten)]
     threads: ThreadsArg,
-    /// Override [seeds] traffic (SUMO's seed).
-    #[arg(long)]
+    /// Override [seeds] traffic (SUMO's seed, 0 to 2147483647).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(0..=crate::config::MAX_TRAFFIC_SEED))]
     traffic_seed: Option<u64>,
     /// Override [seeds] sensor.
     #[arg(long)]
@@ -24,7 +24,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let (mut settings, out) = a.common.prepare("")?;
+    let (mut settings, out) = a.common.prepare("", io::ResultKind::Run)?;
     if let Some(t) = a.traffic_seed {
         settings.seeds.traffic = t;
     }
@@ -43,6 +43,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     .context("run failed")?;
     bar.finish_and_clear();
     folder.finish(&settings, &results)?;
+    if results.n_instances == 0 {
+        eprintln!(
+            "coid: warning: no instance: no two connected vehicles near junction '{}' saw a common \
+             object in {} s (see [connected], [scenario] radius_m and end_s)",
+            settings.scenario.junction, settings.scenario.end_s
+        );
+    }
     eprintln!("{}; wrote {}", one_line(&results), out.display());
     Ok(())
 }

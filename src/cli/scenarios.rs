@@ -17,8 +17,8 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Index of the first scenario (to extend a family, or to keep two
-    /// families of one seed apart).
-    #[arg(long, default_value_t = 0)]
+    /// families of one seed apart; folder names have up to six digits).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=999_999))]
     first: u64,
     /// Only these kinds of layout (crossing, arterial, cluster,
     /// roundabout, ramp) [default: all, drawn as the family mixes them].
@@ -46,8 +46,15 @@ pub fn scenarios(a: Args) -> anyhow::Result<()> {
         a.count,
         "{spinner} scenarios [{bar:30}] {pos}/{len} elapsed {elapsed} eta {eta}",
     );
+    // Into a new folder, or one that holds a family (to extend it).
+    io::check_output(&a.out, io::Existing::Replace(io::ResultKind::Family))?;
+    let end = a
+        .first
+        .checked_add(a.count)
+        .filter(|&e| e <= 1_000_000)
+        .ok_or_else(|| anyhow::anyhow!("--first + --count must stay within 1 000 000 scenarios"))?;
     let mut lines = Vec::new();
-    for index in a.first..a.first + a.count {
+    for index in a.first..end {
         let s = if a.cycle_kinds {
             let kinds = if a.kinds.is_empty() {
                 Kind::all()
@@ -92,10 +99,15 @@ pub fn scenarios(a: Args) -> anyhow::Result<()> {
 }
 
 fn write(a: &Args, s: &Scenario) -> anyhow::Result<()> {
-    io::atomic_dir(&a.out.join(&s.name), a.force, |dir| -> anyhow::Result<()> {
-        io::write_texts(dir, &s.files())?;
-        bridge::netconvert(dir, &s.netconvert_args())?;
-        io::strip_generator_comment(&dir.join("net.net.xml"))?;
-        Ok(())
-    })
+    let existing = io::Existing::when(a.force, io::ResultKind::Scenario);
+    io::atomic_dir(
+        &a.out.join(&s.name),
+        existing,
+        |dir| -> anyhow::Result<()> {
+            io::write_texts(dir, &s.files())?;
+            bridge::netconvert(dir, &s.netconvert_args())?;
+            io::strip_generator_comment(&dir.join("net.net.xml"))?;
+            Ok(())
+        },
+    )
 }

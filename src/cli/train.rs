@@ -88,9 +88,10 @@ pub fn train(a: Args) -> anyhow::Result<()> {
             models_dir.display()
         );
     }
-    if models_dir.exists() && !a.force {
-        return Err(io::OutputError::Exists(models_dir).into());
-    }
+    io::check_output(
+        &models_dir,
+        io::Existing::when(a.force, io::ResultKind::Models),
+    )?;
     let methods = if a.methods.is_empty() {
         settings.train.methods.clone()
     } else {

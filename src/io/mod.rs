@@ -47,6 +47,12 @@ pub enum OutputError {
     Batch(String),
     #[error("{0}")]
     Install(String),
+    #[error("--force does not replace {path}: it is not {kind} ({why})")]
+    NotReplaceable {
+        path: PathBuf,
+        kind: &'static str,
+        why: String,
+    },
 }
 
 pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
@@ -56,10 +62,13 @@ pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_
     }
 }
 
-/// A temporary folder in `parent` named `.<name>.tmp-XXXXXX`, with the
-/// permissions a plain `mkdir` would give (tempfile's default is 0700).
+/// A temporary folder in `parent` named `.<name>.tmp-<pid>-XXXXXX`, with
+/// the permissions a plain `mkdir` would give (tempfile's default is
+/// 0700). Staging folders of `name` left by processes that no longer run
+/// (killed, interrupted) are removed first.
 fn staging_dir(parent: &Path, name: &str) -> Result<tempfile::TempDir, OutputError> {
-    let prefix = format!(".{name}.tmp-");
+    remove_stale_staging(parent, name);
+    let prefix = format!(".{name}.tmp-{}-", std::process::id());
     let mut b = tempfile::Builder::new();
     b.prefix(&prefix);
     #[cfg(unix)]
@@ -70,15 +79,172 @@ fn staging_dir(parent: &Path, name: &str) -> Result<tempfile::TempDir, OutputErr
     b.tempdir_in(parent).map_err(io(parent))
 }
 
+/// Removes `parent/.<name>.tmp-<pid>-*` whose process is gone (best
+/// effort: a folder that cannot be removed stays).
+fn remove_stale_staging(parent: &Path, name: &str) {
+    let prefix = format!(".{name}.tmp-");
+    let Ok(entries) = std::fs::read_dir(parent) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let file_name = e.file_name();
+        let Some(rest) = file_name.to_str().and_then(|n| n.strip_prefix(&prefix)) else {
+            continue;
+        };
+        let pid = rest.split('-').next().and_then(|p| p.parse::<i32>().ok());
+        if pid.is_some_and(|p| !process_runs(p)) {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
+}
+
+/// Whether process `pid` exists (signal 0 probes without sending).
+fn process_runs(pid: i32) -> bool {
+    if pid <= 0 {
+        return false;
+    }
+    // SAFETY: kill with signal 0 only checks for the process.
+    let r = unsafe { libc::kill(pid, 0) };
+    r == 0 || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
+}
+
+/// Refuses `out` before any work when it exists (and not `force`), or
+/// when its folder cannot be written: a staging folder is made there and
+/// removed again.
+pub fn check_output(out: &Path, existing: Existing) -> Result<(), OutputError> {
+    Staged::new(out, existing).map(drop)
+}
+
+/// What a command writes as one folder: `--force` replaces an existing
+/// folder only when it holds nothing but what this kind of command
+/// writes (so never a user's folder, another command's results, or the
+/// inputs of the run: configs and scenarios are not among those files).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResultKind {
+    /// `summary.csv`, `objects.parquet`, `summary.md`.
+    Run,
+    /// CSV tables, `summary.md`, PNG and SVG pictures; for a suite, one
+    /// such folder per scenario.
+    Eval,
+    /// `instance-NNNN.png` and `.svg`.
+    Render,
+    /// `batch.toml`, `runs/` of run folders, the aggregate.
+    Batch,
+    /// One generated scenario: its SUMO files, `coid.toml`, `README.md`.
+    Scenario,
+    /// A family of generated scenarios: `README.md` and scenario folders.
+    Family,
+    /// Trained models: `<method>.bpk`, `.toml`, `_loss.csv`.
+    Models,
+}
+
+impl ResultKind {
+    fn label(self) -> &'static str {
+        match self {
+            ResultKind::Run => "a run's results (coid run)",
+            ResultKind::Eval => "an evaluation (coid eval)",
+            ResultKind::Render => "pictures (coid render)",
+            ResultKind::Batch => "a batch (coid batch or merge)",
+            ResultKind::Scenario => "a generated scenario (coid scenarios)",
+            ResultKind::Family => "a family of generated scenarios (coid scenarios)",
+            ResultKind::Models => "a models folder (coid train)",
+        }
+    }
+
+    /// Whether the file `name` (in a folder of this kind) is one it writes.
+    fn writes_file(self, name: &str) -> bool {
+        let ext = |e: &str| name.ends_with(e);
+        match self {
+            ResultKind::Run => matches!(name, "summary.csv" | "objects.parquet" | "summary.md"),
+            ResultKind::Eval => ext(".csv") || ext(".md") || ext(".png") || ext(".svg"),
+            ResultKind::Render => name.starts_with("instance-") && (ext(".png") || ext(".svg")),
+            ResultKind::Batch => matches!(
+                name,
+                "batch.toml"
+                    | "summary.csv"
+                    | "summary.md"
+                    | "f1_per_method.png"
+                    | "f1_per_method.svg"
+            ),
+            ResultKind::Scenario => {
+                ext(".xml") || ext(".sumocfg") || matches!(name, "coid.toml" | "README.md")
+            }
+            ResultKind::Family => name == "README.md",
+            ResultKind::Models => ext(".bpk") || ext(".toml") || ext("_loss.csv"),
+        }
+    }
+
+    /// `Ok` when `dir` holds only what this kind writes.
+    fn check(self, dir: &Path) -> Result<(), String> {
+        let entries = std::fs::read_dir(dir).map_err(|e| e.to_string())?;
+        for e in entries {
+            let e = e.map_err(|e| e.to_string())?;
+            let name = e.file_name().to_string_lossy().into_owned();
+            let path = e.path();
+            let fine = if path.is_dir() {
+                match self {
+                    ResultKind::Eval => ResultKind::Eval.check(&path).is_ok(),
+                    ResultKind::Family => ResultKind::Scenario.check(&path).is_ok(),
+                    ResultKind::Batch if name == "runs" => std::fs::read_dir(&path)
+                        .map_err(|e| e.to_string())?
+                        .all(|r| r.is_ok_and(|r| ResultKind::Run.check(&r.path()).is_ok())),
+                    _ => false,
+                }
+            } else {
+                self.writes_file(&name) || name.starts_with('.')
+            };
+            if !fine {
+                return Err(format!("it holds {name}, which coid did not write there"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What to do when an output folder exists.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Existing {
+    /// Refuse (no `--force`).
+    Refuse,
+    /// Replace it if it is a folder of this kind (`--force`).
+    Replace(ResultKind),
+}
+
+impl Existing {
+    /// `Replace(kind)` with `--force`, else `Refuse`.
+    pub fn when(force: bool, kind: ResultKind) -> Self {
+        if force {
+            Existing::Replace(kind)
+        } else {
+            Existing::Refuse
+        }
+    }
+
+    /// `Ok` when `out` may be written.
+    fn allows(self, out: &Path) -> Result<(), OutputError> {
+        if !out.exists() {
+            return Ok(());
+        }
+        match self {
+            Existing::Refuse => Err(OutputError::Exists(out.to_owned())),
+            Existing::Replace(kind) => kind.check(out).map_err(|why| OutputError::NotReplaceable {
+                path: out.to_owned(),
+                kind: kind.label(),
+                why,
+            }),
+        }
+    }
+}
+
 /// Creates `out` atomically: `fill` writes into a temporary sibling folder,
-/// which then replaces `out` (refused when `out` exists and not `force`).
+/// which then replaces `out` (when it exists: as `existing` says).
 /// Whatever `fill` fails with is returned, and nothing is left behind.
 pub fn atomic_dir<E: From<OutputError>>(
     out: &Path,
-    force: bool,
+    existing: Existing,
     fill: impl FnOnce(&Path) -> Result<(), E>,
 ) -> Result<(), E> {
-    let staged = Staged::new(out, force)?;
+    let staged = Staged::new(out, existing)?;
     fill(staged.dir.path())?;
     staged.publish()?;
     Ok(())
@@ -93,11 +259,9 @@ struct Staged {
 }
 
 impl Staged {
-    /// Refused when `out` exists and not `force`.
-    fn new(out: &Path, force: bool) -> Result<Self, OutputError> {
-        if out.exists() && !force {
-            return Err(OutputError::Exists(out.to_owned()));
-        }
+    /// Refused when `out` exists and `existing` does not allow it.
+    fn new(out: &Path, existing: Existing) -> Result<Self, OutputError> {
+        existing.allows(out)?;
         let parent = match out.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
             _ => PathBuf::from("."),
@@ -135,7 +299,7 @@ impl RunFolder {
     /// Refused at once when `out` exists and not `force`, or cannot be
     /// written.
     pub fn create(out: &Path, force: bool) -> Result<Self, OutputError> {
-        let staged = Staged::new(out, force)?;
+        let staged = Staged::new(out, Existing::when(force, ResultKind::Run))?;
         let objects = frames::ObjectsWriter::create(&staged.dir.path().join("objects.parquet"))?;
         Ok(Self { staged, objects })
     }
@@ -240,10 +404,10 @@ pub fn write_eval(
     tables: &[(&str, &Table)],
     choices: &std::collections::BTreeMap<Method, DeepChoice>,
     pooled: Option<&str>,
-    force: bool,
+    existing: Existing,
     plots: impl FnOnce(&Path) -> Result<(), OutputError>,
 ) -> Result<(), OutputError> {
-    atomic_dir(out, force, |dir| -> Result<(), OutputError> {
+    atomic_dir(out, existing, |dir| -> Result<(), OutputError> {
         for (name, t) in tables {
             frames::write_table(&dir.join(name), t)?;
         }
@@ -505,6 +669,13 @@ pub fn run_is_complete(run_dir: &Path) -> bool {
 /// creates it, or accepts it when it holds the same batch; a folder of
 /// another batch is refused.
 pub fn claim_batch_folder(dir: &Path, identity: &str) -> Result<(), OutputError> {
+    let has_entries = std::fs::read_dir(dir).is_ok_and(|mut d| d.next().is_some());
+    if has_entries && !dir.join("batch.toml").is_file() {
+        return Err(OutputError::Batch(format!(
+            "{} exists and is not a batch folder (no batch.toml); choose another --out",
+            dir.display()
+        )));
+    }
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     match std::fs::read_to_string(dir.join("batch.toml")) {
         Ok(existing) if existing != identity => Err(OutputError::Batch(format!(
@@ -574,16 +745,20 @@ pub fn write_batch_summary(
 
 /// Copies a complete run folder (flat: files only) into `dst` atomically.
 pub fn copy_run(src: &Path, dst: &Path) -> Result<(), OutputError> {
-    atomic_dir(dst, true, |tmp| -> Result<(), OutputError> {
-        for e in std::fs::read_dir(src).map_err(io(src))? {
-            let p = e.map_err(io(src))?.path();
-            if p.is_file() {
-                let to = tmp.join(p.file_name().unwrap_or_default());
-                std::fs::copy(&p, &to).map_err(io(&to))?;
+    atomic_dir(
+        dst,
+        Existing::Replace(ResultKind::Run),
+        |tmp| -> Result<(), OutputError> {
+            for e in std::fs::read_dir(src).map_err(io(src))? {
+                let p = e.map_err(io(src))?.path();
+                if p.is_file() {
+                    let to = tmp.join(p.file_name().unwrap_or_default());
+                    std::fs::copy(&p, &to).map_err(io(&to))?;
+                }
             }
-        }
-        Ok(())
-    })
+            Ok(())
+        },
+    )
 }
 
 /// Writes a merged batch's identity.
@@ -609,23 +784,29 @@ mod tests {
         let root = tempfile::tempdir().unwrap();
         let out = root.path().join("res");
         // A failing fill leaves nothing behind.
-        let e = atomic_dir(&out, false, |d| -> Result<(), OutputError> {
+        let run = Existing::Replace(ResultKind::Eval);
+        let e = atomic_dir(&out, Existing::Refuse, |d| -> Result<(), OutputError> {
             std::fs::write(d.join("a.csv"), "half").unwrap();
             Err(OutputError::Batch("boom".into()))
         });
         assert!(e.is_err());
         assert!(names(root.path()).is_empty(), "{:?}", names(root.path()));
         // A complete one appears; an existing one is kept without force...
-        atomic_dir(&out, false, |d| write_text(&d.join("a.csv"), "one")).unwrap();
+        atomic_dir(&out, Existing::Refuse, |d| {
+            write_text(&d.join("a.csv"), "one")
+        })
+        .unwrap();
         assert!(matches!(
-            atomic_dir(&out, false, |_| -> Result<(), OutputError> { Ok(()) }),
+            atomic_dir(&out, Existing::Refuse, |_| -> Result<(), OutputError> {
+                Ok(())
+            }),
             Err(OutputError::Exists(_))
         ));
         // ...and replaced with force, only once the new one is complete.
-        let e = atomic_dir(&out, true, |_| Err(OutputError::Batch("no".into())));
+        let e = atomic_dir(&out, run, |_| Err(OutputError::Batch("no".into())));
         assert!(e.is_err());
         assert_eq!(std::fs::read_to_string(out.join("a.csv")).unwrap(), "one");
-        atomic_dir(&out, true, |d| write_text(&d.join("b.csv"), "two")).unwrap();
+        atomic_dir(&out, run, |d| write_text(&d.join("b.csv"), "two")).unwrap();
         assert_eq!(names(&out), vec!["b.csv"]);
         assert_eq!(names(root.path()), vec!["res"]);
         #[cfg(unix)]
