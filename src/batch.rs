@@ -15,6 +15,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 
+use crate::config::{ConfigError, Settings};
+use crate::io::records::BatchRecord;
 use crate::io::{self, OutputError};
 use crate::render;
 use crate::report::{self, AggregateRow};
@@ -136,12 +138,6 @@ pub fn execute(
     Ok(failures)
 }
 
-/// Runs each job (the arguments of one child process of `exe`) on up to
-/// `workers` processes at once, in job order. `line(job, text)` receives
-/// each line the child prints on stdout, as it comes; `done(job, exited
-/// ok) -> ok` is called as each child ends and decides whether the job
-/// counts as failed. Returns the failures (`run` = job index, the message
-/// = the child's last stderr line), sorted.
 /// A worker ends when its parent does (Linux: the kernel sends it
 /// SIGTERM), so that a killed batch leaves no orphans.
 fn dies_with_parent(command: &mut Command) {
@@ -166,6 +162,12 @@ fn dies_with_parent(command: &mut Command) {
     }
 }
 
+/// Runs each job (the arguments of one child process of `exe`) on up to
+/// `workers` processes at once, in job order. `line(job, text)` receives
+/// each line the child prints on stdout, as it comes; `done(job, exited
+/// ok) -> ok` is called as each child ends and decides whether the job
+/// counts as failed. Returns the failures (`run` = job index, the message
+/// = the child's last stderr line), sorted.
 pub fn run_children(
     exe: &Path,
     jobs: &[Vec<OsString>],
@@ -254,26 +256,21 @@ pub fn run_children(
     Ok(failures)
 }
 
-/// What a batch folder holds: `batch.toml` names the config (absolute),
-/// the number of runs and the master seed; a folder belongs to one batch.
-pub fn identity(config: &Path, runs: usize, master_seed: u64) -> String {
-    format!(
-        "config = {:?}\nruns = {runs}\nmaster_seed = {master_seed}\n",
-        config.display().to_string()
-    )
-}
-
-/// The batch a `batch.toml` names ([`identity`] read back).
-#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
-pub struct Identity {
-    pub config: std::path::PathBuf,
-    pub runs: usize,
-    pub master_seed: u64,
-}
-
-/// Reads [`identity`]'s text back.
-pub fn parse_identity(text: &str) -> Result<Identity, String> {
-    toml::from_str(text).map_err(|e| e.to_string())
+/// What a batch is (its `batch.toml`): the digest of its configuration
+/// by content ([`Settings::digest`]), the number of runs and the master
+/// seed; the config's path is kept for the report only.
+pub fn identity(
+    settings: &Settings,
+    config: &Path,
+    runs: usize,
+    master_seed: u64,
+) -> Result<BatchRecord, ConfigError> {
+    Ok(BatchRecord {
+        config_digest: settings.digest()?,
+        runs,
+        master_seed,
+        config: config.display().to_string(),
+    })
 }
 
 /// The provenance line of a batch's `summary.md`: the same for a batch run

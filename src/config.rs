@@ -297,6 +297,117 @@ impl Settings {
     }
 }
 
+impl Settings {
+    /// A digest of what these settings make a run do, by content, never
+    /// by path: every setting (paths left out), the bytes of the SUMO
+    /// configuration and of every file it names (network, routes,
+    /// additional files), the weights and records of the deep methods it
+    /// runs, and the bytes of each listed scenario's config. Two configs
+    /// at different paths that say the same have the same digest; an edit
+    /// to any of those files changes it.
+    pub fn digest(&self) -> Result<String, ConfigError> {
+        let mut blank = self.clone();
+        blank.source = PathBuf::new();
+        blank.scenario.sumocfg = PathBuf::new();
+        blank.matching.models_dir = PathBuf::new();
+        blank.train.scenarios.clear();
+        blank.train.validation_scenarios.clear();
+        blank.eval.scenarios.clear();
+        let mut d = Digest::default();
+        d.feed(format!("{blank:?}").as_bytes());
+        d.file(&self.source, &self.scenario.sumocfg)?;
+        let sumocfg = std::fs::read_to_string(&self.scenario.sumocfg).unwrap_or_default();
+        let dir = self.scenario.sumocfg.parent().unwrap_or(Path::new("."));
+        for name in sumocfg_inputs(&sumocfg) {
+            d.file(&self.source, &dir.join(name))?;
+        }
+        for m in &self.matching.methods {
+            if crate::matching::deep::variant(*m).is_some() {
+                for ext in ["bpk", "toml"] {
+                    let p = self
+                        .matching
+                        .models_dir
+                        .join(format!("{}.{ext}", m.as_str()));
+                    d.file(&self.source, &p)?;
+                }
+            }
+        }
+        let lists = [
+            &self.train.scenarios,
+            &self.train.validation_scenarios,
+            &self.eval.scenarios,
+        ];
+        for p in lists.into_iter().flatten() {
+            d.file(&self.source, p)?;
+        }
+        Ok(format!("{:016x}", d.0))
+    }
+}
+
+/// FNV-1a 64 over everything fed.
+struct Digest(u64);
+
+impl Default for Digest {
+    fn default() -> Self {
+        Digest(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Digest {
+    fn feed(&mut self, bytes: &[u8]) {
+        for b in (bytes.len() as u64).to_le_bytes().iter().chain(bytes) {
+            self.0 ^= u64::from(*b);
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+
+    fn file(&mut self, config: &Path, path: &Path) -> Result<(), ConfigError> {
+        let bytes = std::fs::read(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        });
+        match bytes {
+            Ok(b) => {
+                self.feed(&b);
+                Ok(())
+            }
+            Err(e) => Err(ConfigError::Invalid {
+                path: config.to_owned(),
+                key: "scenario",
+                message: format!("cannot read a file the run reads: {e}"),
+            }),
+        }
+    }
+}
+
+/// The files a `.sumocfg` names: `net-file`, `route-files` and
+/// `additional-files` values (comma-separated, relative to its folder).
+fn sumocfg_inputs(text: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    for tag in ["net-file", "route-files", "additional-files"] {
+        let mut rest = text;
+        while let Some(k) = rest.find(&format!("<{tag}")) {
+            rest = &rest[k + tag.len() + 1..];
+            let Some(v) = rest.find("value=\"") else {
+                break;
+            };
+            let value = &rest[v + 7..];
+            let Some(end) = value.find('"') else {
+                break;
+            };
+            out.extend(
+                value[..end]
+                    .split(',')
+                    .map(str::trim)
+                    .filter(|s| !s.is_empty())
+                    .map(str::to_owned),
+            );
+            rest = &value[end..];
+        }
+    }
+    out
+}
+
 /// Makes the defaults' relative paths absolute (anchored at
 /// [`defaults_dir`]), so they mean the same from any user's folder.
 fn anchor_default_paths(defaults: &mut DeTable<'_>) {
@@ -1014,6 +1125,41 @@ mod tests {
                 .to_string();
             assert!(err.contains(key), "{extra}: {err}");
         }
+    }
+
+    #[test]
+    fn the_digest_is_by_content_not_by_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("sumo_nets/intersection");
+        for d in ["a", "b"] {
+            let to = dir.path().join(d);
+            std::fs::create_dir_all(&to).unwrap();
+            for f in [
+                "intersection.sumocfg",
+                "intersection.net.xml",
+                "intersection.rou.xml",
+                "buildings.poly.xml",
+            ] {
+                std::fs::copy(scenario.join(f), to.join(f)).unwrap();
+            }
+            let body = "[scenario]\nsumocfg = \"intersection.sumocfg\"\njunction = \"C\"\n";
+            std::fs::write(to.join("c.toml"), body).unwrap();
+        }
+        let load = |d: &str| Settings::load(&dir.path().join(d).join("c.toml")).unwrap();
+        let (a, b) = (load("a").digest().unwrap(), load("b").digest().unwrap());
+        assert_eq!(a, b, "the same config at two paths");
+        // A setting, or a byte of a file the run reads, changes it.
+        let routes = dir.path().join("b/intersection.rou.xml");
+        let text = std::fs::read_to_string(&routes).unwrap();
+        std::fs::write(&routes, format!("{text}\n")).unwrap();
+        assert_ne!(load("b").digest().unwrap(), a);
+        let mut edited = load("a");
+        edited.sensor.colour_sigma += 0.01;
+        assert_ne!(edited.digest().unwrap(), a);
+        assert_eq!(
+            sumocfg_inputs("<net-file value=\"n.xml\"/><route-files value=\"r1.xml, r2.xml\"/>"),
+            ["n.xml", "r1.xml", "r2.xml"]
+        );
     }
 
     #[test]

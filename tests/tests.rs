@@ -980,13 +980,43 @@ mod learned {
                 String::from_utf8(read(dir, ".toml"))
                     .unwrap()
                     .lines()
-                    .find(|l| l.starts_with("validated_lambda"))
+                    .skip_while(|l| *l != "[validation]")
+                    .find(|l| l.starts_with("lambda = "))
                     .map(str::to_owned)
             };
             assert!(lambda("two").is_some());
             assert_eq!(lambda("two"), lambda("one"));
         }
         assert!(stderr(&two).contains("trained dgmc"), "{}", stderr(&two));
+    }
+
+    /// Weights that are not the ones their record names (here another
+    /// method's) are refused with one line, before anything runs.
+    #[test]
+    fn weights_that_do_not_match_their_record_are_refused() {
+        let fx = Fixture::new();
+        std::fs::create_dir_all(fx.path("models")).unwrap();
+        for f in ["ours.bpk", "ours.toml"] {
+            std::fs::copy(repo().join("models").join(f), fx.path("models").join(f)).unwrap();
+        }
+        std::fs::copy(repo().join("models/dgmc.bpk"), fx.path("models/ours.bpk")).unwrap();
+        let cfg = fx.config(
+            "w.toml",
+            60.0,
+            &format!(
+                "[matching]\nmethods = [\"ours\"]\nmodels_dir = {:?}\n",
+                fx.path("models").to_string_lossy()
+            ),
+        );
+        let out = fx.run(&cfg, "w");
+        assert!(!out.status.success());
+        let err = stderr(&out);
+        assert!(
+            err.contains("not the ones recorded") && err.contains("ours"),
+            "{err}"
+        );
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(!fx.path("w").exists());
     }
 
     #[test]
@@ -1331,6 +1361,71 @@ mod batch {
             );
             std::thread::sleep(Duration::from_millis(20));
         }
+    }
+
+    /// A batch is what its configuration says, not where it lies: a
+    /// resume after an edit is refused, shards of two different batches
+    /// do not merge, and the same config at another path resumes and
+    /// merges.
+    #[test]
+    fn a_batch_is_identified_by_content_not_by_path() {
+        let fx = Fixture::new();
+        let cfg = fast_config(&fx, &shipped_sumocfg());
+        let text = std::fs::read_to_string(&cfg).unwrap();
+        assert_ok(&batch(&fx, &cfg, "2", "1", "b", &["--shard", "1/2"]));
+        // The same config at another path: the other shard, and a resume.
+        std::fs::create_dir_all(fx.path("elsewhere")).unwrap();
+        let moved = fx.write("elsewhere/b.toml", &text);
+        assert_ok(&batch(&fx, &moved, "2", "1", "b2", &["--shard", "2/2"]));
+        assert_ok(&batch(&fx, &moved, "2", "1", "b", &["--shard", "1/2"]));
+        assert_ok(&fx.coid(&["merge", "b", "b2", "--out", "merged"]));
+        // An edit (one setting) makes another batch.
+        let edited = fx.write(
+            "edited.toml",
+            &format!("{text}[sensor]\ncolour_sigma = 0.07\n"),
+        );
+        let out = batch(&fx, &edited, "2", "1", "b", &["--shard", "1/2"]);
+        assert!(!out.status.success());
+        assert!(
+            stderr(&out).contains("has changed since"),
+            "{}",
+            stderr(&out)
+        );
+        assert_eq!(stderr(&out).trim().lines().count(), 1, "{}", stderr(&out));
+        assert_ok(&batch(&fx, &edited, "2", "1", "e2", &["--shard", "2/2"]));
+        let out = fx.coid(&["merge", "b", "e2", "--out", "mixed"]);
+        assert!(!out.status.success());
+        assert!(stderr(&out).contains("different batch"), "{}", stderr(&out));
+        assert!(!fx.path("mixed").exists());
+    }
+
+    /// A resume checks every run folder: a summary cut short or a missing
+    /// objects.parquet is run again, and the aggregate is as if nothing
+    /// happened.
+    #[test]
+    fn a_resumed_batch_reruns_damaged_runs() {
+        let fx = Fixture::new();
+        let cfg = fast_config(&fx, &shipped_sumocfg());
+        assert_ok(&batch(&fx, &cfg, "3", "2", "whole", &[]));
+        assert_ok(&batch(&fx, &cfg, "3", "2", "damaged", &[]));
+        let run = |i: usize, f: &str| fx.path(&format!("damaged/runs/run-{i:06}/{f}"));
+        let summary = std::fs::read_to_string(run(0, "summary.csv")).unwrap();
+        std::fs::write(run(0, "summary.csv"), &summary[..summary.len() * 2 / 3]).unwrap();
+        std::fs::remove_file(run(1, "objects.parquet")).unwrap();
+        let untouched = std::fs::metadata(run(2, "summary.csv"))
+            .unwrap()
+            .modified()
+            .unwrap();
+        assert_ok(&batch(&fx, &cfg, "3", "2", "damaged", &[]));
+        assert_eq!(bytes(&fx, "damaged"), bytes(&fx, "whole"));
+        assert!(run(1, "objects.parquet").is_file());
+        assert_eq!(
+            std::fs::metadata(run(2, "summary.csv"))
+                .unwrap()
+                .modified()
+                .unwrap(),
+            untouched
+        );
     }
 
     #[test]

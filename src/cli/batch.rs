@@ -69,7 +69,7 @@ const CI_NOTE: &str =
 pub fn batch(a: Args) -> anyhow::Result<()> {
     // Validate the config once here, so a bad config fails before any run.
     let path = a.config.path();
-    Settings::load(&path)?;
+    let settings = Settings::load(&path)?;
     if a.runs == 0 {
         anyhow::bail!("--runs must be at least 1");
     }
@@ -82,7 +82,7 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
     let threads = a
         .threads
         .map_or_else(|| (super::cores() / workers).max(1), |t| t.get());
-    io::claim_batch_folder(&out, &batch::identity(&config, a.runs, a.seed))?;
+    io::claim_batch_folder(&out, &batch::identity(&settings, &config, a.runs, a.seed)?)?;
     let pending = batch::pending_runs(&out, a.runs, a.shard);
     let mine = (0..a.runs)
         .filter(|i| a.shard.is_none_or(|s| i % s.count == s.index - 1))
@@ -151,11 +151,11 @@ pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
             );
         }
     }
-    let mut identity: Option<String> = None;
+    let mut identity: Option<io::records::BatchRecord> = None;
     for d in &a.dirs {
         let id = io::batch_identity(d)?;
         match &identity {
-            Some(i) if *i != id => anyhow::bail!(
+            Some(i) if !i.same_batch(&id) => anyhow::bail!(
                 "{} belongs to a different batch than {}",
                 d.display(),
                 a.dirs[0].display()
@@ -179,8 +179,13 @@ pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
         let (rows, complete) = batch::aggregate(out)?;
         // The same report as the unsharded batch, so the merged folder is
         // byte-identical to it.
-        let line = match identity.as_deref().map(batch::parse_identity) {
-            Some(Ok(b)) => batch::provenance(&b.config, b.master_seed, b.runs, complete),
+        let line = match &identity {
+            Some(b) => batch::provenance(
+                std::path::Path::new(&b.config),
+                b.master_seed,
+                b.runs,
+                complete,
+            ),
             _ => format!(
                 "- merged from {} shard folders; {complete} runs",
                 a.dirs.len()

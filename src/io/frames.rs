@@ -207,6 +207,22 @@ impl ObjectsWriter {
     }
 }
 
+/// Whether a Parquet file is whole: `PAR1` at its start and at its end
+/// (a file cut short, or never finished, lacks the footer).
+pub fn parquet_is_whole(path: &Path) -> bool {
+    use std::io::{Read, Seek, SeekFrom};
+    let Ok(mut f) = File::open(path) else {
+        return false;
+    };
+    let mut head = [0u8; 4];
+    let mut tail = [0u8; 4];
+    f.read_exact(&mut head).is_ok()
+        && f.seek(SeekFrom::End(-4)).is_ok()
+        && f.read_exact(&mut tail).is_ok()
+        && &head == b"PAR1"
+        && &tail == b"PAR1"
+}
+
 /// One of `coid eval`'s tables as CSV.
 pub fn write_table(path: &Path, table: &Table) -> Result<(), OutputError> {
     write_csv(path, table_frame(table))

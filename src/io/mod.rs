@@ -16,6 +16,7 @@
 pub mod assets;
 pub mod frames;
 pub mod markdown;
+pub mod records;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -27,6 +28,7 @@ use crate::matching::deep::decision::Decision;
 use crate::matching::deep::train::TrainReport;
 use crate::matching::{DeepChoice, Method};
 use crate::report::{AggregateRow, ObjectRow, RunResults, RunRow, Table};
+use records::{BatchRecord, Lambda, ModelRecord, ValidationRecord};
 
 #[derive(Debug, thiserror::Error)]
 pub enum OutputError {
@@ -438,18 +440,46 @@ pub struct WeightsError {
     pub reason: String,
 }
 
-/// The bytes of a method's weights file.
+/// The bytes of a method's weights file, checked against the record
+/// beside it (`<method>.toml`: the method, its architecture and the
+/// weights' checksum), so that stale or foreign weights never load.
 pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, WeightsError> {
     let path = weights_path(models_dir, method);
-    std::fs::read(&path).map_err(|e| WeightsError {
+    let fail = |reason: String| WeightsError {
         method: method.as_str(),
-        reason: if e.kind() == std::io::ErrorKind::NotFound {
+        path: path.clone(),
+        reason,
+    };
+    let bytes = std::fs::read(&path).map_err(|e| {
+        fail(if e.kind() == std::io::ErrorKind::NotFound {
             "no such file".into()
         } else {
             e.to_string()
-        },
-        path,
-    })
+        })
+    })?;
+    let record = read_record(models_dir, method)?;
+    let (arch, _) =
+        crate::matching::deep::variant(method).ok_or_else(|| fail("not a deep method".into()))?;
+    record.check(method, &arch, &bytes).map_err(fail)?;
+    Ok(bytes)
+}
+
+/// A method's `<method>.toml`.
+fn read_record(models_dir: &Path, method: Method) -> Result<ModelRecord, WeightsError> {
+    let path = models_dir.join(format!("{}.toml", method.as_str()));
+    let fail = |reason: String| WeightsError {
+        method: method.as_str(),
+        path: path.clone(),
+        reason,
+    };
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        fail(if e.kind() == std::io::ErrorKind::NotFound {
+            "no record beside the weights".into()
+        } else {
+            e.to_string()
+        })
+    })?;
+    ModelRecord::from_toml(&text).map_err(fail)
 }
 
 /// What `coid train` records beside each model's weights.
@@ -478,87 +508,57 @@ pub struct Validation {
     pub uncertainty: &'static str,
 }
 
-/// The metadata file of a trained model: config, seeds, data size, loss.
-fn model_metadata(record: &TrainingRecord) -> String {
+/// The record of a model just trained (no validation yet).
+fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, OutputError> {
     let t = &record.settings.train;
-    let mut meta = String::new();
-    let _ = writeln!(
-        meta,
-        "# Trained by `coid train`; the config and seeds it was trained with."
-    );
-    let _ = writeln!(meta, "method = {:?}", record.method.as_str());
-    let source = record.settings.source.display().to_string();
-    let _ = writeln!(meta, "config = {source:?}");
-    let _ = writeln!(meta, "train_traffic_seeds = {:?}", t.traffic_seeds);
-    if !t.scenarios.is_empty() {
-        let _ = writeln!(meta, "train_scenarios = {:?}", t.scenarios);
-        let _ = writeln!(meta, "runs_per_scenario = {}", t.runs_per_scenario);
-    }
-    if !t.validation_scenarios.is_empty() {
-        let _ = writeln!(meta, "validation_scenarios = {:?}", t.validation_scenarios);
-    }
-    let eval_seeds = &record.settings.eval.traffic_seeds;
-    let _ = writeln!(meta, "eval_traffic_seeds = {eval_seeds:?}");
-    let _ = writeln!(meta, "epochs = {}", t.epochs);
-    let _ = writeln!(meta, "learning_rate = {}", t.learning_rate);
-    let _ = writeln!(meta, "seed = {}", t.seed);
-    let _ = writeln!(meta, "examples = {}", record.n_examples);
-    let _ = writeln!(meta, "steps = {}", record.report.steps);
-    let _ = writeln!(meta, "seconds = {:.1}", record.seconds);
-    let last = record.report.epoch_losses.last().copied();
-    let _ = writeln!(meta, "final_epoch_loss = {}", last.unwrap_or(f64::NAN));
-    let edges = &record.report.edges;
-    let _ = writeln!(
-        meta,
-        "edge_median_m = {:.2}\nedge_p95_m = {:.2}\nedge_clipped_share = {:.4}  # larger axis component beyond the outer knot, {} m",
-        edges.median_m,
-        edges.p95_m,
-        edges.clipped_share,
-        crate::matching::deep::features::MAX_EDGE_M
-    );
-    let _ = writeln!(meta, "loss = {:?}", t.loss.as_str());
-    let _ = writeln!(meta, "mc_samples = {}", t.mc_samples);
-    let _ = writeln!(meta, "batch_size = {}", t.batch_size);
-    if let Some(best) = record.report.best_epoch {
-        let _ = writeln!(meta, "patience = {}", t.patience);
-        let _ = writeln!(
-            meta,
-            "best_epoch = {best}  # kept: lowest loss on the validation runs"
-        );
-    }
-    meta
+    let (architecture, _) = crate::matching::deep::variant(record.method).ok_or_else(|| {
+        OutputError::Batch(format!("'{}' is not a deep method", record.method.as_str()))
+    })?;
+    let paths = |v: &[PathBuf]| v.iter().map(|p| p.display().to_string()).collect();
+    let r = record.report;
+    Ok(ModelRecord {
+        method: record.method.as_str().to_owned(),
+        architecture,
+        weights_fnv64: records::fnv64_hex(weights),
+        config: record.settings.source.display().to_string(),
+        train_traffic_seeds: t.traffic_seeds.clone(),
+        train_scenarios: paths(&t.scenarios),
+        runs_per_scenario: (!t.scenarios.is_empty()).then_some(t.runs_per_scenario),
+        validation_scenarios: paths(&t.validation_scenarios),
+        eval_traffic_seeds: record.settings.eval.traffic_seeds.clone(),
+        epochs: t.epochs,
+        learning_rate: t.learning_rate,
+        seed: t.seed,
+        examples: record.n_examples,
+        steps: r.steps,
+        seconds: (record.seconds * 10.0).round() / 10.0,
+        final_epoch_loss: r.epoch_losses.last().copied(),
+        edge_median_m: r.edges.median_m,
+        edge_p95_m: r.edges.p95_m,
+        edge_clipped_share: r.edges.clipped_share,
+        loss: t.loss.as_str().to_owned(),
+        mc_samples: t.mc_samples,
+        batch_size: t.batch_size,
+        patience: r.best_epoch.map(|_| t.patience),
+        best_epoch: r.best_epoch,
+        validation: None,
+    })
 }
 
-/// What the validation runs chose, as the last lines of `<method>.toml`.
-fn validation_metadata(v: &Validation) -> String {
-    let mut meta = String::new();
-    let _ = writeln!(
-        meta,
-        "# Chosen on the validation runs (never on the eval seeds):"
-    );
-    let _ = writeln!(meta, "validation_seeds = {:?}", v.seeds);
-    let _ = writeln!(meta, "validation_uncertainty = {:?}", v.uncertainty);
-    if v.lambda.is_finite() {
-        // `{:?}` keeps a decimal point: 1.0, not the TOML integer 1.
-        let _ = writeln!(meta, "validated_lambda = {:?}", v.lambda);
-    } else {
-        let _ = writeln!(meta, "validated_lambda = \"none\"");
-    }
-    let _ = writeln!(meta, "validated_decision = {:?}", v.decision.as_str());
-    let _ = writeln!(meta, "validated_temperature = {:?}", v.temperature);
-    let _ = writeln!(meta, "validation_f1 = {:.6}", v.f1);
-    meta
-}
-
-/// Adds what the validation runs chose to the `<method>.toml` that
-/// [`write_model`] wrote (replacing an earlier choice), renamed into place.
+/// Adds what the validation runs chose to the record that [`write_model`]
+/// wrote (replacing an earlier choice), renamed into place.
 pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(), OutputError> {
-    let path = dir.join(format!("{}.toml", method.as_str()));
-    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
-    let marker = "# Chosen on the validation runs";
-    let kept = text.find(marker).map_or(text.as_str(), |at| &text[..at]);
+    let mut record = read_record(dir, method).map_err(|e| OutputError::Batch(e.to_string()))?;
+    record.validation = Some(ValidationRecord {
+        seeds: v.seeds.clone(),
+        uncertainty: v.uncertainty.to_owned(),
+        lambda: Lambda::from_f64(v.lambda),
+        decision: v.decision,
+        temperature: v.temperature,
+        f1: v.f1,
+    });
     let name = format!("{}.toml", method.as_str());
-    let body = format!("{kept}{}", validation_metadata(v));
+    let body = record.to_toml().map_err(OutputError::Batch)?;
     publish_files(dir, |tmp| write_text(&tmp.join(&name), &body))
 }
 
@@ -577,46 +577,30 @@ pub struct Validated {
 /// `<method>.toml`); an error when the file is missing or malformed, or a
 /// value it records is out of range.
 pub fn read_validated(models_dir: &Path, method: Method) -> Result<Validated, WeightsError> {
-    let path = models_dir.join(format!("{}.toml", method.as_str()));
-    let fail = |reason: String| WeightsError {
+    let record = read_record(models_dir, method)?;
+    let Some(v) = record.validation else {
+        return Ok(Validated {
+            lambda: None,
+            decision: None,
+            temperature: None,
+        });
+    };
+    let fail = |reason: &str| WeightsError {
         method: method.as_str(),
-        path: path.clone(),
-        reason,
+        path: models_dir.join(format!("{}.toml", method.as_str())),
+        reason: reason.to_owned(),
     };
-    let text = std::fs::read_to_string(&path).map_err(|e| fail(e.to_string()))?;
-    let table: toml::Table = text
-        .parse()
-        .map_err(|e: toml::de::Error| fail(e.message().to_owned()))?;
-    let number = |v: &toml::Value| v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
-    let lambda = match table.get("validated_lambda") {
-        Some(toml::Value::String(w)) if w == "none" => Some(f64::INFINITY),
-        Some(v) => Some(
-            number(v)
-                .filter(|l| (0.0..=1.0).contains(l))
-                .ok_or_else(|| fail("validated_lambda is not in [0, 1] or \"none\"".into()))?,
-        ),
-        None => None,
-    };
-    let decision = match table.get("validated_decision") {
-        Some(v) => Some(
-            v.as_str()
-                .and_then(|w| w.parse::<Decision>().ok())
-                .ok_or_else(|| fail("validated_decision is not a decision rule".into()))?,
-        ),
-        None => None,
-    };
-    let temperature = match table.get("validated_temperature") {
-        Some(v) => Some(
-            number(v)
-                .filter(|t| t.is_finite() && *t > 0.0)
-                .ok_or_else(|| fail("validated_temperature is not a positive number".into()))?,
-        ),
-        None => None,
-    };
+    let lambda = v
+        .lambda
+        .to_f64()
+        .ok_or_else(|| fail("validation.lambda is not in [0, 1] or \"none\""))?;
+    if !(v.temperature.is_finite() && v.temperature > 0.0) {
+        return Err(fail("validation.temperature is not a positive number"));
+    }
     Ok(Validated {
-        lambda,
-        decision,
-        temperature,
+        lambda: Some(lambda),
+        decision: Some(v.decision),
+        temperature: Some(v.temperature),
     })
 }
 
@@ -648,10 +632,13 @@ fn loss_curve(report: &TrainReport) -> String {
 pub fn write_model(dir: &Path, record: &TrainingRecord, weights: &[u8]) -> Result<(), OutputError> {
     let method = record.method.as_str();
     let curve = loss_curve(record.report);
+    let meta = model_record(record, weights)?
+        .to_toml()
+        .map_err(OutputError::Batch)?;
     publish_files(dir, |tmp| {
         let bpk = tmp.join(format!("{method}.bpk"));
         std::fs::write(&bpk, weights).map_err(io(&bpk))?;
-        write_text(&tmp.join(format!("{method}.toml")), &model_metadata(record))?;
+        write_text(&tmp.join(format!("{method}.toml")), &meta)?;
         write_text(&tmp.join(format!("{method}_loss.csv")), &curve)
     })
 }
@@ -660,15 +647,37 @@ pub fn write_model(dir: &Path, record: &TrainingRecord, weights: &[u8]) -> Resul
 // Batch folders.
 // ---------------------------------------------------------------------------
 
-/// Whether a run folder is complete (it has its `summary.csv`).
+/// Whether a run folder is complete and whole: its three files, the
+/// summary not cut short, the Parquet file with both its magic numbers
+/// (a damaged folder is run again by a resumed batch).
 pub fn run_is_complete(run_dir: &Path) -> bool {
-    run_dir.join("summary.csv").is_file()
+    let summary = std::fs::read_to_string(run_dir.join("summary.csv")).unwrap_or_default();
+    summary_is_whole(&summary)
+        && std::fs::metadata(run_dir.join("summary.md")).is_ok_and(|m| m.len() > 0)
+        && frames::parquet_is_whole(&run_dir.join("objects.parquet"))
+}
+
+/// Whether a run's `summary.csv` is whole: a header, at least one row,
+/// every row with the header's number of fields, ended by a newline (a
+/// file cut short fails one of these).
+fn summary_is_whole(text: &str) -> bool {
+    let mut lines = text.lines();
+    let Some(header) = lines.next() else {
+        return false;
+    };
+    let fields = |l: &str| l.split(',').count();
+    let n = fields(header);
+    let rows: Vec<&str> = lines.collect();
+    header.starts_with("method,")
+        && !rows.is_empty()
+        && text.ends_with('\n')
+        && rows.iter().all(|r| fields(r) == n && !r.is_empty())
 }
 
 /// Claims `dir` for the batch described by `identity` (its `batch.toml`):
 /// creates it, or accepts it when it holds the same batch; a folder of
 /// another batch is refused.
-pub fn claim_batch_folder(dir: &Path, identity: &str) -> Result<(), OutputError> {
+pub fn claim_batch_folder(dir: &Path, identity: &BatchRecord) -> Result<(), OutputError> {
     let has_entries = std::fs::read_dir(dir).is_ok_and(|mut d| d.next().is_some());
     if has_entries && !dir.join("batch.toml").is_file() {
         return Err(OutputError::Batch(format!(
@@ -677,22 +686,41 @@ pub fn claim_batch_folder(dir: &Path, identity: &str) -> Result<(), OutputError>
         )));
     }
     std::fs::create_dir_all(dir).map_err(io(dir))?;
-    match std::fs::read_to_string(dir.join("batch.toml")) {
-        Ok(existing) if existing != identity => Err(OutputError::Batch(format!(
-            "{} holds a different batch ({}); choose another --out",
-            dir.display(),
-            existing.replace('\n', ", ").trim_end_matches(", ")
-        ))),
-        Ok(_) => Ok(()),
-        Err(_) => publish_files(dir, |tmp| write_text(&tmp.join("batch.toml"), identity)),
+    if !dir.join("batch.toml").is_file() {
+        return write_batch_identity(dir, identity);
     }
+    let existing = batch_identity(dir)?;
+    if existing.same_batch(identity) {
+        return Ok(());
+    }
+    let what = if existing.runs != identity.runs || existing.master_seed != identity.master_seed {
+        format!(
+            "{} runs from master seed {}",
+            existing.runs, existing.master_seed
+        )
+    } else {
+        format!(
+            "its configuration or a file it reads has changed since (digest {} then, {} now)",
+            existing.config_digest, identity.config_digest
+        )
+    };
+    Err(OutputError::Batch(format!(
+        "{} holds a different batch ({what}); choose another --out",
+        dir.display()
+    )))
 }
 
 /// The identity (`batch.toml`) of a batch folder.
-pub fn batch_identity(dir: &Path) -> Result<String, OutputError> {
-    std::fs::read_to_string(dir.join("batch.toml")).map_err(|_| {
+pub fn batch_identity(dir: &Path) -> Result<BatchRecord, OutputError> {
+    let text = std::fs::read_to_string(dir.join("batch.toml")).map_err(|_| {
         OutputError::Batch(format!(
             "{} is not a batch folder (no batch.toml)",
+            dir.display()
+        ))
+    })?;
+    BatchRecord::from_toml(&text).map_err(|e| {
+        OutputError::Batch(format!(
+            "{}: batch.toml is not a batch record of this coid ({e})",
             dir.display()
         ))
     })
@@ -761,9 +789,10 @@ pub fn copy_run(src: &Path, dst: &Path) -> Result<(), OutputError> {
     )
 }
 
-/// Writes a merged batch's identity.
-pub fn write_batch_identity(dir: &Path, identity: &str) -> Result<(), OutputError> {
-    publish_files(dir, |tmp| write_text(&tmp.join("batch.toml"), identity))
+/// Writes a batch's identity (`batch.toml`).
+pub fn write_batch_identity(dir: &Path, identity: &BatchRecord) -> Result<(), OutputError> {
+    let text = identity.to_toml().map_err(OutputError::Batch)?;
+    publish_files(dir, |tmp| write_text(&tmp.join("batch.toml"), &text))
 }
 
 #[cfg(test)]
@@ -843,13 +872,27 @@ mod tests {
     fn a_batch_folder_belongs_to_one_batch() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path().join("b");
-        claim_batch_folder(&d, "runs = 4\n").unwrap();
-        claim_batch_folder(&d, "runs = 4\n").unwrap();
-        let e = claim_batch_folder(&d, "runs = 5\n")
+        let id = |digest: &str, runs: usize, path: &str| BatchRecord {
+            config_digest: digest.into(),
+            runs,
+            master_seed: 1,
+            config: path.into(),
+        };
+        claim_batch_folder(&d, &id("ab", 4, "/x/c.toml")).unwrap();
+        // The same batch from a config at another path resumes.
+        claim_batch_folder(&d, &id("ab", 4, "/y/c.toml")).unwrap();
+        let e = claim_batch_folder(&d, &id("ab", 5, "/x/c.toml"))
             .unwrap_err()
             .to_string();
-        assert!(e.contains("different batch (runs = 4)"), "{e}");
-        assert_eq!(batch_identity(&d).unwrap(), "runs = 4\n");
+        assert!(
+            e.contains("different batch (4 runs from master seed 1)"),
+            "{e}"
+        );
+        let e = claim_batch_folder(&d, &id("cd", 4, "/x/c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("has changed since"), "{e}");
+        assert_eq!(batch_identity(&d).unwrap(), id("ab", 4, "/x/c.toml"));
         assert!(batch_identity(dir.path()).is_err());
     }
 

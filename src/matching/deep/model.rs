@@ -327,7 +327,7 @@ impl SplineConv {
 }
 
 /// Architecture and regularisation of one matcher variant.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Architecture {
     pub node_features: usize,
     pub hidden: usize,
@@ -894,14 +894,24 @@ pub fn from_bytes(arch: &Architecture, bytes: &[u8], device: &Device) -> Result<
     let net = Network::new(arch, Init::Zeros, device)
         .try_load_record(record)
         .map_err(|e| format!("{e:?}"))?;
-    let c = net.combination();
-    if [c.scale, c.gate, c.dustbin, c.dust_gate]
-        .iter()
-        .any(|v| !v.is_finite())
-    {
+    let mut finite = AllFinite(true);
+    net.visit(&mut finite);
+    if !finite.0 {
         return Err("the weights hold a value that is not a finite number".into());
     }
     Ok(net)
+}
+
+/// Whether every float parameter of a module is finite.
+struct AllFinite(bool);
+
+impl burn::module::ModuleVisitor for AllFinite {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if self.0 {
+            let data = param.val().into_data();
+            self.0 = data.iter::<f32>().all(f32::is_finite);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -929,6 +939,17 @@ mod tests {
     /// training one (log domain, tensors), on scores from mild to far
     /// apart, with gated entries and per-node "no match" scores, square and
     /// not.
+    #[test]
+    fn weights_that_are_not_finite_do_not_load() {
+        let arch = Architecture::default();
+        let device = Device::flex();
+        let fine = Network::new(&arch, Init::Seeded(3), &device);
+        assert!(from_bytes(&arch, &to_bytes(&fine).unwrap(), &device).is_ok());
+        let broken = Network::new(&arch, Init::Seeded(3), &device).with_gates(f32::NAN);
+        let e = from_bytes(&arch, &to_bytes(&broken).unwrap(), &device).unwrap_err();
+        assert!(e.contains("not a finite number"), "{e}");
+    }
+
     #[test]
     fn inference_sinkhorn_equals_the_log_domain_one() {
         let device = Device::flex();

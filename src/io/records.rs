@@ -1,0 +1,269 @@
+//! What coid writes as TOML and reads back, as serde records (never text
+//! put together by hand): the record beside each trained model, and a
+//! batch's identity. A value TOML cannot hold is refused when writing,
+//! not discovered when reading.
+
+use serde::{Deserialize, Serialize};
+
+use crate::matching::Method;
+use crate::matching::deep::decision::Decision;
+use crate::matching::deep::model::Architecture;
+
+/// `<method>.toml` beside `<method>.bpk`: how the weights were made, what
+/// the validation runs chose for them, and what they must be to load.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelRecord {
+    pub method: String,
+    /// The network the weights belong to; loading refuses any other.
+    pub architecture: Architecture,
+    /// FNV-1a 64 of the `.bpk` bytes (hex); loading refuses other bytes.
+    pub weights_fnv64: String,
+    pub config: String,
+    pub train_traffic_seeds: Vec<u64>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub train_scenarios: Vec<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub runs_per_scenario: Option<usize>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub validation_scenarios: Vec<String>,
+    pub eval_traffic_seeds: Vec<u64>,
+    pub epochs: usize,
+    pub learning_rate: f64,
+    pub seed: u64,
+    pub examples: usize,
+    pub steps: usize,
+    pub seconds: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub final_epoch_loss: Option<f64>,
+    /// The larger axis component of the training graphs' edges: median,
+    /// 95th percentile, and the share beyond the outer knot.
+    pub edge_median_m: f64,
+    pub edge_p95_m: f64,
+    pub edge_clipped_share: f64,
+    pub loss: String,
+    pub mc_samples: usize,
+    pub batch_size: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub patience: Option<usize>,
+    /// The epoch kept: lowest loss on the validation runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub best_epoch: Option<usize>,
+    /// Chosen on the validation runs (never on the eval seeds), once
+    /// `coid train` validated the weights.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validation: Option<ValidationRecord>,
+}
+
+/// What the validation runs chose for one model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ValidationRecord {
+    pub seeds: Vec<u64>,
+    pub uncertainty: String,
+    /// The entropy threshold; `"none"`: no threshold.
+    pub lambda: Lambda,
+    pub decision: Decision,
+    pub temperature: f64,
+    pub f1: f64,
+}
+
+/// A threshold in [0, 1], or none.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Lambda {
+    Value(f64),
+    None(NoneWord),
+}
+
+/// The word `"none"`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum NoneWord {
+    #[serde(rename = "none")]
+    None,
+}
+
+impl Lambda {
+    pub fn from_f64(v: f64) -> Self {
+        if v.is_finite() {
+            Lambda::Value(v)
+        } else {
+            Lambda::None(NoneWord::None)
+        }
+    }
+
+    /// The threshold (infinite: none); `None` when out of [0, 1].
+    pub fn to_f64(self) -> Option<f64> {
+        match self {
+            Lambda::Value(v) if (0.0..=1.0).contains(&v) => Some(v),
+            Lambda::Value(_) => None,
+            Lambda::None(_) => Some(f64::INFINITY),
+        }
+    }
+}
+
+impl ModelRecord {
+    /// The record as TOML.
+    pub fn to_toml(&self) -> Result<String, String> {
+        let head = "# Written by `coid train`: how these weights were made, and what the\n\
+                    # validation runs chose for them. Read back with serde; edit at your risk.\n";
+        toml::to_string(self)
+            .map(|t| format!("{head}{t}"))
+            .map_err(|e| e.to_string())
+    }
+
+    pub fn from_toml(text: &str) -> Result<Self, String> {
+        toml::from_str(text).map_err(|e| e.message().replace('\n', " "))
+    }
+
+    /// `Ok` when these are the weights this record describes, for the
+    /// network of `method`.
+    pub fn check(&self, method: Method, arch: &Architecture, weights: &[u8]) -> Result<(), String> {
+        if self.method != method.as_str() {
+            return Err(format!("the record is of '{}'", self.method));
+        }
+        if self.architecture != *arch {
+            return Err("the weights were trained for another architecture".into());
+        }
+        let sum = fnv64_hex(weights);
+        if self.weights_fnv64 != sum {
+            return Err(format!(
+                "the weights are not the ones recorded (checksum {sum}, recorded {})",
+                self.weights_fnv64
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// FNV-1a 64 of `bytes`, as 16 hex digits.
+pub fn fnv64_hex(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in bytes {
+        h ^= u64::from(*b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+/// `batch.toml`: what a batch is, by content: the digest of its resolved
+/// configuration and of every file it reads, the number of runs and the
+/// master seed. Two batches are the same exactly when these are; the
+/// config's path is kept for the report only.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BatchRecord {
+    pub config_digest: String,
+    pub runs: usize,
+    pub master_seed: u64,
+    /// Where the config was read (informative: not part of the identity).
+    pub config: String,
+}
+
+impl BatchRecord {
+    pub fn to_toml(&self) -> Result<String, String> {
+        toml::to_string(self).map_err(|e| e.to_string())
+    }
+
+    pub fn from_toml(text: &str) -> Result<Self, String> {
+        toml::from_str(text).map_err(|e| e.message().replace('\n', " "))
+    }
+
+    /// Whether `other` is the same batch (the path aside).
+    pub fn same_batch(&self, other: &BatchRecord) -> bool {
+        (&self.config_digest, self.runs, self.master_seed)
+            == (&other.config_digest, other.runs, other.master_seed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record() -> ModelRecord {
+        ModelRecord {
+            method: "ours".into(),
+            architecture: Architecture::default(),
+            weights_fnv64: fnv64_hex(b"weights"),
+            config: "c.toml".into(),
+            train_traffic_seeds: vec![1, 2],
+            train_scenarios: Vec::new(),
+            runs_per_scenario: None,
+            validation_scenarios: Vec::new(),
+            eval_traffic_seeds: vec![3],
+            epochs: 2,
+            learning_rate: 0.002,
+            seed: 7,
+            examples: 10,
+            steps: 4,
+            seconds: 1.5,
+            final_epoch_loss: None,
+            edge_median_m: 16.6,
+            edge_p95_m: 48.6,
+            edge_clipped_share: 0.05,
+            loss: "likelihood".into(),
+            mc_samples: 2,
+            batch_size: 32,
+            patience: Some(3),
+            best_epoch: Some(1),
+            validation: Some(ValidationRecord {
+                seeds: vec![4],
+                uncertainty: "entropy".into(),
+                lambda: Lambda::from_f64(f64::INFINITY),
+                decision: Decision::Mutual,
+                temperature: 1.5,
+                f1: 0.9,
+            }),
+        }
+    }
+
+    #[test]
+    fn a_model_record_reads_back_as_written_and_checks_its_weights() {
+        let r = record();
+        let back = ModelRecord::from_toml(&r.to_toml().unwrap()).unwrap();
+        assert_eq!(back, r);
+        assert_eq!(
+            back.validation.unwrap().lambda.to_f64(),
+            Some(f64::INFINITY)
+        );
+        let arch = Architecture::default();
+        assert!(r.check(Method::Ours, &arch, b"weights").is_ok());
+        assert!(
+            r.check(Method::Ours, &arch, b"other")
+                .unwrap_err()
+                .contains("checksum")
+        );
+        assert!(r.check(Method::Dgmc, &arch, b"weights").is_err());
+        let other = Architecture {
+            hidden: 128,
+            ..arch
+        };
+        assert!(r.check(Method::Ours, &other, b"weights").is_err());
+        // A NaN loss is written as TOML's nan and read back.
+        let nan = ModelRecord {
+            final_epoch_loss: Some(f64::NAN),
+            ..record()
+        };
+        let back = ModelRecord::from_toml(&nan.to_toml().unwrap()).unwrap();
+        assert!(back.final_epoch_loss.unwrap().is_nan());
+        assert!(ModelRecord::from_toml("method = 3").is_err());
+    }
+
+    #[test]
+    fn a_batch_is_its_content_not_its_path() {
+        let a = BatchRecord {
+            config_digest: "ab".into(),
+            runs: 4,
+            master_seed: 1,
+            config: "/x/c.toml".into(),
+        };
+        let moved = BatchRecord {
+            config: "/elsewhere/c.toml".into(),
+            ..a.clone()
+        };
+        assert!(a.same_batch(&moved));
+        let edited = BatchRecord {
+            config_digest: "cd".into(),
+            ..a.clone()
+        };
+        assert!(!a.same_batch(&edited));
+        assert_eq!(BatchRecord::from_toml(&a.to_toml().unwrap()).unwrap(), a);
+    }
+}
