@@ -29,7 +29,8 @@ fn python() {
     let probe = "import os, sys, sysconfig\n\
                  print(sysconfig.get_config_var('LIBDIR') or '')\n\
                  print(os.path.realpath(getattr(sys, '_base_executable', sys.executable)))\n\
-                 print('%d.%d' % sys.version_info[:2])";
+                 print('%d.%d' % sys.version_info[:2])\n\
+                 print(sys.base_prefix)";
     let out = Command::new(&python).args(["-c", probe]).output();
     match out {
         Ok(o) if o.status.success() => {
@@ -41,8 +42,10 @@ fn python() {
             }
             let exe = lines.next().unwrap_or("python3").trim();
             let version = lines.next().unwrap_or("").trim();
+            let home = lines.next().unwrap_or("").trim();
             println!("cargo:rustc-env=COID_BUILD_PYTHON={exe}");
             println!("cargo:rustc-env=COID_BUILD_PYTHON_VERSION={version}");
+            println!("cargo:rustc-env=COID_BUILD_PYTHON_HOME={home}");
         }
         _ => {
             println!(
@@ -50,6 +53,7 @@ fn python() {
             );
             println!("cargo:rustc-env=COID_BUILD_PYTHON=python3");
             println!("cargo:rustc-env=COID_BUILD_PYTHON_VERSION=");
+            println!("cargo:rustc-env=COID_BUILD_PYTHON_HOME=");
         }
     }
 }

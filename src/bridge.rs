@@ -75,6 +75,7 @@ pub fn netconvert(dir: &Path, args: &[String]) -> Result<(), BridgeError> {
     let out = std::process::Command::new(&exe)
         .args(args)
         .current_dir(dir)
+        .env_remove("PYTHONHOME")
         .output()
         .map_err(|e| fail(e.to_string()))?;
     if out.status.success() {
@@ -98,6 +99,22 @@ fn describe(py: Python<'_>, err: &PyErr) -> String {
     } else {
         format!("{kind}: {msg}")
     }
+}
+
+/// Prepares the process, while it has one thread: the embedded
+/// interpreter's home (`PYTHONHOME`, unless the user set it) is the
+/// Python the binary was linked against, so that its standard library is
+/// never taken from another Python on `PATH` (a system `python3` of the
+/// same version has extension modules built in that this libpython looks
+/// for as files); and the signals ([`exit_on_interrupt`]).
+pub fn prepare_process() {
+    let home = Path::new(paths::BUILD_PYTHON_HOME);
+    if std::env::var_os("PYTHONHOME").is_none() && home.join("lib").is_dir() {
+        // SAFETY: called first thing in `cli::execute`, before any thread
+        // is started.
+        unsafe { std::env::set_var("PYTHONHOME", home) };
+    }
+    exit_on_interrupt();
 }
 
 /// Ctrl-C (SIGINT) and SIGTERM end the process at once with 130 and 143,
@@ -207,6 +224,7 @@ fn run_setup(program: &Path, args: &[&str], path: &Path) -> Result<(), BridgeErr
     let out = std::process::Command::new(program)
         .args(args)
         .arg(path)
+        .env_remove("PYTHONHOME")
         .output()
         .map_err(|e| BridgeError::Setup(format!("cannot run {}: {e}", program.display())))?;
     if out.status.success() {
@@ -228,6 +246,7 @@ fn check_version(python: &Path) -> Result<(), BridgeError> {
     }
     let out = std::process::Command::new(python)
         .args(["-c", "import sys; print('%d.%d' % sys.version_info[:2])"])
+        .env_remove("PYTHONHOME")
         .output()
         .map_err(|e| BridgeError::Setup(format!("cannot run {}: {e}", python.display())))?;
     let version = String::from_utf8_lossy(&out.stdout).trim().to_owned();

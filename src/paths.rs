@@ -21,6 +21,10 @@ pub const ASSETS_ID: &str = env!("COID_ASSETS_ID");
 /// SUMO's environment is made from it (set by `build.rs`).
 pub const BUILD_PYTHON: &str = env!("COID_BUILD_PYTHON");
 pub const BUILD_PYTHON_VERSION: &str = env!("COID_BUILD_PYTHON_VERSION");
+/// Its `sys.base_prefix`: where the linked libpython's standard library
+/// lives (the embedded interpreter is told, so that it never takes
+/// another Python's library found on `PATH`).
+pub const BUILD_PYTHON_HOME: &str = env!("COID_BUILD_PYTHON_HOME");
 
 /// Why no data folder could be named.
 #[derive(Debug, thiserror::Error)]

@@ -494,9 +494,14 @@ mod run {
         std::fs::create_dir_all(&work).unwrap();
         let venv =
             std::env::var_os("COID_VENV").map_or_else(|| repo().join(".venv"), PathBuf::from);
+        // A bare environment: no Python on PATH but the system's (whose
+        // standard library must not be taken for the linked one's).
         let out = Command::new(&bin)
             .args(["run", "--quiet"])
             .current_dir(&work)
+            .env_clear()
+            .env("PATH", "/usr/bin:/bin")
+            .env("HOME", fx.path("home"))
             .env("COID_HOME", fx.path("home"))
             .env("COID_VENV", venv)
             .output()

@@ -87,7 +87,7 @@ enum Command {
 
 /// Runs the parsed command.
 pub fn execute(cli: Cli) -> anyhow::Result<()> {
-    crate::bridge::exit_on_interrupt();
+    crate::bridge::prepare_process();
     // The default scenario and the shipped weights, where the defaults
     // point (written out once per build).
     if !matches!(cli.command, Command::Completions { .. }) {
