@@ -739,6 +739,12 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
     if m.methods.is_empty() {
         return Err(c.invalid("matching.methods", "need at least one method".into()));
     }
+    if m.methods.contains(&Method::External) {
+        return Err(c.invalid(
+            "matching.methods",
+            "'external' correspondences come from a file: score them with `coid score --matches FILE`".into(),
+        ));
+    }
     c.positive("matching.gate_chi2", m.gate_chi2)?;
     if m.mc_samples == 0 {
         return Err(c.invalid("matching.mc_samples", "need at least one sample".into()));
@@ -1252,6 +1258,7 @@ mod tests {
             ("[camera]\nfov_deg = 200.0\n", "camera.fov_deg"),
             ("[connected]\npenetration = 1.5\n", "connected.penetration"),
             ("[seeds]\ntraffic = 2147483648\n", "seeds.traffic"),
+            ("[matching]\nmethods = [\"external\"]\n", "matching.methods"),
             ("[eval]\ntraffic_seeds = [1, 2, 1]\n", "eval.traffic_seeds"),
             (
                 "[eval]\ntraffic_seeds = [3000000000]\n",

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 
 use crate::config::Settings;
 use crate::evaluate::PairCounts;
-use crate::evaluate::{self, Runner};
+use crate::evaluate::{self, ExternalMatches, Runner};
 use crate::fusion::FusionSettings;
 use crate::matching::deep::decision::{Decision, UncertaintyKind, calibrated, pair_uncertainty};
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainProgress, TrainReport};
@@ -72,6 +72,22 @@ fn runs_of(
     for path in scenarios {
         let other = settings.with_scenario_of(path)?;
         runs.extend(first.iter().map(|&s| settings_for_seed(&other, s)));
+    }
+    Ok(runs)
+}
+
+/// The test runs, as `coid eval` runs them: every test seed of the
+/// config's own scenario, then the same seeds of each scenario of `[eval]
+/// scenarios`.
+pub fn test_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
+    let seeds = &settings.eval.traffic_seeds;
+    let mut runs: Vec<Settings> = seeds
+        .iter()
+        .map(|&s| settings_for_seed(settings, s))
+        .collect();
+    for path in &settings.eval.scenarios {
+        let other = settings.with_scenario_of(path)?;
+        runs.extend(seeds.iter().map(|&s| settings_for_seed(&other, s)));
     }
     Ok(runs)
 }
@@ -146,33 +162,63 @@ pub fn eval_run(
     threads: usize,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
+    let runners = pipeline::runners(settings, methods)?;
     eval_run_into(
         RunEval::default(),
         settings,
-        methods,
+        &runners,
         lambdas,
         threads,
         progress,
     )
 }
 
-/// [`eval_run`] adding to `out`.
-fn eval_run_into(
-    mut out: RunEval,
+/// [`eval_run`] with one more method: correspondences made elsewhere
+/// for this run (`coid score`), last. Refused when they name an instance
+/// or node the run does not have.
+pub fn eval_run_with(
     settings: &Settings,
     methods: &[Method],
+    external: ExternalMatches,
     lambdas: &BTreeMap<Method, f64>,
     threads: usize,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
-    let runners = pipeline::runners(settings, methods)?;
-    let grid = lambda_grid(lambdas.values());
-    let stats = pipeline::evaluate_frames(
+    let mut runners = pipeline::runners(settings, methods)?;
+    runners.push(Runner::External(external));
+    eval_run_into(
+        RunEval::default(),
         settings,
         &runners,
+        lambdas,
+        threads,
+        progress,
+    )
+}
+
+/// [`eval_run`] of `runners`, adding to `out`.
+fn eval_run_into(
+    mut out: RunEval,
+    settings: &Settings,
+    runners: &[Runner],
+    lambdas: &BTreeMap<Method, f64>,
+    threads: usize,
+    progress: impl FnMut(Progress),
+) -> Result<RunEval, RunError> {
+    let grid = lambda_grid(lambdas.values());
+    let external = runners.iter().find_map(|r| match r {
+        Runner::External(e) => Some(e),
+        _ => None,
+    });
+    let stats = pipeline::evaluate_frames(
+        settings,
+        runners,
         threads,
         progress,
         |_, pairs, level, f| {
+            if let (Some(e), Method::External) = (external, f.method) {
+                e.check(pairs).map_err(RunError::Matches)?;
+            }
             out.record_consistency(f.method, level, f.consistency);
             out.record_views(f.method, level, &f.views);
             for (pair, e) in pairs.iter().zip(&f.pairs) {
@@ -181,6 +227,10 @@ fn eval_run_into(
             Ok(())
         },
     )?;
+    if let Some(e) = external {
+        e.check_instances(stats.n_instances)
+            .map_err(RunError::Matches)?;
+    }
     out.instances = stats.n_instances;
     Ok(out)
 }
@@ -253,7 +303,7 @@ pub fn validate(
         runs.push(eval_run_into(
             kept,
             run,
-            methods,
+            &pipeline::runners(run, methods)?,
             &no_lambdas,
             threads,
             |_| {},

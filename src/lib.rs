@@ -11,6 +11,8 @@
 //! - [`report`]: rows, tables and plot data before they are written;
 //! - [`tables`], [`render`], [`io`]: the paper's tables, pictures, files;
 //! - [`pipeline`]: one run; [`experiments`], [`batch`]: many runs;
+//!   [`export`]: instances out for matchers written elsewhere, their
+//!   matches back in;
 //! - [`cli`]: the `coid` commands.
 
 pub mod batch;
@@ -19,6 +21,7 @@ pub mod cli;
 pub mod config;
 pub mod evaluate;
 pub mod experiments;
+pub mod export;
 pub mod fusion;
 pub mod geometry;
 pub mod graph;

@@ -45,6 +45,9 @@ pub enum RunError {
     Output(#[from] OutputError),
     #[error("{0}")]
     Worker(String),
+    /// Correspondences made elsewhere that do not fit the run.
+    #[error("{0}")]
+    Matches(String),
 }
 
 /// Progress reported once per simulation step.
@@ -115,6 +118,7 @@ impl<'a> Instance<'a> {
             truth: &e.sensed.truth,
         };
         PairAtLevel {
+            instance: self.index,
             first: side(self.a),
             second: side(self.b),
             level: *level,

@@ -312,6 +312,7 @@ pub enum TableColumn {
     Text(Vec<String>),
     Number(Vec<f64>),
     Count(Vec<u64>),
+    Flag(Vec<bool>),
 }
 
 impl Table {
@@ -325,6 +326,10 @@ impl Table {
 
     pub fn count(&mut self, name: &str, v: Vec<u64>) {
         self.columns.push((name.into(), TableColumn::Count(v)));
+    }
+
+    pub fn flag(&mut self, name: &str, v: Vec<bool>) {
+        self.columns.push((name.into(), TableColumn::Flag(v)));
     }
 
     /// Adds `name` and `name_ci95`: per row, the mean of its per-run
@@ -355,9 +360,25 @@ impl Table {
             Some((_, TableColumn::Text(v))) => v.len(),
             Some((_, TableColumn::Number(v))) => v.len(),
             Some((_, TableColumn::Count(v))) => v.len(),
+            Some((_, TableColumn::Flag(v))) => v.len(),
             None => 0,
         }
     }
+}
+
+/// One correspondence of a matches file (`coid score --matches`): node
+/// `a` of the instance's first vehicle is node `b` of its second, at one
+/// pose-noise level (every level when `pose_noise` is `None`), with the
+/// matcher's probability and uncertainty (bits) when it gave them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MatchRow {
+    pub run: u64,
+    pub instance: u64,
+    pub pose_noise: Option<String>,
+    pub a: u64,
+    pub b: u64,
+    pub probability: Option<f64>,
+    pub uncertainty: Option<f64>,
 }
 
 /// One row of a run's `summary.csv`, as read back for a batch aggregate.

@@ -19,6 +19,7 @@ const LAYERS: &[&[&str]] = &[
     &["tables", "render", "io"],
     &["pipeline"],
     &["experiments", "batch"],
+    &["export"],
     &["cli"],
 ];
 
@@ -432,6 +433,7 @@ fn matchers_cannot_reach_the_ground_truth() {
             "render.rs",
             "pipeline.rs",
             "experiments.rs",
+            "export.rs",
             "cli/render.rs",
         ],
     );

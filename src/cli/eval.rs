@@ -258,7 +258,7 @@ fn evaluate(
 }
 
 /// The tables and plots of `runs` into `out`.
-fn write(
+pub(super) fn write(
     out: &Path,
     settings: &Settings,
     runs: &[RunEval],

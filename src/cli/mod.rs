@@ -5,6 +5,7 @@
 
 mod batch;
 mod eval;
+mod export;
 mod render;
 mod run;
 mod scenarios;
@@ -58,11 +59,29 @@ enum Command {
     /// runs. Writes into --out: table1.csv (P/R/F1 per method and pose
     /// noise), table2.csv (F1 before/after uncertainty thresholding),
     /// table3.csv (uncertainty types), lambda_sweep.csv, case_study.csv
-    /// (displacement errors), calibration.csv, consistency.csv, views.csv,
+    /// (displacement errors), errors.csv (every method's displacement
+    /// errors), calibration.csv, consistency.csv, views.csv,
     /// summary.md, and pictures (f1_per_method, lambda_sweep, error_cdf,
     /// reliability_<method>; PNG and SVG). With [eval] scenarios or
     /// --suite: one such folder per scenario, and pooled/.
     Eval(eval::Args),
+    /// Write every instance of the configuration as Parquet for a matcher
+    /// written elsewhere (Python, PyTorch Geometric): both vehicles' nodes
+    /// (ego-frame positions, covariances, appearance, sender flag), the
+    /// reported poses per pose-noise level, Delaunay edges, the truth and
+    /// the true pairs, and the split of each run. Writes into --out:
+    /// runs.parquet, instances.parquet, nodes.parquet, edges.parquet,
+    /// truth.parquet, true_pairs.parquet, matches-<method>.parquet (with
+    /// --with-matches), schema.md (the columns, versioned).
+    Export(export::ExportArgs),
+    /// Evaluate correspondences made elsewhere (`--matches FILE`, for the
+    /// runs of `coid export`) beside the configured built-in methods, as
+    /// method `external`, on the test (or validation) runs. Writes into
+    /// --out what `coid eval` writes: table1.csv, errors.csv (displacement
+    /// errors of every method, both fusion variants, common object set),
+    /// calibration.csv, consistency.csv, views.csv, the deep methods'
+    /// tables, summary.md and pictures.
+    Score(export::ScoreArgs),
     /// Train the deep matchers on instances from the training runs
     /// ([train] traffic_seeds, and [train] scenarios), then choose each
     /// one's calibration temperature, decision rule and lambda on the
@@ -99,6 +118,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<()> {
         Command::Merge(a) => batch::merge(a),
         Command::Render(a) => render::render(a),
         Command::Eval(a) => eval::eval(a),
+        Command::Export(a) => export::export(a),
+        Command::Score(a) => export::score(a),
         Command::Train(a) => train::train(a),
         Command::Scenarios(a) => scenarios::scenarios(a),
         Command::Completions { shell } => {

@@ -60,6 +60,7 @@ pub(super) fn joins(
         let matched: Vec<(usize, Correspondence)> = match frame.view(v, &objects) {
             Some(view) => {
                 let pair = PairAtLevel {
+                    instance: usize::MAX,
                     first: view.side(),
                     second: side,
                     level: frame.level,

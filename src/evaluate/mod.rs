@@ -20,7 +20,7 @@ use crate::matching::synchronize::{
 use crate::matching::{
     Correspondence, Identification, MatchView, Matcher, Method, MultiVehicle, oracle,
 };
-use crate::sensor::{Observation, ObservationTruth, PoseNoiseLevel};
+use crate::sensor::{Observation, ObservationTruth, PoseNoiseLabel, PoseNoiseLevel};
 
 /// `[eval]`: the test runs of `coid eval`.
 #[derive(Clone, Debug, PartialEq)]
@@ -142,16 +142,75 @@ pub struct Side<'a> {
 /// level.
 #[derive(Clone, Copy, Debug)]
 pub struct PairAtLevel<'a> {
+    /// The instance's running index within its run.
+    pub instance: usize,
     pub first: Side<'a>,
     pub second: Side<'a>,
     pub level: PoseNoiseLevel,
 }
 
-/// How a method runs: from what the vehicles know, or from the truth.
+/// How a method runs: from what the vehicles know, from the truth, or
+/// from a file.
 pub enum Runner {
     Matcher(Box<dyn Matcher>),
     /// The true correspondences ([`oracle::true_pairs`]).
     Oracle,
+    /// Correspondences made elsewhere (`coid score`), for one run.
+    External(ExternalMatches),
+}
+
+/// One run's correspondences made elsewhere: per (instance, pose-noise
+/// level), pairs of the instance's first and second vehicle's nodes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ExternalMatches {
+    pub by_instance: BTreeMap<(usize, PoseNoiseLabel), Vec<Correspondence>>,
+}
+
+impl ExternalMatches {
+    /// The correspondences of `pair`'s instance at its level, those that
+    /// name nodes it has ([`ExternalMatches::check`] refuses the others).
+    fn for_pair(&self, pair: &PairAtLevel) -> Vec<Correspondence> {
+        let (n1, n2) = (
+            pair.first.view.detections.len(),
+            pair.second.view.detections.len(),
+        );
+        self.by_instance
+            .get(&(pair.instance, pair.level.label))
+            .map(|m| m.iter().filter(|c| c.a < n1 && c.b < n2).copied().collect())
+            .unwrap_or_default()
+    }
+
+    /// Why the correspondences do not fit a frame's instances, if they do
+    /// not: a node index beyond what a vehicle detected.
+    pub fn check(&self, pairs: &[PairAtLevel]) -> Result<(), String> {
+        for pair in pairs {
+            let key = (pair.instance, pair.level.label);
+            let (n1, n2) = (
+                pair.first.view.detections.len(),
+                pair.second.view.detections.len(),
+            );
+            for c in self.by_instance.get(&key).into_iter().flatten() {
+                if c.a >= n1 || c.b >= n2 {
+                    return Err(format!(
+                        "instance {} has {n1} and {n2} nodes, but a match pairs nodes {} and {}",
+                        pair.instance, c.a, c.b
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Why the correspondences do not fit a run of `n_instances`
+    /// instances, if they do not.
+    pub fn check_instances(&self, n_instances: usize) -> Result<(), String> {
+        match self.by_instance.keys().map(|k| k.0).max() {
+            Some(i) if i >= n_instances => Err(format!(
+                "the run has {n_instances} instances, but matches name instance {i}"
+            )),
+            _ => Ok(()),
+        }
+    }
 }
 
 impl Runner {
@@ -159,6 +218,7 @@ impl Runner {
         match self {
             Runner::Matcher(m) => m.method(),
             Runner::Oracle => Method::Oracle,
+            Runner::External(_) => Method::External,
         }
     }
 
@@ -168,6 +228,7 @@ impl Runner {
             Runner::Oracle => {
                 Identification::plain(oracle::true_pairs(pair.first.truth, pair.second.truth))
             }
+            Runner::External(e) => Identification::plain(e.for_pair(pair)),
         }
     }
 }
@@ -937,6 +998,7 @@ mod tests {
             truth,
         };
         let pair = |second| PairAtLevel {
+            instance: 0,
             first,
             second,
             level,
@@ -990,6 +1052,7 @@ mod tests {
             }
         }
         let pair = PairAtLevel {
+            instance: 0,
             first: Side {
                 view: view(&oa, &ga, pa),
                 obs: &oa,
@@ -1097,6 +1160,7 @@ mod tests {
         fn pair(&self, i: usize, j: usize) -> PairAtLevel<'_> {
             let (first, second) = (self.side(i), self.side(j));
             PairAtLevel {
+                instance: 0,
                 first,
                 second,
                 level: first.view.pose_noise,
@@ -1336,6 +1400,7 @@ mod tests {
             let (ob, tb) = sensed("b", pb, &pick(&seen_b));
             let (ga, gb) = (graph(&oa), graph(&ob));
             let pair = PairAtLevel {
+                instance: 0,
                 first: Side { view: exact_view(&oa, &ga, pa), obs: &oa, truth: &ta },
                 second: Side { view: exact_view(&ob, &gb, pb), obs: &ob, truth: &tb },
                 level: exact_view(&oa, &ga, pa).pose_noise,

@@ -9,7 +9,7 @@ use polars::io::parquet::write::BatchedWriter;
 use polars::prelude::*;
 
 use super::{OutputError, io};
-use crate::report::{AggregateRow, ObjectRow, RunRow, SummaryRow, Table, TableColumn};
+use crate::report::{AggregateRow, MatchRow, ObjectRow, RunRow, SummaryRow, Table, TableColumn};
 
 fn polars_err(path: &Path) -> impl FnOnce(PolarsError) -> OutputError + '_ {
     move |source| OutputError::Polars {
@@ -81,6 +81,7 @@ fn table_frame(t: &Table) -> PolarsResult<DataFrame> {
             TableColumn::Text(v) => Column::new(name.as_str().into(), v),
             TableColumn::Number(v) => Column::new(name.as_str().into(), v),
             TableColumn::Count(v) => Column::new(name.as_str().into(), v),
+            TableColumn::Flag(v) => Column::new(name.as_str().into(), v),
         })
         .collect();
     DataFrame::new_infer_height(columns)
@@ -207,6 +208,128 @@ impl ObjectsWriter {
     }
 }
 
+/// A Parquet file of [`Table`]s with the same columns, one row group per
+/// table written (`coid export`'s files).
+pub struct TableWriter {
+    path: PathBuf,
+    file: File,
+    writer: BatchedWriter<File>,
+}
+
+impl TableWriter {
+    /// A file with the columns (names and types) of `template`.
+    pub fn create(path: &Path, template: &Table) -> Result<Self, OutputError> {
+        let file = File::create(path).map_err(io(path))?;
+        let handle = file.try_clone().map_err(io(path))?;
+        let schema = table_frame(template)
+            .map_err(polars_err(path))?
+            .schema()
+            .as_ref()
+            .clone();
+        let writer = ParquetWriter::new(handle)
+            .batched(&schema)
+            .map_err(polars_err(path))?;
+        Ok(Self {
+            path: path.to_owned(),
+            file,
+            writer,
+        })
+    }
+
+    /// Writes `table` as one row group (nothing when it has no rows).
+    pub fn write(&mut self, table: &Table) -> Result<(), OutputError> {
+        if table.height() == 0 {
+            return Ok(());
+        }
+        let df = table_frame(table).map_err(polars_err(&self.path))?;
+        self.writer.write_batch(&df).map_err(polars_err(&self.path))
+    }
+
+    /// Writes the footer, flushed to disk.
+    pub fn finish(self) -> Result<(), OutputError> {
+        self.writer.finish().map_err(polars_err(&self.path))?;
+        self.file.sync_all().map_err(io(&self.path))
+    }
+}
+
+/// Reads a matches file (`coid score --matches`): Parquet, or CSV when
+/// its name ends in `.csv`. Columns `run`, `instance`, `a`, `b`
+/// (non-negative integers, no empty values) and, optionally,
+/// `pose_noise` (text), `probability` and `uncertainty` (numbers); other
+/// columns are ignored. The reason it cannot be read, in one line.
+pub fn read_matches(path: &Path) -> Result<Vec<MatchRow>, String> {
+    let text = |e: PolarsError| e.to_string().lines().next().unwrap_or("").to_owned();
+    let df = if path.extension().is_some_and(|e| e == "csv") {
+        CsvReadOptions::default()
+            .with_has_header(true)
+            .try_into_reader_with_file_path(Some(path.to_owned()))
+            .and_then(|r| r.finish())
+            .map_err(text)?
+    } else {
+        let f = File::open(path).map_err(|e| e.to_string())?;
+        ParquetReader::new(f).finish().map_err(text)?
+    };
+    let n = df.height();
+    if let Some(missing) = ["run", "instance", "a", "b"]
+        .into_iter()
+        .find(|c| df.column(c).is_err())
+    {
+        return Err(format!("it has no column '{missing}'"));
+    }
+    if n == 0 {
+        return Ok(Vec::new());
+    }
+    let index = |name: &str| -> Result<Vec<u64>, String> {
+        let c = df
+            .column(name)
+            .map_err(|_| format!("it has no column '{name}'"))?;
+        if !c.dtype().is_integer() {
+            return Err(format!("column '{name}' holds {}, not integers", c.dtype()));
+        }
+        let c = c
+            .strict_cast(&DataType::UInt64)
+            .map_err(|_| format!("column '{name}' holds a negative value"))?;
+        let v: Vec<Option<u64>> = c.u64().map_err(text)?.iter().collect();
+        v.into_iter()
+            .enumerate()
+            .map(|(k, x)| x.ok_or_else(|| format!("column '{name}' is empty in row {}", k + 1)))
+            .collect()
+    };
+    let number = |name: &str| -> Result<Vec<Option<f64>>, String> {
+        let Ok(c) = df.column(name) else {
+            return Ok(vec![None; n]);
+        };
+        if !c.dtype().is_primitive_numeric() {
+            return Err(format!("column '{name}' holds {}, not numbers", c.dtype()));
+        }
+        let c = c.cast(&DataType::Float64).map_err(text)?;
+        Ok(c.f64().map_err(text)?.iter().collect())
+    };
+    let level: Vec<Option<String>> = match df.column("pose_noise") {
+        Err(_) => vec![None; n],
+        Ok(c) if c.dtype() == &DataType::String => c
+            .str()
+            .map_err(text)?
+            .iter()
+            .map(|v| v.map(str::to_owned))
+            .collect(),
+        Ok(c) => return Err(format!("column 'pose_noise' holds {}, not text", c.dtype())),
+    };
+    let (run, instance, a, b) = (index("run")?, index("instance")?, index("a")?, index("b")?);
+    let (p, u) = (number("probability")?, number("uncertainty")?);
+    Ok((0..n)
+        .map(|k| MatchRow {
+            run: run[k],
+            instance: instance[k],
+            pose_noise: level[k].clone(),
+            a: a[k],
+            b: b[k],
+            probability: p[k],
+            uncertainty: u[k],
+        })
+        .collect())
+}
+
 /// Whether a Parquet file is whole: `PAR1` at its start and at its end
 /// (a file cut short, or never finished, lacks the footer).
 pub fn parquet_is_whole(path: &Path) -> bool {
@@ -307,6 +430,53 @@ mod tests {
     use crate::matching::Method;
     use crate::report::{RowKey, Summary};
     use crate::sensor::PoseNoiseLabel;
+
+    /// A matches table written in two row groups reads back row for row;
+    /// optional columns may be missing; an index that is not an integer is
+    /// refused.
+    #[test]
+    fn matches_written_as_tables_read_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.parquet");
+        let table = |run: u64, p: f64| {
+            let mut t = Table::default();
+            t.count("run", vec![run, run]);
+            t.count("instance", vec![0, 1]);
+            t.text("pose_noise", vec!["gps".into(), "none".into()]);
+            t.count("a", vec![2, 3]);
+            t.count("b", vec![4, 5]);
+            t.number("probability", vec![p, 1.0]);
+            t
+        };
+        let mut w = TableWriter::create(&path, &table(0, 0.0)).unwrap();
+        w.write(&table(7, 0.25)).unwrap();
+        w.write(&Table::default()).unwrap();
+        w.write(&table(8, 0.5)).unwrap();
+        w.finish().unwrap();
+        let rows = read_matches(&path).unwrap();
+        assert_eq!(rows.len(), 4);
+        assert_eq!(
+            rows[2],
+            MatchRow {
+                run: 8,
+                instance: 0,
+                pose_noise: Some("gps".into()),
+                a: 2,
+                b: 4,
+                probability: Some(0.5),
+                uncertainty: None,
+            }
+        );
+        let csv = dir.path().join("m.csv");
+        std::fs::write(&csv, "run,instance,a,b\n1,2,3,4\n").unwrap();
+        let rows = read_matches(&csv).unwrap();
+        assert_eq!(
+            (rows[0].run, rows[0].b, rows[0].pose_noise.clone()),
+            (1, 4, None)
+        );
+        std::fs::write(&csv, "run,instance,a,b\n1,2,3.5,4\n").unwrap();
+        assert!(read_matches(&csv).unwrap_err().contains("not integers"));
+    }
 
     /// One random estimate: (key index, covisible, matched, single and
     /// fused offsets from the truth).

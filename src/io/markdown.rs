@@ -226,6 +226,7 @@ pub fn table(t: &Table) -> String {
         match &t.columns[k].1 {
             TableColumn::Text(v) => v[r].clone(),
             TableColumn::Count(v) => v[r].to_string(),
+            TableColumn::Flag(v) => v[r].to_string(),
             TableColumn::Number(v) if names[k] == "lambda" => lambda_text(v[r]),
             TableColumn::Number(v) => match t.column(&format!("{}_ci95", names[k])) {
                 Some(TableColumn::Number(c)) => with_ci(v[r], c[r]),

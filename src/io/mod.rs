@@ -138,6 +138,8 @@ pub enum ResultKind {
     Family,
     /// Trained models: `<method>.bpk`, `.toml`, `_loss.csv`.
     Models,
+    /// An export of instances (`coid export`): Parquet files, `schema.md`.
+    Export,
 }
 
 impl ResultKind {
@@ -150,6 +152,7 @@ impl ResultKind {
             ResultKind::Scenario => "a generated scenario (coid scenarios)",
             ResultKind::Family => "a family of generated scenarios (coid scenarios)",
             ResultKind::Models => "a models folder (coid train)",
+            ResultKind::Export => "an export (coid export)",
         }
     }
 
@@ -173,6 +176,7 @@ impl ResultKind {
             }
             ResultKind::Family => name == "README.md",
             ResultKind::Models => ext(".bpk") || ext(".toml") || ext("_loss.csv"),
+            ResultKind::Export => ext(".parquet") || name == "schema.md",
         }
     }
 
@@ -321,6 +325,56 @@ impl RunFolder {
             &dir.join("summary.md"),
             &markdown::run(settings, results, &rows),
         )?;
+        self.staged.publish()
+    }
+}
+
+/// A folder of Parquet tables written as the work goes on (`coid
+/// export`): each file grows row group by row group in a temporary folder
+/// beside `out`; [`TablesFolder::finish`] adds text files and renames the
+/// folder into place. Dropped unfinished, it leaves nothing behind.
+pub struct TablesFolder {
+    staged: Staged,
+    files: Vec<(String, frames::TableWriter)>,
+}
+
+impl TablesFolder {
+    /// One Parquet file per `(name, template)`, with the template's
+    /// columns. Refused at once when `out` exists and `existing` does not
+    /// allow it, or cannot be written.
+    pub fn create(
+        out: &Path,
+        existing: Existing,
+        files: &[(&str, Table)],
+    ) -> Result<Self, OutputError> {
+        let staged = Staged::new(out, existing)?;
+        let files = files
+            .iter()
+            .map(|(name, template)| {
+                let path = staged.dir.path().join(name);
+                Ok((
+                    (*name).to_owned(),
+                    frames::TableWriter::create(&path, template)?,
+                ))
+            })
+            .collect::<Result<_, OutputError>>()?;
+        Ok(Self { staged, files })
+    }
+
+    /// Appends `table` to the file `name` (one of those it was made with).
+    pub fn write(&mut self, name: &str, table: &Table) -> Result<(), OutputError> {
+        match self.files.iter_mut().find(|(n, _)| n == name) {
+            Some((_, w)) => w.write(table),
+            None => Err(OutputError::Batch(format!("no table file {name}"))),
+        }
+    }
+
+    /// Completes every file, adds `texts` and renames the folder into place.
+    pub fn finish(self, texts: &[(&str, String)]) -> Result<(), OutputError> {
+        for (_, w) in self.files {
+            w.finish()?;
+        }
+        write_texts(self.staged.dir.path(), texts)?;
         self.staged.publish()
     }
 }

@@ -70,6 +70,9 @@ crate::label_enum! { "method";
         /// The true correspondences: an upper bound for fusion.
         #[strum(serialize = "oracle")]
         Oracle,
+        /// Correspondences made elsewhere, read from a file by `coid score`.
+        #[strum(serialize = "external")]
+        External,
     }
 }
 
@@ -248,6 +251,10 @@ pub fn binary_entropy_bits(p: f64) -> f64 {
 pub enum BuildError {
     #[error("the oracle reads ground truth; the evaluation runs it, not a Matcher")]
     Oracle,
+    #[error(
+        "'external' correspondences come from a file: score them with `coid score --matches FILE`"
+    )]
+    External,
     #[error("'{0}' needs trained weights")]
     NoWeights(&'static str),
     #[error("'{method}': the weights do not fit its network ({reason})")]
@@ -289,6 +296,7 @@ pub fn build(
             appearance: method == Method::GpsAppHungarian,
         }),
         Method::Oracle => return Err(BuildError::Oracle),
+        Method::External => return Err(BuildError::External),
         deep_method => {
             let bytes = weights.ok_or(BuildError::NoWeights(deep_method.as_str()))?;
             let threshold = deep::thresholds_by_default(deep_method)
@@ -403,7 +411,7 @@ mod tests {
                 ..settings()
             };
             for &method in Method::all() {
-                if method == Method::Oracle {
+                if matches!(method, Method::Oracle | Method::External) {
                     continue;
                 }
                 let weights = deep::variant(method).map(|_| deep::opened_weights(method, 3));
@@ -517,7 +525,8 @@ mod tests {
                 "rgm",
                 "gps-hungarian",
                 "gps-app-hungarian",
-                "oracle"
+                "oracle",
+                "external"
             ]
         );
     }
