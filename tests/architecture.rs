@@ -391,6 +391,9 @@ fn only_io_writes_files_and_only_batch_and_bridge_start_processes() {
             "bridge.rs",
         ],
     );
+    // No fixed or predictable paths under /tmp: temporary files and
+    // folders come from tempfile (unpredictable names).
+    only_in(&["\"/tmp", "temp_dir()"], &[]);
     // Batch starts its workers; the bridge runs SUMO's netconvert.
     only_in(
         &["std::process::Command", "process::{"],

@@ -692,6 +692,26 @@ mod bad_input {
         fails_cleanly(&fx, &cfg, "SUMO failed to start");
     }
 
+    /// An output folder that cannot be made is refused before the
+    /// simulation starts (this scenario's SUMO would fail to start).
+    #[test]
+    fn an_unwritable_out_is_refused_before_the_simulation() {
+        let fx = Fixture::new();
+        fx.write(
+            "broken.sumocfg",
+            "<configuration><input><net-file value=\"no-such.net.xml\"/></input></configuration>",
+        );
+        let cfg = fx.write(
+            "s.toml",
+            "[scenario]\nsumocfg = \"broken.sumocfg\"\njunction = \"C\"\n[matching]\nmethods = [\"oracle\"]\n",
+        );
+        fx.write("a-file", "not a folder");
+        let out = fx.run(&cfg, "a-file/out");
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains("a-file") && !err.contains("SUMO"), "{err}");
+    }
+
     #[test]
     fn sumo_fails_mid_run() {
         let fx = Fixture::new();
@@ -885,22 +905,23 @@ mod learned {
             80.0,
             &format!(
                 "[train]\ntraffic_seeds = [201]\nepochs = 1\nmethods = [\"gcn-gm\"]\n[matching]\nmethods = [\"gcn-gm\", \"oracle\"]\nmodels_dir = {:?}\n[pose_noise]\nlevels = [\"gps\"]\n",
-                fx.path("models").to_string_lossy()
+                fx.path("results/t-models").to_string_lossy()
             ),
         );
-        let out = fx.coid(&[
-            "train",
-            "-q",
-            "--config",
-            cfg.to_str().unwrap(),
-            "--out",
-            "models",
-        ]);
-        assert_ok(&out);
+        // Without --out: a new folder, results/<config stem>-models, never
+        // the shipped weights; a second time only with --force.
+        let train = || fx.coid(&["train", "-q", "--config", cfg.to_str().unwrap()]);
+        assert_ok(&train());
         for f in ["gcn-gm.bpk", "gcn-gm.toml", "gcn-gm_loss.csv"] {
-            assert!(fx.path("models").join(f).is_file(), "{f} missing");
+            assert!(fx.path("results/t-models").join(f).is_file(), "{f} missing");
         }
-        let curve = std::fs::read_to_string(fx.path("models/gcn-gm_loss.csv")).unwrap();
+        let again = train();
+        assert!(
+            !again.status.success() && stderr(&again).contains("already exists"),
+            "{}",
+            stderr(&again)
+        );
+        let curve = std::fs::read_to_string(fx.path("results/t-models/gcn-gm_loss.csv")).unwrap();
         // Epoch 0 holds the validation loss before training only.
         let loss: f64 = curve
             .lines()
@@ -1616,7 +1637,8 @@ mod suite {
     #[test]
     fn eval_over_a_suite_writes_per_scenario_and_pooled_tables() {
         let fx = Fixture::new();
-        let levels = "[pose_noise]\nlevels = [\"none\", \"gps\"]\n";
+        let levels = "[pose_noise]\nlevels = [\"none\", \"gps\"]\n\
+                      [matching]\nmethods = [\"gps-hungarian\", \"oracle\"]\n";
         let base = fx.config(
             "base.toml",
             60.0,
@@ -1646,6 +1668,10 @@ mod suite {
         assert_eq!(runs("ev/base"), 2.0);
         assert_eq!(runs("ev/short"), 1.0);
         assert_eq!(runs("ev/pooled"), 3.0);
+        // eval runs the configured methods only.
+        let mut methods = strs(&read_csv(&fx.path("ev/pooled/table1.csv")), "method");
+        methods.dedup();
+        assert_eq!(methods, ["gps-hungarian", "oracle"]);
         let md = std::fs::read_to_string(fx.path("ev/pooled/summary.md")).unwrap();
         assert!(md.contains("base, short"), "{md}");
         // Other pose-noise levels cannot be pooled.

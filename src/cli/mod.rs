@@ -54,7 +54,8 @@ enum Command {
     /// right, red wrong, thicker = more uncertain). Writes into --out:
     /// instance-NNNN.png and .svg per instance.
     Render(render::Args),
-    /// Evaluate every method on the test runs ([eval] traffic_seeds) and
+    /// Evaluate the configured methods ([matching] methods) on the test
+    /// runs ([eval] traffic_seeds) and
     /// write the paper's tables, means with 95% confidence intervals over
     /// runs. Writes into --out: table1.csv (P/R/F1 per method and pose
     /// noise), table2.csv (F1 before/after uncertainty thresholding),

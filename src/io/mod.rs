@@ -904,6 +904,29 @@ mod tests {
         }
     }
 
+    /// Staging folders left by processes that are gone (killed) are
+    /// removed when the same folder is written again; those of a live
+    /// process stay.
+    #[test]
+    fn stale_staging_folders_of_dead_processes_are_removed() {
+        let root = tempfile::tempdir().unwrap();
+        // Above Linux's pid_max: no such process.
+        let dead = root.path().join(".res.tmp-2147483000-abc123");
+        let live = root
+            .path()
+            .join(format!(".res.tmp-{}-def456", std::process::id()));
+        for d in [&dead, &live] {
+            std::fs::create_dir_all(d).unwrap();
+        }
+        let out = root.path().join("res");
+        atomic_dir(&out, Existing::Refuse, |d| {
+            write_text(&d.join("a.csv"), "x")
+        })
+        .unwrap();
+        assert!(!dead.exists());
+        assert!(live.exists());
+    }
+
     #[test]
     fn published_files_replace_old_ones_and_leave_no_staging() {
         let dir = tempfile::tempdir().unwrap();
