@@ -1422,6 +1422,7 @@ mod batch {
         let out = fx.coid(&["merge", "b", "e2", "--out", "mixed"]);
         assert!(!out.status.success());
         assert!(stderr(&out).contains("different batch"), "{}", stderr(&out));
+        assert_eq!(stderr(&out).trim().lines().count(), 1, "{}", stderr(&out));
         assert!(!fx.path("mixed").exists());
     }
 
