@@ -3,9 +3,9 @@
 //! ARCHITECTURE.md; a module uses only modules below it):
 //!
 //! - foundations: [`geometry`], [`rng`], [`label`], [`paths`] (where coid
-//!   keeps its files), [`traffic`];
+//!   keeps its files), [`assignment`], [`traffic`];
 //! - stages: [`bridge`] (SUMO), [`sensor`], [`graph`], [`fusion`],
-//!   [`matching`];
+//!   [`matching`], [`v2x`] (trackers, messages, the channel);
 //! - [`evaluate`]: one instance, one method: match, count, fuse;
 //! - [`config`]: the TOML file into each stage's settings;
 //! - [`report`]: rows, tables and plot data before they are written;
@@ -15,6 +15,7 @@
 //!   matches back in;
 //! - [`cli`]: the `coid` commands.
 
+pub mod assignment;
 pub mod batch;
 pub mod bridge;
 pub mod cli;
@@ -37,3 +38,4 @@ pub mod scenarios;
 pub mod sensor;
 pub mod tables;
 pub mod traffic;
+pub mod v2x;

@@ -250,6 +250,18 @@ impl ObservationTruth {
 pub struct Sensed {
     pub observation: Observation,
     pub truth: ObservationTruth,
+    /// Evaluation only: every object the cameras could see at this step
+    /// (in view, visible enough), detected or missed: the ground truth a
+    /// tracker is scored against.
+    pub visible: Vec<VisibleObject>,
+}
+
+/// Evaluation only: an object a camera could see.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VisibleObject {
+    pub object_id: String,
+    /// True centre, world frame.
+    pub position_m: Vec2,
 }
 
 /// How well a sender knows its own centre in its own body frame: its
@@ -502,9 +514,10 @@ impl Camera<'_> {
         }
     }
 
-    /// Tries to detect `frame.objects[k]`: `None` when it is out of view,
-    /// hidden or missed. The stream advances the same way whether or not
-    /// the object is missed.
+    /// Tries to detect `frame.objects[k]`: `None` when it is out of view
+    /// or hidden; else the object as visible, and its detection unless it
+    /// was missed. The stream advances the same way whether or not the
+    /// object is missed.
     fn detect(
         &self,
         frame: &TrafficFrame,
@@ -512,7 +525,7 @@ impl Camera<'_> {
         ego_index: usize,
         k: usize,
         rng: &mut impl Rng,
-    ) -> Option<(Detection, DetectionTruth)> {
+    ) -> Option<(VisibleObject, Option<(Detection, DetectionTruth)>)> {
         let (camera, sensor) = (self.camera, self.sensor);
         let obj = &frame.objects[k];
         // Cheap reject before the sampled visibility test.
@@ -536,8 +549,12 @@ impl Camera<'_> {
         let size = [obj.length_m, obj.width_m, obj.height_m];
         let appearance =
             observe_appearance(obj.class, obj.colour_rgb, size, d, camera, sensor, rng);
+        let object = VisibleObject {
+            object_id: obj.id.clone(),
+            position_m: obj.pose.position_m(),
+        };
         if u < p_miss {
-            return None;
+            return Some((object, None));
         }
         let truth = DetectionTruth {
             object_id: Some(obj.id.clone()),
@@ -545,7 +562,10 @@ impl Camera<'_> {
             visible_fraction: vis,
             sender: false,
         };
-        Some((self.detection(&p_meas, &cov_cam, appearance), truth))
+        Some((
+            object,
+            Some((self.detection(&p_meas, &cov_cam, appearance), truth)),
+        ))
     }
 
     /// False positives of one frame: Poisson many, uniform over the
@@ -595,6 +615,7 @@ pub fn observe(
 ) -> Sensed {
     let ego = &frame.objects[ego_index];
     let mut found: Vec<(Detection, DetectionTruth)> = Vec::new();
+    let mut visible = Vec::new();
     let mut seen = vec![false; frame.objects.len()];
     for &yaw in &camera.yaw_offsets_rad {
         let pose = camera_pose(ego, yaw);
@@ -608,9 +629,16 @@ pub fn observe(
             if k == ego_index || *already {
                 continue;
             }
-            if let Some(d) = cam.detect(frame, scene, ego_index, k, rng) {
-                *already = true;
-                found.push(d);
+            if let Some((object, d)) = cam.detect(frame, scene, ego_index, k, rng) {
+                // A camera that missed it leaves it to the next camera.
+                *already = d.is_some();
+                if !visible
+                    .iter()
+                    .any(|v: &VisibleObject| v.object_id == object.object_id)
+                {
+                    visible.push(object);
+                }
+                found.extend(d);
             }
         }
         found.extend(cam.false_positives(rng));
@@ -625,6 +653,7 @@ pub fn observe(
             ego_pose: ego.pose,
             detections: truths,
         },
+        visible,
     }
 }
 

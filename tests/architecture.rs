@@ -9,10 +9,10 @@ use std::path::{Path, PathBuf};
 /// Top-level modules by layer: a module may use only modules of lower
 /// layers (and its own submodules).
 const LAYERS: &[&[&str]] = &[
-    &["geometry", "rng", "label", "paths"],
+    &["geometry", "rng", "label", "paths", "assignment"],
     &["traffic", "scenarios"],
     &["bridge", "sensor", "graph", "fusion"],
-    &["matching"],
+    &["matching", "v2x"],
     &["evaluate"],
     &["config"],
     &["report"],

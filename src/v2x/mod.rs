@@ -1,0 +1,101 @@
+//! Cooperation over time, as V2X delivers it: each connected vehicle's
+//! own tracker (`tracker`), Collective Perception Messages generated from
+//! its tracks (`cpm`), a channel that delays and loses them (`channel`),
+//! and GNSS error correlated in time (`gnss`). `[v2x] mode = "ideal"`
+//! (the default) uses none of it: a peer's detections arrive at once, at
+//! every step, with independent GNSS errors.
+
+pub mod channel;
+pub mod cpm;
+pub mod gnss;
+pub mod tracker;
+
+use nalgebra::{Matrix4, Vector4};
+
+use crate::geometry::{Cov2, Vec2};
+
+crate::label_enum! { "v2x mode";
+    /// How peers' perception reaches a vehicle.
+    pub enum V2xMode {
+        /// At once, at every step (no trackers, messages or channel).
+        #[strum(serialize = "ideal")]
+        Ideal,
+        /// Tracks sent as CPMs over a lossy, delayed channel.
+        #[strum(serialize = "cpm")]
+        Cpm,
+    }
+}
+
+/// `[v2x]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct V2xSettings {
+    pub mode: V2xMode,
+    /// Correlation time of the GNSS error (s); 0: independent per step.
+    pub gnss_correlation_s: f64,
+    pub tracker: tracker::TrackerSettings,
+    pub cpm: cpm::CpmSettings,
+    pub channel: channel::ChannelSettings,
+}
+
+impl Default for V2xSettings {
+    fn default() -> Self {
+        Self {
+            mode: V2xMode::Ideal,
+            gnss_correlation_s: 0.0,
+            tracker: tracker::TrackerSettings::default(),
+            cpm: cpm::CpmSettings::default(),
+            channel: channel::ChannelSettings::default(),
+        }
+    }
+}
+
+/// Latency compensation: a received object moved `dt_s` ahead with its
+/// velocity, its covariance grown by the motion model (white-noise
+/// acceleration `accel_sigma_mps2`; position and velocity taken as
+/// uncorrelated, as a CPM carries them). Exact in the mean for
+/// constant-velocity motion.
+pub fn extrapolate(
+    position_m: Vec2,
+    velocity_mps: Vec2,
+    position_cov_m2: &Cov2,
+    velocity_cov_m2ps2: &Cov2,
+    dt_s: f64,
+    accel_sigma_mps2: f64,
+) -> (Vec2, Cov2) {
+    let x = Vector4::new(position_m.x, position_m.y, velocity_mps.x, velocity_mps.y);
+    let mut p = Matrix4::zeros();
+    p.fixed_view_mut::<2, 2>(0, 0).copy_from(position_cov_m2);
+    p.fixed_view_mut::<2, 2>(2, 2).copy_from(velocity_cov_m2ps2);
+    let (x, p) = tracker::predict(&x, &p, dt_s, accel_sigma_mps2);
+    (
+        Vec2::new(x[0], x[1]),
+        p.fixed_view::<2, 2>(0, 0).into_owned(),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// For an object at constant velocity, the extrapolated position is
+    /// where it is after the latency; the covariance grows with the
+    /// velocity's uncertainty.
+    #[test]
+    fn latency_compensation_is_exact_for_constant_velocity() {
+        let (p0, v) = (Vec2::new(5.0, -2.0), Vec2::new(12.0, 3.0));
+        for dt in [0.0, 0.1, 0.3] {
+            let truth = p0 + v * dt;
+            let (p, c) = extrapolate(
+                p0,
+                v,
+                &(Cov2::identity() * 0.25),
+                &(Cov2::identity() * 4.0),
+                dt,
+                2.0,
+            );
+            assert!((p - truth).norm() < 1e-12, "{dt}");
+            let expected = 0.25 + 4.0 * dt * dt + 4.0 * dt.powi(4) / 4.0;
+            assert!((c[(0, 0)] - expected).abs() < 1e-12, "{dt}: {c}");
+        }
+    }
+}
