@@ -389,8 +389,14 @@ pub struct Sumo {
 
 impl Sumo {
     /// Starts SUMO on `sumocfg` with `--seed traffic_seed`, running until
-    /// `end_s`. Nothing is printed by SUMO but errors.
-    pub fn start(sumocfg: &Path, traffic_seed: u64, end_s: f64) -> Result<Sumo, BridgeError> {
+    /// `end_s`, with `--step-length step_length_s` when given (else the
+    /// sumocfg's step). Nothing is printed by SUMO but errors.
+    pub fn start(
+        sumocfg: &Path,
+        traffic_seed: u64,
+        end_s: f64,
+        step_length_s: Option<f64>,
+    ) -> Result<Sumo, BridgeError> {
         if RUNNING.swap(true, Ordering::SeqCst) {
             return Err(BridgeError::AlreadyRunning);
         }
@@ -410,7 +416,7 @@ impl Sumo {
         };
         let result = Python::attach(|py| -> Result<Sumo, BridgeError> {
             let shim = prepare_python(py)?;
-            let args: Vec<String> = vec![
+            let mut args: Vec<String> = vec![
                 "sumo".into(),
                 "-c".into(),
                 sumocfg.to_string_lossy().into_owned(),
@@ -425,6 +431,9 @@ impl Sumo {
                 "--duration-log.disable".into(),
                 "true".into(),
             ];
+            if let Some(step) = step_length_s {
+                args.extend(["--step-length".into(), format!("{step}")]);
+            }
             let step_length_s: f64 = shim
                 .call_method1(
                     "start",

@@ -32,6 +32,10 @@ use crate::sensor::{
     SensorSettings,
 };
 use crate::traffic::ScenarioSettings;
+use crate::v2x::channel::{ChannelSettings, LossKind, LossModel};
+use crate::v2x::cpm::CpmSettings;
+use crate::v2x::tracker::TrackerSettings;
+use crate::v2x::{V2xMode, V2xSettings};
 
 /// The defaults: every key, with its documentation.
 pub const DEFAULTS_TOML: &str = include_str!("../configs/default.toml");
@@ -91,6 +95,49 @@ struct RawConfig {
     fusion: RawFusion,
     train: RawTrain,
     eval: RawEval,
+    v2x: RawV2x,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawV2x {
+    mode: V2xMode,
+    step_length_s: f64,
+    gnss_correlation_s: f64,
+    tracker: RawTracker,
+    cpm: RawCpm,
+    channel: RawChannel,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawTracker {
+    accel_sigma_mps2: f64,
+    gate_chi2: f64,
+    confirm_hits: u32,
+    max_coast_s: f64,
+    birth_speed_sigma_mps: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCpm {
+    rate_hz: f64,
+    position_change_m: f64,
+    speed_change_mps: f64,
+    heading_change_deg: f64,
+    max_interval_s: f64,
+    max_objects: usize,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawChannel {
+    latency_s: f64,
+    jitter_mean_s: f64,
+    loss: LossKind,
+    loss_probability: f64,
+    loss_range_m: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -243,6 +290,7 @@ pub struct Settings {
     pub fusion: FusionSettings,
     pub train: TrainSettings,
     pub eval: EvalSettings,
+    pub v2x: V2xSettings,
 }
 
 impl Settings {
@@ -313,8 +361,14 @@ impl Settings {
         blank.train.scenarios.clear();
         blank.train.validation_scenarios.clear();
         blank.eval.scenarios.clear();
+        // `[v2x]` at its defaults adds nothing (digests of configs from
+        // before it stay the same).
+        blank.v2x = V2xSettings::default();
         let mut d = Digest::default();
         d.feed(format!("{blank:?}").as_bytes());
+        if self.v2x != V2xSettings::default() {
+            d.feed(format!("{:?}", self.v2x).as_bytes());
+        }
         d.file(&self.source, &self.scenario.sumocfg)?;
         let sumocfg = std::fs::read_to_string(&self.scenario.sumocfg).unwrap_or_default();
         let dir = self.scenario.sumocfg.parent().unwrap_or(Path::new("."));
@@ -545,6 +599,7 @@ fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
         fusion: fusion(&c, raw.fusion)?,
         train,
         eval,
+        v2x: v2x(&c, raw.v2x)?,
     })
 }
 
@@ -1039,6 +1094,96 @@ fn fusion(c: &Checker, f: RawFusion) -> Result<FusionSettings, ConfigError> {
     })
 }
 
+/// Objects per message at most (a CPM's object container is bounded).
+const MAX_CPM_OBJECTS: usize = 1000;
+
+fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
+    if v.mode == V2xMode::Cpm {
+        return Err(c.invalid(
+            "v2x.mode",
+            "\"cpm\" is not wired into runs yet; `coid track` runs the trackers, messages and \
+             channel of [v2x] on their own"
+                .into(),
+        ));
+    }
+    if !(v.step_length_s > 0.0 && v.step_length_s <= 1.0) {
+        return Err(c.invalid(
+            "v2x.step_length_s",
+            format!("must be in (0, 1] s, got {}", v.step_length_s),
+        ));
+    }
+    c.non_negative("v2x.gnss_correlation_s", v.gnss_correlation_s)?;
+    let t = v.tracker;
+    c.positive("v2x.tracker.accel_sigma_mps2", t.accel_sigma_mps2)?;
+    c.positive("v2x.tracker.gate_chi2", t.gate_chi2)?;
+    c.positive("v2x.tracker.max_coast_s", t.max_coast_s)?;
+    c.positive("v2x.tracker.birth_speed_sigma_mps", t.birth_speed_sigma_mps)?;
+    if t.confirm_hits == 0 {
+        return Err(c.invalid("v2x.tracker.confirm_hits", "need at least 1 hit".into()));
+    }
+    let m = v.cpm;
+    if !(1.0..=10.0).contains(&m.rate_hz) {
+        return Err(c.invalid(
+            "v2x.cpm.rate_hz",
+            format!(
+                "must be in [1, 10] Hz (T_GenCpm 0.1-1 s), got {}",
+                m.rate_hz
+            ),
+        ));
+    }
+    c.positive("v2x.cpm.position_change_m", m.position_change_m)?;
+    c.positive("v2x.cpm.speed_change_mps", m.speed_change_mps)?;
+    c.positive("v2x.cpm.heading_change_deg", m.heading_change_deg)?;
+    c.positive("v2x.cpm.max_interval_s", m.max_interval_s)?;
+    if !(1..=MAX_CPM_OBJECTS).contains(&m.max_objects) {
+        return Err(c.invalid(
+            "v2x.cpm.max_objects",
+            format!("must be 1 to {MAX_CPM_OBJECTS}, got {}", m.max_objects),
+        ));
+    }
+    Ok(V2xSettings {
+        mode: v.mode,
+        step_length_s: v.step_length_s,
+        gnss_correlation_s: v.gnss_correlation_s,
+        tracker: TrackerSettings {
+            accel_sigma_mps2: t.accel_sigma_mps2,
+            gate_chi2: t.gate_chi2,
+            confirm_hits: t.confirm_hits,
+            max_coast_s: t.max_coast_s,
+            birth_speed_sigma_mps: t.birth_speed_sigma_mps,
+        },
+        cpm: CpmSettings {
+            rate_hz: m.rate_hz,
+            position_change_m: m.position_change_m,
+            speed_change_mps: m.speed_change_mps,
+            heading_change_deg: m.heading_change_deg,
+            max_interval_s: m.max_interval_s,
+            max_objects: m.max_objects,
+        },
+        channel: channel(c, v.channel)?,
+    })
+}
+
+fn channel(c: &Checker, ch: RawChannel) -> Result<ChannelSettings, ConfigError> {
+    c.non_negative("v2x.channel.latency_s", ch.latency_s)?;
+    c.non_negative("v2x.channel.jitter_mean_s", ch.jitter_mean_s)?;
+    c.fraction("v2x.channel.loss_probability", ch.loss_probability)?;
+    c.positive("v2x.channel.loss_range_m", ch.loss_range_m)?;
+    Ok(ChannelSettings {
+        latency_s: ch.latency_s,
+        jitter_mean_s: ch.jitter_mean_s,
+        loss: match ch.loss {
+            LossKind::Independent => LossModel::Independent {
+                probability: ch.loss_probability,
+            },
+            LossKind::Distance => LossModel::Distance {
+                probability_at_0: ch.loss_probability,
+                range_m: ch.loss_range_m,
+            },
+        },
+    })
+}
+
 /// Sorted, without repeats: output rows come in a fixed order whatever order
 /// the user listed things in.
 fn dedup_sorted<T: Ord>(mut v: Vec<T>) -> Vec<T> {
@@ -1185,6 +1330,9 @@ mod tests {
             ConnectedSelection::Ids(vec!["cv0".into(), "cv1".into()])
         );
         assert!(d.matching.models_dir.join("ours.bpk").is_file());
+        // The shipped [v2x] is the code's default (so that it leaves the
+        // digest of a config as it was).
+        assert_eq!(d.v2x, V2xSettings::default());
     }
 
     #[test]
@@ -1259,6 +1407,18 @@ mod tests {
             ("[connected]\npenetration = 1.5\n", "connected.penetration"),
             ("[seeds]\ntraffic = 2147483648\n", "seeds.traffic"),
             ("[matching]\nmethods = [\"external\"]\n", "matching.methods"),
+            ("[v2x]\nmode = \"cpm\"\n", "v2x.mode"),
+            ("[v2x]\nstep_length_s = 0.0\n", "v2x.step_length_s"),
+            ("[v2x.cpm]\nrate_hz = 20.0\n", "v2x.cpm.rate_hz"),
+            ("[v2x.cpm]\nmax_objects = 0\n", "v2x.cpm.max_objects"),
+            (
+                "[v2x.channel]\nloss_probability = 1.5\n",
+                "v2x.channel.loss_probability",
+            ),
+            (
+                "[v2x.tracker]\nconfirm_hits = 0\n",
+                "v2x.tracker.confirm_hits",
+            ),
             ("[eval]\ntraffic_seeds = [1, 2, 1]\n", "eval.traffic_seeds"),
             (
                 "[eval]\ntraffic_seeds = [3000000000]\n",

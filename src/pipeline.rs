@@ -187,7 +187,7 @@ pub fn simulate_steps(
     mut on_step: impl FnMut(Step) -> Result<(), RunError>,
 ) -> Result<SimStats, RunError> {
     let sc = &settings.scenario;
-    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s)?;
+    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, None)?;
     let scene = Arc::new(sumo.static_scene(&sc.junction)?);
     let mut stats = SimStats::default();
     let mut seen_connected: BTreeSet<String> = BTreeSet::new();
@@ -760,4 +760,171 @@ fn record_frame(
     results
         .summary
         .record_consistency(f.method, pose_noise, f.consistency);
+}
+
+/// `coid track`: each connected vehicle near the junction tracks its own
+/// detections at every SUMO step (`[v2x] step_length_s`) and generates
+/// CPMs from its reported tracks (`[v2x.cpm]`), each sent to every other
+/// connected vehicle near the junction it is linked to over the channel
+/// (`[v2x.channel]`); the trackers are scored against what their cameras
+/// could see (CLEAR-MOT). One row per vehicle, in id order.
+pub fn track(
+    settings: &Settings,
+    mut progress: impl FnMut(Progress),
+) -> Result<Vec<crate::report::VehicleTracking>, RunError> {
+    let (sc, v) = (&settings.scenario, &settings.v2x);
+    let mut sumo = Sumo::start(
+        &sc.sumocfg,
+        settings.seeds.traffic,
+        sc.end_s,
+        Some(v.step_length_s),
+    )?;
+    let scene = sumo.static_scene(&sc.junction)?;
+    let mut vehicles: BTreeMap<String, tracking::Vehicle> = BTreeMap::new();
+    let mut instances = 0;
+    while sumo.time_s() + 1e-6 < sc.end_s {
+        let frame = sumo.step()?;
+        let egos = sense(settings, &scene, &frame)?;
+        let positions: Vec<Vec2> = egos
+            .iter()
+            .map(|e| e.sensed.truth.ego_pose.position_m())
+            .collect();
+        let links = settings.link.links(&positions);
+        for (i, ego) in egos.iter().enumerate() {
+            let id = &ego.sensed.observation.ego_id;
+            let veh = vehicles
+                .entry(id.clone())
+                .or_insert_with(|| tracking::Vehicle::new(id, v));
+            if let Some(message) = veh.step(ego, frame.time_s, v) {
+                let peers = (0..egos.len()).filter(|&j| j != i && links.linked(i, j));
+                for j in peers {
+                    let mut stream = rng::stream(
+                        settings.seeds.sensor,
+                        Purpose::Channel,
+                        &[frame.step, ego.id_hash, egos[j].id_hash],
+                    );
+                    let d = (positions[j] - positions[i]).norm();
+                    veh.delivery(v.channel.deliver(d, &mut stream), message);
+                }
+            }
+        }
+        instances += egos.len();
+        progress(Progress {
+            time_s: frame.time_s,
+            end_s: sc.end_s,
+            instances,
+        });
+    }
+    sumo.close()?;
+    Ok(vehicles
+        .into_values()
+        .map(tracking::Vehicle::finish)
+        .collect())
+}
+
+/// One connected vehicle in [`track`].
+mod tracking {
+    use super::Ego;
+    use crate::geometry::Vec2;
+    use crate::report::VehicleTracking;
+    use crate::v2x::V2xSettings;
+    use crate::v2x::cpm::{CpmGenerator, TrackSnapshot};
+    use crate::v2x::tracker::{MotCounter, TrackMeasurement, Tracker};
+
+    /// A track within this distance of an object counts as tracking it
+    /// (CLEAR-MOT's threshold; m).
+    const MOT_THRESHOLD_M: f64 = 2.0;
+
+    pub(super) struct Vehicle {
+        tracker: Tracker,
+        mot: MotCounter,
+        generator: CpmGenerator,
+        row: VehicleTracking,
+    }
+
+    /// A message was generated at this step.
+    #[derive(Clone, Copy)]
+    pub(super) struct Generated;
+
+    impl Vehicle {
+        pub(super) fn new(id: &str, v: &V2xSettings) -> Self {
+            Self {
+                tracker: Tracker::new(v.tracker.clone()),
+                mot: MotCounter::new(MOT_THRESHOLD_M),
+                generator: CpmGenerator::default(),
+                row: VehicleTracking {
+                    ego_id: id.to_owned(),
+                    ..VehicleTracking::default()
+                },
+            }
+        }
+
+        /// Tracks this step's detections (the camera's, not the sender's
+        /// own node) in the tracking frame, scores the reported tracks,
+        /// and generates a CPM when one is due.
+        pub(super) fn step(
+            &mut self,
+            ego: &Ego,
+            time_s: f64,
+            v: &V2xSettings,
+        ) -> Option<Generated> {
+            let pose = ego.sensed.truth.ego_pose;
+            let measurements: Vec<TrackMeasurement> = ego
+                .sensed
+                .observation
+                .detections
+                .iter()
+                .zip(&ego.sensed.truth.detections)
+                .filter(|(_, t)| !t.sender)
+                .map(|(d, _)| TrackMeasurement {
+                    position_m: pose.to_parent(&d.position_m),
+                    cov_m2: pose.cov_to_parent(&d.cov_m2),
+                    class: d.appearance.class,
+                })
+                .collect();
+            self.tracker.step(time_s, &measurements);
+            let reported: Vec<TrackSnapshot> = self
+                .tracker
+                .reported()
+                .map(|t| TrackSnapshot {
+                    id: t.id,
+                    position_m: t.position_m(),
+                    velocity_mps: t.velocity_mps(),
+                })
+                .collect();
+            let truth: Vec<(String, Vec2)> = ego
+                .sensed
+                .visible
+                .iter()
+                .map(|o| (o.object_id.clone(), o.position_m))
+                .collect();
+            let tracked: Vec<(u64, Vec2)> = reported.iter().map(|t| (t.id, t.position_m)).collect();
+            self.mot.step(&truth, &tracked);
+            self.row.steps += 1;
+            if !self.generator.due(&v.cpm, time_s) {
+                return None;
+            }
+            let sent = self.generator.select(&v.cpm, time_s, &reported);
+            self.row.messages += 1;
+            self.row.objects_sent += sent.len() as u64;
+            Some(Generated)
+        }
+
+        /// One receiver's fate of a message: its latency, or lost.
+        pub(super) fn delivery(&mut self, latency_s: Option<f64>, _: Generated) {
+            match latency_s {
+                Some(l) => {
+                    self.row.delivered += 1;
+                    self.row.latency_sum_s += l;
+                }
+                None => self.row.lost += 1,
+            }
+        }
+
+        pub(super) fn finish(mut self) -> VehicleTracking {
+            self.row.mot = self.mot.counts;
+            self.row.tracks_started = self.tracker.started();
+            self.row
+        }
+    }
 }

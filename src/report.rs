@@ -366,6 +366,77 @@ impl Table {
     }
 }
 
+/// One connected vehicle's tracker and messages over a run (`coid
+/// track`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct VehicleTracking {
+    pub ego_id: String,
+    /// Steps it was near the junction (and tracked).
+    pub steps: u64,
+    pub mot: crate::v2x::tracker::MotCounts,
+    pub tracks_started: u64,
+    /// CPMs it generated and the objects in them.
+    pub messages: u64,
+    pub objects_sent: u64,
+    /// Of those messages, to each peer near the junction: delivered (with
+    /// their latencies summed) and lost.
+    pub delivered: u64,
+    pub lost: u64,
+    pub latency_sum_s: f64,
+}
+
+impl VehicleTracking {
+    pub fn add(&mut self, o: &VehicleTracking) {
+        self.steps += o.steps;
+        self.mot.add(o.mot);
+        self.tracks_started += o.tracks_started;
+        self.messages += o.messages;
+        self.objects_sent += o.objects_sent;
+        self.delivered += o.delivered;
+        self.lost += o.lost;
+        self.latency_sum_s += o.latency_sum_s;
+    }
+}
+
+/// `tracking.csv`: one row per connected vehicle, then `all`.
+pub fn tracking_table(vehicles: &[VehicleTracking]) -> Table {
+    let mut all = VehicleTracking {
+        ego_id: "all".into(),
+        ..VehicleTracking::default()
+    };
+    for v in vehicles {
+        all.add(v);
+    }
+    let rows: Vec<&VehicleTracking> = vehicles.iter().chain(std::iter::once(&all)).collect();
+    let mut t = Table::default();
+    let count = |f: fn(&VehicleTracking) -> u64| rows.iter().map(|r| f(r)).collect::<Vec<u64>>();
+    let number = |f: fn(&VehicleTracking) -> f64| rows.iter().map(|r| f(r)).collect::<Vec<f64>>();
+    t.text("ego_id", rows.iter().map(|r| r.ego_id.clone()).collect());
+    t.count("steps", count(|r| r.steps));
+    t.count("ground_truth", count(|r| r.mot.ground_truth as u64));
+    t.count("misses", count(|r| r.mot.misses as u64));
+    t.count("false_tracks", count(|r| r.mot.false_tracks as u64));
+    t.count("id_switches", count(|r| r.mot.id_switches as u64));
+    t.number("mota", number(|r| r.mot.mota()));
+    t.number("motp_m", number(|r| r.mot.motp_m()));
+    t.count("tracks_started", count(|r| r.tracks_started));
+    t.count("messages", count(|r| r.messages));
+    t.count("objects_sent", count(|r| r.objects_sent));
+    t.count("delivered", count(|r| r.delivered));
+    t.count("lost", count(|r| r.lost));
+    t.number(
+        "mean_latency_s",
+        number(|r| {
+            if r.delivered == 0 {
+                f64::NAN
+            } else {
+                r.latency_sum_s / r.delivered as f64
+            }
+        }),
+    );
+    t
+}
+
 /// One correspondence of a matches file (`coid score --matches`): node
 /// `a` of the instance's first vehicle is node `b` of its second, at one
 /// pose-noise level (every level when `pose_noise` is `None`), with the

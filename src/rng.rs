@@ -46,6 +46,8 @@ pub enum Purpose {
     /// The order in which one connected vehicle lists its detections at
     /// one step (a seeded shuffle, so that no order carries labels).
     NodeOrder = 9,
+    /// Whether and when one V2X message reaches one receiver.
+    Channel = 10,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.
@@ -113,11 +115,12 @@ mod tests {
             Purpose::Scenario,
             Purpose::EmbeddingDropout,
             Purpose::NodeOrder,
+            Purpose::Channel,
         ]
         .iter()
         .map(|&p| p as u64)
         .collect();
-        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9]);
+        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9, 10]);
     }
 
     const GOLDEN_KEY_123: u64 = 17_067_510_238_710_318_979;

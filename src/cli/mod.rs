@@ -9,6 +9,7 @@ mod export;
 mod render;
 mod run;
 mod scenarios;
+mod track;
 mod train;
 
 use std::path::{Path, PathBuf};
@@ -83,6 +84,17 @@ enum Command {
     /// calibration.csv, consistency.csv, views.csv, the deep methods'
     /// tables, summary.md and pictures.
     Score(export::ScoreArgs),
+    /// Track over one run, as V2X delivers it ([v2x]): every connected
+    /// vehicle near the junction tracks its own detections at every SUMO
+    /// step ([v2x] step_length_s; constant-velocity Kalman filter) and
+    /// generates Collective Perception Messages from its confirmed tracks
+    /// ([v2x.cpm], ETSI TS 103 324's rules), sent to its linked peers over
+    /// a channel with latency and loss ([v2x.channel]). The trackers are
+    /// scored against what their cameras could see (CLEAR-MOT). Writes
+    /// into --out: tracking.csv (per vehicle and all: misses, false
+    /// tracks, id switches, MOTA, MOTP, messages, objects sent,
+    /// deliveries, losses, mean latency).
+    Track(track::Args),
     /// Train the deep matchers on instances from the training runs
     /// ([train] traffic_seeds, and [train] scenarios), then choose each
     /// one's calibration temperature, decision rule and lambda on the
@@ -121,6 +133,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => eval::eval(a),
         Command::Export(a) => export::export(a),
         Command::Score(a) => export::score(a),
+        Command::Track(a) => track::track(a),
         Command::Train(a) => train::train(a),
         Command::Scenarios(a) => scenarios::scenarios(a),
         Command::Completions { shell } => {

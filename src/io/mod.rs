@@ -140,6 +140,8 @@ pub enum ResultKind {
     Models,
     /// An export of instances (`coid export`): Parquet files, `schema.md`.
     Export,
+    /// Trackers and messages over a run (`coid track`): `tracking.csv`.
+    Track,
 }
 
 impl ResultKind {
@@ -153,6 +155,7 @@ impl ResultKind {
             ResultKind::Family => "a family of generated scenarios (coid scenarios)",
             ResultKind::Models => "a models folder (coid train)",
             ResultKind::Export => "an export (coid export)",
+            ResultKind::Track => "tracking results (coid track)",
         }
     }
 
@@ -177,6 +180,7 @@ impl ResultKind {
             ResultKind::Family => name == "README.md",
             ResultKind::Models => ext(".bpk") || ext(".toml") || ext("_loss.csv"),
             ResultKind::Export => ext(".parquet") || name == "schema.md",
+            ResultKind::Track => name == "tracking.csv",
         }
     }
 
@@ -450,6 +454,13 @@ pub fn strip_generator_comment(path: &Path) -> Result<(), OutputError> {
 
 fn write_text(path: &Path, text: &str) -> Result<(), OutputError> {
     std::fs::write(path, text).map_err(io(path))
+}
+
+/// Writes `coid track`'s `tracking.csv` into `out`, atomically.
+pub fn write_tracking(out: &Path, existing: Existing, table: &Table) -> Result<(), OutputError> {
+    atomic_dir(out, existing, |dir| {
+        frames::write_table(&dir.join("tracking.csv"), table)
+    })
 }
 
 /// Writes `coid eval`'s tables (CSV), its `summary.md` and whatever `plots`

@@ -6,6 +6,16 @@
 use rand::Rng;
 use rand_distr::{Distribution, Exp};
 
+crate::label_enum! { "loss model";
+    /// `[v2x.channel] loss`: which [`LossModel`].
+    pub enum LossKind {
+        #[strum(serialize = "independent")]
+        Independent,
+        #[strum(serialize = "distance")]
+        Distance,
+    }
+}
+
 /// How messages are lost.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum LossModel {

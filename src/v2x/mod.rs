@@ -30,6 +30,9 @@ crate::label_enum! { "v2x mode";
 #[derive(Clone, Debug, PartialEq)]
 pub struct V2xSettings {
     pub mode: V2xMode,
+    /// SUMO's step (the camera frame period) for `coid track` and the
+    /// `cpm` mode (s); the `ideal` mode keeps the scenario's.
+    pub step_length_s: f64,
     /// Correlation time of the GNSS error (s); 0: independent per step.
     pub gnss_correlation_s: f64,
     pub tracker: tracker::TrackerSettings,
@@ -41,6 +44,7 @@ impl Default for V2xSettings {
     fn default() -> Self {
         Self {
             mode: V2xMode::Ideal,
+            step_length_s: 0.1,
             gnss_correlation_s: 0.0,
             tracker: tracker::TrackerSettings::default(),
             cpm: cpm::CpmSettings::default(),

@@ -136,15 +136,28 @@ impl Tracker {
         }
     }
 
+    /// Tracks started so far (ids are 0, 1, ...).
+    pub fn started(&self) -> u64 {
+        self.next_id
+    }
+
     /// Every live track (confirmed or not), as of the last step.
     pub fn tracks(&self) -> &[Track] {
         &self.tracks
     }
 
-    /// The confirmed tracks: those a vehicle reports and shares.
+    /// The confirmed tracks, coasting ones included.
     pub fn confirmed(&self) -> impl Iterator<Item = &Track> {
         let hits = self.settings.confirm_hits;
         self.tracks.iter().filter(move |t| t.hits >= hits)
+    }
+
+    /// What the vehicle reports and shares: the confirmed tracks updated
+    /// at the last step (a coasting track is kept for its id, not shown).
+    pub fn reported(&self) -> impl Iterator<Item = &Track> {
+        let now = self.time_s;
+        self.confirmed()
+            .filter(move |t| now.is_some_and(|n| (n - t.updated_s).abs() < 1e-9))
     }
 
     /// One step at `time_s` (not before the last): drops tracks not
