@@ -34,6 +34,7 @@ use crate::sensor::{
 use crate::traffic::ScenarioSettings;
 use crate::v2x::channel::{ChannelSettings, LossKind, LossModel};
 use crate::v2x::cpm::CpmSettings;
+use crate::v2x::receiver::AssociationSettings;
 use crate::v2x::tracker::TrackerSettings;
 use crate::v2x::{V2xMode, V2xSettings};
 
@@ -104,9 +105,20 @@ struct RawV2x {
     mode: V2xMode,
     step_length_s: f64,
     gnss_correlation_s: f64,
+    matcher: Method,
+    pose_noise: PoseNoiseLabel,
+    compensate_latency: bool,
     tracker: RawTracker,
     cpm: RawCpm,
     channel: RawChannel,
+    association: RawAssociation,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawAssociation {
+    smoothing: f64,
+    threshold: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -1101,8 +1113,8 @@ fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
     if v.mode == V2xMode::Cpm {
         return Err(c.invalid(
             "v2x.mode",
-            "\"cpm\" is not wired into runs yet; `coid track` runs the trackers, messages and \
-             channel of [v2x] on their own"
+            "\"cpm\" is not wired into runs yet; `coid track` runs the trackers, messages, \
+             channel and receivers of [v2x] on their own"
                 .into(),
         ));
     }
@@ -1113,7 +1125,40 @@ fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
         ));
     }
     c.non_negative("v2x.gnss_correlation_s", v.gnss_correlation_s)?;
-    let t = v.tracker;
+    if matches!(v.matcher, Method::Oracle | Method::External) {
+        return Err(c.invalid("v2x.matcher", "must be a matching method".into()));
+    }
+    let a = v.association;
+    if !(a.smoothing > 0.0 && a.smoothing <= 1.0) {
+        return Err(c.invalid(
+            "v2x.association.smoothing",
+            format!("must be in (0, 1], got {}", a.smoothing),
+        ));
+    }
+    if !(0.0..1.0).contains(&a.threshold) {
+        return Err(c.invalid(
+            "v2x.association.threshold",
+            format!("must be in [0, 1), got {}", a.threshold),
+        ));
+    }
+    Ok(V2xSettings {
+        mode: v.mode,
+        step_length_s: v.step_length_s,
+        gnss_correlation_s: v.gnss_correlation_s,
+        matcher: v.matcher,
+        pose_noise: v.pose_noise,
+        compensate_latency: v.compensate_latency,
+        association: AssociationSettings {
+            smoothing: a.smoothing,
+            threshold: a.threshold,
+        },
+        tracker: tracker(c, v.tracker)?,
+        cpm: cpm(c, v.cpm)?,
+        channel: channel(c, v.channel)?,
+    })
+}
+
+fn tracker(c: &Checker, t: RawTracker) -> Result<TrackerSettings, ConfigError> {
     c.positive("v2x.tracker.accel_sigma_mps2", t.accel_sigma_mps2)?;
     c.positive("v2x.tracker.gate_chi2", t.gate_chi2)?;
     c.positive("v2x.tracker.max_coast_s", t.max_coast_s)?;
@@ -1121,7 +1166,16 @@ fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
     if t.confirm_hits == 0 {
         return Err(c.invalid("v2x.tracker.confirm_hits", "need at least 1 hit".into()));
     }
-    let m = v.cpm;
+    Ok(TrackerSettings {
+        accel_sigma_mps2: t.accel_sigma_mps2,
+        gate_chi2: t.gate_chi2,
+        confirm_hits: t.confirm_hits,
+        max_coast_s: t.max_coast_s,
+        birth_speed_sigma_mps: t.birth_speed_sigma_mps,
+    })
+}
+
+fn cpm(c: &Checker, m: RawCpm) -> Result<CpmSettings, ConfigError> {
     if !(1.0..=10.0).contains(&m.rate_hz) {
         return Err(c.invalid(
             "v2x.cpm.rate_hz",
@@ -1141,26 +1195,13 @@ fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
             format!("must be 1 to {MAX_CPM_OBJECTS}, got {}", m.max_objects),
         ));
     }
-    Ok(V2xSettings {
-        mode: v.mode,
-        step_length_s: v.step_length_s,
-        gnss_correlation_s: v.gnss_correlation_s,
-        tracker: TrackerSettings {
-            accel_sigma_mps2: t.accel_sigma_mps2,
-            gate_chi2: t.gate_chi2,
-            confirm_hits: t.confirm_hits,
-            max_coast_s: t.max_coast_s,
-            birth_speed_sigma_mps: t.birth_speed_sigma_mps,
-        },
-        cpm: CpmSettings {
-            rate_hz: m.rate_hz,
-            position_change_m: m.position_change_m,
-            speed_change_mps: m.speed_change_mps,
-            heading_change_deg: m.heading_change_deg,
-            max_interval_s: m.max_interval_s,
-            max_objects: m.max_objects,
-        },
-        channel: channel(c, v.channel)?,
+    Ok(CpmSettings {
+        rate_hz: m.rate_hz,
+        position_change_m: m.position_change_m,
+        speed_change_mps: m.speed_change_mps,
+        heading_change_deg: m.heading_change_deg,
+        max_interval_s: m.max_interval_s,
+        max_objects: m.max_objects,
     })
 }
 

@@ -398,6 +398,96 @@ impl VehicleTracking {
     }
 }
 
+/// What the receivers made of the messages over a run (`coid track`),
+/// pooled over every (receiver, sender) link and every reception.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct OverTimeCounts {
+    /// Messages received and matched.
+    pub receptions: u64,
+    /// The frame matcher on each message alone, and the association over
+    /// time, against the true pairs in view.
+    pub per_message: PairCounts,
+    pub over_time: PairCounts,
+    /// True pairs in view, summed over receptions, and how many of them
+    /// each decision had right.
+    pub pairs_in_view: u64,
+    pub per_message_right: u64,
+    pub over_time_right: u64,
+    /// True pairs (ego track, peer id) ever in view; of those, the ones
+    /// the association got right at some point, and the summed time from
+    /// first in view to first right (s).
+    pub pairs: u64,
+    pub pairs_found: u64,
+    pub time_to_first_right_sum_s: f64,
+    /// An ego track associated with one peer id, then with another.
+    pub switches: u64,
+    /// Displacement errors (m, summed) of ego tracks associated over time
+    /// with a peer's: single, fused by Eq. 14-16 (independent), fused by
+    /// covariance intersection; and the count.
+    pub de_single_sum_m: f64,
+    pub de_fused_sum_m: f64,
+    pub de_ci_sum_m: f64,
+    pub de_n: u64,
+}
+
+impl OverTimeCounts {
+    pub fn add(&mut self, o: &OverTimeCounts) {
+        self.receptions += o.receptions;
+        self.per_message.add(o.per_message);
+        self.over_time.add(o.over_time);
+        self.pairs_in_view += o.pairs_in_view;
+        self.per_message_right += o.per_message_right;
+        self.over_time_right += o.over_time_right;
+        self.pairs += o.pairs;
+        self.pairs_found += o.pairs_found;
+        self.time_to_first_right_sum_s += o.time_to_first_right_sum_s;
+        self.switches += o.switches;
+        self.de_single_sum_m += o.de_single_sum_m;
+        self.de_fused_sum_m += o.de_fused_sum_m;
+        self.de_ci_sum_m += o.de_ci_sum_m;
+        self.de_n += o.de_n;
+    }
+
+    /// `association.csv`: one row per decision (per message, over time).
+    pub fn table(&self) -> Table {
+        let mut t = Table::default();
+        let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { f64::NAN };
+        let de = |sum: f64| ratio(sum, self.de_n as f64);
+        let share = |right: u64| ratio(right as f64, self.pairs_in_view as f64);
+        let rows = [
+            (
+                "per-message",
+                self.per_message,
+                share(self.per_message_right),
+            ),
+            ("over-time", self.over_time, share(self.over_time_right)),
+        ];
+        t.text("association", rows.iter().map(|r| r.0.to_owned()).collect());
+        t.count("receptions", vec![self.receptions; 2]);
+        t.number("precision", rows.iter().map(|r| r.1.precision()).collect());
+        t.number("recall", rows.iter().map(|r| r.1.recall()).collect());
+        t.number("f1", rows.iter().map(|r| r.1.f1()).collect());
+        t.number("time_share_right", rows.iter().map(|r| r.2).collect());
+        let over = |v: f64| vec![f64::NAN, v];
+        t.number(
+            "pairs_found_share",
+            over(ratio(self.pairs_found as f64, self.pairs as f64)),
+        );
+        t.number(
+            "time_to_first_right_s",
+            over(ratio(
+                self.time_to_first_right_sum_s,
+                self.pairs_found as f64,
+            )),
+        );
+        t.count("switches", vec![0, self.switches]);
+        t.number("de_single_m", over(de(self.de_single_sum_m)));
+        t.number("de_fused_m", over(de(self.de_fused_sum_m)));
+        t.number("de_fused_ci_m", over(de(self.de_ci_sum_m)));
+        t
+    }
+}
+
 /// `tracking.csv`: one row per connected vehicle, then `all`.
 pub fn tracking_table(vehicles: &[VehicleTracking]) -> Table {
     let mut all = VehicleTracking {

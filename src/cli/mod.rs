@@ -90,10 +90,16 @@ enum Command {
     /// generates Collective Perception Messages from its confirmed tracks
     /// ([v2x.cpm], ETSI TS 103 324's rules), sent to its linked peers over
     /// a channel with latency and loss ([v2x.channel]). The trackers are
-    /// scored against what their cameras could see (CLEAR-MOT). Writes
-    /// into --out: tracking.csv (per vehicle and all: misses, false
-    /// tracks, id switches, MOTA, MOTP, messages, objects sent,
-    /// deliveries, losses, mean latency).
+    /// scored against what their cameras could see (CLEAR-MOT). Each
+    /// receiver extrapolates what arrives to its own time, matches it
+    /// against its own tracks ([v2x] matcher) and carries the association
+    /// across messages ([v2x.association]). Writes into --out:
+    /// tracking.csv (per vehicle and all: misses, false tracks, id
+    /// switches, MOTA, MOTP, messages, objects sent, deliveries, losses,
+    /// mean latency), association.csv (per message and over time: pair
+    /// P/R/F1, share of time right, time to first right, switches,
+    /// displacement errors single, fused, fused by covariance
+    /// intersection).
     Track(track::Args),
     /// Train the deep matchers on instances from the training runs
     /// ([train] traffic_seeds, and [train] scenarios), then choose each

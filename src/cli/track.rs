@@ -1,4 +1,5 @@
-//! `coid track`: every connected vehicle's tracker and CPMs over one run.
+//! `coid track`: every connected vehicle's tracker, its CPMs over the
+//! channel, and what the receivers make of them, over one run.
 
 use anyhow::Context;
 
@@ -14,29 +15,29 @@ pub struct Args {
 pub fn track(a: Args) -> anyhow::Result<()> {
     let (settings, out) = a.common.prepare("-track", io::ResultKind::Track)?;
     let bar = a.common.sim_bar(settings.scenario.end_s);
-    let vehicles =
+    let results =
         pipeline::track(&settings, |p| show_sim_progress(&bar, p)).context("run failed")?;
     bar.finish_and_clear();
-    let table = report::tracking_table(&vehicles);
-    io::write_tracking(
-        &out,
-        io::Existing::when(a.common.force, io::ResultKind::Track),
-        &table,
-    )?;
+    let tracking = report::tracking_table(&results.vehicles);
+    let association = results.over_time.table();
+    let existing = io::Existing::when(a.common.force, io::ResultKind::Track);
+    io::write_tracking(&out, existing, &tracking, &association)?;
     let mut all = report::VehicleTracking::default();
-    for v in &vehicles {
+    for v in &results.vehicles {
         all.add(v);
     }
-    let sent = all.delivered + all.lost;
+    let o = &results.over_time;
     eprintln!(
-        "coid: {} connected vehicles tracked; MOTA {:.3}, MOTP {:.2} m, {} id switches; {} CPMs, {} of {} deliveries lost; wrote {}",
-        vehicles.len(),
+        "coid: {} connected vehicles tracked, MOTA {:.3}; {} CPMs, {} of {} deliveries lost; \
+         {} receptions: pair F1 {:.3} per message, {:.3} over time; wrote {}",
+        results.vehicles.len(),
         all.mot.mota(),
-        all.mot.motp_m(),
-        all.mot.id_switches,
         all.messages,
         all.lost,
-        sent,
+        all.delivered + all.lost,
+        o.receptions,
+        o.per_message.f1(),
+        o.over_time.f1(),
         out.display()
     );
     Ok(())

@@ -140,7 +140,8 @@ pub enum ResultKind {
     Models,
     /// An export of instances (`coid export`): Parquet files, `schema.md`.
     Export,
-    /// Trackers and messages over a run (`coid track`): `tracking.csv`.
+    /// Trackers and messages over a run (`coid track`): `tracking.csv`,
+    /// `association.csv`.
     Track,
 }
 
@@ -180,7 +181,7 @@ impl ResultKind {
             ResultKind::Family => name == "README.md",
             ResultKind::Models => ext(".bpk") || ext(".toml") || ext("_loss.csv"),
             ResultKind::Export => ext(".parquet") || name == "schema.md",
-            ResultKind::Track => name == "tracking.csv",
+            ResultKind::Track => matches!(name, "tracking.csv" | "association.csv"),
         }
     }
 
@@ -456,10 +457,17 @@ fn write_text(path: &Path, text: &str) -> Result<(), OutputError> {
     std::fs::write(path, text).map_err(io(path))
 }
 
-/// Writes `coid track`'s `tracking.csv` into `out`, atomically.
-pub fn write_tracking(out: &Path, existing: Existing, table: &Table) -> Result<(), OutputError> {
+/// Writes `coid track`'s `tracking.csv` and `association.csv` into
+/// `out`, atomically.
+pub fn write_tracking(
+    out: &Path,
+    existing: Existing,
+    tracking: &Table,
+    association: &Table,
+) -> Result<(), OutputError> {
     atomic_dir(out, existing, |dir| {
-        frames::write_table(&dir.join("tracking.csv"), table)
+        frames::write_table(&dir.join("tracking.csv"), tracking)?;
+        frames::write_table(&dir.join("association.csv"), association)
     })
 }
 

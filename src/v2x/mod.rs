@@ -8,11 +8,14 @@
 pub mod channel;
 pub mod cpm;
 pub mod gnss;
+pub mod receiver;
 pub mod tracker;
 
 use nalgebra::{Matrix4, Vector4};
 
 use crate::geometry::{Cov2, Vec2};
+use crate::matching::Method;
+use crate::sensor::PoseNoiseLabel;
 
 crate::label_enum! { "v2x mode";
     /// How peers' perception reaches a vehicle.
@@ -35,9 +38,16 @@ pub struct V2xSettings {
     pub step_length_s: f64,
     /// Correlation time of the GNSS error (s); 0: independent per step.
     pub gnss_correlation_s: f64,
+    /// The frame matcher each receiver runs on every message.
+    pub matcher: Method,
+    /// The GNSS accuracy (one of the configured levels).
+    pub pose_noise: PoseNoiseLabel,
+    /// Whether receivers move received objects ahead to their own time.
+    pub compensate_latency: bool,
     pub tracker: tracker::TrackerSettings,
     pub cpm: cpm::CpmSettings,
     pub channel: channel::ChannelSettings,
+    pub association: receiver::AssociationSettings,
 }
 
 impl Default for V2xSettings {
@@ -46,9 +56,13 @@ impl Default for V2xSettings {
             mode: V2xMode::Ideal,
             step_length_s: 0.1,
             gnss_correlation_s: 0.0,
+            matcher: Method::GpsAppHungarian,
+            pose_noise: PoseNoiseLabel::Gps,
+            compensate_latency: true,
             tracker: tracker::TrackerSettings::default(),
             cpm: cpm::CpmSettings::default(),
             channel: channel::ChannelSettings::default(),
+            association: receiver::AssociationSettings::default(),
         }
     }
 }

@@ -1,0 +1,675 @@
+//! `coid track`: cooperation over time, as V2X delivers it. Every
+//! connected vehicle near the junction tracks its own detections; its
+//! reported tracks go out as CPMs over the channel; each receiver
+//! extrapolates what it receives to its own time, matches it against its
+//! own tracks with the frame matcher of `[v2x] matcher`, carries the
+//! association across messages, and fuses what it associated.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use super::{Ego, Progress, RunError, runner, sense};
+use crate::bridge::Sumo;
+use crate::config::Settings;
+use crate::evaluate::{PairCounts, Runner};
+use crate::fusion::{Measurement, covariance_intersection, fuse, relative_pose_prior};
+use crate::geometry::{Cov2, Pose2, Vec2, rotate_cov};
+use crate::graph::SceneGraph;
+use crate::matching::{MatchView, Matcher};
+use crate::report::{OverTimeCounts, VehicleTracking};
+use crate::rng::{self, Purpose};
+use crate::sensor::{Appearance, Detection, PoseNoiseLevel};
+use crate::v2x::V2xSettings;
+use crate::v2x::cpm::{CpmGenerator, PerceivedObject, TrackSnapshot};
+use crate::v2x::gnss::{GnssError, next_error};
+use crate::v2x::receiver::Association;
+use crate::v2x::tracker::{MotCounter, TrackMeasurement, Tracker};
+
+/// What `coid track` measured.
+pub struct TrackResults {
+    /// One row per connected vehicle, in id order.
+    pub vehicles: Vec<VehicleTracking>,
+    pub over_time: OverTimeCounts,
+}
+
+/// A track within this distance of an object counts as tracking it
+/// (CLEAR-MOT's threshold; m).
+const MOT_THRESHOLD_M: f64 = 2.0;
+
+/// `coid track`: SUMO at `[v2x] step_length_s`; at every step each
+/// connected vehicle near the junction tracks its detections (scored by
+/// CLEAR-MOT against what its cameras could see), generates a CPM when
+/// one is due and sends it to its linked peers over the channel (a
+/// `Purpose::Channel` stream per message and receiver); messages that
+/// have arrived are matched and associated by their receivers.
+pub fn track(
+    settings: &Settings,
+    mut progress: impl FnMut(Progress),
+) -> Result<TrackResults, RunError> {
+    let (sc, v) = (&settings.scenario, &settings.v2x);
+    let matcher = match runner(settings, v.matcher)? {
+        Runner::Matcher(m) => m,
+        _ => {
+            return Err(RunError::Worker(
+                "[v2x] matcher must be a matching method".into(),
+            ));
+        }
+    };
+    let level = settings
+        .pose_noise
+        .iter()
+        .find(|l| l.label == v.pose_noise)
+        .copied()
+        .ok_or_else(|| {
+            RunError::Worker(format!(
+                "[v2x] pose_noise = \"{}\" is not one of the [pose_noise] levels",
+                v.pose_noise.as_str()
+            ))
+        })?;
+    let mut sumo = Sumo::start(
+        &sc.sumocfg,
+        settings.seeds.traffic,
+        sc.end_s,
+        Some(v.step_length_s),
+    )?;
+    let scene = sumo.static_scene(&sc.junction)?;
+    let mut world = World::default();
+    let mut instances = 0;
+    while sumo.time_s() + 1e-6 < sc.end_s {
+        let frame = sumo.step()?;
+        let egos = sense(settings, &scene, &frame)?;
+        let truth: BTreeMap<&str, Vec2> = frame
+            .objects
+            .iter()
+            .map(|o| (o.id.as_str(), o.pose.position_m()))
+            .collect();
+        let ctx = Context {
+            settings,
+            v,
+            level,
+            step: frame.step,
+            time_s: frame.time_s,
+            truth: &truth,
+        };
+        world.step(&ctx, &egos, matcher.as_ref())?;
+        instances += egos.len();
+        progress(Progress {
+            time_s: frame.time_s,
+            end_s: sc.end_s,
+            instances,
+        });
+    }
+    sumo.close()?;
+    Ok(world.finish())
+}
+
+/// What one step shares.
+struct Context<'a> {
+    settings: &'a Settings,
+    v: &'a V2xSettings,
+    level: PoseNoiseLevel,
+    step: u64,
+    time_s: f64,
+    /// Every road user's true centre, world frame.
+    truth: &'a BTreeMap<&'a str, Vec2>,
+}
+
+/// Every vehicle's state, the messages in flight and the receivers' links.
+#[derive(Default)]
+struct World {
+    vehicles: BTreeMap<String, Vehicle>,
+    in_flight: Vec<InFlight>,
+    links: BTreeMap<(String, String), Link>,
+    counts: OverTimeCounts,
+}
+
+/// A message on its way to one receiver.
+struct InFlight {
+    arrival_s: f64,
+    receiver: String,
+    message: Sent,
+}
+
+/// A generated message with what the evaluation knows beside it.
+#[derive(Clone)]
+struct Sent {
+    sender: String,
+    generated_s: f64,
+    /// The sender's GNSS-reported pose at generation.
+    sender_reported: Pose2,
+    objects: Vec<PerceivedObject>,
+    /// Per object: the appearance of its last detection (the paper's
+    /// shared appearance, beyond CPM's standard containers), and the true
+    /// object behind it (evaluation only).
+    appearance: Vec<Appearance>,
+    truth: Vec<Option<String>>,
+}
+
+/// One connected vehicle.
+struct Vehicle {
+    tracker: Tracker,
+    mot: MotCounter,
+    generator: CpmGenerator,
+    gnss: Option<(f64, GnssError)>,
+    /// Per track: the appearance and true object of its last detection.
+    labels: BTreeMap<u64, (Appearance, Option<String>)>,
+    row: VehicleTracking,
+    /// This step: true pose, GNSS-reported pose, reported tracks.
+    pose: Pose2,
+    reported: Pose2,
+    tracks: Vec<TrackSnapshot>,
+    track_covs: Vec<Cov2>,
+}
+
+/// What a receiver knows of one peer.
+#[derive(Default)]
+struct Link {
+    association: Association,
+    /// The peer's objects last received, by its ids.
+    known: BTreeMap<u64, Known>,
+    last: BTreeMap<u64, u64>,
+    first_in_view: BTreeMap<(u64, u64), f64>,
+    found: BTreeSet<(u64, u64)>,
+}
+
+#[derive(Clone)]
+struct Known {
+    object: PerceivedObject,
+    generated_s: f64,
+    sender_reported: Pose2,
+    appearance: Appearance,
+    truth: Option<String>,
+}
+
+impl World {
+    fn step(&mut self, ctx: &Context, egos: &[Ego], matcher: &dyn Matcher) -> Result<(), RunError> {
+        let positions: Vec<Vec2> = egos
+            .iter()
+            .map(|e| e.sensed.truth.ego_pose.position_m())
+            .collect();
+        let links = ctx.settings.link.links(&positions);
+        for (i, ego) in egos.iter().enumerate() {
+            let id = ego.sensed.observation.ego_id.clone();
+            let veh = self
+                .vehicles
+                .entry(id.clone())
+                .or_insert_with(|| Vehicle::new(&id, ctx.v));
+            let Some(sent) = veh.step(ctx, ego) else {
+                continue;
+            };
+            for (j, peer) in egos.iter().enumerate() {
+                if j == i || !links.linked(i, j) {
+                    continue;
+                }
+                let mut stream = rng::stream(
+                    ctx.settings.seeds.sensor,
+                    Purpose::Channel,
+                    &[ctx.step, ego.id_hash, peer.id_hash],
+                );
+                let d = (positions[j] - positions[i]).norm();
+                let delivered = ctx.v.channel.deliver(d, &mut stream);
+                veh.row.delivery(delivered);
+                if let Some(latency) = delivered {
+                    self.in_flight.push(InFlight {
+                        arrival_s: ctx.time_s + latency,
+                        receiver: peer.sensed.observation.ego_id.clone(),
+                        message: sent.clone(),
+                    });
+                }
+            }
+        }
+        self.receive(ctx, egos, matcher)
+    }
+
+    /// Hands every message that has arrived to its receiver, if it is
+    /// still near the junction (else it is dropped), in arrival order.
+    fn receive(
+        &mut self,
+        ctx: &Context,
+        egos: &[Ego],
+        matcher: &dyn Matcher,
+    ) -> Result<(), RunError> {
+        let now = ctx.time_s + 1e-9;
+        let (mut due, rest): (Vec<InFlight>, Vec<InFlight>) = std::mem::take(&mut self.in_flight)
+            .into_iter()
+            .partition(|m| m.arrival_s <= now);
+        self.in_flight = rest;
+        due.sort_by(|a, b| a.arrival_s.total_cmp(&b.arrival_s));
+        let here: BTreeSet<&str> = egos
+            .iter()
+            .map(|e| e.sensed.observation.ego_id.as_str())
+            .collect();
+        for m in due {
+            if !here.contains(m.receiver.as_str()) {
+                continue;
+            }
+            let Some(receiver) = self.vehicles.get(&m.receiver) else {
+                continue;
+            };
+            let link = self
+                .links
+                .entry((m.receiver.clone(), m.message.sender.clone()))
+                .or_default();
+            let c = link.receive(ctx, receiver, &m.message, matcher)?;
+            self.counts.add(&c);
+        }
+        Ok(())
+    }
+
+    fn finish(self) -> TrackResults {
+        let mut counts = self.counts;
+        for l in self.links.values() {
+            counts.pairs += l.first_in_view.len() as u64;
+        }
+        TrackResults {
+            vehicles: self.vehicles.into_values().map(Vehicle::finish).collect(),
+            over_time: counts,
+        }
+    }
+}
+
+impl VehicleTracking {
+    /// One receiver's fate of a message: its latency, or lost.
+    fn delivery(&mut self, latency_s: Option<f64>) {
+        match latency_s {
+            Some(l) => {
+                self.delivered += 1;
+                self.latency_sum_s += l;
+            }
+            None => self.lost += 1,
+        }
+    }
+}
+
+impl Vehicle {
+    fn new(id: &str, v: &V2xSettings) -> Self {
+        Self {
+            tracker: Tracker::new(v.tracker.clone()),
+            mot: MotCounter::new(MOT_THRESHOLD_M),
+            generator: CpmGenerator::default(),
+            gnss: None,
+            labels: BTreeMap::new(),
+            row: VehicleTracking {
+                ego_id: id.to_owned(),
+                ..VehicleTracking::default()
+            },
+            pose: Pose2::identity(),
+            reported: Pose2::identity(),
+            tracks: Vec::new(),
+            track_covs: Vec::new(),
+        }
+    }
+
+    /// Tracks this step's camera detections in the tracking frame, scores
+    /// the reported tracks, steps the GNSS error, and generates a CPM when
+    /// one is due.
+    fn step(&mut self, ctx: &Context, ego: &Ego) -> Option<Sent> {
+        self.pose = ego.sensed.truth.ego_pose;
+        self.step_gnss(ctx, ego);
+        let camera: Vec<usize> = (0..ego.sensed.truth.detections.len())
+            .filter(|&k| !ego.sensed.truth.detections[k].sender)
+            .collect();
+        let measurements: Vec<TrackMeasurement> = camera
+            .iter()
+            .map(|&k| {
+                let d = &ego.sensed.observation.detections[k];
+                TrackMeasurement {
+                    position_m: self.pose.to_parent(&d.position_m),
+                    cov_m2: self.pose.cov_to_parent(&d.cov_m2),
+                    class: d.appearance.class,
+                }
+            })
+            .collect();
+        let ids = self.tracker.step(ctx.time_s, &measurements);
+        for (&k, id) in camera.iter().zip(ids) {
+            let d = &ego.sensed.observation.detections[k];
+            let truth = ego.sensed.truth.detections[k].object_id.clone();
+            self.labels.insert(id, (d.appearance.clone(), truth));
+        }
+        let live: BTreeSet<u64> = self.tracker.tracks().iter().map(|t| t.id).collect();
+        self.labels.retain(|id, _| live.contains(id));
+        (self.tracks, self.track_covs) = self
+            .tracker
+            .reported()
+            .map(|t| {
+                let snap = TrackSnapshot {
+                    id: t.id,
+                    position_m: t.position_m(),
+                    velocity_mps: t.velocity_mps(),
+                };
+                (snap, t.position_cov_m2())
+            })
+            .unzip();
+        self.score(ego);
+        self.row.steps += 1;
+        if !self.generator.due(&ctx.v.cpm, ctx.time_s) {
+            return None;
+        }
+        let chosen = self.generator.select(&ctx.v.cpm, ctx.time_s, &self.tracks);
+        self.row.messages += 1;
+        self.row.objects_sent += chosen.len() as u64;
+        Some(self.message(ctx, &chosen, &ego.sensed.observation.ego_id))
+    }
+
+    fn step_gnss(&mut self, ctx: &Context, ego: &Ego) {
+        let mut stream = rng::stream(
+            ctx.settings.seeds.sensor,
+            Purpose::PoseNoise,
+            &[ctx.step, ego.id_hash, ctx.level.label.stream_code()],
+        );
+        let previous = self.gnss.map(|(t, e)| (ctx.time_s - t, e));
+        let dt = previous.map_or(0.0, |p| p.0);
+        let e = next_error(
+            previous.map(|p| p.1),
+            dt,
+            ctx.v.gnss_correlation_s,
+            &ctx.level,
+            &mut stream,
+        );
+        self.gnss = Some((ctx.time_s, e));
+        self.reported = e.apply(&self.pose);
+    }
+
+    /// CLEAR-MOT on this step's reported tracks.
+    fn score(&mut self, ego: &Ego) {
+        let truth: Vec<(String, Vec2)> = ego
+            .sensed
+            .visible
+            .iter()
+            .map(|o| (o.object_id.clone(), o.position_m))
+            .collect();
+        let tracked: Vec<(u64, Vec2)> = self.tracks.iter().map(|t| (t.id, t.position_m)).collect();
+        self.mot.step(&truth, &tracked);
+    }
+
+    /// The CPM of the chosen tracks: in the body frame of the sender's
+    /// true pose (what its sensors measure), with its reported pose.
+    fn message(&self, ctx: &Context, chosen: &[u64], sender: &str) -> Sent {
+        let body = self.pose.inverse();
+        let mut sent = Sent {
+            sender: sender.to_owned(),
+            generated_s: ctx.time_s,
+            sender_reported: self.reported,
+            objects: Vec::new(),
+            appearance: Vec::new(),
+            truth: Vec::new(),
+        };
+        for id in chosen {
+            let Some(t) = self.tracker.tracks().iter().find(|t| t.id == *id) else {
+                continue;
+            };
+            let Some((appearance, truth)) = self.labels.get(id) else {
+                continue;
+            };
+            sent.objects.push(PerceivedObject {
+                local_id: t.id,
+                position_m: body.to_parent(&t.position_m()),
+                velocity_mps: body.to_parent(&t.velocity_mps()) - body.to_parent(&Vec2::zeros()),
+                position_cov_m2: body.cov_to_parent(&t.position_cov_m2()),
+                velocity_cov_m2ps2: body.cov_to_parent(&t.velocity_cov_m2ps2()),
+                age_s: ctx.time_s - t.born_s,
+                class: t.class,
+            });
+            sent.appearance.push(appearance.clone());
+            sent.truth.push(truth.clone());
+        }
+        sent
+    }
+
+    fn finish(mut self) -> VehicleTracking {
+        self.row.mot = self.mot.counts;
+        self.row.tracks_started = self.tracker.started();
+        self.row
+    }
+}
+
+/// The pair-level views of one reception.
+struct Views {
+    ego: Vec<Detection>,
+    ego_ids: Vec<u64>,
+    ego_truth: Vec<Option<String>>,
+    peer: Vec<Detection>,
+    peer_ids: Vec<u64>,
+    peer_truth: Vec<Option<String>>,
+    /// The peer objects' frame: the newest message's reported sender pose.
+    peer_reported: Pose2,
+}
+
+impl Link {
+    /// One message at its receiver: the known peer objects updated, both
+    /// sides' views built, matched, associated, fused and counted.
+    fn receive(
+        &mut self,
+        ctx: &Context,
+        receiver: &Vehicle,
+        m: &Sent,
+        matcher: &dyn Matcher,
+    ) -> Result<OverTimeCounts, RunError> {
+        for (k, o) in m.objects.iter().enumerate() {
+            self.known.insert(
+                o.local_id,
+                Known {
+                    object: o.clone(),
+                    generated_s: m.generated_s,
+                    sender_reported: m.sender_reported,
+                    appearance: m.appearance[k].clone(),
+                    truth: m.truth[k].clone(),
+                },
+            );
+        }
+        // Forget objects the peer stopped sending (it sends each at
+        // least every max_interval_s).
+        let horizon = ctx.v.cpm.max_interval_s * 1.5;
+        self.known
+            .retain(|_, k| ctx.time_s - k.generated_s <= horizon);
+        let views = self.views(ctx, receiver, m.sender_reported);
+        let mut c = OverTimeCounts {
+            receptions: 1,
+            ..OverTimeCounts::default()
+        };
+        if views.ego.is_empty() || views.peer.is_empty() {
+            return Ok(c);
+        }
+        let matched = self.matched(ctx, receiver, &views, matcher)?;
+        let s = &ctx.v.association;
+        let live_ego: BTreeSet<u64> = views.ego_ids.iter().copied().collect();
+        let live_peer: BTreeSet<u64> = self.known.keys().copied().collect();
+        self.association
+            .retain(|e| live_ego.contains(&e), |p| live_peer.contains(&p));
+        self.association
+            .update(s, &views.ego_ids, &views.peer_ids, &matched);
+        let over_time = self.association.decide(s, &views.ego_ids, &views.peer_ids);
+        self.count(ctx, &views, &matched, &over_time, &mut c);
+        fuse_associated(ctx, receiver, &views, &over_time, &mut c);
+        Ok(c)
+    }
+
+    fn views(&self, ctx: &Context, receiver: &Vehicle, peer_reported: Pose2) -> Views {
+        let body = receiver.pose.inverse();
+        let mut v = Views {
+            ego: Vec::new(),
+            ego_ids: Vec::new(),
+            ego_truth: Vec::new(),
+            peer: Vec::new(),
+            peer_ids: Vec::new(),
+            peer_truth: Vec::new(),
+            peer_reported,
+        };
+        for (t, cov) in receiver.tracks.iter().zip(&receiver.track_covs) {
+            let Some((appearance, truth)) = receiver.labels.get(&t.id) else {
+                continue;
+            };
+            v.ego.push(Detection {
+                position_m: body.to_parent(&t.position_m),
+                cov_m2: body.cov_to_parent(cov),
+                appearance: appearance.clone(),
+            });
+            v.ego_ids.push(t.id);
+            v.ego_truth.push(truth.clone());
+        }
+        for (&id, k) in &self.known {
+            let o = &k.object;
+            let dt = if ctx.v.compensate_latency {
+                ctx.time_s - k.generated_s
+            } else {
+                0.0
+            };
+            let (p, cov) = crate::v2x::extrapolate(
+                o.position_m,
+                o.velocity_mps,
+                &o.position_cov_m2,
+                &o.velocity_cov_m2ps2,
+                dt,
+                ctx.v.tracker.accel_sigma_mps2,
+            );
+            // Into the frame of the newest message, through the reported
+            // poses the two messages carry.
+            let world = k.sender_reported.to_parent(&p);
+            let turn = k.sender_reported.heading_rad() - peer_reported.heading_rad();
+            v.peer.push(Detection {
+                position_m: peer_reported.to_body(&world),
+                cov_m2: rotate_cov(&cov, turn),
+                appearance: k.appearance.clone(),
+            });
+            v.peer_ids.push(id);
+            v.peer_truth.push(k.truth.clone());
+        }
+        v
+    }
+
+    /// The frame matcher on the two views: (ego id, peer id).
+    fn matched(
+        &self,
+        ctx: &Context,
+        receiver: &Vehicle,
+        views: &Views,
+        matcher: &dyn Matcher,
+    ) -> Result<Vec<(u64, u64)>, RunError> {
+        let graph = |d: &[Detection]| {
+            let p: Vec<Vec2> = d.iter().map(|x| x.position_m).collect();
+            SceneGraph::delaunay(&p)
+        };
+        let (ga, gb) = (graph(&views.ego)?, graph(&views.peer)?);
+        let a = MatchView {
+            detections: &views.ego,
+            graph: &ga,
+            pose_reported: receiver.reported,
+            pose_noise: ctx.level,
+        };
+        let b = MatchView {
+            detections: &views.peer,
+            graph: &gb,
+            pose_reported: views.peer_reported,
+            pose_noise: ctx.level,
+        };
+        Ok(matcher
+            .identify(&a, &b)
+            .matches
+            .iter()
+            .map(|c| (views.ego_ids[c.a], views.peer_ids[c.b]))
+            .collect())
+    }
+
+    /// Pair counts of both decisions, time in view and to first right,
+    /// and switches.
+    fn count(
+        &mut self,
+        ctx: &Context,
+        views: &Views,
+        per_message: &[(u64, u64)],
+        over_time: &[(u64, u64)],
+        c: &mut OverTimeCounts,
+    ) {
+        let label = |ids: &[u64], truth: &[Option<String>]| -> BTreeMap<u64, String> {
+            ids.iter()
+                .zip(truth)
+                .filter_map(|(&i, t)| t.clone().map(|t| (i, t)))
+                .collect()
+        };
+        let (ego, peer) = (
+            label(&views.ego_ids, &views.ego_truth),
+            label(&views.peer_ids, &views.peer_truth),
+        );
+        let right = |&(e, p): &(u64, u64)| ego.get(&e).is_some_and(|o| peer.get(&p) == Some(o));
+        let truths: Vec<(u64, u64)> = ego
+            .iter()
+            .flat_map(|(&e, o)| {
+                peer.iter()
+                    .filter(move |(_, q)| *q == o)
+                    .map(move |(&p, _)| (e, p))
+            })
+            .collect();
+        let counts = |pairs: &[(u64, u64)]| PairCounts {
+            identified: pairs.len(),
+            correct: pairs.iter().filter(|p| right(p)).count(),
+            ground_truth: truths.len(),
+        };
+        c.per_message = counts(per_message);
+        c.over_time = counts(over_time);
+        c.pairs_in_view = truths.len() as u64;
+        c.per_message_right = truths.iter().filter(|t| per_message.contains(t)).count() as u64;
+        c.over_time_right = truths.iter().filter(|t| over_time.contains(t)).count() as u64;
+        for t in &truths {
+            let first = *self.first_in_view.entry(*t).or_insert(ctx.time_s);
+            if over_time.contains(t) && self.found.insert(*t) {
+                c.pairs_found += 1;
+                c.time_to_first_right_sum_s += ctx.time_s - first;
+            }
+        }
+        for &(e, p) in over_time {
+            if self.last.insert(e, p).is_some_and(|q| q != p) {
+                c.switches += 1;
+            }
+        }
+    }
+}
+
+/// Ego tracks fused with the peer objects associated over time: their
+/// errors single, by Eq. 14-16 and by covariance intersection, against
+/// the object's true centre in the receiver's body frame.
+fn fuse_associated(
+    ctx: &Context,
+    receiver: &Vehicle,
+    views: &Views,
+    pairs: &[(u64, u64)],
+    c: &mut OverTimeCounts,
+) {
+    let prior = relative_pose_prior(
+        &receiver.reported,
+        &views.peer_reported,
+        ctx.level.position_sigma_m,
+        ctx.level.heading_sigma_rad,
+    );
+    let body = receiver.pose.inverse();
+    for &(e, p) in pairs {
+        let (Some(a), Some(b)) = (
+            views.ego_ids.iter().position(|&x| x == e),
+            views.peer_ids.iter().position(|&x| x == p),
+        ) else {
+            continue;
+        };
+        let Some(truth) = views.ego_truth[a]
+            .as_deref()
+            .and_then(|o| ctx.truth.get(o))
+            .map(|w| body.to_parent(w))
+        else {
+            continue;
+        };
+        let ego = Measurement {
+            position_m: views.ego[a].position_m,
+            cov_m2: views.ego[a].cov_m2,
+        };
+        let peer = Measurement {
+            position_m: views.peer[b].position_m,
+            cov_m2: views.peer[b].cov_m2,
+        }
+        .moved_uncertain(&prior);
+        let (Some(ind), Some(ci)) = (fuse(&[ego, peer]), covariance_intersection(&[ego, peer]))
+        else {
+            continue;
+        };
+        c.de_single_sum_m += (ego.position_m - truth).norm();
+        c.de_fused_sum_m += (ind.position_m - truth).norm();
+        c.de_ci_sum_m += (ci.position_m - truth).norm();
+        c.de_n += 1;
+    }
+}
