@@ -428,6 +428,12 @@ pub struct OverTimeCounts {
     pub de_fused_sum_m: f64,
     pub de_ci_sum_m: f64,
     pub de_n: u64,
+    /// The same for every true pair in view (the oracle's association):
+    /// what fusion gives when association is not the question.
+    pub oracle_single_sum_m: f64,
+    pub oracle_fused_sum_m: f64,
+    pub oracle_ci_sum_m: f64,
+    pub oracle_n: u64,
 }
 
 impl OverTimeCounts {
@@ -446,6 +452,33 @@ impl OverTimeCounts {
         self.de_fused_sum_m += o.de_fused_sum_m;
         self.de_ci_sum_m += o.de_ci_sum_m;
         self.de_n += o.de_n;
+        self.oracle_single_sum_m += o.oracle_single_sum_m;
+        self.oracle_fused_sum_m += o.oracle_fused_sum_m;
+        self.oracle_ci_sum_m += o.oracle_ci_sum_m;
+        self.oracle_n += o.oracle_n;
+    }
+
+    /// The numbers of a run, by name (for sweeps over runs): pair F1 per
+    /// message and over time, share of time right over time, fused and
+    /// single errors of the association over time and of the oracle's.
+    pub fn metrics(&self) -> [(&'static str, f64); 9] {
+        let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { f64::NAN };
+        let de = |sum: f64| ratio(sum, self.de_n as f64);
+        let oracle = |sum: f64| ratio(sum, self.oracle_n as f64);
+        [
+            ("f1_per_message", self.per_message.f1()),
+            ("f1_over_time", self.over_time.f1()),
+            (
+                "time_share_right",
+                ratio(self.over_time_right as f64, self.pairs_in_view as f64),
+            ),
+            ("de_single_m", de(self.de_single_sum_m)),
+            ("de_fused_m", de(self.de_fused_sum_m)),
+            ("de_fused_ci_m", de(self.de_ci_sum_m)),
+            ("oracle_de_single_m", oracle(self.oracle_single_sum_m)),
+            ("oracle_de_fused_m", oracle(self.oracle_fused_sum_m)),
+            ("oracle_de_fused_ci_m", oracle(self.oracle_ci_sum_m)),
+        ]
     }
 
     /// `association.csv`: one row per decision (per message, over time).
@@ -484,6 +517,10 @@ impl OverTimeCounts {
         t.number("de_single_m", over(de(self.de_single_sum_m)));
         t.number("de_fused_m", over(de(self.de_fused_sum_m)));
         t.number("de_fused_ci_m", over(de(self.de_ci_sum_m)));
+        let oracle = |sum: f64| over(ratio(sum, self.oracle_n as f64));
+        t.number("oracle_de_single_m", oracle(self.oracle_single_sum_m));
+        t.number("oracle_de_fused_m", oracle(self.oracle_fused_sum_m));
+        t.number("oracle_de_fused_ci_m", oracle(self.oracle_ci_sum_m));
         t
     }
 }

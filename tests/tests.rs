@@ -2007,4 +2007,35 @@ mod v2x {
             assert!((m - (s / 10.0).ceil()).abs() <= 1.0, "{c}");
         }
     }
+
+    /// `coid track --sweep`: every setting over every test run, means with
+    /// intervals, and the latency plot; the rows at the config's own
+    /// values (100 ms, 10 %, 10 Hz) are the same runs, so the same numbers.
+    #[test]
+    fn a_sweep_covers_latency_loss_and_rate() {
+        let fx = Fixture::new();
+        let cfg = fx.config(
+            "s.toml",
+            40.0,
+            "[connected]\npenetration = 0.3\n[eval]\ntraffic_seeds = [1, 2]\n",
+        );
+        let c = cfg.to_str().unwrap();
+        assert_ok(&fx.coid(&["track", "-q", "--sweep", "-c", c, "-o", "sw"]));
+        let t = read_csv(&fx.path("sw/sweep.csv"));
+        assert_eq!(t.height(), 12);
+        assert!(f64s(&t, "n_runs").iter().all(|&n| n == 2.0));
+        let (factor, value) = (strs(&t, "factor"), f64s(&t, "value"));
+        let f1 = f64s(&t, "f1_over_time");
+        let at = |f: &str, v: f64| {
+            (0..t.height())
+                .find(|&k| factor[k] == f && value[k] == v)
+                .unwrap()
+        };
+        assert_eq!(f1[at("latency_ms", 100.0)], f1[at("loss", 0.1)]);
+        assert_eq!(f1[at("loss", 0.1)], f1[at("rate_hz", 10.0)]);
+        assert!(f1.iter().all(|f| (0.0..=1.0).contains(f)), "{t}");
+        for ext in ["png", "svg"] {
+            assert!(fx.path(&format!("sw/sweep_latency.{ext}")).is_file());
+        }
+    }
 }

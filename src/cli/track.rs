@@ -1,18 +1,37 @@
 //! `coid track`: every connected vehicle's tracker, its CPMs over the
-//! channel, and what the receivers make of them, over one run.
+//! channel, and what the receivers make of them, over one run; with
+//! `--sweep`, over the test runs at each latency, loss and rate.
 
 use anyhow::Context;
 
-use super::{CommonArgs, show_sim_progress};
-use crate::{io, pipeline, report};
+use super::{CommonArgs, progress_bar, show_sim_progress};
+use crate::config::Settings;
+use crate::experiments::settings_for_seed;
+use crate::report::{self, OverTimeCounts, Table};
+use crate::v2x::V2xSettings;
+use crate::v2x::channel::LossModel;
+use crate::{io, pipeline, render};
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
     common: CommonArgs,
+    /// Sweep latency (0, 100, 300 ms; compensated and not), loss (0, 10,
+    /// 30 %) and rate (10, 5, 1 Hz), one at a time around the config's
+    /// [v2x], over the test runs ([eval] traffic_seeds): sweep.csv (means
+    /// with 95% intervals over runs) and sweep_latency.png/.svg.
+    #[arg(long)]
+    sweep: bool,
+    /// With --sweep: over the validation runs ([train] validation_seeds)
+    /// instead, where settings may be chosen.
+    #[arg(long, requires = "sweep")]
+    validation: bool,
 }
 
 pub fn track(a: Args) -> anyhow::Result<()> {
+    if a.sweep {
+        return sweep(&a);
+    }
     let (settings, out) = a.common.prepare("-track", io::ResultKind::Track)?;
     let bar = a.common.sim_bar(settings.scenario.end_s);
     let results =
@@ -21,7 +40,11 @@ pub fn track(a: Args) -> anyhow::Result<()> {
     let tracking = report::tracking_table(&results.vehicles);
     let association = results.over_time.table();
     let existing = io::Existing::when(a.common.force, io::ResultKind::Track);
-    io::write_tracking(&out, existing, &tracking, &association)?;
+    let tables = [
+        ("tracking.csv", &tracking),
+        ("association.csv", &association),
+    ];
+    io::write_tracking(&out, existing, &tables, |_| Ok(()))?;
     let mut all = report::VehicleTracking::default();
     for v in &results.vehicles {
         all.add(v);
@@ -41,4 +64,180 @@ pub fn track(a: Args) -> anyhow::Result<()> {
         out.display()
     );
     Ok(())
+}
+
+/// One setting of the sweep: the factor, its value, and the change.
+struct Variant {
+    factor: &'static str,
+    value: f64,
+    apply: Box<dyn Fn(&mut V2xSettings)>,
+}
+
+fn variants() -> Vec<Variant> {
+    let mut v = Vec::new();
+    for (factor, compensate) in [("latency_ms", true), ("latency_ms_uncompensated", false)] {
+        for ms in [0.0, 100.0, 300.0] {
+            v.push(Variant {
+                factor,
+                value: ms,
+                apply: Box::new(move |s: &mut V2xSettings| {
+                    s.channel.latency_s = ms / 1000.0;
+                    s.compensate_latency = compensate;
+                }),
+            });
+        }
+    }
+    for p in [0.0, 0.1, 0.3] {
+        v.push(Variant {
+            factor: "loss",
+            value: p,
+            apply: Box::new(move |s: &mut V2xSettings| {
+                s.channel.loss = LossModel::Independent { probability: p };
+            }),
+        });
+    }
+    for hz in [10.0, 5.0, 1.0] {
+        v.push(Variant {
+            factor: "rate_hz",
+            value: hz,
+            apply: Box::new(move |s: &mut V2xSettings| s.cpm.rate_hz = hz),
+        });
+    }
+    v
+}
+
+fn sweep(a: &Args) -> anyhow::Result<()> {
+    let suffix = if a.validation {
+        "-sweep-validation"
+    } else {
+        "-sweep"
+    };
+    let (settings, out) = a.common.prepare(suffix, io::ResultKind::Track)?;
+    let seeds = if a.validation {
+        settings.train.validation_seeds.clone()
+    } else {
+        settings.eval.traffic_seeds.clone()
+    };
+    let variants = variants();
+    let pb = progress_bar(
+        a.common.quiet.quiet,
+        (variants.len() * seeds.len()) as u64,
+        "{spinner} sweeping: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
+    );
+    let mut runs: Vec<Vec<OverTimeCounts>> = Vec::new();
+    for v in &variants {
+        let mut s: Settings = settings.clone();
+        (v.apply)(&mut s.v2x);
+        let mut per_seed = Vec::new();
+        for &seed in &seeds {
+            pb.set_message(format!("{} = {} seed {seed}", v.factor, v.value));
+            let r = pipeline::track(&settings_for_seed(&s, seed), |_| {})
+                .with_context(|| format!("{} = {}, seed {seed} failed", v.factor, v.value))?;
+            per_seed.push(r.over_time);
+            pb.inc(1);
+        }
+        runs.push(per_seed);
+    }
+    pb.finish_and_clear();
+    let table = sweep_table(&variants, &runs);
+    let existing = io::Existing::when(a.common.force, io::ResultKind::Track);
+    let panels = latency_panels(&table);
+    io::write_tracking(&out, existing, &[("sweep.csv", &table)], |dir| {
+        render::line_panels(&dir.join("sweep_latency"), &panels).map_err(|e| {
+            io::OutputError::Picture {
+                path: dir.to_owned(),
+                message: e.message,
+            }
+        })
+    })?;
+    eprintln!(
+        "coid: swept {} settings over {} {} runs; wrote {}",
+        variants.len(),
+        seeds.len(),
+        if a.validation { "validation" } else { "test" },
+        out.display()
+    );
+    Ok(())
+}
+
+/// `sweep.csv`: per setting, each run metric's mean and 95% interval.
+fn sweep_table(variants: &[Variant], runs: &[Vec<OverTimeCounts>]) -> Table {
+    let mut t = Table::default();
+    t.text(
+        "factor",
+        variants.iter().map(|v| v.factor.to_owned()).collect(),
+    );
+    t.number("value", variants.iter().map(|v| v.value).collect());
+    t.count("n_runs", runs.iter().map(|r| r.len() as u64).collect());
+    let names = OverTimeCounts::default().metrics().map(|m| m.0);
+    for (k, name) in names.iter().enumerate() {
+        let samples: Vec<Vec<f64>> = runs
+            .iter()
+            .map(|per_seed| per_seed.iter().map(|r| r.metrics()[k].1).collect())
+            .collect();
+        t.stat(name, &samples);
+    }
+    t
+}
+
+/// F1 and the oracle-associated fused error against latency, compensated
+/// and not.
+fn latency_panels(t: &Table) -> Vec<render::Panel> {
+    let column = |name: &str| match t.column(name) {
+        Some(report::TableColumn::Number(v)) => v.clone(),
+        _ => Vec::new(),
+    };
+    let factors = match t.column("factor") {
+        Some(report::TableColumn::Text(v)) => v.clone(),
+        _ => Vec::new(),
+    };
+    let values = column("value");
+    let series = |factor: &str, metric: &str| -> Vec<(f64, f64)> {
+        let m = column(metric);
+        (0..factors.len())
+            .filter(|&k| factors[k] == factor && m[k].is_finite())
+            .map(|k| (values[k], m[k]))
+            .collect()
+    };
+    let max_de = ["oracle_de_single_m", "oracle_de_fused_m"]
+        .iter()
+        .flat_map(|m| column(m))
+        .filter(|x| x.is_finite())
+        .fold(1.0, f64::max);
+    vec![
+        render::Panel {
+            title: "pair F1 against latency".into(),
+            x_label: "latency (ms)".into(),
+            y_label: "F1, mean over runs".into(),
+            x_range: (0.0, 300.0),
+            y_range: (0.0, 1.05),
+            series: vec![
+                ("per message".into(), series("latency_ms", "f1_per_message")),
+                ("over time".into(), series("latency_ms", "f1_over_time")),
+                (
+                    "over time, not compensated".into(),
+                    series("latency_ms_uncompensated", "f1_over_time"),
+                ),
+            ],
+        },
+        render::Panel {
+            title: "displacement error against latency (true pairs)".into(),
+            x_label: "latency (ms)".into(),
+            y_label: "DE (m), mean over runs".into(),
+            x_range: (0.0, 300.0),
+            y_range: (0.0, max_de * 1.1),
+            series: vec![
+                ("single".into(), series("latency_ms", "oracle_de_single_m")),
+                ("fused".into(), series("latency_ms", "oracle_de_fused_m")),
+                (
+                    "fused, not compensated".into(),
+                    series("latency_ms_uncompensated", "oracle_de_fused_m"),
+                ),
+                (
+                    "fused by CI".into(),
+                    series("latency_ms", "oracle_de_fused_ci_m"),
+                ),
+            ],
+        },
+    ]
 }

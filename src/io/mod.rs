@@ -141,7 +141,7 @@ pub enum ResultKind {
     /// An export of instances (`coid export`): Parquet files, `schema.md`.
     Export,
     /// Trackers and messages over a run (`coid track`): `tracking.csv`,
-    /// `association.csv`.
+    /// `association.csv`; or a sweep: `sweep.csv`, `sweep_latency.*`.
     Track,
 }
 
@@ -181,7 +181,10 @@ impl ResultKind {
             ResultKind::Family => name == "README.md",
             ResultKind::Models => ext(".bpk") || ext(".toml") || ext("_loss.csv"),
             ResultKind::Export => ext(".parquet") || name == "schema.md",
-            ResultKind::Track => matches!(name, "tracking.csv" | "association.csv"),
+            ResultKind::Track => {
+                matches!(name, "tracking.csv" | "association.csv" | "sweep.csv")
+                    || name.starts_with("sweep_latency.")
+            }
         }
     }
 
@@ -457,17 +460,19 @@ fn write_text(path: &Path, text: &str) -> Result<(), OutputError> {
     std::fs::write(path, text).map_err(io(path))
 }
 
-/// Writes `coid track`'s `tracking.csv` and `association.csv` into
+/// Writes `coid track`'s tables (CSV) and whatever `plots` draws into
 /// `out`, atomically.
 pub fn write_tracking(
     out: &Path,
     existing: Existing,
-    tracking: &Table,
-    association: &Table,
+    tables: &[(&str, &Table)],
+    plots: impl FnOnce(&Path) -> Result<(), OutputError>,
 ) -> Result<(), OutputError> {
     atomic_dir(out, existing, |dir| {
-        frames::write_table(&dir.join("tracking.csv"), tracking)?;
-        frames::write_table(&dir.join("association.csv"), association)
+        for (name, t) in tables {
+            frames::write_table(&dir.join(name), t)?;
+        }
+        plots(dir)
     })
 }
 

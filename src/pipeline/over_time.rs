@@ -478,8 +478,16 @@ impl Link {
         self.association
             .update(s, &views.ego_ids, &views.peer_ids, &matched);
         let over_time = self.association.decide(s, &views.ego_ids, &views.peer_ids);
-        self.count(ctx, &views, &matched, &over_time, &mut c);
-        fuse_associated(ctx, receiver, &views, &over_time, &mut c);
+        let truths = self.count(ctx, &views, &matched, &over_time, &mut c);
+        let de = fuse_pairs(ctx, receiver, &views, &over_time);
+        (c.de_single_sum_m, c.de_fused_sum_m, c.de_ci_sum_m, c.de_n) = de;
+        let de = fuse_pairs(ctx, receiver, &views, &truths);
+        (
+            c.oracle_single_sum_m,
+            c.oracle_fused_sum_m,
+            c.oracle_ci_sum_m,
+            c.oracle_n,
+        ) = de;
         Ok(c)
     }
 
@@ -570,7 +578,7 @@ impl Link {
     }
 
     /// Pair counts of both decisions, time in view and to first right,
-    /// and switches.
+    /// and switches; returns the true pairs in view.
     fn count(
         &mut self,
         ctx: &Context,
@@ -578,7 +586,7 @@ impl Link {
         per_message: &[(u64, u64)],
         over_time: &[(u64, u64)],
         c: &mut OverTimeCounts,
-    ) {
+    ) -> Vec<(u64, u64)> {
         let label = |ids: &[u64], truth: &[Option<String>]| -> BTreeMap<u64, String> {
             ids.iter()
                 .zip(truth)
@@ -620,19 +628,20 @@ impl Link {
                 c.switches += 1;
             }
         }
+        truths
     }
 }
 
-/// Ego tracks fused with the peer objects associated over time: their
-/// errors single, by Eq. 14-16 and by covariance intersection, against
-/// the object's true centre in the receiver's body frame.
-fn fuse_associated(
+/// Ego tracks fused with the peer objects `pairs` associates them with:
+/// the summed errors single, by Eq. 14-16 and by covariance intersection,
+/// against the object's true centre in the receiver's body frame, and
+/// their count.
+fn fuse_pairs(
     ctx: &Context,
     receiver: &Vehicle,
     views: &Views,
     pairs: &[(u64, u64)],
-    c: &mut OverTimeCounts,
-) {
+) -> (f64, f64, f64, u64) {
     let prior = relative_pose_prior(
         &receiver.reported,
         &views.peer_reported,
@@ -640,6 +649,7 @@ fn fuse_associated(
         ctx.level.heading_sigma_rad,
     );
     let body = receiver.pose.inverse();
+    let mut out = (0.0, 0.0, 0.0, 0);
     for &(e, p) in pairs {
         let (Some(a), Some(b)) = (
             views.ego_ids.iter().position(|&x| x == e),
@@ -667,9 +677,10 @@ fn fuse_associated(
         else {
             continue;
         };
-        c.de_single_sum_m += (ego.position_m - truth).norm();
-        c.de_fused_sum_m += (ind.position_m - truth).norm();
-        c.de_ci_sum_m += (ci.position_m - truth).norm();
-        c.de_n += 1;
+        out.0 += (ego.position_m - truth).norm();
+        out.1 += (ind.position_m - truth).norm();
+        out.2 += (ci.position_m - truth).norm();
+        out.3 += 1;
     }
+    out
 }
