@@ -119,6 +119,7 @@ struct RawV2x {
 struct RawAssociation {
     smoothing: f64,
     threshold: f64,
+    pose_smoothing: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -1141,6 +1142,7 @@ fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
             format!("must be in [0, 1), got {}", a.threshold),
         ));
     }
+    c.fraction("v2x.association.pose_smoothing", a.pose_smoothing)?;
     Ok(V2xSettings {
         mode: v.mode,
         step_length_s: v.step_length_s,
@@ -1151,6 +1153,7 @@ fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
         association: AssociationSettings {
             smoothing: a.smoothing,
             threshold: a.threshold,
+            pose_smoothing: a.pose_smoothing,
         },
         tracker: tracker(c, v.tracker)?,
         cpm: cpm(c, v.cpm)?,

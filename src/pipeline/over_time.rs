@@ -11,8 +11,8 @@ use super::{Ego, Progress, RunError, runner, sense};
 use crate::bridge::Sumo;
 use crate::config::Settings;
 use crate::evaluate::{PairCounts, Runner};
-use crate::fusion::{Measurement, covariance_intersection, fuse, relative_pose_prior};
-use crate::geometry::{Cov2, Pose2, Vec2, rotate_cov};
+use crate::fusion::{Measurement, align, covariance_intersection, fuse, relative_pose_prior};
+use crate::geometry::{Cov2, Pose2, Vec2, rotate_cov, wrap_angle};
 use crate::graph::SceneGraph;
 use crate::matching::{MatchView, Matcher};
 use crate::report::{OverTimeCounts, VehicleTracking};
@@ -169,6 +169,9 @@ struct Link {
     last: BTreeMap<u64, u64>,
     first_in_view: BTreeMap<(u64, u64), f64>,
     found: BTreeSet<(u64, u64)>,
+    /// The relative pose over time: the correction (world frame:
+    /// translation and heading) of the sender's reported pose.
+    offset: Option<Pose2>,
 }
 
 #[derive(Clone)]
@@ -423,6 +426,7 @@ impl Vehicle {
 }
 
 /// The pair-level views of one reception.
+#[derive(Clone)]
 struct Views {
     ego: Vec<Detection>,
     ego_ids: Vec<u64>,
@@ -469,16 +473,43 @@ impl Link {
         if views.ego.is_empty() || views.peer.is_empty() {
             return Ok(c);
         }
+        // Per message: the matcher on this message's poses alone.
         let matched = self.matched(ctx, receiver, &views, matcher)?;
+        // Over time: the relative pose as estimated over earlier messages,
+        // then the evidence carried across them.
+        let corrected = match self.offset {
+            Some(d) => {
+                let p = views.peer_reported;
+                let peer_reported = Pose2::new(
+                    p.position_m() + d.position_m(),
+                    p.heading_rad() + d.heading_rad(),
+                );
+                let v = Views {
+                    peer_reported,
+                    ..views.clone()
+                };
+                let m = self.matched(ctx, receiver, &v, matcher)?;
+                (v, m)
+            }
+            None => (views.clone(), matched.clone()),
+        };
         let s = &ctx.v.association;
         let live_ego: BTreeSet<u64> = views.ego_ids.iter().copied().collect();
         let live_peer: BTreeSet<u64> = self.known.keys().copied().collect();
         self.association
             .retain(|e| live_ego.contains(&e), |p| live_peer.contains(&p));
         self.association
-            .update(s, &views.ego_ids, &views.peer_ids, &matched);
+            .update(s, &views.ego_ids, &views.peer_ids, &corrected.1);
         let over_time = self.association.decide(s, &views.ego_ids, &views.peer_ids);
         let truths = self.count(ctx, &views, &matched, &over_time, &mut c);
+        self.estimate_pose(
+            ctx,
+            receiver,
+            &corrected.0,
+            &over_time,
+            &views.peer_reported,
+        );
+        let views = corrected.0;
         let de = fuse_pairs(ctx, receiver, &views, &over_time);
         (c.de_single_sum_m, c.de_fused_sum_m, c.de_ci_sum_m, c.de_n) = de;
         let de = fuse_pairs(ctx, receiver, &views, &truths);
@@ -489,6 +520,60 @@ impl Link {
             c.oracle_n,
         ) = de;
         Ok(c)
+    }
+
+    /// Aligns the pairs associated over time (with the current estimate
+    /// as the prior) and moves the correction toward what they say, by
+    /// `[v2x.association] pose_smoothing` (0: the relative pose comes
+    /// from each message's reported poses alone).
+    fn estimate_pose(
+        &mut self,
+        ctx: &Context,
+        receiver: &Vehicle,
+        views: &Views,
+        pairs: &[(u64, u64)],
+        raw: &Pose2,
+    ) {
+        // `raw`: the sender's reported pose of this message.
+        let w = ctx.v.association.pose_smoothing;
+        if w <= 0.0 {
+            return;
+        }
+        let measured: Vec<(Measurement, Measurement)> = pairs
+            .iter()
+            .filter_map(|&(e, p)| {
+                let a = views.ego_ids.iter().position(|&x| x == e)?;
+                let b = views.peer_ids.iter().position(|&x| x == p)?;
+                let m = |d: &Detection| Measurement {
+                    position_m: d.position_m,
+                    cov_m2: d.cov_m2,
+                };
+                Some((m(&views.ego[a]), m(&views.peer[b])))
+            })
+            .collect();
+        let prior = relative_pose_prior(
+            &receiver.reported,
+            &views.peer_reported,
+            ctx.level.position_sigma_m,
+            ctx.level.heading_sigma_rad,
+        );
+        let aligned = align(&measured, &prior, ctx.settings.fusion.align_min_matches);
+        if !aligned.refined {
+            return;
+        }
+        // The sender's pose as aligned, against what it reported: a
+        // correction in the world frame (the two GNSS errors, slowly
+        // varying when they are correlated in time), whatever the
+        // receiver's heading.
+        let aligned_pose = receiver.reported.compose(&aligned.estimate.pose);
+        let target = Pose2::new(
+            aligned_pose.position_m() - raw.position_m(),
+            wrap_angle(aligned_pose.heading_rad() - raw.heading_rad()),
+        );
+        let old = self.offset.unwrap_or_else(Pose2::identity);
+        let t = old.position_m() + (target.position_m() - old.position_m()) * w;
+        let turn = wrap_angle(target.heading_rad() - old.heading_rad());
+        self.offset = Some(Pose2::new(t, old.heading_rad() + w * turn));
     }
 
     fn views(&self, ctx: &Context, receiver: &Vehicle, peer_reported: Pose2) -> Views {

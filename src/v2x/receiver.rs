@@ -18,6 +18,9 @@ pub struct AssociationSettings {
     pub smoothing: f64,
     /// Evidence a pair needs to be associated, in [0, 1).
     pub threshold: f64,
+    /// Weight of each message's alignment in the relative pose estimated
+    /// over time, in [0, 1]; 0: each message's reported poses alone.
+    pub pose_smoothing: f64,
 }
 
 impl Default for AssociationSettings {
@@ -25,6 +28,7 @@ impl Default for AssociationSettings {
         Self {
             smoothing: 0.3,
             threshold: 0.5,
+            pose_smoothing: 0.0,
         }
     }
 }
