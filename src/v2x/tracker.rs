@@ -36,12 +36,13 @@ pub struct TrackerSettings {
 
 impl Default for TrackerSettings {
     fn default() -> Self {
+        // Chosen on the validation runs (see `configs/default.toml`).
         Self {
-            accel_sigma_mps2: 3.0,
+            accel_sigma_mps2: 6.0,
             gate_chi2: 13.8,
-            confirm_hits: 2,
-            max_coast_s: 1.0,
-            birth_speed_sigma_mps: 10.0,
+            confirm_hits: 3,
+            max_coast_s: 0.5,
+            birth_speed_sigma_mps: 3.0,
         }
     }
 }
