@@ -434,6 +434,20 @@ pub struct OverTimeCounts {
     pub oracle_fused_sum_m: f64,
     pub oracle_ci_sum_m: f64,
     pub oracle_n: u64,
+    /// Recursive fusion: each ego track associated over time keeps a fused
+    /// estimate that every reception updates with the ego track and the
+    /// peer's object, by Eq. 14-16 (as if independent: both were already
+    /// in it) and by covariance intersection. Summed errors (m) and
+    /// normalised estimation errors squared (NEES; 2 when the claimed
+    /// covariance is honest, above when it is overconfident), and, for
+    /// reference, the NEES of fusing each reception once.
+    pub recursive_fused_sum_m: f64,
+    pub recursive_ci_sum_m: f64,
+    pub recursive_nees_fused_sum: f64,
+    pub recursive_nees_ci_sum: f64,
+    pub once_nees_fused_sum: f64,
+    pub once_nees_ci_sum: f64,
+    pub recursive_n: u64,
 }
 
 impl OverTimeCounts {
@@ -456,15 +470,23 @@ impl OverTimeCounts {
         self.oracle_fused_sum_m += o.oracle_fused_sum_m;
         self.oracle_ci_sum_m += o.oracle_ci_sum_m;
         self.oracle_n += o.oracle_n;
+        self.recursive_fused_sum_m += o.recursive_fused_sum_m;
+        self.recursive_ci_sum_m += o.recursive_ci_sum_m;
+        self.recursive_nees_fused_sum += o.recursive_nees_fused_sum;
+        self.recursive_nees_ci_sum += o.recursive_nees_ci_sum;
+        self.once_nees_fused_sum += o.once_nees_fused_sum;
+        self.once_nees_ci_sum += o.once_nees_ci_sum;
+        self.recursive_n += o.recursive_n;
     }
 
     /// The numbers of a run, by name (for sweeps over runs): pair F1 per
     /// message and over time, share of time right over time, fused and
     /// single errors of the association over time and of the oracle's.
-    pub fn metrics(&self) -> [(&'static str, f64); 9] {
+    pub fn metrics(&self) -> [(&'static str, f64); 15] {
         let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { f64::NAN };
         let de = |sum: f64| ratio(sum, self.de_n as f64);
         let oracle = |sum: f64| ratio(sum, self.oracle_n as f64);
+        let rec = |sum: f64| ratio(sum, self.recursive_n as f64);
         [
             ("f1_per_message", self.per_message.f1()),
             ("f1_over_time", self.over_time.f1()),
@@ -478,6 +500,12 @@ impl OverTimeCounts {
             ("oracle_de_single_m", oracle(self.oracle_single_sum_m)),
             ("oracle_de_fused_m", oracle(self.oracle_fused_sum_m)),
             ("oracle_de_fused_ci_m", oracle(self.oracle_ci_sum_m)),
+            ("recursive_de_fused_m", rec(self.recursive_fused_sum_m)),
+            ("recursive_de_fused_ci_m", rec(self.recursive_ci_sum_m)),
+            ("recursive_nees_fused", rec(self.recursive_nees_fused_sum)),
+            ("recursive_nees_fused_ci", rec(self.recursive_nees_ci_sum)),
+            ("once_nees_fused", rec(self.once_nees_fused_sum)),
+            ("once_nees_fused_ci", rec(self.once_nees_ci_sum)),
         ]
     }
 
@@ -521,6 +549,9 @@ impl OverTimeCounts {
         t.number("oracle_de_single_m", oracle(self.oracle_single_sum_m));
         t.number("oracle_de_fused_m", oracle(self.oracle_fused_sum_m));
         t.number("oracle_de_fused_ci_m", oracle(self.oracle_ci_sum_m));
+        for (name, v) in self.metrics().into_iter().skip(9) {
+            t.number(name, over(v));
+        }
         t
     }
 }

@@ -1977,6 +1977,16 @@ mod v2x {
         );
         let last = t.height() - 1;
         assert_eq!(strs(&t, "ego_id")[last], "all");
+        // Fusing every reception into a running estimate as if it were
+        // independent counts the same information again and again: its
+        // claimed covariance is far too small (NEES well above 2), and
+        // covariance intersection's is not.
+        let a = read_csv(&fx.path("a/association.csv"));
+        let (nees, nees_ci) = (
+            f64s(&a, "recursive_nees_fused")[1],
+            f64s(&a, "recursive_nees_fused_ci")[1],
+        );
+        assert!(nees > 2.0 * nees_ci && nees_ci < 5.0, "{a}");
         let (steps, messages) = (f64s(&t, "steps")[last], f64s(&t, "messages")[last]);
         assert!(steps > 100.0 && messages == steps, "{t}");
         let (delivered, lost) = (f64s(&t, "delivered")[last], f64s(&t, "lost")[last]);

@@ -172,6 +172,20 @@ struct Link {
     /// The relative pose over time: the correction (world frame:
     /// translation and heading) of the sender's reported pose.
     offset: Option<Pose2>,
+    /// Per ego track associated with this peer: its recursively fused
+    /// estimate.
+    fused: BTreeMap<u64, Recursive>,
+}
+
+/// A recursively fused estimate of one ego track with one peer object, in
+/// the receiver's tracking frame, by Eq. 14-16 and by covariance
+/// intersection.
+#[derive(Clone, Copy)]
+struct Recursive {
+    peer: u64,
+    time_s: f64,
+    independent: Measurement,
+    ci: Measurement,
 }
 
 #[derive(Clone)]
@@ -519,7 +533,99 @@ impl Link {
             c.oracle_ci_sum_m,
             c.oracle_n,
         ) = de;
+        self.fuse_recursively(ctx, receiver, &views, &over_time, &mut c);
         Ok(c)
+    }
+
+    /// Updates each associated ego track's recursive estimate with the ego
+    /// track and the peer's object of this reception (a track whose
+    /// association changed starts again), and scores it against the truth.
+    fn fuse_recursively(
+        &mut self,
+        ctx: &Context,
+        receiver: &Vehicle,
+        views: &Views,
+        pairs: &[(u64, u64)],
+        c: &mut OverTimeCounts,
+    ) {
+        let prior = relative_pose_prior(
+            &receiver.reported,
+            &views.peer_reported,
+            ctx.level.position_sigma_m,
+            ctx.level.heading_sigma_rad,
+        );
+        let mut next = BTreeMap::new();
+        for &(e, p) in pairs {
+            let (Some(k), Some(b)) = (
+                receiver.tracks.iter().position(|t| t.id == e),
+                views.peer_ids.iter().position(|&x| x == p),
+            ) else {
+                continue;
+            };
+            let track = receiver.tracks[k];
+            let ego = Measurement {
+                position_m: track.position_m,
+                cov_m2: receiver.track_covs[k],
+            };
+            let body = Measurement {
+                position_m: views.peer[b].position_m,
+                cov_m2: views.peer[b].cov_m2,
+            }
+            .moved_uncertain(&prior);
+            let peer = body.moved(&receiver.pose);
+            let grow = |m: Measurement, dt: f64| Measurement {
+                position_m: m.position_m + track.velocity_mps * dt,
+                cov_m2: m.cov_m2
+                    + Cov2::identity() * (ctx.v.tracker.accel_sigma_mps2 * dt * dt / 2.0).powi(2),
+            };
+            let previous = self.fused.get(&e).filter(|r| r.peer == p);
+            let (ind, ci) = match previous {
+                Some(r) => {
+                    let dt = ctx.time_s - r.time_s;
+                    (
+                        fuse(&[grow(r.independent, dt), ego, peer]),
+                        covariance_intersection(&[grow(r.ci, dt), ego, peer]),
+                    )
+                }
+                None => (fuse(&[ego, peer]), covariance_intersection(&[ego, peer])),
+            };
+            let (Some(ind), Some(ci), Some(once), Some(once_ci)) = (
+                ind,
+                ci,
+                fuse(&[ego, peer]),
+                covariance_intersection(&[ego, peer]),
+            ) else {
+                continue;
+            };
+            let m = |f: &crate::fusion::Fused| Measurement {
+                position_m: f.position_m,
+                cov_m2: f.cov_m2,
+            };
+            next.insert(
+                e,
+                Recursive {
+                    peer: p,
+                    time_s: ctx.time_s,
+                    independent: m(&ind),
+                    ci: m(&ci),
+                },
+            );
+            let truth = receiver
+                .labels
+                .get(&e)
+                .and_then(|(_, o)| o.as_deref())
+                .and_then(|o| ctx.truth.get(o));
+            if let Some(&truth) = truth {
+                c.recursive_fused_sum_m += (ind.position_m - truth).norm();
+                c.recursive_ci_sum_m += (ci.position_m - truth).norm();
+                c.recursive_nees_fused_sum += nees(&m(&ind), truth);
+                c.recursive_nees_ci_sum += nees(&m(&ci), truth);
+                c.once_nees_fused_sum += nees(&m(&once), truth);
+                c.once_nees_ci_sum += nees(&m(&once_ci), truth);
+                c.recursive_n += 1;
+            }
+        }
+        self.fused = next;
     }
 
     /// Aligns the pairs associated over time (with the current estimate
@@ -768,4 +874,14 @@ fn fuse_pairs(
         out.3 += 1;
     }
     out
+}
+
+/// The normalised estimation error squared of `m` against `truth`:
+/// `e^T P^-1 e`, 2 on average (two dimensions) when the claimed
+/// covariance is honest.
+fn nees(m: &Measurement, truth: Vec2) -> f64 {
+    let e = m.position_m - truth;
+    m.cov_m2
+        .try_inverse()
+        .map_or(f64::NAN, |inv| (e.transpose() * inv * e)[0])
 }
