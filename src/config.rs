@@ -287,7 +287,7 @@ struct RawFusion {
 // ---------------------------------------------------------------------------
 
 /// Everything a run needs, validated; each field is one stage's slice.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, PartialEq)]
 pub struct Settings {
     /// The config file these settings came from.
     pub source: PathBuf,
@@ -304,6 +304,31 @@ pub struct Settings {
     pub train: TrainSettings,
     pub eval: EvalSettings,
     pub v2x: V2xSettings,
+}
+
+/// As derived, but `v2x` is shown only when it is not the default: the
+/// digest of a config ([`Settings::digest`]) hashes this text, and configs
+/// from before `[v2x]` existed keep their digest (and their batches).
+impl std::fmt::Debug for Settings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("Settings");
+        d.field("source", &self.source)
+            .field("scenario", &self.scenario)
+            .field("connected", &self.connected)
+            .field("link", &self.link)
+            .field("seeds", &self.seeds)
+            .field("camera", &self.camera)
+            .field("sensor", &self.sensor)
+            .field("pose_noise", &self.pose_noise)
+            .field("matching", &self.matching)
+            .field("fusion", &self.fusion)
+            .field("train", &self.train)
+            .field("eval", &self.eval);
+        if self.v2x != V2xSettings::default() {
+            d.field("v2x", &self.v2x);
+        }
+        d.finish()
+    }
 }
 
 impl Settings {
@@ -374,14 +399,9 @@ impl Settings {
         blank.train.scenarios.clear();
         blank.train.validation_scenarios.clear();
         blank.eval.scenarios.clear();
-        // `[v2x]` at its defaults adds nothing (digests of configs from
-        // before it stay the same).
-        blank.v2x = V2xSettings::default();
+        // `[v2x]` at its defaults adds nothing (see the `Debug` impl).
         let mut d = Digest::default();
         d.feed(format!("{blank:?}").as_bytes());
-        if self.v2x != V2xSettings::default() {
-            d.feed(format!("{:?}", self.v2x).as_bytes());
-        }
         d.file(&self.source, &self.scenario.sumocfg)?;
         let sumocfg = std::fs::read_to_string(&self.scenario.sumocfg).unwrap_or_default();
         let dir = self.scenario.sumocfg.parent().unwrap_or(Path::new("."));
@@ -1374,9 +1394,15 @@ mod tests {
             ConnectedSelection::Ids(vec!["cv0".into(), "cv1".into()])
         );
         assert!(d.matching.models_dir.join("ours.bpk").is_file());
-        // The shipped [v2x] is the code's default (so that it leaves the
-        // digest of a config as it was).
+        // The shipped [v2x] is the code's default, and at its default it
+        // is not part of the text a config's digest hashes (configs from
+        // before it keep their digest); changed, it is.
         assert_eq!(d.v2x, V2xSettings::default());
+        assert!(!format!("{d:?}").contains("v2x"));
+        let mut changed = d.clone();
+        changed.v2x.channel.latency_s = 0.3;
+        assert!(format!("{changed:?}").contains("v2x"));
+        assert_ne!(d.digest().unwrap(), changed.digest().unwrap());
     }
 
     #[test]
