@@ -2050,4 +2050,29 @@ mod v2x {
             assert!(fx.path(&format!("sw/sweep_latency.{ext}")).is_file());
         }
     }
+
+    /// Named connected vehicles that never appear are refused in one line,
+    /// as in `coid run`; a run in which none comes near the junction says
+    /// so.
+    #[test]
+    fn track_refuses_missing_vehicles_and_says_when_none_came() {
+        let fx = Fixture::new();
+        let named = fx.config("n.toml", 20.0, "");
+        let out = fx.coid(&["track", "-q", "-c", named.to_str().unwrap(), "-o", "n"]);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains("never appeared") && err.trim().lines().count() == 1,
+            "{err}"
+        );
+        assert!(!fx.path("n").exists());
+        let few = fx.config("f.toml", 20.0, "[connected]\npenetration = 0.01\n");
+        let out = fx.coid(&["track", "-q", "-c", few.to_str().unwrap(), "-o", "f"]);
+        assert_ok(&out);
+        assert!(
+            stderr(&out).contains("no connected vehicle"),
+            "{}",
+            stderr(&out)
+        );
+    }
 }

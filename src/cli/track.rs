@@ -45,6 +45,13 @@ pub fn track(a: Args) -> anyhow::Result<()> {
         ("association.csv", &association),
     ];
     io::write_tracking(&out, existing, &tables, |_| Ok(()))?;
+    if results.vehicles.is_empty() {
+        eprintln!(
+            "coid: warning: no connected vehicle came near junction '{}' in {} s (see \
+             [connected], [scenario] radius_m and end_s)",
+            settings.scenario.junction, settings.scenario.end_s
+        );
+    }
     let mut all = report::VehicleTracking::default();
     for v in &results.vehicles {
         all.add(v);

@@ -7,7 +7,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::{Ego, Progress, RunError, runner, sense};
+use super::{Ego, Progress, RunError, check_connected_appeared, runner, sense};
 use crate::bridge::Sumo;
 use crate::config::Settings;
 use crate::evaluate::{PairCounts, Runner};
@@ -74,8 +74,14 @@ pub fn track(
     let scene = sumo.static_scene(&sc.junction)?;
     let mut world = World::default();
     let mut instances = 0;
+    let mut seen_connected = BTreeSet::new();
     while sumo.time_s() + 1e-6 < sc.end_s {
         let frame = sumo.step()?;
+        for o in &frame.objects {
+            if settings.connected.carries_rig(settings.seeds.sensor, o) {
+                seen_connected.insert(o.id.clone());
+            }
+        }
         let egos = sense(settings, &scene, &frame)?;
         let truth: BTreeMap<&str, Vec2> = frame
             .objects
@@ -99,6 +105,7 @@ pub fn track(
         });
     }
     sumo.close()?;
+    check_connected_appeared(&settings.connected, &seen_connected)?;
     Ok(world.finish())
 }
 
