@@ -162,30 +162,22 @@ pub fn eval_run(
     threads: usize,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
-    let runners = pipeline::runners(settings, methods)?;
-    eval_run_into(
-        RunEval::default(),
-        settings,
-        &runners,
-        lambdas,
-        threads,
-        progress,
-    )
+    eval_run_with(settings, methods, None, lambdas, threads, progress)
 }
 
-/// [`eval_run`] with one more method: correspondences made elsewhere
-/// for this run (`coid score`), last. Refused when they name an instance
-/// or node the run does not have.
+/// [`eval_run`] with, when given, one more method: correspondences made
+/// elsewhere for this run (`coid score`), last. Refused when they name an
+/// instance or node the run does not have.
 pub fn eval_run_with(
     settings: &Settings,
     methods: &[Method],
-    external: ExternalMatches,
+    external: Option<ExternalMatches>,
     lambdas: &BTreeMap<Method, f64>,
     threads: usize,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
     let mut runners = pipeline::runners(settings, methods)?;
-    runners.push(Runner::External(external));
+    runners.extend(external.map(Runner::External));
     eval_run_into(
         RunEval::default(),
         settings,

@@ -678,17 +678,22 @@ mod bad_input {
         fails_cleanly(&fx, &cfg, "\"ghost\"");
     }
 
-    #[test]
-    fn sumo_fails_to_start() {
-        let fx = Fixture::new();
+    /// A config whose SUMO cannot start (its net file does not exist).
+    fn broken_sumo(fx: &Fixture) -> PathBuf {
         fx.write(
             "broken.sumocfg",
             "<configuration><input><net-file value=\"no-such.net.xml\"/></input></configuration>",
         );
-        let cfg = fx.write(
+        fx.write(
             "s.toml",
             "[scenario]\nsumocfg = \"broken.sumocfg\"\njunction = \"C\"\n[matching]\nmethods = [\"oracle\"]\n",
-        );
+        )
+    }
+
+    #[test]
+    fn sumo_fails_to_start() {
+        let fx = Fixture::new();
+        let cfg = broken_sumo(&fx);
         fails_cleanly(&fx, &cfg, "SUMO failed to start");
     }
 
@@ -697,14 +702,7 @@ mod bad_input {
     #[test]
     fn an_unwritable_out_is_refused_before_the_simulation() {
         let fx = Fixture::new();
-        fx.write(
-            "broken.sumocfg",
-            "<configuration><input><net-file value=\"no-such.net.xml\"/></input></configuration>",
-        );
-        let cfg = fx.write(
-            "s.toml",
-            "[scenario]\nsumocfg = \"broken.sumocfg\"\njunction = \"C\"\n[matching]\nmethods = [\"oracle\"]\n",
-        );
+        let cfg = broken_sumo(&fx);
         fx.write("a-file", "not a folder");
         let out = fx.run(&cfg, "a-file/out");
         let err = stderr(&out);

@@ -141,7 +141,7 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
         let e = crate::experiments::eval_run_with(
             &r.settings,
             &methods,
-            matches,
+            Some(matches),
             &lambdas,
             a.threads.get(),
             |_| {},

@@ -132,6 +132,26 @@ pub fn write_summary(path: &Path, rows: &[SummaryRow]) -> Result<(), OutputError
     write_csv(path, summary_frame(rows))
 }
 
+/// A new Parquet file at `path` with the columns of `template`, written
+/// row group by row group: the file (kept to flush it at the end) and the
+/// writer.
+fn batched_parquet(
+    path: &Path,
+    template: PolarsResult<DataFrame>,
+) -> Result<(File, BatchedWriter<File>), OutputError> {
+    let file = File::create(path).map_err(io(path))?;
+    let handle = file.try_clone().map_err(io(path))?;
+    let schema = template
+        .map_err(polars_err(path))?
+        .schema()
+        .as_ref()
+        .clone();
+    let writer = ParquetWriter::new(handle)
+        .batched(&schema)
+        .map_err(polars_err(path))?;
+    Ok((file, writer))
+}
+
 /// Rows per row group of `objects.parquet`: what is held in memory before
 /// it is written.
 pub const OBJECT_ROWS_PER_GROUP: usize = 65_536;
@@ -154,16 +174,7 @@ impl ObjectsWriter {
     /// With row groups of `rows_per_group` rows (at least 1).
     fn with_rows_per_group(path: &Path, rows_per_group: usize) -> Result<Self, OutputError> {
         let rows_per_group = rows_per_group.max(1);
-        let file = File::create(path).map_err(io(path))?;
-        let handle = file.try_clone().map_err(io(path))?;
-        let schema = objects_frame(&[])
-            .map_err(polars_err(path))?
-            .schema()
-            .as_ref()
-            .clone();
-        let writer = ParquetWriter::new(handle)
-            .batched(&schema)
-            .map_err(polars_err(path))?;
+        let (file, writer) = batched_parquet(path, objects_frame(&[]))?;
         Ok(Self {
             path: path.to_owned(),
             file,
@@ -219,16 +230,7 @@ pub struct TableWriter {
 impl TableWriter {
     /// A file with the columns (names and types) of `template`.
     pub fn create(path: &Path, template: &Table) -> Result<Self, OutputError> {
-        let file = File::create(path).map_err(io(path))?;
-        let handle = file.try_clone().map_err(io(path))?;
-        let schema = table_frame(template)
-            .map_err(polars_err(path))?
-            .schema()
-            .as_ref()
-            .clone();
-        let writer = ParquetWriter::new(handle)
-            .batched(&schema)
-            .map_err(polars_err(path))?;
+        let (file, writer) = batched_parquet(path, table_frame(template))?;
         Ok(Self {
             path: path.to_owned(),
             file,
