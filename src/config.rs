@@ -1489,6 +1489,15 @@ mod tests {
                 "[v2x.tracker]\nconfirm_hits = 0\n",
                 "v2x.tracker.confirm_hits",
             ),
+            ("[v2x]\nmatcher = \"oracle\"\n", "v2x.matcher"),
+            (
+                "[v2x.association]\nsmoothing = 0.0\n",
+                "v2x.association.smoothing",
+            ),
+            (
+                "[v2x.association]\nthreshold = 1.0\n",
+                "v2x.association.threshold",
+            ),
             ("[eval]\ntraffic_seeds = [1, 2, 1]\n", "eval.traffic_seeds"),
             (
                 "[eval]\ntraffic_seeds = [3000000000]\n",
