@@ -5,8 +5,10 @@
 //! - foundations: [`geometry`], [`rng`], [`label`], [`paths`] (where coid
 //!   keeps its files), [`assignment`], [`traffic`];
 //! - stages: [`bridge`] (SUMO), [`sensor`], [`graph`], [`fusion`],
-//!   [`matching`], [`v2x`] (trackers, messages, the channel);
+//!   [`matching`];
 //! - [`evaluate`]: one instance, one method: match, count, fuse;
+//!   [`v2x`]: cooperation over time (trackers, messages, the channel, the
+//!   receivers' association);
 //! - [`config`]: the TOML file into each stage's settings;
 //! - [`report`]: rows, tables and plot data before they are written;
 //! - [`tables`], [`render`], [`io`]: the paper's tables, pictures, files;
