@@ -386,6 +386,17 @@ pub struct VehicleTracking {
 }
 
 impl VehicleTracking {
+    /// One receiver's fate of a message: its latency, or lost.
+    pub fn delivery(&mut self, latency_s: Option<f64>) {
+        match latency_s {
+            Some(l) => {
+                self.delivered += 1;
+                self.latency_sum_s += l;
+            }
+            None => self.lost += 1,
+        }
+    }
+
     pub fn add(&mut self, o: &VehicleTracking) {
         self.steps += o.steps;
         self.mot.add(o.mot);

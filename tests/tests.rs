@@ -93,6 +93,15 @@ fn assert_ok(o: &Output) {
     assert!(o.status.success(), "coid failed: {}", stderr(o));
 }
 
+/// Polls `done` every 10 ms until it holds; fails with `what` once
+/// `deadline` has passed.
+fn wait_until(deadline: std::time::Instant, what: &str, mut done: impl FnMut() -> bool) {
+    while !done() {
+        assert!(std::time::Instant::now() < deadline, "{what}");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+}
+
 fn read_csv(path: &Path) -> DataFrame {
     CsvReadOptions::default()
         .with_has_header(true)
@@ -426,17 +435,17 @@ mod run {
                 .map(|m| m.len())
                 .sum()
         };
-        while staged_bytes() < 100_000 {
-            assert!(
-                child.try_wait().unwrap().is_none(),
-                "the run ended before it was killed"
-            );
-            assert!(
-                started.elapsed() < Duration::from_secs(120),
-                "no rows streamed"
-            );
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        wait_until(
+            started + Duration::from_secs(120),
+            "no rows streamed",
+            || {
+                assert!(
+                    child.try_wait().unwrap().is_none(),
+                    "the run ended before it was killed"
+                );
+                staged_bytes() >= 100_000
+            },
+        );
         child.kill().unwrap();
         child.wait().unwrap();
         assert!(!fx.path("res/k").exists(), "a half-written results folder");
@@ -1273,17 +1282,9 @@ mod batch {
 
     /// Waits until the first run of the batch in `out` is complete.
     fn wait_for_first_run(fx: &Fixture, out: &str) {
-        let started = Instant::now();
-        while !fx
-            .path(&format!("{out}/runs/run-000000/summary.csv"))
-            .is_file()
-        {
-            assert!(
-                started.elapsed() < Duration::from_secs(60),
-                "first run never finished"
-            );
-            std::thread::sleep(Duration::from_millis(5));
-        }
+        let first = fx.path(&format!("{out}/runs/run-000000/summary.csv"));
+        let deadline = Instant::now() + Duration::from_secs(60);
+        wait_until(deadline, "first run never finished", || first.is_file());
     }
 
     #[test]
@@ -1361,30 +1362,25 @@ mod batch {
                 .collect()
         };
         let started = Instant::now();
-        let workers = loop {
-            let w = children_of(parent.id());
-            if w.len() == 2 {
-                break w;
-            }
-            assert!(
-                started.elapsed() < Duration::from_secs(60),
-                "no workers started"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        };
+        let mut workers = Vec::new();
+        wait_until(
+            started + Duration::from_secs(60),
+            "no workers started",
+            || {
+                workers = children_of(parent.id());
+                workers.len() == 2
+            },
+        );
         parent.kill().unwrap(); // SIGKILL: no chance to clean up
         parent.wait().unwrap();
         let gone = |pid: &u32| {
             std::fs::read_to_string(format!("/proc/{pid}/stat"))
                 .map_or(true, |s| s.split_whitespace().nth(2) == Some("Z"))
         };
-        while !workers.iter().all(gone) {
-            assert!(
-                started.elapsed() < Duration::from_secs(90),
-                "orphaned workers {workers:?}"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        let orphans = format!("orphaned workers {workers:?}");
+        wait_until(started + Duration::from_secs(90), &orphans, || {
+            workers.iter().all(gone)
+        });
     }
 
     /// A batch is what its configuration says, not where it lies: a

@@ -71,18 +71,16 @@ pub fn carried(name: &str) -> Option<&'static [u8]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::matching::Method;
 
     #[test]
     fn the_binary_carries_every_shipped_model_and_the_default_scenario() {
         let names: Vec<&str> = ASSETS.iter().map(|(n, _)| *n).collect();
-        for m in [
-            "ours",
-            "ours-noprior",
-            "coid+non",
-            "coid+unc",
-            "dgmc",
-            "gcn-gm",
-        ] {
+        let deep = Method::all()
+            .iter()
+            .filter(|m| crate::matching::deep::variant(**m).is_some())
+            .map(|m| m.as_str());
+        for m in deep {
             assert!(names.contains(&format!("models/{m}.bpk").as_str()), "{m}");
             assert!(names.contains(&format!("models/{m}.toml").as_str()), "{m}");
         }

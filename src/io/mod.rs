@@ -523,19 +523,9 @@ pub struct WeightsError {
 /// weights' checksum), so that stale or foreign weights never load.
 pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, WeightsError> {
     let path = weights_path(models_dir, method);
-    let fail = |reason: String| WeightsError {
-        method: method.as_str(),
-        path: path.clone(),
-        reason,
-    };
-    let bytes = std::fs::read(&path).map_err(|e| {
-        fail(if e.kind() == std::io::ErrorKind::NotFound {
-            "no such file".into()
-        } else {
-            e.to_string()
-        })
-    })?;
+    let bytes = read_model_file(method, &path, "no such file", |p| std::fs::read(p))?;
     let record = read_record(models_dir, method)?;
+    let fail = model_error(method, &path);
     let (arch, _) =
         crate::matching::deep::variant(method).ok_or_else(|| fail("not a deep method".into()))?;
     record.check(method, &arch, &bytes).map_err(fail)?;
@@ -545,19 +535,35 @@ pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, Weight
 /// A method's `<method>.toml`.
 fn read_record(models_dir: &Path, method: Method) -> Result<ModelRecord, WeightsError> {
     let path = models_dir.join(format!("{}.toml", method.as_str()));
-    let fail = |reason: String| WeightsError {
+    let missing = "no record beside the weights";
+    let text = read_model_file(method, &path, missing, |p| std::fs::read_to_string(p))?;
+    ModelRecord::from_toml(&text).map_err(model_error(method, &path))
+}
+
+/// A `WeightsError` of `method` about `path`, for a reason.
+fn model_error(method: Method, path: &Path) -> impl Fn(String) -> WeightsError + '_ {
+    move |reason| WeightsError {
         method: method.as_str(),
-        path: path.clone(),
+        path: path.to_owned(),
         reason,
-    };
-    let text = std::fs::read_to_string(&path).map_err(|e| {
-        fail(if e.kind() == std::io::ErrorKind::NotFound {
-            "no record beside the weights".into()
+    }
+}
+
+/// Reads one file of a method's model, `missing` as the reason when it
+/// does not exist.
+fn read_model_file<T>(
+    method: Method,
+    path: &Path,
+    missing: &str,
+    read: impl FnOnce(&Path) -> std::io::Result<T>,
+) -> Result<T, WeightsError> {
+    read(path).map_err(|e| {
+        model_error(method, path)(if e.kind() == std::io::ErrorKind::NotFound {
+            missing.into()
         } else {
             e.to_string()
         })
-    })?;
-    ModelRecord::from_toml(&text).map_err(fail)
+    })
 }
 
 /// What `coid train` records beside each model's weights.

@@ -199,11 +199,7 @@ pub fn simulate_steps(
         stats.bridge_time += t0.elapsed();
         stats.n_steps += 1;
         stats.objects_read += frame.objects.len() as u64;
-        for o in &frame.objects {
-            if settings.connected.carries_rig(settings.seeds.sensor, o) {
-                seen_connected.insert(o.id.clone());
-            }
-        }
+        note_connected(settings, &frame, &mut seen_connected);
         let time_s = frame.time_s;
         if time_s + eps >= next_sample_s {
             let egos = sense(settings, &scene, &frame)?;
@@ -252,6 +248,15 @@ fn instance_pairs(egos: &[Ego], link: &LinkSettings) -> Vec<(usize, usize)> {
         }
     }
     out
+}
+
+/// Adds the connected vehicles of `frame` to `seen`.
+fn note_connected(settings: &Settings, frame: &TrafficFrame, seen: &mut BTreeSet<String>) {
+    for o in &frame.objects {
+        if settings.connected.carries_rig(settings.seeds.sensor, o) {
+            seen.insert(o.id.clone());
+        }
+    }
 }
 
 /// Named connected vehicles must all have appeared.

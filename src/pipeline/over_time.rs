@@ -7,7 +7,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::{Ego, Progress, RunError, check_connected_appeared, runner, sense};
+use super::{Ego, Progress, RunError, check_connected_appeared, note_connected, runner, sense};
 use crate::bridge::Sumo;
 use crate::config::Settings;
 use crate::evaluate::{PairCounts, Runner};
@@ -77,11 +77,7 @@ pub fn track(
     let mut seen_connected = BTreeSet::new();
     while sumo.time_s() + 1e-6 < sc.end_s {
         let frame = sumo.step()?;
-        for o in &frame.objects {
-            if settings.connected.carries_rig(settings.seeds.sensor, o) {
-                seen_connected.insert(o.id.clone());
-            }
-        }
+        note_connected(settings, &frame, &mut seen_connected);
         let egos = sense(settings, &scene, &frame)?;
         let truth: BTreeMap<&str, Vec2> = frame
             .objects
@@ -287,19 +283,6 @@ impl World {
         TrackResults {
             vehicles: self.vehicles.into_values().map(Vehicle::finish).collect(),
             over_time: counts,
-        }
-    }
-}
-
-impl VehicleTracking {
-    /// One receiver's fate of a message: its latency, or lost.
-    fn delivery(&mut self, latency_s: Option<f64>) {
-        match latency_s {
-            Some(l) => {
-                self.delivered += 1;
-                self.latency_sum_s += l;
-            }
-            None => self.lost += 1,
         }
     }
 }
