@@ -1131,14 +1131,6 @@ fn fusion(c: &Checker, f: RawFusion) -> Result<FusionSettings, ConfigError> {
 const MAX_CPM_OBJECTS: usize = 1000;
 
 fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
-    if v.mode == V2xMode::Cpm {
-        return Err(c.invalid(
-            "v2x.mode",
-            "\"cpm\" is not wired into runs yet; `coid track` runs the trackers, messages, \
-             channel and receivers of [v2x] on their own"
-                .into(),
-        ));
-    }
     if !(v.step_length_s > 0.0 && v.step_length_s <= 1.0) {
         return Err(c.invalid(
             "v2x.step_length_s",
@@ -1477,7 +1469,6 @@ mod tests {
             ("[connected]\npenetration = 1.5\n", "connected.penetration"),
             ("[seeds]\ntraffic = 2147483648\n", "seeds.traffic"),
             ("[matching]\nmethods = [\"external\"]\n", "matching.methods"),
-            ("[v2x]\nmode = \"cpm\"\n", "v2x.mode"),
             ("[v2x]\nstep_length_s = 0.0\n", "v2x.step_length_s"),
             ("[v2x.cpm]\nrate_hz = 20.0\n", "v2x.cpm.rate_hz"),
             ("[v2x.cpm]\nmax_objects = 0\n", "v2x.cpm.max_objects"),

@@ -144,7 +144,11 @@ fn draw_ground<DB: DrawingBackend>(
 /// Each connected vehicle's camera frustums.
 fn draw_frustums<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> DrawResult<DB> {
     for (k, (ego, _)) in view.egos.iter().enumerate() {
-        let Some(obj) = view.frame.find(&ego.ego_id).map(|i| &view.frame.objects[i]) else {
+        let Some(obj) = view
+            .frame
+            .find(ego.vehicle_id())
+            .map(|i| &view.frame.objects[i])
+        else {
             continue;
         };
         for &yaw in &view.camera.yaw_offsets_rad {
@@ -170,7 +174,7 @@ fn draw_road_users<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> Dra
         let corners: Vec<(f64, f64)> = o.footprint().corners().iter().map(pt).collect();
         let fill = RGBColor(o.colour_rgb[0], o.colour_rgb[1], o.colour_rgb[2]);
         area.draw(&Polygon::new(corners.clone(), fill.filled()))?;
-        let ego = view.egos.iter().position(|(g, _)| g.ego_id == o.id);
+        let ego = view.egos.iter().position(|(g, _)| g.vehicle_id() == o.id);
         let outline = match ego {
             Some(k) => EGO_COLOURS[k].stroke_width(3),
             None => BLACK.stroke_width(1),

@@ -436,6 +436,7 @@ fn matchers_cannot_reach_the_ground_truth() {
             "render.rs",
             "pipeline/mod.rs",
             "pipeline/over_time.rs",
+            "pipeline/receptions.rs",
             "experiments.rs",
             "export.rs",
             "cli/render.rs",

@@ -489,6 +489,20 @@ mod run {
         assert!(!fx.path("c").exists());
     }
 
+    /// `[v2x] mode = "ideal"`, the default, reproduces byte for byte the
+    /// default run's summary as the binary from before `[v2x]` (commit
+    /// 2752208) wrote it: `tests/golden/default-summary.csv`. A change
+    /// that moves the default results must say why and renew the file.
+    #[test]
+    fn the_ideal_mode_reproduces_the_results_from_before_v2x() {
+        let fx = Fixture::new();
+        assert_ok(&fx.coid(&["run", "-q", "-o", "r"]));
+        assert_eq!(
+            std::fs::read_to_string(fx.path("r/summary.csv")).unwrap(),
+            std::fs::read_to_string(repo().join("tests/golden/default-summary.csv")).unwrap()
+        );
+    }
+
     /// A copy of the binary outside the checkout, run from an empty folder
     /// without `--config`: the defaults are compiled in, the default
     /// scenario and the shipped weights come out of the binary into its
@@ -2012,6 +2026,85 @@ mod v2x {
         for (s, m) in steps.iter().zip(&messages).take(c.height() - 1) {
             assert!((m - (s / 10.0).ceil()).abs() <= 1.0, "{c}");
         }
+    }
+
+    /// `[v2x] mode = "cpm"` in runs: SUMO at 10 Hz, trackers, CPMs and the
+    /// channel; every sampled reception is an instance whose message side
+    /// is named `<sender> -> <receiver>`. The same bytes on 1 and 2
+    /// threads and on 1 and 2 batch workers; the oracle is right and its
+    /// fusion helps; a reception is drawn; synchronized matching runs with
+    /// more vehicles.
+    #[test]
+    fn cpm_mode_runs_batches_and_draws() {
+        let fx = Fixture::new();
+        let methods = "[matching]\nmethods = [\"gps-app-hungarian\", \"oracle\"]\n";
+        let cfg = fx.config("c.toml", 90.0, &format!("{methods}[v2x]\nmode = \"cpm\"\n"));
+        let c = cfg.to_str().unwrap();
+        for (threads, out) in [("1", "t1"), ("2", "t2")] {
+            assert_ok(&fx.coid(&["run", "-q", "-c", c, "-o", out, "--threads", threads]));
+        }
+        for f in ["summary.csv", "objects.parquet"] {
+            assert_eq!(
+                std::fs::read(fx.path("t1").join(f)).unwrap(),
+                std::fs::read(fx.path("t2").join(f)).unwrap(),
+                "{f}"
+            );
+        }
+        let objects = read_parquet(&fx.path("t1/objects.parquet"));
+        let ids = strs(&objects, "ego_id");
+        assert!(ids.iter().any(|i| i == "cv0 -> cv1"), "{objects}");
+        assert!(ids.iter().any(|i| i == "cv1"), "{objects}");
+        let s = read_csv(&fx.path("t1/summary.csv"));
+        let (method, level) = (strs(&s, "method"), strs(&s, "pose_noise"));
+        let (f1, single, fused) = (
+            f64s(&s, "f1"),
+            f64s(&s, "de_single_covis_m"),
+            f64s(&s, "de_fused_covis_m"),
+        );
+        let oracle: Vec<usize> = (0..s.height()).filter(|&k| method[k] == "oracle").collect();
+        assert!(
+            !oracle.is_empty() && f64s(&s, "n_instances")[0] >= 10.0,
+            "{s}"
+        );
+        for &k in &oracle {
+            assert_eq!(f1[k], 1.0, "{s}");
+            if level[k] == "none" {
+                assert!(fused[k] < single[k], "{s}");
+            }
+        }
+        let b = |workers: &str, out: &str| {
+            fx.coid(&[
+                "batch",
+                "-q",
+                "-c",
+                c,
+                "--runs",
+                "2",
+                "--workers",
+                workers,
+                "-o",
+                out,
+            ])
+        };
+        assert_ok(&b("1", "b1"));
+        assert_ok(&b("2", "b2"));
+        assert_eq!(
+            std::fs::read(fx.path("b1/summary.csv")).unwrap(),
+            std::fs::read(fx.path("b2/summary.csv")).unwrap()
+        );
+        assert_ok(&fx.coid(&["render", "-c", c, "-o", "pics", "--instances", "0"]));
+        assert!(fx.path("pics/instance-0000.png").is_file());
+        let sync = fx.config(
+            "s.toml",
+            60.0,
+            &format!(
+                "[connected]\npenetration = 0.3\n{methods}multi_vehicle = \"synchronized\"\n\
+                 [v2x]\nmode = \"cpm\"\n"
+            ),
+        );
+        assert_ok(&fx.run(&sync, "sync"));
+        let s = read_csv(&fx.path("sync/summary.csv"));
+        assert!(f64s(&s, "n_instances")[0] > 50.0, "{s}");
     }
 
     /// `coid track --sweep`: every setting over every test run, means with

@@ -24,6 +24,7 @@ use crate::sensor::{
     self, ConnectedSelection, LinkSettings, PoseNoiseLabel, PoseNoiseLevel, Sensed,
 };
 use crate::traffic::{StaticScene, TrafficFrame};
+use crate::v2x::V2xMode;
 
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
@@ -70,17 +71,32 @@ pub struct SimStats {
     pub objects_read: u64,
 }
 
-/// A connected vehicle near the junction at one step, with what it sees.
+/// A connected vehicle near the junction at one step, with what it sees;
+/// or, with `[v2x] mode = "cpm"`, one side of a reception: a receiver's
+/// reported tracks, or a message it received.
 pub struct Ego {
     pub sensed: Sensed,
     pub graph: SceneGraph,
     id_hash: u64,
+    /// The vehicle's speed (m/s), forward.
+    speed_mps: f64,
+    /// The GNSS-reported pose at every level, when it is carried over time
+    /// (`[v2x] mode = "cpm"`) instead of drawn afresh at each step.
+    reported: Option<Vec<(PoseNoiseLabel, Pose2)>>,
 }
 
 impl Ego {
     /// The pose this vehicle's GPS reports at `step` at a noise level (its
-    /// own seeded stream per step, vehicle and level).
+    /// own seeded stream per step, vehicle and level), or the one it
+    /// carries at that level.
     pub fn reported_pose(&self, sensor_seed: u64, step: u64, level: &PoseNoiseLevel) -> Pose2 {
+        if let Some(carried) = &self.reported {
+            return carried
+                .iter()
+                .find(|(l, _)| *l == level.label)
+                .map(|(_, p)| *p)
+                .expect("a side carries a pose at every level of its run");
+        }
         let mut s = rng::stream(
             sensor_seed,
             Purpose::PoseNoise,
@@ -187,8 +203,11 @@ pub fn simulate_steps(
     mut on_step: impl FnMut(Step) -> Result<(), RunError>,
 ) -> Result<SimStats, RunError> {
     let sc = &settings.scenario;
-    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, None)?;
+    let cpm = settings.v2x.mode == V2xMode::Cpm;
+    let step_length_s = cpm.then_some(settings.v2x.step_length_s);
+    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, step_length_s)?;
     let scene = Arc::new(sumo.static_scene(&sc.junction)?);
+    let mut receptions = cpm.then(receptions::Receptions::default);
     let mut stats = SimStats::default();
     let mut seen_connected: BTreeSet<String> = BTreeSet::new();
     let mut next_sample_s = f64::NEG_INFINITY;
@@ -201,21 +220,32 @@ pub fn simulate_steps(
         stats.objects_read += frame.objects.len() as u64;
         note_connected(settings, &frame, &mut seen_connected);
         let time_s = frame.time_s;
-        if time_s + eps >= next_sample_s {
-            let egos = sense(settings, &scene, &frame)?;
-            let pairs = instance_pairs(&egos, &settings.link);
-            if !pairs.is_empty() {
-                let n = pairs.len();
-                on_step(Step {
-                    scene: Arc::clone(&scene),
-                    frame,
-                    egos,
-                    pairs,
-                    first_index: stats.n_instances,
-                })?;
-                stats.n_instances += n;
-                next_sample_s = time_s + sc.sample_every_s;
+        let sample = time_s + eps >= next_sample_s;
+        let sides = match receptions.as_mut() {
+            Some(r) => {
+                let egos = sense(settings, &scene, &frame)?;
+                Some(r.step(settings, &frame, &egos, sample)?)
             }
+            None if sample => {
+                let egos = sense(settings, &scene, &frame)?;
+                let pairs = instance_pairs(&egos, &settings.link);
+                Some((egos, pairs))
+            }
+            None => None,
+        };
+        if let Some((egos, pairs)) = sides
+            && !pairs.is_empty()
+        {
+            let n = pairs.len();
+            on_step(Step {
+                scene: Arc::clone(&scene),
+                frame,
+                egos,
+                pairs,
+                first_index: stats.n_instances,
+            })?;
+            stats.n_instances += n;
+            next_sample_s = time_s + sc.sample_every_s;
         }
         progress(Progress {
             time_s,
@@ -314,6 +344,8 @@ fn sense(
             sensed,
             graph,
             id_hash,
+            speed_mps: o.speed_mps,
+            reported: None,
         });
     }
     egos.sort_by(|a, b| {
@@ -557,6 +589,7 @@ fn hand_on(
 }
 
 mod over_time;
+mod receptions;
 pub use over_time::track;
 
 /// The threaded form of [`evaluate_frames`].

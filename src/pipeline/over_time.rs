@@ -17,7 +17,7 @@ use crate::graph::SceneGraph;
 use crate::matching::{MatchView, Matcher};
 use crate::report::{OverTimeCounts, VehicleTracking};
 use crate::rng::{self, Purpose};
-use crate::sensor::{Appearance, Detection, PoseNoiseLevel};
+use crate::sensor::{Appearance, Detection, DetectionTruth, PoseNoiseLevel};
 use crate::v2x::V2xSettings;
 use crate::v2x::cpm::{CpmGenerator, PerceivedObject, TrackSnapshot};
 use crate::v2x::gnss::{GnssError, next_error};
@@ -87,12 +87,13 @@ pub fn track(
         let ctx = Context {
             settings,
             v,
-            level,
+            levels: std::slice::from_ref(&level),
             step: frame.step,
             time_s: frame.time_s,
             truth: &truth,
         };
-        world.step(&ctx, &egos, matcher.as_ref())?;
+        world.send(&ctx, &egos);
+        world.receive(&ctx, &egos, matcher.as_ref())?;
         instances += egos.len();
         progress(Progress {
             time_s: frame.time_s,
@@ -106,19 +107,29 @@ pub fn track(
 }
 
 /// What one step shares.
-struct Context<'a> {
-    settings: &'a Settings,
-    v: &'a V2xSettings,
-    level: PoseNoiseLevel,
-    step: u64,
-    time_s: f64,
+pub(super) struct Context<'a> {
+    pub settings: &'a Settings,
+    pub v: &'a V2xSettings,
+    /// The GNSS accuracies each vehicle's error is drawn at: `[v2x]
+    /// pose_noise` alone for `coid track` (its receivers use the first),
+    /// every `[pose_noise]` level in a run.
+    pub levels: &'a [PoseNoiseLevel],
+    pub step: u64,
+    pub time_s: f64,
     /// Every road user's true centre, world frame.
-    truth: &'a BTreeMap<&'a str, Vec2>,
+    pub truth: &'a BTreeMap<&'a str, Vec2>,
+}
+
+impl Context<'_> {
+    /// The GNSS accuracy `coid track`'s receivers work at.
+    fn level(&self) -> &PoseNoiseLevel {
+        &self.levels[0]
+    }
 }
 
 /// Every vehicle's state, the messages in flight and the receivers' links.
 #[derive(Default)]
-struct World {
+pub(super) struct World {
     vehicles: BTreeMap<String, Vehicle>,
     in_flight: Vec<InFlight>,
     links: BTreeMap<(String, String), Link>,
@@ -126,41 +137,65 @@ struct World {
 }
 
 /// A message on its way to one receiver.
-struct InFlight {
-    arrival_s: f64,
-    receiver: String,
-    message: Sent,
+pub(super) struct InFlight {
+    pub arrival_s: f64,
+    pub receiver: String,
+    pub message: Sent,
 }
 
 /// A generated message with what the evaluation knows beside it.
 #[derive(Clone)]
-struct Sent {
-    sender: String,
-    generated_s: f64,
-    /// The sender's GNSS-reported pose at generation.
-    sender_reported: Pose2,
-    objects: Vec<PerceivedObject>,
+pub(super) struct Sent {
+    pub sender: String,
+    pub generated_s: f64,
+    /// The sender's GNSS-reported pose at generation, per level of
+    /// [`Context::levels`].
+    pub sender_reported: Vec<Pose2>,
+    pub objects: Vec<PerceivedObject>,
     /// Per object: the appearance of its last detection (the paper's
     /// shared appearance, beyond CPM's standard containers), and the true
     /// object behind it (evaluation only).
-    appearance: Vec<Appearance>,
-    truth: Vec<Option<String>>,
+    pub labels: Vec<Label>,
+    /// Evaluation only: the sender's true pose at generation.
+    pub sender_pose: Pose2,
+    /// The sender's own node (its self-report, with `[matching]
+    /// sender_as_node`) and its velocity, sender's body frame.
+    pub sender_node: Option<(Detection, DetectionTruth, Vec2)>,
+}
+
+impl Sent {
+    /// The sender's speed at generation (0 without its own node).
+    pub fn sender_speed_mps(&self) -> f64 {
+        self.sender_node.as_ref().map_or(0.0, |n| n.2.norm())
+    }
+}
+
+/// What a track's last detection looked like, and (evaluation only) what
+/// lay behind it.
+#[derive(Clone, Debug)]
+pub(super) struct Label {
+    pub appearance: Appearance,
+    pub truth: Option<String>,
+    pub visible_fraction: f64,
 }
 
 /// One connected vehicle.
-struct Vehicle {
+pub(super) struct Vehicle {
     tracker: Tracker,
     mot: MotCounter,
     generator: CpmGenerator,
-    gnss: Option<(f64, GnssError)>,
-    /// Per track: the appearance and true object of its last detection.
-    labels: BTreeMap<u64, (Appearance, Option<String>)>,
+    /// Per level: the time and GNSS error of the last step.
+    gnss: Vec<(f64, GnssError)>,
+    /// Per track: what its last detection looked like.
+    labels: BTreeMap<u64, Label>,
     row: VehicleTracking,
-    /// This step: true pose, GNSS-reported pose, reported tracks.
+    /// This step: true pose, GNSS-reported pose per level, reported
+    /// tracks, its own node (body frame) and its velocity (body frame).
     pose: Pose2,
-    reported: Pose2,
+    reported: Vec<Pose2>,
     tracks: Vec<TrackSnapshot>,
     track_covs: Vec<Cov2>,
+    self_node: Option<(Detection, DetectionTruth, Vec2)>,
 }
 
 /// What a receiver knows of one peer.
@@ -196,12 +231,13 @@ struct Known {
     object: PerceivedObject,
     generated_s: f64,
     sender_reported: Pose2,
-    appearance: Appearance,
-    truth: Option<String>,
+    label: Label,
 }
 
 impl World {
-    fn step(&mut self, ctx: &Context, egos: &[Ego], matcher: &dyn Matcher) -> Result<(), RunError> {
+    /// Every vehicle near the junction tracks, and sends its CPM when one
+    /// is due to its linked peers over the channel.
+    pub(super) fn send(&mut self, ctx: &Context, egos: &[Ego]) {
         let positions: Vec<Vec2> = egos
             .iter()
             .map(|e| e.sensed.truth.ego_pose.position_m())
@@ -237,31 +273,17 @@ impl World {
                 }
             }
         }
-        self.receive(ctx, egos, matcher)
     }
 
-    /// Hands every message that has arrived to its receiver, if it is
-    /// still near the junction (else it is dropped), in arrival order.
+    /// Hands every message that has arrived to its receiver
+    /// ([`World::arrivals`]).
     fn receive(
         &mut self,
         ctx: &Context,
         egos: &[Ego],
         matcher: &dyn Matcher,
     ) -> Result<(), RunError> {
-        let now = ctx.time_s + 1e-9;
-        let (mut due, rest): (Vec<InFlight>, Vec<InFlight>) = std::mem::take(&mut self.in_flight)
-            .into_iter()
-            .partition(|m| m.arrival_s <= now);
-        self.in_flight = rest;
-        due.sort_by(|a, b| a.arrival_s.total_cmp(&b.arrival_s));
-        let here: BTreeSet<&str> = egos
-            .iter()
-            .map(|e| e.sensed.observation.ego_id.as_str())
-            .collect();
-        for m in due {
-            if !here.contains(m.receiver.as_str()) {
-                continue;
-            }
+        for m in self.arrivals(ctx, egos) {
             let Some(receiver) = self.vehicles.get(&m.receiver) else {
                 continue;
             };
@@ -273,6 +295,30 @@ impl World {
             self.counts.add(&c);
         }
         Ok(())
+    }
+
+    /// The vehicle `id`, once it has been near the junction.
+    pub(super) fn vehicle(&self, id: &str) -> Option<&Vehicle> {
+        self.vehicles.get(id)
+    }
+
+    /// The messages that have arrived by now at receivers still near the
+    /// junction (the others are dropped), in arrival order.
+    pub(super) fn arrivals(&mut self, ctx: &Context, egos: &[Ego]) -> Vec<InFlight> {
+        let now = ctx.time_s + 1e-9;
+        let (mut due, rest): (Vec<InFlight>, Vec<InFlight>) = std::mem::take(&mut self.in_flight)
+            .into_iter()
+            .partition(|m| m.arrival_s <= now);
+        self.in_flight = rest;
+        due.sort_by(|a, b| a.arrival_s.total_cmp(&b.arrival_s));
+        let here: BTreeSet<&str> = egos
+            .iter()
+            .map(|e| e.sensed.observation.ego_id.as_str())
+            .collect();
+        due.retain(|m| {
+            here.contains(m.receiver.as_str()) && self.vehicles.contains_key(&m.receiver)
+        });
+        due
     }
 
     fn finish(self) -> TrackResults {
@@ -288,21 +334,57 @@ impl World {
 }
 
 impl Vehicle {
+    /// This step's GNSS-reported poses, one per level of the context.
+    pub(super) fn reported_poses(&self) -> &[Pose2] {
+        &self.reported
+    }
+
+    /// This step's reported tracks with their last detection's look, in
+    /// the body frame of the true pose, and the truth beside each (the
+    /// object of its last detection, at this step's true position).
+    pub(super) fn reported_tracks(&self, ctx: &Context) -> (Vec<Detection>, Vec<DetectionTruth>) {
+        let body = self.pose.inverse();
+        self.tracks
+            .iter()
+            .zip(&self.track_covs)
+            .filter_map(|(t, cov)| {
+                let label = self.labels.get(&t.id)?;
+                let d = Detection {
+                    position_m: body.to_parent(&t.position_m),
+                    cov_m2: body.cov_to_parent(cov),
+                    appearance: label.appearance.clone(),
+                };
+                let truth = DetectionTruth {
+                    object_id: label.truth.clone(),
+                    position_m: label
+                        .truth
+                        .as_deref()
+                        .and_then(|o| ctx.truth.get(o))
+                        .copied(),
+                    visible_fraction: label.visible_fraction,
+                    sender: false,
+                };
+                Some((d, truth))
+            })
+            .unzip()
+    }
+
     fn new(id: &str, v: &V2xSettings) -> Self {
         Self {
             tracker: Tracker::new(v.tracker.clone()),
             mot: MotCounter::new(MOT_THRESHOLD_M),
             generator: CpmGenerator::default(),
-            gnss: None,
+            gnss: Vec::new(),
             labels: BTreeMap::new(),
             row: VehicleTracking {
                 ego_id: id.to_owned(),
                 ..VehicleTracking::default()
             },
             pose: Pose2::identity(),
-            reported: Pose2::identity(),
+            reported: Vec::new(),
             tracks: Vec::new(),
             track_covs: Vec::new(),
+            self_node: None,
         }
     }
 
@@ -312,6 +394,19 @@ impl Vehicle {
     fn step(&mut self, ctx: &Context, ego: &Ego) -> Option<Sent> {
         self.pose = ego.sensed.truth.ego_pose;
         self.step_gnss(ctx, ego);
+        self.self_node = ego
+            .sensed
+            .truth
+            .detections
+            .iter()
+            .position(|d| d.sender)
+            .map(|k| {
+                (
+                    ego.sensed.observation.detections[k].clone(),
+                    ego.sensed.truth.detections[k].clone(),
+                    Vec2::new(ego.speed_mps, 0.0),
+                )
+            });
         let camera: Vec<usize> = (0..ego.sensed.truth.detections.len())
             .filter(|&k| !ego.sensed.truth.detections[k].sender)
             .collect();
@@ -329,8 +424,13 @@ impl Vehicle {
         let ids = self.tracker.step(ctx.time_s, &measurements);
         for (&k, id) in camera.iter().zip(ids) {
             let d = &ego.sensed.observation.detections[k];
-            let truth = ego.sensed.truth.detections[k].object_id.clone();
-            self.labels.insert(id, (d.appearance.clone(), truth));
+            let t = &ego.sensed.truth.detections[k];
+            let label = Label {
+                appearance: d.appearance.clone(),
+                truth: t.object_id.clone(),
+                visible_fraction: t.visible_fraction,
+            };
+            self.labels.insert(id, label);
         }
         let live: BTreeSet<u64> = self.tracker.tracks().iter().map(|t| t.id).collect();
         self.labels.retain(|id, _| live.contains(id));
@@ -357,23 +457,28 @@ impl Vehicle {
         Some(self.message(ctx, &chosen, &ego.sensed.observation.ego_id))
     }
 
+    /// Steps the GNSS error at every level (a stream per step, vehicle
+    /// and level).
     fn step_gnss(&mut self, ctx: &Context, ego: &Ego) {
-        let mut stream = rng::stream(
-            ctx.settings.seeds.sensor,
-            Purpose::PoseNoise,
-            &[ctx.step, ego.id_hash, ctx.level.label.stream_code()],
-        );
-        let previous = self.gnss.map(|(t, e)| (ctx.time_s - t, e));
-        let dt = previous.map_or(0.0, |p| p.0);
-        let e = next_error(
-            previous.map(|p| p.1),
-            dt,
-            ctx.v.gnss_correlation_s,
-            &ctx.level,
-            &mut stream,
-        );
-        self.gnss = Some((ctx.time_s, e));
-        self.reported = e.apply(&self.pose);
+        let previous = std::mem::take(&mut self.gnss);
+        self.reported.clear();
+        for (k, level) in ctx.levels.iter().enumerate() {
+            let mut stream = rng::stream(
+                ctx.settings.seeds.sensor,
+                Purpose::PoseNoise,
+                &[ctx.step, ego.id_hash, level.label.stream_code()],
+            );
+            let last = previous.get(k).map(|&(t, e)| (ctx.time_s - t, e));
+            let e = next_error(
+                last.map(|p| p.1),
+                last.map_or(0.0, |p| p.0),
+                ctx.v.gnss_correlation_s,
+                level,
+                &mut stream,
+            );
+            self.gnss.push((ctx.time_s, e));
+            self.reported.push(e.apply(&self.pose));
+        }
     }
 
     /// CLEAR-MOT on this step's reported tracks.
@@ -395,16 +500,17 @@ impl Vehicle {
         let mut sent = Sent {
             sender: sender.to_owned(),
             generated_s: ctx.time_s,
-            sender_reported: self.reported,
+            sender_reported: self.reported.clone(),
             objects: Vec::new(),
-            appearance: Vec::new(),
-            truth: Vec::new(),
+            labels: Vec::new(),
+            sender_pose: self.pose,
+            sender_node: self.self_node.clone(),
         };
         for id in chosen {
             let Some(t) = self.tracker.tracks().iter().find(|t| t.id == *id) else {
                 continue;
             };
-            let Some((appearance, truth)) = self.labels.get(id) else {
+            let Some(label) = self.labels.get(id) else {
                 continue;
             };
             sent.objects.push(PerceivedObject {
@@ -416,8 +522,7 @@ impl Vehicle {
                 age_s: ctx.time_s - t.born_s,
                 class: t.class,
             });
-            sent.appearance.push(appearance.clone());
-            sent.truth.push(truth.clone());
+            sent.labels.push(label.clone());
         }
         sent
     }
@@ -458,9 +563,8 @@ impl Link {
                 Known {
                     object: o.clone(),
                     generated_s: m.generated_s,
-                    sender_reported: m.sender_reported,
-                    appearance: m.appearance[k].clone(),
-                    truth: m.truth[k].clone(),
+                    sender_reported: m.sender_reported[0],
+                    label: m.labels[k].clone(),
                 },
             );
         }
@@ -469,7 +573,7 @@ impl Link {
         let horizon = ctx.v.cpm.max_interval_s * 1.5;
         self.known
             .retain(|_, k| ctx.time_s - k.generated_s <= horizon);
-        let views = self.views(ctx, receiver, m.sender_reported);
+        let views = self.views(ctx, receiver, m.sender_reported[0]);
         let mut c = OverTimeCounts {
             receptions: 1,
             ..OverTimeCounts::default()
@@ -539,10 +643,10 @@ impl Link {
         c: &mut OverTimeCounts,
     ) {
         let prior = relative_pose_prior(
-            &receiver.reported,
+            &receiver.reported[0],
             &views.peer_reported,
-            ctx.level.position_sigma_m,
-            ctx.level.heading_sigma_rad,
+            ctx.level().position_sigma_m,
+            ctx.level().heading_sigma_rad,
         );
         let mut next = BTreeMap::new();
         for &(e, p) in pairs {
@@ -603,7 +707,7 @@ impl Link {
             let truth = receiver
                 .labels
                 .get(&e)
-                .and_then(|(_, o)| o.as_deref())
+                .and_then(|l| l.truth.as_deref())
                 .and_then(|o| ctx.truth.get(o));
             if let Some(&truth) = truth {
                 c.recursive_fused_sum_m += (ind.position_m - truth).norm();
@@ -648,10 +752,10 @@ impl Link {
             })
             .collect();
         let prior = relative_pose_prior(
-            &receiver.reported,
+            &receiver.reported[0],
             &views.peer_reported,
-            ctx.level.position_sigma_m,
-            ctx.level.heading_sigma_rad,
+            ctx.level().position_sigma_m,
+            ctx.level().heading_sigma_rad,
         );
         let aligned = align(&measured, &prior, ctx.settings.fusion.align_min_matches);
         if !aligned.refined {
@@ -661,7 +765,7 @@ impl Link {
         // correction in the world frame (the two GNSS errors, slowly
         // varying when they are correlated in time), whatever the
         // receiver's heading.
-        let aligned_pose = receiver.reported.compose(&aligned.estimate.pose);
+        let aligned_pose = receiver.reported[0].compose(&aligned.estimate.pose);
         let target = Pose2::new(
             aligned_pose.position_m() - raw.position_m(),
             wrap_angle(aligned_pose.heading_rad() - raw.heading_rad()),
@@ -684,16 +788,16 @@ impl Link {
             peer_reported,
         };
         for (t, cov) in receiver.tracks.iter().zip(&receiver.track_covs) {
-            let Some((appearance, truth)) = receiver.labels.get(&t.id) else {
+            let Some(label) = receiver.labels.get(&t.id) else {
                 continue;
             };
             v.ego.push(Detection {
                 position_m: body.to_parent(&t.position_m),
                 cov_m2: body.cov_to_parent(cov),
-                appearance: appearance.clone(),
+                appearance: label.appearance.clone(),
             });
             v.ego_ids.push(t.id);
-            v.ego_truth.push(truth.clone());
+            v.ego_truth.push(label.truth.clone());
         }
         for (&id, k) in &self.known {
             let o = &k.object;
@@ -717,10 +821,10 @@ impl Link {
             v.peer.push(Detection {
                 position_m: peer_reported.to_body(&world),
                 cov_m2: rotate_cov(&cov, turn),
-                appearance: k.appearance.clone(),
+                appearance: k.label.appearance.clone(),
             });
             v.peer_ids.push(id);
-            v.peer_truth.push(k.truth.clone());
+            v.peer_truth.push(k.label.truth.clone());
         }
         v
     }
@@ -741,14 +845,14 @@ impl Link {
         let a = MatchView {
             detections: &views.ego,
             graph: &ga,
-            pose_reported: receiver.reported,
-            pose_noise: ctx.level,
+            pose_reported: receiver.reported[0],
+            pose_noise: *ctx.level(),
         };
         let b = MatchView {
             detections: &views.peer,
             graph: &gb,
             pose_reported: views.peer_reported,
-            pose_noise: ctx.level,
+            pose_noise: *ctx.level(),
         };
         Ok(matcher
             .identify(&a, &b)
@@ -824,10 +928,10 @@ fn fuse_pairs(
     pairs: &[(u64, u64)],
 ) -> (f64, f64, f64, u64) {
     let prior = relative_pose_prior(
-        &receiver.reported,
+        &receiver.reported[0],
         &views.peer_reported,
-        ctx.level.position_sigma_m,
-        ctx.level.heading_sigma_rad,
+        ctx.level().position_sigma_m,
+        ctx.level().heading_sigma_rad,
     );
     let body = receiver.pose.inverse();
     let mut out = (0.0, 0.0, 0.0, 0);
