@@ -2032,8 +2032,8 @@ mod v2x {
     /// channel; every sampled reception is an instance whose message side
     /// is named `<sender> -> <receiver>`. The same bytes on 1 and 2
     /// threads and on 1 and 2 batch workers; the oracle is right and its
-    /// fusion helps; a reception is drawn; synchronized matching runs with
-    /// more vehicles.
+    /// fusion helps; without latency compensation the errors grow; a
+    /// reception is drawn; synchronized matching runs with more vehicles.
     #[test]
     fn cpm_mode_runs_batches_and_draws() {
         let fx = Fixture::new();
@@ -2071,6 +2071,26 @@ mod v2x {
             if level[k] == "none" {
                 assert!(fused[k] < single[k], "{s}");
             }
+        }
+        // Without latency compensation the messages' objects are where they
+        // were 100-200 ms ago: both the single and the oracle's fused
+        // errors grow.
+        let stale = fx.config(
+            "stale.toml",
+            90.0,
+            &format!("{methods}[v2x]\nmode = \"cpm\"\ncompensate_latency = false\n"),
+        );
+        assert_ok(&fx.run(&stale, "stale"));
+        let z = read_csv(&fx.path("stale/summary.csv"));
+        let at_none = |df: &DataFrame, col: &str| {
+            let (m, l, v) = (strs(df, "method"), strs(df, "pose_noise"), f64s(df, col));
+            (0..df.height())
+                .find(|&k| m[k] == "oracle" && l[k] == "none")
+                .map(|k| v[k])
+                .unwrap()
+        };
+        for col in ["de_single_covis_m", "de_fused_covis_m"] {
+            assert!(at_none(&z, col) > at_none(&s, col) + 0.05, "{col}: {z} {s}");
         }
         let b = |workers: &str, out: &str| {
             fx.coid(&[
