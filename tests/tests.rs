@@ -2028,6 +2028,32 @@ mod v2x {
         }
     }
 
+    /// Without latency compensation a message's objects are where they
+    /// were 100-200 ms ago: the oracle's single and fused errors at exact
+    /// poses grow against `fresh` (the same run, compensated).
+    fn stale_messages_err_more(fx: &Fixture, methods: &str, fresh: &DataFrame) {
+        let stale = fx.config(
+            "stale.toml",
+            90.0,
+            &format!("{methods}[v2x]\nmode = \"cpm\"\ncompensate_latency = false\n"),
+        );
+        assert_ok(&fx.run(&stale, "stale"));
+        let z = read_csv(&fx.path("stale/summary.csv"));
+        let at_none = |df: &DataFrame, col: &str| {
+            let (m, l, v) = (strs(df, "method"), strs(df, "pose_noise"), f64s(df, col));
+            (0..df.height())
+                .find(|&k| m[k] == "oracle" && l[k] == "none")
+                .map(|k| v[k])
+                .unwrap()
+        };
+        for col in ["de_single_covis_m", "de_fused_covis_m"] {
+            assert!(
+                at_none(&z, col) > at_none(fresh, col) + 0.05,
+                "{col}: {z} {fresh}"
+            );
+        }
+    }
+
     /// `[v2x] mode = "cpm"` in runs: SUMO at 10 Hz, trackers, CPMs and the
     /// channel; every sampled reception is an instance whose message side
     /// is named `<sender> -> <receiver>`. The same bytes on 1 and 2
@@ -2072,26 +2098,7 @@ mod v2x {
                 assert!(fused[k] < single[k], "{s}");
             }
         }
-        // Without latency compensation the messages' objects are where they
-        // were 100-200 ms ago: both the single and the oracle's fused
-        // errors grow.
-        let stale = fx.config(
-            "stale.toml",
-            90.0,
-            &format!("{methods}[v2x]\nmode = \"cpm\"\ncompensate_latency = false\n"),
-        );
-        assert_ok(&fx.run(&stale, "stale"));
-        let z = read_csv(&fx.path("stale/summary.csv"));
-        let at_none = |df: &DataFrame, col: &str| {
-            let (m, l, v) = (strs(df, "method"), strs(df, "pose_noise"), f64s(df, col));
-            (0..df.height())
-                .find(|&k| m[k] == "oracle" && l[k] == "none")
-                .map(|k| v[k])
-                .unwrap()
-        };
-        for col in ["de_single_covis_m", "de_fused_covis_m"] {
-            assert!(at_none(&z, col) > at_none(&s, col) + 0.05, "{col}: {z} {s}");
-        }
+        stale_messages_err_more(&fx, methods, &s);
         let b = |workers: &str, out: &str| {
             fx.coid(&[
                 "batch",
