@@ -130,6 +130,7 @@ struct RawTracker {
     confirm_hits: u32,
     max_coast_s: f64,
     birth_speed_sigma_mps: f64,
+    appearance_sigma: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -1178,6 +1179,7 @@ fn tracker(c: &Checker, t: RawTracker) -> Result<TrackerSettings, ConfigError> {
     c.positive("v2x.tracker.gate_chi2", t.gate_chi2)?;
     c.positive("v2x.tracker.max_coast_s", t.max_coast_s)?;
     c.positive("v2x.tracker.birth_speed_sigma_mps", t.birth_speed_sigma_mps)?;
+    c.non_negative("v2x.tracker.appearance_sigma", t.appearance_sigma)?;
     if t.confirm_hits == 0 {
         return Err(c.invalid("v2x.tracker.confirm_hits", "need at least 1 hit".into()));
     }
@@ -1187,6 +1189,7 @@ fn tracker(c: &Checker, t: RawTracker) -> Result<TrackerSettings, ConfigError> {
         confirm_hits: t.confirm_hits,
         max_coast_s: t.max_coast_s,
         birth_speed_sigma_mps: t.birth_speed_sigma_mps,
+        appearance_sigma: t.appearance_sigma,
     })
 }
 
@@ -1481,6 +1484,10 @@ mod tests {
                 "v2x.tracker.confirm_hits",
             ),
             ("[v2x]\nmatcher = \"oracle\"\n", "v2x.matcher"),
+            (
+                "[v2x.tracker]\nappearance_sigma = -0.1\n",
+                "v2x.tracker.appearance_sigma",
+            ),
             (
                 "[v2x.association]\nsmoothing = 0.0\n",
                 "v2x.association.smoothing",

@@ -418,6 +418,7 @@ impl Vehicle {
                     position_m: self.pose.to_parent(&d.position_m),
                     cov_m2: self.pose.cov_to_parent(&d.cov_m2),
                     class: d.appearance.class,
+                    colour_rgb: d.appearance.colour_rgb,
                 }
             })
             .collect();

@@ -1,7 +1,8 @@
 //! A connected vehicle's own multi-object tracker: each detection of its
 //! camera becomes part of a track with a local id, a constant-velocity
 //! Kalman filter (white-noise acceleration), gating on the Mahalanobis
-//! distance, the optimal assignment, births from detections no track
+//! distance and the appearance (class and chromaticity), the optimal
+//! assignment, births from detections no track
 //! takes, confirmation after a few hits and death after a coasting gap.
 //! Ids break where a real tracker's would: an object hidden for longer
 //! than the coasting gap comes back under a new id.
@@ -32,6 +33,13 @@ pub struct TrackerSettings {
     pub max_coast_s: f64,
     /// Standard deviation of a new track's velocity (m/s).
     pub birth_speed_sigma_mps: f64,
+    /// The appearance term of the association cost: standard deviation of
+    /// the difference between a detection's chromaticity (colour over
+    /// brightness, which the lighting does not change) and its track's
+    /// (the mean of its detections'); a detection whose class is neither
+    /// the track's nor the one detectors confuse it with is gated out.
+    /// 0: positions alone.
+    pub appearance_sigma: f64,
 }
 
 impl Default for TrackerSettings {
@@ -43,6 +51,7 @@ impl Default for TrackerSettings {
             confirm_hits: 3,
             max_coast_s: 0.5,
             birth_speed_sigma_mps: 3.0,
+            appearance_sigma: 0.2,
         }
     }
 }
@@ -53,6 +62,14 @@ pub struct TrackMeasurement {
     pub position_m: Vec2,
     pub cov_m2: Cov2,
     pub class: ObjectClass,
+    /// Observed colour, RGB in [0, 1].
+    pub colour_rgb: [f64; 3],
+}
+
+/// Colour over brightness: what stays when the lighting scales a colour.
+fn chromaticity(rgb: &[f64; 3]) -> [f64; 3] {
+    let sum = rgb.iter().sum::<f64>().max(1e-6);
+    rgb.map(|c| c / sum)
 }
 
 /// A track: state `(x, y, vx, vy)` in the tracking frame with its
@@ -64,6 +81,8 @@ pub struct Track {
     pub state: Vector4<f64>,
     pub cov: Matrix4<f64>,
     pub class: ObjectClass,
+    /// The mean chromaticity of its detections.
+    pub chromaticity: [f64; 3],
     pub born_s: f64,
     pub updated_s: f64,
     pub hits: u32,
@@ -202,7 +221,21 @@ impl Tracker {
         let inv = s.try_inverse()?;
         let r = z.position_m - t.position_m();
         let d2 = (r.transpose() * inv * r)[0];
-        (d2 <= self.settings.gate_chi2).then(|| -0.5 * (d2 + s.determinant().max(1e-12).ln()))
+        if d2 > self.settings.gate_chi2 {
+            return None;
+        }
+        let position = -0.5 * (d2 + s.determinant().max(1e-12).ln());
+        let sigma = self.settings.appearance_sigma;
+        if sigma <= 0.0 {
+            return Some(position);
+        }
+        if z.class != t.class && z.class != t.class.confusable() && t.class != z.class.confusable()
+        {
+            return None;
+        }
+        let c = chromaticity(&z.colour_rgb);
+        let dc2: f64 = (0..3).map(|k| (c[k] - t.chromaticity[k]).powi(2)).sum();
+        Some(position - 0.5 * dc2 / (sigma * sigma))
     }
 
     fn birth(&mut self, z: &TrackMeasurement, time_s: f64) -> u64 {
@@ -218,6 +251,7 @@ impl Tracker {
             state: Vector4::new(z.position_m.x, z.position_m.y, 0.0, 0.0),
             cov,
             class: z.class,
+            chromaticity: chromaticity(&z.colour_rgb),
             born_s: time_s,
             updated_s: time_s,
             hits: 1,
@@ -239,6 +273,11 @@ fn update(t: &mut Track, z: &TrackMeasurement, time_s: f64) {
     let p = i_kh * t.cov * i_kh.transpose() + k * z.cov_m2 * k.transpose();
     t.cov = (p + p.transpose()) * 0.5;
     t.class = z.class;
+    let c = chromaticity(&z.colour_rgb);
+    let w = 1.0 / f64::from(t.hits + 1);
+    for (m, ck) in t.chromaticity.iter_mut().zip(c) {
+        *m += w * (ck - *m);
+    }
     t.updated_s = time_s;
     t.hits += 1;
 }
@@ -371,6 +410,7 @@ mod tests {
             position_m: Vec2::new(x, y),
             cov_m2: Cov2::identity() * 0.04,
             class: ObjectClass::Car,
+            colour_rgb: [0.5, 0.2, 0.2],
         }
     }
 
@@ -403,9 +443,47 @@ mod tests {
         let v = t.tracks()[0].velocity_mps();
         assert!((v - Vec2::new(10.0, 0.0)).norm() < 0.5, "{v:?}");
         assert_eq!(t.confirmed().count(), 2);
-        // Hidden for 1.5 s (> 1 s coasting): a new id.
+        // Hidden for 1.5 s (longer than the coasting gap): a new id.
         let ids = t.step(4.5, &[z(45.0, 0.0)]);
         assert!(!first[0].contains(&ids[0]));
+    }
+
+    /// Two cars 1 m apart with noisy positions (sigma 2 m): when noise
+    /// puts each where the other was, positions alone swap their ids; the
+    /// appearance term keeps each id on its colour, whatever the
+    /// brightness. A pedestrian next to a car never takes the car's track.
+    #[test]
+    fn appearance_keeps_ids_where_positions_swap_them() {
+        let noisy = |x: f64, rgb: [f64; 3], class: ObjectClass| TrackMeasurement {
+            position_m: Vec2::new(x, 0.0),
+            cov_m2: Cov2::identity() * 4.0,
+            class,
+            colour_rgb: rgb,
+        };
+        let (red, blue) = ([0.8, 0.1, 0.1], [0.1, 0.1, 0.8]);
+        let car = ObjectClass::Car;
+        let run = |appearance_sigma: f64| {
+            let mut t = Tracker::new(TrackerSettings {
+                appearance_sigma,
+                ..TrackerSettings::default()
+            });
+            let before = t.step(0.0, &[noisy(0.0, red, car), noisy(1.0, blue, car)]);
+            // Brighter light: the same colours, scaled.
+            let dim = |c: [f64; 3]| c.map(|v| v * 1.2);
+            let after = t.step(
+                0.1,
+                &[noisy(0.9, dim(red), car), noisy(0.1, dim(blue), car)],
+            );
+            (before, after)
+        };
+        let (before, after) = run(0.0);
+        assert_eq!(after, [before[1], before[0]], "positions alone swap");
+        let (before, after) = run(0.2);
+        assert_eq!(after, before, "appearance keeps the ids");
+        let mut t = Tracker::new(TrackerSettings::default());
+        let cars = t.step(0.0, &[noisy(0.0, red, car)]);
+        let walker = t.step(0.1, &[noisy(0.2, red, ObjectClass::Pedestrian)]);
+        assert_ne!(walker, cars);
     }
 
     /// CLEAR-MOT on a hand-made sequence: one miss, one false track, one
