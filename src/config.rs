@@ -131,6 +131,7 @@ struct RawTracker {
     max_coast_s: f64,
     birth_speed_sigma_mps: f64,
     appearance_sigma: f64,
+    reid_s: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -1180,6 +1181,7 @@ fn tracker(c: &Checker, t: RawTracker) -> Result<TrackerSettings, ConfigError> {
     c.positive("v2x.tracker.max_coast_s", t.max_coast_s)?;
     c.positive("v2x.tracker.birth_speed_sigma_mps", t.birth_speed_sigma_mps)?;
     c.non_negative("v2x.tracker.appearance_sigma", t.appearance_sigma)?;
+    c.non_negative("v2x.tracker.reid_s", t.reid_s)?;
     if t.confirm_hits == 0 {
         return Err(c.invalid("v2x.tracker.confirm_hits", "need at least 1 hit".into()));
     }
@@ -1190,6 +1192,7 @@ fn tracker(c: &Checker, t: RawTracker) -> Result<TrackerSettings, ConfigError> {
         max_coast_s: t.max_coast_s,
         birth_speed_sigma_mps: t.birth_speed_sigma_mps,
         appearance_sigma: t.appearance_sigma,
+        reid_s: t.reid_s,
     })
 }
 
@@ -1488,6 +1491,7 @@ mod tests {
                 "[v2x.tracker]\nappearance_sigma = -0.1\n",
                 "v2x.tracker.appearance_sigma",
             ),
+            ("[v2x.tracker]\nreid_s = -1.0\n", "v2x.tracker.reid_s"),
             (
                 "[v2x.association]\nsmoothing = 0.0\n",
                 "v2x.association.smoothing",

@@ -40,6 +40,12 @@ pub struct TrackerSettings {
     /// the track's nor the one detectors confuse it with is gated out.
     /// 0: positions alone.
     pub appearance_sigma: f64,
+    /// A dropped track is kept this much longer (s) to be re-identified:
+    /// a detection no live track takes is matched against the dropped
+    /// tracks (same gate and cost) before it starts a new track, and
+    /// takes the old id back. 0: ids break at every gap longer than
+    /// `max_coast_s`.
+    pub reid_s: f64,
 }
 
 impl Default for TrackerSettings {
@@ -52,6 +58,7 @@ impl Default for TrackerSettings {
             max_coast_s: 0.5,
             birth_speed_sigma_mps: 3.0,
             appearance_sigma: 0.2,
+            reid_s: 0.0,
         }
     }
 }
@@ -142,6 +149,8 @@ fn h() -> Matrix2x4<f64> {
 pub struct Tracker {
     settings: TrackerSettings,
     tracks: Vec<Track>,
+    /// Dropped tracks still open to re-identification.
+    lost: Vec<Track>,
     next_id: u64,
     time_s: Option<f64>,
 }
@@ -151,6 +160,7 @@ impl Tracker {
         Self {
             settings,
             tracks: Vec::new(),
+            lost: Vec::new(),
             next_id: 0,
             time_s: None,
         }
@@ -189,9 +199,16 @@ impl Tracker {
         let dt = self.time_s.map_or(0.0, |t| (time_s - t).max(0.0));
         self.time_s = Some(time_s);
         let coast = self.settings.max_coast_s;
-        self.tracks.retain(|t| time_s - t.updated_s <= coast + 1e-9);
+        let (live, dropped): (Vec<Track>, Vec<Track>) = std::mem::take(&mut self.tracks)
+            .into_iter()
+            .partition(|t| time_s - t.updated_s <= coast + 1e-9);
+        self.tracks = live;
+        let reid = self.settings.reid_s;
+        self.lost.extend(dropped);
+        self.lost
+            .retain(|t| time_s - t.updated_s <= coast + reid + 1e-9);
         let sigma = self.settings.accel_sigma_mps2;
-        for t in &mut self.tracks {
+        for t in self.tracks.iter_mut().chain(self.lost.iter_mut()) {
             (t.state, t.cov) = predict(&t.state, &t.cov, dt, sigma);
         }
         let (n, m) = (self.tracks.len(), measurements.len());
@@ -206,12 +223,39 @@ impl Tracker {
             update(&mut self.tracks[i], &measurements[j], time_s);
             ids[j] = self.tracks[i].id;
         }
+        self.reidentify(measurements, &mut ids, time_s);
         for (j, z) in measurements.iter().enumerate() {
             if ids[j] == u64::MAX {
                 ids[j] = self.birth(z, time_s);
             }
         }
         ids
+    }
+
+    /// The measurements no live track took (`ids[j]` unset), matched
+    /// against the dropped tracks still open to re-identification: each
+    /// one matched comes back to life with its id.
+    fn reidentify(&mut self, measurements: &[TrackMeasurement], ids: &mut [u64], time_s: f64) {
+        let free: Vec<usize> = (0..measurements.len())
+            .filter(|&j| ids[j] == u64::MAX)
+            .collect();
+        if free.is_empty() || self.lost.is_empty() {
+            return;
+        }
+        let mut scores = Vec::with_capacity(self.lost.len() * free.len());
+        for t in &self.lost {
+            for &j in &free {
+                scores.push(self.score(t, &measurements[j]));
+            }
+        }
+        let mut back: Vec<(usize, usize)> = assign(self.lost.len(), free.len(), &scores);
+        back.sort_by_key(|&(i, _)| std::cmp::Reverse(i));
+        for (i, k) in back {
+            let mut t = self.lost.remove(i);
+            update(&mut t, &measurements[free[k]], time_s);
+            ids[free[k]] = t.id;
+            self.tracks.push(t);
+        }
     }
 
     /// The log-likelihood of `z` given track `t`'s prediction, or `None`
@@ -446,6 +490,39 @@ mod tests {
         // Hidden for 1.5 s (longer than the coasting gap): a new id.
         let ids = t.step(4.5, &[z(45.0, 0.0)]);
         assert!(!first[0].contains(&ids[0]));
+    }
+
+    /// An object hidden for 1 s (longer than the 0.5 s coasting gap)
+    /// comes back under a new id, or, with re-identification open for
+    /// 2 s, under its old one; a different object there does not take it.
+    #[test]
+    fn reidentification_gives_a_lost_object_its_id_back() {
+        let run = |reid_s: f64, back: TrackMeasurement| {
+            let mut t = Tracker::new(TrackerSettings {
+                reid_s,
+                ..TrackerSettings::default()
+            });
+            let mut id = 0;
+            for k in 0..10 {
+                let s = f64::from(k) * 0.1;
+                id = t.step(s, &[z(10.0 * s, 0.0)])[0];
+            }
+            // Hidden from 1.0 s to 2.0 s: steps without it.
+            for k in 10..20 {
+                t.step(f64::from(k) * 0.1, &[]);
+            }
+            (id, t.step(2.0, &[back])[0])
+        };
+        let (before, after) = run(0.0, z(20.0, 0.0));
+        assert_ne!(after, before);
+        let (before, after) = run(2.0, z(20.0, 0.0));
+        assert_eq!(after, before);
+        let walker = TrackMeasurement {
+            class: ObjectClass::Pedestrian,
+            ..z(20.0, 0.0)
+        };
+        let (before, after) = run(2.0, walker);
+        assert_ne!(after, before);
     }
 
     /// Two cars 1 m apart with noisy positions (sigma 2 m): when noise
