@@ -86,6 +86,38 @@ pub struct Ego {
 }
 
 impl Ego {
+    /// A side from what it holds: its nodes listed in the order of the
+    /// `Purpose::NodeOrder` stream `order_keys` (no order may carry
+    /// labels), then its Delaunay graph.
+    fn new(
+        mut sensed: Sensed,
+        sensor_seed: u64,
+        order_keys: &[u64],
+        speed_mps: f64,
+        reported: Option<Vec<(PoseNoiseLabel, Pose2)>>,
+    ) -> Result<Ego, RunError> {
+        sensed.shuffle(&mut rng::stream(
+            sensor_seed,
+            Purpose::NodeOrder,
+            order_keys,
+        ));
+        let positions: Vec<Vec2> = sensed
+            .observation
+            .detections
+            .iter()
+            .map(|d| d.position_m)
+            .collect();
+        let graph = SceneGraph::delaunay(&positions)?;
+        let id_hash = rng::hash_str(&sensed.observation.ego_id);
+        Ok(Ego {
+            sensed,
+            graph,
+            id_hash,
+            speed_mps,
+            reported,
+        })
+    }
+
     /// The pose this vehicle's GPS reports at `step` at a noise level (its
     /// own seeded stream per step, vehicle and level), or the one it
     /// carries at that level.
@@ -328,25 +360,14 @@ fn sense(
         if settings.matching.sender_as_node {
             sensed.add_sender(o);
         }
-        sensed.shuffle(&mut rng::stream(
-            settings.seeds.sensor,
-            Purpose::NodeOrder,
-            &[frame.step, id_hash],
-        ));
-        let positions: Vec<Vec2> = sensed
-            .observation
-            .detections
-            .iter()
-            .map(|d| d.position_m)
-            .collect();
-        let graph = SceneGraph::delaunay(&positions)?;
-        egos.push(Ego {
+        let keys = [frame.step, id_hash];
+        egos.push(Ego::new(
             sensed,
-            graph,
-            id_hash,
-            speed_mps: o.speed_mps,
-            reported: None,
-        });
+            settings.seeds.sensor,
+            &keys,
+            o.speed_mps,
+            None,
+        )?);
     }
     egos.sort_by(|a, b| {
         a.sensed

@@ -18,6 +18,7 @@ use crate::matching::{MatchView, Matcher};
 use crate::report::{OverTimeCounts, VehicleTracking};
 use crate::rng::{self, Purpose};
 use crate::sensor::{Appearance, Detection, DetectionTruth, PoseNoiseLevel};
+use crate::traffic::TrafficFrame;
 use crate::v2x::V2xSettings;
 use crate::v2x::cpm::{CpmGenerator, PerceivedObject, TrackSnapshot};
 use crate::v2x::gnss::{GnssError, next_error};
@@ -79,11 +80,7 @@ pub fn track(
         let frame = sumo.step()?;
         note_connected(settings, &frame, &mut seen_connected);
         let egos = sense(settings, &scene, &frame)?;
-        let truth: BTreeMap<&str, Vec2> = frame
-            .objects
-            .iter()
-            .map(|o| (o.id.as_str(), o.pose.position_m()))
-            .collect();
+        let truth = true_centres(&frame);
         let ctx = Context {
             settings,
             v,
@@ -104,6 +101,15 @@ pub fn track(
     sumo.close()?;
     check_connected_appeared(&settings.connected, &seen_connected)?;
     Ok(world.finish())
+}
+
+/// Every road user's true centre at `frame`, world frame, by id.
+pub(super) fn true_centres(frame: &TrafficFrame) -> BTreeMap<&str, Vec2> {
+    frame
+        .objects
+        .iter()
+        .map(|o| (o.id.as_str(), o.pose.position_m()))
+        .collect()
 }
 
 /// What one step shares.
@@ -177,6 +183,23 @@ pub(super) struct Label {
     pub appearance: Appearance,
     pub truth: Option<String>,
     pub visible_fraction: f64,
+}
+
+impl Label {
+    /// What lies behind the labelled node: its object at this step's true
+    /// position (evaluation only).
+    pub fn truth_at(&self, ctx: &Context) -> DetectionTruth {
+        DetectionTruth {
+            object_id: self.truth.clone(),
+            position_m: self
+                .truth
+                .as_deref()
+                .and_then(|o| ctx.truth.get(o))
+                .copied(),
+            visible_fraction: self.visible_fraction,
+            sender: false,
+        }
+    }
 }
 
 /// One connected vehicle.
@@ -339,34 +362,22 @@ impl Vehicle {
         &self.reported
     }
 
-    /// This step's reported tracks with their last detection's look, in
-    /// the body frame of the true pose, and the truth beside each (the
-    /// object of its last detection, at this step's true position).
-    pub(super) fn reported_tracks(&self, ctx: &Context) -> (Vec<Detection>, Vec<DetectionTruth>) {
+    /// This step's reported tracks: id, position with the look of its
+    /// last detection in the body frame of the true pose, and its label.
+    pub(super) fn reported_tracks(&self) -> impl Iterator<Item = (u64, Detection, &Label)> {
         let body = self.pose.inverse();
         self.tracks
             .iter()
             .zip(&self.track_covs)
-            .filter_map(|(t, cov)| {
+            .filter_map(move |(t, cov)| {
                 let label = self.labels.get(&t.id)?;
                 let d = Detection {
                     position_m: body.to_parent(&t.position_m),
                     cov_m2: body.cov_to_parent(cov),
                     appearance: label.appearance.clone(),
                 };
-                let truth = DetectionTruth {
-                    object_id: label.truth.clone(),
-                    position_m: label
-                        .truth
-                        .as_deref()
-                        .and_then(|o| ctx.truth.get(o))
-                        .copied(),
-                    visible_fraction: label.visible_fraction,
-                    sender: false,
-                };
-                Some((d, truth))
+                Some((t.id, d, label))
             })
-            .unzip()
     }
 
     fn new(id: &str, v: &V2xSettings) -> Self {
@@ -778,7 +789,6 @@ impl Link {
     }
 
     fn views(&self, ctx: &Context, receiver: &Vehicle, peer_reported: Pose2) -> Views {
-        let body = receiver.pose.inverse();
         let mut v = Views {
             ego: Vec::new(),
             ego_ids: Vec::new(),
@@ -788,16 +798,9 @@ impl Link {
             peer_truth: Vec::new(),
             peer_reported,
         };
-        for (t, cov) in receiver.tracks.iter().zip(&receiver.track_covs) {
-            let Some(label) = receiver.labels.get(&t.id) else {
-                continue;
-            };
-            v.ego.push(Detection {
-                position_m: body.to_parent(&t.position_m),
-                cov_m2: body.cov_to_parent(cov),
-                appearance: label.appearance.clone(),
-            });
-            v.ego_ids.push(t.id);
+        for (id, d, label) in receiver.reported_tracks() {
+            v.ego.push(d);
+            v.ego_ids.push(id);
             v.ego_truth.push(label.truth.clone());
         }
         for (&id, k) in &self.known {

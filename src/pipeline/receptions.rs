@@ -11,13 +11,12 @@
 
 use std::collections::BTreeMap;
 
-use super::over_time::{Context, Sent, Vehicle, World};
+use super::over_time::{Context, Sent, Vehicle, World, true_centres};
 use super::{Ego, RunError};
 use crate::config::Settings;
 use crate::evaluate;
-use crate::geometry::{Pose2, Vec2};
-use crate::graph::SceneGraph;
-use crate::rng::{self, Purpose};
+use crate::geometry::Pose2;
+use crate::rng;
 use crate::sensor::{
     Detection, DetectionTruth, Observation, ObservationTruth, PoseNoiseLabel, Sensed,
 };
@@ -48,11 +47,7 @@ impl Receptions {
         egos: &[Ego],
         sample: bool,
     ) -> Result<Sides, RunError> {
-        let truth: BTreeMap<&str, Vec2> = frame
-            .objects
-            .iter()
-            .map(|o| (o.id.as_str(), o.pose.position_m()))
-            .collect();
+        let truth = true_centres(frame);
         let ctx = Context {
             settings,
             v: &settings.v2x,
@@ -118,42 +113,14 @@ fn per_level(ctx: &Context, poses: &[Pose2]) -> Vec<(PoseNoiseLabel, Pose2)> {
         .collect()
 }
 
-/// A side of an instance: `sensed` (listed in the order of the stream
-/// `keys`, as the camera's detections are), its graph and its poses.
-fn side(
-    ctx: &Context,
-    mut sensed: Sensed,
-    keys: &[u64],
-    reported: Vec<(PoseNoiseLabel, Pose2)>,
-    speed_mps: f64,
-) -> Result<Ego, RunError> {
-    sensed.shuffle(&mut rng::stream(
-        ctx.settings.seeds.sensor,
-        Purpose::NodeOrder,
-        keys,
-    ));
-    let positions: Vec<Vec2> = sensed
-        .observation
-        .detections
-        .iter()
-        .map(|d| d.position_m)
-        .collect();
-    let graph = SceneGraph::delaunay(&positions)?;
-    let id_hash = rng::hash_str(&sensed.observation.ego_id);
-    Ok(Ego {
-        sensed,
-        graph,
-        id_hash,
-        speed_mps,
-        reported: Some(reported),
-    })
-}
-
 /// The receiver's side: its reported tracks (and its own node), in the
 /// body frame of its true pose; the truth is each track's last detected
 /// object at this step's true position.
 fn receiver_side(ctx: &Context, vehicle: &Vehicle, ego: &Ego) -> Result<Ego, RunError> {
-    let (detections, truths) = vehicle.reported_tracks(ctx);
+    let (detections, truths) = vehicle
+        .reported_tracks()
+        .map(|(_, d, label)| (d, label.truth_at(ctx)))
+        .unzip();
     let id = ego.sensed.observation.ego_id.clone();
     let mut sensed = Sensed {
         observation: Observation {
@@ -178,7 +145,13 @@ fn receiver_side(ctx: &Context, vehicle: &Vehicle, ego: &Ego) -> Result<Ego, Run
     }
     let keys = [ctx.step, ego.id_hash, ego.id_hash];
     let reported = per_level(ctx, vehicle.reported_poses());
-    side(ctx, sensed, &keys, reported, ego.speed_mps)
+    Ego::new(
+        sensed,
+        ctx.settings.seeds.sensor,
+        &keys,
+        ego.speed_mps,
+        Some(reported),
+    )
 }
 
 /// The message's side: the objects it carries (and its sender's own
@@ -209,12 +182,7 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<Ego, RunError
             cov_m2,
             appearance: label.appearance.clone(),
         });
-        truths.push(DetectionTruth {
-            object_id: label.truth.clone(),
-            position_m: now(&label.truth),
-            visible_fraction: label.visible_fraction,
-            sender: false,
-        });
+        truths.push(label.truth_at(ctx));
     }
     if let Some((d, t, velocity_mps)) = &m.sender_node {
         let (position_m, cov_m2) = extrapolate(
@@ -248,5 +216,11 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<Ego, RunError
     };
     let keys = [ctx.step, rng::hash_str(receiver), rng::hash_str(&m.sender)];
     let reported = per_level(ctx, &m.sender_reported);
-    side(ctx, sensed, &keys, reported, m.sender_speed_mps())
+    Ego::new(
+        sensed,
+        ctx.settings.seeds.sensor,
+        &keys,
+        m.sender_speed_mps(),
+        Some(reported),
+    )
 }
