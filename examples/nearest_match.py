@@ -3,7 +3,7 @@ vehicle's frame, from the GPS-reported poses alone.
 
     coid export --splits test --out results/my-export
     python examples/nearest_match.py results/my-export --out my-matches.parquet
-    coid score --matches my-matches.parquet --out results/my-score
+    coid score --matches my-matches.parquet --export results/my-export --out results/my-score
 
 Reads an export (schema: the export's schema.md), writes a matches file
 for `coid score`, and prints the precision, recall and F1 its rule

@@ -3,11 +3,15 @@
 //! resumable, shardable, aggregated into means with 95% confidence
 //! intervals.
 //!
-//! Each run is a child `coid run` writing `<dir>/runs/run-NNNNNN/`, which
-//! appears complete or not at all, so a killed batch restarted with the same
-//! command does only the missing runs. The aggregate is computed from the
-//! run folders in run order, so it is byte-identical whatever the number of
-//! workers, the interruptions or the sharding.
+//! The configuration is read once, into the batch's record (`batch.toml`:
+//! its text, where it was, the digest of everything it makes a run read);
+//! each run is a child `coid batch-run` that runs from that record (never
+//! from the user's file again) and writes `<dir>/runs/run-NNNNNN/`, which
+//! appears complete or not at all and names its batch and run. A killed
+//! batch restarted with the same command does only the missing runs. The
+//! aggregate is computed from this batch's complete run folders in run
+//! order, so it is byte-identical whatever the number of workers, the
+//! interruptions or the sharding.
 
 use std::ffi::OsString;
 use std::io::{BufRead, BufReader, Read};
@@ -59,10 +63,6 @@ pub fn run_seeds(master: u64, i: usize) -> (u64, u64) {
     (traffic, sensor)
 }
 
-pub fn run_dir(batch_dir: &Path, i: usize) -> PathBuf {
-    batch_dir.join("runs").join(format!("run-{i:06}"))
-}
-
 /// A run that failed, and why (its last error line).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Failure {
@@ -71,11 +71,38 @@ pub struct Failure {
 }
 
 /// What to do: the runs of this shard that are not complete yet.
-pub fn pending_runs(batch_dir: &Path, runs: usize, shard: Option<Shard>) -> Vec<usize> {
-    (0..runs)
+pub fn pending_runs(batch_dir: &Path, batch: &BatchRecord, shard: Option<Shard>) -> Vec<usize> {
+    (0..batch.runs)
         .filter(|i| shard.is_none_or(|s| i % s.count == s.index - 1))
-        .filter(|&i| !io::run_is_complete(&run_dir(batch_dir, i)))
+        .filter(|&i| !io::run_is_complete(batch_dir, batch, i))
         .collect()
+}
+
+/// The settings of a batch's runs, from its record: its config text, its
+/// relative paths anchored where the config was; refused when the
+/// configuration or a file it reads is no longer what the batch started
+/// with (the digest differs), so that one batch never mixes two.
+pub fn settings_of(batch: &BatchRecord) -> Result<Settings, BatchError> {
+    let settings = Settings::from_toml(&batch.config_text, Path::new(&batch.config))?;
+    let now = settings.digest()?;
+    if now != batch.config_digest {
+        return Err(BatchError::Changed {
+            then: batch.config_digest.clone(),
+            now,
+        });
+    }
+    Ok(settings)
+}
+
+/// Why a batch's run cannot start.
+#[derive(Debug, thiserror::Error)]
+pub enum BatchError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(
+        "the configuration or a file it reads has changed since the batch started (digest {then} then, {now} now); start a new batch in another folder"
+    )]
+    Changed { then: String, now: String },
 }
 
 /// How a batch uses the cores: worker processes, and threads inside each.
@@ -85,14 +112,14 @@ pub struct Parallel {
     pub threads: usize,
 }
 
-/// Runs `pending` on up to `parallel.workers` child processes of `exe`,
-/// each with `parallel.threads` threads; returns the failures.
-/// `done(run, ok)` is called as each run ends.
+/// Runs `pending` on up to `parallel.workers` child processes of `exe`
+/// (`coid batch-run`, each from the record in `batch_dir`), each with
+/// `parallel.threads` threads; returns the failures. `done(run, ok)` is
+/// called as each run ends.
 pub fn execute(
     exe: &Path,
-    config: &Path,
     batch_dir: &Path,
-    master: u64,
+    batch: &BatchRecord,
     pending: &[usize],
     parallel: Parallel,
     mut done: impl FnMut(usize, bool),
@@ -100,18 +127,11 @@ pub fn execute(
     let jobs: Vec<Vec<OsString>> = pending
         .iter()
         .map(|&i| {
-            let (traffic, sensor) = run_seeds(master, i);
-            let mut args: Vec<OsString> = ["run", "--quiet", "--force", "--config"]
-                .map(OsString::from)
-                .to_vec();
-            args.push(config.into());
-            args.push("--out".into());
-            args.push(run_dir(batch_dir, i).into());
+            let mut args: Vec<OsString> = vec!["batch-run".into(), "--batch".into()];
+            args.push(batch_dir.into());
             for a in [
-                "--traffic-seed".to_owned(),
-                traffic.to_string(),
-                "--sensor-seed".to_owned(),
-                sensor.to_string(),
+                "--run".to_owned(),
+                i.to_string(),
                 "--threads".to_owned(),
                 parallel.threads.to_string(),
             ] {
@@ -127,7 +147,7 @@ pub fn execute(
         |_, _| {},
         |k, ok| {
             let i = pending[k];
-            let ok = ok && io::run_is_complete(&run_dir(batch_dir, i));
+            let ok = ok && io::run_is_complete(batch_dir, batch, i);
             done(i, ok);
             ok
         },
@@ -258,10 +278,12 @@ pub fn run_children(
 
 /// What a batch is (its `batch.toml`): the digest of its configuration
 /// by content ([`Settings::digest`]), the number of runs and the master
-/// seed; the config's path is kept for the report only.
+/// seed; and the configuration as read (`text`, from the file at
+/// `config`), which every run of the batch runs from.
 pub fn identity(
     settings: &Settings,
     config: &Path,
+    text: &str,
     runs: usize,
     master_seed: u64,
 ) -> Result<BatchRecord, ConfigError> {
@@ -270,25 +292,54 @@ pub fn identity(
         runs,
         master_seed,
         config: config.display().to_string(),
+        config_text: text.to_owned(),
     })
 }
 
 /// The provenance line of a batch's `summary.md`: the same for a batch run
 /// in one folder and for its shards merged.
-pub fn provenance(config: &Path, master_seed: u64, runs: usize, complete: usize) -> String {
+pub fn provenance(config: &Path, master_seed: u64, runs: usize, done: &Aggregate) -> String {
+    let empty = match done.without_instances {
+        0 => String::new(),
+        n => format!(
+            "; {n} of them without any instance (no two connected vehicles near the junction \
+             saw a common object), left out of the means"
+        ),
+    };
     format!(
-        "- config: `{}`; master seed {master_seed}; {complete} of {runs} runs complete",
-        config.display()
+        "- config: `{}`; master seed {master_seed}; {} of {runs} runs complete{empty}",
+        config.display(),
+        done.complete
     )
 }
 
-/// The aggregate over the complete run folders of `dir` (read in run order,
-/// so it does not depend on workers, interruptions or shards), and how many
-/// runs it covers.
-pub fn aggregate(dir: &Path) -> Result<(Vec<AggregateRow>, usize), OutputError> {
-    let completed = io::completed_runs(dir)?;
-    let rows = report::aggregate(&io::read_runs(&completed)?);
-    Ok((rows, completed.len()))
+/// A batch's aggregate: one row per method, level and fusion variant, and
+/// how many runs it covers.
+pub struct Aggregate {
+    pub rows: Vec<AggregateRow>,
+    /// Complete runs.
+    pub complete: usize,
+    /// Of those, the runs without any instance.
+    pub without_instances: usize,
+}
+
+/// The aggregate over the complete runs of `batch` in `dir` (read in run
+/// order, so it does not depend on workers, interruptions or shards).
+pub fn aggregate(dir: &Path, batch: &BatchRecord) -> Result<Aggregate, OutputError> {
+    let completed: Vec<PathBuf> = io::completed_runs(dir, batch)
+        .into_iter()
+        .map(|(_, d)| d)
+        .collect();
+    let runs = io::read_runs(&completed)?;
+    let without_instances = runs
+        .iter()
+        .filter(|rows| rows.iter().all(|r| r.n_instances == 0))
+        .count();
+    Ok(Aggregate {
+        rows: report::aggregate(&runs),
+        complete: completed.len(),
+        without_instances,
+    })
 }
 
 /// Writes the aggregate into `dir`: `summary.csv`, `summary.md` (with
@@ -313,8 +364,15 @@ mod tests {
         assert!("4/3".parse::<Shard>().is_err());
         assert!("x".parse::<Shard>().is_err());
         let dir = tempfile::tempdir().unwrap();
+        let batch = BatchRecord {
+            config_digest: "ab".into(),
+            runs: 10,
+            master_seed: 1,
+            config: "c.toml".into(),
+            config_text: String::new(),
+        };
         let mut all: Vec<usize> = (1..=3)
-            .flat_map(|k| pending_runs(dir.path(), 10, Some(Shard { index: k, count: 3 })))
+            .flat_map(|k| pending_runs(dir.path(), &batch, Some(Shard { index: k, count: 3 })))
             .collect();
         all.sort();
         assert_eq!(all, (0..10).collect::<Vec<_>>());

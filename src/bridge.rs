@@ -106,7 +106,7 @@ fn describe(py: Python<'_>, err: &PyErr) -> String {
 /// Python the binary was linked against, so that its standard library is
 /// never taken from another Python on `PATH` (a system `python3` of the
 /// same version has extension modules built in that this libpython looks
-/// for as files); and the signals ([`exit_on_interrupt`]).
+/// for as files); and the signals ([`crate::interrupt::watch`]).
 pub fn prepare_process() {
     let home = Path::new(paths::BUILD_PYTHON_HOME);
     if std::env::var_os("PYTHONHOME").is_none() && home.join("lib").is_dir() {
@@ -114,32 +114,7 @@ pub fn prepare_process() {
         // is started.
         unsafe { std::env::set_var("PYTHONHOME", home) };
     }
-    exit_on_interrupt();
-}
-
-/// Ctrl-C (SIGINT) and SIGTERM end the process at once with 130 and 143,
-/// like a shell would report them, instead of a Python KeyboardInterrupt
-/// inside SUMO: every result folder is renamed into place only when
-/// complete, so nothing half-written is left (a staging folder is, and
-/// the next command in that folder removes it). Installed again after
-/// Python starts, in case an imported module took the signal.
-pub fn exit_on_interrupt() {
-    extern "C" fn on_signal(signal: libc::c_int) {
-        // SAFETY: _exit is async-signal-safe.
-        unsafe { libc::_exit(128 + signal) }
-    }
-    for signal in [libc::SIGINT, libc::SIGTERM] {
-        // SAFETY: a plain handler that only calls _exit.
-        unsafe {
-            libc::signal(signal, on_signal as *const () as libc::sighandler_t);
-        }
-    }
-    // A closed pipe on stdout (`coid ... | head`) ends the process
-    // quietly, as it does any Unix tool, instead of a panic in println!.
-    // SAFETY: restores the default disposition.
-    unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
-    }
+    crate::interrupt::watch();
 }
 
 /// Where SUMO's Python environment lives ([`paths::venv_dir`]).
@@ -292,7 +267,7 @@ fn prepare_python(py: Python<'_>) -> Result<Bound<'_, PyModule>, BridgeError> {
     let code = CString::new(SHIM).map_err(|e| BridgeError::Setup(e.to_string()))?;
     let shim = PyModule::from_code(py, &code, c"coid_bridge.py", c"coid_bridge")
         .map_err(|e| BridgeError::Setup(describe(py, &e)))?;
-    exit_on_interrupt();
+    crate::interrupt::install_handlers();
     Ok(shim)
 }
 
@@ -377,10 +352,57 @@ fn close_and_describe(py: Python<'_>, err: &PyErr, stderr_capture: &Path) -> Str
     }
 }
 
+/// Where SUMO's load errors are captured: `stderr.log` in a temporary
+/// folder of this process (`coid-sumo-<pid>-XXXXXX`, an unpredictable
+/// name), removed when the simulation is dropped and when the process is
+/// interrupted; folders of processes that are gone (killed outright) are
+/// removed when the next one is made.
+struct Capture {
+    _registered: crate::interrupt::Registered,
+    dir: tempfile::TempDir,
+}
+
+impl Capture {
+    const PREFIX: &str = "coid-sumo-";
+
+    fn new() -> std::io::Result<Capture> {
+        Self::remove_stale();
+        let dir = tempfile::Builder::new()
+            .prefix(&format!("{}{}-", Self::PREFIX, std::process::id()))
+            .tempdir()?;
+        Ok(Capture {
+            _registered: crate::interrupt::register(dir.path()),
+            dir,
+        })
+    }
+
+    fn path(&self) -> PathBuf {
+        self.dir.path().join("stderr.log")
+    }
+
+    /// Removes the capture folders of processes that no longer run (the
+    /// system's temporary folder is listed for them, and only for them).
+    fn remove_stale() {
+        let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let name = e.file_name();
+            let Some(rest) = name.to_str().and_then(|n| n.strip_prefix(Self::PREFIX)) else {
+                continue;
+            };
+            let pid = rest.split('-').next().and_then(|p| p.parse::<i32>().ok());
+            if pid.is_some_and(|p| !crate::interrupt::process_runs(p)) && e.path().is_dir() {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+    }
+}
+
 /// An open libsumo simulation.
 pub struct Sumo {
     shim: Py<PyModule>,
-    stderr_capture: tempfile::TempPath,
+    stderr_capture: Capture,
     step_length_s: f64,
     time_s: f64,
     steps: u64,
@@ -400,13 +422,8 @@ impl Sumo {
         if RUNNING.swap(true, Ordering::SeqCst) {
             return Err(BridgeError::AlreadyRunning);
         }
-        // An unpredictable name, removed when the simulation is dropped.
-        let stderr_capture = match tempfile::Builder::new()
-            .prefix("coid-sumo-stderr-")
-            .suffix(".log")
-            .tempfile()
-        {
-            Ok(f) => f.into_temp_path(),
+        let stderr_capture = match Capture::new() {
+            Ok(c) => c,
             Err(e) => {
                 RUNNING.store(false, Ordering::SeqCst);
                 return Err(BridgeError::Setup(format!(
@@ -437,12 +454,12 @@ impl Sumo {
             let step_length_s: f64 = shim
                 .call_method1(
                     "start",
-                    (args, stderr_capture.to_string_lossy().into_owned()),
+                    (args, stderr_capture.path().to_string_lossy().into_owned()),
                 )
                 .and_then(|v| v.extract())
                 .map_err(|e| BridgeError::Start {
                     sumocfg: sumocfg.to_owned(),
-                    message: close_and_describe(py, &e, &stderr_capture),
+                    message: close_and_describe(py, &e, &stderr_capture.path()),
                 })?;
             Ok(Sumo {
                 shim: shim.unbind(),
@@ -547,7 +564,7 @@ impl Sumo {
                 .and_then(|v| v.extract::<(f64, i64, Vec<Row>)>())
                 .map_err(|e| BridgeError::Step {
                     time_s: time_before,
-                    message: close_and_describe(py, &e, &self.stderr_capture),
+                    message: close_and_describe(py, &e, &self.stderr_capture.path()),
                 })
         })
         .inspect_err(|_| {

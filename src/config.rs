@@ -343,6 +343,16 @@ impl Settings {
         Self::from_toml(&text, path)
     }
 
+    /// Reads and validates a config file; also returns its text as read
+    /// (what a batch records and runs from).
+    pub fn load_with_text(path: &Path) -> Result<(Settings, String), ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        Ok((Self::from_toml(&text, path)?, text))
+    }
+
     /// The defaults alone (`configs/default.toml` as compiled in).
     pub fn defaults() -> Result<Settings, ConfigError> {
         Self::from_toml("", &defaults_dir().join("default.toml"))
@@ -375,14 +385,29 @@ impl Settings {
                 message: "missing: the junction id to study in your sumocfg (the default junction belongs to the default scenario)".into(),
             });
         }
+        let stated = stated_keys(user.get_ref(), "");
         let defaults = DeTable::parse(DEFAULTS_TOML).map_err(|e| parse_error(DEFAULTS_TOML, e))?;
         let mut defaults = defaults.into_inner();
         anchor_default_paths(&mut defaults);
         merge_under(user.get_mut(), defaults);
         let raw = RawConfig::deserialize(toml::de::Deserializer::from(user))
             .map_err(|e| parse_error(text, e))?;
-        validate(raw, path)
+        validate(raw, path, &stated)
     }
+}
+
+/// Every key a TOML table states, as `section.key` (nested tables joined
+/// by dots).
+fn stated_keys(table: &DeTable<'_>, prefix: &str) -> std::collections::BTreeSet<String> {
+    let mut out = std::collections::BTreeSet::new();
+    for (key, value) in table {
+        let name = format!("{prefix}{}", key.get_ref());
+        if let DeValue::Table(t) = value.get_ref() {
+            out.extend(stated_keys(t, &format!("{name}.")));
+        }
+        out.insert(name);
+    }
+    out
 }
 
 impl Settings {
@@ -430,6 +455,43 @@ impl Settings {
             d.file(&self.source, p)?;
         }
         Ok(format!("{:016x}", d.0))
+    }
+}
+
+impl Settings {
+    /// A digest of what makes the instances of this configuration's
+    /// training, validation and test runs (what `coid export` writes, and
+    /// `coid score` takes matches for): [`Settings::digest`] with the
+    /// matchers, their weights, fusion and the fitting settings left out
+    /// (they do not change a single instance), and the run seeds (each run
+    /// takes its own from the seed lists).
+    pub fn instances_digest(&self) -> Result<String, ConfigError> {
+        let mut s = self.clone();
+        s.seeds = Seeds {
+            traffic: 0,
+            sensor: 0,
+        };
+        s.matching = MatchingSettings {
+            methods: Vec::new(),
+            gate_chi2: 0.0,
+            models_dir: PathBuf::new(),
+            mc_samples: 0,
+            lambda: LambdaChoice::Validated,
+            decision: DecisionChoice::Validated,
+            uncertainty: UncertaintyKind::Total,
+            sender_as_node: self.matching.sender_as_node,
+            multi_vehicle: MultiVehicle::Pairwise,
+            rematch: 0,
+        };
+        s.fusion = FusionSettings {
+            variants: Vec::new(),
+            align_min_matches: 0,
+        };
+        let t = &mut s.train;
+        (t.methods, t.epochs, t.learning_rate, t.seed) = (Vec::new(), 0, 0.0, 0);
+        (t.patience, t.mc_samples, t.batch_size) = (0, 0, 0);
+        t.loss = PairLoss::Likelihood;
+        s.digest()
     }
 }
 
@@ -540,12 +602,36 @@ fn merge_under<'i>(user: &mut DeTable<'i>, defaults: DeTable<'i>) {
 /// The largest traffic seed: SUMO's `--seed` is a signed 32-bit int.
 pub const MAX_TRAFFIC_SEED: u64 = i32::MAX as u64;
 
+/// More cameras per vehicle than this are refused (each one's detections
+/// are nodes of every graph).
+const MAX_CAMERAS: usize = 16;
+
+/// More MC-dropout samples than these are refused: every sample holds the
+/// network's activations of both graphs (the paper uses T = 20 and sweeps
+/// 10-100).
+const MAX_MC_SAMPLES: usize = 1000;
+const MAX_TRAIN_MC_SAMPLES: usize = 100;
+
 /// More false positives per camera and frame than this are refused: each
 /// is a node of every graph (and a sample of memory per step).
 const MAX_FALSE_POSITIVES_PER_FRAME: f64 = 100.0;
 
 struct Checker<'a> {
     path: &'a Path,
+    /// The keys the user's file states (`section.key`), so that a
+    /// conflict between two keys is reported under the one the user wrote.
+    stated: &'a std::collections::BTreeSet<String>,
+}
+
+/// A number in a message: as written for ordinary values, in scientific
+/// notation for huge or tiny ones (never 300 digits).
+fn num(v: f64) -> String {
+    let a = v.abs();
+    if a != 0.0 && a.is_finite() && !(1e-4..1e7).contains(&a) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
 }
 
 impl Checker<'_> {
@@ -561,7 +647,7 @@ impl Checker<'_> {
         if v > 0.0 && v.is_finite() {
             Ok(())
         } else {
-            Err(self.invalid(key, format!("must be a positive number, got {v}")))
+            Err(self.invalid(key, format!("must be a positive number, got {}", num(v))))
         }
     }
 
@@ -569,7 +655,7 @@ impl Checker<'_> {
         if v >= 0.0 && v.is_finite() {
             Ok(())
         } else {
-            Err(self.invalid(key, format!("must be >= 0, got {v}")))
+            Err(self.invalid(key, format!("must be >= 0, got {}", num(v))))
         }
     }
 
@@ -577,7 +663,7 @@ impl Checker<'_> {
         if (0.0..=1.0).contains(&v) {
             Ok(())
         } else {
-            Err(self.invalid(key, format!("must be in [0, 1], got {v}")))
+            Err(self.invalid(key, format!("must be in [0, 1], got {}", num(v))))
         }
     }
 
@@ -604,6 +690,30 @@ impl Checker<'_> {
         Ok(())
     }
 
+    /// `list` sorted (output rows come in a fixed order whatever order the
+    /// user listed things in), refused when it names something twice.
+    fn distinct<T: Ord + crate::label::Label>(
+        &self,
+        key: &'static str,
+        mut list: Vec<T>,
+    ) -> Result<Vec<T>, ConfigError> {
+        list.sort();
+        match list.windows(2).find(|w| w[0] == w[1]) {
+            Some(w) => Err(self.invalid(key, format!("lists '{}' twice", w[0].label()))),
+            None => Ok(list),
+        }
+    }
+
+    /// Of two keys in conflict, the one to report: the one the user's
+    /// file states (the first when it states both or neither).
+    fn blame(&self, first: &'static str, second: &'static str) -> (&'static str, &'static str) {
+        if !self.stated.contains(first) && self.stated.contains(second) {
+            (second, first)
+        } else {
+            (first, second)
+        }
+    }
+
     /// A path relative to the config file's folder.
     fn resolve(&self, p: &Path) -> PathBuf {
         if p.is_absolute() {
@@ -614,8 +724,12 @@ impl Checker<'_> {
     }
 }
 
-fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
-    let c = Checker { path };
+fn validate(
+    raw: RawConfig,
+    path: &Path,
+    stated: &std::collections::BTreeSet<String>,
+) -> Result<Settings, ConfigError> {
+    let c = Checker { path, stated };
     c.traffic_seed("seeds.traffic", raw.seeds.traffic)?;
     let (train, eval) = train_and_eval(&c, raw.train, raw.eval)?;
     Ok(Settings {
@@ -640,6 +754,15 @@ fn validate(raw: RawConfig, path: &Path) -> Result<Settings, ConfigError> {
 
 fn scenario(c: &Checker, s: RawScenario) -> Result<ScenarioSettings, ConfigError> {
     let sumocfg = c.resolve(&s.sumocfg);
+    if sumocfg.is_dir() {
+        return Err(c.invalid(
+            "scenario.sumocfg",
+            format!(
+                "{} is a folder, not a SUMO configuration file (.sumocfg)",
+                sumocfg.display()
+            ),
+        ));
+    }
     if !sumocfg.is_file() {
         return Err(c.invalid(
             "scenario.sumocfg",
@@ -715,7 +838,7 @@ fn connected(c: &Checker, raw: RawConnected) -> Result<ConnectedSelection, Confi
             if !(p > 0.0 && p <= 1.0) {
                 return Err(c.invalid(
                     "connected.penetration",
-                    format!("must be in (0, 1], got {p}"),
+                    format!("must be in (0, 1], got {}", num(p)),
                 ));
             }
             Ok(ConnectedSelection::Penetration(p))
@@ -727,16 +850,38 @@ fn camera(c: &Checker, raw: RawCamera) -> Result<CameraSettings, ConfigError> {
     if !(raw.fov_deg > 0.0 && raw.fov_deg < 180.0) {
         return Err(c.invalid(
             "camera.fov_deg",
-            format!("must be in (0, 180), got {}", raw.fov_deg),
+            format!("must be in (0, 180), got {}", num(raw.fov_deg)),
         ));
     }
     c.positive("camera.range_m", raw.range_m)?;
     c.positive("camera.height_m", raw.height_m)?;
-    if raw.yaw_offsets_deg.is_empty() || raw.yaw_offsets_deg.iter().any(|y| !y.is_finite()) {
+    let yaws = &raw.yaw_offsets_deg;
+    if yaws.is_empty() || yaws.iter().any(|y| !y.is_finite()) {
         return Err(c.invalid(
             "camera.yaw_offsets_deg",
             "need one finite yaw per camera".into(),
         ));
+    }
+    if yaws.len() > MAX_CAMERAS {
+        return Err(c.invalid(
+            "camera.yaw_offsets_deg",
+            format!("at most {MAX_CAMERAS} cameras, got {}", yaws.len()),
+        ));
+    }
+    // The same direction twice (also as 0 and 360) is one camera counted
+    // twice: every detection doubled.
+    for (k, y) in yaws.iter().enumerate() {
+        let same = |o: &f64| ((y - o).rem_euclid(360.0)).min((o - y).rem_euclid(360.0)) < 1e-9;
+        if let Some(o) = yaws[..k].iter().find(|o| same(o)) {
+            return Err(c.invalid(
+                "camera.yaw_offsets_deg",
+                format!(
+                    "{} and {} deg are the same camera (one camera per direction)",
+                    num(*o),
+                    num(*y)
+                ),
+            ));
+        }
     }
     Ok(CameraSettings {
         fov_rad: raw.fov_deg.to_radians(),
@@ -767,7 +912,7 @@ fn sensor(c: &Checker, s: RawSensor) -> Result<SensorSettings, ConfigError> {
             "sensor.false_positives_per_frame",
             format!(
                 "at most {MAX_FALSE_POSITIVES_PER_FRAME} per camera and frame, got {}",
-                s.false_positives_per_frame
+                num(s.false_positives_per_frame)
             ),
         ));
     }
@@ -801,7 +946,7 @@ fn pose_noise(c: &Checker, p: RawPoseNoise) -> Result<Vec<PoseNoiseLevel>, Confi
     if p.levels.is_empty() {
         return Err(c.invalid("pose_noise.levels", "need at least one level".into()));
     }
-    dedup_sorted(p.levels)
+    c.distinct("pose_noise.levels", p.levels)?
         .into_iter()
         .map(|label| {
             let (sigma_m, sigma_deg) = match label {
@@ -836,8 +981,14 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
         ));
     }
     c.positive("matching.gate_chi2", m.gate_chi2)?;
-    if m.mc_samples == 0 {
-        return Err(c.invalid("matching.mc_samples", "need at least one sample".into()));
+    if !(1..=MAX_MC_SAMPLES).contains(&m.mc_samples) {
+        return Err(c.invalid(
+            "matching.mc_samples",
+            format!(
+                "must be 1 to {MAX_MC_SAMPLES} samples, got {}",
+                m.mc_samples
+            ),
+        ));
     }
     let lambda = match m.lambda {
         RawLambda::Word(w) if w == "validated" => LambdaChoice::Validated,
@@ -846,7 +997,7 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
         RawLambda::Value(v) => {
             return Err(c.invalid(
                 "matching.lambda",
-                format!("must be in [0, 1] (binary entropy in bits), got {v}"),
+                format!("must be in [0, 1] (binary entropy in bits), got {}", num(v)),
             ));
         }
         RawLambda::Word(w) => {
@@ -872,7 +1023,7 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
         ));
     }
     Ok(MatchingSettings {
-        methods: dedup_sorted(m.methods),
+        methods: c.distinct("matching.methods", m.methods)?,
         gate_chi2: m.gate_chi2,
         models_dir: c.resolve(&m.models_dir),
         mc_samples: m.mc_samples,
@@ -900,31 +1051,19 @@ fn train_and_eval(
     c.seed_list("train.traffic_seeds", &t.traffic_seeds)?;
     c.seed_list("train.validation_seeds", &t.validation_seeds)?;
     c.seed_list("eval.traffic_seeds", &e.traffic_seeds)?;
-    for (key, a, b, what) in [
-        (
-            "train.traffic_seeds",
-            &t.traffic_seeds,
-            &e.traffic_seeds,
-            "an eval (test) seed",
-        ),
-        (
-            "train.validation_seeds",
-            &t.validation_seeds,
-            &e.traffic_seeds,
-            "an eval (test) seed",
-        ),
-        (
-            "train.validation_seeds",
-            &t.validation_seeds,
-            &t.traffic_seeds,
-            "a training seed",
-        ),
-    ] {
+    let (train, validation, test) = (
+        ("train.traffic_seeds", &t.traffic_seeds),
+        ("train.validation_seeds", &t.validation_seeds),
+        ("eval.traffic_seeds", &e.traffic_seeds),
+    );
+    for ((key, a), (other, b)) in [(train, test), (validation, test), (validation, train)] {
         if let Some(s) = a.iter().find(|s| b.contains(s)) {
+            let (blamed, with) = c.blame(key, other);
             return Err(c.invalid(
-                key,
+                blamed,
                 format!(
-                    "seed {s} is also {what}: training, validation and test runs must be disjoint"
+                    "seed {s} is in both {blamed} and {with}: training, validation and test \
+                     runs must be disjoint"
                 ),
             ));
         }
@@ -941,7 +1080,7 @@ fn train_and_eval(
     let train = TrainSettings {
         traffic_seeds: t.traffic_seeds,
         validation_seeds: t.validation_seeds,
-        methods: dedup_sorted(t.methods),
+        methods: c.distinct("train.methods", t.methods)?,
         epochs: t.epochs,
         learning_rate: t.learning_rate,
         seed: t.seed,
@@ -975,8 +1114,14 @@ fn fitting(c: &Checker, t: &RawTrain) -> Result<(), ConfigError> {
     if t.epochs == 0 {
         return Err(c.invalid("train.epochs", "need at least one epoch".into()));
     }
-    if t.mc_samples == 0 {
-        return Err(c.invalid("train.mc_samples", "need at least one sample".into()));
+    if !(1..=MAX_TRAIN_MC_SAMPLES).contains(&t.mc_samples) {
+        return Err(c.invalid(
+            "train.mc_samples",
+            format!(
+                "must be 1 to {MAX_TRAIN_MC_SAMPLES} samples per pair, got {}",
+                t.mc_samples
+            ),
+        ));
     }
     if !(1..=1024).contains(&t.batch_size) {
         return Err(c.invalid(
@@ -1124,7 +1269,7 @@ fn fusion(c: &Checker, f: RawFusion) -> Result<FusionSettings, ConfigError> {
         ));
     }
     Ok(FusionSettings {
-        variants: dedup_sorted(f.variants),
+        variants: c.distinct("fusion.variants", f.variants)?,
         align_min_matches: f.align_min_matches,
     })
 }
@@ -1136,7 +1281,7 @@ fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
     if !(v.step_length_s > 0.0 && v.step_length_s <= 1.0) {
         return Err(c.invalid(
             "v2x.step_length_s",
-            format!("must be in (0, 1] s, got {}", v.step_length_s),
+            format!("must be in (0, 1] s, got {}", num(v.step_length_s)),
         ));
     }
     c.non_negative("v2x.gnss_correlation_s", v.gnss_correlation_s)?;
@@ -1147,13 +1292,13 @@ fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
     if !(a.smoothing > 0.0 && a.smoothing <= 1.0) {
         return Err(c.invalid(
             "v2x.association.smoothing",
-            format!("must be in (0, 1], got {}", a.smoothing),
+            format!("must be in (0, 1], got {}", num(a.smoothing)),
         ));
     }
     if !(0.0..1.0).contains(&a.threshold) {
         return Err(c.invalid(
             "v2x.association.threshold",
-            format!("must be in [0, 1), got {}", a.threshold),
+            format!("must be in [0, 1), got {}", num(a.threshold)),
         ));
     }
     c.fraction("v2x.association.pose_smoothing", a.pose_smoothing)?;
@@ -1202,7 +1347,7 @@ fn cpm(c: &Checker, m: RawCpm) -> Result<CpmSettings, ConfigError> {
             "v2x.cpm.rate_hz",
             format!(
                 "must be in [1, 10] Hz (T_GenCpm 0.1-1 s), got {}",
-                m.rate_hz
+                num(m.rate_hz)
             ),
         ));
     }
@@ -1244,14 +1389,6 @@ fn channel(c: &Checker, ch: RawChannel) -> Result<ChannelSettings, ConfigError> 
             },
         },
     })
-}
-
-/// Sorted, without repeats: output rows come in a fixed order whatever order
-/// the user listed things in.
-fn dedup_sorted<T: Ord>(mut v: Vec<T>) -> Vec<T> {
-    v.sort();
-    v.dedup();
-    v
 }
 
 #[cfg(test)]

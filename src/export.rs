@@ -19,8 +19,9 @@ use crate::pipeline::{self, Instance, Progress, RunError};
 use crate::report::{MatchRow, Table};
 use crate::sensor::PoseNoiseLabel;
 
-/// The version of the export's columns (`runs.parquet` carries it).
-pub const SCHEMA_VERSION: u64 = 1;
+/// The version of the export's columns (`runs.parquet` carries it): 2
+/// added `config_digest`.
+pub const SCHEMA_VERSION: u64 = 2;
 
 /// The schema, written beside the files as `schema.md`.
 pub const SCHEMA: &str = include_str!("../docs/export-schema.md");
@@ -78,7 +79,7 @@ pub fn runs(settings: &Settings) -> Result<Vec<ExportRun>, RunError> {
 /// The export's Parquet files of instances, each with its (empty) columns.
 pub fn files() -> Vec<(&'static str, Table)> {
     let mut rows = Rows::default();
-    let mut f = vec![("runs.parquet", run_table(&[]))];
+    let mut f = vec![("runs.parquet", run_table(&[], ""))];
     f.extend(COLUMNS.iter().map(|(file, _)| (*file, rows.take(file))));
     f
 }
@@ -93,8 +94,10 @@ pub fn matches_template() -> Table {
     MatchColumns::default().table()
 }
 
-/// The `runs.parquet` rows of `runs` (with their instance counts).
-pub fn run_table(runs: &[(&ExportRun, usize)]) -> Table {
+/// The `runs.parquet` rows of `runs` (with their instance counts), of the
+/// configuration whose instances digest is `digest`
+/// ([`Settings::instances_digest`]).
+pub fn run_table(runs: &[(&ExportRun, usize)], digest: &str) -> Table {
     let mut t = Table::default();
     t.count("schema_version", vec![SCHEMA_VERSION; runs.len()]);
     t.count("run", runs.iter().map(|r| r.0.index as u64).collect());
@@ -108,6 +111,7 @@ pub fn run_table(runs: &[(&ExportRun, usize)]) -> Table {
     );
     t.count("seed", runs.iter().map(|r| r.0.seed).collect());
     t.count("n_instances", runs.iter().map(|r| r.1 as u64).collect());
+    t.text("config_digest", vec![digest.to_owned(); runs.len()]);
     t
 }
 
@@ -122,13 +126,27 @@ pub fn export_run(
     out: &mut TablesFolder,
 ) -> Result<usize, RunError> {
     let s = &run.settings;
+    // The oracle's pass makes the instance files; its matches, if asked
+    // for, come from the same pass.
     let mut runners = vec![crate::evaluate::Runner::Oracle];
-    runners.extend(pipeline::runners(s, methods)?);
+    let others: Vec<Method> = methods
+        .iter()
+        .copied()
+        .filter(|&m| m != Method::Oracle)
+        .collect();
+    runners.extend(pipeline::runners(s, &others)?);
+    let oracle_matches = methods.contains(&Method::Oracle);
     let first_level = s.pose_noise.first().map(|l| l.label);
     let mut rows = Rows::default();
     let mut matches: BTreeMap<Method, MatchColumns> = BTreeMap::new();
     let on_eval = |insts: &[Instance], pairs: &[PairAtLevel], level, f: FrameEval| {
         if f.method == Method::Oracle {
+            if oracle_matches {
+                matches
+                    .entry(Method::Oracle)
+                    .or_default()
+                    .add(run.index, pairs, &f);
+            }
             if Some(level) == first_level {
                 rows.add_nodes(run.index, insts, pairs);
             }
@@ -514,9 +532,9 @@ fn correspondence(row: &MatchRow) -> Result<Correspondence, String> {
     let uncertainty = row
         .uncertainty
         .unwrap_or_else(|| binary_entropy_bits(probability));
-    if !(uncertainty.is_finite() && uncertainty >= 0.0) {
+    if !(0.0..=1.0).contains(&uncertainty) {
         return Err(format!(
-            "uncertainty {uncertainty} is not a number of bits >= 0"
+            "uncertainty {uncertainty} is not in [0, 1] (binary entropy in bits)"
         ));
     }
     let node = |v: u64| usize::try_from(v).map_err(|_| format!("node {v} is out of range"));

@@ -3,7 +3,8 @@
 //! ARCHITECTURE.md; a module uses only modules below it):
 //!
 //! - foundations: [`geometry`], [`rng`], [`label`], [`paths`] (where coid
-//!   keeps its files), [`assignment`], [`traffic`];
+//!   keeps its files), [`interrupt`] (how the process ends on a signal),
+//!   [`assignment`], [`traffic`];
 //! - stages: [`bridge`] (SUMO), [`sensor`], [`graph`], [`fusion`],
 //!   [`matching`];
 //! - [`evaluate`]: one instance, one method: match, count, fuse;
@@ -28,6 +29,7 @@ pub mod export;
 pub mod fusion;
 pub mod geometry;
 pub mod graph;
+pub mod interrupt;
 pub mod io;
 pub mod label;
 pub mod matching;

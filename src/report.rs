@@ -621,6 +621,16 @@ pub struct MatchRow {
     pub uncertainty: Option<f64>,
 }
 
+/// One row of an export's `runs.parquet`, as `coid score` checks it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExportRunRow {
+    pub run: u64,
+    pub split: String,
+    pub n_instances: u64,
+    /// `None` in exports of schema version 1.
+    pub config_digest: Option<String>,
+}
+
 /// One row of a run's `summary.csv`, as read back for a batch aggregate.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RunRow {
@@ -644,7 +654,10 @@ pub struct AggregateRow {
     pub method: String,
     pub pose_noise: String,
     pub fusion: String,
+    /// Runs with at least one instance: the means are over these.
     pub n_runs: usize,
+    /// Complete runs without any instance (no metric is defined in them).
+    pub n_runs_without_instances: usize,
     /// Runs in which the method identified at least one pair (precision is
     /// defined); the precision mean is over these.
     pub n_runs_precision: usize,
@@ -662,7 +675,8 @@ pub struct AggregateRow {
 
 /// Aggregates runs (each its summary rows, in run order): one row per
 /// (method, pose noise, fusion) in order of first appearance, with the mean
-/// over the runs that have it and the 95% interval.
+/// over the runs that have instances and the 95% interval; runs without
+/// any instance are counted apart.
 pub fn aggregate(runs: &[Vec<RunRow>]) -> Vec<AggregateRow> {
     type Key = (String, String, String);
     let mut order: Vec<Key> = Vec::new();
@@ -685,7 +699,8 @@ pub fn aggregate(runs: &[Vec<RunRow>]) -> Vec<AggregateRow> {
             let stat =
                 |f: fn(&RunRow) -> f64| mean_ci95(&rows.iter().map(|r| f(r)).collect::<Vec<_>>());
             AggregateRow {
-                n_runs: rows.len(),
+                n_runs: rows.iter().filter(|r| r.n_instances > 0).count(),
+                n_runs_without_instances: rows.iter().filter(|r| r.n_instances == 0).count(),
                 n_runs_precision: rows.iter().filter(|r| r.precision.is_finite()).count(),
                 n_instances: rows.iter().map(|r| r.n_instances).sum(),
                 precision: stat(|r| r.precision),

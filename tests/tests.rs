@@ -778,22 +778,16 @@ mod bad_input {
             std::fs::read_to_string(fx.path("out/summary.csv")).unwrap(),
             "precious"
         );
-        // With --force the old folder is replaced by a complete new one.
-        let out = fx.coid(&[
-            "run",
-            "-q",
-            "--force",
-            "--config",
-            cfg.to_str().unwrap(),
-            "--out",
-            "out",
-        ]);
-        assert_ok(&out);
-        assert!(
-            std::fs::read_to_string(fx.path("out/summary.csv"))
-                .unwrap()
-                .starts_with("method,")
-        );
+        // With --force a run folder coid wrote is replaced by a complete
+        // new one (a user's folder never is: regression::).
+        let c = cfg.to_str().unwrap();
+        assert_ok(&fx.coid(&["run", "-q", "--config", c, "--out", "mine"]));
+        let before = std::fs::read(fx.path("mine/summary.csv")).unwrap();
+        let seed = ["--traffic-seed", "2"];
+        let args = ["run", "-q", "--force", "--config", c, "--out", "mine"];
+        assert_ok(&fx.coid(&[&args[..], &seed[..]].concat()));
+        let after = std::fs::read(fx.path("mine/summary.csv")).unwrap();
+        assert!(after.starts_with(b"method,") && after != before);
     }
 
     /// A command refused with one line, no panic, a non-zero exit.
@@ -819,7 +813,7 @@ mod bad_input {
         let c = cfg.to_str().unwrap();
         refused(
             &fx.coid(&["run", "-q", "--force", "--config", c, "--out", "mine"]),
-            "it holds c.toml",
+            "coid did not write it",
         );
         assert!(cfg.is_file(), "the config was removed");
         assert_ok(&fx.coid(&["run", "-q", "--config", c, "--out", "r"]));
@@ -833,7 +827,7 @@ mod bad_input {
         );
         refused(
             &fx.coid(&["scenarios", "-q", "--count", "1", "--out", "mine"]),
-            "it holds c.toml",
+            "coid did not write it",
         );
         assert_ok(&fx.coid(&["run", "-q", "--force", "--config", c, "--out", "r"]));
     }
@@ -1788,9 +1782,11 @@ mod export_score {
         ]));
     }
 
+    /// `coid score` of `matches` (made from the export `ex`).
     fn score(fx: &Fixture, config: &Path, matches: &str, out: &str) -> Output {
         let c = config.to_str().unwrap();
-        fx.coid(&["score", "-q", "-c", c, "--matches", matches, "-o", out])
+        let args = ["score", "-q", "-c", c, "--matches", matches, "-o", out];
+        fx.coid(&[&args[..], &["--export", "ex"]].concat())
     }
 
     /// The lines of a table for `method`, without the method.
@@ -1814,7 +1810,7 @@ mod export_score {
         export(&fx, &config);
         let runs = read_parquet(&fx.path("ex/runs.parquet"));
         assert_eq!(strs(&runs, "split"), vec!["test", "test"]);
-        assert_eq!(f64s(&runs, "schema_version"), vec![1.0, 1.0]);
+        assert_eq!(f64s(&runs, "schema_version"), vec![2.0, 2.0]);
         let instances: f64 = f64s(&runs, "n_instances").iter().sum();
         assert!(instances > 0.0);
         let levels = read_parquet(&fx.path("ex/instances.parquet")).height() as f64;
@@ -1827,7 +1823,7 @@ mod export_score {
         assert!(
             std::fs::read_to_string(fx.path("ex/schema.md"))
                 .unwrap()
-                .contains("schema version 1")
+                .contains("schema version 2")
         );
         assert_ok(&score(
             &fx,
@@ -2190,3 +2186,5 @@ mod v2x {
         );
     }
 }
+
+mod regression;

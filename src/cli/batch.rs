@@ -1,14 +1,14 @@
 //! `coid batch` (Monte Carlo runs on worker processes, resumable,
 //! shardable) and `coid merge` (shard folders into one aggregate).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use super::{ConfigArg, QuietArg, progress_bar};
+use super::{ConfigArg, MAX_PARALLEL, QuietArg, ThreadsArg, in_range, progress_bar};
 use crate::batch::{self, Shard};
 use crate::config::Settings;
-use crate::io;
+use crate::{io, pipeline};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -17,13 +17,14 @@ pub struct Args {
     /// Number of runs (1 to 1 000 000).
     #[arg(long, value_parser = runs_in_range)]
     runs: usize,
-    /// Worker processes [default: the number of cores].
-    #[arg(long, short)]
+    /// Worker processes, 1 to 1024 (each runs one SUMO) [default: the
+    /// number of cores].
+    #[arg(long, short, value_parser = in_range(1, MAX_PARALLEL))]
     workers: Option<usize>,
-    /// Threads inside each run (the results do not depend on it)
-    /// [default: the cores shared among the workers, at least 1].
-    #[arg(long)]
-    threads: Option<std::num::NonZeroUsize>,
+    /// Threads inside each run, 1 to 1024 (the results do not depend on
+    /// it) [default: the cores shared among the workers, at least 1].
+    #[arg(long, value_parser = in_range(1, MAX_PARALLEL))]
+    threads: Option<usize>,
     /// Master seed: run i gets traffic and sensor seeds derived from it.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -51,6 +52,25 @@ pub struct MergeArgs {
     /// after the new one is complete).
     #[arg(long)]
     force: bool,
+    /// Merge what the folders hold even when runs of the batch are missing
+    /// from all of them (a shard not given, or not finished); the
+    /// aggregate says how many runs it covers.
+    #[arg(long)]
+    partial: bool,
+}
+
+/// `coid batch-run`: one run of a batch, as `coid batch` starts it in a
+/// worker process.
+#[derive(clap::Args)]
+pub struct RunArgs {
+    /// The batch folder (its batch.toml is the configuration).
+    #[arg(long)]
+    batch: PathBuf,
+    /// The run's index in the batch.
+    #[arg(long)]
+    run: usize,
+    #[command(flatten)]
+    threads: ThreadsArg,
 }
 
 /// `--runs`: 1 to 1 000 000 (each run is a folder; more would only
@@ -67,26 +87,28 @@ const CI_NOTE: &str =
     "- means over runs, `±` the half-width of the 95% confidence interval (Student t)";
 
 pub fn batch(a: Args) -> anyhow::Result<()> {
-    // Validate the config once here, so a bad config fails before any run.
+    // The configuration is read once, here: validated, and kept in the
+    // batch's record, which every run reads instead of the user's file.
     let path = a.config.path();
-    let settings = Settings::load(&path)?;
-    if a.runs == 0 {
-        anyhow::bail!("--runs must be at least 1");
-    }
+    let (settings, text) = Settings::load_with_text(&path)?;
     let config = path
         .canonicalize()
         .with_context(|| format!("cannot resolve {}", path.display()))?;
     let out = super::out_dir(a.out, &config, "-batch");
-    let workers = a.workers.unwrap_or_else(super::cores).max(1);
-    // Workers x threads stay within the cores unless asked otherwise.
-    let threads = a
-        .threads
-        .map_or_else(|| (super::cores() / workers).max(1), |t| t.get());
-    io::claim_batch_folder(&out, &batch::identity(&settings, &config, a.runs, a.seed)?)?;
-    let pending = batch::pending_runs(&out, a.runs, a.shard);
+    let identity = batch::identity(&settings, &config, &text, a.runs, a.seed)?;
+    let _lock = io::claim_batch_folder(&out, &identity)?;
+    // A resumed batch runs from the record it started with.
+    let record = io::batch_identity(&out)?;
+    let pending = batch::pending_runs(&out, &record, a.shard);
     let mine = (0..a.runs)
         .filter(|i| a.shard.is_none_or(|s| i % s.count == s.index - 1))
         .count();
+    let wanted = a.workers.unwrap_or_else(super::cores);
+    let workers = wanted.min(pending.len()).max(1);
+    // Workers x threads stay within the cores unless asked otherwise.
+    let threads = a
+        .threads
+        .unwrap_or_else(|| (super::cores() / workers).max(1));
     let pb = progress_bar(
         a.quiet.quiet,
         mine as u64,
@@ -97,7 +119,7 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let mut failed_count = 0;
     let parallel = batch::Parallel { workers, threads };
-    let failures = batch::execute(&exe, &config, &out, a.seed, &pending, parallel, |_, ok| {
+    let failures = batch::execute(&exe, &out, &record, &pending, parallel, |_, ok| {
         pb.inc(1);
         if !ok {
             failed_count += 1;
@@ -106,22 +128,26 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
     })
     .context("cannot start worker processes")?;
     pb.finish_and_clear();
-    let (rows, complete) = batch::aggregate(&out)?;
+    let done = batch::aggregate(&out, &record)?;
     let shard_note = a
         .shard
         .map(|s| format!(" (this folder: shard {}/{})", s.index, s.count))
         .unwrap_or_default();
     let header = format!(
         "{}{shard_note}\n{CI_NOTE}",
-        batch::provenance(&config, a.seed, a.runs, complete)
+        batch::provenance(Path::new(&record.config), a.seed, a.runs, &done)
     );
-    batch::write_aggregate(&out, &rows, &header)?;
+    batch::write_aggregate(&out, &done.rows, &header)?;
+    let empty = match done.without_instances {
+        0 => String::new(),
+        n => format!(", {n} without any instance"),
+    };
     eprintln!(
-        "coid: {} runs done in {:.1} s on {workers} worker{} ({complete} complete in {}); aggregate in {}",
+        "coid: {} runs done in {:.1} s on {workers} worker{} ({} complete{empty}); aggregate in {}",
         pending.len() - failures.len(),
         started.elapsed().as_secs_f64(),
         if workers == 1 { "" } else { "s" },
-        out.display(),
+        done.complete,
         out.join("summary.csv").display()
     );
     if failures.is_empty() {
@@ -132,10 +158,43 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
     }
     let list: Vec<String> = failures.iter().map(|f| f.run.to_string()).collect();
     anyhow::bail!(
-        "{} run(s) failed: {} (the aggregate covers the {complete} complete runs; run the same command again to retry)",
+        "{} run(s) failed: {} (the aggregate covers the {} complete runs; run the same command again to retry)",
         failures.len(),
         list.join(", "),
+        done.complete,
     )
+}
+
+/// One run of a batch, in a worker process: from the batch's record,
+/// into `runs/run-NNNNNN` (nothing to do when it is complete).
+pub fn run_one(a: RunArgs) -> anyhow::Result<()> {
+    let record = io::batch_identity(&a.batch)?;
+    if a.run >= record.runs {
+        anyhow::bail!("the batch has {} runs, not run {}", record.runs, a.run);
+    }
+    if io::run_is_complete(&a.batch, &record, a.run) {
+        return Ok(());
+    }
+    let mut settings = batch::settings_of(&record)?;
+    let (traffic, sensor) = batch::run_seeds(record.master_seed, a.run);
+    settings.seeds.traffic = traffic;
+    settings.seeds.sensor = sensor;
+    let claim = io::Claim::new(
+        &io::run_dir(&a.batch, a.run),
+        io::ResultKind::Run,
+        io::Existing::Rerun,
+    )?
+    .of_batch_run(record.run(a.run));
+    let mut folder = io::RunFolder::create(claim)?;
+    let results = pipeline::run(
+        &settings,
+        a.threads.get(),
+        |_| {},
+        |rows| folder.objects(rows),
+    )
+    .context("run failed")?;
+    folder.finish(&settings, &results)?;
+    Ok(())
 }
 
 pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
@@ -163,38 +222,57 @@ pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
             _ => identity = Some(id),
         }
     }
-    let mut total = 0;
-    let existing = io::Existing::when(a.force, io::ResultKind::Batch);
-    io::atomic_dir(&a.out, existing, |out| -> anyhow::Result<()> {
-        for d in &a.dirs {
-            for run in io::completed_runs(d)? {
-                let dst = out.join("runs").join(run.file_name().unwrap_or_default());
-                io::copy_run(&run, &dst)?;
-                total += 1;
+    let Some(identity) = identity else {
+        anyhow::bail!("no folder to merge");
+    };
+    // Each run once, from the first folder that holds it whole (the same
+    // run in two folders is the same bytes).
+    let mut runs: std::collections::BTreeMap<usize, PathBuf> = Default::default();
+    for d in &a.dirs {
+        for (i, dir) in io::completed_runs(d, &identity) {
+            runs.entry(i).or_insert(dir);
+        }
+    }
+    let missing: Vec<String> = (0..identity.runs)
+        .filter(|i| !runs.contains_key(i))
+        .map(|i| i.to_string())
+        .collect();
+    if !missing.is_empty() && !a.partial {
+        let shown: Vec<&str> = missing.iter().take(10).map(String::as_str).collect();
+        anyhow::bail!(
+            "the folders hold {} of the batch's {} runs; {} missing ({}{}): give every shard's \
+             folder (finished), or pass --partial to merge what is there",
+            runs.len(),
+            identity.runs,
+            missing.len(),
+            shown.join(", "),
+            if missing.len() > shown.len() {
+                ", ..."
+            } else {
+                ""
             }
+        );
+    }
+    let claim = io::Claim::new(&a.out, io::ResultKind::Batch, io::Existing::when(a.force))?;
+    let out = claim.out().to_owned();
+    claim.fill(|dir| -> anyhow::Result<()> {
+        for (&i, run) in &runs {
+            io::copy_run(run, &io::run_dir(dir, i))?;
         }
-        if let Some(id) = &identity {
-            io::write_batch_identity(out, id)?;
-        }
-        let (rows, complete) = batch::aggregate(out)?;
+        io::write_batch_identity(dir, &identity)?;
+        let done = batch::aggregate(dir, &identity)?;
         // The same report as the unsharded batch, so the merged folder is
         // byte-identical to it.
-        let line = match &identity {
-            Some(b) => batch::provenance(
-                std::path::Path::new(&b.config),
-                b.master_seed,
-                b.runs,
-                complete,
-            ),
-            _ => format!(
-                "- merged from {} shard folders; {complete} runs",
-                a.dirs.len()
-            ),
-        };
+        let line = batch::provenance(
+            Path::new(&identity.config),
+            identity.master_seed,
+            identity.runs,
+            &done,
+        );
         let header = format!("{line}\n{CI_NOTE}");
-        batch::write_aggregate(out, &rows, &header)?;
+        batch::write_aggregate(dir, &done.rows, &header)?;
         Ok(())
     })?;
-    eprintln!("coid: merged {total} runs into {}", a.out.display());
+    eprintln!("coid: merged {} runs into {}", runs.len(), out.display());
     Ok(())
 }

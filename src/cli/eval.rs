@@ -44,7 +44,8 @@ struct Scenario {
 
 pub fn eval(a: Args) -> anyhow::Result<()> {
     let suffix = if a.validation { "-validation" } else { "-eval" };
-    let (settings, out) = a.common.prepare(suffix, io::ResultKind::Eval)?;
+    let (settings, claim) = a.common.prepare(suffix, io::ResultKind::Eval)?;
+    let out = claim.out().to_owned();
     let mut scenarios = gather(&a, settings)?;
     let total: usize = scenarios
         .iter()
@@ -65,22 +66,14 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
     }
     pb.finish_and_clear();
     warn_empty(&scenarios);
-    let existing = io::Existing::when(a.common.force, io::ResultKind::Eval);
     if let [only] = scenarios.as_slice() {
-        write(&out, &only.settings, &only.runs, &choices, None, existing)?;
+        claim.fill(|dir| write(dir, &only.settings, &only.runs, &choices, None))?;
     } else {
         let names: Vec<&str> = scenarios.iter().map(|s| s.name.as_str()).collect();
         let all: Vec<RunEval> = scenarios.iter().flat_map(|s| s.runs.clone()).collect();
-        io::atomic_dir(&out, existing, |dir| -> anyhow::Result<()> {
+        claim.fill(|dir| -> anyhow::Result<()> {
             for s in &scenarios {
-                write(
-                    &dir.join(&s.name),
-                    &s.settings,
-                    &s.runs,
-                    &choices,
-                    None,
-                    io::Existing::Refuse,
-                )?;
+                write(&dir.join(&s.name), &s.settings, &s.runs, &choices, None)?;
             }
             let pooled = Some(names.join(", "));
             let first = &scenarios[0].settings;
@@ -90,7 +83,6 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
                 &all,
                 &choices,
                 pooled.as_deref(),
-                io::Existing::Refuse,
             )?;
             Ok(())
         })?;
@@ -141,8 +133,30 @@ fn gather(a: &Args, settings: Settings) -> anyhow::Result<Vec<Scenario>> {
         .chain(listed.iter().map(PathBuf::as_path))
         .chain(a.suite.iter().map(PathBuf::as_path))
         .collect();
+    distinct(&scenarios, &paths)?;
     unique_names(&mut scenarios, &paths);
     Ok(scenarios)
+}
+
+/// Refuses a scenario named twice (by `--suite`, `[eval] scenarios` or
+/// the config itself, under any path): the same configuration and files
+/// (the same digest) make the same runs, which the pooled tables would
+/// count twice.
+fn distinct(scenarios: &[Scenario], paths: &[&Path]) -> anyhow::Result<()> {
+    let mut seen: BTreeMap<String, usize> = BTreeMap::new();
+    for (k, s) in scenarios.iter().enumerate() {
+        let digest = s.settings.digest()?;
+        if let Some(&j) = seen.get(&digest) {
+            anyhow::bail!(
+                "{} and {} make the same runs (the same scenario and settings, digest {digest}): \
+                 the pooled tables would count them twice; name each scenario once",
+                paths[j].display(),
+                paths[k].display()
+            );
+        }
+        seen.insert(digest, k);
+    }
+    Ok(())
 }
 
 /// Says which scenarios had no instance at all (their tables are empty).
@@ -257,32 +271,23 @@ fn evaluate(
     Ok(runs)
 }
 
-/// The tables and plots of `runs` into `out`.
+/// The tables and plots of `runs` into the folder `dir`.
 pub(super) fn write(
-    out: &Path,
+    dir: &Path,
     settings: &Settings,
     runs: &[RunEval],
     choices: &BTreeMap<Method, DeepChoice>,
     pooled: Option<&str>,
-    existing: io::Existing,
 ) -> Result<(), OutputError> {
     let lambdas: BTreeMap<Method, f64> = choices.iter().map(|(&m, c)| (m, c.lambda)).collect();
     let tables = tables::eval_tables(settings, runs, &lambdas);
     let plots = tables::plot_data(settings, runs, &lambdas);
-    io::write_eval(
-        out,
-        settings,
-        &tables.files(),
-        choices,
-        pooled,
-        existing,
-        |dir| {
-            render::eval_plots(dir, &plots).map_err(|e| OutputError::Picture {
-                path: dir.to_owned(),
-                message: e.to_string(),
-            })
-        },
-    )
+    io::write_eval(dir, settings, &tables.files(), choices, pooled, |dir| {
+        render::eval_plots(dir, &plots).map_err(|e| OutputError::Picture {
+            path: dir.to_owned(),
+            message: e.to_string(),
+        })
+    })
 }
 
 #[cfg(test)]

@@ -31,12 +31,16 @@ pub struct ExportArgs {
 }
 
 pub fn export(a: ExportArgs) -> anyhow::Result<()> {
-    let (settings, out) = a.common.prepare("-export", io::ResultKind::Export)?;
+    no_repeats("--splits", &a.splits)?;
+    no_repeats("--with-matches", &a.with_matches)?;
+    let (settings, claim) = a.common.prepare("-export", io::ResultKind::Export)?;
+    let out = claim.out().to_owned();
     let splits = if a.splits.is_empty() {
         vec![Split::Train, Split::Validation, Split::Test]
     } else {
         a.splits.clone()
     };
+    let digest = settings.instances_digest()?;
     let runs: Vec<ExportRun> = export::runs(&settings)?
         .into_iter()
         .filter(|r| splits.contains(&r.split))
@@ -52,8 +56,7 @@ pub fn export(a: ExportArgs) -> anyhow::Result<()> {
     );
     let named: Vec<(&str, crate::report::Table)> =
         files.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
-    let existing = io::Existing::when(a.common.force, io::ResultKind::Export);
-    let mut folder = io::TablesFolder::create(&out, existing, &named)?;
+    let mut folder = io::TablesFolder::create(claim, &named)?;
     let pb = progress_bar(
         a.common.quiet.quiet,
         runs.len() as u64,
@@ -73,7 +76,7 @@ pub fn export(a: ExportArgs) -> anyhow::Result<()> {
         pb.inc(1);
     }
     pb.finish_and_clear();
-    folder.write("runs.parquet", &export::run_table(&counts))?;
+    folder.write("runs.parquet", &export::run_table(&counts, &digest))?;
     folder.finish(&[("schema.md", export::SCHEMA.to_owned())])?;
     let instances: usize = counts.iter().map(|c| c.1).sum();
     eprintln!(
@@ -101,14 +104,108 @@ pub struct ScoreArgs {
     /// uncertainty (see the export's schema.md).
     #[arg(long, value_name = "FILE")]
     matches: PathBuf,
+    /// The export the matches were made from (`coid export --out DIR`
+    /// with this configuration): its runs.parquet names the configuration
+    /// that made the instances [default: the folder holding --matches].
+    #[arg(long, value_name = "DIR")]
+    export: Option<PathBuf>,
     /// The runs to score: test, or validation (to choose a threshold
     /// there first).
     #[arg(long, default_value = "test", value_parser = label_arg::<Split>("split"))]
     split: Split,
 }
 
+/// Refuses a list argument that names something twice.
+fn no_repeats<T: PartialEq + crate::label::Label>(flag: &str, list: &[T]) -> anyhow::Result<()> {
+    for (k, x) in list.iter().enumerate() {
+        if list[..k].contains(x) {
+            anyhow::bail!("{flag} names '{}' twice", x.label());
+        }
+    }
+    Ok(())
+}
+
+/// Checks that `matches` were made for this configuration's instances: the
+/// export they come from (`--export`, else the folder holding them) was
+/// made with the same instances digest. Returns the export's instance
+/// count per run.
+fn check_export(
+    matches: &std::path::Path,
+    export: Option<&std::path::Path>,
+    settings: &crate::config::Settings,
+) -> anyhow::Result<BTreeMap<u64, u64>> {
+    let dir = match export {
+        Some(d) => d.to_owned(),
+        None => {
+            let beside = matches.parent().unwrap_or(std::path::Path::new("."));
+            let beside = if beside.as_os_str().is_empty() {
+                std::path::Path::new(".")
+            } else {
+                beside
+            };
+            if !beside.join("runs.parquet").is_file() {
+                anyhow::bail!(
+                    "cannot tell which export {} was made from: pass --export DIR (the folder \
+                     `coid export` wrote; its runs.parquet names the configuration)",
+                    matches.display()
+                );
+            }
+            beside.to_owned()
+        }
+    };
+    let path = dir.join("runs.parquet");
+    let runs = io::frames::read_export_runs(&path)
+        .map_err(|why| anyhow::anyhow!("cannot read {}: {why}", path.display()))?;
+    let mine = settings.instances_digest()?;
+    match runs.first().map(|r| r.config_digest.clone()) {
+        None => anyhow::bail!("{} names no run", path.display()),
+        Some(None) => anyhow::bail!(
+            "{} was written by an older coid (export schema 1, without config_digest): \
+             export again with this coid",
+            path.display()
+        ),
+        Some(Some(d)) if d != mine => anyhow::bail!(
+            "the export in {} was made with another configuration (digest {d}; this one's is \
+             {mine}): its instances are not this configuration's; score with the config it was \
+             exported with",
+            dir.display()
+        ),
+        Some(Some(_)) => {}
+    }
+    Ok(runs.iter().map(|r| (r.run, r.n_instances)).collect())
+}
+
+/// The scored runs with instances that the matches file names none of
+/// (every pair there counts as unmatched): a matcher that found nothing
+/// in a whole run is rare; a file cut short or filtered is not.
+fn unnamed_runs(
+    external: &BTreeMap<usize, crate::evaluate::ExternalMatches>,
+    exported: &BTreeMap<u64, u64>,
+) -> Vec<String> {
+    external
+        .iter()
+        .filter(|(run, m)| {
+            m.by_instance.is_empty() && exported.get(&(**run as u64)).is_some_and(|&n| n > 0)
+        })
+        .map(|(run, _)| run.to_string())
+        .collect()
+}
+
+/// Says which scored runs the matches file left out ([`unnamed_runs`]).
+fn warn_unnamed(path: &std::path::Path, unnamed: &[String]) {
+    if !unnamed.is_empty() {
+        eprintln!(
+            "coid: warning: {} names no instance of run(s) {} (they have instances): all their \
+             pairs count as unmatched",
+            path.display(),
+            unnamed.join(", ")
+        );
+    }
+}
+
 pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
-    let (settings, out) = a.common.prepare("-score", io::ResultKind::Eval)?;
+    let (settings, claim) = a.common.prepare("-score", io::ResultKind::Eval)?;
+    let out = claim.out().to_owned();
     if settings.matching.multi_vehicle != MultiVehicle::Pairwise {
         anyhow::bail!(
             "coid score compares pairwise correspondences: set [matching] multi_vehicle = \"pairwise\""
@@ -118,6 +215,7 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
         anyhow::bail!("coid score scores the test or validation runs (--split), not training runs");
     }
     let path = &a.matches;
+    let exported = check_export(path, a.export.as_deref(), &settings)?;
     let rows = io::frames::read_matches(path)
         .map_err(|why| anyhow::anyhow!("cannot read {}: {why}", path.display()))?;
     let runs = export::runs(&settings)?;
@@ -125,6 +223,7 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
     let mut external = export::external_matches(&rows, &runs, a.split, &levels).map_err(|why| {
         anyhow::anyhow!("{} does not fit this configuration: {why}", path.display())
     })?;
+    let unnamed = unnamed_runs(&external, &exported);
     let methods = settings.matching.methods.clone();
     let choices = crate::pipeline::choices(&settings, &methods)?;
     let lambdas: BTreeMap<Method, f64> = choices.iter().map(|(&m, c)| (m, c.lambda)).collect();
@@ -163,13 +262,13 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
         pb.inc(1);
     }
     pb.finish_and_clear();
-    let existing = io::Existing::when(a.common.force, io::ResultKind::Eval);
     // The report's header names the runs scored.
     let mut header = settings.clone();
     if a.split == Split::Validation {
         header.eval.traffic_seeds = settings.train.validation_seeds.clone();
     }
-    super::eval::write(&out, &header, &evals, &choices, None, existing)?;
+    claim.fill(|dir| super::eval::write(dir, &header, &evals, &choices, None))?;
+    warn_unnamed(path, &unnamed);
     let instances: usize = evals.iter().map(|r| r.instances).sum();
     eprintln!(
         "coid: scored {} with {} built-in methods on {} {} runs ({instances} instances); wrote {}",

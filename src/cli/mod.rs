@@ -50,6 +50,10 @@ enum Command {
     /// Combine batch shard folders into one aggregate, identical to the
     /// unsharded batch's. Writes into --out what `coid batch` writes.
     Merge(batch::MergeArgs),
+    /// One run of a batch, from the batch's record (what `coid batch`
+    /// starts in each worker process).
+    #[command(hide = true)]
+    BatchRun(batch::RunArgs),
     /// Draw chosen instances top-down: roads, buildings, road users, camera
     /// frustums, detections and the correspondences of one method (green
     /// right, red wrong, thicker = more uncertain). Writes into --out:
@@ -126,6 +130,7 @@ enum Command {
 /// Runs the parsed command.
 pub fn execute(cli: Cli) -> anyhow::Result<()> {
     crate::bridge::prepare_process();
+    report_panics_in_one_line();
     // The default scenario and the shipped weights, where the defaults
     // point (written out once per build).
     if !matches!(cli.command, Command::Completions { .. }) {
@@ -135,6 +140,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<()> {
         Command::Run(a) => run::run(a),
         Command::Batch(a) => batch::batch(a),
         Command::Merge(a) => batch::merge(a),
+        Command::BatchRun(a) => batch::run_one(a),
         Command::Render(a) => render::render(a),
         Command::Eval(a) => eval::eval(a),
         Command::Export(a) => export::export(a),
@@ -149,6 +155,26 @@ pub fn execute(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
     }
+}
+
+/// A panic (a bug in coid) is reported as one line, like any other
+/// error, saying where and asking for a report; the process still ends
+/// as a panic does (exit code 101), with its temporary folders removed.
+fn report_panics_in_one_line() {
+    std::panic::set_hook(Box::new(|info| {
+        let what = info
+            .payload()
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_owned())
+            .or_else(|| info.payload().downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown cause".into());
+        let at = info
+            .location()
+            .map(|l| format!(" at {}:{}", l.file(), l.line()))
+            .unwrap_or_default();
+        let what = what.split_whitespace().collect::<Vec<_>>().join(" ");
+        eprintln!("error: internal error (a bug in coid, please report it): {what}{at}");
+    }));
 }
 
 /// The configuration file, for every command that reads one.
@@ -175,15 +201,29 @@ impl ConfigArg {
 /// Threads inside one run.
 #[derive(clap::Args)]
 struct ThreadsArg {
-    /// Threads that evaluate a run's steps while SUMO advances; the
-    /// results do not depend on it [default: the number of cores].
-    #[arg(long)]
-    threads: Option<std::num::NonZeroUsize>,
+    /// Threads that evaluate a run's steps while SUMO advances (1 to
+    /// 1024); the results do not depend on it [default: the number of
+    /// cores].
+    #[arg(long, value_parser = in_range(1, MAX_PARALLEL))]
+    threads: Option<usize>,
 }
 
 impl ThreadsArg {
     fn get(&self) -> usize {
-        self.threads.map_or_else(cores, std::num::NonZeroUsize::get)
+        self.threads.unwrap_or_else(cores)
+    }
+}
+
+/// The most threads or worker processes a command starts: more would only
+/// exhaust the machine (each thread a stack, each worker a SUMO).
+const MAX_PARALLEL: usize = 1024;
+
+/// A clap parser for a count in `min..=max`.
+fn in_range(min: usize, max: usize) -> impl Fn(&str) -> Result<usize, String> + Clone {
+    move |s: &str| match s.parse::<usize>() {
+        Ok(n) if (min..=max).contains(&n) => Ok(n),
+        Ok(n) => Err(format!("{n} is not in {min}..={max}")),
+        Err(e) => Err(e.to_string()),
     }
 }
 
@@ -212,17 +252,18 @@ struct CommonArgs {
 
 impl CommonArgs {
     /// The settings, and the results folder (`results/<stem><suffix>` by
-    /// default), refused when it exists and `--force` was not given.
+    /// default) claimed for a folder of `kind`: refused when something is
+    /// there that `--force` does not allow to replace.
     fn prepare(
         &self,
         suffix: &str,
         kind: crate::io::ResultKind,
-    ) -> anyhow::Result<(crate::config::Settings, PathBuf)> {
+    ) -> anyhow::Result<(crate::config::Settings, crate::io::Claim)> {
         let config = self.config.path();
         let settings = crate::config::Settings::load(&config)?;
         let out = out_dir(self.out.clone(), &config, suffix);
-        crate::io::check_output(&out, crate::io::Existing::when(self.force, kind))?;
-        Ok((settings, out))
+        let claim = crate::io::Claim::new(&out, kind, crate::io::Existing::when(self.force))?;
+        Ok((settings, claim))
     }
 
     /// A progress bar over the simulated time of one run.

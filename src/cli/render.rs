@@ -27,7 +27,8 @@ pub struct Args {
 }
 
 pub fn render(a: Args) -> anyhow::Result<()> {
-    let (settings, out) = a.common.prepare("-render", io::ResultKind::Render)?;
+    let (settings, claim) = a.common.prepare("-render", io::ResultKind::Render)?;
+    let out = claim.out().to_owned();
     let level = *settings
         .pose_noise
         .iter()
@@ -41,8 +42,7 @@ pub fn render(a: Args) -> anyhow::Result<()> {
     let runner = pipeline::runner(&settings, a.method)?;
     let mut drawn = Vec::new();
     let bar = a.common.sim_bar(settings.scenario.end_s);
-    let existing = io::Existing::when(a.common.force, io::ResultKind::Render);
-    io::atomic_dir(&out, existing, |tmp| -> anyhow::Result<()> {
+    claim.fill(|tmp| -> anyhow::Result<()> {
         pipeline::simulate(
             &settings,
             |p| show_sim_progress(&bar, p),

@@ -24,7 +24,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let (mut settings, out) = a.common.prepare("", io::ResultKind::Run)?;
+    let (mut settings, claim) = a.common.prepare("", io::ResultKind::Run)?;
     if let Some(t) = a.traffic_seed {
         settings.seeds.traffic = t;
     }
@@ -32,7 +32,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         settings.seeds.sensor = s;
     }
     // The folder is claimed (and checked writable) before the simulation.
-    let mut folder = io::RunFolder::create(&out, a.common.force)?;
+    let out = claim.out().to_owned();
+    let mut folder = io::RunFolder::create(claim)?;
     let bar = a.common.sim_bar(settings.scenario.end_s);
     let results = pipeline::run(
         &settings,

@@ -47,7 +47,7 @@ pub fn scenarios(a: Args) -> anyhow::Result<()> {
         "{spinner} scenarios [{bar:30}] {pos}/{len} elapsed {elapsed} eta {eta}",
     );
     // Into a new folder, or one that holds a family (to extend it).
-    io::check_output(&a.out, io::Existing::Replace(io::ResultKind::Family))?;
+    io::check_extendable(&a.out, io::ResultKind::Family, io::Existing::Replace)?;
     let end = a
         .first
         .checked_add(a.count)
@@ -89,6 +89,7 @@ pub fn scenarios(a: Args) -> anyhow::Result<()> {
         lines.join("\n")
     );
     io::publish_files(&a.out, |dir| io::write_texts(dir, &[("README.md", index)]))?;
+    io::folder::mark_folder(&a.out, io::ResultKind::Family)?;
     eprintln!(
         "coid: {} scenarios (seed {}) in {}",
         a.count,
@@ -99,15 +100,15 @@ pub fn scenarios(a: Args) -> anyhow::Result<()> {
 }
 
 fn write(a: &Args, s: &Scenario) -> anyhow::Result<()> {
-    let existing = io::Existing::when(a.force, io::ResultKind::Scenario);
-    io::atomic_dir(
+    let claim = io::Claim::new(
         &a.out.join(&s.name),
-        existing,
-        |dir| -> anyhow::Result<()> {
-            io::write_texts(dir, &s.files())?;
-            bridge::netconvert(dir, &s.netconvert_args())?;
-            io::strip_generator_comment(&dir.join("net.net.xml"))?;
-            Ok(())
-        },
-    )
+        io::ResultKind::Scenario,
+        io::Existing::when(a.force),
+    )?;
+    claim.fill(|dir| -> anyhow::Result<()> {
+        io::write_texts(dir, &s.files())?;
+        bridge::netconvert(dir, &s.netconvert_args())?;
+        io::strip_generator_comment(&dir.join("net.net.xml"))?;
+        Ok(())
+    })
 }

@@ -7,6 +7,7 @@ use anyhow::Context;
 use super::{CommonArgs, progress_bar, show_sim_progress};
 use crate::config::Settings;
 use crate::experiments::settings_for_seed;
+use crate::io::markdown::fmt_num;
 use crate::report::{self, OverTimeCounts, Table};
 use crate::v2x::V2xSettings;
 use crate::v2x::channel::LossModel;
@@ -32,19 +33,19 @@ pub fn track(a: Args) -> anyhow::Result<()> {
     if a.sweep {
         return sweep(&a);
     }
-    let (settings, out) = a.common.prepare("-track", io::ResultKind::Track)?;
+    let (settings, claim) = a.common.prepare("-track", io::ResultKind::Track)?;
+    let out = claim.out().to_owned();
     let bar = a.common.sim_bar(settings.scenario.end_s);
     let results =
         pipeline::track(&settings, |p| show_sim_progress(&bar, p)).context("run failed")?;
     bar.finish_and_clear();
     let tracking = report::tracking_table(&results.vehicles);
     let association = results.over_time.table();
-    let existing = io::Existing::when(a.common.force, io::ResultKind::Track);
     let tables = [
         ("tracking.csv", &tracking),
         ("association.csv", &association),
     ];
-    io::write_tracking(&out, existing, &tables, |_| Ok(()))?;
+    claim.fill(|dir| io::write_tracking(dir, &tables, |_| Ok(())))?;
     if results.vehicles.is_empty() {
         eprintln!(
             "coid: warning: no connected vehicle came near junction '{}' in {} s (see \
@@ -57,17 +58,24 @@ pub fn track(a: Args) -> anyhow::Result<()> {
         all.add(v);
     }
     let o = &results.over_time;
+    let pairs = if o.receptions == 0 {
+        "no pair to score".to_owned()
+    } else {
+        format!(
+            "pair F1 {} per message, {} over time",
+            fmt_num(o.per_message.f1(), 3),
+            fmt_num(o.over_time.f1(), 3)
+        )
+    };
     eprintln!(
-        "coid: {} connected vehicles tracked, MOTA {:.3}; {} CPMs, {} of {} deliveries lost; \
-         {} receptions: pair F1 {:.3} per message, {:.3} over time; wrote {}",
+        "coid: {} connected vehicles tracked, MOTA {}; {} CPMs, {} of {} deliveries lost; \
+         {} receptions: {pairs}; wrote {}",
         results.vehicles.len(),
-        all.mot.mota(),
+        fmt_num(all.mot.mota(), 3),
         all.messages,
         all.lost,
         all.delivered + all.lost,
         o.receptions,
-        o.per_message.f1(),
-        o.over_time.f1(),
         out.display()
     );
     Ok(())
@@ -119,7 +127,8 @@ fn sweep(a: &Args) -> anyhow::Result<()> {
     } else {
         "-sweep"
     };
-    let (settings, out) = a.common.prepare(suffix, io::ResultKind::Track)?;
+    let (settings, claim) = a.common.prepare(suffix, io::ResultKind::Track)?;
+    let out = claim.out().to_owned();
     let seeds = if a.validation {
         settings.train.validation_seeds.clone()
     } else {
@@ -147,14 +156,15 @@ fn sweep(a: &Args) -> anyhow::Result<()> {
     }
     pb.finish_and_clear();
     let table = sweep_table(&variants, &runs);
-    let existing = io::Existing::when(a.common.force, io::ResultKind::Track);
     let panels = latency_panels(&table);
-    io::write_tracking(&out, existing, &[("sweep.csv", &table)], |dir| {
-        render::line_panels(&dir.join("sweep_latency"), &panels).map_err(|e| {
-            io::OutputError::Picture {
-                path: dir.to_owned(),
-                message: e.message,
-            }
+    claim.fill(|dir| {
+        io::write_tracking(dir, &[("sweep.csv", &table)], |dir| {
+            render::line_panels(&dir.join("sweep_latency"), &panels).map_err(|e| {
+                io::OutputError::Picture {
+                    path: dir.to_owned(),
+                    message: e.message,
+                }
+            })
         })
     })?;
     eprintln!(

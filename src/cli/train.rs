@@ -88,9 +88,10 @@ pub fn train(a: Args) -> anyhow::Result<()> {
             models_dir.display()
         );
     }
-    io::check_output(
+    io::check_extendable(
         &models_dir,
-        io::Existing::when(a.force, io::ResultKind::Models),
+        io::ResultKind::Models,
+        io::Existing::when(a.force),
     )?;
     let methods = if a.methods.is_empty() {
         settings.train.methods.clone()

@@ -9,7 +9,9 @@ use polars::io::parquet::write::BatchedWriter;
 use polars::prelude::*;
 
 use super::{OutputError, io};
-use crate::report::{AggregateRow, MatchRow, ObjectRow, RunRow, SummaryRow, Table, TableColumn};
+use crate::report::{
+    AggregateRow, ExportRunRow, MatchRow, ObjectRow, RunRow, SummaryRow, Table, TableColumn,
+};
 
 fn polars_err(path: &Path) -> impl FnOnce(PolarsError) -> OutputError + '_ {
     move |source| OutputError::Polars {
@@ -94,6 +96,7 @@ fn aggregate_frame(rows: &[AggregateRow]) -> PolarsResult<DataFrame> {
         "pose_noise" => rows.iter().map(|r| r.pose_noise.as_str()).collect::<Vec<_>>(),
         "fusion" => rows.iter().map(|r| r.fusion.as_str()).collect::<Vec<_>>(),
         "n_runs" => rows.iter().map(|r| r.n_runs as u64).collect::<Vec<_>>(),
+        "n_runs_without_instances" => rows.iter().map(|r| r.n_runs_without_instances as u64).collect::<Vec<_>>(),
         "n_instances" => rows.iter().map(|r| r.n_instances).collect::<Vec<_>>(),
         "precision" => col(&|r| r.precision.0),
         "precision_ci95" => col(&|r| r.precision.1),
@@ -254,14 +257,60 @@ impl TableWriter {
     }
 }
 
+/// Reads an export's `runs.parquet`; the reason it cannot be, in one line.
+pub fn read_export_runs(path: &Path) -> Result<Vec<ExportRunRow>, String> {
+    let text = |e: PolarsError| e.to_string().lines().next().unwrap_or("").to_owned();
+    let f = File::open(path).map_err(|e| e.to_string())?;
+    let df = ParquetReader::new(f).finish().map_err(text)?;
+    let count = |name: &str| -> Result<Vec<u64>, String> {
+        let c = df
+            .column(name)
+            .map_err(|_| format!("it has no column '{name}'"))?
+            .cast(&DataType::UInt64)
+            .map_err(text)?;
+        Ok(c.u64()
+            .map_err(text)?
+            .iter()
+            .map(|v| v.unwrap_or(0))
+            .collect())
+    };
+    let strings = |name: &str| -> Result<Option<Vec<String>>, String> {
+        let Ok(c) = df.column(name) else {
+            return Ok(None);
+        };
+        let c = c.cast(&DataType::String).map_err(text)?;
+        Ok(Some(
+            c.str()
+                .map_err(text)?
+                .iter()
+                .map(|v| v.unwrap_or("").to_owned())
+                .collect(),
+        ))
+    };
+    let (run, n) = (count("run")?, count("n_instances")?);
+    let split = strings("split")?.ok_or("it has no column 'split'")?;
+    let digest = strings("config_digest")?;
+    Ok((0..df.height())
+        .map(|k| ExportRunRow {
+            run: run[k],
+            split: split[k].clone(),
+            n_instances: n[k],
+            config_digest: digest.as_ref().map(|d| d[k].clone()),
+        })
+        .collect())
+}
+
 /// Reads a matches file (`coid score --matches`): Parquet, or CSV when
-/// its name ends in `.csv`. Columns `run`, `instance`, `a`, `b`
+/// its name ends in `.csv` (in any case). Columns `run`, `instance`, `a`, `b`
 /// (non-negative integers, no empty values) and, optionally,
 /// `pose_noise` (text), `probability` and `uncertainty` (numbers); other
 /// columns are ignored. The reason it cannot be read, in one line.
 pub fn read_matches(path: &Path) -> Result<Vec<MatchRow>, String> {
     let text = |e: PolarsError| e.to_string().lines().next().unwrap_or("").to_owned();
-    let df = if path.extension().is_some_and(|e| e == "csv") {
+    let df = if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("csv"))
+    {
         CsvReadOptions::default()
             .with_has_header(true)
             .try_into_reader_with_file_path(Some(path.to_owned()))

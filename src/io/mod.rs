@@ -1,22 +1,25 @@
 //! The output side: everything that writes result files, and the reading of
 //! weight files and batch folders. Results are never lost or half-written:
 //!
-//! - a results folder (run, eval, render, a batch's run) is filled under a
-//!   temporary name beside it and renamed into place when complete
-//!   ([`atomic_dir`]); an existing folder is replaced only when asked, and
-//!   only once the new one is complete;
+//! - a results folder (run, eval, render, a batch's run, ...) is claimed
+//!   before the work starts, filled under a temporary name beside it and
+//!   renamed into place when complete, never over anything it did not
+//!   expect ([`folder::Claim`]);
 //! - files added to an existing folder (a batch's aggregate, trained
 //!   models) are staged in a temporary folder inside it and renamed into
 //!   place one by one ([`publish_files`]).
 //!
-//! Temporary folders come from `tempfile` (removed on every error path).
-//! `frames` is the only code that touches polars; `markdown` writes the
-//! human-readable reports.
+//! Temporary folders come from `tempfile` (removed on every error path,
+//! and on interruption through `crate::interrupt`). `frames` is the only
+//! code that touches polars; `markdown` writes the human-readable reports.
 
 pub mod assets;
+pub mod folder;
 pub mod frames;
 pub mod markdown;
 pub mod records;
+
+pub use folder::{Claim, Existing, ResultKind, check_extendable, publish_files};
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -55,6 +58,20 @@ pub enum OutputError {
         kind: &'static str,
         why: String,
     },
+    #[error("{path} is not a folder coid can write: it is {what} (choose another --out)")]
+    NotAFolder { path: PathBuf, what: String },
+    #[error(
+        "another coid (pid {pid}) is writing {path} now (wait for it to finish, or choose another --out)"
+    )]
+    Busy { path: PathBuf, pid: u32 },
+    #[error(
+        "{path} appeared while this command ran (something else wrote there; it was left as it is); this command's results are in {kept}"
+    )]
+    Appeared { path: PathBuf, kept: PathBuf },
+    #[error(
+        "{path} changed while this command ran, so --force did not replace it (it was left as it is); this command's results are in {kept}"
+    )]
+    Changed { path: PathBuf, kept: PathBuf },
 }
 
 pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
@@ -64,258 +81,21 @@ pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_
     }
 }
 
-/// A temporary folder in `parent` named `.<name>.tmp-<pid>-XXXXXX`, with
-/// the permissions a plain `mkdir` would give (tempfile's default is
-/// 0700). Staging folders of `name` left by processes that no longer run
-/// (killed, interrupted) are removed first.
-fn staging_dir(parent: &Path, name: &str) -> Result<tempfile::TempDir, OutputError> {
-    remove_stale_staging(parent, name);
-    let prefix = format!(".{name}.tmp-{}-", std::process::id());
-    let mut b = tempfile::Builder::new();
-    b.prefix(&prefix);
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        b.permissions(std::fs::Permissions::from_mode(0o777));
-    }
-    b.tempdir_in(parent).map_err(io(parent))
-}
-
-/// Removes `parent/.<name>.tmp-<pid>-*` whose process is gone (best
-/// effort: a folder that cannot be removed stays).
-fn remove_stale_staging(parent: &Path, name: &str) {
-    let prefix = format!(".{name}.tmp-");
-    let Ok(entries) = std::fs::read_dir(parent) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let file_name = e.file_name();
-        let Some(rest) = file_name.to_str().and_then(|n| n.strip_prefix(&prefix)) else {
-            continue;
-        };
-        let pid = rest.split('-').next().and_then(|p| p.parse::<i32>().ok());
-        if pid.is_some_and(|p| !process_runs(p)) {
-            let _ = std::fs::remove_dir_all(e.path());
-        }
-    }
-}
-
-/// Whether process `pid` exists (signal 0 probes without sending).
-fn process_runs(pid: i32) -> bool {
-    if pid <= 0 {
-        return false;
-    }
-    // SAFETY: kill with signal 0 only checks for the process.
-    let r = unsafe { libc::kill(pid, 0) };
-    r == 0 || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
-}
-
-/// Refuses `out` before any work when it exists (and not `force`), or
-/// when its folder cannot be written: a staging folder is made there and
-/// removed again.
-pub fn check_output(out: &Path, existing: Existing) -> Result<(), OutputError> {
-    Staged::new(out, existing).map(drop)
-}
-
-/// What a command writes as one folder: `--force` replaces an existing
-/// folder only when it holds nothing but what this kind of command
-/// writes (so never a user's folder, another command's results, or the
-/// inputs of the run: configs and scenarios are not among those files).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ResultKind {
-    /// `summary.csv`, `objects.parquet`, `summary.md`.
-    Run,
-    /// CSV tables, `summary.md`, PNG and SVG pictures; for a suite, one
-    /// such folder per scenario.
-    Eval,
-    /// `instance-NNNN.png` and `.svg`.
-    Render,
-    /// `batch.toml`, `runs/` of run folders, the aggregate.
-    Batch,
-    /// One generated scenario: its SUMO files, `coid.toml`, `README.md`.
-    Scenario,
-    /// A family of generated scenarios: `README.md` and scenario folders.
-    Family,
-    /// Trained models: `<method>.bpk`, `.toml`, `_loss.csv`.
-    Models,
-    /// An export of instances (`coid export`): Parquet files, `schema.md`.
-    Export,
-    /// Trackers and messages over a run (`coid track`): `tracking.csv`,
-    /// `association.csv`; or a sweep: `sweep.csv`, `sweep_latency.*`.
-    Track,
-}
-
-impl ResultKind {
-    fn label(self) -> &'static str {
-        match self {
-            ResultKind::Run => "a run's results (coid run)",
-            ResultKind::Eval => "an evaluation (coid eval)",
-            ResultKind::Render => "pictures (coid render)",
-            ResultKind::Batch => "a batch (coid batch or merge)",
-            ResultKind::Scenario => "a generated scenario (coid scenarios)",
-            ResultKind::Family => "a family of generated scenarios (coid scenarios)",
-            ResultKind::Models => "a models folder (coid train)",
-            ResultKind::Export => "an export (coid export)",
-            ResultKind::Track => "tracking results (coid track)",
-        }
-    }
-
-    /// Whether the file `name` (in a folder of this kind) is one it writes.
-    fn writes_file(self, name: &str) -> bool {
-        let ext = |e: &str| name.ends_with(e);
-        match self {
-            ResultKind::Run => matches!(name, "summary.csv" | "objects.parquet" | "summary.md"),
-            ResultKind::Eval => ext(".csv") || ext(".md") || ext(".png") || ext(".svg"),
-            ResultKind::Render => name.starts_with("instance-") && (ext(".png") || ext(".svg")),
-            ResultKind::Batch => matches!(
-                name,
-                "batch.toml"
-                    | "summary.csv"
-                    | "summary.md"
-                    | "f1_per_method.png"
-                    | "f1_per_method.svg"
-            ),
-            ResultKind::Scenario => {
-                ext(".xml") || ext(".sumocfg") || matches!(name, "coid.toml" | "README.md")
-            }
-            ResultKind::Family => name == "README.md",
-            ResultKind::Models => ext(".bpk") || ext(".toml") || ext("_loss.csv"),
-            ResultKind::Export => ext(".parquet") || name == "schema.md",
-            ResultKind::Track => {
-                matches!(name, "tracking.csv" | "association.csv" | "sweep.csv")
-                    || name.starts_with("sweep_latency.")
-            }
-        }
-    }
-
-    /// `Ok` when `dir` holds only what this kind writes.
-    fn check(self, dir: &Path) -> Result<(), String> {
-        let entries = std::fs::read_dir(dir).map_err(|e| e.to_string())?;
-        for e in entries {
-            let e = e.map_err(|e| e.to_string())?;
-            let name = e.file_name().to_string_lossy().into_owned();
-            let path = e.path();
-            let fine = if path.is_dir() {
-                match self {
-                    ResultKind::Eval => ResultKind::Eval.check(&path).is_ok(),
-                    ResultKind::Family => ResultKind::Scenario.check(&path).is_ok(),
-                    ResultKind::Batch if name == "runs" => std::fs::read_dir(&path)
-                        .map_err(|e| e.to_string())?
-                        .all(|r| r.is_ok_and(|r| ResultKind::Run.check(&r.path()).is_ok())),
-                    _ => false,
-                }
-            } else {
-                self.writes_file(&name) || name.starts_with('.')
-            };
-            if !fine {
-                return Err(format!("it holds {name}, which coid did not write there"));
-            }
-        }
-        Ok(())
-    }
-}
-
-/// What to do when an output folder exists.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Existing {
-    /// Refuse (no `--force`).
-    Refuse,
-    /// Replace it if it is a folder of this kind (`--force`).
-    Replace(ResultKind),
-}
-
-impl Existing {
-    /// `Replace(kind)` with `--force`, else `Refuse`.
-    pub fn when(force: bool, kind: ResultKind) -> Self {
-        if force {
-            Existing::Replace(kind)
-        } else {
-            Existing::Refuse
-        }
-    }
-
-    /// `Ok` when `out` may be written.
-    fn allows(self, out: &Path) -> Result<(), OutputError> {
-        if !out.exists() {
-            return Ok(());
-        }
-        match self {
-            Existing::Refuse => Err(OutputError::Exists(out.to_owned())),
-            Existing::Replace(kind) => kind.check(out).map_err(|why| OutputError::NotReplaceable {
-                path: out.to_owned(),
-                kind: kind.label(),
-                why,
-            }),
-        }
-    }
-}
-
-/// Creates `out` atomically: `fill` writes into a temporary sibling folder,
-/// which then replaces `out` (when it exists: as `existing` says).
-/// Whatever `fill` fails with is returned, and nothing is left behind.
-pub fn atomic_dir<E: From<OutputError>>(
-    out: &Path,
-    existing: Existing,
-    fill: impl FnOnce(&Path) -> Result<(), E>,
-) -> Result<(), E> {
-    let staged = Staged::new(out, existing)?;
-    fill(staged.dir.path())?;
-    staged.publish()?;
-    Ok(())
-}
-
-/// A folder being filled under a temporary name beside `out`.
-struct Staged {
-    out: PathBuf,
-    parent: PathBuf,
-    name: String,
-    dir: tempfile::TempDir,
-}
-
-impl Staged {
-    /// Refused when `out` exists and `existing` does not allow it.
-    fn new(out: &Path, existing: Existing) -> Result<Self, OutputError> {
-        existing.allows(out)?;
-        let parent = match out.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
-            _ => PathBuf::from("."),
-        };
-        std::fs::create_dir_all(&parent).map_err(io(&parent))?;
-        let name = out
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "out".into());
-        let dir = staging_dir(&parent, &name)?;
-        Ok(Self {
-            out: out.to_owned(),
-            parent,
-            name,
-            dir,
-        })
-    }
-
-    fn publish(self) -> Result<(), OutputError> {
-        replace_dir(self.dir, &self.out, &self.parent, &self.name)
-    }
-}
-
 /// A run's results folder while the run goes on: `objects.parquet` grows
-/// in a temporary folder beside `out`, row group by row group;
-/// [`RunFolder::finish`] adds `summary.csv` and `summary.md` and renames
-/// the folder into place. Dropped unfinished (an error, a panic), it
-/// leaves nothing behind and `out` untouched.
+/// in the claimed folder's staging folder, row group by row group;
+/// [`RunFolder::finish`] adds `summary.csv` and `summary.md` and publishes
+/// it. Dropped unfinished (an error, a panic), it leaves nothing behind
+/// and `out` untouched.
 pub struct RunFolder {
-    staged: Staged,
+    claim: Claim,
     objects: frames::ObjectsWriter,
 }
 
 impl RunFolder {
-    /// Refused at once when `out` exists and not `force`, or cannot be
-    /// written.
-    pub fn create(out: &Path, force: bool) -> Result<Self, OutputError> {
-        let staged = Staged::new(out, Existing::when(force, ResultKind::Run))?;
-        let objects = frames::ObjectsWriter::create(&staged.dir.path().join("objects.parquet"))?;
-        Ok(Self { staged, objects })
+    /// Starts `objects.parquet` in the claimed folder.
+    pub fn create(claim: Claim) -> Result<Self, OutputError> {
+        let objects = frames::ObjectsWriter::create(&claim.dir().join("objects.parquet"))?;
+        Ok(Self { claim, objects })
     }
 
     /// Adds per-object rows to `objects.parquet`.
@@ -326,47 +106,41 @@ impl RunFolder {
     /// Completes the folder: `objects.parquet`, `summary.csv`, `summary.md`.
     pub fn finish(self, settings: &Settings, results: &RunResults) -> Result<(), OutputError> {
         self.objects.finish()?;
-        let dir = self.staged.dir.path();
+        let dir = self.claim.dir();
         let rows = results.summary.rows();
         frames::write_summary(&dir.join("summary.csv"), &rows)?;
         write_text(
             &dir.join("summary.md"),
             &markdown::run(settings, results, &rows),
         )?;
-        self.staged.publish()
+        self.claim.publish()
     }
 }
 
 /// A folder of Parquet tables written as the work goes on (`coid
-/// export`): each file grows row group by row group in a temporary folder
-/// beside `out`; [`TablesFolder::finish`] adds text files and renames the
-/// folder into place. Dropped unfinished, it leaves nothing behind.
+/// export`): each file grows row group by row group in the claimed
+/// folder's staging folder; [`TablesFolder::finish`] adds text files and
+/// publishes it. Dropped unfinished, it leaves nothing behind.
 pub struct TablesFolder {
-    staged: Staged,
+    claim: Claim,
     files: Vec<(String, frames::TableWriter)>,
 }
 
 impl TablesFolder {
     /// One Parquet file per `(name, template)`, with the template's
-    /// columns. Refused at once when `out` exists and `existing` does not
-    /// allow it, or cannot be written.
-    pub fn create(
-        out: &Path,
-        existing: Existing,
-        files: &[(&str, Table)],
-    ) -> Result<Self, OutputError> {
-        let staged = Staged::new(out, existing)?;
+    /// columns, in the claimed folder.
+    pub fn create(claim: Claim, files: &[(&str, Table)]) -> Result<Self, OutputError> {
         let files = files
             .iter()
             .map(|(name, template)| {
-                let path = staged.dir.path().join(name);
+                let path = claim.dir().join(name);
                 Ok((
                     (*name).to_owned(),
                     frames::TableWriter::create(&path, template)?,
                 ))
             })
             .collect::<Result<_, OutputError>>()?;
-        Ok(Self { staged, files })
+        Ok(Self { claim, files })
     }
 
     /// Appends `table` to the file `name` (one of those it was made with).
@@ -377,61 +151,14 @@ impl TablesFolder {
         }
     }
 
-    /// Completes every file, adds `texts` and renames the folder into place.
+    /// Completes every file, adds `texts` and publishes the folder.
     pub fn finish(self, texts: &[(&str, String)]) -> Result<(), OutputError> {
         for (_, w) in self.files {
             w.finish()?;
         }
-        write_texts(self.staged.dir.path(), texts)?;
-        self.staged.publish()
+        write_texts(self.claim.dir(), texts)?;
+        self.claim.publish()
     }
-}
-
-/// Renames the complete `staged` folder to `out`; an old `out` moves into a
-/// temporary folder first and is removed once the new one is in place.
-fn replace_dir(
-    staged: tempfile::TempDir,
-    out: &Path,
-    parent: &Path,
-    name: &str,
-) -> Result<(), OutputError> {
-    let old = if out.exists() {
-        let old = staging_dir(parent, &format!("{name}.old"))?;
-        std::fs::rename(out, old.path().join(name)).map_err(io(out))?;
-        Some(old)
-    } else {
-        None
-    };
-    let staged = staged.keep();
-    std::fs::rename(&staged, out).map_err(|e| {
-        let _ = std::fs::remove_dir_all(&staged);
-        io(out)(e)
-    })?;
-    drop(old);
-    Ok(())
-}
-
-/// Adds files to the existing folder `dir`: `fill` writes them into a
-/// temporary folder inside `dir`, then each is renamed into place (an
-/// existing file of the same name is replaced).
-pub fn publish_files(
-    dir: &Path,
-    fill: impl FnOnce(&Path) -> Result<(), OutputError>,
-) -> Result<(), OutputError> {
-    std::fs::create_dir_all(dir).map_err(io(dir))?;
-    let staged = staging_dir(dir, "staging")?;
-    fill(staged.path())?;
-    let mut names: Vec<_> = std::fs::read_dir(staged.path())
-        .map_err(io(staged.path()))?
-        .map(|e| e.map(|e| e.file_name()))
-        .collect::<Result<_, _>>()
-        .map_err(io(staged.path()))?;
-    names.sort();
-    for name in names {
-        let dst = dir.join(&name);
-        std::fs::rename(staged.path().join(&name), &dst).map_err(io(&dst))?;
-    }
-    Ok(())
 }
 
 /// Writes each `(file name, text)` into `dir`.
@@ -461,42 +188,37 @@ fn write_text(path: &Path, text: &str) -> Result<(), OutputError> {
 }
 
 /// Writes `coid track`'s tables (CSV) and whatever `plots` draws into
-/// `out`, atomically.
+/// `dir`.
 pub fn write_tracking(
-    out: &Path,
-    existing: Existing,
+    dir: &Path,
     tables: &[(&str, &Table)],
     plots: impl FnOnce(&Path) -> Result<(), OutputError>,
 ) -> Result<(), OutputError> {
-    atomic_dir(out, existing, |dir| {
-        for (name, t) in tables {
-            frames::write_table(&dir.join(name), t)?;
-        }
-        plots(dir)
-    })
+    for (name, t) in tables {
+        frames::write_table(&dir.join(name), t)?;
+    }
+    plots(dir)
 }
 
 /// Writes `coid eval`'s tables (CSV), its `summary.md` and whatever `plots`
-/// draws into `out`, atomically.
+/// draws into `dir` (made if missing).
 pub fn write_eval(
-    out: &Path,
+    dir: &Path,
     settings: &Settings,
     tables: &[(&str, &Table)],
     choices: &std::collections::BTreeMap<Method, DeepChoice>,
     pooled: Option<&str>,
-    existing: Existing,
     plots: impl FnOnce(&Path) -> Result<(), OutputError>,
 ) -> Result<(), OutputError> {
-    atomic_dir(out, existing, |dir| -> Result<(), OutputError> {
-        for (name, t) in tables {
-            frames::write_table(&dir.join(name), t)?;
-        }
-        write_text(
-            &dir.join("summary.md"),
-            &markdown::eval(settings, tables, choices, pooled),
-        )?;
-        plots(dir)
-    })
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    for (name, t) in tables {
+        frames::write_table(&dir.join(name), t)?;
+    }
+    write_text(
+        &dir.join("summary.md"),
+        &markdown::eval(settings, tables, choices, pooled),
+    )?;
+    plots(dir)
 }
 
 // ---------------------------------------------------------------------------
@@ -731,19 +453,28 @@ pub fn write_model(dir: &Path, record: &TrainingRecord, weights: &[u8]) -> Resul
 // Batch folders.
 // ---------------------------------------------------------------------------
 
-/// Whether a run folder is complete and whole: its three files, the
-/// summary not cut short, the Parquet file with both its magic numbers
-/// (a damaged folder is run again by a resumed batch).
-pub fn run_is_complete(run_dir: &Path) -> bool {
-    let summary = std::fs::read_to_string(run_dir.join("summary.csv")).unwrap_or_default();
-    summary_is_whole(&summary)
-        && std::fs::metadata(run_dir.join("summary.md")).is_ok_and(|m| m.len() > 0)
-        && frames::parquet_is_whole(&run_dir.join("objects.parquet"))
+/// The folder of run `i` in a batch folder.
+pub fn run_dir(batch_dir: &Path, i: usize) -> PathBuf {
+    batch_dir.join("runs").join(format!("run-{i:06}"))
 }
 
-/// Whether a run's `summary.csv` is whole: a header, at least one row,
-/// every row with the header's number of fields, ended by a newline (a
-/// file cut short fails one of these).
+/// Whether run `i` of `batch` is complete and whole in `batch_dir`: its
+/// identity names this batch and run, it holds exactly the files that
+/// identity lists, the summary has its rows and the Parquet file both its
+/// magic numbers (anything else is run again by a resumed batch).
+pub fn run_is_complete(batch_dir: &Path, batch: &BatchRecord, i: usize) -> bool {
+    let dir = run_dir(batch_dir, i);
+    let summary = std::fs::read_to_string(dir.join("summary.csv")).unwrap_or_default();
+    folder::is_batch_run(&dir, &batch.run(i))
+        && summary_is_whole(&summary)
+        && std::fs::metadata(dir.join("summary.md")).is_ok_and(|m| m.len() > 0)
+        && frames::parquet_is_whole(&dir.join("objects.parquet"))
+}
+
+/// Whether a run's `summary.csv` is whole: a header, at least one row (a
+/// run without instances has one per method, level and fusion variant,
+/// with `n_instances` 0), every row with the header's number of fields,
+/// ended by a newline (a file cut short fails one of these).
 fn summary_is_whole(text: &str) -> bool {
     let mut lines = text.lines();
     let Some(header) = lines.next() else {
@@ -758,24 +489,47 @@ fn summary_is_whole(text: &str) -> bool {
         && rows.iter().all(|r| fields(r) == n && !r.is_empty())
 }
 
+/// A batch folder held by this process: an exclusive lock on the folder,
+/// released when dropped (or when the process ends, however it ends), so
+/// that two `coid batch` never work in one folder at once.
+#[derive(Debug)]
+pub struct BatchLock {
+    _folder: std::fs::File,
+}
+
 /// Claims `dir` for the batch described by `identity` (its `batch.toml`):
 /// creates it, or accepts it when it holds the same batch; a folder of
-/// another batch is refused.
-pub fn claim_batch_folder(dir: &Path, identity: &BatchRecord) -> Result<(), OutputError> {
-    let has_entries = std::fs::read_dir(dir).is_ok_and(|mut d| d.next().is_some());
-    if has_entries && !dir.join("batch.toml").is_file() {
-        return Err(OutputError::Batch(format!(
-            "{} exists and is not a batch folder (no batch.toml); choose another --out",
-            dir.display()
-        )));
+/// another batch, a folder that is not a batch's, and a folder another
+/// `coid batch` works in now are refused.
+pub fn claim_batch_folder(dir: &Path, identity: &BatchRecord) -> Result<BatchLock, OutputError> {
+    match folder::check_extendable(dir, ResultKind::Batch, Existing::Replace) {
+        Ok(()) => {}
+        Err(OutputError::NotReplaceable { why, .. }) => {
+            let empty = std::fs::read_dir(dir).is_ok_and(|mut d| d.next().is_none());
+            if !dir.join("batch.toml").is_file() && !empty {
+                return Err(OutputError::Batch(format!(
+                    "{} exists and is not a batch folder (no batch.toml); choose another --out",
+                    dir.display()
+                )));
+            }
+            if !empty {
+                return Err(OutputError::Batch(format!(
+                    "{} holds a batch this coid cannot resume ({why}); choose another --out",
+                    dir.display()
+                )));
+            }
+        }
+        Err(e) => return Err(e),
     }
     std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let lock = lock_folder(dir)?;
     if !dir.join("batch.toml").is_file() {
-        return write_batch_identity(dir, identity);
+        write_batch_identity(dir, identity)?;
+        return Ok(lock);
     }
     let existing = batch_identity(dir)?;
     if existing.same_batch(identity) {
-        return Ok(());
+        return Ok(lock);
     }
     let what = if existing.runs != identity.runs || existing.master_seed != identity.master_seed {
         format!(
@@ -794,6 +548,25 @@ pub fn claim_batch_folder(dir: &Path, identity: &BatchRecord) -> Result<(), Outp
     )))
 }
 
+/// Takes the exclusive lock of a batch folder (`flock` on the folder).
+fn lock_folder(dir: &Path) -> Result<BatchLock, OutputError> {
+    use std::os::fd::AsRawFd;
+    let f = std::fs::File::open(dir).map_err(io(dir))?;
+    // SAFETY: flock on a descriptor this function owns.
+    let r = unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    if r != 0 {
+        let e = std::io::Error::last_os_error();
+        if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+            return Err(OutputError::Batch(format!(
+                "another coid batch is working in {} now (wait for it to finish, or choose another --out)",
+                dir.display()
+            )));
+        }
+        return Err(io(dir)(e));
+    }
+    Ok(BatchLock { _folder: f })
+}
+
 /// The identity (`batch.toml`) of a batch folder.
 pub fn batch_identity(dir: &Path) -> Result<BatchRecord, OutputError> {
     let text = std::fs::read_to_string(dir.join("batch.toml")).map_err(|_| {
@@ -810,32 +583,20 @@ pub fn batch_identity(dir: &Path) -> Result<BatchRecord, OutputError> {
     })
 }
 
-/// The complete run folders under `<batch_dir>/runs`, sorted by name.
-pub fn completed_runs(batch_dir: &Path) -> Result<Vec<PathBuf>, OutputError> {
-    let runs = batch_dir.join("runs");
-    if !runs.is_dir() {
-        return Ok(Vec::new());
-    }
-    let mut out = Vec::new();
-    for e in std::fs::read_dir(&runs).map_err(io(&runs))? {
-        let p = e.map_err(io(&runs))?.path();
-        let name = p
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        if name.starts_with("run-") && run_is_complete(&p) {
-            out.push(p);
-        }
-    }
-    out.sort();
-    Ok(out)
+/// The complete runs of `batch` in `batch_dir`, as (run index, folder), in
+/// run order; folders under `runs/` that are not whole runs of this batch
+/// are left out.
+pub fn completed_runs(batch_dir: &Path, batch: &BatchRecord) -> Vec<(usize, PathBuf)> {
+    (0..batch.runs)
+        .filter(|&i| run_is_complete(batch_dir, batch, i))
+        .map(|i| (i, run_dir(batch_dir, i)))
+        .collect()
 }
 
-/// The summary rows of each complete run, in run order.
+/// The summary rows of each run folder, in the order given.
 pub fn read_runs(run_dirs: &[PathBuf]) -> Result<Vec<Vec<RunRow>>, OutputError> {
-    let mut dirs = run_dirs.to_vec();
-    dirs.sort_by(|a, b| a.file_name().cmp(&b.file_name()));
-    dirs.iter()
+    run_dirs
+        .iter()
         .map(|d| frames::read_run_summary(&d.join("summary.csv")))
         .collect()
 }
@@ -855,22 +616,9 @@ pub fn write_batch_summary(
     })
 }
 
-/// Copies a complete run folder (flat: files only) into `dst` atomically.
+/// Copies a complete run folder (its files and identity) to `dst`.
 pub fn copy_run(src: &Path, dst: &Path) -> Result<(), OutputError> {
-    atomic_dir(
-        dst,
-        Existing::Replace(ResultKind::Run),
-        |tmp| -> Result<(), OutputError> {
-            for e in std::fs::read_dir(src).map_err(io(src))? {
-                let p = e.map_err(io(src))?.path();
-                if p.is_file() {
-                    let to = tmp.join(p.file_name().unwrap_or_default());
-                    std::fs::copy(&p, &to).map_err(io(&to))?;
-                }
-            }
-            Ok(())
-        },
-    )
+    folder::copy_folder(src, dst)
 }
 
 /// Writes a batch's identity (`batch.toml`).
@@ -883,98 +631,6 @@ pub fn write_batch_identity(dir: &Path, identity: &BatchRecord) -> Result<(), Ou
 mod tests {
     use super::*;
 
-    fn names(dir: &Path) -> Vec<String> {
-        let mut v: Vec<String> = std::fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        v.sort();
-        v
-    }
-
-    #[test]
-    fn a_folder_appears_complete_or_not_at_all() {
-        let root = tempfile::tempdir().unwrap();
-        let out = root.path().join("res");
-        // A failing fill leaves nothing behind.
-        let run = Existing::Replace(ResultKind::Eval);
-        let e = atomic_dir(&out, Existing::Refuse, |d| -> Result<(), OutputError> {
-            std::fs::write(d.join("a.csv"), "half").unwrap();
-            Err(OutputError::Batch("boom".into()))
-        });
-        assert!(e.is_err());
-        assert!(names(root.path()).is_empty(), "{:?}", names(root.path()));
-        // A complete one appears; an existing one is kept without force...
-        atomic_dir(&out, Existing::Refuse, |d| {
-            write_text(&d.join("a.csv"), "one")
-        })
-        .unwrap();
-        assert!(matches!(
-            atomic_dir(&out, Existing::Refuse, |_| -> Result<(), OutputError> {
-                Ok(())
-            }),
-            Err(OutputError::Exists(_))
-        ));
-        // ...and replaced with force, only once the new one is complete.
-        let e = atomic_dir(&out, run, |_| Err(OutputError::Batch("no".into())));
-        assert!(e.is_err());
-        assert_eq!(std::fs::read_to_string(out.join("a.csv")).unwrap(), "one");
-        atomic_dir(&out, run, |d| write_text(&d.join("b.csv"), "two")).unwrap();
-        assert_eq!(names(&out), vec!["b.csv"]);
-        assert_eq!(names(root.path()), vec!["res"]);
-        #[cfg(unix)]
-        {
-            use std::os::unix::fs::PermissionsExt;
-            let mode = std::fs::metadata(&out).unwrap().permissions().mode();
-            assert_ne!(
-                mode & 0o055,
-                0,
-                "a results folder is readable by others: {mode:o}"
-            );
-        }
-    }
-
-    /// Staging folders left by processes that are gone (killed) are
-    /// removed when the same folder is written again; those of a live
-    /// process stay.
-    #[test]
-    fn stale_staging_folders_of_dead_processes_are_removed() {
-        let root = tempfile::tempdir().unwrap();
-        // Above Linux's pid_max: no such process.
-        let dead = root.path().join(".res.tmp-2147483000-abc123");
-        let live = root
-            .path()
-            .join(format!(".res.tmp-{}-def456", std::process::id()));
-        for d in [&dead, &live] {
-            std::fs::create_dir_all(d).unwrap();
-        }
-        let out = root.path().join("res");
-        atomic_dir(&out, Existing::Refuse, |d| {
-            write_text(&d.join("a.csv"), "x")
-        })
-        .unwrap();
-        assert!(!dead.exists());
-        assert!(live.exists());
-    }
-
-    #[test]
-    fn published_files_replace_old_ones_and_leave_no_staging() {
-        let dir = tempfile::tempdir().unwrap();
-        write_text(&dir.path().join("summary.csv"), "old").unwrap();
-        publish_files(dir.path(), |t| {
-            write_text(&t.join("summary.csv"), "new")?;
-            write_text(&t.join("summary.md"), "md")
-        })
-        .unwrap();
-        assert_eq!(names(dir.path()), vec!["summary.csv", "summary.md"]);
-        assert_eq!(
-            std::fs::read_to_string(dir.path().join("summary.csv")).unwrap(),
-            "new"
-        );
-        assert!(publish_files(dir.path(), |_| Err(OutputError::Batch("x".into()))).is_err());
-        assert_eq!(names(dir.path()), vec!["summary.csv", "summary.md"]);
-    }
-
     #[test]
     fn a_batch_folder_belongs_to_one_batch() {
         let dir = tempfile::tempdir().unwrap();
@@ -984,10 +640,17 @@ mod tests {
             runs,
             master_seed: 1,
             config: path.into(),
+            config_text: String::new(),
         };
-        claim_batch_folder(&d, &id("ab", 4, "/x/c.toml")).unwrap();
-        // The same batch from a config at another path resumes.
-        claim_batch_folder(&d, &id("ab", 4, "/y/c.toml")).unwrap();
+        drop(claim_batch_folder(&d, &id("ab", 4, "/x/c.toml")).unwrap());
+        // The same batch from a config at another path resumes, but not
+        // while another claim holds the folder.
+        let held = claim_batch_folder(&d, &id("ab", 4, "/y/c.toml")).unwrap();
+        let e = claim_batch_folder(&d, &id("ab", 4, "/y/c.toml"))
+            .map(drop)
+            .unwrap_err();
+        assert!(e.to_string().contains("another coid batch"), "{e}");
+        drop(held);
         let e = claim_batch_folder(&d, &id("ab", 5, "/x/c.toml"))
             .unwrap_err()
             .to_string();

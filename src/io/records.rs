@@ -146,30 +146,101 @@ pub fn fnv64_hex(bytes: &[u8]) -> String {
 
 /// `batch.toml`: what a batch is, by content: the digest of its resolved
 /// configuration and of every file it reads, the number of runs and the
-/// master seed. Two batches are the same exactly when these are; the
-/// config's path is kept for the report only.
+/// master seed. Two batches are the same exactly when these are. It also
+/// keeps the configuration as it was read when the batch started (its
+/// text and where it was, which anchors its relative paths): every run of
+/// the batch runs from this record, never from the user's file again, so
+/// an edit to that file while the batch runs cannot mix configurations.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct BatchRecord {
     pub config_digest: String,
     pub runs: usize,
     pub master_seed: u64,
-    /// Where the config was read (informative: not part of the identity).
+    /// Where the config was read: anchors its relative paths (not part of
+    /// the identity).
     pub config: String,
+    /// The config file's text as it was read (not part of the identity:
+    /// the digest is).
+    pub config_text: String,
 }
 
 impl BatchRecord {
     pub fn to_toml(&self) -> Result<String, String> {
-        toml::to_string(self).map_err(|e| e.to_string())
+        let head = "# Written by `coid batch`: what this batch is. Every run reads its configuration\n\
+                    # from here; resuming checks that the configuration (and every file it reads) is\n\
+                    # still the same (config_digest).\n";
+        toml::to_string(self)
+            .map(|t| format!("{head}{t}"))
+            .map_err(|e| e.to_string())
     }
 
     pub fn from_toml(text: &str) -> Result<Self, String> {
         toml::from_str(text).map_err(|e| e.message().replace('\n', " "))
     }
 
-    /// Whether `other` is the same batch (the path aside).
+    /// Whether `other` is the same batch (the path and text aside).
     pub fn same_batch(&self, other: &BatchRecord) -> bool {
         (&self.config_digest, self.runs, self.master_seed)
             == (&other.config_digest, other.runs, other.master_seed)
+    }
+
+    /// What a run folder of this batch records about it ([`BatchRun`]).
+    pub fn run(&self, run: usize) -> BatchRun {
+        BatchRun {
+            batch_digest: self.config_digest.clone(),
+            master_seed: self.master_seed,
+            run,
+        }
+    }
+}
+
+/// `.coid-folder.toml`: the identity of a folder coid wrote as one piece
+/// (a run, an evaluation, pictures, an export, ...): which command made it,
+/// and every file it holds with its size. `--force` replaces a folder only
+/// when this file says it is of the same kind and the folder still holds
+/// exactly those files; a batch counts a run folder only when it names the
+/// batch and run, and its files are whole.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FolderRecord {
+    /// The kind of folder (`run`, `eval`, `render`, ...).
+    pub kind: String,
+    /// The coid version that wrote it.
+    pub coid_version: String,
+    /// For a run of a batch: which batch and run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub batch_run: Option<BatchRun>,
+    /// Every file, by path relative to the folder (`/`-separated), sorted.
+    #[serde(default)]
+    pub files: Vec<FileEntry>,
+}
+
+/// The batch and run a run folder belongs to: run `run` of the batch whose
+/// configuration digest is `batch_digest`, seeds derived from `master_seed`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BatchRun {
+    pub batch_digest: String,
+    pub master_seed: u64,
+    pub run: usize,
+}
+
+/// One file of a folder and its size.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FileEntry {
+    pub path: String,
+    pub bytes: u64,
+}
+
+impl FolderRecord {
+    pub fn to_toml(&self) -> Result<String, String> {
+        let head = "# Written by coid: what made this folder and the files it holds. `--force` replaces\n\
+                    # the folder only while it holds exactly these files.\n";
+        toml::to_string(self)
+            .map(|t| format!("{head}{t}"))
+            .map_err(|e| e.to_string())
+    }
+
+    pub fn from_toml(text: &str) -> Result<Self, String> {
+        toml::from_str(text).map_err(|e| e.message().replace('\n', " "))
     }
 }
 
@@ -253,6 +324,7 @@ mod tests {
             runs: 4,
             master_seed: 1,
             config: "/x/c.toml".into(),
+            config_text: "[seeds]\ntraffic = 3\n".into(),
         };
         let moved = BatchRecord {
             config: "/elsewhere/c.toml".into(),
@@ -265,5 +337,24 @@ mod tests {
         };
         assert!(!a.same_batch(&edited));
         assert_eq!(BatchRecord::from_toml(&a.to_toml().unwrap()).unwrap(), a);
+    }
+
+    #[test]
+    fn a_folder_record_reads_back_as_written() {
+        let r = FolderRecord {
+            kind: "run".into(),
+            coid_version: "0.1.0".into(),
+            batch_run: Some(BatchRun {
+                batch_digest: "ab".into(),
+                master_seed: 1,
+                run: 5,
+            }),
+            files: vec![FileEntry {
+                path: "pooled/table1.csv".into(),
+                bytes: 12,
+            }],
+        };
+        assert_eq!(FolderRecord::from_toml(&r.to_toml().unwrap()).unwrap(), r);
+        assert!(FolderRecord::from_toml("kind = 3").is_err());
     }
 }

@@ -500,6 +500,20 @@ pub fn run(
     let started = Instant::now();
     let runners = runners(settings, &settings.matching.methods)?;
     let mut results = RunResults::default();
+    // Every row is there from the start: a run without any instance has
+    // them too (`n_instances` 0, no metric), so it is a complete run.
+    for &method in &settings.matching.methods {
+        for level in &settings.pose_noise {
+            for &fusion in &settings.fusion.variants {
+                let key = RowKey {
+                    method,
+                    pose_noise: level.label,
+                    fusion,
+                };
+                results.summary.rows.entry(key).or_default();
+            }
+        }
+    }
     let mut rows = Vec::new();
     let stats = evaluate_frames(
         settings,
@@ -730,10 +744,20 @@ mod parallel {
             steps: BTreeMap::new(),
         };
         std::thread::scope(|scope| {
-            for _ in 0..threads {
+            for k in 0..threads {
                 let done = done_tx.clone();
                 let tasks = &task_rx;
-                scope.spawn(move || worker(settings, runners, tasks, done));
+                let started = std::thread::Builder::new()
+                    .name(format!("coid-eval-{k}"))
+                    .spawn_scoped(scope, move || worker(settings, runners, tasks, done));
+                if let Err(e) = started {
+                    // The threads already started end once the queue closes.
+                    drop(task_tx);
+                    return Err(RunError::Worker(format!(
+                        "cannot start evaluation thread {} of {threads}: {e} (use fewer --threads)",
+                        k + 1
+                    )));
+                }
             }
             drop(done_tx);
             let mut seq = 0;

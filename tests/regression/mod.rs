@@ -1,0 +1,653 @@
+//! Regression tests, one per defect, named after the issue and finding
+//! that reported it (`r31_01_...`: issue 31, finding 1), through the real
+//! binary where a user meets the defect. Each failed on the code before
+//! its fix.
+
+use super::*;
+use std::time::{Duration, Instant};
+
+/// A config on the shipped scenario with the two fast methods.
+fn fast(fx: &Fixture, name: &str, end_s: f64, extra: &str) -> PathBuf {
+    fx.config(
+        name,
+        end_s,
+        &format!("[matching]\nmethods = [\"gps-hungarian\", \"oracle\"]\n{extra}"),
+    )
+}
+
+fn batch(fx: &Fixture, cfg: &Path, runs: &str, out: &str, extra: &[&str]) -> Output {
+    let c = cfg.to_str().unwrap();
+    let args = [
+        "batch",
+        "-q",
+        "-c",
+        c,
+        "--runs",
+        runs,
+        "--workers",
+        "2",
+        "-o",
+        out,
+    ];
+    fx.coid(&[&args[..], extra].concat())
+}
+
+fn spawn(fx: &Fixture, args: &[&str]) -> std::process::Child {
+    coid_in(fx.dir.path())
+        .args(args)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Names in `dir` (sorted).
+fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+/// Whether a staging folder for `name` is in `dir`.
+fn staging(dir: &Path, name: &str) -> bool {
+    let prefix = format!(".{name}.tmp-");
+    names(dir).iter().any(|n| n.starts_with(&prefix))
+}
+
+/// Any staging folder in `dir`.
+fn any_staging(dir: &Path) -> bool {
+    names(dir)
+        .iter()
+        .any(|n| n.starts_with('.') && n.contains(".tmp-"))
+}
+
+fn wait_for_staging(fx: &Fixture, name: &str, child: &mut std::process::Child) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    wait_until(deadline, "the command never claimed its folder", || {
+        assert!(child.try_wait().unwrap().is_none(), "it ended too soon");
+        staging(fx.dir.path(), name)
+    });
+}
+
+/// A command refused with one line, no panic, exit code `code`.
+fn refused_with(out: &Output, code: i32, expect: &str) {
+    let err = stderr(out);
+    assert_eq!(out.status.code(), Some(code), "{err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    assert_eq!(err.trim().lines().count(), 1, "not one line: {err}");
+    assert!(err.contains(expect), "expected {expect:?} in: {err}");
+}
+
+fn modified(p: &Path) -> std::time::SystemTime {
+    std::fs::metadata(p).unwrap().modified().unwrap()
+}
+
+/// 1. A run in which no two connected vehicles share an object is a
+///    complete run: the batch exits 0, counts it apart, and a resume does
+///    not run it again.
+#[test]
+fn r31_01_a_batch_with_a_run_without_instances_completes() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "b.toml", 130.0, "");
+    let out = batch(&fx, &cfg, "6", "b", &[]);
+    assert_ok(&out);
+    let empty: Vec<usize> = (0..6)
+        .filter(|i| {
+            let s = read_csv(&fx.path(&format!("b/runs/run-{i:06}/summary.csv")));
+            s.height() > 0 && f64s(&s, "n_instances").iter().all(|&n| n == 0.0)
+        })
+        .collect();
+    assert!(
+        !empty.is_empty(),
+        "no run without instances: pick other runs"
+    );
+    let s = read_csv(&fx.path("b/summary.csv"));
+    let with = f64s(&s, "n_runs");
+    let without = f64s(&s, "n_runs_without_instances");
+    for (w, e) in with.iter().zip(&without) {
+        assert_eq!((*w + *e, *e), (6.0, empty.len() as f64));
+    }
+    assert!(f64s(&s, "f1").iter().all(|v| v.is_finite()));
+    assert!(
+        stderr(&out).contains("without any instance"),
+        "{}",
+        stderr(&out)
+    );
+    let first_empty = fx.path(&format!("b/runs/run-{:06}/summary.csv", empty[0]));
+    let before = modified(&first_empty);
+    let again = batch(&fx, &cfg, "6", "b", &[]);
+    assert_ok(&again);
+    assert!(stderr(&again).contains("0 runs done"), "{}", stderr(&again));
+    assert_eq!(modified(&first_empty), before);
+}
+
+/// 2. What appears at `--out` while a run goes on is never replaced (the
+///    run's results are kept beside it and it says so), nor is a folder
+///    `--force` was to replace that changed meanwhile; of two runs into one
+///    `--out`, exactly one writes it.
+#[test]
+fn r31_02_a_run_never_replaces_what_appeared_at_its_out() {
+    let fx = Fixture::new();
+    let cfg = fx.config("c.toml", 130.0, "");
+    let c = cfg.to_str().unwrap();
+    let mut child = spawn(&fx, &["run", "-q", "-c", c, "-o", "out"]);
+    wait_for_staging(&fx, "out", &mut child);
+    std::fs::create_dir_all(fx.path("out")).unwrap();
+    std::fs::write(fx.path("out/mine.txt"), "precious").unwrap();
+    let pid = child.id();
+    let o = child.wait_with_output().unwrap();
+    refused_with(&o, 1, "appeared while");
+    assert_eq!(names(&fx.path("out")), ["mine.txt"]);
+    let kept = fx.path(&format!("out.coid-{pid}"));
+    assert!(kept.join("summary.csv").is_file(), "the results were lost");
+    // --force, and the folder it replaces gets a file meanwhile.
+    assert_ok(&fx.coid(&["run", "-q", "-c", c, "-o", "f"]));
+    let old = std::fs::read(fx.path("f/summary.csv")).unwrap();
+    let mut child = spawn(&fx, &["run", "-q", "--force", "-c", c, "-o", "f"]);
+    wait_for_staging(&fx, "f", &mut child);
+    std::fs::write(fx.path("f/note.txt"), "added").unwrap();
+    refused_with(&child.wait_with_output().unwrap(), 1, "changed while");
+    assert!(fx.path("f/note.txt").is_file());
+    assert_eq!(std::fs::read(fx.path("f/summary.csv")).unwrap(), old);
+    // Two runs with different configs into one folder at once.
+    let other = fx.config("d.toml", 130.0, "[seeds]\ntraffic = 2\n");
+    let d = other.to_str().unwrap();
+    let a = spawn(&fx, &["run", "-q", "-c", c, "-o", "both"]);
+    let b = spawn(&fx, &["run", "-q", "-c", d, "-o", "both"]);
+    let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
+    assert_ne!(
+        a.status.success(),
+        b.status.success(),
+        "{}{}",
+        stderr(&a),
+        stderr(&b)
+    );
+    let lost = if a.status.success() { &b } else { &a };
+    let err = stderr(lost);
+    assert!(
+        err.contains("another coid") || err.contains("appeared while"),
+        "{err}"
+    );
+    assert!(fx.path("both/summary.csv").is_file());
+}
+
+/// 3. `--with-matches oracle` writes each instance row once, and the
+///    oracle's matches: the export's true pairs at every level.
+#[test]
+fn r31_03_export_with_matches_oracle_writes_every_row_once() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "e.toml", 60.0, "[eval]\ntraffic_seeds = [1]\n");
+    let c = cfg.to_str().unwrap();
+    let export = ["export", "-q", "-c", c, "--splits", "test"];
+    assert_ok(&fx.coid(&[&export[..], &["-o", "plain"]].concat()));
+    let with = ["--with-matches", "oracle", "-o", "with"];
+    assert_ok(&fx.coid(&[&export[..], &with[..]].concat()));
+    for f in ["nodes", "edges", "truth", "true_pairs", "instances"] {
+        let file = format!("{f}.parquet");
+        let (p, w) = (
+            read_parquet(&fx.path("plain").join(&file)).height(),
+            read_parquet(&fx.path("with").join(&file)).height(),
+        );
+        assert_eq!(p, w, "{file}");
+    }
+    let pairs = read_parquet(&fx.path("with/true_pairs.parquet")).height();
+    let oracle = read_parquet(&fx.path("with/matches-oracle.parquet")).height();
+    assert!(pairs > 0);
+    assert_eq!(oracle, 3 * pairs, "one row per true pair and level");
+    let score = [
+        "score",
+        "-q",
+        "-c",
+        c,
+        "--matches",
+        "with/true_pairs.parquet",
+        "-o",
+        "s",
+    ];
+    assert_ok(&fx.coid(&score));
+    let twice = ["--with-matches", "oracle", "oracle", "-o", "twice"];
+    refused_with(&fx.coid(&[&export[..], &twice[..]].concat()), 1, "twice");
+}
+
+/// 4. Editing the config while a batch runs changes nothing in it: every
+///    run runs from the batch's record; a resume with the edited file is
+///    another batch, refused.
+#[test]
+fn r31_04_a_config_edited_mid_batch_does_not_mix_configurations() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "b.toml", 75.0, "");
+    let c = cfg.to_str().unwrap();
+    let args = ["batch", "-q", "-c", c, "--runs", "4", "--workers", "1"];
+    assert_ok(&fx.coid(&[&args[..], &["-o", "plain"]].concat()));
+    let mut child = spawn(&fx, &[&args[..], &["-o", "edited"]].concat());
+    let first = fx.path("edited/runs/run-000000/summary.csv");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    wait_until(deadline, "the first run never finished", || {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the batch ended too soon"
+        );
+        first.is_file()
+    });
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    std::fs::write(&cfg, format!("{text}[sensor]\nrange_sigma_per_m = 0.3\n")).unwrap();
+    assert_ok(&child.wait_with_output().unwrap());
+    let bytes = |d: &str| std::fs::read(fx.path(d).join("summary.csv")).unwrap();
+    assert_eq!(bytes("edited"), bytes("plain"));
+    let resumed = fx.coid(&[&args[..], &["-o", "edited"]].concat());
+    refused_with(&resumed, 1, "has changed since");
+}
+
+/// 5. A scenario named twice in an evaluation (by `--suite` or `[eval]
+///    scenarios`, under any path) is refused: its runs would count twice
+///    in the pooled tables.
+#[test]
+fn r31_05_eval_refuses_a_scenario_named_twice() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "e.toml", 60.0, "[eval]\ntraffic_seeds = [1]\n");
+    let c = cfg.to_str().unwrap();
+    let o = fx.coid(&["eval", "-q", "-c", c, "--suite", c, "-o", "e"]);
+    refused_with(&o, 1, "the same runs");
+    std::fs::create_dir_all(fx.path("sub")).unwrap();
+    std::fs::copy(&cfg, fx.path("sub/e.toml")).unwrap();
+    let o = fx.coid(&["eval", "-q", "-c", c, "--suite", "sub/e.toml", "-o", "e"]);
+    refused_with(&o, 1, "the same runs");
+    let own = fast(
+        &fx,
+        "own.toml",
+        60.0,
+        "[eval]\ntraffic_seeds = [1]\nscenarios = [\"own.toml\"]\n",
+    );
+    let o = fx.coid(&["eval", "-q", "-c", own.to_str().unwrap(), "-o", "e"]);
+    refused_with(&o, 1, "the same runs");
+    assert!(!fx.path("e").exists());
+}
+
+/// 6. `merge` without every run of the batch fails (unless `--partial`),
+///    and writes nothing.
+#[test]
+fn r31_06_merge_with_a_shard_missing_fails() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "b.toml", 75.0, "");
+    assert_ok(&batch(&fx, &cfg, "3", "s1", &["--shard", "1/2"]));
+    refused_with(&fx.coid(&["merge", "s1", "-o", "m"]), 1, "missing (1)");
+    assert!(!fx.path("m").exists());
+    assert_ok(&fx.coid(&["merge", "s1", "--partial", "-o", "m"]));
+    let md = std::fs::read_to_string(fx.path("m/summary.md")).unwrap();
+    assert!(md.contains("2 of 3 runs complete"), "{md}");
+}
+
+/// 7. `score` refuses matches made from another configuration's export,
+///    and says which scored runs the matches file leaves out entirely.
+#[test]
+fn r31_07_score_checks_the_export_it_scores() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "a.toml", 60.0, "[eval]\ntraffic_seeds = [1, 2]\n");
+    let c = cfg.to_str().unwrap();
+    let export = ["export", "-q", "-c", c, "--splits", "test", "-o", "ex"];
+    assert_ok(&fx.coid(&[&export[..], &["--with-matches", "gps-hungarian"]].concat()));
+    let other = fast(
+        &fx,
+        "b.toml",
+        60.0,
+        "[eval]\ntraffic_seeds = [1, 2]\n[sensor]\nfalse_positives_per_frame = 0.5\n",
+    );
+    let matches = "ex/matches-gps-hungarian.parquet";
+    let o = fx.coid(&[
+        "score",
+        "-q",
+        "-c",
+        other.to_str().unwrap(),
+        "--matches",
+        matches,
+        "-o",
+        "s",
+    ]);
+    refused_with(&o, 1, "another configuration");
+    // Only the first run's true pairs, as CSV outside the export.
+    let pairs = read_parquet(&fx.path("ex/true_pairs.parquet"));
+    let runs = f64s(&pairs, "run");
+    let keep = runs[0];
+    let mut csv = String::from("run,instance,a,b\n");
+    for (k, r) in runs.iter().enumerate() {
+        if *r == keep {
+            let v = |c: &str| f64s(&pairs, c)[k] as u64;
+            csv.push_str(&format!(
+                "{},{},{},{}\n",
+                *r as u64,
+                v("instance"),
+                v("a"),
+                v("b")
+            ));
+        }
+    }
+    fx.write("first.csv", &csv);
+    let o = fx.coid(&["score", "-q", "-c", c, "--matches", "first.csv", "-o", "s"]);
+    refused_with(&o, 1, "pass --export");
+    let score = [
+        "score",
+        "-q",
+        "-c",
+        c,
+        "--matches",
+        "first.csv",
+        "--export",
+        "ex",
+        "-o",
+        "s",
+    ];
+    let o = fx.coid(&score);
+    assert_ok(&o);
+    assert!(
+        stderr(&o).contains("names no instance of run(s)"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+/// 8. A batch and `merge` take only the runs of their own batch: a
+///    standalone run put in place of a batch's run is not that run.
+#[test]
+fn r31_08_batch_and_merge_take_only_their_own_runs() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "b.toml", 75.0, "");
+    assert_ok(&batch(&fx, &cfg, "2", "b", &[]));
+    let whole = std::fs::read(fx.path("b/summary.csv")).unwrap();
+    let c = cfg.to_str().unwrap();
+    let run = ["run", "-q", "--force", "-c", c, "--traffic-seed", "7"];
+    assert_ok(&fx.coid(&[&run[..], &["-o", "b/runs/run-000001"]].concat()));
+    refused_with(&fx.coid(&["merge", "b", "-o", "m"]), 1, "missing (1)");
+    let again = batch(&fx, &cfg, "2", "b", &[]);
+    assert_ok(&again);
+    assert!(stderr(&again).contains("1 runs done"), "{}", stderr(&again));
+    assert_eq!(std::fs::read(fx.path("b/summary.csv")).unwrap(), whole);
+}
+
+/// 9. `--force` never replaces a folder coid did not write, whatever
+///    files it holds: a user's folder with files named as a run's, or a
+///    scenario of their own where `coid scenarios` would write one.
+#[test]
+fn r31_09_force_never_replaces_a_folder_coid_did_not_write() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "c.toml", 60.0, "");
+    std::fs::create_dir_all(fx.path("mine")).unwrap();
+    for f in ["summary.csv", "summary.md", "objects.parquet"] {
+        fx.write(&format!("mine/{f}"), "mine");
+    }
+    let c = cfg.to_str().unwrap();
+    for cmd in ["run", "eval", "render"] {
+        let o = fx.coid(&[cmd, "-q", "--force", "-c", c, "-o", "mine"]);
+        refused_with(&o, 1, "coid did not write it");
+    }
+    assert_eq!(names(&fx.path("mine")).len(), 3);
+    assert_eq!(
+        std::fs::read_to_string(fx.path("mine/summary.csv")).unwrap(),
+        "mine"
+    );
+    std::fs::create_dir_all(fx.path("fam/s000")).unwrap();
+    fx.write("fam/s000/coid.toml", "# my own scenario");
+    fx.write("fam/s000/net.net.xml", "<net/>");
+    let o = fx.coid(&["scenarios", "-q", "--count", "1", "--force", "--out", "fam"]);
+    refused_with(&o, 1, "coid did not write it");
+    assert_eq!(
+        std::fs::read_to_string(fx.path("fam/s000/coid.toml")).unwrap(),
+        "# my own scenario"
+    );
+}
+
+/// 10. A value that would allocate without bound is refused in one line
+///     before anything runs.
+#[test]
+fn r31_10_mc_samples_beyond_the_bound_are_refused() {
+    let fx = Fixture::new();
+    for (extra, key) in [
+        (
+            "[matching]\nmc_samples = 1000000000\n",
+            "matching.mc_samples",
+        ),
+        ("[train]\nmc_samples = 100000\n", "train.mc_samples"),
+        (
+            "[camera]\nyaw_offsets_deg = [0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16]\n",
+            "at most 16",
+        ),
+    ] {
+        let cfg = fx.config("c.toml", 60.0, extra);
+        let o = fx.run(&cfg, "r");
+        refused_with(&o, 1, key);
+        assert!(!fx.path("r").exists() && !any_staging(fx.dir.path()));
+    }
+}
+
+/// 11. Thread and worker counts out of range are usage errors, never a
+///     panic; a batch says how many workers it really uses.
+#[test]
+fn r31_11_threads_and_workers_out_of_range_are_refused() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "c.toml", 60.0, "");
+    let c = cfg.to_str().unwrap();
+    for args in [
+        vec!["run", "-q", "-c", c, "--threads", "100000", "-o", "r"],
+        vec!["run", "-q", "-c", c, "--threads", "0", "-o", "r"],
+        vec![
+            "batch",
+            "-q",
+            "-c",
+            c,
+            "--runs",
+            "1",
+            "--workers",
+            "0",
+            "-o",
+            "b",
+        ],
+        vec![
+            "batch",
+            "-q",
+            "-c",
+            c,
+            "--runs",
+            "1",
+            "--workers",
+            "100000",
+            "-o",
+            "b",
+        ],
+        vec![
+            "batch",
+            "-q",
+            "-c",
+            c,
+            "--runs",
+            "1",
+            "--threads",
+            "100000",
+            "-o",
+            "b",
+        ],
+    ] {
+        let o = fx.coid(&args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains("is not in 1..=1024"), "{}", stderr(&o));
+        assert!(!stderr(&o).contains("panicked"));
+    }
+    assert!(!fx.path("r").exists() && !fx.path("b").exists());
+    assert!(!any_staging(fx.dir.path()));
+    let o = fx.coid(&[
+        "batch",
+        "-q",
+        "-c",
+        c,
+        "--runs",
+        "1",
+        "--workers",
+        "8",
+        "-o",
+        "b",
+    ]);
+    assert_ok(&o);
+    assert!(stderr(&o).contains("on 1 worker "), "{}", stderr(&o));
+}
+
+/// 12. Temporary files go: a run leaves nothing in the temporary folder;
+///     Ctrl-C removes the run's staging folder and its capture of SUMO's
+///     messages; what a process killed outright leaves is removed by the
+///     next coid (also for another `--out` in the same folder).
+#[test]
+fn r31_12_no_temporary_files_are_left_behind() {
+    let fx = Fixture::new();
+    let tmp = fx.path("tmp");
+    std::fs::create_dir_all(&tmp).unwrap();
+    let cfg = fast(&fx, "c.toml", 130.0, "[connected]\npenetration = 0.3\n");
+    let c = cfg.to_str().unwrap();
+    let run = |out: &str| {
+        coid_in(fx.dir.path())
+            .env("TMPDIR", &tmp)
+            .args(["run", "-q", "-c", c, "-o", out])
+            .spawn()
+            .unwrap()
+    };
+    assert!(run("a").wait().unwrap().success());
+    assert!(names(&tmp).is_empty(), "{:?}", names(&tmp));
+    for (signal, code) in [("-INT", Some(130)), ("-TERM", Some(143)), ("-KILL", None)] {
+        let mut child = run("b");
+        wait_for_staging(&fx, "b", &mut child);
+        let pid = child.id().to_string();
+        assert!(
+            Command::new("kill")
+                .args([signal, &pid])
+                .status()
+                .unwrap()
+                .success()
+        );
+        assert_eq!(child.wait().unwrap().code(), code, "{signal}");
+        assert!(!fx.path("b").exists());
+        if code.is_some() {
+            assert!(
+                !any_staging(fx.dir.path()),
+                "{signal}: {:?}",
+                names(fx.dir.path())
+            );
+            assert!(names(&tmp).is_empty(), "{signal}: {:?}", names(&tmp));
+        }
+    }
+    // Killed outright: its staging folder stays until the next coid in
+    // the same folder, whatever its --out.
+    assert!(staging(fx.dir.path(), "b"));
+    let quick = fast(&fx, "q.toml", 20.0, "[connected]\npenetration = 0.3\n");
+    let o = coid_in(fx.dir.path())
+        .env("TMPDIR", &tmp)
+        .args(["run", "-q", "-c", quick.to_str().unwrap(), "-o", "other"])
+        .output()
+        .unwrap();
+    assert_ok(&o);
+    assert!(!any_staging(fx.dir.path()), "{:?}", names(fx.dir.path()));
+    assert!(names(&tmp).is_empty(), "{:?}", names(&tmp));
+}
+
+/// 13. A list that names something twice is refused (it was merged
+///     silently; two cameras in one direction doubled every detection).
+#[test]
+fn r31_13_repeated_list_entries_are_refused() {
+    let fx = Fixture::new();
+    for (extra, key) in [
+        (
+            "[pose_noise]\nlevels = [\"gps\", \"gps\"]\n",
+            "pose_noise.levels: lists 'gps' twice",
+        ),
+        (
+            "[fusion]\nvariants = [\"paper\", \"paper\"]\n",
+            "fusion.variants",
+        ),
+        (
+            "[matching]\nmethods = [\"rgm\", \"rgm\"]\n",
+            "matching.methods",
+        ),
+        ("[train]\nmethods = [\"ours\", \"ours\"]\n", "train.methods"),
+        (
+            "[camera]\nyaw_offsets_deg = [0.0, 360.0]\n",
+            "the same camera",
+        ),
+    ] {
+        let cfg = fx.config("c.toml", 60.0, extra);
+        refused_with(&fx.run(&cfg, "r"), 1, key);
+    }
+}
+
+/// 14. Messages say what is wrong.
+#[test]
+fn r31_14_messages_say_what_is_wrong() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "c.toml", 60.0, "");
+    let c = cfg.to_str().unwrap();
+    // A huge number is written as a number, not 300 digits.
+    let huge = fx.config("h.toml", 20.0, "[sensor]\ncolour_sigma = -1e300\n");
+    refused_with(&fx.run(&huge, "r"), 1, "got -1e300");
+    // An --out that is a file, or a symbolic link to nothing: before SUMO.
+    fx.write("afile", "x");
+    refused_with(&fx.run(&cfg, "afile"), 1, "it is a file");
+    std::os::unix::fs::symlink(fx.path("nowhere"), fx.path("dangling")).unwrap();
+    let started = Instant::now();
+    refused_with(&fx.run(&cfg, "dangling"), 1, "which does not exist");
+    assert!(started.elapsed() < Duration::from_secs(10));
+    // A folder of another command's results is named as such.
+    assert_ok(&fx.run(&cfg, "r"));
+    let o = fx.coid(&["eval", "-q", "--force", "-c", c, "-o", "r"]);
+    refused_with(&o, 1, "it holds a run's results (coid run)");
+    // A test seed in the training seeds, set in [eval]: reported there.
+    let overlap = fx.config("o.toml", 20.0, "[eval]\ntraffic_seeds = [101]\n");
+    refused_with(
+        &fx.run(&overlap, "x"),
+        1,
+        "eval.traffic_seeds: seed 101 is in both",
+    );
+    // A sumocfg that is a folder.
+    let folder = fx.write(
+        "d.toml",
+        &format!(
+            "[scenario]\nsumocfg = {:?}\njunction = \"C\"\n",
+            repo().join("sumo_nets")
+        ),
+    );
+    refused_with(
+        &fx.run(&folder, "x"),
+        1,
+        "is a folder, not a SUMO configuration",
+    );
+    // An --out name near the file system's limit (255 bytes) works.
+    let long = "l".repeat(250);
+    assert_ok(&fx.run(&cfg, &long));
+    assert!(fx.path(&long).join("summary.csv").is_file());
+}
+
+/// 14, continued: matches files and `coid track`.
+#[test]
+fn r31_14_matches_files_and_track_lines_say_what_is_wrong() {
+    let fx = Fixture::new();
+    let cfg = fast(&fx, "e.toml", 60.0, "[eval]\ntraffic_seeds = [1]\n");
+    let c = cfg.to_str().unwrap();
+    assert_ok(&fx.coid(&["export", "-q", "-c", c, "--splits", "test", "-o", "ex"]));
+    let pairs = read_parquet(&fx.path("ex/true_pairs.parquet"));
+    let v = |col: &str| f64s(&pairs, col)[0] as u64;
+    let row = format!("{},{},{},{}", v("run"), v("instance"), v("a"), v("b"));
+    // An uncertainty beyond 1 bit.
+    fx.write(
+        "ex/bad.csv",
+        &format!("run,instance,a,b,uncertainty\n{row},5.0\n"),
+    );
+    let score = |m: &str| fx.coid(&["score", "-q", "-c", c, "--matches", m, "-o", "s"]);
+    refused_with(&score("ex/bad.csv"), 1, "uncertainty 5 is not in [0, 1]");
+    // A CSV file named in capitals is read as CSV.
+    fx.write("ex/OK.CSV", &format!("run,instance,a,b\n{row}\n"));
+    assert_ok(&score("ex/OK.CSV"));
+    // Every message lost: no NaN in the one-line summary.
+    let lossy = fx.config("t.toml", 60.0, "[v2x.channel]\nloss_probability = 1.0\n");
+    let o = fx.coid(&["track", "-q", "-c", lossy.to_str().unwrap(), "-o", "t"]);
+    assert_ok(&o);
+    assert!(!stderr(&o).contains("NaN"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("no pair to score"), "{}", stderr(&o));
+}
