@@ -31,8 +31,8 @@ pub struct ExportArgs {
 }
 
 pub fn export(a: ExportArgs) -> anyhow::Result<()> {
-    no_repeats("--splits", &a.splits)?;
-    no_repeats("--with-matches", &a.with_matches)?;
+    super::no_repeats("--splits", &a.splits)?;
+    super::no_repeats("--with-matches", &a.with_matches)?;
     let (settings, claim) = a.common.prepare("-export", io::ResultKind::Export)?;
     let out = claim.out().to_owned();
     let splits = if a.splits.is_empty() {
@@ -113,16 +113,6 @@ pub struct ScoreArgs {
     /// there first).
     #[arg(long, default_value = "test", value_parser = label_arg::<Split>("split"))]
     split: Split,
-}
-
-/// Refuses a list argument that names something twice.
-fn no_repeats<T: PartialEq + crate::label::Label>(flag: &str, list: &[T]) -> anyhow::Result<()> {
-    for (k, x) in list.iter().enumerate() {
-        if list[..k].contains(x) {
-            anyhow::bail!("{flag} names '{}' twice", x.label());
-        }
-    }
-    Ok(())
 }
 
 /// Checks that `matches` were made for this configuration's instances: the

@@ -316,6 +316,16 @@ fn progress_bar(quiet: bool, len: u64, template: &str) -> ProgressBar {
     bar
 }
 
+/// Refuses a list argument that names something twice.
+fn no_repeats<T: PartialEq + Label>(flag: &str, list: &[T]) -> anyhow::Result<()> {
+    for (k, x) in list.iter().enumerate() {
+        if list[..k].contains(x) {
+            anyhow::bail!("{flag} names '{}' twice", x.label());
+        }
+    }
+    Ok(())
+}
+
 /// A clap parser for a labelled enum: the labels are its possible values
 /// (listed in `--help`).
 fn label_arg<T: Label + Clone + Send + Sync>(

@@ -37,10 +37,10 @@ pub struct Args {
     /// Train only these methods [default: [train] methods].
     #[arg(long, value_delimiter = ',', value_parser = label_arg::<Method>("method"))]
     methods: Vec<Method>,
-    /// Worker processes: methods trained at once, each group in its own
-    /// process (the weights do not depend on this) [default: the number
-    /// of cores].
-    #[arg(long, short)]
+    /// Worker processes, 1 to 1024: methods trained at once, each group in
+    /// its own process (the weights do not depend on this; never more than
+    /// the methods) [default: the number of cores].
+    #[arg(long, short, value_parser = super::in_range(1, super::MAX_PARALLEL))]
     workers: Option<usize>,
     /// Train only: choose no temperature, decision rule or lambda (a
     /// later `coid train --validate-only`, or numbers in [matching], are
@@ -93,6 +93,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         io::ResultKind::Models,
         io::Existing::when(a.force),
     )?;
+    super::no_repeats("--methods", &a.methods)?;
     let methods = if a.methods.is_empty() {
         settings.train.methods.clone()
     } else {
