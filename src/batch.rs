@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 
-use crate::config::{ConfigError, Settings};
+use crate::config::{ConfigError, Overrides, Settings};
 use crate::io::records::BatchRecord;
 use crate::io::{self, OutputError};
 use crate::render;
@@ -78,20 +78,30 @@ pub fn pending_runs(batch_dir: &Path, batch: &BatchRecord, shard: Option<Shard>)
         .collect()
 }
 
-/// The settings of a batch's runs, from its record: its config text, its
-/// relative paths anchored where the config was; refused when the
-/// configuration or a file it reads is no longer what the batch started
-/// with (the digest differs), so that one batch never mixes two.
-pub fn settings_of(batch: &BatchRecord) -> Result<Settings, BatchError> {
-    let settings = Settings::from_toml(&batch.config_text, Path::new(&batch.config))?;
-    let now = settings.digest()?;
+/// The settings of run `run` of a batch, from its record: its config
+/// text, its relative paths anchored where the config was, the run's seeds
+/// set over it; refused when the configuration or a file it reads is no
+/// longer what the batch started with (the digest differs), so that one
+/// batch never mixes two.
+pub fn settings_of(batch: &BatchRecord, run: usize) -> Result<Settings, BatchError> {
+    let path = Path::new(&batch.config);
+    let now = Settings::from_toml(&batch.config_text, path)?.digest()?;
     if now != batch.config_digest {
         return Err(BatchError::Changed {
             then: batch.config_digest.clone(),
             now,
         });
     }
-    Ok(settings)
+    let (traffic, sensor) = run_seeds(batch.master_seed, run);
+    let overrides = Overrides {
+        traffic_seed: Some(traffic),
+        sensor_seed: Some(sensor),
+    };
+    Ok(Settings::from_toml_with(
+        &batch.config_text,
+        path,
+        &overrides,
+    )?)
 }
 
 /// Why a batch's run cannot start.

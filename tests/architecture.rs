@@ -6,29 +6,40 @@
 
 use std::path::{Path, PathBuf};
 
-/// Top-level modules by layer: a module may use only modules of lower
-/// layers (and its own submodules).
-const LAYERS: &[&[&str]] = &[
-    &[
-        "geometry",
-        "rng",
-        "label",
-        "paths",
-        "assignment",
-        "interrupt",
-    ],
-    &["traffic", "scenarios"],
-    &["bridge", "sensor", "graph", "fusion"],
-    &["matching"],
-    &["evaluate", "v2x"],
-    &["config"],
-    &["report"],
-    &["tables", "render", "io"],
-    &["pipeline"],
-    &["experiments", "batch"],
-    &["export"],
-    &["cli"],
-];
+/// Top-level modules by layer, as ARCHITECTURE.md's layer table states
+/// them (`| 3 | \`matching\` |` rows): a module may use only modules of
+/// lower layers (and its own submodules).
+fn layers() -> Vec<Vec<String>> {
+    let text = architecture_md();
+    let mut rows: Vec<(usize, Vec<String>)> = text
+        .lines()
+        .filter_map(|l| {
+            let cells: Vec<&str> = l.split('|').map(str::trim).collect();
+            let n = cells.get(1)?.parse::<usize>().ok()?;
+            let names = cells.get(2)?;
+            let modules = names
+                .split('`')
+                .skip(1)
+                .step_by(2)
+                .map(str::to_owned)
+                .collect();
+            Some((n, modules))
+        })
+        .collect();
+    rows.sort();
+    assert!(rows.len() > 5, "no layer table in ARCHITECTURE.md");
+    for (k, (n, _)) in rows.iter().enumerate() {
+        assert_eq!(
+            *n, k,
+            "ARCHITECTURE.md's layers are not numbered 0, 1, 2, ..."
+        );
+    }
+    rows.into_iter().map(|(_, m)| m).collect()
+}
+
+fn architecture_md() -> String {
+    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("ARCHITECTURE.md")).unwrap()
+}
 
 fn src() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
@@ -50,9 +61,10 @@ fn sources() -> Vec<(String, String)> {
     let mut files = Vec::new();
     walk(&src(), &mut files);
     files.sort();
+    let tests = test_module_files(&files);
     files
         .into_iter()
-        .filter(|p| !p.ends_with("matching/testkit.rs"))
+        .filter(|p| !tests.contains(p))
         .map(|p| {
             let text = std::fs::read_to_string(&p).unwrap();
             let code = match text.find("#[cfg(test)]\nmod tests") {
@@ -69,6 +81,31 @@ fn sources() -> Vec<(String, String)> {
         .collect()
 }
 
+/// The files of modules declared `#[cfg(test)] mod name;` (test code
+/// only, like a file's own `mod tests { ... }`).
+fn test_module_files(files: &[PathBuf]) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for f in files {
+        let text = std::fs::read_to_string(f).unwrap();
+        let dir = match f.file_stem().and_then(|s| s.to_str()) {
+            Some("mod" | "lib" | "main") => f.parent().unwrap().to_owned(),
+            _ => f.with_extension(""),
+        };
+        let mut rest = text.as_str();
+        while let Some(k) = rest.find("#[cfg(test)]") {
+            rest = &rest[k + "#[cfg(test)]".len()..];
+            let decl = rest.trim_start();
+            let decl = decl.strip_prefix("pub(crate) ").unwrap_or(decl);
+            if let Some((name, _)) = decl.strip_prefix("mod ").and_then(|d| d.split_once(';'))
+                && !name.contains('{')
+            {
+                out.push(dir.join(format!("{}.rs", name.trim())));
+            }
+        }
+    }
+    out
+}
+
 /// The top-level module a file belongs to (`matching/deep/model.rs` ->
 /// `matching`).
 fn module_of(rel: &str) -> String {
@@ -79,13 +116,29 @@ fn module_of(rel: &str) -> String {
         .to_owned()
 }
 
-fn layer(module: &str) -> Option<usize> {
-    LAYERS.iter().position(|l| l.contains(&module))
+fn layer(layers: &[Vec<String>], module: &str) -> Option<usize> {
+    layers.iter().position(|l| l.iter().any(|m| m == module))
 }
 
-/// The `crate::` dependencies found so far.
+/// The `crate::` dependencies found so far, in a file `depth` modules
+/// below the crate root (`io/folder.rs`: 2), so that `super::` paths that
+/// reach the root are counted too.
 #[derive(Default)]
-struct Deps(std::collections::BTreeSet<String>);
+struct Deps {
+    found: std::collections::BTreeSet<String>,
+    depth: usize,
+}
+
+/// Where a path's next segment is, seen from the file.
+#[derive(Clone, Copy)]
+enum At {
+    /// Not a crate path.
+    Outside,
+    /// The crate root: the next segment is a top-level module.
+    Root,
+    /// `k` modules below the root: inside the file's own module.
+    Below(usize),
+}
 
 fn is_test(attrs: &[syn::Attribute]) -> bool {
     attrs.iter().any(|a| {
@@ -100,23 +153,40 @@ impl Deps {
     fn add(&mut self, name: &str) {
         // `crate::label_enum!` is the label module's macro.
         let name = if name == "label_enum" { "label" } else { name };
-        self.0.insert(name.to_owned());
+        self.found.insert(name.to_owned());
     }
 
-    fn tree(&mut self, t: &syn::UseTree, under_crate: bool) {
-        match t {
-            syn::UseTree::Path(p) if !under_crate => {
-                let root = p.ident == "crate" || p.ident == "coid_sim";
-                if root {
-                    self.tree(&p.tree, true);
+    /// Where a path starting with `first` leads, from `at`.
+    fn step(&self, at: At, first: &str) -> Option<At> {
+        match (at, first) {
+            (At::Outside, "crate" | "coid_sim") => Some(At::Root),
+            (At::Outside, "super") => Some(self.up(self.depth)),
+            (At::Below(k), "super") => Some(self.up(k)),
+            _ => None,
+        }
+    }
+
+    fn up(&self, k: usize) -> At {
+        match k.saturating_sub(1) {
+            0 => At::Root,
+            j => At::Below(j),
+        }
+    }
+
+    fn tree(&mut self, t: &syn::UseTree, at: At) {
+        match (t, at) {
+            (syn::UseTree::Path(p), _) => {
+                if let Some(next) = self.step(at, &p.ident.to_string()) {
+                    self.tree(&p.tree, next);
+                } else if let At::Root = at {
+                    self.add(&p.ident.to_string());
                 }
             }
-            syn::UseTree::Path(p) => self.add(&p.ident.to_string()),
-            syn::UseTree::Name(n) if under_crate => self.add(&n.ident.to_string()),
-            syn::UseTree::Rename(r) if under_crate => self.add(&r.ident.to_string()),
-            syn::UseTree::Group(g) => {
+            (syn::UseTree::Name(n), At::Root) => self.add(&n.ident.to_string()),
+            (syn::UseTree::Rename(r), At::Root) => self.add(&r.ident.to_string()),
+            (syn::UseTree::Group(g), _) => {
                 for t in &g.items {
-                    self.tree(t, under_crate);
+                    self.tree(t, at);
                 }
             }
             _ => {}
@@ -135,9 +205,14 @@ impl<'ast> syn::visit::Visit<'ast> for Deps {
             syn::Item::Const(c) => &c.attrs,
             _ => return syn::visit::visit_item(self, i),
         };
-        if !is_test(attrs) {
-            syn::visit::visit_item(self, i);
+        if is_test(attrs) {
+            return;
         }
+        // An inline `mod x { ... }` is one module deeper.
+        let inline = matches!(i, syn::Item::Mod(m) if m.content.is_some());
+        self.depth += usize::from(inline);
+        syn::visit::visit_item(self, i);
+        self.depth -= usize::from(inline);
     }
 
     fn visit_impl_item_fn(&mut self, f: &'ast syn::ImplItemFn) {
@@ -147,15 +222,21 @@ impl<'ast> syn::visit::Visit<'ast> for Deps {
     }
 
     fn visit_item_use(&mut self, u: &'ast syn::ItemUse) {
-        self.tree(&u.tree, false);
+        self.tree(&u.tree, At::Outside);
     }
 
     fn visit_path(&mut self, p: &'ast syn::Path) {
-        let mut segs = p.segments.iter();
-        if let (Some(first), Some(second)) = (segs.next(), segs.next())
-            && (first.ident == "crate" || first.ident == "coid_sim")
-        {
-            self.add(&second.ident.to_string());
+        let mut at = At::Outside;
+        for seg in &p.segments {
+            match self.step(at, &seg.ident.to_string()) {
+                Some(next) => at = next,
+                None => {
+                    if let At::Root = at {
+                        self.add(&seg.ident.to_string());
+                    }
+                    break;
+                }
+            }
         }
         syn::visit::visit_path(self, p);
     }
@@ -177,24 +258,32 @@ impl<'ast> syn::visit::Visit<'ast> for Deps {
     }
 }
 
-/// The top-level modules a file names through `crate::` paths (in `use`
+/// The top-level modules a file (`rel`, under `src/`) names through
+/// `crate::` paths, or `super::` paths that reach the crate root (in `use`
 /// trees, groups included, in paths inline and in macro paths), outside
 /// items marked `#[cfg(test)]`; `coid_sim::` counts too (the binary's
 /// `main.rs` names the library that way).
-fn crate_deps(code: &str) -> Vec<String> {
+fn crate_deps(rel: &str, code: &str) -> Vec<String> {
     use syn::visit::Visit;
     let file = syn::parse_file(code).unwrap_or_else(|e| panic!("cannot parse: {e}"));
-    let mut deps = Deps::default();
+    let parts: Vec<&str> = rel.trim_end_matches(".rs").split('/').collect();
+    let depth = match parts.last() {
+        Some(&"mod") => parts.len() - 1,
+        Some(&"lib") | Some(&"main") => 0,
+        _ => parts.len(),
+    };
+    let mut deps = Deps {
+        depth,
+        ..Deps::default()
+    };
     deps.visit_file(&file);
-    deps.0.into_iter().collect()
+    deps.found.into_iter().collect()
 }
 
 /// The code map's entries of ARCHITECTURE.md: (path under `src/`, the
 /// modules its "Uses:" line lists).
 fn code_map() -> Vec<(String, Vec<String>)> {
-    let text =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("ARCHITECTURE.md"))
-            .unwrap();
+    let text = architecture_md();
     let mut out = Vec::new();
     for entry in text.split("\n\n").filter(|p| p.starts_with("**`src/")) {
         let path = entry["**`src/".len()..]
@@ -234,7 +323,7 @@ fn the_code_map_says_what_each_module_uses() {
                 .filter(|(p, _)| covers(rel, p))
                 .max_by_key(|(p, _)| p.len());
             if best.is_some_and(|(p, _)| p == path) {
-                used.extend(crate_deps(code));
+                used.extend(crate_deps(rel, code));
             }
         }
         used.remove(&module_of(path));
@@ -264,21 +353,24 @@ fn the_code_map_says_what_each_module_uses() {
 
 #[test]
 fn arrows_point_down() {
+    let layers = layers();
     let mut wrong = Vec::new();
     for (rel, code) in sources() {
         let module = module_of(&rel);
         if module == "lib" || module == "main" {
             continue;
         }
-        let Some(mine) = layer(&module) else {
-            wrong.push(format!("{rel}: module `{module}` has no layer in LAYERS"));
+        let Some(mine) = layer(&layers, &module) else {
+            wrong.push(format!(
+                "{rel}: module `{module}` has no layer in ARCHITECTURE.md"
+            ));
             continue;
         };
-        for dep in crate_deps(&code) {
+        for dep in crate_deps(&rel, &code) {
             if dep == module {
                 continue;
             }
-            match layer(&dep) {
+            match layer(&layers, &dep) {
                 Some(l) if l < mine => {}
                 _ => wrong.push(format!("{rel} ({module}) uses crate::{dep}")),
             }
@@ -370,6 +462,7 @@ fn only_io_writes_files_and_only_batch_and_bridge_start_processes() {
         &[
             "std::fs::write",
             "File::create",
+            "OpenOptions",
             "create_dir",
             "std::fs::rename",
             "remove_dir",
@@ -398,7 +491,9 @@ fn only_io_writes_files_and_only_batch_and_bridge_start_processes() {
     only_in(
         &["std::fs::read", "File::open", "read_dir"],
         &[
-            "config.rs",
+            "config/mod.rs",
+            "config/lists.rs",
+            "config/digest.rs",
             "io/mod.rs",
             "io/folder.rs",
             "io/frames.rs",
@@ -488,5 +583,13 @@ fn the_dependency_reader_sees_groups_inline_paths_and_macros_but_not_tests() {
                 crate::label_enum! { \"x\"; pub enum E { A } }\n\
                 #[cfg(test)]\nmod tests { use crate::cli; }\n\
                 #[cfg(test)]\nfn helper() { crate::batch::run(); }\n";
-    assert_eq!(crate_deps(code), ["geometry", "io", "label", "rng"]);
+    assert_eq!(crate_deps("x.rs", code), ["geometry", "io", "label", "rng"]);
+    // `super::` reaches the crate root from a top-level module, and stays
+    // inside the module from deeper files.
+    let code = "use super::{fusion, io::x};\nfn f() { super::rng::stream(); }\n";
+    assert_eq!(crate_deps("cli.rs", code), ["fusion", "io", "rng"]);
+    assert_eq!(crate_deps("cli/mod.rs", code), ["fusion", "io", "rng"]);
+    assert!(crate_deps("cli/run.rs", code).is_empty());
+    let deeper = "use super::super::geometry::Vec2;\n";
+    assert_eq!(crate_deps("cli/run.rs", deeper), ["geometry"]);
 }

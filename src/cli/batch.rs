@@ -175,10 +175,7 @@ pub fn run_one(a: RunArgs) -> anyhow::Result<()> {
     if io::run_is_complete(&a.batch, &record, a.run) {
         return Ok(());
     }
-    let mut settings = batch::settings_of(&record)?;
-    let (traffic, sensor) = batch::run_seeds(record.master_seed, a.run);
-    settings.seeds.traffic = traffic;
-    settings.seeds.sensor = sensor;
+    let settings = batch::settings_of(&record, a.run)?;
     let claim = io::Claim::new(
         &io::run_dir(&a.batch, a.run),
         io::ResultKind::Run,

@@ -259,8 +259,19 @@ impl CommonArgs {
         suffix: &str,
         kind: crate::io::ResultKind,
     ) -> anyhow::Result<(crate::config::Settings, crate::io::Claim)> {
+        self.prepare_with(suffix, kind, &crate::config::Overrides::default())
+    }
+
+    /// [`CommonArgs::prepare`] with command-line `overrides` set over the
+    /// config before it is validated.
+    fn prepare_with(
+        &self,
+        suffix: &str,
+        kind: crate::io::ResultKind,
+        overrides: &crate::config::Overrides,
+    ) -> anyhow::Result<(crate::config::Settings, crate::io::Claim)> {
         let config = self.config.path();
-        let settings = crate::config::Settings::load(&config)?;
+        let settings = crate::config::Settings::load_with(&config, overrides)?;
         let out = out_dir(self.out.clone(), &config, suffix);
         let claim = crate::io::Claim::new(&out, kind, crate::io::Existing::when(self.force))?;
         Ok((settings, claim))

@@ -24,13 +24,11 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let (mut settings, claim) = a.common.prepare("", io::ResultKind::Run)?;
-    if let Some(t) = a.traffic_seed {
-        settings.seeds.traffic = t;
-    }
-    if let Some(s) = a.sensor_seed {
-        settings.seeds.sensor = s;
-    }
+    let overrides = crate::config::Overrides {
+        traffic_seed: a.traffic_seed,
+        sensor_seed: a.sensor_seed,
+    };
+    let (settings, claim) = a.common.prepare_with("", io::ResultKind::Run, &overrides)?;
     // The folder is claimed (and checked writable) before the simulation.
     let out = claim.out().to_owned();
     let mut folder = io::RunFolder::create(claim)?;

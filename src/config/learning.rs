@@ -1,0 +1,122 @@
+//! Validation of `[train]` and `[eval]`: seed lists in SUMO's range and
+//! disjoint between training, validation and test runs, the fitting
+//! settings, and the scenario lists of each role.
+
+use super::ConfigError;
+use super::check::{Checker, field};
+use super::lists::scenario_lists;
+use super::raw::{RawEval, RawTrain};
+use crate::evaluate::EvalSettings;
+use crate::matching::deep::{self, train::TrainSettings};
+
+/// More MC-dropout samples per training pair than this are refused.
+const MAX_TRAIN_MC_SAMPLES: usize = 100;
+pub(super) fn train_and_eval(
+    c: &Checker,
+    t: RawTrain,
+    e: RawEval,
+) -> Result<(TrainSettings, EvalSettings), ConfigError> {
+    if t.traffic_seeds.is_empty() {
+        return Err(c.invalid("train.traffic_seeds", "need at least one run".into()));
+    }
+    c.seed_list("train.traffic_seeds", &t.traffic_seeds)?;
+    c.seed_list("train.validation_seeds", &t.validation_seeds)?;
+    c.seed_list("eval.traffic_seeds", &e.traffic_seeds)?;
+    let (train, validation, test) = (
+        ("train.traffic_seeds", &t.traffic_seeds),
+        ("train.validation_seeds", &t.validation_seeds),
+        ("eval.traffic_seeds", &e.traffic_seeds),
+    );
+    for ((key, a), (other, b)) in [(train, test), (validation, test), (validation, train)] {
+        if let Some(s) = a.iter().find(|s| b.contains(s)) {
+            let (blamed, with) = c.blame(key, other);
+            return Err(c.invalid(
+                blamed,
+                format!(
+                    "seed {s} is in both {blamed} and {with}: training, validation and test \
+                     runs must be disjoint"
+                ),
+            ));
+        }
+    }
+    if t.validation_seeds.is_empty() {
+        return Err(c.invalid("train.validation_seeds", "need at least one run".into()));
+    }
+    fitting(c, &t)?;
+    if e.traffic_seeds.is_empty() {
+        return Err(c.invalid("eval.traffic_seeds", "need at least one run".into()));
+    }
+    let runs = runs_per_scenario(c, &t)?;
+    let lists = scenario_lists(c, &t, &e)?;
+    let train = TrainSettings {
+        traffic_seeds: t.traffic_seeds,
+        validation_seeds: t.validation_seeds,
+        methods: c.distinct("train.methods", t.methods)?,
+        epochs: t.epochs,
+        learning_rate: t.learning_rate,
+        seed: t.seed,
+        scenarios: lists.train,
+        validation_scenarios: lists.validation,
+        runs_per_scenario: runs,
+        patience: t.patience,
+        loss: t.loss,
+        mc_samples: t.mc_samples,
+        batch_size: t.batch_size,
+        sample_every_s: t.sample_every_s,
+    };
+    Ok((
+        train,
+        EvalSettings {
+            traffic_seeds: e.traffic_seeds,
+            scenarios: lists.test,
+        },
+    ))
+}
+
+/// `[train]`'s methods and fitting settings.
+fn fitting(c: &Checker, t: &RawTrain) -> Result<(), ConfigError> {
+    if t.methods.iter().any(|m| deep::variant(*m).is_none()) {
+        return Err(c.invalid(
+            "train.methods",
+            "only deep methods (ours, ours-noprior, coid+non, coid+unc, dgmc, gcn-gm) are trained"
+                .into(),
+        ));
+    }
+    if t.epochs == 0 {
+        return Err(c.invalid("train.epochs", "need at least one epoch".into()));
+    }
+    if !(1..=MAX_TRAIN_MC_SAMPLES).contains(&t.mc_samples) {
+        return Err(c.invalid(
+            "train.mc_samples",
+            format!(
+                "must be 1 to {MAX_TRAIN_MC_SAMPLES} samples per pair, got {}",
+                t.mc_samples
+            ),
+        ));
+    }
+    if !(1..=1024).contains(&t.batch_size) {
+        return Err(c.invalid(
+            "train.batch_size",
+            format!("must be 1-1024 pairs, got {}", t.batch_size),
+        ));
+    }
+    c.positive(field!("train", t.learning_rate))?;
+    c.positive(field!("train", t.sample_every_s))
+}
+
+/// `[train] runs_per_scenario`, checked against the seeds it takes from.
+fn runs_per_scenario(c: &Checker, t: &RawTrain) -> Result<usize, ConfigError> {
+    let runs = t.runs_per_scenario;
+    let too_many = (!t.scenarios.is_empty() && runs > t.traffic_seeds.len())
+        || (!t.validation_scenarios.is_empty() && runs > t.validation_seeds.len());
+    if runs == 0 || too_many {
+        return Err(c.invalid(
+            "train.runs_per_scenario",
+            format!(
+                "must be between 1 and the number of training (validation) seeds that listed \
+                 training (validation) scenarios run, got {runs}"
+            ),
+        ));
+    }
+    Ok(runs)
+}

@@ -1,0 +1,364 @@
+//! Validation of the stage sections: `[scenario]`, `[connected]`,
+//! `[camera]`, `[sensor]`, `[pose_noise]`, `[matching]`, `[fusion]`, and
+//! the whole raw file into [`Settings`] (the learning and V2X sections in
+//! their own files).
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+use super::check::{Checker, field, num};
+use super::raw::{
+    RawCamera, RawConfig, RawConnected, RawFusion, RawLambda, RawMatching, RawPoseNoise,
+    RawScenario, RawSensor,
+};
+use super::{ConfigError, Settings};
+use crate::fusion::FusionSettings;
+use crate::matching::{DecisionChoice, LambdaChoice, MatchingSettings, Method};
+use crate::rng::Seeds;
+use crate::sensor::{
+    CameraSettings, ConnectedSelection, LinkSettings, PoseNoiseLabel, PoseNoiseLevel,
+    SensorSettings,
+};
+use crate::traffic::ScenarioSettings;
+
+/// More cameras per vehicle than this are refused (each one's detections
+/// are nodes of every graph).
+const MAX_CAMERAS: usize = 16;
+
+/// More MC-dropout samples than this are refused: every sample holds the
+/// network's activations of both graphs (the paper uses T = 20 and sweeps
+/// 10-100).
+const MAX_MC_SAMPLES: usize = 1000;
+
+/// More false positives per camera and frame than this are refused: each
+/// is a node of every graph (and a sample of memory per step).
+const MAX_FALSE_POSITIVES_PER_FRAME: f64 = 100.0;
+
+pub(super) fn validate(
+    raw: RawConfig,
+    path: &Path,
+    stated: &BTreeSet<String>,
+) -> Result<Settings, ConfigError> {
+    let c = Checker { path, stated };
+    c.traffic_seed("seeds.traffic", raw.seeds.traffic)?;
+    let (train, eval) = super::learning::train_and_eval(&c, raw.train, raw.eval)?;
+    Ok(Settings {
+        source: path.to_owned(),
+        scenario: scenario(&c, raw.scenario)?,
+        link: link(&c, &raw.connected)?,
+        connected: connected(&c, raw.connected)?,
+        seeds: Seeds {
+            traffic: raw.seeds.traffic,
+            sensor: raw.seeds.sensor,
+        },
+        camera: camera(&c, raw.camera)?,
+        sensor: sensor(&c, raw.sensor)?,
+        pose_noise: pose_noise(&c, raw.pose_noise)?,
+        matching: matching(&c, raw.matching)?,
+        fusion: fusion(&c, raw.fusion)?,
+        train,
+        eval,
+        v2x: super::v2x::v2x(&c, raw.v2x)?,
+    })
+}
+
+fn scenario(c: &Checker, s: RawScenario) -> Result<ScenarioSettings, ConfigError> {
+    let sumocfg = c.resolve(&s.sumocfg);
+    if sumocfg.is_dir() {
+        return Err(c.invalid(
+            "scenario.sumocfg",
+            format!(
+                "{} is a folder, not a SUMO configuration file (.sumocfg)",
+                sumocfg.display()
+            ),
+        ));
+    }
+    if !sumocfg.is_file() {
+        return Err(c.invalid(
+            "scenario.sumocfg",
+            format!("no such file: {}", sumocfg.display()),
+        ));
+    }
+    let sumocfg = sumocfg.canonicalize().map_err(|e| {
+        c.invalid(
+            "scenario.sumocfg",
+            format!("cannot resolve {}: {e}", sumocfg.display()),
+        )
+    })?;
+    if s.junction.is_empty() {
+        return Err(c.invalid(
+            "scenario.junction",
+            "missing: the junction id to study".into(),
+        ));
+    }
+    c.positive(field!("scenario", s.end_s))?;
+    c.positive(field!("scenario", s.radius_m))?;
+    c.positive(field!("scenario", s.sample_every_s))?;
+    Ok(ScenarioSettings {
+        sumocfg,
+        junction: s.junction,
+        end_s: s.end_s,
+        radius_m: s.radius_m,
+        sample_every_s: s.sample_every_s,
+    })
+}
+
+fn link(c: &Checker, raw: &RawConnected) -> Result<LinkSettings, ConfigError> {
+    if let Some(r) = raw.comm_range_m {
+        c.positive(("connected.comm_range_m", r))?;
+    }
+    if raw.max_peers == Some(0) {
+        return Err(c.invalid(
+            "connected.max_peers",
+            "must be at least 1 (leave it out for no limit)".into(),
+        ));
+    }
+    Ok(LinkSettings {
+        comm_range_m: raw.comm_range_m,
+        max_peers: raw.max_peers,
+    })
+}
+
+fn connected(c: &Checker, raw: RawConnected) -> Result<ConnectedSelection, ConfigError> {
+    match (raw.ids, raw.penetration) {
+        (Some(_), Some(_)) => Err(c.invalid(
+            "connected",
+            "give either `ids` or `penetration`, not both".into(),
+        )),
+        (None, None) => Err(c.invalid(
+            "connected",
+            "give `ids` (at least two vehicle ids) or `penetration`".into(),
+        )),
+        (Some(ids), None) => {
+            if ids.len() < 2 {
+                return Err(c.invalid(
+                    "connected.ids",
+                    format!("need at least two connected vehicles, got {}", ids.len()),
+                ));
+            }
+            let mut sorted = ids.clone();
+            sorted.sort();
+            sorted.dedup();
+            if sorted.len() != ids.len() {
+                return Err(c.invalid("connected.ids", "ids repeat".into()));
+            }
+            Ok(ConnectedSelection::Ids(ids))
+        }
+        (None, Some(p)) => {
+            if !(p > 0.0 && p <= 1.0) {
+                return Err(c.invalid(
+                    "connected.penetration",
+                    format!("must be in (0, 1], got {}", num(p)),
+                ));
+            }
+            Ok(ConnectedSelection::Penetration(p))
+        }
+    }
+}
+
+fn camera(c: &Checker, raw: RawCamera) -> Result<CameraSettings, ConfigError> {
+    if !(raw.fov_deg > 0.0 && raw.fov_deg < 180.0) {
+        return Err(c.invalid(
+            "camera.fov_deg",
+            format!("must be in (0, 180), got {}", num(raw.fov_deg)),
+        ));
+    }
+    c.positive(field!("camera", raw.range_m))?;
+    c.positive(field!("camera", raw.height_m))?;
+    let yaws = &raw.yaw_offsets_deg;
+    if yaws.is_empty() || yaws.iter().any(|y| !y.is_finite()) {
+        return Err(c.invalid(
+            "camera.yaw_offsets_deg",
+            "need one finite yaw per camera".into(),
+        ));
+    }
+    if yaws.len() > MAX_CAMERAS {
+        return Err(c.invalid(
+            "camera.yaw_offsets_deg",
+            format!("at most {MAX_CAMERAS} cameras, got {}", yaws.len()),
+        ));
+    }
+    // The same direction twice (also as 0 and 360) is one camera counted
+    // twice: every detection doubled.
+    for (k, y) in yaws.iter().enumerate() {
+        let same = |o: &f64| ((y - o).rem_euclid(360.0)).min((o - y).rem_euclid(360.0)) < 1e-9;
+        if let Some(o) = yaws[..k].iter().find(|o| same(o)) {
+            return Err(c.invalid(
+                "camera.yaw_offsets_deg",
+                format!(
+                    "{} and {} deg are the same camera (one camera per direction)",
+                    num(*o),
+                    num(*y)
+                ),
+            ));
+        }
+    }
+    Ok(CameraSettings {
+        fov_rad: raw.fov_deg.to_radians(),
+        range_m: raw.range_m,
+        height_m: raw.height_m,
+        yaw_offsets_rad: raw.yaw_offsets_deg.iter().map(|y| y.to_radians()).collect(),
+    })
+}
+
+fn sensor(c: &Checker, s: RawSensor) -> Result<SensorSettings, ConfigError> {
+    c.fraction(field!("sensor", s.min_visible_fraction))?;
+    c.fraction(field!("sensor", s.aim_height_fraction))?;
+    c.fraction(field!("sensor", s.miss_prob_base))?;
+    c.fraction(field!("sensor", s.miss_prob_at_max_range))?;
+    c.fraction(field!("sensor", s.miss_prob_occlusion))?;
+    c.fraction(field!("sensor", s.class_confusion_prob))?;
+    c.fraction(field!("sensor", s.lighting_spread))?;
+    c.non_negative(field!("sensor", s.range_sigma_base_m))?;
+    c.non_negative(field!("sensor", s.range_sigma_per_m))?;
+    c.non_negative(field!("sensor", s.bearing_sigma_base_deg))?;
+    c.non_negative(field!("sensor", s.bearing_sigma_per_m_deg))?;
+    c.non_negative(field!("sensor", s.false_positives_per_frame))?;
+    if s.false_positives_per_frame > MAX_FALSE_POSITIVES_PER_FRAME {
+        return Err(c.invalid(
+            "sensor.false_positives_per_frame",
+            format!(
+                "at most {MAX_FALSE_POSITIVES_PER_FRAME} per camera and frame, got {}",
+                num(s.false_positives_per_frame)
+            ),
+        ));
+    }
+    c.non_negative(field!("sensor", s.colour_sigma))?;
+    c.non_negative(field!("sensor", s.size_sigma_fraction))?;
+    if s.range_sigma_base_m + s.bearing_sigma_base_deg <= 0.0 {
+        return Err(c.invalid(
+            "sensor.range_sigma_base_m",
+            "range and bearing noise cannot both be zero at zero distance (the covariance would be singular)".into(),
+        ));
+    }
+    Ok(SensorSettings {
+        min_visible_fraction: s.min_visible_fraction,
+        aim_height_fraction: s.aim_height_fraction,
+        range_sigma_base_m: s.range_sigma_base_m,
+        range_sigma_per_m: s.range_sigma_per_m,
+        bearing_sigma_base_rad: s.bearing_sigma_base_deg.to_radians(),
+        bearing_sigma_per_m_rad: s.bearing_sigma_per_m_deg.to_radians(),
+        miss_prob_base: s.miss_prob_base,
+        miss_prob_at_max_range: s.miss_prob_at_max_range,
+        miss_prob_occlusion: s.miss_prob_occlusion,
+        false_positives_per_frame: s.false_positives_per_frame,
+        class_confusion_prob: s.class_confusion_prob,
+        colour_sigma: s.colour_sigma,
+        lighting_spread: s.lighting_spread,
+        size_sigma_fraction: s.size_sigma_fraction,
+    })
+}
+
+fn pose_noise(c: &Checker, p: RawPoseNoise) -> Result<Vec<PoseNoiseLevel>, ConfigError> {
+    if p.levels.is_empty() {
+        return Err(c.invalid("pose_noise.levels", "need at least one level".into()));
+    }
+    c.distinct("pose_noise.levels", p.levels)?
+        .into_iter()
+        .map(|label| {
+            let (sigma_m, sigma_deg) = match label {
+                PoseNoiseLabel::None => (0.0, 0.0),
+                PoseNoiseLabel::Rtk => (p.rtk.position_sigma_m, p.rtk.heading_sigma_deg),
+                PoseNoiseLabel::Gps => (p.gps.position_sigma_m, p.gps.heading_sigma_deg),
+            };
+            let ok = |v: f64| v >= 0.0 && v.is_finite();
+            if !(ok(sigma_m) && ok(sigma_deg)) {
+                return Err(c.invalid(
+                    "pose_noise",
+                    format!("level {}: sigmas must be >= 0", label.as_str()),
+                ));
+            }
+            Ok(PoseNoiseLevel {
+                label,
+                position_sigma_m: sigma_m,
+                heading_sigma_rad: sigma_deg.to_radians(),
+            })
+        })
+        .collect()
+}
+
+fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError> {
+    if m.methods.is_empty() {
+        return Err(c.invalid("matching.methods", "need at least one method".into()));
+    }
+    if m.methods.contains(&Method::External) {
+        return Err(c.invalid(
+            "matching.methods",
+            "'external' correspondences come from a file: score them with `coid score --matches FILE`".into(),
+        ));
+    }
+    c.positive(field!("matching", m.gate_chi2))?;
+    if !(1..=MAX_MC_SAMPLES).contains(&m.mc_samples) {
+        return Err(c.invalid(
+            "matching.mc_samples",
+            format!(
+                "must be 1 to {MAX_MC_SAMPLES} samples, got {}",
+                m.mc_samples
+            ),
+        ));
+    }
+    let lambda = match m.lambda {
+        RawLambda::Word(w) if w == "validated" => LambdaChoice::Validated,
+        RawLambda::Word(w) if w == "none" => LambdaChoice::Fixed(f64::INFINITY),
+        RawLambda::Value(v) if (0.0..=1.0).contains(&v) => LambdaChoice::Fixed(v),
+        RawLambda::Value(v) => {
+            return Err(c.invalid(
+                "matching.lambda",
+                format!("must be in [0, 1] (binary entropy in bits), got {}", num(v)),
+            ));
+        }
+        RawLambda::Word(w) => {
+            return Err(c.invalid(
+                "matching.lambda",
+                format!("must be a number in [0, 1], \"none\" or \"validated\", got \"{w}\""),
+            ));
+        }
+    };
+    let decision = match m.decision.as_str() {
+        "validated" => DecisionChoice::Validated,
+        word => DecisionChoice::Fixed(word.parse().map_err(|_| {
+            c.invalid(
+                "matching.decision",
+                format!("must be \"validated\", \"assignment\" or \"mutual\", got \"{word}\""),
+            )
+        })?),
+    };
+    if m.rematch > MAX_REMATCH {
+        return Err(c.invalid(
+            "matching.rematch",
+            format!("at most {MAX_REMATCH} rounds, got {}", m.rematch),
+        ));
+    }
+    Ok(MatchingSettings {
+        methods: c.distinct("matching.methods", m.methods)?,
+        gate_chi2: m.gate_chi2,
+        models_dir: c.resolve(&m.models_dir),
+        mc_samples: m.mc_samples,
+        lambda,
+        decision,
+        uncertainty: m.uncertainty,
+        sender_as_node: m.sender_as_node,
+        multi_vehicle: m.multi_vehicle,
+        rematch: m.rematch,
+    })
+}
+
+fn fusion(c: &Checker, f: RawFusion) -> Result<FusionSettings, ConfigError> {
+    if f.variants.is_empty() {
+        return Err(c.invalid("fusion.variants", "need at least one variant".into()));
+    }
+    if f.align_min_matches < 2 {
+        return Err(c.invalid(
+            "fusion.align_min_matches",
+            "a rigid alignment needs at least 2 matched objects".into(),
+        ));
+    }
+    Ok(FusionSettings {
+        variants: c.distinct("fusion.variants", f.variants)?,
+        align_min_matches: f.align_min_matches,
+    })
+}
+
+/// More rounds of match-align-rematch than this change nothing but the
+/// run time (the alignment settles after two or three).
+const MAX_REMATCH: usize = 10;
