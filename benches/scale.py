@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """City-scale cost of `coid run`: instances, wall time, instances per
 second, real-time factor and peak RSS, for one scenario at several
-penetration rates and thread counts (README, "City scale").
+penetration rates and thread counts (docs/city-scale.md).
 
 By default the scenario is the generated dense town of
 `sumo_nets/checks/make_foreign.sh` (`densetown`, built into OUT/nets on

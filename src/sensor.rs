@@ -107,7 +107,8 @@ pub struct CameraSettings {
 
 /// `[sensor]`: the detector stand-in. The defaults (`configs/default.toml`)
 /// are calibrated so the mean single-vehicle displacement error on the
-/// default scenario is about 2.0 m (README, "Calibration").
+/// default scenario is about 2.0 m (docs/results.md, "Calibration of the
+/// sensor noise").
 #[derive(Clone, Debug, PartialEq)]
 pub struct SensorSettings {
     /// An object is detected only when at least this share of its footprint

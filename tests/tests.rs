@@ -580,7 +580,7 @@ mod protocol {
     use super::*;
 
     /// A user's own config in their own folder, holding only `[scenario]`
-    /// and `[connected]` (the README's example), runs with the shipped
+    /// and `[connected]` (docs/configuration.md's example), runs with the shipped
     /// weights and their validated lambdas.
     #[test]
     fn a_minimal_user_config_runs_with_the_shipped_models() {

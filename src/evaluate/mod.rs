@@ -3,7 +3,7 @@
 //! recall) and fuses what it matched (displacement errors, single vs
 //! fused). `run`, `eval`, `render` and the training-data collection all go
 //! through [`evaluate`]. Pure computation; the protocol is written down in
-//! the README ("Evaluation protocol").
+//! docs/protocol.md.
 //!
 //! This module, the oracle and the pictures are the only readers of the
 //! ground truth ([`ObservationTruth`]); matchers receive [`MatchView`]s.

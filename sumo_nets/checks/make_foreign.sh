@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Builds two networks this project did not hand-write, to check that any
-# SUMO scenario runs by configuration alone (README, "Networks we did not write"):
+# SUMO scenario runs by configuration alone (docs/networks.md):
 #
 #   <out>/grid/  netgenerate's 5 x 5 signalised grid (2 lanes, sidewalks,
 #                crossings), no buildings; junction C2 in the middle.
