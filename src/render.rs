@@ -19,8 +19,9 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::geometry::{Pose2, Vec2};
-use crate::matching::Correspondence;
-use crate::report::{AggregateRow, PlotData};
+use crate::matching::{Correspondence, Method};
+use crate::report::{AggregateRow, Metric, PlotData};
+use crate::sensor::PoseNoiseLabel;
 use crate::sensor::{CameraSettings, Observation, ObservationTruth};
 use crate::traffic::{StaticScene, TrafficFrame};
 
@@ -550,30 +551,35 @@ pub fn eval_plots(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
 /// A batch's F1 per method (first fusion variant; F1 does not depend on
 /// it) with 95% CIs, per pose-noise level, into `dir/f1_per_method`.
 pub fn batch_plot(dir: &Path, rows: &[AggregateRow]) -> Result<(), RenderError> {
-    let Some(first_fusion) = rows.first().map(|r| r.fusion.clone()) else {
+    let Some(first_fusion) = rows.first().map(|r| r.key.fusion) else {
         return Ok(());
     };
-    let rows: Vec<_> = rows.iter().filter(|r| r.fusion == first_fusion).collect();
-    let mut methods: Vec<String> = rows.iter().map(|r| r.method.clone()).collect();
+    let rows: Vec<_> = rows
+        .iter()
+        .filter(|r| r.key.fusion == first_fusion)
+        .collect();
+    let mut methods: Vec<Method> = rows.iter().map(|r| r.key.method).collect();
     methods.dedup();
-    let mut levels: Vec<String> = rows.iter().map(|r| r.pose_noise.clone()).collect();
-    levels.sort();
+    // Levels by label (the order of the legend).
+    let mut levels: Vec<PoseNoiseLabel> = rows.iter().map(|r| r.key.pose_noise).collect();
+    levels.sort_by_key(|l| l.as_str());
     levels.dedup();
     let series: Vec<(String, Vec<(f64, f64)>)> = levels
         .iter()
-        .map(|l| {
+        .map(|&l| {
             let v = methods
                 .iter()
-                .map(|m| {
+                .map(|&m| {
                     rows.iter()
-                        .find(|r| &r.method == m && &r.pose_noise == l)
-                        .map(|r| r.f1)
+                        .find(|r| r.key.method == m && r.key.pose_noise == l)
+                        .map(|r| r.get(Metric::F1))
                         .unwrap_or((f64::NAN, f64::NAN))
                 })
                 .collect();
-            (l.clone(), v)
+            (l.as_str().to_owned(), v)
         })
         .collect();
+    let methods: Vec<String> = methods.iter().map(|m| m.as_str().to_owned()).collect();
     bars_with_ci(
         &dir.join("f1_per_method"),
         "F1 per method (mean and 95% CI over runs)",

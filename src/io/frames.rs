@@ -9,8 +9,10 @@ use polars::io::parquet::write::BatchedWriter;
 use polars::prelude::*;
 
 use super::{OutputError, io};
+use crate::label;
 use crate::report::{
-    AggregateRow, ExportRunRow, MatchRow, ObjectRow, RunRow, SummaryRow, Table, TableColumn,
+    self, AggregateRow, ExportRunRow, MatchRow, Metric, ObjectRow, RowKey, RunRow, SummaryRow,
+    Table, TableColumn,
 };
 
 fn polars_err(path: &Path) -> impl FnOnce(PolarsError) -> OutputError + '_ {
@@ -18,36 +20,6 @@ fn polars_err(path: &Path) -> impl FnOnce(PolarsError) -> OutputError + '_ {
         path: path.to_owned(),
         source,
     }
-}
-
-/// The summary table of a run.
-fn summary_frame(rows: &[SummaryRow]) -> PolarsResult<DataFrame> {
-    df!(
-        "method" => rows.iter().map(|r| r.key.method.as_str()).collect::<Vec<_>>(),
-        "pose_noise" => rows.iter().map(|r| r.key.pose_noise.as_str()).collect::<Vec<_>>(),
-        "fusion" => rows.iter().map(|r| r.key.fusion.as_str()).collect::<Vec<_>>(),
-        "n_instances" => rows.iter().map(|r| r.n_instances as u64).collect::<Vec<_>>(),
-        "n_objects" => rows.iter().map(|r| r.n_objects as u64).collect::<Vec<_>>(),
-        "n_matched" => rows.iter().map(|r| r.n_matched as u64).collect::<Vec<_>>(),
-        "precision" => rows.iter().map(|r| r.precision).collect::<Vec<_>>(),
-        "recall" => rows.iter().map(|r| r.recall).collect::<Vec<_>>(),
-        "f1" => rows.iter().map(|r| r.f1).collect::<Vec<_>>(),
-        "de_single_m" => rows.iter().map(|r| r.de_single_m).collect::<Vec<_>>(),
-        "de_fused_m" => rows.iter().map(|r| r.de_fused_m).collect::<Vec<_>>(),
-        "de_single_covis_m" => rows.iter().map(|r| r.de_single_covis_m).collect::<Vec<_>>(),
-        "de_fused_covis_m" => rows.iter().map(|r| r.de_fused_covis_m).collect::<Vec<_>>(),
-        "de_single_matched_m" => rows.iter().map(|r| r.de_single_matched_m).collect::<Vec<_>>(),
-        "de_fused_matched_m" => rows.iter().map(|r| r.de_fused_matched_m).collect::<Vec<_>>(),
-        "triple_chains" => rows.iter().map(|r| r.triple_chains as u64).collect::<Vec<_>>(),
-        "inconsistent_triple_share" => rows.iter().map(|r| r.inconsistent_triple_share).collect::<Vec<_>>(),
-        "object_precision" => rows.iter().map(|r| r.object_precision).collect::<Vec<_>>(),
-        "object_recall" => rows.iter().map(|r| r.object_recall).collect::<Vec<_>>(),
-        "object_f1" => rows.iter().map(|r| r.object_f1).collect::<Vec<_>>(),
-        "n_ego_objects" => rows.iter().map(|r| r.n_ego_objects as u64).collect::<Vec<_>>(),
-        "de_single_per_ego_m" => rows.iter().map(|r| r.de_single_per_ego_m).collect::<Vec<_>>(),
-        "de_fused_pairwise_per_ego_m" => rows.iter().map(|r| r.de_fused_pairwise_per_ego_m).collect::<Vec<_>>(),
-        "de_fused_all_views_m" => rows.iter().map(|r| r.de_fused_all_views_m).collect::<Vec<_>>(),
-    )
 }
 
 /// Per-object rows as a data frame (the columns of `objects.parquet`).
@@ -89,35 +61,6 @@ fn table_frame(t: &Table) -> PolarsResult<DataFrame> {
     DataFrame::new_infer_height(columns)
 }
 
-fn aggregate_frame(rows: &[AggregateRow]) -> PolarsResult<DataFrame> {
-    let col = |f: &dyn Fn(&AggregateRow) -> f64| rows.iter().map(f).collect::<Vec<f64>>();
-    df!(
-        "method" => rows.iter().map(|r| r.method.as_str()).collect::<Vec<_>>(),
-        "pose_noise" => rows.iter().map(|r| r.pose_noise.as_str()).collect::<Vec<_>>(),
-        "fusion" => rows.iter().map(|r| r.fusion.as_str()).collect::<Vec<_>>(),
-        "n_runs" => rows.iter().map(|r| r.n_runs as u64).collect::<Vec<_>>(),
-        "n_runs_without_instances" => rows.iter().map(|r| r.n_runs_without_instances as u64).collect::<Vec<_>>(),
-        "n_instances" => rows.iter().map(|r| r.n_instances).collect::<Vec<_>>(),
-        "precision" => col(&|r| r.precision.0),
-        "precision_ci95" => col(&|r| r.precision.1),
-        "n_runs_precision" => rows.iter().map(|r| r.n_runs_precision as u64).collect::<Vec<_>>(),
-        "recall" => col(&|r| r.recall.0),
-        "recall_ci95" => col(&|r| r.recall.1),
-        "f1" => col(&|r| r.f1.0),
-        "f1_ci95" => col(&|r| r.f1.1),
-        "de_single_m" => col(&|r| r.de_single_m.0),
-        "de_single_m_ci95" => col(&|r| r.de_single_m.1),
-        "de_fused_m" => col(&|r| r.de_fused_m.0),
-        "de_fused_m_ci95" => col(&|r| r.de_fused_m.1),
-        "de_single_covis_m" => col(&|r| r.de_single_covis_m.0),
-        "de_single_covis_m_ci95" => col(&|r| r.de_single_covis_m.1),
-        "de_fused_covis_m" => col(&|r| r.de_fused_covis_m.0),
-        "de_fused_covis_m_ci95" => col(&|r| r.de_fused_covis_m.1),
-        "de_fused_matched_m" => col(&|r| r.de_fused_matched_m.0),
-        "de_fused_matched_m_ci95" => col(&|r| r.de_fused_matched_m.1),
-    )
-}
-
 /// Writes a frame as CSV with a header and 6 decimals, flushed to disk.
 fn write_csv(path: &Path, df: PolarsResult<DataFrame>) -> Result<(), OutputError> {
     let mut df = df.map_err(polars_err(path))?;
@@ -132,7 +75,7 @@ fn write_csv(path: &Path, df: PolarsResult<DataFrame>) -> Result<(), OutputError
 
 /// `summary.csv` of a run.
 pub fn write_summary(path: &Path, rows: &[SummaryRow]) -> Result<(), OutputError> {
-    write_csv(path, summary_frame(rows))
+    write_table(path, &report::summary_table(rows))
 }
 
 /// A new Parquet file at `path` with the columns of `template`, written
@@ -404,7 +347,7 @@ pub fn write_table(path: &Path, table: &Table) -> Result<(), OutputError> {
 
 /// A batch's aggregate `summary.csv`.
 pub fn write_aggregate(path: &Path, rows: &[AggregateRow]) -> Result<(), OutputError> {
-    write_csv(path, aggregate_frame(rows))
+    write_table(path, &report::aggregate_table(rows))
 }
 
 /// Reads a run's `summary.csv`.
@@ -440,32 +383,29 @@ pub fn read_run_summary(path: &Path) -> Result<Vec<RunRow>, OutputError> {
             .map(|v| v.unwrap_or(f64::NAN))
             .collect())
     };
-    let (m, p, f) = (text("method")?, text("pose_noise")?, text("fusion")?);
-    let (ni, pr, re, f1) = (
-        num("n_instances")?,
-        num("precision")?,
-        num("recall")?,
-        num("f1")?,
-    );
-    let (ds, dfu) = (num("de_single_m")?, num("de_fused_m")?);
-    let (dsc, dfc) = (num("de_single_covis_m")?, num("de_fused_covis_m")?);
-    let dfm = num("de_fused_matched_m")?;
-    Ok((0..df.height())
-        .map(|k| RunRow {
-            method: m[k].clone(),
-            pose_noise: p[k].clone(),
-            fusion: f[k].clone(),
-            n_instances: ni[k] as u64,
-            precision: pr[k],
-            recall: re[k],
-            f1: f1[k],
-            de_single_m: ds[k],
-            de_fused_m: dfu[k],
-            de_single_covis_m: dsc[k],
-            de_fused_covis_m: dfc[k],
-            de_fused_matched_m: dfm[k],
+    let [m, p, f] = report::KEY_COLUMNS.map(text);
+    let (m, p, f) = (m?, p?, f?);
+    let n = num("n_instances")?;
+    let values = Metric::ALL.map(|metric| num(metric.column()));
+    let mut columns = Vec::new();
+    for v in values {
+        columns.push(v?);
+    }
+    let bad = |what: String| OutputError::Batch(format!("{}: {what}", path.display()));
+    (0..df.height())
+        .map(|k| {
+            let key = RowKey {
+                method: label::parse(report::KEY_COLUMNS[0], &m[k]).map_err(bad)?,
+                pose_noise: label::parse(report::KEY_COLUMNS[1], &p[k]).map_err(bad)?,
+                fusion: label::parse(report::KEY_COLUMNS[2], &f[k]).map_err(bad)?,
+            };
+            Ok(RunRow {
+                key,
+                n_instances: n[k] as u64,
+                values: std::array::from_fn(|i| columns[i][k]),
+            })
         })
-        .collect())
+        .collect()
 }
 
 #[cfg(test)]

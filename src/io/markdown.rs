@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 
 use crate::config::Settings;
 use crate::matching::{DeepChoice, LambdaChoice, Method};
-use crate::report::{AggregateRow, RunResults, SummaryRow, Table, TableColumn};
+use crate::report::{AggregateRow, Metric, RunResults, SummaryRow, Table, TableColumn};
 
 /// A number with `digits` decimals, "n/a" when it is not finite.
 pub fn fmt_num(v: f64, digits: usize) -> String {
@@ -258,22 +258,25 @@ pub fn batch(rows: &[AggregateRow], header: &str) -> String {
         "| method | pose noise | fusion | runs | instances | precision | recall | F1 | DE single (m) | DE fused (m) | DE fused, covisible (m) |"
     );
     let _ = writeln!(md, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
-    let pm = |(m, c): (f64, f64)| with_ci(m, c);
+    let pm = |r: &AggregateRow, m: Metric| {
+        let (mean, ci) = r.get(m);
+        with_ci(mean, ci)
+    };
     for r in rows {
         let _ = writeln!(
             md,
             "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-            r.method,
-            r.pose_noise,
-            r.fusion,
+            r.key.method.as_str(),
+            r.key.pose_noise.as_str(),
+            r.key.fusion.as_str(),
             r.n_runs,
             r.n_instances,
-            pm(r.precision),
-            pm(r.recall),
-            pm(r.f1),
-            pm(r.de_single_m),
-            pm(r.de_fused_m),
-            pm(r.de_fused_covis_m)
+            pm(r, Metric::Precision),
+            pm(r, Metric::Recall),
+            pm(r, Metric::F1),
+            pm(r, Metric::DeSingle),
+            pm(r, Metric::DeFused),
+            pm(r, Metric::DeFusedCovisible)
         );
     }
     md

@@ -1,0 +1,24 @@
+//! The data behind `coid eval`'s plots.
+
+use super::calibration::ReliabilityBin;
+
+/// A pose-noise level's reliability diagram: (level, bins).
+pub type LevelReliability = (String, Vec<ReliabilityBin>);
+
+/// One point of the lambda sweep: (lambda, precision, recall, F1).
+pub type SweepPoint = (f64, f64, f64, f64);
+
+/// The data behind `coid eval`'s plots.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PlotData {
+    /// Per level: (level, points) of `ours`.
+    pub lambda_sweep: Vec<(String, Vec<SweepPoint>)>,
+    /// Methods, and per level the (mean, ci) F1 of each method.
+    pub methods: Vec<String>,
+    pub f1: Vec<(String, Vec<(f64, f64)>)>,
+    /// Per level: pooled single and fused errors of `ours` (aligned fusion
+    /// when configured, else paper).
+    pub errors: Vec<(String, Vec<f64>, Vec<f64>)>,
+    /// Per deep method: per level, its reliability diagram.
+    pub reliability: Vec<(String, Vec<LevelReliability>)>,
+}
