@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 
 use burn::prelude::*;
 
-use super::arch::{Architecture, likelihood_terms, variant};
+use super::arch::{Architecture, DeepMethod, likelihood_terms};
 use super::decision::{Decision, MatchDistribution, UncertaintyKind};
 use super::features::{GraphInput, graph_input, pair_input};
 use super::init::Init;
@@ -226,10 +226,14 @@ impl DeepMatcher {
 
     /// A deep method with trained weights (the bytes of its `.bpk` file);
     /// an error says why the bytes do not fit the method's network.
-    pub fn from_weights(method: Method, weights: &[u8], run: Inference) -> Result<Self, String> {
-        let (arch, _) = variant(method).ok_or("not a deep method")?;
+    pub fn from_weights(
+        method: DeepMethod,
+        weights: &[u8],
+        run: Inference,
+    ) -> Result<Self, String> {
+        let arch = method.architecture();
         let net = from_bytes(&arch, weights, &Device::flex())?;
-        Ok(Self::new(method, net, arch, run))
+        Ok(Self::new(method.method(), net, arch, run))
     }
 
     /// A deep method with freshly initialised weights (`init_seed`), as
@@ -350,8 +354,8 @@ impl DeepMatcher {
 /// (as after the first training steps): for tests of everything the
 /// learned parts touch, without training.
 #[cfg(test)]
-pub(crate) fn opened_weights(method: Method, seed: u64) -> Vec<u8> {
-    let (arch, _) = variant(method).expect("a deep method");
+pub(crate) fn opened_weights(method: DeepMethod, seed: u64) -> Vec<u8> {
+    let arch = method.architecture();
     let net = Network::new(&arch, Init::Seeded(seed), &Device::flex()).with_gates(1.0);
     to_bytes(&net).expect("weights")
 }
@@ -449,7 +453,8 @@ mod tests {
     #[test]
     fn weights_as_bytes_give_identical_outputs() {
         let m = opened(Architecture::default(), 11);
-        let loaded = DeepMatcher::from_weights(Method::Ours, &m.weights().unwrap(), RUN).unwrap();
+        let loaded =
+            DeepMatcher::from_weights(DeepMethod::Ours, &m.weights().unwrap(), RUN).unwrap();
         let (a, b) = testkit::moved_copy();
         let (va, vb) = (a.view(), b.view());
         let relative = crate::matching::gps_relative_pose(&va, &vb);
@@ -458,7 +463,7 @@ mod tests {
             loaded.distribution(&va, &vb, &relative)
         );
         // gcn-gm has no consensus: the weights of `ours` do not fit it.
-        let e = DeepMatcher::from_weights(Method::GcnGm, &m.weights().unwrap(), RUN);
+        let e = DeepMatcher::from_weights(DeepMethod::GcnGm, &m.weights().unwrap(), RUN);
         assert!(e.is_err());
     }
 
@@ -539,17 +544,16 @@ mod tests {
         assert_eq!(expected, hungarian(false));
         assert!(expected.len() >= 6, "{expected:?}");
         for method in [
-            Method::Ours,
-            Method::CoidNon,
-            Method::CoidUnc,
-            Method::Dgmc,
-            Method::GcnGm,
+            DeepMethod::Ours,
+            DeepMethod::CoidNon,
+            DeepMethod::CoidUnc,
+            DeepMethod::Dgmc,
+            DeepMethod::GcnGm,
         ] {
-            let (arch, _) = variant(method).unwrap();
-            let m = DeepMatcher::untrained(method, arch, 5, RUN);
+            let m = DeepMatcher::untrained(method.method(), method.architecture(), 5, RUN);
             assert_eq!(pairs(&m), expected, "{method:?}");
         }
-        let (arch, _) = variant(Method::OursNoPrior).unwrap();
+        let arch = DeepMethod::OursNoPrior.architecture();
         let noprior = DeepMatcher::untrained(Method::OursNoPrior, arch, 5, RUN);
         assert_eq!(pairs(&noprior), hungarian(true));
         assert_ne!(hungarian(true), expected);

@@ -5,14 +5,14 @@
 //! GPS+appearance Hungarian does (`ours-noprior`: as an appearance-only
 //! Hungarian).
 //!
-//! One job per file. Plain Rust: `arch` (what each deep method is:
-//! architecture, loss terms), `features` (what the network sees),
-//! `decision` (E[Y], uncertainty, decision rules), `examples` (labelled
-//! training pairs). Tensors (burn), and only here: `init` (seeded
-//! weights), `spline` (graphs as tensors, the SplineCNN layer),
-//! `network` (embeddings, pair scores), `masks` (dropout), `sinkhorn`,
-//! `loss`, `weights` (to and from bytes), `train` (fitting) and
-//! `matcher` ([`DeepMatcher`], inference). Callers get
+//! One job per file. Plain Rust: `arch` (what each deep method is, as
+//! [`arch::DeepMethod`]: architecture, loss terms), `features` (what
+//! the network sees), `decision` (E[Y], uncertainty, decision rules),
+//! `examples` (labelled training pairs). Tensors (burn), and only here:
+//! `init` (seeded weights), `spline` (graphs as tensors, the SplineCNN
+//! layer), `network` (embeddings, pair scores), `masks` (dropout),
+//! `sinkhorn`, `loss`, `weights` (to and from bytes), `train` (fitting)
+//! and `matcher` ([`DeepMatcher`], inference). Callers get
 //! [`decision::MatchDistribution`]s, correspondences, and weights as
 //! bytes: reading and writing weight files is the caller's business
 //! (`io`).
@@ -31,7 +31,7 @@ mod spline;
 pub mod train;
 mod weights;
 
-pub use self::arch::{likelihood_terms, thresholds_by_default, variant};
+pub use self::arch::variant;
 #[cfg(test)]
 pub(crate) use self::matcher::opened_weights;
 pub use self::matcher::{DeepMatcher, Inference, PairSamples};

@@ -12,7 +12,7 @@ use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
-use super::arch::{Architecture, LossTerms, PairLoss, variant};
+use super::arch::{Architecture, LossTerms, PairLoss};
 use super::features::{GraphInput, PairInput};
 use super::init::Init;
 use super::loss::{LabelTensors, loss};
@@ -20,7 +20,7 @@ use super::masks::{Masks, draw_masks};
 use super::network::{Network, PairTensors};
 use super::spline::GraphBatch;
 use super::weights::to_bytes;
-use crate::matching::Method;
+use crate::matching::{Method, MethodKind};
 use crate::rng::{self, Purpose};
 
 pub use super::examples::{EdgeStats, Example, OwnedView, Prepared, example};
@@ -213,8 +213,10 @@ pub struct Trainer {
 impl Trainer {
     /// A fresh network of `method` (initial weights from `opts.seed`).
     pub fn new(method: Method, opts: &TrainOptions) -> Result<Self, String> {
-        let (arch, mut terms) =
-            variant(method).ok_or_else(|| format!("{} is not a deep method", method.as_str()))?;
+        let MethodKind::Deep(deep) = method.kind() else {
+            return Err(format!("{} is not a deep method", method.as_str()));
+        };
+        let (arch, mut terms) = (deep.architecture(), deep.loss_terms());
         terms.pairs = opts.loss;
         let device = Device::flex().autodiff();
         Ok(Self {
