@@ -9,8 +9,8 @@ use std::time::Instant;
 
 use coid_sim::geometry::{Cov2, Pose2, Vec2};
 use coid_sim::graph::SceneGraph;
+use coid_sim::matching::deep::arch::{Architecture, PairLoss};
 use coid_sim::matching::deep::decision::Decision;
-use coid_sim::matching::deep::model::{Architecture, PairLoss};
 use coid_sim::matching::deep::train::{Example, Prepared, TrainOptions, Trainer, example};
 use coid_sim::matching::deep::{DeepMatcher, Inference};
 use coid_sim::matching::{Correspondence, MatchView, Method, gps_relative_pose};

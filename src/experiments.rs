@@ -12,7 +12,7 @@ use crate::evaluate::{self, ExternalMatches, Runner};
 use crate::fusion::FusionSettings;
 use crate::matching::deep::decision::{Decision, UncertaintyKind, calibrated, pair_uncertainty};
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainProgress, TrainReport};
-use crate::matching::{DecisionChoice, LambdaChoice, Method};
+use crate::matching::{DecisionChoice, LambdaChoice, Method, MethodKind};
 use crate::pipeline::{self, Progress, RunError};
 use crate::sensor::PoseNoiseLabel;
 use crate::tables::{DecidedPair, RunEval, lambda_grid};
@@ -306,7 +306,7 @@ pub fn validate(
     let kind = settings.matching.uncertainty;
     Ok(methods
         .iter()
-        .filter(|m| crate::matching::deep::variant(**m).is_some())
+        .filter(|m| matches!(m.kind(), MethodKind::Deep(_)))
         .map(|&m| (m, choose(&runs, &levels, kind, m)))
         .collect())
 }

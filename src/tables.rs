@@ -13,10 +13,9 @@ use std::collections::BTreeMap;
 use crate::config::Settings;
 use crate::evaluate::{Consistency, MethodEval, PairCounts, ViewEstimate, count_pairs, is_correct};
 use crate::fusion::FusionVariant;
-use crate::matching::Method;
-use crate::matching::deep;
 use crate::matching::deep::decision::{Decision, MatchDistribution, UncertaintyKind};
 use crate::matching::synchronize::TripleCounts;
+use crate::matching::{Method, MethodKind};
 use crate::report::{
     ObjectErrors, PlotData, ScoredPair, Table, ViewSums, brier_score, expected_calibration_error,
     mean_ci95, reliability, seen_by_group, seen_by_label, uncertainty_auroc,
@@ -294,7 +293,7 @@ impl Inputs<'_> {
         self.methods
             .iter()
             .copied()
-            .filter(|m| deep::variant(*m).is_some())
+            .filter(|m| matches!(m.kind(), MethodKind::Deep(_)))
             .collect()
     }
 }

@@ -449,9 +449,15 @@ fn only_the_deep_matcher_sees_tensors() {
     only_in(
         &["burn::", "Tensor<"],
         &[
-            "matching/deep/mod.rs",
-            "matching/deep/model.rs",
+            "matching/deep/init.rs",
+            "matching/deep/spline.rs",
+            "matching/deep/network.rs",
+            "matching/deep/masks.rs",
+            "matching/deep/sinkhorn.rs",
+            "matching/deep/loss.rs",
+            "matching/deep/weights.rs",
             "matching/deep/train.rs",
+            "matching/deep/matcher.rs",
         ],
     );
 }

@@ -1157,9 +1157,10 @@ mod learned {
 
 mod likelihood {
     use coid_sim::config::Settings;
+    use coid_sim::matching::deep::arch::DeepMethod;
     use coid_sim::matching::deep::decision::Decision;
-    use coid_sim::matching::deep::{DeepMatcher, Inference, variant};
-    use coid_sim::matching::{GpsHungarian, Matcher, Method};
+    use coid_sim::matching::deep::{DeepMatcher, Inference};
+    use coid_sim::matching::{GpsHungarian, Matcher};
     use coid_sim::pipeline;
 
     use super::*;
@@ -1186,14 +1187,14 @@ mod likelihood {
             gate_chi2: settings.matching.gate_chi2,
         };
         let deep: Vec<DeepMatcher> = [
-            Method::Ours,
-            Method::CoidNon,
-            Method::CoidUnc,
-            Method::Dgmc,
-            Method::GcnGm,
+            DeepMethod::Ours,
+            DeepMethod::CoidNon,
+            DeepMethod::CoidUnc,
+            DeepMethod::Dgmc,
+            DeepMethod::GcnGm,
         ]
         .iter()
-        .map(|&m| DeepMatcher::untrained(m, variant(m).unwrap().0, 7, run))
+        .map(|&m| DeepMatcher::untrained(m.method(), m.architecture(), 7, run))
         .collect();
         let pairs =
             |m: &dyn Matcher, pair: &coid_sim::evaluate::PairAtLevel| -> Vec<(usize, usize)> {

@@ -14,7 +14,7 @@ use crate::batch;
 use crate::config::Settings;
 use crate::experiments;
 use crate::io::{self, TrainingRecord};
-use crate::matching::{Method, deep};
+use crate::matching::{Method, MethodKind, deep};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -99,7 +99,10 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     } else {
         a.methods.clone()
     };
-    if let Some(m) = methods.iter().find(|m| deep::variant(**m).is_none()) {
+    if let Some(m) = methods
+        .iter()
+        .find(|m| !matches!(m.kind(), MethodKind::Deep(_)))
+    {
         anyhow::bail!("'{}' is not a trainable (deep) method", m.as_str());
     }
     let show = match (a.progress_lines, a.quiet.quiet) {

@@ -78,7 +78,7 @@ mod tests {
         let names: Vec<&str> = ASSETS.iter().map(|(n, _)| *n).collect();
         let deep = Method::all()
             .iter()
-            .filter(|m| crate::matching::deep::variant(**m).is_some())
+            .filter(|m| matches!(m.kind(), crate::matching::MethodKind::Deep(_)))
             .map(|m| m.as_str());
         for m in deep {
             assert!(names.contains(&format!("models/{m}.bpk").as_str()), "{m}");

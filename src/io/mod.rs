@@ -29,7 +29,7 @@ use polars::prelude::PolarsError;
 use crate::config::Settings;
 use crate::matching::deep::decision::Decision;
 use crate::matching::deep::train::TrainReport;
-use crate::matching::{DeepChoice, Method};
+use crate::matching::{DeepChoice, Method, MethodKind};
 use crate::report::{AggregateRow, ObjectRow, RunResults, RunRow, Table};
 use records::{BatchRecord, Lambda, ModelRecord, ValidationRecord};
 
@@ -248,9 +248,12 @@ pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, Weight
     let bytes = read_model_file(method, &path, "no such file", |p| std::fs::read(p))?;
     let record = read_record(models_dir, method)?;
     let fail = model_error(method, &path);
-    let (arch, _) =
-        crate::matching::deep::variant(method).ok_or_else(|| fail("not a deep method".into()))?;
-    record.check(method, &arch, &bytes).map_err(fail)?;
+    let MethodKind::Deep(deep) = method.kind() else {
+        return Err(fail("not a deep method".into()));
+    };
+    record
+        .check(method, &deep.architecture(), &bytes)
+        .map_err(fail)?;
     Ok(bytes)
 }
 
@@ -317,14 +320,17 @@ pub struct Validation {
 /// The record of a model just trained (no validation yet).
 fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, OutputError> {
     let t = &record.settings.train;
-    let (architecture, _) = crate::matching::deep::variant(record.method).ok_or_else(|| {
-        OutputError::Batch(format!("'{}' is not a deep method", record.method.as_str()))
-    })?;
+    let MethodKind::Deep(deep) = record.method.kind() else {
+        let method = record.method.as_str();
+        return Err(OutputError::Batch(format!(
+            "'{method}' is not a deep method"
+        )));
+    };
     let paths = |v: &[PathBuf]| v.iter().map(|p| p.display().to_string()).collect();
     let r = record.report;
     Ok(ModelRecord {
         method: record.method.as_str().to_owned(),
-        architecture,
+        architecture: deep.architecture(),
         weights_fnv64: records::fnv64_hex(weights),
         config: record.settings.source.display().to_string(),
         train_traffic_seeds: t.traffic_seeds.clone(),

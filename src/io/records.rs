@@ -6,8 +6,8 @@
 use serde::{Deserialize, Serialize};
 
 use crate::matching::Method;
+use crate::matching::deep::arch::Architecture;
 use crate::matching::deep::decision::Decision;
-use crate::matching::deep::model::Architecture;
 
 /// `<method>.toml` beside `<method>.bpk`: how the weights were made, what
 /// the validation runs chose for them, and what they must be to load.

@@ -21,6 +21,7 @@ pub use learning_free::{Mogm, Rgm};
 
 use std::path::PathBuf;
 
+use self::deep::arch::DeepMethod;
 use self::deep::decision::{Decision, MatchDistribution, UncertaintyKind};
 use crate::fusion::{PoseEstimate, relative_pose_prior};
 use crate::geometry::Pose2;
@@ -81,6 +82,37 @@ impl Method {
     pub fn all() -> &'static [Method] {
         <Method as strum::VariantArray>::VARIANTS
     }
+
+    /// What kind of method this is.
+    pub fn kind(self) -> MethodKind {
+        match self {
+            Method::Ours => MethodKind::Deep(DeepMethod::Ours),
+            Method::OursNoPrior => MethodKind::Deep(DeepMethod::OursNoPrior),
+            Method::CoidNon => MethodKind::Deep(DeepMethod::CoidNon),
+            Method::CoidUnc => MethodKind::Deep(DeepMethod::CoidUnc),
+            Method::Dgmc => MethodKind::Deep(DeepMethod::Dgmc),
+            Method::GcnGm => MethodKind::Deep(DeepMethod::GcnGm),
+            Method::Mogm | Method::Rgm => MethodKind::LearningFree,
+            Method::GpsHungarian | Method::GpsAppHungarian => MethodKind::GpsBased,
+            Method::Oracle => MethodKind::Oracle,
+            Method::External => MethodKind::External,
+        }
+    }
+}
+
+/// The kinds of [`Method`]: what a method needs to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MethodKind {
+    /// A trained network: weights, a lambda and a decision rule.
+    Deep(DeepMethod),
+    /// Learning-free graph matching (MOGM, RGM).
+    LearningFree,
+    /// Gated assignment on the GPS-moved positions (and appearance).
+    GpsBased,
+    /// The true correspondences: not a [`Matcher`].
+    Oracle,
+    /// Matches made elsewhere, read from a file: not a [`Matcher`].
+    External,
 }
 
 crate::label_enum! { "multi-vehicle mode";
@@ -288,18 +320,19 @@ pub fn build(
     dropout_seed: u64,
     weights: Option<&[u8]>,
 ) -> Result<Box<dyn Matcher>, BuildError> {
-    let inner: Box<dyn Matcher> = match method {
-        Method::Mogm => Box::new(Mogm::default()),
-        Method::Rgm => Box::new(Rgm::default()),
-        Method::GpsHungarian | Method::GpsAppHungarian => Box::new(GpsHungarian {
+    let inner: Box<dyn Matcher> = match method.kind() {
+        MethodKind::LearningFree if method == Method::Mogm => Box::new(Mogm::default()),
+        MethodKind::LearningFree => Box::new(Rgm::default()),
+        MethodKind::GpsBased => Box::new(GpsHungarian {
             gate_chi2: settings.gate_chi2,
             appearance: method == Method::GpsAppHungarian,
         }),
-        Method::Oracle => return Err(BuildError::Oracle),
-        Method::External => return Err(BuildError::External),
-        deep_method => {
-            let bytes = weights.ok_or(BuildError::NoWeights(deep_method.as_str()))?;
-            let threshold = deep::thresholds_by_default(deep_method)
+        MethodKind::Oracle => return Err(BuildError::Oracle),
+        MethodKind::External => return Err(BuildError::External),
+        MethodKind::Deep(deep_method) => {
+            let bytes = weights.ok_or(BuildError::NoWeights(method.as_str()))?;
+            let threshold = deep_method
+                .thresholds_by_default()
                 .then_some((settings.uncertainty, choice.lambda));
             let run = deep::Inference {
                 samples: settings.mc_samples,
@@ -312,7 +345,7 @@ pub fn build(
             let matcher =
                 deep::DeepMatcher::from_weights(deep_method, bytes, run).map_err(|reason| {
                     BuildError::BadWeights {
-                        method: deep_method.as_str(),
+                        method: method.as_str(),
                         reason,
                     }
                 })?;
@@ -414,7 +447,10 @@ mod tests {
                 if matches!(method, Method::Oracle | Method::External) {
                     continue;
                 }
-                let weights = deep::variant(method).map(|_| deep::opened_weights(method, 3));
+                let weights = match method.kind() {
+                    MethodKind::Deep(d) => Some(deep::opened_weights(d, 3)),
+                    _ => None,
+                };
                 let all_pairs = DeepChoice {
                     lambda: f64::INFINITY,
                     ..CHOICE

@@ -16,7 +16,7 @@ use crate::graph::{GraphError, SceneGraph};
 use crate::io::{self, OutputError, WeightsError};
 use crate::matching::deep::decision::Decision;
 use crate::matching::{
-    self, BuildError, DecisionChoice, DeepChoice, LambdaChoice, MatchView, Method,
+    self, BuildError, DecisionChoice, DeepChoice, LambdaChoice, MatchView, Method, MethodKind,
 };
 use crate::report::{ObjectRow, RowKey, RunResults};
 use crate::rng::{self, Purpose};
@@ -428,7 +428,7 @@ pub fn choices(
 ) -> Result<BTreeMap<Method, DeepChoice>, RunError> {
     methods
         .iter()
-        .filter(|m| matching::deep::variant(**m).is_some())
+        .filter(|m| matches!(m.kind(), MethodKind::Deep(_)))
         .map(|&m| Ok((m, choice_for(settings, m)?)))
         .collect()
 }
@@ -449,7 +449,7 @@ pub fn runner(settings: &Settings, method: Method) -> Result<Runner, RunError> {
         return Ok(Runner::Oracle);
     }
     let m = &settings.matching;
-    let (weights, choice) = if matching::deep::variant(method).is_some() {
+    let (weights, choice) = if let MethodKind::Deep(_) = method.kind() {
         (
             Some(io::read_weights(&m.models_dir, method)?),
             choice_for(settings, method)?,

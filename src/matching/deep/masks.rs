@@ -1,0 +1,177 @@
+//! Dropout masks, drawn by the caller from a seeded stream and applied as
+//! tensors on any device (burn's `Dropout` is a no-op outside autodiff
+//! training, and MC dropout needs masks at inference): inverted dropout
+//! (0 or 1 / (1 - p)) with one draw per unit for training and two units
+//! per draw at inference, and the consensus' random node indicators.
+
+use burn::prelude::*;
+use rand::{Rng, RngCore};
+use rand_chacha::ChaCha8Rng;
+
+use super::arch::Architecture;
+use super::spline::GraphBatch;
+
+/// The dropout masks of one training forward pass with T samples (values
+/// 0 or 1 / (1 - p), inverted dropout).
+pub struct Masks {
+    /// `[B, T, N1, hidden]`, `[B, T, N2, hidden]`.
+    pub conv1: [Tensor<4>; 2],
+    /// `[B, T, N1, out]`, `[B, T, N2, out]`.
+    pub conv2: [Tensor<4>; 2],
+    pub pair: PairMasks,
+}
+
+/// The masks of the pair part of a forward pass: consensus dropout and
+/// the random node indicators.
+pub struct PairMasks {
+    /// `[B, T, N1, N2, consensus_dim]`.
+    pub phi: Tensor<5>,
+    /// `[B, 1, N1, consensus_dim]`.
+    pub indicators: Tensor<4>,
+}
+
+/// Draws inverted-dropout masks (0 or 1 / (1 - p)) of the given shape.
+fn dropout_mask(rng: &mut ChaCha8Rng, len: usize, p: f64) -> Vec<f32> {
+    if p <= 0.0 {
+        return vec![1.0; len];
+    }
+    let keep = 1.0 - p;
+    let scale = (1.0 / keep) as f32;
+    // Compare raw 32-bit draws with the keep threshold: one draw per unit.
+    let threshold = (keep * 4_294_967_296.0).min(f64::from(u32::MAX)) as u32;
+    let mut out = vec![0f32; len];
+    for v in out.iter_mut() {
+        if rng.next_u32() < threshold {
+            *v = scale;
+        }
+    }
+    out
+}
+
+/// Inference masks: [`dropout_mask`] with two units per 32-bit draw (the
+/// keep probability rounded to 1/65536: 0.8 becomes 0.800003), half the
+/// random numbers of the training masks.
+pub(super) fn dropout_mask_16(rng: &mut ChaCha8Rng, len: usize, p: f64) -> Vec<f32> {
+    if p <= 0.0 {
+        return vec![1.0; len];
+    }
+    let keep = 1.0 - p;
+    let scale = (1.0 / keep) as f32;
+    let threshold = (keep * 65_536.0).round().min(65_536.0) as u32;
+    let mut words = vec![0u32; len.div_ceil(2)];
+    rng.fill(&mut words[..]);
+    let mut out = vec![0f32; 2 * words.len()];
+    for (o, &w) in out.chunks_exact_mut(2).zip(&words) {
+        o[0] = scale * f32::from(u8::from((w & 0xFFFF) < threshold));
+        o[1] = scale * f32::from(u8::from((w >> 16) < threshold));
+    }
+    out.truncate(len);
+    out
+}
+
+/// A mask draw: the training or the inference one.
+pub(super) type MaskDraw = fn(&mut ChaCha8Rng, usize, f64) -> Vec<f32>;
+
+/// A `[B, T, N, D]` mask tensor.
+fn mask4(
+    rng: &mut ChaCha8Rng,
+    draw: MaskDraw,
+    shape: [usize; 4],
+    p: f64,
+    device: &Device,
+) -> Tensor<4> {
+    let len = shape.iter().product();
+    Tensor::from_data(TensorData::new(draw(rng, len, p), shape), device)
+}
+
+/// All masks of one training forward pass over a batch of `b` pairs with
+/// `t` samples each, from one stream.
+pub(super) fn draw_masks(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    [b, t]: [usize; 2],
+    graphs: [&GraphBatch; 2],
+    device: &Device,
+) -> Masks {
+    let [n1, n2] = graphs.map(GraphBatch::n);
+    let (h, o, p) = (arch.hidden, arch.out, arch.dropout_conv);
+    let conv1 = [
+        mask4(rng, dropout_mask, [b, t, n1, h], p, device),
+        mask4(rng, dropout_mask, [b, t, n2, h], p, device),
+    ];
+    let conv2 = [
+        mask4(rng, dropout_mask, [b, t, n1, o], p, device),
+        mask4(rng, dropout_mask, [b, t, n2, o], p, device),
+    ];
+    let pair = draw_pair_masks(rng, arch, [b, t, n1, n2], dropout_mask, device);
+    Masks { conv1, conv2, pair }
+}
+
+/// The conv dropout masks of one vehicle's embedding with `t` samples,
+/// `[1, t, n, hidden]` and `[1, t, n, out]`.
+pub(super) fn draw_embedding_masks(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    t: usize,
+    n: usize,
+    device: &Device,
+) -> (Tensor<4>, Tensor<4>) {
+    let p = arch.dropout_conv;
+    (
+        mask4(rng, dropout_mask_16, [1, t, n, arch.hidden], p, device),
+        mask4(rng, dropout_mask_16, [1, t, n, arch.out], p, device),
+    )
+}
+
+/// The consensus masks of `b` pairs with `t` samples each: the phi
+/// dropout (drawn by `draw`: the training or the inference mask) and the
+/// random node indicators.
+pub(super) fn draw_pair_masks(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    [b, t, n1, n2]: [usize; 4],
+    draw: MaskDraw,
+    device: &Device,
+) -> PairMasks {
+    let r = arch.consensus_dim;
+    let phi = if arch.consensus {
+        Tensor::<5>::from_data(
+            TensorData::new(
+                draw(rng, b * t * n1 * n2 * r, arch.dropout_phi),
+                [b, t, n1, n2, r],
+            ),
+            device,
+        )
+    } else {
+        Tensor::<5>::ones([1, 1, 1, 1, 1], device)
+    };
+    let normal = rand_distr::StandardNormal;
+    let indicators: Vec<f32> = (0..b * n1 * r)
+        .map(|_| rng.sample::<f64, _>(normal) as f32)
+        .collect();
+    PairMasks {
+        phi,
+        indicators: Tensor::from_data(TensorData::new(indicators, [b, 1, n1, r]), device),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn dropout_masks_have_the_right_rate_and_scale() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let m = dropout_mask(&mut rng, 100_000, 0.4);
+        let kept = m.iter().filter(|&&v| v > 0.0).count() as f64 / m.len() as f64;
+        assert!((kept - 0.6).abs() < 0.01, "{kept}");
+        assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.6).abs() < 1e-6));
+        assert!(dropout_mask(&mut rng, 10, 0.0).iter().all(|&v| v == 1.0));
+        let m = dropout_mask_16(&mut rng, 100_001, 0.2);
+        let kept = m.iter().filter(|&&v| v > 0.0).count() as f64 / m.len() as f64;
+        assert!((kept - 0.8).abs() < 0.01, "{kept}");
+        assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.8).abs() < 1e-6));
+        assert!(dropout_mask_16(&mut rng, 7, 0.0).iter().all(|&v| v == 1.0));
+    }
+}

@@ -1,0 +1,613 @@
+//! [`DeepMatcher`]: a trained network as a [`Matcher`], with MC-dropout
+//! inference. Each vehicle's embedding comes from a dropout stream keyed
+//! by its network input and is kept in a small cache, shared by every
+//! pair that vehicle is in (bit-identical to computing it per pair); the
+//! consensus masks come from the pair's stream. The spline convolutions
+//! compute messages only for the kernel cells a graph uses, with those
+//! cells' weights kept per cell set, and Sinkhorn runs without tensors
+//! ([`sinkhorn_probabilities`]). Tensors stay inside: callers get
+//! [`MatchDistribution`]s, correspondences and weights as bytes.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+use burn::prelude::*;
+
+use super::arch::{Architecture, DeepMethod, likelihood_terms};
+use super::decision::{Decision, MatchDistribution, UncertaintyKind};
+use super::features::{GraphInput, graph_input, pair_input};
+use super::init::Init;
+use super::masks::{draw_embedding_masks, draw_pair_masks, dropout_mask_16};
+use super::network::{Combination, Network, PairTensors};
+use super::sinkhorn::sinkhorn_probabilities;
+use super::spline::{CellWeights, GraphBatch};
+use super::weights::{from_bytes, to_bytes};
+use crate::fusion::PoseEstimate;
+use crate::matching::likelihood::{LikelihoodTerms, assign};
+use crate::matching::{Identification, MatchView, Matcher, Method};
+use crate::rng::{self, Purpose};
+
+/// A key of everything one vehicle's embedding depends on: its network
+/// input (node features and edges with their B-spline bases, which carry
+/// the reported heading) and the number of samples.
+fn embedding_key(input: &GraphInput, samples: usize) -> u64 {
+    let mut parts = vec![input.n as u64, samples as u64, input.edge_count() as u64];
+    parts.extend(input.node_features.iter().map(|v| u64::from(v.to_bits())));
+    parts.extend(
+        input
+            .src
+            .iter()
+            .chain(&input.dst)
+            .chain(&input.basis_index)
+            .map(|&v| v as u64),
+    );
+    parts.extend(input.basis_weight.iter().map(|v| u64::from(v.to_bits())));
+    rng::key(&parts)
+}
+
+/// One vehicle's embedding at inference: its graph tensors and the node
+/// embeddings of every MC-dropout sample, `[1, T, N, out]`.
+struct Embedded {
+    graph: GraphBatch,
+    h: Tensor<4>,
+}
+
+/// Embeddings computed for recent views, by [`embedding_key`]: a vehicle
+/// seen in several pairs of a frame is embedded once. Bounded; a hit is
+/// bit-identical to recomputing (same input, same dropout stream).
+#[derive(Default)]
+struct EmbeddingCache {
+    entries: HashMap<u64, Arc<Embedded>>,
+    hits: u64,
+}
+
+/// At most this many embeddings are kept (a frame of a town holds a few
+/// dozen vehicles x pose-noise levels).
+const CACHE_CAPACITY: usize = 256;
+
+/// How many kernel-cell sets' weights a matcher keeps (each up to 0.8 MB;
+/// a scenario's few most common sets cover most graphs).
+const CELL_SETS_KEPT: usize = 16;
+
+/// A stable key of a matching problem's inputs: the masks of a pair depend
+/// only on the pair, not on what was matched before.
+fn problem_key(first: &MatchView, second: &MatchView) -> u64 {
+    let mut parts = vec![
+        first.detections.len() as u64,
+        second.detections.len() as u64,
+    ];
+    for d in first.detections.iter().chain(second.detections) {
+        parts.push(d.position_m.x.to_bits());
+        parts.push(d.position_m.y.to_bits());
+    }
+    rng::key(&parts)
+}
+
+/// The T MC-dropout samples of one pair.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairSamples {
+    pub n1: usize,
+    pub n2: usize,
+    /// Each sample's scores, `T x n1 x n2` row-major (`None`: gated).
+    pub scores: Vec<Option<f64>>,
+    /// Each sample's soft assignment, `(n1 + 1) x (n2 + 1)` row-major.
+    pub assignments: Vec<Vec<f32>>,
+    /// The scores' mean over the samples, `n1 x n2`: the shared
+    /// likelihood plus the gated mean residual.
+    pub mean_scores: Vec<Option<f64>>,
+}
+
+/// A trained deep matcher with MC-dropout inference.
+pub struct DeepMatcher {
+    pub method: Method,
+    pub arch: Architecture,
+    net: Network,
+    device: Device,
+    /// Monte Carlo samples (paper: T = 20).
+    pub samples: usize,
+    /// Removal of uncertain pairs in [`Matcher::identify`].
+    pub threshold: Option<(UncertaintyKind, f64)>,
+    /// How the pairs are chosen from the samples.
+    pub decision: Decision,
+    /// The calibration temperature of the reported probabilities.
+    pub temperature: f64,
+    /// Seed of the dropout-mask streams.
+    pub seed: u64,
+    /// The shared likelihood's terms and gates.
+    terms: LikelihoodTerms,
+    /// Reuse each vehicle's embedding across the pairs it is in.
+    share_embeddings: bool,
+    /// The spline layers' weights per set of kernel cells (bit mask).
+    cell_weights: Mutex<HashMap<u32, Arc<CellWeights>>>,
+    /// The network's scalar parameters, read once.
+    combination: Combination,
+    cache: Mutex<EmbeddingCache>,
+}
+
+/// How a deep matcher runs (beyond its weights).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Inference {
+    /// Monte Carlo samples (paper: T = 20).
+    pub samples: usize,
+    /// Removal of uncertain pairs (binary entropy of the kind >= lambda).
+    pub threshold: Option<(UncertaintyKind, f64)>,
+    pub decision: Decision,
+    /// The calibration temperature of the reported probabilities.
+    pub temperature: f64,
+    /// Seed of the dropout-mask streams.
+    pub seed: u64,
+    /// The likelihood's gate on the squared Mahalanobis distance.
+    pub gate_chi2: f64,
+}
+
+impl DeepMatcher {
+    fn new(method: Method, net: Network, arch: Architecture, run: Inference) -> Self {
+        let net = net.valid();
+        let combination = net.combination();
+        Self {
+            method,
+            arch,
+            net,
+            device: Device::flex(),
+            samples: run.samples,
+            threshold: run.threshold,
+            decision: run.decision,
+            temperature: run.temperature,
+            seed: run.seed,
+            terms: likelihood_terms(&arch, run.gate_chi2),
+            share_embeddings: true,
+            cache: Mutex::default(),
+            cell_weights: Mutex::default(),
+            combination,
+        }
+    }
+
+    /// Computes every pair's embeddings afresh (the per-pair path; results
+    /// are bit-identical either way).
+    pub fn without_shared_embeddings(mut self) -> Self {
+        self.share_embeddings = false;
+        self
+    }
+
+    /// How many embeddings were reused so far.
+    pub fn shared_embeddings(&self) -> u64 {
+        self.cache.lock().map_or(0, |c| c.hits)
+    }
+
+    /// One vehicle's embedding: from the cache, or computed with the
+    /// conv dropout masks of its own stream (keyed by its input).
+    fn embedding(&self, view: &MatchView) -> Arc<Embedded> {
+        let input = graph_input(view.detections, view.graph, &view.pose_reported);
+        let key = embedding_key(&input, self.samples);
+        if self.share_embeddings
+            && let Ok(mut cache) = self.cache.lock()
+            && let Some(e) = cache.entries.get(&key).cloned()
+        {
+            cache.hits += 1;
+            return e;
+        }
+        let graph = GraphBatch::used_cells(&input, &self.device);
+        let graph = match self.cell_weights(&graph) {
+            Some(weights) => graph.with_weights(weights),
+            None => graph,
+        };
+        let mut stream = rng::stream(self.seed, Purpose::EmbeddingDropout, &[key]);
+        let (m1, m2) =
+            draw_embedding_masks(&mut stream, &self.arch, self.samples, input.n, &self.device);
+        let h = self.net.embed(&graph, m1, m2);
+        let e = Arc::new(Embedded { graph, h });
+        if self.share_embeddings
+            && let Ok(mut cache) = self.cache.lock()
+        {
+            if cache.entries.len() >= CACHE_CAPACITY {
+                cache.entries.clear();
+            }
+            cache.entries.insert(key, Arc::clone(&e));
+        }
+        e
+    }
+
+    /// The spline layers' weights of `graph`'s kernel cells, kept per cell
+    /// set (a scenario's graphs use a few dozen sets): selecting them anew
+    /// for every graph cost as much as a tenth of inference. `None` for a
+    /// set not kept (the layers then select them).
+    fn cell_weights(&self, graph: &GraphBatch) -> Option<Arc<CellWeights>> {
+        let mut cache = self.cell_weights.lock().ok()?;
+        if let Some(weights) = cache.get(&graph.cell_mask) {
+            return Some(Arc::clone(weights));
+        }
+        // The first sets seen are kept: the common ones come early.
+        (cache.len() < CELL_SETS_KEPT).then(|| {
+            let weights = Arc::new(self.net.cell_weights(graph));
+            cache.insert(graph.cell_mask, Arc::clone(&weights));
+            weights
+        })
+    }
+
+    /// A deep method with trained weights (the bytes of its `.bpk` file);
+    /// an error says why the bytes do not fit the method's network.
+    pub fn from_weights(
+        method: DeepMethod,
+        weights: &[u8],
+        run: Inference,
+    ) -> Result<Self, String> {
+        let arch = method.architecture();
+        let net = from_bytes(&arch, weights, &Device::flex())?;
+        Ok(Self::new(method.method(), net, arch, run))
+    }
+
+    /// A deep method with freshly initialised weights (`init_seed`), as
+    /// training starts from: for benchmarks, and for tests.
+    pub fn untrained(method: Method, arch: Architecture, init_seed: u64, run: Inference) -> Self {
+        let net = Network::new(&arch, Init::Seeded(init_seed), &Device::flex());
+        Self::new(method, net, arch, run)
+    }
+
+    /// The weights as bytes (what a `.bpk` file holds).
+    pub fn weights(&self) -> Result<Vec<u8>, String> {
+        to_bytes(&self.net)
+    }
+
+    /// The `samples` MC-dropout passes over one pair (both sides
+    /// non-empty), with `relative` the second vehicle's pose in the first
+    /// one's frame.
+    pub fn samples(
+        &self,
+        first: &MatchView,
+        second: &MatchView,
+        relative: &PoseEstimate,
+    ) -> PairSamples {
+        let (n1, n2, t) = (
+            first.detections.len(),
+            second.detections.len(),
+            self.samples,
+        );
+        let (e1, e2) = (self.embedding(first), self.embedding(second));
+        let input = pair_input(first, second, relative, &self.terms);
+        let tensors = PairTensors::new(&[&input], [n1, n2], &self.device);
+        let mut stream = rng::stream(self.seed, Purpose::Dropout, &[problem_key(first, second)]);
+        let masks = draw_pair_masks(
+            &mut stream,
+            &self.arch,
+            [1, t, n1, n2],
+            dropout_mask_16,
+            &self.device,
+        );
+        let out = self
+            .net
+            .pair((&e1.h, &e1.graph), (&e2.h, &e2.graph), &tensors, masks);
+        let to_vec = |x: Tensor<4>| x.try_into_vec_as::<f32>().unwrap_or_default();
+        let residual = to_vec(out.residual);
+        let c = self.combination;
+        let (scale, gate) = (f64::from(c.scale), f64::from(c.gate));
+        let score = |ll: Option<f64>, r: f64| ll.map(|l| scale * l + gate * r);
+        let mut scores = Vec::with_capacity(t * n1 * n2);
+        for sample in residual.chunks(n1 * n2) {
+            scores.extend(
+                input
+                    .log_likelihood
+                    .iter()
+                    .zip(sample)
+                    .map(|(&ll, &r)| score(ll, f64::from(r))),
+            );
+        }
+        let mean_scores: Vec<Option<f64>> = (0..n1 * n2)
+            .map(|k| {
+                let r = (0..t)
+                    .map(|s| f64::from(residual[s * n1 * n2 + k]))
+                    .sum::<f64>();
+                score(input.log_likelihood[k], r / t as f64)
+            })
+            .collect();
+        let dust = out.dust.map(|d| {
+            d.try_into_vec_as::<f32>()
+                .unwrap_or_default()
+                .iter()
+                .map(|&v| f64::from(c.dustbin) + f64::from(c.dust_gate) * f64::from(v))
+                .collect::<Vec<f64>>()
+        });
+        let finite: Vec<f64> = scores
+            .iter()
+            .map(|s| s.unwrap_or(f64::NEG_INFINITY))
+            .collect();
+        let p = sinkhorn_probabilities(
+            &finite,
+            [t, n1, n2],
+            [&dust[0], &dust[1]],
+            f64::from(c.dustbin),
+            self.arch.sinkhorn_iters,
+        );
+        PairSamples {
+            n1,
+            n2,
+            scores,
+            assignments: p.chunks((n1 + 1) * (n2 + 1)).map(<[f32]>::to_vec).collect(),
+            mean_scores,
+        }
+    }
+
+    /// E[Y], the per-pair uncertainties and the decided pairs from
+    /// `samples` MC-dropout passes.
+    pub fn distribution(
+        &self,
+        first: &MatchView,
+        second: &MatchView,
+        relative: &PoseEstimate,
+    ) -> MatchDistribution {
+        let (n1, n2) = (first.detections.len(), second.detections.len());
+        if n1 == 0 || n2 == 0 {
+            let mut d = MatchDistribution::all_unmatched(n1, n2);
+            d.decision = self.decision;
+            d.temperature = self.temperature;
+            return d;
+        }
+        let s = self.samples(first, second, relative);
+        let mut d = MatchDistribution::from_samples(n1, n2, &s.assignments);
+        d.assigned = assign(n1, n2, &s.mean_scores);
+        d.decision = self.decision;
+        d.temperature = self.temperature;
+        d
+    }
+}
+
+/// The weights of an untrained network of `method` whose gates are open
+/// (as after the first training steps): for tests of everything the
+/// learned parts touch, without training.
+#[cfg(test)]
+pub(crate) fn opened_weights(method: DeepMethod, seed: u64) -> Vec<u8> {
+    let arch = method.architecture();
+    let net = Network::new(&arch, Init::Seeded(seed), &Device::flex()).with_gates(1.0);
+    to_bytes(&net).expect("weights")
+}
+
+impl Matcher for DeepMatcher {
+    fn method(&self) -> Method {
+        self.method
+    }
+
+    fn uses_positions(&self) -> bool {
+        self.arch.positions
+    }
+
+    fn identify_with(
+        &self,
+        first: &MatchView,
+        second: &MatchView,
+        relative: &PoseEstimate,
+    ) -> Identification {
+        let distribution = self.distribution(first, second, relative);
+        Identification {
+            matches: distribution.decide(self.threshold),
+            distribution: Some(distribution),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Vec2;
+    use crate::matching::gps_hungarian::GpsHungarian;
+    use crate::matching::testkit::{self, GPS, Side};
+    use crate::traffic::ObjectClass;
+
+    const RUN: Inference = Inference {
+        samples: 20,
+        threshold: None,
+        decision: Decision::Assignment,
+        temperature: 1.0,
+        seed: 3,
+        gate_chi2: 9.21,
+    };
+
+    /// An untrained network whose gates are open (as after the first
+    /// training steps), so that the residual and its dropout count.
+    fn opened(arch: Architecture, seed: u64) -> DeepMatcher {
+        let net = Network::new(&arch, Init::Seeded(seed), &Device::flex()).with_gates(1.0);
+        DeepMatcher::new(Method::Ours, net, arch, RUN)
+    }
+
+    /// The MC samples of the moved-copy scene.
+    fn mc_samples(m: &DeepMatcher) -> Vec<Vec<f32>> {
+        let (a, b) = testkit::moved_copy();
+        let (va, vb) = (a.view(), b.view());
+        let s = m.samples(&va, &vb, &crate::matching::gps_relative_pose(&va, &vb));
+        assert_eq!(s.assignments.len(), 20);
+        s.assignments
+    }
+
+    /// Largest per-entry variance across samples.
+    fn max_variance(samples: &[Vec<f32>]) -> f64 {
+        let t = samples.len() as f64;
+        (0..samples[0].len())
+            .map(|k| {
+                let mean = samples.iter().map(|s| f64::from(s[k])).sum::<f64>() / t;
+                samples
+                    .iter()
+                    .map(|s| (f64::from(s[k]) - mean).powi(2))
+                    .sum::<f64>()
+                    / t
+            })
+            .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn mc_dropout_samples_really_differ_at_inference() {
+        let v = max_variance(&mc_samples(&opened(Architecture::default(), 3)));
+        assert!(
+            v > 1e-4,
+            "p > 0 must give varying samples (max variance {v})"
+        );
+        let without = Architecture {
+            dropout_conv: 0.0,
+            dropout_phi: 0.0,
+            ..Architecture::default()
+        };
+        let samples = mc_samples(&opened(without, 3));
+        assert!(
+            samples.iter().all(|s| *s == samples[0]),
+            "p = 0 must give identical samples"
+        );
+    }
+
+    #[test]
+    fn weights_as_bytes_give_identical_outputs() {
+        let m = opened(Architecture::default(), 11);
+        let loaded =
+            DeepMatcher::from_weights(DeepMethod::Ours, &m.weights().unwrap(), RUN).unwrap();
+        let (a, b) = testkit::moved_copy();
+        let (va, vb) = (a.view(), b.view());
+        let relative = crate::matching::gps_relative_pose(&va, &vb);
+        assert_eq!(
+            m.distribution(&va, &vb, &relative),
+            loaded.distribution(&va, &vb, &relative)
+        );
+        // gcn-gm has no consensus: the weights of `ours` do not fit it.
+        let e = DeepMatcher::from_weights(DeepMethod::GcnGm, &m.weights().unwrap(), RUN);
+        assert!(e.is_err());
+    }
+
+    /// A queue of six cars 5.5 m apart (colours differ), a pedestrian, a
+    /// truck and a bicycle.
+    fn queue_scene() -> Vec<(Vec2, ObjectClass, [f64; 3])> {
+        let colours = [
+            [0.95; 3],
+            [0.1; 3],
+            [0.7, 0.1, 0.1],
+            [0.6; 3],
+            [0.1, 0.2, 0.7],
+            [0.9, 0.8, 0.1],
+        ];
+        let mut v: Vec<_> = (0..6)
+            .map(|k| {
+                (
+                    Vec2::new(10.0 + 5.5 * k as f64, 2.0),
+                    ObjectClass::Car,
+                    colours[k],
+                )
+            })
+            .collect();
+        v.push((Vec2::new(14.0, 12.0), ObjectClass::Pedestrian, [0.2; 3]));
+        v.push((Vec2::new(30.0, -9.0), ObjectClass::Truck, [0.7, 0.1, 0.1]));
+        v.push((Vec2::new(24.0, 15.0), ObjectClass::Bicycle, [0.1; 3]));
+        v
+    }
+
+    /// Untrained, every variant with positions scores each pair by the
+    /// shared likelihood alone, so that its assignment is GPS+appearance
+    /// Hungarian's, pair for pair, on scenes with GPS error, look-alikes
+    /// and objects only one vehicle sees; `ours-noprior` is the
+    /// appearance-only Hungarian. With the gates open it is not.
+    #[test]
+    fn untrained_decides_exactly_as_gps_appearance_hungarian() {
+        let scene = queue_scene();
+        let mut world = testkit::world_objects();
+        world.extend(
+            scene
+                .iter()
+                .map(|&(p, c, col)| (p + Vec2::new(40.0, 40.0), c, col)),
+        );
+        let all: Vec<usize> = (0..world.len()).collect();
+        let a = Side::of(testkit::POSE_A, &world, &all, GPS);
+        let mut b = Side::of(
+            testkit::POSE_B,
+            &world,
+            &[3, 9, 12, 0, 5, 14, 2, 10, 7, 16],
+            GPS,
+        );
+        b.pose = crate::geometry::Pose2::new(b.pose.position_m() + Vec2::new(2.0, -1.0), -2.39);
+        let (va, vb) = (a.view(), b.view());
+        let hungarian = |appearance_only: bool| {
+            let relative = crate::matching::gps_relative_pose(&va, &vb);
+            let terms = LikelihoodTerms {
+                position: !appearance_only,
+                ..LikelihoodTerms::full(9.21)
+            };
+            let s: Vec<Option<f64>> =
+                crate::matching::likelihood::pair_terms(&va, &vb, &relative, &terms)
+                    .iter()
+                    .map(|p| p.map(|p| p.log_likelihood()))
+                    .collect();
+            assign(va.detections.len(), vb.detections.len(), &s)
+        };
+        let pairs = |m: &dyn Matcher| -> Vec<(usize, usize)> {
+            m.identify(&va, &vb)
+                .matches
+                .iter()
+                .map(|c| (c.a, c.b))
+                .collect()
+        };
+        let expected = pairs(&GpsHungarian {
+            gate_chi2: 9.21,
+            appearance: true,
+        });
+        assert_eq!(expected, hungarian(false));
+        assert!(expected.len() >= 6, "{expected:?}");
+        for method in [
+            DeepMethod::Ours,
+            DeepMethod::CoidNon,
+            DeepMethod::CoidUnc,
+            DeepMethod::Dgmc,
+            DeepMethod::GcnGm,
+        ] {
+            let m = DeepMatcher::untrained(method.method(), method.architecture(), 5, RUN);
+            assert_eq!(pairs(&m), expected, "{method:?}");
+        }
+        let arch = DeepMethod::OursNoPrior.architecture();
+        let noprior = DeepMatcher::untrained(Method::OursNoPrior, arch, 5, RUN);
+        assert_eq!(pairs(&noprior), hungarian(true));
+        assert_ne!(hungarian(true), expected);
+        let net = Network::new(&Architecture::default(), Init::Seeded(5), &Device::flex());
+        let loud = DeepMatcher::new(
+            Method::Ours,
+            net.with_gates(30.0),
+            Architecture::default(),
+            RUN,
+        );
+        assert_ne!(pairs(&loud), expected);
+    }
+
+    /// Three vehicles, three pairs: sharing each vehicle's embedding across
+    /// its pairs gives the same bits as computing it for every pair, and
+    /// it is reused (each vehicle is in two pairs).
+    #[test]
+    fn shared_embeddings_are_bit_identical_to_the_per_pair_path() {
+        let objects = testkit::world_objects();
+        let all: Vec<usize> = (0..objects.len()).collect();
+        let sides = [
+            Side::of(testkit::POSE_A, &objects, &all, GPS),
+            Side::of(testkit::POSE_B, &objects, &[5, 2, 7, 0, 3, 6, 1, 4], GPS),
+            Side::of((20.0, 40.0, -1.2), &objects, &[1, 3, 4, 6, 7], GPS),
+        ];
+        let pairs = [(0, 1), (0, 2), (1, 2)];
+        let run = |m: &DeepMatcher| -> Vec<Vec<Vec<f32>>> {
+            pairs
+                .iter()
+                .map(|&(i, j)| {
+                    let (a, b) = (sides[i].view(), sides[j].view());
+                    m.samples(&a, &b, &crate::matching::gps_relative_pose(&a, &b))
+                        .assignments
+                })
+                .collect()
+        };
+        let shared = opened(Architecture::default(), 4);
+        let per_pair = opened(Architecture::default(), 4).without_shared_embeddings();
+        let (a, b) = (run(&shared), run(&per_pair));
+        assert_eq!(a, b);
+        assert_eq!(shared.shared_embeddings(), 3);
+        assert_eq!(per_pair.shared_embeddings(), 0);
+        // The MC samples differ from each other (dropout is on).
+        assert_ne!(a[0][0], a[0][1]);
+    }
+
+    #[test]
+    fn empty_sides_send_everything_to_the_dustbin() {
+        let m = opened(Architecture::default(), 1);
+        let (a, b) = testkit::moved_copy();
+        let empty = Side::new(vec![], vec![], b.pose, testkit::EXACT);
+        let id = m.identify(&a.view(), &empty.view());
+        assert!(id.matches.is_empty());
+        let d = id.distribution.unwrap();
+        assert!((0..a.detections.len()).all(|i| d.p(i, 0) == 1.0));
+    }
+}

@@ -1,0 +1,309 @@
+//! The SplineCNN layer (Fey et al. 2018, paper Eq. 1) and the graphs it
+//! runs on: [`GraphBatch`] holds graphs as tensors, padded to a common
+//! node count, with each edge's degree-1 open B-spline weights over its
+//! 2-D pseudo-coordinates (`KERNEL` knots per dimension) mixed into dense
+//! matrices; [`SplineConv`] is mean aggregation over the neighbours with
+//! a weight matrix per kernel cell, plus a root weight, computed as two
+//! dense products in whichever order costs less. At inference only the
+//! kernel cells a graph uses are computed, and their weights can be kept
+//! per cell set ([`CellWeights`]).
+
+use burn::module::Param;
+use burn::prelude::*;
+use std::sync::Arc;
+
+use super::features::{GraphInput, KERNEL_2D, NODE_FEATURES};
+use super::init::{Init, named_param};
+
+/// Graphs as tensors, padded to a common node count `N` (a batch of
+/// training pairs' graphs, or one graph at inference, `B = 1`).
+pub struct GraphBatch {
+    /// Real nodes of each graph.
+    pub counts: Vec<usize>,
+    /// `[B, 1, N, F]` node attributes (zeros for padding).
+    pub x: Tensor<4>,
+    /// The kernel cells whose messages are computed (ascending), as
+    /// indices `[C]`: all of them, or only those some edge uses.
+    pub cells: Tensor<1, Int>,
+    /// `[B, 1, N, N * C]`: entry `[b, 0, i, j C + c]` is the basis weight
+    /// of cell `cells[c]` of edge j -> i over the degree of i (zero when j
+    /// is not a neighbour of i, and for padding). Columns run node-major
+    /// so that the messages `x W` need only a reshape.
+    pub mixing: Tensor<4>,
+    /// `[B, 1, N * C, N]`: the same weights with rows (i, cell) and
+    /// columns j, for layers that mix neighbours before their weights.
+    pub mixing_by_cell: Tensor<4>,
+    /// `[B, 1, N, 1]`: 1 for a real node, 0 for padding.
+    pub node_mask: Tensor<4>,
+    /// Directed edges over the whole batch (0: no messages at all).
+    pub edges: usize,
+    /// Bit k set when kernel cell k is in `cells`.
+    pub cell_mask: u32,
+    /// The spline layers' weights of exactly these cells, when the caller
+    /// has them ([`super::network::Network::cell_weights`]); else each
+    /// layer selects them.
+    pub weights: Option<Arc<CellWeights>>,
+}
+
+/// Every spline layer's weights of one set of kernel cells (`[in, C *
+/// out]` each): what [`SplineConv::forward`] would select, kept by a
+/// caller that sees the same cell set many times (inference).
+pub struct CellWeights {
+    /// The cell set, as [`GraphBatch::cell_mask`].
+    pub(super) cell_mask: u32,
+    pub(super) conv1: Tensor<2>,
+    pub(super) conv2: Tensor<2>,
+    pub(super) consensus: Option<Tensor<2>>,
+}
+
+impl GraphBatch {
+    /// Graphs padded to the largest, with every kernel cell (training:
+    /// the gradient of a cell selection costs more than the messages it
+    /// saves).
+    pub fn new(graphs: &[&GraphInput], device: &Device) -> Self {
+        Self::with_cells(graphs, [true; KERNEL_2D], device)
+    }
+
+    /// One graph with only the kernel cells some edge uses (inference).
+    pub fn used_cells(g: &GraphInput, device: &Device) -> Self {
+        let mut used = [false; KERNEL_2D];
+        for &k in &g.basis_index {
+            used[k as usize] = true;
+        }
+        Self::with_cells(&[g], used, device)
+    }
+
+    fn with_cells(graphs: &[&GraphInput], used: [bool; KERNEL_2D], device: &Device) -> Self {
+        let b = graphs.len();
+        let n = graphs.iter().map(|g| g.n).max().unwrap_or(0).max(1);
+        let f = NODE_FEATURES;
+        let cells: Vec<i64> = (0..KERNEL_2D as i64)
+            .filter(|&k| used[k as usize])
+            .collect();
+        let c = cells.len();
+        let mut position = [0usize; KERNEL_2D];
+        for (p, &k) in cells.iter().enumerate() {
+            position[k as usize] = p;
+        }
+        let mut x = vec![0f32; b * n * f];
+        let mut mixing = vec![0f32; b * n * n * c];
+        let mut by_cell = vec![0f32; b * n * n * c];
+        let mut node_mask = vec![0f32; b * n];
+        let mut edges = 0;
+        for (k, g) in graphs.iter().enumerate() {
+            x[k * n * f..k * n * f + g.n * f].copy_from_slice(&g.node_features);
+            node_mask[k * n..k * n + g.n].fill(1.0);
+            let e = g.edge_count();
+            edges += e;
+            let block = k * n * n * c..(k + 1) * n * n * c;
+            let (m, t) = (&mut mixing[block.clone()], &mut by_cell[block]);
+            for edge in 0..e {
+                let (i, j) = (g.dst[edge] as usize, g.src[edge] as usize);
+                let inv_deg = g.aggregate[i * e + edge];
+                for q in 0..4 {
+                    let cell = position[g.basis_index[4 * edge + q] as usize];
+                    let w = g.basis_weight[4 * edge + q] * inv_deg;
+                    m[i * c * n + j * c + cell] += w;
+                    t[(i * c + cell) * n + j] += w;
+                }
+            }
+        }
+        Self {
+            counts: graphs.iter().map(|g| g.n).collect(),
+            x: Tensor::from_data(TensorData::new(x, [b, 1, n, f]), device),
+            cell_mask: cells.iter().map(|&k| 1u32 << k).sum(),
+            cells: Tensor::from_data(TensorData::new(cells, [c]), device),
+            mixing: Tensor::from_data(TensorData::new(mixing, [b, 1, n, n * c]), device),
+            mixing_by_cell: Tensor::from_data(TensorData::new(by_cell, [b, 1, n * c, n]), device),
+            node_mask: Tensor::from_data(TensorData::new(node_mask, [b, 1, n, 1]), device),
+            edges,
+            weights: None,
+        }
+    }
+
+    /// Nodes per graph after padding.
+    pub fn n(&self) -> usize {
+        self.x.dims()[2]
+    }
+
+    /// With the spline layers' weights of this batch's cells; weights of
+    /// another cell set are ignored (the layers then select their own).
+    pub fn with_weights(mut self, weights: Arc<CellWeights>) -> Self {
+        if weights.cell_mask == self.cell_mask {
+            self.weights = Some(weights);
+        }
+        self
+    }
+}
+
+#[derive(Module, Debug)]
+pub struct SplineConv {
+    /// `[in, KERNEL_2D * out]`: the kernel cells' weight matrices side by
+    /// side.
+    weight: Param<Tensor<2>>,
+    /// `[in, out]`
+    root: Param<Tensor<2>>,
+    /// `[out]`
+    bias: Param<Tensor<1>>,
+    d_out: usize,
+}
+
+impl SplineConv {
+    /// A layer named `name` (the parameter names of its streams).
+    pub fn new(name: &str, d_in: usize, d_out: usize, init: Init, device: &Device) -> Self {
+        // Uniform(+-1/sqrt(fan_in)) with the fan-in of one kernel cell.
+        let b = 1.0 / (d_in as f64).sqrt();
+        let weight = [d_in, KERNEL_2D * d_out];
+        Self {
+            weight: init.param(&format!("{name}.weight"), weight, b, device),
+            root: init.param(&format!("{name}.root"), [d_in, d_out], b, device),
+            bias: named_param(&format!("{name}.bias"), Tensor::zeros([d_out], device)),
+            d_out,
+        }
+    }
+
+    /// `x: [B, T, N, in] -> [B, T, N, out]` (T samples of each graph):
+    /// `root x_i + mean_j sum_k B_k(u_ij) W_k x_j + b`, as two dense
+    /// products in the cheaper order: with more inputs than outputs,
+    /// `XW = x [W_k ..]` for every kernel cell of the batch at once, then
+    /// the neighbour-and-cell mixing `A [N C]` against `XW` read as one row
+    /// per (neighbour, cell); with fewer, the mixing first (`A` by cell
+    /// against x, one row per (node, cell)), then the cells' weights
+    /// stacked.
+    ///
+    /// `selected`: this layer's weights of the batch's cells in the order's
+    /// layout, if the caller keeps them ([`CellWeights`]).
+    pub fn forward(&self, x: Tensor<4>, g: &GraphBatch, selected: Option<&Tensor<2>>) -> Tensor<4> {
+        let d_out = self.d_out;
+        let [b, t, n, d_in] = x.dims();
+        // Every node of every graph and sample as one row: one large
+        // product with the shared weights instead of B T small ones.
+        let rows = x.clone().reshape([b * t * n, d_in]);
+        let root = rows
+            .clone()
+            .matmul(self.root.val())
+            .reshape([b, t, n, d_out]);
+        let bias = self.bias.val().reshape([1, 1, 1, d_out]);
+        if g.edges == 0 {
+            return root + bias;
+        }
+        let c = g.cells.dims()[0];
+        let w = match selected {
+            Some(w) => w.clone(),
+            None => self.cell_weights(&g.cells),
+        };
+        let messages = if self.mixes_first() {
+            let mixed = g.mixing_by_cell.clone().matmul(x); // [B, T, N C, in]
+            mixed
+                .reshape([b * t * n, c * d_in])
+                .matmul(w)
+                .reshape([b, t, n, d_out])
+        } else {
+            let xw = rows.matmul(w).reshape([b, t, n * c, d_out]); // rows (j, cell), no copy
+            g.mixing.clone().matmul(xw) // [B, 1, N, N C] x [B, T, N C, out]
+        };
+        root + messages + bias
+    }
+
+    /// The kernel cells' weight matrices, `[in, KERNEL_2D * out]`.
+    #[cfg(test)]
+    pub(super) fn weight(&self) -> Tensor<2> {
+        self.weight.val()
+    }
+
+    /// Whether the neighbours are mixed before the weights (fewer inputs
+    /// than outputs).
+    fn mixes_first(&self) -> bool {
+        self.root.val().dims()[0] < self.d_out
+    }
+
+    /// The weights of the kernel cells `cells` in the layout of
+    /// [`Self::forward`]'s order: `[in, C * out]`, or `[C * in, out]`
+    /// when it mixes first.
+    pub(super) fn cell_weights(&self, cells: &Tensor<1, Int>) -> Tensor<2> {
+        let c = cells.dims()[0];
+        let d_in = self.root.val().dims()[0];
+        let w = self.weight.val().reshape([d_in, KERNEL_2D, self.d_out]);
+        let w = if c == KERNEL_2D {
+            w
+        } else {
+            w.select(1, cells.clone())
+        };
+        if self.mixes_first() {
+            w.swap_dims(0, 1).reshape([c * d_in, self.d_out])
+        } else {
+            w.reshape([d_in, c * self.d_out])
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::matching::testkit::graph_input;
+
+    /// The dense spline convolution, in both orders (weights first, and
+    /// neighbours first), equals the message sum written out per edge:
+    /// `root x_i + sum over edges j -> i of 1/deg(i) sum_c b_c W_(k_c) x_j
+    /// + bias` (kernel cell k_c, basis weight b_c).
+    #[test]
+    fn spline_conv_equals_the_per_edge_sum() {
+        let device = Device::flex();
+        let input = graph_input(&[
+            (0.0, 0.0),
+            (12.0, 3.0),
+            (5.0, 20.0),
+            (-9.0, 14.0),
+            (30.0, -20.0),
+        ]);
+        let n = input.n;
+        for (d_in, d_out) in [(3, 2), (2, 3)] {
+            let conv = SplineConv::new("test", d_in, d_out, Init::Seeded(3), &device);
+            assert_eq!(conv.mixes_first(), d_in < d_out);
+            let x: Vec<f32> = (0..n * d_in).map(|v| (v as f32 * 0.37).sin()).collect();
+            let all = GraphBatch::new(&[&input], &device);
+            let used = GraphBatch::used_cells(&input, &device);
+            assert!(used.cells.dims()[0] < KERNEL_2D, "every cell used");
+            let kept = conv.cell_weights(&used.cells); // as an inference cache keeps them
+            for (g, selected) in [(&all, None), (&used, None), (&used, Some(&kept))] {
+                let out = conv.forward(
+                    Tensor::from_data(TensorData::new(x.clone(), [1, 1, n, d_in]), &device),
+                    g,
+                    selected,
+                );
+                let out: Vec<f32> = out.try_into_vec_as::<f32>().unwrap();
+                let w: Vec<f32> = conv.weight.val().try_into_vec_as::<f32>().unwrap();
+                let root: Vec<f32> = conv.root.val().try_into_vec_as::<f32>().unwrap();
+                for i in 0..n {
+                    for o in 0..d_out {
+                        let mut expected: f32 = (0..d_in)
+                            .map(|c| x[i * d_in + c] * root[c * d_out + o])
+                            .sum();
+                        for e in 0..input.edge_count() {
+                            if input.dst[e] as usize != i {
+                                continue;
+                            }
+                            let j = input.src[e] as usize;
+                            let inv_deg = input.aggregate[i * input.edge_count() + e];
+                            for c in 0..4 {
+                                let k = input.basis_index[4 * e + c] as usize;
+                                let b = input.basis_weight[4 * e + c];
+                                let msg: f32 = (0..d_in)
+                                    .map(|f| {
+                                        x[j * d_in + f] * w[f * KERNEL_2D * d_out + k * d_out + o]
+                                    })
+                                    .sum();
+                                expected += inv_deg * b * msg;
+                            }
+                        }
+                        let got = out[i * d_out + o];
+                        assert!(
+                            (got - expected).abs() < 1e-5,
+                            "{d_in} -> {d_out}, node {i}, out {o}: {got} vs {expected}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,92 @@
+//! The network's weights as bytes (burn's burnpack format, what a
+//! `<method>.bpk` file holds) and back, refusing weights that do not fit
+//! the architecture or hold a value that is not finite. Files are the
+//! caller's business.
+
+use burn::module::Param;
+use burn::prelude::*;
+
+use super::arch::Architecture;
+use super::init::Init;
+use super::network::Network;
+
+/// The network's weights as bytes (burn's burnpack format, what a
+/// `<method>.bpk` file holds).
+pub fn to_bytes(net: &Network) -> Result<Vec<u8>, String> {
+    let bytes = net
+        .clone()
+        .into_record()
+        .into_bytes()
+        .map_err(|e| format!("{e:?}"))?;
+    Ok(bytes.to_vec())
+}
+
+/// A network of architecture `arch` on `device` with the weights of
+/// [`to_bytes`]; weights whose scalar parameters are not finite are
+/// refused.
+pub fn from_bytes(arch: &Architecture, bytes: &[u8], device: &Device) -> Result<Network, String> {
+    let record =
+        burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec()))
+            .map_err(|e| format!("{e:?}"))?;
+    let net = Network::new(arch, Init::Zeros, device)
+        .try_load_record(record)
+        .map_err(|e| format!("{e:?}"))?;
+    let mut finite = AllFinite(true);
+    net.visit(&mut finite);
+    if !finite.0 {
+        return Err("the weights hold a value that is not a finite number".into());
+    }
+    Ok(net)
+}
+
+/// Whether every float parameter of a module is finite.
+struct AllFinite(bool);
+
+impl burn::module::ModuleVisitor for AllFinite {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if self.0 {
+            let data = param.val().into_data();
+            self.0 = data.iter::<f32>().all(f32::is_finite);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weights_that_are_not_finite_do_not_load() {
+        let arch = Architecture::default();
+        let device = Device::flex();
+        let fine = Network::new(&arch, Init::Seeded(3), &device);
+        assert!(from_bytes(&arch, &to_bytes(&fine).unwrap(), &device).is_ok());
+        let broken = Network::new(&arch, Init::Seeded(3), &device).with_gates(f32::NAN);
+        let e = from_bytes(&arch, &to_bytes(&broken).unwrap(), &device).unwrap_err();
+        assert!(e.contains("not a finite number"), "{e}");
+    }
+
+    #[test]
+    fn weights_survive_bytes_and_bad_bytes_are_refused() {
+        let device = Device::flex();
+        let arch = Architecture::default();
+        let net = Network::new(&arch, Init::Seeded(9), &device);
+        let bytes = to_bytes(&net).unwrap();
+        let back = from_bytes(&arch, &bytes, &device).unwrap();
+        assert_eq!(to_bytes(&back).unwrap(), bytes);
+        assert!(from_bytes(&arch, b"junk", &device).is_err());
+        // Weights of another architecture do not fit.
+        let other = Architecture {
+            consensus: false,
+            ..arch
+        };
+        let other_bytes = to_bytes(&Network::new(&other, Init::Seeded(9), &device)).unwrap();
+        assert!(from_bytes(&arch, &other_bytes, &device).is_err());
+        // A gate that is not a number is refused.
+        let broken = Network::new(&arch, Init::Seeded(9), &device).with_gate_values(f32::NAN, 0.0);
+        let e = from_bytes(&arch, &to_bytes(&broken).unwrap(), &device)
+            .err()
+            .unwrap();
+        assert!(e.contains("finite"), "{e}");
+    }
+}
