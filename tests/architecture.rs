@@ -106,7 +106,7 @@ fn test_module_files(files: &[PathBuf]) -> Vec<PathBuf> {
     out
 }
 
-/// The top-level module a file belongs to (`matching/deep/model.rs` ->
+/// The top-level module a file belongs to (`matching/deep/network.rs` ->
 /// `matching`).
 fn module_of(rel: &str) -> String {
     rel.split('/')

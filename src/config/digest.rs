@@ -8,9 +8,9 @@ use std::path::{Path, PathBuf};
 
 use super::{ConfigError, Settings};
 use crate::fusion::FusionSettings;
+use crate::matching::deep::arch::PairLoss;
 use crate::matching::deep::decision::UncertaintyKind;
-use crate::matching::deep::model::PairLoss;
-use crate::matching::{DecisionChoice, LambdaChoice, MatchingSettings, MultiVehicle};
+use crate::matching::{DecisionChoice, LambdaChoice, MatchingSettings, MethodKind, MultiVehicle};
 use crate::rng::Seeds;
 
 impl Settings {
@@ -39,7 +39,7 @@ impl Settings {
             d.file(&self.source, &dir.join(name))?;
         }
         for m in &self.matching.methods {
-            if crate::matching::deep::variant(*m).is_some() {
+            if let MethodKind::Deep(_) = m.kind() {
                 for ext in ["bpk", "toml"] {
                     let p = self
                         .matching

@@ -7,7 +7,8 @@ use super::check::{Checker, field};
 use super::lists::scenario_lists;
 use super::raw::{RawEval, RawTrain};
 use crate::evaluate::EvalSettings;
-use crate::matching::deep::{self, train::TrainSettings};
+use crate::matching::MethodKind;
+use crate::matching::deep::train::TrainSettings;
 
 /// More MC-dropout samples per training pair than this are refused.
 const MAX_TRAIN_MC_SAMPLES: usize = 100;
@@ -75,7 +76,10 @@ pub(super) fn train_and_eval(
 
 /// `[train]`'s methods and fitting settings.
 fn fitting(c: &Checker, t: &RawTrain) -> Result<(), ConfigError> {
-    if t.methods.iter().any(|m| deep::variant(*m).is_none()) {
+    if t.methods
+        .iter()
+        .any(|m| !matches!(m.kind(), MethodKind::Deep(_)))
+    {
         return Err(c.invalid(
             "train.methods",
             "only deep methods (ours, ours-noprior, coid+non, coid+unc, dgmc, gcn-gm) are trained"

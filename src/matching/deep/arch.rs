@@ -5,8 +5,8 @@
 //! model records name these types without touching the network.
 
 use super::features::NODE_FEATURES;
+use crate::matching::Method;
 use crate::matching::likelihood::LikelihoodTerms;
-use crate::matching::{Method, MethodKind};
 
 /// A deep method: the [`Method`]s that are a trained network, as a type of
 /// their own ([`Method::kind`] gives it), so that what only a deep method
@@ -69,16 +69,6 @@ impl DeepMethod {
             self,
             DeepMethod::Ours | DeepMethod::OursNoPrior | DeepMethod::CoidNon | DeepMethod::CoidUnc
         )
-    }
-}
-
-/// Architecture and loss terms of a deep method, `None` for the others:
-/// what [`Method::kind`] says by type. Kept for `config.rs`, which still
-/// asks this way.
-pub fn variant(method: Method) -> Option<(Architecture, LossTerms)> {
-    match method.kind() {
-        MethodKind::Deep(d) => Some((d.architecture(), d.loss_terms())),
-        _ => None,
     }
 }
 
@@ -156,8 +146,9 @@ pub struct LossTerms {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::matching::MethodKind;
 
-    /// The deep methods and their rows of Table 1, as `variant` had them:
+    /// The deep methods and their rows of Table 1:
     /// (consensus, positions, non, unc).
     #[test]
     fn each_deep_method_has_its_table_row() {
@@ -183,10 +174,12 @@ mod tests {
             let (a, t) = (d.architecture(), d.loss_terms());
             assert_eq!((a.consensus, a.positions, t.non, t.unc), row, "{m:?}");
             assert_eq!(t.pairs, PairLoss::Likelihood);
-            assert_eq!(variant(m), Some((a, t)));
             let thresholds = !matches!(m, Method::Dgmc | Method::GcnGm);
             assert_eq!(d.thresholds_by_default(), thresholds);
         }
-        assert_eq!(variant(Method::GpsAppHungarian), None);
+        assert!(!matches!(
+            Method::GpsAppHungarian.kind(),
+            MethodKind::Deep(_)
+        ));
     }
 }

@@ -31,11 +31,6 @@ mod spline;
 pub mod train;
 mod weights;
 
-pub use self::arch::variant;
 #[cfg(test)]
 pub(crate) use self::matcher::opened_weights;
 pub use self::matcher::{DeepMatcher, Inference, PairSamples};
-
-/// The plain types' old path (`deep::model::PairLoss`), kept for
-/// `config.rs` until it names [`arch`].
-pub use self::arch as model;
