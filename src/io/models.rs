@@ -1,0 +1,261 @@
+//! Trained models on disk: a method's weights, checked against the record
+//! beside them (`<method>.toml`: architecture, checksum, how they were made,
+//! what the validation runs chose), the loss curve, and the choices read
+//! back.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use super::records::{self, Lambda, ModelRecord, ValidationRecord};
+use super::{OutputError, io, publish_files, write_text};
+use crate::config::Settings;
+use crate::matching::deep::decision::Decision;
+use crate::matching::deep::train::TrainReport;
+use crate::matching::{Method, MethodKind};
+
+/// The weights file of a method in a models folder.
+pub fn weights_path(models_dir: &Path, method: Method) -> PathBuf {
+    models_dir.join(format!("{}.bpk", method.as_str()))
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "cannot load the weights of '{method}' from {path} ({reason}); run `coid train` to make them"
+)]
+pub struct WeightsError {
+    pub method: &'static str,
+    pub path: PathBuf,
+    pub reason: String,
+}
+
+/// The bytes of a method's weights file, checked against the record
+/// beside it (`<method>.toml`: the method, its architecture and the
+/// weights' checksum), so that stale or foreign weights never load.
+pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, WeightsError> {
+    let path = weights_path(models_dir, method);
+    let bytes = read_model_file(method, &path, "no such file", |p| std::fs::read(p))?;
+    let record = read_record(models_dir, method)?;
+    let fail = model_error(method, &path);
+    let MethodKind::Deep(deep) = method.kind() else {
+        return Err(fail("not a deep method".into()));
+    };
+    record
+        .check(method, &deep.architecture(), &bytes)
+        .map_err(fail)?;
+    Ok(bytes)
+}
+
+/// A method's `<method>.toml`.
+fn read_record(models_dir: &Path, method: Method) -> Result<ModelRecord, WeightsError> {
+    let path = models_dir.join(format!("{}.toml", method.as_str()));
+    let missing = "no record beside the weights";
+    let text = read_model_file(method, &path, missing, |p| std::fs::read_to_string(p))?;
+    ModelRecord::from_toml(&text).map_err(model_error(method, &path))
+}
+
+/// A `WeightsError` of `method` about `path`, for a reason.
+fn model_error(method: Method, path: &Path) -> impl Fn(String) -> WeightsError + '_ {
+    move |reason| WeightsError {
+        method: method.as_str(),
+        path: path.to_owned(),
+        reason,
+    }
+}
+
+/// Reads one file of a method's model, `missing` as the reason when it
+/// does not exist.
+fn read_model_file<T>(
+    method: Method,
+    path: &Path,
+    missing: &str,
+    read: impl FnOnce(&Path) -> std::io::Result<T>,
+) -> Result<T, WeightsError> {
+    read(path).map_err(|e| {
+        model_error(method, path)(if e.kind() == std::io::ErrorKind::NotFound {
+            missing.into()
+        } else {
+            e.to_string()
+        })
+    })
+}
+
+/// What `coid train` records beside each model's weights.
+pub struct TrainingRecord<'a> {
+    pub method: Method,
+    pub settings: &'a Settings,
+    pub n_examples: usize,
+    pub report: &'a TrainReport,
+    pub seconds: f64,
+}
+
+/// What `coid train` chose for one method on the validation runs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Validation {
+    /// The entropy threshold with the best mean F1 over the validation
+    /// runs and pose-noise levels (infinite: no threshold).
+    pub lambda: f64,
+    /// The decision rule chosen with it.
+    pub decision: Decision,
+    /// The calibration temperature fitted before both.
+    pub temperature: f64,
+    /// That mean F1.
+    pub f1: f64,
+    pub seeds: Vec<u64>,
+    /// The uncertainty the threshold applies to.
+    pub uncertainty: &'static str,
+}
+
+/// The record of a model just trained (no validation yet).
+fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, OutputError> {
+    let t = &record.settings.train;
+    let MethodKind::Deep(deep) = record.method.kind() else {
+        let method = record.method.as_str();
+        return Err(OutputError::Batch(format!(
+            "'{method}' is not a deep method"
+        )));
+    };
+    let paths = |v: &[PathBuf]| v.iter().map(|p| p.display().to_string()).collect();
+    let r = record.report;
+    Ok(ModelRecord {
+        method: record.method.as_str().to_owned(),
+        architecture: deep.architecture(),
+        weights_fnv64: records::fnv64_hex(weights),
+        config: record.settings.source.display().to_string(),
+        train_traffic_seeds: t.traffic_seeds.clone(),
+        train_scenarios: paths(&t.scenarios),
+        runs_per_scenario: (!t.scenarios.is_empty()).then_some(t.runs_per_scenario),
+        validation_scenarios: paths(&t.validation_scenarios),
+        eval_traffic_seeds: record.settings.eval.traffic_seeds.clone(),
+        epochs: t.epochs,
+        learning_rate: t.learning_rate,
+        seed: t.seed,
+        examples: record.n_examples,
+        steps: r.steps,
+        seconds: (record.seconds * 10.0).round() / 10.0,
+        final_epoch_loss: r.epoch_losses.last().copied(),
+        edge_median_m: r.edges.median_m,
+        edge_p95_m: r.edges.p95_m,
+        edge_clipped_share: r.edges.clipped_share,
+        loss: t.loss.as_str().to_owned(),
+        mc_samples: t.mc_samples,
+        batch_size: t.batch_size,
+        patience: r.best_epoch.map(|_| t.patience),
+        best_epoch: r.best_epoch,
+        validation: None,
+    })
+}
+
+/// Adds what the validation runs chose to the record that [`write_model`]
+/// wrote (replacing an earlier choice), renamed into place.
+pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(), OutputError> {
+    let mut record = read_record(dir, method).map_err(|e| OutputError::Batch(e.to_string()))?;
+    record.validation = Some(ValidationRecord {
+        seeds: v.seeds.clone(),
+        uncertainty: v.uncertainty.to_owned(),
+        lambda: Lambda::from_f64(v.lambda),
+        decision: v.decision,
+        temperature: v.temperature,
+        f1: v.f1,
+    });
+    let name = format!("{}.toml", method.as_str());
+    let body = record.to_toml().map_err(OutputError::Batch)?;
+    publish_files(dir, |tmp| write_text(&tmp.join(&name), &body))
+}
+
+/// What `coid train` chose for a deep method on the validation runs, as
+/// its `<method>.toml` records it (each `None` when it records none).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Validated {
+    /// The entropy threshold (infinite: no threshold).
+    pub lambda: Option<f64>,
+    pub decision: Option<Decision>,
+    /// The calibration temperature of the reported probabilities.
+    pub temperature: Option<f64>,
+}
+
+/// What `coid train` chose for `method` on the validation runs (its
+/// `<method>.toml`); an error when the file is missing or malformed, or a
+/// value it records is out of range.
+pub fn read_validated(models_dir: &Path, method: Method) -> Result<Validated, WeightsError> {
+    let record = read_record(models_dir, method)?;
+    let Some(v) = record.validation else {
+        return Ok(Validated {
+            lambda: None,
+            decision: None,
+            temperature: None,
+        });
+    };
+    let fail = |reason: &str| WeightsError {
+        method: method.as_str(),
+        path: models_dir.join(format!("{}.toml", method.as_str())),
+        reason: reason.to_owned(),
+    };
+    let lambda = v
+        .lambda
+        .to_f64()
+        .ok_or_else(|| fail("validation.lambda is not in [0, 1] or \"none\""))?;
+    if !(v.temperature.is_finite() && v.temperature > 0.0) {
+        return Err(fail("validation.temperature is not a positive number"));
+    }
+    Ok(Validated {
+        lambda: Some(lambda),
+        decision: Some(v.decision),
+        temperature: Some(v.temperature),
+    })
+}
+
+/// Writes a trained model into `dir`: `<method>.bpk` (the weights),
+/// `<method>.toml` (config, seeds, data size, final loss, and the
+/// validated lambda once known) and
+/// `<method>_loss.csv` (mean loss per epoch, and the validation loss with
+/// early stopping: epoch 0 is before training), each renamed into place
+/// when complete.
+fn loss_curve(report: &TrainReport) -> String {
+    if report.validation_losses.is_empty() {
+        let mut curve = String::from("epoch,mean_loss\n");
+        for (k, l) in report.epoch_losses.iter().enumerate() {
+            let _ = writeln!(curve, "{},{l:.6}", k + 1);
+        }
+        return curve;
+    }
+    let mut curve = String::from("epoch,mean_loss,validation_loss\n");
+    for (k, v) in report.validation_losses.iter().enumerate() {
+        let train = k
+            .checked_sub(1)
+            .and_then(|e| report.epoch_losses.get(e))
+            .map_or(String::new(), |l| format!("{l:.6}"));
+        let _ = writeln!(curve, "{k},{train},{v:.6}");
+    }
+    curve
+}
+
+pub fn write_model(dir: &Path, record: &TrainingRecord, weights: &[u8]) -> Result<(), OutputError> {
+    let method = record.method.as_str();
+    let curve = loss_curve(record.report);
+    let meta = model_record(record, weights)?
+        .to_toml()
+        .map_err(OutputError::Batch)?;
+    publish_files(dir, |tmp| {
+        let bpk = tmp.join(format!("{method}.bpk"));
+        std::fs::write(&bpk, weights).map_err(io(&bpk))?;
+        write_text(&tmp.join(format!("{method}.toml")), &meta)?;
+        write_text(&tmp.join(format!("{method}_loss.csv")), &curve)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn missing_weights_name_the_method_and_the_remedy() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = read_weights(dir.path(), Method::Ours)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("'ours'") && e.contains("no such file") && e.contains("coid train"),
+            "{e}"
+        );
+    }
+}
