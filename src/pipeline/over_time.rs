@@ -7,7 +7,10 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::{Ego, Progress, RunError, check_connected_appeared, note_connected, runner, sense};
+use super::instance::Ego;
+use super::runners::runner;
+use super::simulate::{check_connected_appeared, note_connected, sense};
+use super::{Progress, RunError};
 use crate::bridge::Sumo;
 use crate::config::Settings;
 use crate::evaluate::{PairCounts, Runner};

@@ -11,8 +11,9 @@
 
 use std::collections::BTreeMap;
 
+use super::RunError;
+use super::instance::Ego;
 use super::over_time::{Context, Sent, Vehicle, World, true_centres};
-use super::{Ego, RunError};
 use crate::config::Settings;
 use crate::evaluate;
 use crate::geometry::Pose2;

@@ -1,0 +1,116 @@
+//! An instance and its two sides: [`Ego`], one side (a connected vehicle's
+//! sensing, or with `[v2x] mode = "cpm"` a receiver's reported tracks or a
+//! message it received) with its graph and GNSS-reported poses, and
+//! [`Instance`], two of them at a step, handed out at a pose-noise level.
+
+use super::RunError;
+use crate::evaluate::{PairAtLevel, Side};
+use crate::geometry::{Pose2, Vec2};
+use crate::graph::SceneGraph;
+use crate::matching::MatchView;
+use crate::rng::{self, Purpose};
+use crate::sensor::{self, PoseNoiseLabel, PoseNoiseLevel, Sensed};
+use crate::traffic::{StaticScene, TrafficFrame};
+
+/// A connected vehicle near the junction at one step, with what it sees;
+/// or, with `[v2x] mode = "cpm"`, one side of a reception: a receiver's
+/// reported tracks, or a message it received.
+pub struct Ego {
+    pub sensed: Sensed,
+    pub graph: SceneGraph,
+    pub(super) id_hash: u64,
+    /// The vehicle's speed (m/s), forward.
+    pub(super) speed_mps: f64,
+    /// The GNSS-reported pose at every level, when it is carried over time
+    /// (`[v2x] mode = "cpm"`) instead of drawn afresh at each step.
+    reported: Option<Vec<(PoseNoiseLabel, Pose2)>>,
+}
+
+impl Ego {
+    /// A side from what it holds: its nodes listed in the order of the
+    /// `Purpose::NodeOrder` stream `order_keys` (no order may carry
+    /// labels), then its Delaunay graph.
+    pub(super) fn new(
+        mut sensed: Sensed,
+        sensor_seed: u64,
+        order_keys: &[u64],
+        speed_mps: f64,
+        reported: Option<Vec<(PoseNoiseLabel, Pose2)>>,
+    ) -> Result<Ego, RunError> {
+        sensed.shuffle(&mut rng::stream(
+            sensor_seed,
+            Purpose::NodeOrder,
+            order_keys,
+        ));
+        let positions: Vec<Vec2> = sensed
+            .observation
+            .detections
+            .iter()
+            .map(|d| d.position_m)
+            .collect();
+        let graph = SceneGraph::delaunay(&positions)?;
+        let id_hash = rng::hash_str(&sensed.observation.ego_id);
+        Ok(Ego {
+            sensed,
+            graph,
+            id_hash,
+            speed_mps,
+            reported,
+        })
+    }
+
+    /// The pose this vehicle's GPS reports at `step` at a noise level (its
+    /// own seeded stream per step, vehicle and level), or the one it
+    /// carries at that level.
+    pub fn reported_pose(&self, sensor_seed: u64, step: u64, level: &PoseNoiseLevel) -> Pose2 {
+        if let Some(carried) = &self.reported {
+            return carried
+                .iter()
+                .find(|(l, _)| *l == level.label)
+                .map(|(_, p)| *p)
+                .expect("a side carries a pose at every level of its run");
+        }
+        let mut s = rng::stream(
+            sensor_seed,
+            Purpose::PoseNoise,
+            &[step, self.id_hash, level.label.stream_code()],
+        );
+        sensor::reported_pose(&self.sensed.truth.ego_pose, level, &mut s)
+    }
+}
+
+/// One evaluation instance: a step and a pair of connected vehicles, both
+/// near the junction, that detect at least one common object.
+pub struct Instance<'a> {
+    /// Running index within the simulation.
+    pub index: usize,
+    pub scene: &'a StaticScene,
+    pub frame: &'a TrafficFrame,
+    /// The pair, ordered by vehicle id.
+    pub a: &'a Ego,
+    pub b: &'a Ego,
+}
+
+impl<'a> Instance<'a> {
+    /// The instance at a pose-noise level: each vehicle's detections, graph
+    /// and GPS-reported pose, with the truth beside them.
+    pub fn at_level(&self, sensor_seed: u64, level: &PoseNoiseLevel) -> PairAtLevel<'a> {
+        let step = self.frame.step;
+        let side = |e: &'a Ego| Side {
+            view: MatchView {
+                detections: &e.sensed.observation.detections,
+                graph: &e.graph,
+                pose_reported: e.reported_pose(sensor_seed, step, level),
+                pose_noise: *level,
+            },
+            obs: &e.sensed.observation,
+            truth: &e.sensed.truth,
+        };
+        PairAtLevel {
+            instance: self.index,
+            first: side(self.a),
+            second: side(self.b),
+            level: *level,
+        }
+    }
+}
