@@ -24,7 +24,7 @@ mod runners;
 mod simulate;
 
 pub use frames::{OnEval, evaluate_frames};
-pub use instance::{Ego, Instance};
+pub use instance::{Instance, InstanceSide};
 pub use over_time::track;
 pub use run::run;
 pub use runners::{choice_for, choices, lambdas, runner, runners};

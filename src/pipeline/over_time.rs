@@ -7,7 +7,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::instance::Ego;
+use super::instance::InstanceSide;
 use super::runners::runner;
 use super::simulate::{check_connected_appeared, note_connected, sense};
 use super::{Progress, RunError};
@@ -263,7 +263,7 @@ struct Known {
 impl World {
     /// Every vehicle near the junction tracks, and sends its CPM when one
     /// is due to its linked peers over the channel.
-    pub(super) fn send(&mut self, ctx: &Context, egos: &[Ego]) {
+    pub(super) fn send(&mut self, ctx: &Context, egos: &[InstanceSide]) {
         let positions: Vec<Vec2> = egos
             .iter()
             .map(|e| e.sensed.truth.ego_pose.position_m())
@@ -306,7 +306,7 @@ impl World {
     fn receive(
         &mut self,
         ctx: &Context,
-        egos: &[Ego],
+        egos: &[InstanceSide],
         matcher: &dyn Matcher,
     ) -> Result<(), RunError> {
         for m in self.arrivals(ctx, egos) {
@@ -330,7 +330,7 @@ impl World {
 
     /// The messages that have arrived by now at receivers still near the
     /// junction (the others are dropped), in arrival order.
-    pub(super) fn arrivals(&mut self, ctx: &Context, egos: &[Ego]) -> Vec<InFlight> {
+    pub(super) fn arrivals(&mut self, ctx: &Context, egos: &[InstanceSide]) -> Vec<InFlight> {
         let now = ctx.time_s + 1e-9;
         let (mut due, rest): (Vec<InFlight>, Vec<InFlight>) = std::mem::take(&mut self.in_flight)
             .into_iter()
@@ -405,7 +405,7 @@ impl Vehicle {
     /// Tracks this step's camera detections in the tracking frame, scores
     /// the reported tracks, steps the GNSS error, and generates a CPM when
     /// one is due.
-    fn step(&mut self, ctx: &Context, ego: &Ego) -> Option<Sent> {
+    fn step(&mut self, ctx: &Context, ego: &InstanceSide) -> Option<Sent> {
         self.pose = ego.sensed.truth.ego_pose;
         self.step_gnss(ctx, ego);
         self.self_node = ego
@@ -474,7 +474,7 @@ impl Vehicle {
 
     /// Steps the GNSS error at every level (a stream per step, vehicle
     /// and level).
-    fn step_gnss(&mut self, ctx: &Context, ego: &Ego) {
+    fn step_gnss(&mut self, ctx: &Context, ego: &InstanceSide) {
         let previous = std::mem::take(&mut self.gnss);
         self.reported.clear();
         for (k, level) in ctx.levels.iter().enumerate() {
@@ -497,7 +497,7 @@ impl Vehicle {
     }
 
     /// CLEAR-MOT on this step's reported tracks.
-    fn score(&mut self, ego: &Ego) {
+    fn score(&mut self, ego: &InstanceSide) {
         let truth: Vec<(String, Vec2)> = ego
             .sensed
             .visible

@@ -12,7 +12,7 @@
 use std::collections::BTreeMap;
 
 use super::RunError;
-use super::instance::Ego;
+use super::instance::{InstanceSide, ViewSource};
 use super::over_time::{Context, Sent, Vehicle, World, true_centres};
 use crate::config::Settings;
 use crate::evaluate;
@@ -32,7 +32,7 @@ pub(super) struct Receptions {
 
 /// The sides of a sampled step's instances, and the instances as pairs of
 /// indices into them (receiver first).
-pub(super) type Sides = (Vec<Ego>, Vec<(usize, usize)>);
+pub(super) type Sides = (Vec<InstanceSide>, Vec<(usize, usize)>);
 
 impl Receptions {
     /// One simulation step: `egos` (every connected vehicle near the
@@ -45,7 +45,7 @@ impl Receptions {
         &mut self,
         settings: &Settings,
         frame: &TrafficFrame,
-        egos: &[Ego],
+        egos: &[InstanceSide],
         sample: bool,
     ) -> Result<Sides, RunError> {
         let truth = true_centres(frame);
@@ -117,15 +117,19 @@ fn per_level(ctx: &Context, poses: &[Pose2]) -> Vec<(PoseNoiseLabel, Pose2)> {
 /// The receiver's side: its reported tracks (and its own node), in the
 /// body frame of its true pose; the truth is each track's last detected
 /// object at this step's true position.
-fn receiver_side(ctx: &Context, vehicle: &Vehicle, ego: &Ego) -> Result<Ego, RunError> {
+fn receiver_side(
+    ctx: &Context,
+    vehicle: &Vehicle,
+    ego: &InstanceSide,
+) -> Result<InstanceSide, RunError> {
     let (detections, truths) = vehicle
         .reported_tracks()
         .map(|(_, d, label)| (d, label.truth_at(ctx)))
         .unzip();
-    let id = ego.sensed.observation.ego_id.clone();
     let mut sensed = Sensed {
         observation: Observation {
-            ego_id: id,
+            // Named by `InstanceSide::new`.
+            ego_id: String::new(),
             detections,
         },
         truth: ObservationTruth {
@@ -146,7 +150,8 @@ fn receiver_side(ctx: &Context, vehicle: &Vehicle, ego: &Ego) -> Result<Ego, Run
     }
     let keys = [ctx.step, ego.id_hash, ego.id_hash];
     let reported = per_level(ctx, vehicle.reported_poses());
-    Ego::new(
+    InstanceSide::new(
+        ego.source.clone(),
         sensed,
         ctx.settings.seeds.sensor,
         &keys,
@@ -158,8 +163,8 @@ fn receiver_side(ctx: &Context, vehicle: &Vehicle, ego: &Ego) -> Result<Ego, Run
 /// The message's side: the objects it carries (and its sender's own
 /// node), moved ahead to the receiver's time, in the body frame of the
 /// sender's true pose at generation, with the poses it reported then. Its
-/// id is `<sender> -> <receiver>` ([`Observation::message_id`]).
-fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<Ego, RunError> {
+/// source is the message ([`ViewSource::Message`]).
+fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide, RunError> {
     let dt_s = if ctx.v.compensate_latency {
         ctx.time_s - m.generated_s
     } else {
@@ -206,7 +211,8 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<Ego, RunError
     }
     let sensed = Sensed {
         observation: Observation {
-            ego_id: Observation::message_id(&m.sender, receiver),
+            // Named by `InstanceSide::new`.
+            ego_id: String::new(),
             detections,
         },
         truth: ObservationTruth {
@@ -217,7 +223,12 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<Ego, RunError
     };
     let keys = [ctx.step, rng::hash_str(receiver), rng::hash_str(&m.sender)];
     let reported = per_level(ctx, &m.sender_reported);
-    Ego::new(
+    let source = ViewSource::Message {
+        sender: m.sender.clone(),
+        receiver: receiver.to_owned(),
+    };
+    InstanceSide::new(
+        source,
         sensed,
         ctx.settings.seeds.sensor,
         &keys,

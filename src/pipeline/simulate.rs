@@ -7,7 +7,7 @@ use std::collections::BTreeSet;
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::instance::{Ego, Instance};
+use super::instance::{Instance, InstanceSide, ViewSource};
 use super::{Progress, RunError, SimStats, receptions};
 use crate::bridge::Sumo;
 use crate::config::Settings;
@@ -47,8 +47,8 @@ pub fn simulate_frames(
 pub struct Step {
     scene: Arc<StaticScene>,
     frame: TrafficFrame,
-    egos: Vec<Ego>,
-    /// The instances' vehicles, as indices into `egos` (ordered by id).
+    sides: Vec<InstanceSide>,
+    /// The instances' sides, as indices into `sides` (ordered by id).
     pairs: Vec<(usize, usize)>,
     /// The running index of the step's first instance.
     first_index: usize,
@@ -64,8 +64,8 @@ impl Step {
                 index: self.first_index + k,
                 scene: &self.scene,
                 frame: &self.frame,
-                a: &self.egos[a],
-                b: &self.egos[b],
+                a: &self.sides[a],
+                b: &self.sides[b],
             })
             .collect()
     }
@@ -97,26 +97,26 @@ pub fn simulate_steps(
         note_connected(settings, &frame, &mut seen_connected);
         let time_s = frame.time_s;
         let sample = time_s + eps >= next_sample_s;
-        let sides = match receptions.as_mut() {
+        let instances = match receptions.as_mut() {
             Some(r) => {
-                let egos = sense(settings, &scene, &frame)?;
-                Some(r.step(settings, &frame, &egos, sample)?)
+                let vehicles = sense(settings, &scene, &frame)?;
+                Some(r.step(settings, &frame, &vehicles, sample)?)
             }
             None if sample => {
-                let egos = sense(settings, &scene, &frame)?;
-                let pairs = instance_pairs(&egos, &settings.link);
-                Some((egos, pairs))
+                let vehicles = sense(settings, &scene, &frame)?;
+                let pairs = instance_pairs(&vehicles, &settings.link);
+                Some((vehicles, pairs))
             }
             None => None,
         };
-        if let Some((egos, pairs)) = sides
+        if let Some((sides, pairs)) = instances
             && !pairs.is_empty()
         {
             let n = pairs.len();
             on_step(Step {
                 scene: Arc::clone(&scene),
                 frame,
-                egos,
+                sides,
                 pairs,
                 first_index: stats.n_instances,
             })?;
@@ -135,17 +135,17 @@ pub fn simulate_steps(
     Ok(stats)
 }
 
-/// The instances of one step: every pair of `egos` (sorted by id) whose
+/// The instances of one step: every pair of `sides` (sorted by id) whose
 /// cameras detect a common object and that `link` lets talk to each other.
-fn instance_pairs(egos: &[Ego], link: &LinkSettings) -> Vec<(usize, usize)> {
-    let positions: Vec<Vec2> = egos
+fn instance_pairs(sides: &[InstanceSide], link: &LinkSettings) -> Vec<(usize, usize)> {
+    let positions: Vec<Vec2> = sides
         .iter()
         .map(|e| e.sensed.truth.ego_pose.position_m())
         .collect();
     let links = link.links(&positions);
     let mut out = Vec::new();
-    for (i, a) in egos.iter().enumerate() {
-        for (j, b) in egos.iter().enumerate().skip(i + 1) {
+    for (i, a) in sides.iter().enumerate() {
+        for (j, b) in sides.iter().enumerate().skip(i + 1) {
             if links.linked(i, j)
                 && evaluate::share_a_detected_object(&a.sensed.truth, &b.sensed.truth)
             {
@@ -189,8 +189,8 @@ pub(super) fn sense(
     settings: &Settings,
     scene: &StaticScene,
     frame: &TrafficFrame,
-) -> Result<Vec<Ego>, RunError> {
-    let mut egos: Vec<Ego> = Vec::new();
+) -> Result<Vec<InstanceSide>, RunError> {
+    let mut sides: Vec<InstanceSide> = Vec::new();
     for (k, o) in frame.objects.iter().enumerate() {
         if !settings.connected.carries_rig(settings.seeds.sensor, o)
             || (o.pose.position_m() - scene.junction_position_m).norm() > settings.scenario.radius_m
@@ -209,7 +209,8 @@ pub(super) fn sense(
             sensed.add_sender(o);
         }
         let keys = [frame.step, id_hash];
-        egos.push(Ego::new(
+        sides.push(InstanceSide::new(
+            ViewSource::Vehicle(o.id.clone()),
             sensed,
             settings.seeds.sensor,
             &keys,
@@ -217,11 +218,6 @@ pub(super) fn sense(
             None,
         )?);
     }
-    egos.sort_by(|a, b| {
-        a.sensed
-            .observation
-            .ego_id
-            .cmp(&b.sensed.observation.ego_id)
-    });
-    Ok(egos)
+    sides.sort_by(|a, b| a.id().cmp(b.id()));
+    Ok(sides)
 }
