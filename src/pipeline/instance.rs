@@ -12,7 +12,7 @@ use crate::geometry::{Pose2, Vec2};
 use crate::graph::SceneGraph;
 use crate::matching::MatchView;
 use crate::rng::{self, Purpose};
-use crate::sensor::{self, PoseNoiseLabel, PoseNoiseLevel, Sensed};
+use crate::sensor::{self, Detection, DetectionTruth, PoseNoiseLabel, PoseNoiseLevel, Sensed};
 use crate::traffic::{StaticScene, TrafficFrame};
 
 /// Whose view one side of an instance is. Its text ([`fmt::Display`]) is
@@ -103,6 +103,16 @@ impl InstanceSide {
             speed_mps,
             reported,
         })
+    }
+
+    /// The side's own node, when it has one (the sender's self-report,
+    /// `[matching] sender_as_node`): its detection and truth.
+    pub(super) fn own_node(&self) -> Option<(Detection, DetectionTruth)> {
+        let k = self.sensed.truth.detections.iter().position(|d| d.sender)?;
+        Some((
+            self.sensed.observation.detections[k].clone(),
+            self.sensed.truth.detections[k].clone(),
+        ))
     }
 
     /// The side's id: its source's text.

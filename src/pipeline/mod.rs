@@ -14,21 +14,30 @@ use crate::graph::GraphError;
 use crate::io::{OutputError, WeightsError};
 use crate::matching::BuildError;
 
+mod context;
+mod delivery;
+mod fleet;
 mod frames;
+mod fusion_over_time;
 mod instance;
-mod over_time;
+mod message;
+mod pair_history;
 mod parallel;
+mod peer;
 mod receptions;
+mod relative_pose;
 mod run;
 mod runners;
 mod simulate;
+mod track;
+mod vehicle;
 
 pub use frames::{OnEval, evaluate_frames};
 pub use instance::{Instance, InstanceSide};
-pub use over_time::track;
 pub use run::run;
 pub use runners::{choice_for, choices, lambdas, runner, runners};
 pub use simulate::{Step, simulate, simulate_frames, simulate_steps};
+pub use track::{TrackResults, track};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {

@@ -12,30 +12,33 @@
 use std::collections::BTreeMap;
 
 use super::RunError;
+use super::context::{Context, true_centres};
+use super::delivery::InFlight;
+use super::fleet::Fleet;
 use super::instance::{InstanceSide, ViewSource};
-use super::over_time::{Context, Sent, Vehicle, World, true_centres};
+use super::message::Sent;
+use super::vehicle::ConnectedVehicle;
 use crate::config::Settings;
 use crate::evaluate;
-use crate::geometry::Pose2;
+use crate::geometry::{Cov2, Pose2};
 use crate::rng;
 use crate::sensor::{
     Detection, DetectionTruth, Observation, ObservationTruth, PoseNoiseLabel, Sensed,
 };
 use crate::traffic::TrafficFrame;
-use crate::v2x::extrapolate;
 
 /// The vehicles' trackers, generators and the messages in flight.
 #[derive(Default)]
 pub(super) struct Receptions {
-    world: World,
+    fleet: Fleet,
 }
 
 /// The sides of a sampled step's instances, and the instances as pairs of
-/// indices into them (receiver first).
+/// indices into them (each pair ordered by id).
 pub(super) type Sides = (Vec<InstanceSide>, Vec<(usize, usize)>);
 
 impl Receptions {
-    /// One simulation step: `egos` (every connected vehicle near the
+    /// One simulation step: `vehicles` (every connected vehicle near the
     /// junction, sensed at this step) track and send; the messages due
     /// arrive. When `sample`, the newest message from each sender at each
     /// receiver becomes an instance if both sides hold a common object
@@ -45,7 +48,7 @@ impl Receptions {
         &mut self,
         settings: &Settings,
         frame: &TrafficFrame,
-        egos: &[InstanceSide],
+        vehicles: &[InstanceSide],
         sample: bool,
     ) -> Result<Sides, RunError> {
         let truth = true_centres(frame);
@@ -57,29 +60,18 @@ impl Receptions {
             time_s: frame.time_s,
             truth: &truth,
         };
-        self.world.send(&ctx, egos);
-        let arrived = self.world.arrivals(&ctx, egos);
+        self.fleet.send(&ctx, vehicles);
+        let arrived = self.fleet.arrivals(&ctx, vehicles);
         let mut sides = Vec::new();
         let mut pairs = Vec::new();
         if !sample {
             return Ok((sides, pairs));
         }
-        let mut newest: BTreeMap<(String, String), Sent> = BTreeMap::new();
-        for m in arrived {
-            let key = (m.receiver, m.message.sender.clone());
-            match newest.get(&key) {
-                Some(old) if old.generated_s >= m.message.generated_s => {}
-                _ => {
-                    newest.insert(key, m.message);
-                }
-            }
-        }
         let mut receiver_at: BTreeMap<String, usize> = BTreeMap::new();
-        for ((receiver, _), m) in newest {
-            let (Some(vehicle), Some(ego)) = (
-                self.world.vehicle(&receiver),
-                egos.iter()
-                    .find(|e| e.sensed.observation.ego_id == receiver),
+        for ((receiver, _), m) in newest_per_link(arrived) {
+            let (Some(vehicle), Some(sensed)) = (
+                self.fleet.vehicle(&receiver),
+                vehicles.iter().find(|e| e.source.vehicle() == receiver),
             ) else {
                 continue;
             };
@@ -87,8 +79,7 @@ impl Receptions {
             let r = match receiver_at.get(&receiver) {
                 Some(&r) => r,
                 None => {
-                    let side = receiver_side(&ctx, vehicle, ego)?;
-                    sides.push(side);
+                    sides.push(receiver_side(&ctx, vehicle, sensed)?);
                     receiver_at.insert(receiver.clone(), sides.len() - 1);
                     sides.len() - 1
                 }
@@ -97,12 +88,28 @@ impl Receptions {
                 sides.push(message);
                 let m = sides.len() - 1;
                 // An instance's pair is ordered by id, as the ideal ones.
-                let id = |k: usize| &sides[k].sensed.observation.ego_id;
+                let id = |k: usize| sides[k].id();
                 pairs.push(if id(r) < id(m) { (r, m) } else { (m, r) });
             }
         }
         Ok((sides, pairs))
     }
+}
+
+/// The newest message (by generation time; the first to arrive of equals)
+/// from each sender at each receiver, by (receiver, sender).
+fn newest_per_link(arrived: Vec<InFlight>) -> BTreeMap<(String, String), Sent> {
+    let mut newest: BTreeMap<(String, String), Sent> = BTreeMap::new();
+    for m in arrived {
+        let key = (m.receiver, m.message.sender.clone());
+        match newest.get(&key) {
+            Some(old) if old.generated_s >= m.message.generated_s => {}
+            _ => {
+                newest.insert(key, m.message);
+            }
+        }
+    }
+    newest
 }
 
 /// What each `[pose_noise]` level's GNSS reports: `poses[k]` at level `k`.
@@ -114,48 +121,47 @@ fn per_level(ctx: &Context, poses: &[Pose2]) -> Vec<(PoseNoiseLabel, Pose2)> {
         .collect()
 }
 
-/// The receiver's side: its reported tracks (and its own node), in the
-/// body frame of its true pose; the truth is each track's last detected
-/// object at this step's true position.
-fn receiver_side(
-    ctx: &Context,
-    vehicle: &Vehicle,
-    ego: &InstanceSide,
-) -> Result<InstanceSide, RunError> {
-    let (detections, truths) = vehicle
-        .reported_tracks()
-        .map(|(_, d, label)| (d, label.truth_at(ctx)))
-        .unzip();
-    let mut sensed = Sensed {
+/// A side's content before [`InstanceSide::new`] names it: its nodes, their
+/// truths, and the true pose of the frame they are in.
+fn unnamed(detections: Vec<Detection>, truths: Vec<DetectionTruth>, ego_pose: Pose2) -> Sensed {
+    Sensed {
         observation: Observation {
-            // Named by `InstanceSide::new`.
             ego_id: String::new(),
             detections,
         },
         truth: ObservationTruth {
-            ego_pose: ego.sensed.truth.ego_pose,
+            ego_pose,
             detections: truths,
         },
         visible: Vec::new(),
-    };
-    if let Some(k) = ego.sensed.truth.detections.iter().position(|d| d.sender) {
-        sensed
-            .observation
-            .detections
-            .push(ego.sensed.observation.detections[k].clone());
-        sensed
-            .truth
-            .detections
-            .push(ego.sensed.truth.detections[k].clone());
     }
-    let keys = [ctx.step, ego.id_hash, ego.id_hash];
+}
+
+/// The receiver's side: its reported tracks (and its own node), in the
+/// body frame of its true pose; the truth is each track's last detected
+/// object at this step's true position. `sensed`: what it sensed at this
+/// step.
+fn receiver_side(
+    ctx: &Context,
+    vehicle: &ConnectedVehicle,
+    sensed: &InstanceSide,
+) -> Result<InstanceSide, RunError> {
+    let (mut detections, mut truths): (Vec<Detection>, Vec<DetectionTruth>) = vehicle
+        .reported_tracks()
+        .map(|(_, d, label)| (d, label.truth_at(ctx)))
+        .unzip();
+    if let Some((d, t)) = sensed.own_node() {
+        detections.push(d);
+        truths.push(t);
+    }
+    let keys = [ctx.step, sensed.id_hash, sensed.id_hash];
     let reported = per_level(ctx, vehicle.reported_poses());
     InstanceSide::new(
-        ego.source.clone(),
-        sensed,
+        sensed.source.clone(),
+        unnamed(detections, truths, sensed.sensed.truth.ego_pose),
         ctx.settings.seeds.sensor,
         &keys,
-        ego.speed_mps,
+        sensed.speed_mps,
         Some(reported),
     )
 }
@@ -165,24 +171,10 @@ fn receiver_side(
 /// sender's true pose at generation, with the poses it reported then. Its
 /// source is the message ([`ViewSource::Message`]).
 fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide, RunError> {
-    let dt_s = if ctx.v.compensate_latency {
-        ctx.time_s - m.generated_s
-    } else {
-        0.0
-    };
-    let accel = ctx.v.tracker.accel_sigma_mps2;
-    let now = |id: &Option<String>| id.as_deref().and_then(|o| ctx.truth.get(o)).copied();
     let mut detections = Vec::new();
     let mut truths = Vec::new();
     for (o, label) in m.objects.iter().zip(&m.labels) {
-        let (position_m, cov_m2) = extrapolate(
-            o.position_m,
-            o.velocity_mps,
-            &o.position_cov_m2,
-            &o.velocity_cov_m2ps2,
-            dt_s,
-            accel,
-        );
+        let (position_m, cov_m2) = ctx.object_moved_ahead(o, m.generated_s);
         detections.push(Detection {
             position_m,
             cov_m2,
@@ -191,36 +183,24 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide,
         truths.push(label.truth_at(ctx));
     }
     if let Some((d, t, velocity_mps)) = &m.sender_node {
-        let (position_m, cov_m2) = extrapolate(
+        let (position_m, cov_m2) = ctx.moved_ahead(
+            m.generated_s,
             d.position_m,
             *velocity_mps,
             &d.cov_m2,
-            &crate::geometry::Cov2::zeros(),
-            dt_s,
-            accel,
+            &Cov2::zeros(),
         );
         detections.push(Detection {
             position_m,
             cov_m2,
             appearance: d.appearance.clone(),
         });
+        let now = t.object_id.as_deref().and_then(|o| ctx.truth.get(o));
         truths.push(DetectionTruth {
-            position_m: now(&t.object_id),
+            position_m: now.copied(),
             ..t.clone()
         });
     }
-    let sensed = Sensed {
-        observation: Observation {
-            // Named by `InstanceSide::new`.
-            ego_id: String::new(),
-            detections,
-        },
-        truth: ObservationTruth {
-            ego_pose: m.sender_pose,
-            detections: truths,
-        },
-        visible: Vec::new(),
-    };
     let keys = [ctx.step, rng::hash_str(receiver), rng::hash_str(&m.sender)];
     let reported = per_level(ctx, &m.sender_reported);
     let source = ViewSource::Message {
@@ -229,7 +209,7 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide,
     };
     InstanceSide::new(
         source,
-        sensed,
+        unnamed(detections, truths, m.sender_pose),
         ctx.settings.seeds.sensor,
         &keys,
         m.sender_speed_mps(),
