@@ -80,3 +80,64 @@ impl Context<'_> {
         )
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Pose2;
+    use crate::pipeline::tests::{context, settings};
+    use crate::traffic::{ObjectClass, TrafficObject};
+
+    #[test]
+    fn the_true_centres_are_every_road_users_position_by_id() {
+        let object = |id: &str, x: f64| TrafficObject {
+            id: id.into(),
+            class: ObjectClass::Car,
+            pose: Pose2::new(Vec2::new(x, 1.0), 0.5),
+            length_m: 4.6,
+            width_m: 1.8,
+            height_m: 1.5,
+            colour_rgb: [0, 0, 0],
+            speed_mps: 0.0,
+        };
+        let frame = TrafficFrame {
+            step: 0,
+            time_s: 0.0,
+            objects: vec![object("b", 2.0), object("a", -3.0)],
+        };
+        let c = true_centres(&frame);
+        assert_eq!(c.len(), 2);
+        assert_eq!(
+            (c["a"], c["b"]),
+            (Vec2::new(-3.0, 1.0), Vec2::new(2.0, 1.0))
+        );
+    }
+
+    /// With latency compensation, what was generated 0.3 s ago moves 0.3 s
+    /// along its velocity and grows uncertain; without, it stays as sent.
+    #[test]
+    fn what_was_received_is_moved_ahead_by_its_age_when_compensating() {
+        let mut s = settings();
+        let truth = BTreeMap::new();
+        let (p, v) = (Vec2::new(10.0, -2.0), Vec2::new(5.0, 1.0));
+        let (pc, vc) = (Cov2::identity() * 0.25, Cov2::identity());
+        let ctx = context(&s, &truth, 13, 1.3);
+        assert_eq!(ctx.level().label, s.pose_noise[0].label);
+        let (moved, cov) = ctx.moved_ahead(1.0, p, v, &pc, &vc);
+        assert!((moved - (p + v * 0.3)).norm() < 1e-9);
+        assert!(cov[(0, 0)] > pc[(0, 0)] + 0.3 * 0.3 - 1e-9);
+        let o = PerceivedObject {
+            local_id: 1,
+            position_m: p,
+            velocity_mps: v,
+            position_cov_m2: pc,
+            velocity_cov_m2ps2: vc,
+            age_s: 2.0,
+            class: crate::traffic::ObjectClass::Car,
+        };
+        assert_eq!(ctx.object_moved_ahead(&o, 1.0), (moved, cov));
+        s.v2x.compensate_latency = false;
+        let ctx = context(&s, &truth, 13, 1.3);
+        assert_eq!(ctx.moved_ahead(1.0, p, v, &pc, &vc), (p, pc));
+    }
+}

@@ -101,3 +101,54 @@ pub(super) fn hand_on(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::matching::Method;
+    use crate::pipeline::runners::runner;
+    use crate::pipeline::tests::{settings, two_vehicle_step};
+
+    /// A runner's evaluation of a step: one per level, each of the step's
+    /// instance; the oracle finds every common object, at every level.
+    #[test]
+    fn a_step_is_evaluated_at_every_level() {
+        let s = settings();
+        let step = two_vehicle_step(0);
+        let evals = evaluate_step(&s, &step, &Runner::Oracle);
+        assert_eq!(evals.len(), s.pose_noise.len());
+        for f in &evals {
+            assert_eq!(f.method, Method::Oracle);
+            assert_eq!(f.pairs.len(), 1);
+            let c = f.pairs[0].counts;
+            assert_eq!((c.identified, c.correct, c.ground_truth), (3, 3, 3));
+        }
+    }
+
+    /// Evaluations are handed on level by level, runner by runner, each
+    /// with the step's instances and their pairs at that level.
+    #[test]
+    fn evaluations_are_handed_on_level_by_level_then_runner_by_runner() {
+        let s = settings();
+        let step = two_vehicle_step(4);
+        let runners = [runner(&s, Method::GpsHungarian).unwrap(), Runner::Oracle];
+        let evals = runners
+            .iter()
+            .map(|r| evaluate_step(&s, &step, r))
+            .collect();
+        let mut seen = Vec::new();
+        hand_on(&s, &step, evals, &mut |instances, pairs, level, f| {
+            assert_eq!(instances[0].index, 4);
+            assert_eq!(pairs[0].level.label, level);
+            seen.push((level, f.method));
+            Ok(())
+        })
+        .unwrap();
+        let expected: Vec<(PoseNoiseLabel, Method)> = s
+            .pose_noise
+            .iter()
+            .flat_map(|l| [(l.label, Method::GpsHungarian), (l.label, Method::Oracle)])
+            .collect();
+        assert_eq!(seen, expected);
+    }
+}

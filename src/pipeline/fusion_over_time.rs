@@ -186,3 +186,133 @@ pub(super) fn nees(m: &Measurement, truth: Vec2) -> f64 {
         .try_inverse()
         .map_or(f64::NAN, |inv| (e.transpose() * inv * e)[0])
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Pose2;
+    use crate::pipeline::tests::{appearance, centres, context, settings, vehicle_side};
+
+    const OBJECTS: [(&str, Vec2); 2] = [("a", Vec2::new(12.0, 3.0)), ("b", Vec2::new(18.0, -4.0))];
+
+    fn receiver_pose() -> Pose2 {
+        Pose2::new(Vec2::new(0.0, 1.0), 0.3)
+    }
+
+    fn sender_pose() -> Pose2 {
+        Pose2::new(Vec2::new(40.0, 2.0), 3.0)
+    }
+
+    fn detection(p: Vec2) -> Detection {
+        Detection {
+            position_m: p,
+            cov_m2: Cov2::identity() * 0.04,
+            appearance: appearance("a"),
+        }
+    }
+
+    /// The receiver after `n` steps of 0.1 s seeing `OBJECTS` still (at
+    /// the first level, no noise: its reported pose is its true one).
+    fn receiver(n: u64) -> ConnectedVehicle {
+        let s = settings();
+        let truth = centres(&OBJECTS);
+        let mut v = ConnectedVehicle::new("cv0", &s.v2x);
+        for step in 0..n {
+            let ctx = context(&s, &truth, step, step as f64 * 0.1);
+            v.step(&ctx, &vehicle_side("cv0", receiver_pose(), &OBJECTS, step));
+        }
+        v
+    }
+
+    /// Views of `OBJECTS`: the receiver's `ego_offset` off each (world
+    /// frame), the sender's (peer ids 10, 11) the other way.
+    fn views(ego_ids: Vec<u64>, ego_offset: Vec2) -> Views {
+        let (r, s) = (receiver_pose(), sender_pose());
+        Views {
+            ego: OBJECTS
+                .iter()
+                .map(|(_, p)| detection(r.to_body(&(p + ego_offset))))
+                .collect(),
+            ego_ids,
+            ego_truth: OBJECTS.iter().map(|(o, _)| Some((*o).to_owned())).collect(),
+            peer: OBJECTS
+                .iter()
+                .map(|(_, p)| detection(s.to_body(&(p - ego_offset))))
+                .collect(),
+            peer_ids: vec![10, 11],
+            peer_truth: OBJECTS.iter().map(|(o, _)| Some((*o).to_owned())).collect(),
+            peer_reported: s,
+        }
+    }
+
+    #[test]
+    fn nees_is_two_for_an_honest_unit_error_and_nan_when_singular() {
+        let m = Measurement {
+            position_m: Vec2::new(1.0, 1.0),
+            cov_m2: Cov2::identity(),
+        };
+        assert!((nees(&m, Vec2::zeros()) - 2.0).abs() < 1e-12);
+        let flat = Measurement {
+            cov_m2: Cov2::zeros(),
+            ..m
+        };
+        assert!(nees(&flat, Vec2::zeros()).is_nan());
+        let d = detection(Vec2::new(3.0, 4.0));
+        assert_eq!(measurement(&d).position_m, d.position_m);
+        assert_eq!(measurement(&d).cov_m2, d.cov_m2);
+    }
+
+    /// Two equally sure views on either side of an object fuse onto it
+    /// (Eq. 14-16; covariance intersection comes closer than either);
+    /// pairs of unknown ids are left out, a wrong pair is far off.
+    #[test]
+    fn fusing_two_views_either_side_of_an_object_lands_on_it() {
+        let s = settings();
+        let truth = centres(&OBJECTS);
+        let ctx = context(&s, &truth, 2, 0.2);
+        let v = views(vec![1, 2], Vec2::new(0.3, 0.0));
+        let rx = receiver(1);
+        let (single, fused, ci, n) = fuse_pairs(&ctx, &rx, &v, &[(1, 10), (2, 11), (7, 10)]);
+        assert_eq!(n, 2);
+        assert!((single - 0.6).abs() < 1e-9, "{single}");
+        assert!(fused < 1e-9, "{fused}");
+        assert!(ci < single, "{ci}");
+        let wrong = fuse_pairs(&ctx, &rx, &v, &[(1, 11)]);
+        assert!(wrong.1 > 1.0);
+    }
+
+    /// A track fused again with the same peer object gains information
+    /// (its covariance shrinks); a new partner starts it again; each
+    /// update is scored against the truth.
+    #[test]
+    fn a_recursive_estimate_accumulates_until_its_partner_changes() {
+        let s = settings();
+        let truth = centres(&OBJECTS);
+        let hits = u64::from(s.v2x.tracker.confirm_hits);
+        let rx = receiver(hits);
+        let ids: Vec<u64> = rx.reported_tracks().map(|t| t.0).collect();
+        let by_object = |o: &str| {
+            rx.reported_tracks()
+                .find(|t| t.2.truth.as_deref() == Some(o))
+                .unwrap()
+                .0
+        };
+        let (ea, eb) = (by_object("a"), by_object("b"));
+        assert_eq!(ids.len(), 2);
+        let v = views(vec![ea, eb], Vec2::zeros());
+        let mut rf = RecursiveFusion::default();
+        let mut c = OverTimeCounts::default();
+        let trace = |rf: &RecursiveFusion| rf.fused[&ea].independent.cov_m2.trace();
+        rf.update(&context(&s, &truth, 5, 0.5), &rx, &v, &[(ea, 10)], &mut c);
+        let once = trace(&rf);
+        rf.update(&context(&s, &truth, 6, 0.6), &rx, &v, &[(ea, 10)], &mut c);
+        assert!(trace(&rf) < once, "{} !< {once}", trace(&rf));
+        rf.update(&context(&s, &truth, 7, 0.7), &rx, &v, &[(ea, 11)], &mut c);
+        assert!((trace(&rf) - once).abs() < 1e-12, "started again");
+        assert_eq!(rf.fused[&ea].peer, 11);
+        assert_eq!(c.recursive_n, 3);
+        assert!(c.recursive_fused_sum_m.is_finite() && c.once_nees_ci_sum.is_finite());
+        rf.update(&context(&s, &truth, 8, 0.8), &rx, &v, &[], &mut c);
+        assert!(rf.fused.is_empty(), "no association, no estimate");
+    }
+}

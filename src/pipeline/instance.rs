@@ -176,3 +176,169 @@ impl<'a> Instance<'a> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::tests::vehicle_side;
+    use crate::traffic::TrafficObject;
+
+    fn pose() -> Pose2 {
+        Pose2::new(Vec2::new(10.0, -4.0), 0.7)
+    }
+
+    fn seen() -> Vec<(&'static str, Vec2)> {
+        vec![
+            ("a", Vec2::new(20.0, 0.0)),
+            ("b", Vec2::new(25.0, 6.0)),
+            ("c", Vec2::new(14.0, 9.0)),
+            ("d", Vec2::new(30.0, -3.0)),
+        ]
+    }
+
+    /// A vehicle's side is named by the vehicle, a message's by `<sender>
+    /// -> <receiver>` (what exports and tables write), and the vehicle
+    /// behind a message is its sender.
+    #[test]
+    fn a_source_reads_as_the_vehicle_or_sender_to_receiver() {
+        let v = ViewSource::Vehicle("cv1".into());
+        let m = ViewSource::Message {
+            sender: "cv0".into(),
+            receiver: "cv1".into(),
+        };
+        assert_eq!(v.to_string(), "cv1");
+        assert_eq!(m.to_string(), "cv0 -> cv1");
+        assert_eq!((v.vehicle(), m.vehicle()), ("cv1", "cv0"));
+    }
+
+    /// A new side takes its source's text as its id, shuffles its nodes
+    /// with their truths in step (each still where its object is), and
+    /// has one graph node per detection.
+    #[test]
+    fn a_new_side_is_named_by_its_source_and_keeps_each_node_with_its_truth() {
+        let side = vehicle_side("cv0", pose(), &seen(), 3);
+        assert_eq!(side.id(), "cv0");
+        assert_eq!(side.sensed.observation.ego_id, "cv0");
+        assert_eq!(side.graph.node_count(), 4);
+        let ids: Vec<&str> = (0..4)
+            .map(|k| side.sensed.truth.object_id(k).unwrap())
+            .collect();
+        assert_ne!(ids, ["a", "b", "c", "d"], "listed in SUMO's order");
+        for (d, t) in side
+            .sensed
+            .observation
+            .detections
+            .iter()
+            .zip(&side.sensed.truth.detections)
+        {
+            let world = pose().to_parent(&d.position_m);
+            assert!((world - t.position_m.unwrap()).norm() < 1e-9);
+        }
+        assert!(side.own_node().is_none());
+    }
+
+    /// A side's own node (the sender's self-report) is found among its
+    /// shuffled nodes.
+    #[test]
+    fn a_side_finds_its_own_node() {
+        let mut side = vehicle_side("cv0", pose(), &seen(), 3);
+        let me = TrafficObject {
+            id: "cv0".into(),
+            class: crate::traffic::ObjectClass::Car,
+            pose: pose(),
+            length_m: 4.6,
+            width_m: 1.8,
+            height_m: 1.5,
+            colour_rgb: [1, 2, 3],
+            speed_mps: 8.0,
+        };
+        side.sensed.add_sender(&me);
+        side.sensed
+            .shuffle(&mut rng::stream(1, Purpose::NodeOrder, &[9]));
+        let (d, t) = side.own_node().unwrap();
+        assert!(t.sender && t.object_id.as_deref() == Some("cv0"));
+        assert_eq!(d.position_m, Vec2::zeros());
+    }
+
+    /// A pose drawn at a level comes from the side's stream for the step:
+    /// the same draw again, another at the next step, the truth at no
+    /// noise. A carried pose is returned as it was carried.
+    #[test]
+    fn a_reported_pose_is_drawn_per_step_or_carried() {
+        let side = vehicle_side("cv0", pose(), &seen(), 3);
+        let gps = PoseNoiseLevel {
+            label: PoseNoiseLabel::Gps,
+            position_sigma_m: 1.2,
+            heading_sigma_rad: 0.01,
+        };
+        let none = PoseNoiseLevel {
+            label: PoseNoiseLabel::None,
+            position_sigma_m: 0.0,
+            heading_sigma_rad: 0.0,
+        };
+        let p = side.reported_pose(7, 3, &gps);
+        assert_eq!(p, side.reported_pose(7, 3, &gps));
+        assert_ne!(p, side.reported_pose(7, 4, &gps));
+        assert!((p.position_m() - pose().position_m()).norm() > 1e-6);
+        assert_eq!(side.reported_pose(7, 3, &none), pose());
+        let carried = Pose2::new(Vec2::new(1.0, 2.0), 0.3);
+        let sensed = side.sensed.clone();
+        let side = InstanceSide::new(
+            ViewSource::Vehicle("cv0".into()),
+            sensed,
+            7,
+            &[1],
+            0.0,
+            Some(vec![
+                (PoseNoiseLabel::None, pose()),
+                (PoseNoiseLabel::Gps, carried),
+            ]),
+        )
+        .unwrap();
+        assert_eq!(side.reported_pose(7, 3, &gps), carried);
+        assert_eq!(side.reported_pose(7, 99, &gps), carried);
+    }
+
+    /// An instance at a level hands both sides' detections, graphs and
+    /// reported poses to the matcher's views, with their truths beside.
+    #[test]
+    fn an_instance_at_a_level_pairs_each_sides_view_with_its_truth() {
+        let a = vehicle_side("cv0", pose(), &seen(), 3);
+        let b = vehicle_side(
+            "cv1",
+            Pose2::new(Vec2::new(40.0, 0.0), 3.0),
+            &seen()[1..],
+            3,
+        );
+        let scene = StaticScene {
+            junction_id: "C".into(),
+            junction_position_m: Vec2::zeros(),
+            buildings: Vec::new(),
+            lanes: Vec::new(),
+        };
+        let frame = TrafficFrame {
+            step: 3,
+            time_s: 0.3,
+            objects: Vec::new(),
+        };
+        let inst = Instance {
+            index: 5,
+            scene: &scene,
+            frame: &frame,
+            a: &a,
+            b: &b,
+        };
+        let level = PoseNoiseLevel {
+            label: PoseNoiseLabel::Rtk,
+            position_sigma_m: 0.2,
+            heading_sigma_rad: 0.003,
+        };
+        let pair = inst.at_level(7, &level);
+        assert_eq!(pair.instance, 5);
+        assert_eq!(pair.level, level);
+        assert_eq!(pair.first.obs.ego_id, "cv0");
+        assert_eq!(pair.second.view.detections.len(), 3);
+        assert_eq!(pair.second.truth.detections.len(), 3);
+        assert_eq!(pair.first.view.pose_reported, a.reported_pose(7, 3, &level));
+    }
+}

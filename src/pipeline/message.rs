@@ -60,3 +60,60 @@ impl TrackLabel {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+    use crate::geometry::Cov2;
+    use crate::pipeline::tests::{appearance, context, settings};
+
+    /// A label's truth is its object where it is now; a false positive's
+    /// has no object and no position.
+    #[test]
+    fn a_label_names_its_object_where_it_is_now() {
+        let s = settings();
+        let truth = BTreeMap::from([("a", Vec2::new(3.0, 4.0))]);
+        let ctx = context(&s, &truth, 0, 0.0);
+        let label = |t: Option<&str>| TrackLabel {
+            appearance: appearance("a"),
+            truth: t.map(str::to_owned),
+            visible_fraction: 0.6,
+        };
+        let t = label(Some("a")).truth_at(&ctx);
+        assert_eq!(t.object_id.as_deref(), Some("a"));
+        assert_eq!(t.position_m, Some(Vec2::new(3.0, 4.0)));
+        assert_eq!((t.visible_fraction, t.sender), (0.6, false));
+        let t = label(None).truth_at(&ctx);
+        assert_eq!((t.object_id, t.position_m), (None, None));
+    }
+
+    /// A message's sender speed is that of its own node, 0 without one.
+    #[test]
+    fn a_senders_speed_is_its_nodes() {
+        let mut m = Sent {
+            sender: "cv0".into(),
+            generated_s: 0.0,
+            sender_reported: Vec::new(),
+            objects: Vec::new(),
+            labels: Vec::new(),
+            sender_pose: Pose2::identity(),
+            sender_node: None,
+        };
+        assert_eq!(m.sender_speed_mps(), 0.0);
+        let node = Detection {
+            position_m: Vec2::zeros(),
+            cov_m2: Cov2::identity(),
+            appearance: appearance("cv0"),
+        };
+        let truth = DetectionTruth {
+            object_id: Some("cv0".into()),
+            position_m: None,
+            visible_fraction: 1.0,
+            sender: true,
+        };
+        m.sender_node = Some((node, truth, Vec2::new(3.0, 4.0)));
+        assert_eq!(m.sender_speed_mps(), 5.0);
+    }
+}

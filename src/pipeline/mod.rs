@@ -83,3 +83,177 @@ pub struct SimStats {
     /// Road users read over all steps (for the per-object bridge cost).
     pub objects_read: u64,
 }
+
+/// Fixtures the tests of this module's files share (plain values, no
+/// SUMO): the shipped settings, sides made by hand, a step's context.
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+    use std::sync::Arc;
+
+    use super::Step;
+    use super::context::Context;
+    use super::instance::{InstanceSide, ViewSource};
+    use super::message::Sent;
+    use crate::config::Settings;
+    use crate::geometry::{Cov2, Pose2, Vec2};
+    use crate::rng;
+    use crate::sensor::{
+        Appearance, Detection, DetectionTruth, Observation, ObservationTruth, Sensed, VisibleObject,
+    };
+    use crate::traffic::{ObjectClass, StaticScene, TrafficFrame, TrafficObject};
+
+    /// The shipped defaults (`configs/default.toml`).
+    pub(super) fn settings() -> Settings {
+        Settings::defaults().expect("the shipped defaults are valid")
+    }
+
+    /// What a camera reports of road user `id`: a car of its own colour.
+    pub(super) fn appearance(id: &str) -> Appearance {
+        let h = rng::hash_str(id);
+        let c = |k: u32| f64::from(((h >> (8 * k)) & 0xff) as u8) / 255.0;
+        Appearance {
+            class: ObjectClass::Car,
+            colour_rgb: [c(0), c(1), c(2)],
+            length_m: 4.5,
+            width_m: 1.8,
+            height_m: 1.5,
+        }
+    }
+
+    /// Road users by id at their true centres (world frame).
+    pub(super) type Seen<'a> = [(&'a str, Vec2)];
+
+    /// What vehicle `id` at true pose `pose` senses at `step` of the road
+    /// users `seen`: each detected where it is (body frame, covariance
+    /// 0.04 m² per axis), visible, and nothing else.
+    pub(super) fn vehicle_side(id: &str, pose: Pose2, seen: &Seen, step: u64) -> InstanceSide {
+        let detections = seen
+            .iter()
+            .map(|(o, p)| Detection {
+                position_m: pose.to_body(p),
+                cov_m2: Cov2::identity() * 0.04,
+                appearance: appearance(o),
+            })
+            .collect();
+        let truths = seen
+            .iter()
+            .map(|(o, p)| DetectionTruth {
+                object_id: Some((*o).to_owned()),
+                position_m: Some(*p),
+                visible_fraction: 1.0,
+                sender: false,
+            })
+            .collect();
+        let visible = seen
+            .iter()
+            .map(|(o, p)| VisibleObject {
+                object_id: (*o).to_owned(),
+                position_m: *p,
+            })
+            .collect();
+        let sensed = Sensed {
+            observation: Observation {
+                ego_id: String::new(),
+                detections,
+            },
+            truth: ObservationTruth {
+                ego_pose: pose,
+                detections: truths,
+            },
+            visible,
+        };
+        let keys = [step, rng::hash_str(id)];
+        let source = ViewSource::Vehicle(id.to_owned());
+        InstanceSide::new(source, sensed, 7, &keys, 10.0, None).expect("a graph")
+    }
+
+    /// A step (number 3, at 0.3 s) of two vehicles that see three common
+    /// road users (and one each alone): one instance, numbered
+    /// `first_index`.
+    pub(super) fn two_vehicle_step(first_index: usize) -> Step {
+        let common = [
+            ("a", Vec2::new(12.0, 3.0)),
+            ("b", Vec2::new(18.0, -4.0)),
+            ("c", Vec2::new(25.0, 1.0)),
+        ];
+        let mut seen0 = common.to_vec();
+        seen0.push(("d", Vec2::new(5.0, 9.0)));
+        let mut seen1 = common.to_vec();
+        seen1.push(("e", Vec2::new(30.0, -8.0)));
+        let sides = vec![
+            vehicle_side("cv0", Pose2::new(Vec2::zeros(), 0.1), &seen0, 3),
+            vehicle_side("cv1", Pose2::new(Vec2::new(40.0, 2.0), 3.0), &seen1, 3),
+        ];
+        let scene = StaticScene {
+            junction_id: "C".into(),
+            junction_position_m: Vec2::zeros(),
+            buildings: Vec::new(),
+            lanes: Vec::new(),
+        };
+        let frame = TrafficFrame {
+            step: 3,
+            time_s: 0.3,
+            objects: Vec::new(),
+        };
+        Step::new(Arc::new(scene), frame, sides, vec![(0, 1)], first_index)
+    }
+
+    /// An empty message from `sender`, generated at `generated_s` at the
+    /// identity pose.
+    pub(super) fn sent(sender: &str, generated_s: f64) -> Sent {
+        Sent {
+            sender: sender.to_owned(),
+            generated_s,
+            sender_reported: vec![Pose2::identity(); 3],
+            objects: Vec::new(),
+            labels: Vec::new(),
+            sender_pose: Pose2::identity(),
+            sender_node: None,
+        }
+    }
+
+    /// A frame of step `step` (0.1 s each) with the road users `seen`.
+    pub(super) fn frame(seen: &Seen, step: u64) -> TrafficFrame {
+        let objects = seen
+            .iter()
+            .map(|(id, p)| TrafficObject {
+                id: (*id).to_owned(),
+                class: ObjectClass::Car,
+                pose: Pose2::new(*p, 0.0),
+                length_m: 4.5,
+                width_m: 1.8,
+                height_m: 1.5,
+                colour_rgb: [90, 90, 90],
+                speed_mps: 0.0,
+            })
+            .collect();
+        TrafficFrame {
+            step,
+            time_s: step as f64 * 0.1,
+            objects,
+        }
+    }
+
+    /// Every road user's true centre, by id, as a [`Context`] holds it.
+    pub(super) fn centres<'a>(seen: &Seen<'a>) -> BTreeMap<&'a str, Vec2> {
+        seen.iter().copied().collect()
+    }
+
+    /// The context of step `step` at `time_s`, at every level of `s`.
+    pub(super) fn context<'a>(
+        s: &'a Settings,
+        truth: &'a BTreeMap<&'a str, Vec2>,
+        step: u64,
+        time_s: f64,
+    ) -> Context<'a> {
+        Context {
+            settings: s,
+            v: &s.v2x,
+            levels: &s.pose_noise,
+            step,
+            time_s,
+            truth,
+        }
+    }
+}

@@ -82,3 +82,73 @@ impl PairHistory {
         truths
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Pose2;
+
+    /// Views whose ego tracks 1, 2, 3 and peer objects 10, 20, 30 are the
+    /// objects `ego` and `peer` name (`None`: a false track).
+    fn views(ego: [Option<&str>; 3], peer: [Option<&str>; 3]) -> Views {
+        let names = |t: [Option<&str>; 3]| t.map(|o| o.map(str::to_owned)).to_vec();
+        Views {
+            ego: Vec::new(),
+            ego_ids: vec![1, 2, 3],
+            ego_truth: names(ego),
+            peer: Vec::new(),
+            peer_ids: vec![10, 20, 30],
+            peer_truth: names(peer),
+            peer_reported: Pose2::identity(),
+        }
+    }
+
+    /// Each decision is counted against the true pairs in view.
+    #[test]
+    fn both_decisions_are_counted_against_the_true_pairs() {
+        let v = views(
+            [Some("a"), Some("b"), None],
+            [Some("a"), Some("b"), Some("c")],
+        );
+        let mut h = PairHistory::default();
+        let mut c = OverTimeCounts::default();
+        let truths = h.count(1.0, &v, &[(1, 10), (2, 30)], &[(1, 10), (2, 20)], &mut c);
+        assert_eq!(truths, [(1, 10), (2, 20)]);
+        let per = c.per_message;
+        assert_eq!((per.identified, per.correct, per.ground_truth), (2, 1, 2));
+        let over = c.over_time;
+        assert_eq!(
+            (over.identified, over.correct, over.ground_truth),
+            (2, 2, 2)
+        );
+        assert_eq!(
+            (c.pairs_in_view, c.per_message_right, c.over_time_right),
+            (2, 1, 2)
+        );
+        assert_eq!((c.pairs_found, c.switches), (2, 0));
+        assert_eq!(c.time_to_first_right_sum_s, 0.0);
+    }
+
+    /// A pair is found once, timed from when it came into view; an ego
+    /// track that changes partner is a switch.
+    #[test]
+    fn pairs_are_found_once_and_switches_counted() {
+        let v = views(
+            [Some("a"), Some("b"), Some("c")],
+            [Some("a"), Some("b"), Some("c")],
+        );
+        let mut h = PairHistory::default();
+        let mut c = OverTimeCounts::default();
+        h.count(1.0, &v, &[], &[(1, 10)], &mut c);
+        assert_eq!((c.pairs_found, h.pairs_seen()), (1, 3));
+        let mut c = OverTimeCounts::default();
+        h.count(1.5, &v, &[], &[(1, 20), (3, 30)], &mut c);
+        assert_eq!((c.pairs_found, c.switches), (1, 1));
+        assert!((c.time_to_first_right_sum_s - 0.5).abs() < 1e-12);
+        let mut c = OverTimeCounts::default();
+        h.count(2.0, &v, &[], &[(1, 10), (2, 20), (3, 30)], &mut c);
+        assert_eq!((c.pairs_found, c.switches), (1, 1));
+        assert!((c.time_to_first_right_sum_s - 1.0).abs() < 1e-12);
+        assert_eq!(h.pairs_seen(), 3);
+    }
+}

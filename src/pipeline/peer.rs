@@ -214,3 +214,105 @@ fn identified(
         .map(|c| (views.ego_ids[c.a], views.peer_ids[c.b]))
         .collect())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::evaluate::Runner;
+    use crate::matching::Method;
+    use crate::pipeline::runners::runner;
+    use crate::pipeline::tests::{centres, context, settings, vehicle_side};
+
+    const OBJECTS: [(&str, Vec2); 3] = [
+        ("a", Vec2::new(12.0, 3.0)),
+        ("b", Vec2::new(18.0, -4.0)),
+        ("c", Vec2::new(25.0, 8.0)),
+    ];
+
+    /// The receiver (cv0) and the sender (cv1) after both saw `OBJECTS`
+    /// still until their tracks were confirmed, and the sender's first
+    /// message that carries them.
+    fn tracked() -> (ConnectedVehicle, Sent) {
+        let s = settings();
+        let truth = centres(&OBJECTS);
+        let poses = [
+            Pose2::new(Vec2::new(0.0, 1.0), 0.3),
+            Pose2::new(Vec2::new(40.0, 2.0), 3.0),
+        ];
+        let mut v =
+            [("cv0", poses[0]), ("cv1", poses[1])].map(|(id, _)| ConnectedVehicle::new(id, &s.v2x));
+        let mut message = None;
+        for step in 0..u64::from(s.v2x.tracker.confirm_hits) {
+            let ctx = context(&s, &truth, step, step as f64 * 0.1);
+            v[0].step(&ctx, &vehicle_side("cv0", poses[0], &OBJECTS, step));
+            let sent = v[1].step(&ctx, &vehicle_side("cv1", poses[1], &OBJECTS, step));
+            message = sent.filter(|m| !m.objects.is_empty()).or(message);
+        }
+        let [receiver, _] = v;
+        (receiver, message.expect("a message with the objects"))
+    }
+
+    fn matcher() -> Box<dyn Matcher> {
+        match runner(&settings(), Method::GpsHungarian) {
+            Ok(Runner::Matcher(m)) => m,
+            _ => panic!("gps-hungarian is a matcher"),
+        }
+    }
+
+    /// The peer's objects are moved into the frame of the pose given:
+    /// through it they are where they are.
+    #[test]
+    fn the_peers_objects_are_seen_through_the_pose_given() {
+        let s = settings();
+        let truth = centres(&OBJECTS);
+        let (receiver, m) = tracked();
+        let ctx = context(&s, &truth, 9, m.generated_s);
+        let mut state = PeerState::default();
+        state.remember(&ctx, &m);
+        let frame = Pose2::new(Vec2::new(-5.0, 7.0), 1.0);
+        let v = state.views(&ctx, &receiver, frame);
+        assert_eq!((v.ego.len(), v.peer.len()), (3, 3));
+        for (d, t) in v.peer.iter().zip(&v.peer_truth) {
+            let at = centres(&OBJECTS)[t.as_deref().unwrap()];
+            assert!((frame.to_parent(&d.position_m) - at).norm() < 1e-6);
+        }
+    }
+
+    /// Messages about the same objects are matched right at once and
+    /// associated over time within a few receptions; objects the peer
+    /// stopped sending are forgotten.
+    #[test]
+    fn the_same_objects_are_associated_over_time_then_forgotten() {
+        let s = settings();
+        let truth = centres(&OBJECTS);
+        let (receiver, m) = tracked();
+        let matcher = matcher();
+        let mut state = PeerState::default();
+        let mut associated_at = None;
+        for k in 0..6 {
+            let ctx = context(&s, &truth, 10 + k, m.generated_s + 0.1);
+            let c = state
+                .receive(&ctx, &receiver, &m, matcher.as_ref())
+                .unwrap();
+            assert_eq!(c.receptions, 1);
+            assert_eq!((c.per_message.correct, c.per_message.ground_truth), (3, 3));
+            assert_eq!(c.over_time.correct, c.over_time.identified, "never wrong");
+            if c.over_time.correct == 3 && associated_at.is_none() {
+                associated_at = Some(k);
+                assert_eq!((c.de_n, c.oracle_n), (3, 3));
+                assert!(c.de_fused_sum_m < c.de_single_sum_m + 1e-9);
+            }
+        }
+        assert!(associated_at.is_some(), "associated within 6 receptions");
+        assert_eq!(state.pairs_seen(), 3);
+        let mut empty = m.clone();
+        empty.objects.clear();
+        empty.labels.clear();
+        let late = s.v2x.cpm.max_interval_s * 2.0;
+        let ctx = context(&s, &truth, 40, m.generated_s + late);
+        let c = state
+            .receive(&ctx, &receiver, &empty, matcher.as_ref())
+            .unwrap();
+        assert_eq!((c.receptions, c.per_message.ground_truth), (1, 0));
+    }
+}

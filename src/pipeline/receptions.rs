@@ -216,3 +216,140 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide,
         Some(reported),
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Vec2;
+    use crate::pipeline::tests::{
+        appearance, centres, context, frame, sent, settings, vehicle_side,
+    };
+    use crate::v2x::channel::LossModel;
+    use crate::v2x::cpm::PerceivedObject;
+
+    const OBJECTS: [(&str, Vec2); 3] = [
+        ("a", Vec2::new(12.0, 3.0)),
+        ("b", Vec2::new(18.0, -4.0)),
+        ("c", Vec2::new(25.0, 8.0)),
+    ];
+
+    fn arrived(receiver: &str, sender: &str, generated_s: f64, arrival_s: f64) -> InFlight {
+        InFlight {
+            arrival_s,
+            receiver: receiver.into(),
+            message: sent(sender, generated_s),
+        }
+    }
+
+    /// Of what arrived, the newest message of each sender at each receiver
+    /// counts (by generation, not arrival).
+    #[test]
+    fn the_newest_message_per_sender_and_receiver_counts() {
+        let newest = newest_per_link(vec![
+            arrived("cv0", "cv1", 1.0, 1.1),
+            arrived("cv0", "cv1", 1.2, 1.25),
+            arrived("cv0", "cv1", 1.1, 1.3),
+            arrived("cv1", "cv0", 0.9, 1.3),
+        ]);
+        let got: Vec<(&str, &str, f64)> = newest
+            .iter()
+            .map(|((r, s), m)| (r.as_str(), s.as_str(), m.generated_s))
+            .collect();
+        assert_eq!(got, [("cv0", "cv1", 1.2), ("cv1", "cv0", 0.9)]);
+    }
+
+    /// A message's side is the message (named `<sender> -> <receiver>`):
+    /// its objects and its sender's node moved ahead by their age with
+    /// their velocity, in the sender's frame, with the poses it reported,
+    /// and the truth where the objects are now.
+    #[test]
+    fn a_messages_side_is_what_it_carries_moved_to_now() {
+        let s = settings();
+        let truth = centres(&OBJECTS);
+        let ctx = context(&s, &truth, 13, 1.3);
+        let mut m = sent("cv1", 1.0);
+        m.sender_reported = s.pose_noise.iter().map(|_| Pose2::identity()).collect();
+        m.objects.push(PerceivedObject {
+            local_id: 4,
+            position_m: Vec2::new(10.0, 0.0),
+            velocity_mps: Vec2::new(-2.0, 1.0),
+            position_cov_m2: Cov2::identity() * 0.1,
+            velocity_cov_m2ps2: Cov2::identity(),
+            age_s: 1.0,
+            class: crate::traffic::ObjectClass::Car,
+        });
+        m.labels.push(super::super::message::TrackLabel {
+            appearance: appearance("b"),
+            truth: Some("b".into()),
+            visible_fraction: 0.8,
+        });
+        let own = Detection {
+            position_m: Vec2::zeros(),
+            cov_m2: Cov2::identity() * 0.01,
+            appearance: appearance("cv1"),
+        };
+        let own_truth = DetectionTruth {
+            object_id: Some("cv1".into()),
+            position_m: None,
+            visible_fraction: 1.0,
+            sender: true,
+        };
+        m.sender_node = Some((own, own_truth, Vec2::new(10.0, 0.0)));
+        let side = message_side(&ctx, &m, "cv0").unwrap();
+        assert_eq!(side.id(), "cv1 -> cv0");
+        assert_eq!(side.source.vehicle(), "cv1");
+        assert_eq!(side.speed_mps, 10.0);
+        let k = side.sensed.truth.find("b").unwrap();
+        let moved = side.sensed.observation.detections[k].position_m;
+        assert!((moved - Vec2::new(9.4, 0.3)).norm() < 1e-9, "{moved}");
+        assert_eq!(
+            side.sensed.truth.detections[k].position_m,
+            Some(OBJECTS[1].1)
+        );
+        let (node, t) = side.own_node().unwrap();
+        assert!((node.position_m - Vec2::new(3.0, 0.0)).norm() < 1e-9);
+        assert_eq!(t.position_m, None, "cv1 is not in the frame");
+    }
+
+    /// With two vehicles sending over a lossless channel, a sampled step
+    /// has both receptions as instances: each receiver's tracks against
+    /// the other's message, each pair ordered by id; an unsampled step
+    /// only consumes what arrived.
+    #[test]
+    fn each_message_that_arrived_is_an_instance_with_its_receiver() {
+        let mut s = settings();
+        s.v2x.channel.loss = LossModel::Independent { probability: 0.0 };
+        let poses = [
+            Pose2::new(Vec2::new(0.0, 1.0), 0.3),
+            Pose2::new(Vec2::new(40.0, 2.0), 3.0),
+        ];
+        let mut r = Receptions::default();
+        let hits = u64::from(s.v2x.tracker.confirm_hits);
+        let mut last = None;
+        // The tracks are confirmed and sent at step `hits - 1` (and not
+        // again while they stand still): their messages arrive at `hits`.
+        for step in 0..=hits {
+            let vehicles = [
+                vehicle_side("cv0", poses[0], &OBJECTS, step),
+                vehicle_side("cv1", poses[1], &OBJECTS, step),
+            ];
+            let sample = step == hits;
+            let (sides, pairs) = r
+                .step(&s, &frame(&OBJECTS, step), &vehicles, sample)
+                .unwrap();
+            if !sample {
+                assert!(sides.is_empty() && pairs.is_empty());
+            }
+            last = Some((sides, pairs));
+        }
+        let (sides, pairs) = last.unwrap();
+        let ids: Vec<&str> = sides.iter().map(InstanceSide::id).collect();
+        assert_eq!(ids, ["cv0", "cv1 -> cv0", "cv1", "cv0 -> cv1"]);
+        assert_eq!(pairs, [(0, 1), (3, 2)]);
+        for (a, b) in pairs {
+            assert!(sides[a].id() < sides[b].id());
+        }
+        assert_eq!(sides[0].sensed.observation.detections.len(), 3);
+        assert_eq!(sides[0].source, ViewSource::Vehicle("cv0".into()));
+    }
+}

@@ -84,3 +84,116 @@ impl PoseCorrection {
         self.offset = Some(Pose2::new(t, old.heading_rad() + w * turn));
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+    use crate::geometry::{Cov2, Vec2};
+    use crate::pipeline::tests::{appearance, settings};
+    use crate::sensor::{Detection, PoseNoiseLabel, PoseNoiseLevel};
+
+    /// No correction before the first estimate; a full step lands on the
+    /// target, half a step halfway, turning the shorter way.
+    #[test]
+    fn the_correction_moves_toward_its_target_by_the_smoothing() {
+        let raw = Pose2::new(Vec2::new(4.0, 2.0), 0.5);
+        let mut c = PoseCorrection::default();
+        assert!(c.apply(&raw).is_none());
+        c.smooth_toward(&Pose2::new(Vec2::new(2.0, -2.0), 3.0), 0.5);
+        let d = c.apply(&Pose2::identity()).unwrap();
+        assert!((d.position_m() - Vec2::new(1.0, -1.0)).norm() < 1e-12);
+        assert!((d.heading_rad() - 1.5).abs() < 1e-12);
+        c.smooth_toward(&Pose2::new(Vec2::new(2.0, -2.0), 3.0), 1.0);
+        let d = c.apply(&Pose2::identity()).unwrap();
+        assert!((d.position_m() - Vec2::new(2.0, -2.0)).norm() < 1e-12);
+        assert!((d.heading_rad() - 3.0).abs() < 1e-12);
+        let moved = c.apply(&raw).unwrap();
+        assert!((moved.position_m() - Vec2::new(6.0, 0.0)).norm() < 1e-12);
+        // From 3.0 halfway to -3.0 the shorter way is through pi, not 0.
+        c.smooth_toward(&Pose2::new(Vec2::new(2.0, -2.0), -3.0), 0.5);
+        let d = c.apply(&Pose2::identity()).unwrap();
+        assert!(
+            (d.heading_rad().cos() + 1.0).abs() < 1e-9,
+            "{}",
+            d.heading_rad()
+        );
+    }
+
+    /// Pairs that agree on where the sender really is move the correction
+    /// there: the corrected reported pose is the true one; with the
+    /// smoothing at 0 nothing moves.
+    #[test]
+    fn aligned_pairs_correct_the_senders_reported_pose() {
+        let mut s = settings();
+        s.v2x.association.pose_smoothing = 1.0;
+        let gps = PoseNoiseLevel {
+            label: PoseNoiseLabel::Gps,
+            position_sigma_m: 1.2,
+            heading_sigma_rad: 0.01,
+        };
+        let mut still = s.clone();
+        still.v2x.association.pose_smoothing = 0.0;
+        let truth = BTreeMap::new();
+        let ctx = Context {
+            settings: &s,
+            v: &s.v2x,
+            levels: std::slice::from_ref(&gps),
+            step: 0,
+            time_s: 0.0,
+            truth: &truth,
+        };
+        let sender = Pose2::new(Vec2::new(30.0, 5.0), 2.9);
+        let raw = Pose2::new(Vec2::new(31.0, 4.2), 2.92);
+        let objects = [
+            (10.0, 2.0),
+            (15.0, -6.0),
+            (22.0, 9.0),
+            (5.0, 12.0),
+            (18.0, 3.0),
+        ];
+        let detection = |p: Vec2| Detection {
+            position_m: p,
+            cov_m2: Cov2::identity() * 1e-4,
+            appearance: appearance("a"),
+        };
+        let views = Views {
+            ego: objects
+                .iter()
+                .map(|&(x, y)| detection(Vec2::new(x, y)))
+                .collect(),
+            ego_ids: (0..5).collect(),
+            ego_truth: vec![None; 5],
+            peer: objects
+                .iter()
+                .map(|&(x, y)| detection(sender.to_body(&Vec2::new(x, y))))
+                .collect(),
+            peer_ids: (10..15).collect(),
+            peer_truth: vec![None; 5],
+            peer_reported: raw,
+        };
+        let pairs: Vec<(u64, u64)> = (0..5).map(|k| (k, k + 10)).collect();
+        let mut c = PoseCorrection::default();
+        c.update(&ctx, &Pose2::identity(), &views, &pairs[..2], &raw);
+        assert!(
+            c.apply(&raw).is_none(),
+            "fewer pairs than align_min_matches"
+        );
+        c.update(&ctx, &Pose2::identity(), &views, &pairs, &raw);
+        let corrected = c.apply(&raw).unwrap();
+        let (dp, dh) = (
+            (corrected.position_m() - sender.position_m()).norm(),
+            wrap_angle(corrected.heading_rad() - sender.heading_rad()).abs(),
+        );
+        assert!(dp < 0.01 && dh < 1e-3, "{dp} m, {dh} rad");
+        let ctx = Context {
+            settings: &still,
+            v: &still.v2x,
+            ..ctx
+        };
+        let mut off = PoseCorrection::default();
+        off.update(&ctx, &Pose2::identity(), &views, &pairs, &raw);
+        assert!(off.apply(&raw).is_none());
+    }
+}

@@ -29,21 +29,7 @@ pub fn run(
 ) -> Result<RunResults, RunError> {
     let started = Instant::now();
     let runners = runners(settings, &settings.matching.methods)?;
-    let mut results = RunResults::default();
-    // Every row is there from the start: a run without any instance has
-    // them too (`n_instances` 0, no metric), so it is a complete run.
-    for &method in &settings.matching.methods {
-        for level in &settings.pose_noise {
-            for &fusion in &settings.fusion.variants {
-                let key = RowKey {
-                    method,
-                    pose_noise: level.label,
-                    fusion,
-                };
-                results.summary.rows.entry(key).or_default();
-            }
-        }
-    }
+    let mut results = empty_results(settings);
     let mut rows = Vec::new();
     let stats = evaluate_frames(
         settings,
@@ -63,6 +49,26 @@ pub fn run(
     results.objects_read = stats.objects_read;
     results.wall_time = started.elapsed();
     Ok(results)
+}
+
+/// The results before any instance: every row is there from the start (a
+/// run without any instance has them too, `n_instances` 0 and no metric,
+/// so it is a complete run).
+fn empty_results(settings: &Settings) -> RunResults {
+    let mut results = RunResults::default();
+    for &method in &settings.matching.methods {
+        for level in &settings.pose_noise {
+            for &fusion in &settings.fusion.variants {
+                let key = RowKey {
+                    method,
+                    pose_noise: level.label,
+                    fusion,
+                };
+                results.summary.rows.entry(key).or_default();
+            }
+        }
+    }
+    results
 }
 
 /// Adds one method's evaluation of a frame at one level to `results`, and
@@ -102,4 +108,58 @@ fn record_frame(
     results
         .summary
         .record_consistency(f.method, pose_noise, f.consistency);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::evaluate::Runner;
+    use crate::pipeline::frames::evaluate_step;
+    use crate::pipeline::tests::{settings, two_vehicle_step};
+
+    /// Before any instance, the summary has a row per method, level and
+    /// fusion variant, each without instances.
+    #[test]
+    fn a_run_starts_with_every_row_and_no_instance() {
+        let s = settings();
+        let r = empty_results(&s);
+        let n = s.matching.methods.len() * s.pose_noise.len() * s.fusion.variants.len();
+        assert_eq!(r.summary.rows.len(), n);
+        assert!(r.summary.rows.values().all(|a| a.instances == 0));
+    }
+
+    /// A frame's evaluation counts each instance once per fusion variant,
+    /// and each per-object row names its instance, step and time.
+    #[test]
+    fn a_frame_is_counted_per_fusion_variant_and_its_rows_name_their_instance() {
+        let s = settings();
+        let step = two_vehicle_step(9);
+        let level = &s.pose_noise[0];
+        let f = evaluate_step(&s, &step, &Runner::Oracle).remove(0);
+        let mut results = empty_results(&s);
+        let mut rows = Vec::new();
+        record_frame(&mut results, &mut rows, &step.instances(), level.label, f);
+        for &fusion in &s.fusion.variants {
+            let key = RowKey {
+                method: crate::matching::Method::Oracle,
+                pose_noise: level.label,
+                fusion,
+            };
+            let acc = &results.summary.rows[&key];
+            assert_eq!((acc.instances, acc.counts.correct), (1, 3));
+            let n = rows.iter().filter(|r| r.key == key).count();
+            // Both vehicles' objects: four each.
+            assert_eq!(n, 8, "{key:?}");
+        }
+        assert!(
+            rows.iter()
+                .all(|r| (r.instance, r.step, r.time_s) == (9, 3, 0.3))
+        );
+        assert!(
+            results
+                .summary
+                .consistency
+                .contains_key(&(crate::matching::Method::Oracle, level.label))
+        );
+    }
 }

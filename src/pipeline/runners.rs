@@ -117,3 +117,79 @@ const NO_CHOICE: DeepChoice = DeepChoice {
 pub fn runners(settings: &Settings, methods: &[Method]) -> Result<Vec<Runner>, RunError> {
     methods.iter().map(|&m| runner(settings, m)).collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::tests::settings;
+
+    /// Settings whose models folder holds nothing.
+    fn without_models(dir: &tempfile::TempDir) -> Settings {
+        let mut s = settings();
+        s.matching.models_dir = dir.path().to_owned();
+        s
+    }
+
+    /// The oracle is no matcher; the methods that are not deep build
+    /// without weights; a deep method without weights is an error that
+    /// names its file.
+    #[test]
+    fn only_deep_methods_need_weights() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = without_models(&dir);
+        assert!(matches!(runner(&s, Method::Oracle), Ok(Runner::Oracle)));
+        for m in [Method::GpsHungarian, Method::GpsAppHungarian, Method::Mogm] {
+            assert!(matches!(runner(&s, m), Ok(Runner::Matcher(_))), "{m:?}");
+        }
+        match runner(&s, Method::Ours) {
+            Err(RunError::Weights(e)) => assert_eq!(e.method, "ours"),
+            Err(e) => panic!("{e}"),
+            Ok(_) => panic!("ours built without weights"),
+        }
+        let all = runners(&s, &[Method::Oracle, Method::GpsHungarian]).unwrap();
+        assert_eq!(all.len(), 2);
+    }
+
+    /// A configured lambda and decision rule are used as they are (the
+    /// temperature 1 without a record); a validated one must be recorded.
+    #[test]
+    fn a_deep_method_decides_as_configured_or_as_validated() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut s = without_models(&dir);
+        s.matching.lambda = LambdaChoice::Fixed(0.4);
+        s.matching.decision = DecisionChoice::Fixed(Decision::Mutual);
+        let c = choice_for(&s, Method::Ours).unwrap();
+        assert_eq!(
+            (c.lambda, c.decision, c.temperature),
+            (0.4, Decision::Mutual, 1.0)
+        );
+        s.matching.lambda = LambdaChoice::Validated;
+        assert!(matches!(
+            choice_for(&s, Method::Ours),
+            Err(RunError::Weights(_))
+        ));
+    }
+
+    /// Only deep methods have a choice; the shipped models record one for
+    /// each of theirs, a lambda in [0, 1] or none (infinite).
+    #[test]
+    fn the_shipped_models_record_each_deep_methods_choice() {
+        let s = settings();
+        let methods = [
+            Method::Ours,
+            Method::GpsHungarian,
+            Method::Dgmc,
+            Method::Oracle,
+        ];
+        let c = choices(&s, &methods).unwrap();
+        assert_eq!(
+            c.keys().copied().collect::<Vec<_>>(),
+            [Method::Ours, Method::Dgmc]
+        );
+        let l = lambdas(&s, &methods).unwrap();
+        assert!(
+            l.values()
+                .all(|&v| (0.0..=1.0).contains(&v) || v == f64::INFINITY)
+        );
+    }
+}

@@ -55,6 +55,24 @@ pub struct Step {
 }
 
 impl Step {
+    /// A step of `frame` whose instances are `pairs` of `sides` (indices,
+    /// ordered by id), the first numbered `first_index`.
+    pub(super) fn new(
+        scene: Arc<StaticScene>,
+        frame: TrafficFrame,
+        sides: Vec<InstanceSide>,
+        pairs: Vec<(usize, usize)>,
+        first_index: usize,
+    ) -> Step {
+        Step {
+            scene,
+            frame,
+            sides,
+            pairs,
+            first_index,
+        }
+    }
+
     /// The step's instances, in order.
     pub fn instances(&self) -> Vec<Instance<'_>> {
         self.pairs
@@ -113,13 +131,13 @@ pub fn simulate_steps(
             && !pairs.is_empty()
         {
             let n = pairs.len();
-            on_step(Step {
-                scene: Arc::clone(&scene),
+            on_step(Step::new(
+                Arc::clone(&scene),
                 frame,
                 sides,
                 pairs,
-                first_index: stats.n_instances,
-            })?;
+                stats.n_instances,
+            ))?;
             stats.n_instances += n;
             next_sample_s = time_s + sc.sample_every_s;
         }
@@ -220,4 +238,100 @@ pub(super) fn sense(
     }
     sides.sort_by(|a, b| a.id().cmp(b.id()));
     Ok(sides)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Pose2;
+    use crate::pipeline::tests::{settings, vehicle_side};
+    use crate::traffic::{ObjectClass, TrafficObject};
+
+    fn car(id: &str, x: f64, y: f64) -> TrafficObject {
+        TrafficObject {
+            id: id.into(),
+            class: ObjectClass::Car,
+            pose: Pose2::new(Vec2::new(x, y), 0.0),
+            length_m: 4.6,
+            width_m: 1.8,
+            height_m: 1.5,
+            colour_rgb: [200, 10, 10],
+            speed_mps: 5.0,
+        }
+    }
+
+    /// Two sides are an instance when both detect a common object and
+    /// their link allows it; a pair is listed once, lower index first.
+    #[test]
+    fn linked_sides_that_share_an_object_are_instances() {
+        let at = |x: f64| Pose2::new(Vec2::new(x, 0.0), 0.0);
+        let sides = [
+            vehicle_side("cv0", at(0.0), &[("a", Vec2::new(10.0, 0.0))], 1),
+            vehicle_side("cv1", at(50.0), &[("a", Vec2::new(10.0, 0.0))], 1),
+            vehicle_side("cv2", at(60.0), &[("b", Vec2::new(70.0, 0.0))], 1),
+            vehicle_side("cv3", at(65.0), &[("b", Vec2::new(70.0, 0.0))], 1),
+        ];
+        let all = LinkSettings::default();
+        assert_eq!(instance_pairs(&sides, &all), [(0, 1), (2, 3)]);
+        let near = LinkSettings {
+            comm_range_m: Some(20.0),
+            max_peers: None,
+        };
+        assert_eq!(instance_pairs(&sides, &near), [(2, 3)]);
+    }
+
+    /// Named connected vehicles that never appeared are listed in the
+    /// error; with a penetration nobody is named.
+    #[test]
+    fn connected_vehicles_named_but_never_seen_are_an_error() {
+        let s = settings();
+        let mut seen = BTreeSet::new();
+        let frame = TrafficFrame {
+            step: 0,
+            time_s: 0.0,
+            objects: vec![car("cv0", 0.0, 0.0), car("other", 5.0, 0.0)],
+        };
+        note_connected(&s, &frame, &mut seen);
+        assert_eq!(seen.iter().collect::<Vec<_>>(), ["cv0"]);
+        let ids = ConnectedSelection::Ids(vec!["cv0".into(), "cv1".into()]);
+        match check_connected_appeared(&ids, &seen) {
+            Err(RunError::MissingConnectedVehicles(m)) => assert_eq!(m, ["cv1"]),
+            other => panic!("{other:?}"),
+        }
+        seen.insert("cv1".into());
+        assert!(check_connected_appeared(&ids, &seen).is_ok());
+        let share = ConnectedSelection::Penetration(0.5);
+        assert!(check_connected_appeared(&share, &BTreeSet::new()).is_ok());
+    }
+
+    /// Only connected vehicles within the radius of the junction sense;
+    /// their sides are sorted by id and carry their own node.
+    #[test]
+    fn the_connected_vehicles_near_the_junction_sense_in_id_order() {
+        let s = settings();
+        let scene = StaticScene {
+            junction_id: "C".into(),
+            junction_position_m: Vec2::zeros(),
+            buildings: Vec::new(),
+            lanes: Vec::new(),
+        };
+        let far = s.scenario.radius_m + 10.0;
+        let frame = TrafficFrame {
+            step: 4,
+            time_s: 0.4,
+            objects: vec![
+                car("cv1", 5.0, 0.0),
+                car("x", 15.0, 0.0),
+                car("cv0", -20.0, 3.5),
+                car("y", far, 0.0),
+            ],
+        };
+        let sides = sense(&s, &scene, &frame).unwrap();
+        let ids: Vec<&str> = sides.iter().map(InstanceSide::id).collect();
+        assert_eq!(ids, ["cv0", "cv1"]);
+        assert!(sides.iter().all(|e| e.own_node().is_some()));
+        let mut none = s.clone();
+        none.scenario.radius_m = 1.0;
+        assert!(sense(&none, &scene, &frame).unwrap().is_empty());
+    }
 }

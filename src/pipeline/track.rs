@@ -151,3 +151,77 @@ impl Tracking {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Pose2, Vec2};
+    use crate::matching::Method;
+    use crate::pipeline::tests::{centres, context, settings, vehicle_side};
+    use crate::sensor::PoseNoiseLabel;
+    use crate::v2x::channel::LossModel;
+
+    /// `coid track` needs a matching method and a configured level, and
+    /// says which setting is wrong.
+    #[test]
+    fn the_matcher_and_level_must_be_usable() {
+        let mut s = settings();
+        assert_eq!(track_level(&s).unwrap().label, s.v2x.pose_noise);
+        assert!(frame_matcher(&s).is_ok());
+        s.v2x.matcher = Method::Oracle;
+        let e = frame_matcher(&s).err().unwrap().to_string();
+        assert!(e.contains("[v2x] matcher"), "{e}");
+        s.pose_noise.retain(|l| l.label != PoseNoiseLabel::Gps);
+        s.v2x.pose_noise = PoseNoiseLabel::Gps;
+        let e = track_level(&s).unwrap_err().to_string();
+        assert!(e.contains("pose_noise = \"gps\""), "{e}");
+    }
+
+    /// Two vehicles that see the same objects, over a lossless channel:
+    /// every message is received, each receiver associates the other's
+    /// objects with its own tracks, and the rows and counts add up.
+    #[test]
+    fn two_vehicles_that_see_the_same_objects_associate_them() {
+        let mut s = settings();
+        s.v2x.channel.loss = LossModel::Independent { probability: 0.0 };
+        let objects = [
+            ("a", Vec2::new(12.0, 3.0)),
+            ("b", Vec2::new(18.0, -4.0)),
+            ("c", Vec2::new(25.0, 8.0)),
+        ];
+        let truth = centres(&objects);
+        let level = track_level(&s).unwrap();
+        let matcher = frame_matcher(&s).unwrap();
+        let mut tracking = Tracking::default();
+        let poses = [
+            Pose2::new(Vec2::new(0.0, 1.0), 0.3),
+            Pose2::new(Vec2::new(40.0, 2.0), 3.0),
+        ];
+        let steps = 20;
+        for step in 0..steps {
+            let sides = [
+                vehicle_side("cv0", poses[0], &objects, step),
+                vehicle_side("cv1", poses[1], &objects, step),
+            ];
+            let ctx = Context {
+                levels: std::slice::from_ref(&level),
+                ..context(&s, &truth, step, step as f64 * 0.1)
+            };
+            tracking.step(&ctx, &sides, matcher.as_ref()).unwrap();
+        }
+        let r = tracking.finish();
+        let ids: Vec<&str> = r.vehicles.iter().map(|v| v.ego_id.as_str()).collect();
+        assert_eq!(ids, ["cv0", "cv1"]);
+        assert!(r.vehicles.iter().all(|v| v.steps == steps && v.lost == 0));
+        let sent: u64 = r.vehicles.iter().map(|v| v.delivered).sum();
+        // Each message arrives one step later; the last ones are in flight.
+        assert_eq!(r.over_time.receptions, sent - 2);
+        assert_eq!(r.over_time.pairs, 6, "three objects, both ways");
+        assert_eq!(r.over_time.pairs_found, 6);
+        assert_eq!(
+            r.over_time.over_time.correct,
+            r.over_time.over_time.identified
+        );
+        assert_eq!(r.over_time.switches, 0);
+    }
+}

@@ -250,3 +250,99 @@ impl ConnectedVehicle {
         self.row
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::tests::{centres, context, settings, vehicle_side};
+
+    fn pose() -> Pose2 {
+        Pose2::new(Vec2::new(10.0, 5.0), 0.5)
+    }
+
+    fn seen() -> [(&'static str, Vec2); 2] {
+        [("a", Vec2::new(30.0, 12.0)), ("b", Vec2::new(22.0, 20.0))]
+    }
+
+    /// Steps a vehicle that sees `seen()` still for `n` steps of 0.1 s;
+    /// returns it and the messages it generated.
+    fn stepped(n: u64) -> (ConnectedVehicle, Vec<Sent>) {
+        let s = settings();
+        let truth = centres(&seen());
+        let mut v = ConnectedVehicle::new("cv0", &s.v2x);
+        let mut sent = Vec::new();
+        for step in 0..n {
+            let ctx = context(&s, &truth, step, step as f64 * 0.1);
+            let side = vehicle_side("cv0", pose(), &seen(), step);
+            sent.extend(v.step(&ctx, &side));
+        }
+        (v, sent)
+    }
+
+    /// Tracks are reported once confirmed (`confirm_hits`), where their
+    /// objects are (body frame), labelled with them.
+    #[test]
+    fn confirmed_tracks_are_reported_where_their_objects_are() {
+        let hits = u64::from(settings().v2x.tracker.confirm_hits);
+        let (v, _) = stepped(hits - 1);
+        assert_eq!(v.reported_tracks().count(), 0);
+        let (v, _) = stepped(hits);
+        let reported: Vec<(u64, Detection, &TrackLabel)> = v.reported_tracks().collect();
+        assert_eq!(reported.len(), 2);
+        for (id, d, label) in reported {
+            let object = seen()
+                .into_iter()
+                .find(|(o, _)| Some(*o) == label.truth.as_deref())
+                .unwrap();
+            assert!((pose().to_parent(&d.position_m) - object.1).norm() < 1e-6);
+            let (track, _) = v.track(id).unwrap();
+            assert!((track.position_m - object.1).norm() < 1e-6);
+            assert_eq!(v.label(id).unwrap().truth, label.truth);
+        }
+        assert_eq!(v.pose(), pose());
+    }
+
+    /// One GNSS pose per level, the truth at the level without noise.
+    #[test]
+    fn the_gnss_reports_a_pose_per_level() {
+        let s = settings();
+        let (v, sent) = stepped(2);
+        assert_eq!(v.reported_poses().len(), s.pose_noise.len());
+        let none = s.pose_noise.iter().position(|l| l.position_sigma_m == 0.0);
+        assert_eq!(v.reported_poses()[none.unwrap()], pose());
+        assert_eq!(sent[1].sender_reported, v.reported_poses());
+    }
+
+    /// A message is generated when one is due (10 Hz: every step); a
+    /// track goes in once confirmed (and not again while it stands
+    /// still), in the sender's body frame with its label, and the
+    /// vehicle's row counts steps, messages and objects.
+    #[test]
+    fn messages_carry_the_confirmed_tracks_in_the_senders_body_frame() {
+        let hits = u64::from(settings().v2x.tracker.confirm_hits);
+        let (v, sent) = stepped(hits + 2);
+        assert_eq!(sent.len() as u64, hits + 2);
+        let carrying: Vec<&Sent> = sent.iter().filter(|m| !m.objects.is_empty()).collect();
+        assert_eq!(carrying.len(), 1);
+        let first = carrying[0];
+        assert_eq!(first.sender, "cv0");
+        assert_eq!(first.generated_s, (hits - 1) as f64 * 0.1);
+        assert_eq!(first.sender_pose, pose());
+        assert!(first.sender_node.is_none());
+        assert_eq!((first.objects.len(), first.labels.len()), (2, 2));
+        for (o, label) in first.objects.iter().zip(&first.labels) {
+            let (_, at) = seen()
+                .into_iter()
+                .find(|(id, _)| Some(*id) == label.truth.as_deref())
+                .unwrap();
+            assert!((pose().to_parent(&o.position_m) - at).norm() < 1e-6);
+            assert!(o.velocity_mps.norm() < 1e-6);
+        }
+        let objects: usize = sent.iter().map(|m| m.objects.len()).sum();
+        let row = v.finish();
+        assert_eq!((row.steps, row.messages), (hits + 2, hits + 2));
+        assert_eq!(row.objects_sent, objects as u64);
+        assert_eq!(row.tracks_started, 2);
+        assert_eq!(row.mot.ground_truth as u64, 2 * (hits + 2));
+    }
+}
