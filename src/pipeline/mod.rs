@@ -4,8 +4,13 @@
 //! settings. The only file this module reads is a deep method's weights,
 //! through `io`; it writes nothing (the caller writes the results).
 //!
-//! This file names the parts and holds what they share: the error, the
-//! progress and the counters of a simulation.
+//! This file names the parts, one job each, and holds what they share: the
+//! error, the progress and the counters of a simulation. A run: `instance`,
+//! `simulate`, `runners`, `frames` (and `parallel`), `run`. Over time
+//! (`coid track`, `[v2x] mode = "cpm"`): `context`, `message`, `vehicle`,
+//! `delivery`, `fleet`; a receiver's `peer` state with its
+//! `pair_history`, `relative_pose` and `fusion_over_time`; `track`, and
+//! `receptions` (messages as a run's instances).
 
 use std::time::Duration;
 
@@ -33,7 +38,7 @@ mod track;
 mod vehicle;
 
 pub use frames::{OnEval, evaluate_frames};
-pub use instance::{Instance, InstanceSide};
+pub use instance::{Instance, InstanceSide, ViewSource};
 pub use run::run;
 pub use runners::{choice_for, choices, lambdas, runner, runners};
 pub use simulate::{Step, simulate, simulate_frames, simulate_steps};
@@ -84,10 +89,11 @@ pub struct SimStats {
     pub objects_read: u64,
 }
 
-/// Fixtures the tests of this module's files share (plain values, no
-/// SUMO): the shipped settings, sides made by hand, a step's context.
 #[cfg(test)]
 mod tests {
+    //! Fixtures the tests of this module's files share (plain values, no
+    //! SUMO): the shipped settings, sides made by hand, a step's context.
+
     use std::collections::BTreeMap;
     use std::sync::Arc;
 
