@@ -84,28 +84,15 @@ impl Context<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::Pose2;
-    use crate::pipeline::tests::{context, settings};
-    use crate::traffic::{ObjectClass, TrafficObject};
+    use crate::pipeline::tests::{context, frame, settings};
 
     #[test]
     fn the_true_centres_are_every_road_users_position_by_id() {
-        let object = |id: &str, x: f64| TrafficObject {
-            id: id.into(),
-            class: ObjectClass::Car,
-            pose: Pose2::new(Vec2::new(x, 1.0), 0.5),
-            length_m: 4.6,
-            width_m: 1.8,
-            height_m: 1.5,
-            colour_rgb: [0, 0, 0],
-            speed_mps: 0.0,
-        };
-        let frame = TrafficFrame {
-            step: 0,
-            time_s: 0.0,
-            objects: vec![object("b", 2.0), object("a", -3.0)],
-        };
-        let c = true_centres(&frame);
+        let f = frame(
+            &[("b", Vec2::new(2.0, 1.0)), ("a", Vec2::new(-3.0, 1.0))],
+            0,
+        );
+        let c = true_centres(&f);
         assert_eq!(c.len(), 2);
         assert_eq!(
             (c["a"], c["b"]),

@@ -180,8 +180,7 @@ impl<'a> Instance<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pipeline::tests::vehicle_side;
-    use crate::traffic::TrafficObject;
+    use crate::pipeline::tests::{car, frame, scene, vehicle_side};
 
     fn pose() -> Pose2 {
         Pose2::new(Vec2::new(10.0, -4.0), 0.7)
@@ -242,17 +241,7 @@ mod tests {
     #[test]
     fn a_side_finds_its_own_node() {
         let mut side = vehicle_side("cv0", pose(), &seen(), 3);
-        let me = TrafficObject {
-            id: "cv0".into(),
-            class: crate::traffic::ObjectClass::Car,
-            pose: pose(),
-            length_m: 4.6,
-            width_m: 1.8,
-            height_m: 1.5,
-            colour_rgb: [1, 2, 3],
-            speed_mps: 8.0,
-        };
-        side.sensed.add_sender(&me);
+        side.sensed.add_sender(&car("cv0", pose()));
         side.sensed
             .shuffle(&mut rng::stream(1, Purpose::NodeOrder, &[9]));
         let (d, t) = side.own_node().unwrap();
@@ -310,17 +299,7 @@ mod tests {
             &seen()[1..],
             3,
         );
-        let scene = StaticScene {
-            junction_id: "C".into(),
-            junction_position_m: Vec2::zeros(),
-            buildings: Vec::new(),
-            lanes: Vec::new(),
-        };
-        let frame = TrafficFrame {
-            step: 3,
-            time_s: 0.3,
-            objects: Vec::new(),
-        };
+        let (scene, frame) = (scene(), frame(&[], 3));
         let inst = Instance {
             index: 5,
             scene: &scene,

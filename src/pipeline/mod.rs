@@ -191,18 +191,13 @@ mod tests {
             vehicle_side("cv0", Pose2::new(Vec2::zeros(), 0.1), &seen0, 3),
             vehicle_side("cv1", Pose2::new(Vec2::new(40.0, 2.0), 3.0), &seen1, 3),
         ];
-        let scene = StaticScene {
-            junction_id: "C".into(),
-            junction_position_m: Vec2::zeros(),
-            buildings: Vec::new(),
-            lanes: Vec::new(),
-        };
-        let frame = TrafficFrame {
-            step: 3,
-            time_s: 0.3,
-            objects: Vec::new(),
-        };
-        Step::new(Arc::new(scene), frame, sides, vec![(0, 1)], first_index)
+        Step::new(
+            Arc::new(scene()),
+            frame(&[], 3),
+            sides,
+            vec![(0, 1)],
+            first_index,
+        )
     }
 
     /// An empty message from `sender`, generated at `generated_s` at the
@@ -219,25 +214,39 @@ mod tests {
         }
     }
 
+    /// A car `id` at `pose`, 5 m/s.
+    pub(super) fn car(id: &str, pose: Pose2) -> TrafficObject {
+        TrafficObject {
+            id: id.to_owned(),
+            class: ObjectClass::Car,
+            pose,
+            length_m: 4.6,
+            width_m: 1.8,
+            height_m: 1.5,
+            colour_rgb: [200, 10, 10],
+            speed_mps: 5.0,
+        }
+    }
+
     /// A frame of step `step` (0.1 s each) with the road users `seen`.
     pub(super) fn frame(seen: &Seen, step: u64) -> TrafficFrame {
-        let objects = seen
-            .iter()
-            .map(|(id, p)| TrafficObject {
-                id: (*id).to_owned(),
-                class: ObjectClass::Car,
-                pose: Pose2::new(*p, 0.0),
-                length_m: 4.5,
-                width_m: 1.8,
-                height_m: 1.5,
-                colour_rgb: [90, 90, 90],
-                speed_mps: 0.0,
-            })
-            .collect();
         TrafficFrame {
             step,
             time_s: step as f64 * 0.1,
-            objects,
+            objects: seen
+                .iter()
+                .map(|(id, p)| car(id, Pose2::new(*p, 0.0)))
+                .collect(),
+        }
+    }
+
+    /// A junction at the origin, without buildings or lanes.
+    pub(super) fn scene() -> StaticScene {
+        StaticScene {
+            junction_id: "C".into(),
+            junction_position_m: Vec2::zeros(),
+            buildings: Vec::new(),
+            lanes: Vec::new(),
         }
     }
 

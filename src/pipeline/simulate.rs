@@ -244,20 +244,10 @@ pub(super) fn sense(
 mod tests {
     use super::*;
     use crate::geometry::Pose2;
-    use crate::pipeline::tests::{settings, vehicle_side};
-    use crate::traffic::{ObjectClass, TrafficObject};
+    use crate::pipeline::tests::{self as fixtures, scene, settings, vehicle_side};
 
-    fn car(id: &str, x: f64, y: f64) -> TrafficObject {
-        TrafficObject {
-            id: id.into(),
-            class: ObjectClass::Car,
-            pose: Pose2::new(Vec2::new(x, y), 0.0),
-            length_m: 4.6,
-            width_m: 1.8,
-            height_m: 1.5,
-            colour_rgb: [200, 10, 10],
-            speed_mps: 5.0,
-        }
+    fn car(id: &str, x: f64, y: f64) -> crate::traffic::TrafficObject {
+        fixtures::car(id, Pose2::new(Vec2::new(x, y), 0.0))
     }
 
     /// Two sides are an instance when both detect a common object and
@@ -309,12 +299,7 @@ mod tests {
     #[test]
     fn the_connected_vehicles_near_the_junction_sense_in_id_order() {
         let s = settings();
-        let scene = StaticScene {
-            junction_id: "C".into(),
-            junction_position_m: Vec2::zeros(),
-            buildings: Vec::new(),
-            lanes: Vec::new(),
-        };
+        let scene = scene();
         let far = s.scenario.radius_m + 10.0;
         let frame = TrafficFrame {
             step: 4,
