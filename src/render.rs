@@ -51,6 +51,9 @@ pub struct SceneView<'a> {
     /// them (detections are placed in the world with each vehicle's true
     /// pose: what it measured about its surroundings).
     pub egos: [(&'a Observation, &'a ObservationTruth); 2],
+    /// The vehicle behind each of them (a message's sender), by its id in
+    /// `frame`: whose frustums are drawn and whose box is outlined.
+    pub vehicles: [&'a str; 2],
     pub matches: &'a [Correspondence],
     pub caption: String,
     /// Half the width of the square window around the junction, metres.
@@ -144,12 +147,8 @@ fn draw_ground<DB: DrawingBackend>(
 
 /// Each connected vehicle's camera frustums.
 fn draw_frustums<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> DrawResult<DB> {
-    for (k, (ego, _)) in view.egos.iter().enumerate() {
-        let Some(obj) = view
-            .frame
-            .find(ego.vehicle_id())
-            .map(|i| &view.frame.objects[i])
-        else {
+    for (k, vehicle) in view.vehicles.iter().enumerate() {
+        let Some(obj) = view.frame.find(vehicle).map(|i| &view.frame.objects[i]) else {
             continue;
         };
         for &yaw in &view.camera.yaw_offsets_rad {
@@ -175,7 +174,7 @@ fn draw_road_users<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> Dra
         let corners: Vec<(f64, f64)> = o.footprint().corners().iter().map(pt).collect();
         let fill = RGBColor(o.colour_rgb[0], o.colour_rgb[1], o.colour_rgb[2]);
         area.draw(&Polygon::new(corners.clone(), fill.filled()))?;
-        let ego = view.egos.iter().position(|(g, _)| g.vehicle_id() == o.id);
+        let ego = view.vehicles.iter().position(|v| *v == o.id);
         let outline = match ego {
             Some(k) => EGO_COLOURS[k].stroke_width(3),
             None => BLACK.stroke_width(1),
@@ -665,6 +664,7 @@ mod tests {
             frame: &frame,
             camera: &camera,
             egos: [(&obs, &truth), (&other, &other_truth)],
+            vehicles: ["cv0", "cv1"],
             matches: &[],
             caption: "empty".into(),
             half_window_m: 80.0,

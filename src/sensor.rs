@@ -232,24 +232,6 @@ pub struct ObservationTruth {
     pub detections: Vec<DetectionTruth>,
 }
 
-/// Between a message side's sender and receiver in its id.
-const MESSAGE_ID_SEPARATOR: &str = " -> ";
-
-impl Observation {
-    /// The id of an instance's side that is a message (`[v2x] mode =
-    /// "cpm"`): `<sender> -> <receiver>`.
-    pub fn message_id(sender: &str, receiver: &str) -> String {
-        format!("{sender}{MESSAGE_ID_SEPARATOR}{receiver}")
-    }
-
-    /// The vehicle whose view this is: the ego, or a message's sender.
-    pub fn vehicle_id(&self) -> &str {
-        self.ego_id
-            .split_once(MESSAGE_ID_SEPARATOR)
-            .map_or(self.ego_id.as_str(), |(sender, _)| sender)
-    }
-}
-
 impl ObservationTruth {
     /// The true object id behind detection `k` (`None`: false positive).
     pub fn object_id(&self, k: usize) -> Option<&str> {
@@ -703,20 +685,6 @@ mod tests {
     use crate::geometry::Polygon;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
-
-    /// A message side's id names its sender and receiver; the vehicle
-    /// behind it is the sender, and an ego's own side is itself.
-    #[test]
-    fn a_message_side_is_its_senders_view() {
-        let side = |id: String| Observation {
-            ego_id: id,
-            detections: Vec::new(),
-        };
-        let m = side(Observation::message_id("cv0", "cv1"));
-        assert_eq!(m.ego_id, "cv0 -> cv1");
-        assert_eq!(m.vehicle_id(), "cv0");
-        assert_eq!(side("cv1".into()).vehicle_id(), "cv1");
-    }
 
     fn car(id: &str, x: f64, y: f64, heading: f64) -> TrafficObject {
         TrafficObject {

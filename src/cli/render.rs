@@ -96,6 +96,7 @@ fn draw(
         frame: inst.frame,
         camera: &settings.camera,
         egos: [(a.obs, a.truth), (b.obs, b.truth)],
+        vehicles: [inst.a.source.vehicle(), inst.b.source.vehicle()],
         matches: &e.identification.matches,
         caption: format!(
             "{} @ {} pose noise, t = {:.1} s: {} vs {}, precision {}, recall {}",

@@ -1,0 +1,323 @@
+//! An instance and its two sides: [`InstanceSide`], one side (a connected
+//! vehicle's sensing, or with `[v2x] mode = "cpm"` a receiver's reported
+//! tracks or a message it received) with its graph and GNSS-reported
+//! poses, [`ViewSource`], whose view a side is, and [`Instance`], two sides
+//! of a step, handed out at a pose-noise level.
+
+use std::fmt;
+
+use super::RunError;
+use crate::evaluate::{PairAtLevel, Side};
+use crate::geometry::{Pose2, Vec2};
+use crate::graph::SceneGraph;
+use crate::matching::MatchView;
+use crate::rng::{self, Purpose};
+use crate::sensor::{self, Detection, DetectionTruth, PoseNoiseLabel, PoseNoiseLevel, Sensed};
+use crate::traffic::{StaticScene, TrafficFrame};
+
+/// Whose view one side of an instance is. Its text ([`fmt::Display`]) is
+/// the side's id wherever a side is named (the observation's `ego_id`,
+/// hence the exports' and tables' ids): the vehicle's id, or `<sender> ->
+/// <receiver>` for a message.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ViewSource {
+    /// A connected vehicle's own view: what it sensed at the step, or with
+    /// `[v2x] mode = "cpm"` its reported tracks.
+    Vehicle(String),
+    /// A message `sender` sent and `receiver` received (`[v2x] mode =
+    /// "cpm"`).
+    Message { sender: String, receiver: String },
+}
+
+impl ViewSource {
+    /// The vehicle whose view this is: the vehicle, or the message's
+    /// sender.
+    pub fn vehicle(&self) -> &str {
+        match self {
+            ViewSource::Vehicle(id) => id,
+            ViewSource::Message { sender, .. } => sender,
+        }
+    }
+}
+
+impl fmt::Display for ViewSource {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ViewSource::Vehicle(id) => f.write_str(id),
+            ViewSource::Message { sender, receiver } => write!(f, "{sender} -> {receiver}"),
+        }
+    }
+}
+
+/// One side of an instance: a connected vehicle near the junction at one
+/// step, with what it sees; or, with `[v2x] mode = "cpm"`, one side of a
+/// reception: a receiver's reported tracks, or a message it received.
+pub struct InstanceSide {
+    /// Whose view this is.
+    pub source: ViewSource,
+    /// What the side holds; its observation's `ego_id` is the source's
+    /// text.
+    pub sensed: Sensed,
+    pub graph: SceneGraph,
+    /// The hash of the side's id text (a key of its random streams).
+    pub(super) id_hash: u64,
+    /// The vehicle's speed (m/s), forward.
+    pub(super) speed_mps: f64,
+    /// The GNSS-reported pose at every level, when it is carried over time
+    /// (`[v2x] mode = "cpm"`) instead of drawn afresh at each step.
+    reported: Option<Vec<(PoseNoiseLabel, Pose2)>>,
+}
+
+impl InstanceSide {
+    /// A side from what it holds, named by `source` (the observation's id
+    /// is set to its text here): its nodes listed in the order of the
+    /// `Purpose::NodeOrder` stream `order_keys` (no order may carry
+    /// labels), then its Delaunay graph.
+    pub(super) fn new(
+        source: ViewSource,
+        mut sensed: Sensed,
+        sensor_seed: u64,
+        order_keys: &[u64],
+        speed_mps: f64,
+        reported: Option<Vec<(PoseNoiseLabel, Pose2)>>,
+    ) -> Result<InstanceSide, RunError> {
+        sensed.observation.ego_id = source.to_string();
+        sensed.shuffle(&mut rng::stream(
+            sensor_seed,
+            Purpose::NodeOrder,
+            order_keys,
+        ));
+        let positions: Vec<Vec2> = sensed
+            .observation
+            .detections
+            .iter()
+            .map(|d| d.position_m)
+            .collect();
+        let graph = SceneGraph::delaunay(&positions)?;
+        let id_hash = rng::hash_str(&sensed.observation.ego_id);
+        Ok(InstanceSide {
+            source,
+            sensed,
+            graph,
+            id_hash,
+            speed_mps,
+            reported,
+        })
+    }
+
+    /// The side's own node, when it has one (the sender's self-report,
+    /// `[matching] sender_as_node`): its detection and truth.
+    pub(super) fn own_node(&self) -> Option<(Detection, DetectionTruth)> {
+        let k = self.sensed.truth.detections.iter().position(|d| d.sender)?;
+        Some((
+            self.sensed.observation.detections[k].clone(),
+            self.sensed.truth.detections[k].clone(),
+        ))
+    }
+
+    /// The side's id: its source's text.
+    pub fn id(&self) -> &str {
+        &self.sensed.observation.ego_id
+    }
+
+    /// The pose this vehicle's GPS reports at `step` at a noise level (its
+    /// own seeded stream per step, vehicle and level), or the one it
+    /// carries at that level.
+    pub fn reported_pose(&self, sensor_seed: u64, step: u64, level: &PoseNoiseLevel) -> Pose2 {
+        if let Some(carried) = &self.reported {
+            return carried
+                .iter()
+                .find(|(l, _)| *l == level.label)
+                .map(|(_, p)| *p)
+                .expect("a side carries a pose at every level of its run");
+        }
+        let mut s = rng::stream(
+            sensor_seed,
+            Purpose::PoseNoise,
+            &[step, self.id_hash, level.label.stream_code()],
+        );
+        sensor::reported_pose(&self.sensed.truth.ego_pose, level, &mut s)
+    }
+}
+
+/// One evaluation instance: a step and a pair of sides (connected vehicles
+/// near the junction, or a receiver and a message it received) that detect
+/// at least one common object.
+pub struct Instance<'a> {
+    /// Running index within the simulation.
+    pub index: usize,
+    pub scene: &'a StaticScene,
+    pub frame: &'a TrafficFrame,
+    /// The pair, ordered by id ([`InstanceSide::id`]).
+    pub a: &'a InstanceSide,
+    pub b: &'a InstanceSide,
+}
+
+impl<'a> Instance<'a> {
+    /// The instance at a pose-noise level: each vehicle's detections, graph
+    /// and GPS-reported pose, with the truth beside them.
+    pub fn at_level(&self, sensor_seed: u64, level: &PoseNoiseLevel) -> PairAtLevel<'a> {
+        let step = self.frame.step;
+        let side = |e: &'a InstanceSide| Side {
+            view: MatchView {
+                detections: &e.sensed.observation.detections,
+                graph: &e.graph,
+                pose_reported: e.reported_pose(sensor_seed, step, level),
+                pose_noise: *level,
+            },
+            obs: &e.sensed.observation,
+            truth: &e.sensed.truth,
+        };
+        PairAtLevel {
+            instance: self.index,
+            first: side(self.a),
+            second: side(self.b),
+            level: *level,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::tests::{car, frame, scene, vehicle_side};
+
+    fn pose() -> Pose2 {
+        Pose2::new(Vec2::new(10.0, -4.0), 0.7)
+    }
+
+    fn seen() -> Vec<(&'static str, Vec2)> {
+        vec![
+            ("a", Vec2::new(20.0, 0.0)),
+            ("b", Vec2::new(25.0, 6.0)),
+            ("c", Vec2::new(14.0, 9.0)),
+            ("d", Vec2::new(30.0, -3.0)),
+        ]
+    }
+
+    /// A vehicle's side is named by the vehicle, a message's by `<sender>
+    /// -> <receiver>` (what exports and tables write), and the vehicle
+    /// behind a message is its sender.
+    #[test]
+    fn a_source_reads_as_the_vehicle_or_sender_to_receiver() {
+        let v = ViewSource::Vehicle("cv1".into());
+        let m = ViewSource::Message {
+            sender: "cv0".into(),
+            receiver: "cv1".into(),
+        };
+        assert_eq!(v.to_string(), "cv1");
+        assert_eq!(m.to_string(), "cv0 -> cv1");
+        assert_eq!((v.vehicle(), m.vehicle()), ("cv1", "cv0"));
+    }
+
+    /// A new side takes its source's text as its id, shuffles its nodes
+    /// with their truths in step (each still where its object is), and
+    /// has one graph node per detection.
+    #[test]
+    fn a_new_side_is_named_by_its_source_and_keeps_each_node_with_its_truth() {
+        let side = vehicle_side("cv0", pose(), &seen(), 3);
+        assert_eq!(side.id(), "cv0");
+        assert_eq!(side.sensed.observation.ego_id, "cv0");
+        assert_eq!(side.graph.node_count(), 4);
+        let ids: Vec<&str> = (0..4)
+            .map(|k| side.sensed.truth.object_id(k).unwrap())
+            .collect();
+        assert_ne!(ids, ["a", "b", "c", "d"], "listed in SUMO's order");
+        for (d, t) in side
+            .sensed
+            .observation
+            .detections
+            .iter()
+            .zip(&side.sensed.truth.detections)
+        {
+            let world = pose().to_parent(&d.position_m);
+            assert!((world - t.position_m.unwrap()).norm() < 1e-9);
+        }
+        assert!(side.own_node().is_none());
+    }
+
+    /// A side's own node (the sender's self-report) is found among its
+    /// shuffled nodes.
+    #[test]
+    fn a_side_finds_its_own_node() {
+        let mut side = vehicle_side("cv0", pose(), &seen(), 3);
+        side.sensed.add_sender(&car("cv0", pose()));
+        side.sensed
+            .shuffle(&mut rng::stream(1, Purpose::NodeOrder, &[9]));
+        let (d, t) = side.own_node().unwrap();
+        assert!(t.sender && t.object_id.as_deref() == Some("cv0"));
+        assert_eq!(d.position_m, Vec2::zeros());
+    }
+
+    /// A pose drawn at a level comes from the side's stream for the step:
+    /// the same draw again, another at the next step, the truth at no
+    /// noise. A carried pose is returned as it was carried.
+    #[test]
+    fn a_reported_pose_is_drawn_per_step_or_carried() {
+        let side = vehicle_side("cv0", pose(), &seen(), 3);
+        let gps = PoseNoiseLevel {
+            label: PoseNoiseLabel::Gps,
+            position_sigma_m: 1.2,
+            heading_sigma_rad: 0.01,
+        };
+        let none = PoseNoiseLevel {
+            label: PoseNoiseLabel::None,
+            position_sigma_m: 0.0,
+            heading_sigma_rad: 0.0,
+        };
+        let p = side.reported_pose(7, 3, &gps);
+        assert_eq!(p, side.reported_pose(7, 3, &gps));
+        assert_ne!(p, side.reported_pose(7, 4, &gps));
+        assert!((p.position_m() - pose().position_m()).norm() > 1e-6);
+        assert_eq!(side.reported_pose(7, 3, &none), pose());
+        let carried = Pose2::new(Vec2::new(1.0, 2.0), 0.3);
+        let sensed = side.sensed.clone();
+        let side = InstanceSide::new(
+            ViewSource::Vehicle("cv0".into()),
+            sensed,
+            7,
+            &[1],
+            0.0,
+            Some(vec![
+                (PoseNoiseLabel::None, pose()),
+                (PoseNoiseLabel::Gps, carried),
+            ]),
+        )
+        .unwrap();
+        assert_eq!(side.reported_pose(7, 3, &gps), carried);
+        assert_eq!(side.reported_pose(7, 99, &gps), carried);
+    }
+
+    /// An instance at a level hands both sides' detections, graphs and
+    /// reported poses to the matcher's views, with their truths beside.
+    #[test]
+    fn an_instance_at_a_level_pairs_each_sides_view_with_its_truth() {
+        let a = vehicle_side("cv0", pose(), &seen(), 3);
+        let b = vehicle_side(
+            "cv1",
+            Pose2::new(Vec2::new(40.0, 0.0), 3.0),
+            &seen()[1..],
+            3,
+        );
+        let (scene, frame) = (scene(), frame(&[], 3));
+        let inst = Instance {
+            index: 5,
+            scene: &scene,
+            frame: &frame,
+            a: &a,
+            b: &b,
+        };
+        let level = PoseNoiseLevel {
+            label: PoseNoiseLabel::Rtk,
+            position_sigma_m: 0.2,
+            heading_sigma_rad: 0.003,
+        };
+        let pair = inst.at_level(7, &level);
+        assert_eq!(pair.instance, 5);
+        assert_eq!(pair.level, level);
+        assert_eq!(pair.first.obs.ego_id, "cv0");
+        assert_eq!(pair.second.view.detections.len(), 3);
+        assert_eq!(pair.second.truth.detections.len(), 3);
+        assert_eq!(pair.first.view.pose_reported, a.reported_pose(7, 3, &level));
+    }
+}

@@ -1,0 +1,322 @@
+//! The simulation loop: SUMO steps, the connected vehicles near the
+//! junction sense, and the pairs that are linked and share an object
+//! become instances (with `[v2x] mode = "cpm"`, the receptions do), handed
+//! out one at a time, per step, or as [`Step`]s that own them.
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+use std::time::Instant;
+
+use super::instance::{Instance, InstanceSide, ViewSource};
+use super::{Progress, RunError, SimStats, receptions};
+use crate::bridge::Sumo;
+use crate::config::Settings;
+use crate::evaluate;
+use crate::geometry::Vec2;
+use crate::rng::{self, Purpose};
+use crate::sensor::{self, ConnectedSelection, LinkSettings};
+use crate::traffic::{StaticScene, TrafficFrame};
+use crate::v2x::V2xMode;
+
+/// Runs the scenario of `settings` from start to end and hands every
+/// instance to `on_instance`, in a fixed order (by step, then by vehicle
+/// ids).
+pub fn simulate(
+    settings: &Settings,
+    progress: impl FnMut(Progress),
+    mut on_instance: impl FnMut(&Instance) -> Result<(), RunError>,
+) -> Result<SimStats, RunError> {
+    simulate_frames(settings, progress, |instances| {
+        instances.iter().try_for_each(&mut on_instance)
+    })
+}
+
+/// Runs the scenario of `settings` from start to end and hands the
+/// instances of every sampled step to `on_frame` at once (never an empty
+/// list), in a fixed order (by step, then by vehicle ids).
+pub fn simulate_frames(
+    settings: &Settings,
+    progress: impl FnMut(Progress),
+    mut on_frame: impl FnMut(&[Instance]) -> Result<(), RunError>,
+) -> Result<SimStats, RunError> {
+    simulate_steps(settings, progress, |step| on_frame(&step.instances()))
+}
+
+/// A sampled step with at least one instance, owning what its instances
+/// borrow, so that it can be evaluated on another thread.
+pub struct Step {
+    scene: Arc<StaticScene>,
+    frame: TrafficFrame,
+    sides: Vec<InstanceSide>,
+    /// The instances' sides, as indices into `sides` (ordered by id).
+    pairs: Vec<(usize, usize)>,
+    /// The running index of the step's first instance.
+    first_index: usize,
+}
+
+impl Step {
+    /// A step of `frame` whose instances are `pairs` of `sides` (indices,
+    /// ordered by id), the first numbered `first_index`.
+    pub(super) fn new(
+        scene: Arc<StaticScene>,
+        frame: TrafficFrame,
+        sides: Vec<InstanceSide>,
+        pairs: Vec<(usize, usize)>,
+        first_index: usize,
+    ) -> Step {
+        Step {
+            scene,
+            frame,
+            sides,
+            pairs,
+            first_index,
+        }
+    }
+
+    /// The step's instances, in order.
+    pub fn instances(&self) -> Vec<Instance<'_>> {
+        self.pairs
+            .iter()
+            .enumerate()
+            .map(|(k, &(a, b))| Instance {
+                index: self.first_index + k,
+                scene: &self.scene,
+                frame: &self.frame,
+                a: &self.sides[a],
+                b: &self.sides[b],
+            })
+            .collect()
+    }
+}
+
+/// Runs the scenario of `settings` from start to end and hands every
+/// sampled step that has an instance to `on_step`, in order.
+pub fn simulate_steps(
+    settings: &Settings,
+    mut progress: impl FnMut(Progress),
+    mut on_step: impl FnMut(Step) -> Result<(), RunError>,
+) -> Result<SimStats, RunError> {
+    let sc = &settings.scenario;
+    let cpm = settings.v2x.mode == V2xMode::Cpm;
+    let step_length_s = cpm.then_some(settings.v2x.step_length_s);
+    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, step_length_s)?;
+    let scene = Arc::new(sumo.static_scene(&sc.junction)?);
+    let mut receptions = cpm.then(receptions::Receptions::default);
+    let mut stats = SimStats::default();
+    let mut seen_connected: BTreeSet<String> = BTreeSet::new();
+    let mut next_sample_s = f64::NEG_INFINITY;
+    let eps = 1e-6;
+    while sumo.time_s() + eps < sc.end_s {
+        let t0 = Instant::now();
+        let frame = sumo.step()?;
+        stats.bridge_time += t0.elapsed();
+        stats.n_steps += 1;
+        stats.objects_read += frame.objects.len() as u64;
+        note_connected(settings, &frame, &mut seen_connected);
+        let time_s = frame.time_s;
+        let sample = time_s + eps >= next_sample_s;
+        let instances = match receptions.as_mut() {
+            Some(r) => {
+                let vehicles = sense(settings, &scene, &frame)?;
+                Some(r.step(settings, &frame, &vehicles, sample)?)
+            }
+            None if sample => {
+                let vehicles = sense(settings, &scene, &frame)?;
+                let pairs = instance_pairs(&vehicles, &settings.link);
+                Some((vehicles, pairs))
+            }
+            None => None,
+        };
+        if let Some((sides, pairs)) = instances
+            && !pairs.is_empty()
+        {
+            let n = pairs.len();
+            on_step(Step::new(
+                Arc::clone(&scene),
+                frame,
+                sides,
+                pairs,
+                stats.n_instances,
+            ))?;
+            stats.n_instances += n;
+            next_sample_s = time_s + sc.sample_every_s;
+        }
+        progress(Progress {
+            time_s,
+            end_s: sc.end_s,
+            instances: stats.n_instances,
+        });
+    }
+    stats.sim_end_s = sumo.time_s();
+    sumo.close()?;
+    check_connected_appeared(&settings.connected, &seen_connected)?;
+    Ok(stats)
+}
+
+/// The instances of one step: every pair of `sides` (sorted by id) whose
+/// cameras detect a common object and that `link` lets talk to each other.
+fn instance_pairs(sides: &[InstanceSide], link: &LinkSettings) -> Vec<(usize, usize)> {
+    let positions: Vec<Vec2> = sides
+        .iter()
+        .map(|e| e.sensed.truth.ego_pose.position_m())
+        .collect();
+    let links = link.links(&positions);
+    let mut out = Vec::new();
+    for (i, a) in sides.iter().enumerate() {
+        for (j, b) in sides.iter().enumerate().skip(i + 1) {
+            if links.linked(i, j)
+                && evaluate::share_a_detected_object(&a.sensed.truth, &b.sensed.truth)
+            {
+                out.push((i, j));
+            }
+        }
+    }
+    out
+}
+
+/// Adds the connected vehicles of `frame` to `seen`.
+pub(super) fn note_connected(
+    settings: &Settings,
+    frame: &TrafficFrame,
+    seen: &mut BTreeSet<String>,
+) {
+    for o in &frame.objects {
+        if settings.connected.carries_rig(settings.seeds.sensor, o) {
+            seen.insert(o.id.clone());
+        }
+    }
+}
+
+/// Named connected vehicles must all have appeared.
+pub(super) fn check_connected_appeared(
+    selection: &ConnectedSelection,
+    seen: &BTreeSet<String>,
+) -> Result<(), RunError> {
+    if let ConnectedSelection::Ids(ids) = selection {
+        let missing: Vec<String> = ids.iter().filter(|i| !seen.contains(*i)).cloned().collect();
+        if !missing.is_empty() {
+            return Err(RunError::MissingConnectedVehicles(missing));
+        }
+    }
+    Ok(())
+}
+
+/// Observations and graphs of the connected vehicles near the junction,
+/// sorted by vehicle id.
+pub(super) fn sense(
+    settings: &Settings,
+    scene: &StaticScene,
+    frame: &TrafficFrame,
+) -> Result<Vec<InstanceSide>, RunError> {
+    let mut sides: Vec<InstanceSide> = Vec::new();
+    for (k, o) in frame.objects.iter().enumerate() {
+        if !settings.connected.carries_rig(settings.seeds.sensor, o)
+            || (o.pose.position_m() - scene.junction_position_m).norm() > settings.scenario.radius_m
+        {
+            continue;
+        }
+        let id_hash = rng::hash_str(&o.id);
+        let mut stream = rng::stream(
+            settings.seeds.sensor,
+            Purpose::Detections,
+            &[frame.step, id_hash],
+        );
+        let (camera, sensor) = (&settings.camera, &settings.sensor);
+        let mut sensed = sensor::observe(frame, scene, k, camera, sensor, &mut stream);
+        if settings.matching.sender_as_node {
+            sensed.add_sender(o);
+        }
+        let keys = [frame.step, id_hash];
+        sides.push(InstanceSide::new(
+            ViewSource::Vehicle(o.id.clone()),
+            sensed,
+            settings.seeds.sensor,
+            &keys,
+            o.speed_mps,
+            None,
+        )?);
+    }
+    sides.sort_by(|a, b| a.id().cmp(b.id()));
+    Ok(sides)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Pose2;
+    use crate::pipeline::tests::{self as fixtures, scene, settings, vehicle_side};
+
+    fn car(id: &str, x: f64, y: f64) -> crate::traffic::TrafficObject {
+        fixtures::car(id, Pose2::new(Vec2::new(x, y), 0.0))
+    }
+
+    /// Two sides are an instance when both detect a common object and
+    /// their link allows it; a pair is listed once, lower index first.
+    #[test]
+    fn linked_sides_that_share_an_object_are_instances() {
+        let at = |x: f64| Pose2::new(Vec2::new(x, 0.0), 0.0);
+        let sides = [
+            vehicle_side("cv0", at(0.0), &[("a", Vec2::new(10.0, 0.0))], 1),
+            vehicle_side("cv1", at(50.0), &[("a", Vec2::new(10.0, 0.0))], 1),
+            vehicle_side("cv2", at(60.0), &[("b", Vec2::new(70.0, 0.0))], 1),
+            vehicle_side("cv3", at(65.0), &[("b", Vec2::new(70.0, 0.0))], 1),
+        ];
+        let all = LinkSettings::default();
+        assert_eq!(instance_pairs(&sides, &all), [(0, 1), (2, 3)]);
+        let near = LinkSettings {
+            comm_range_m: Some(20.0),
+            max_peers: None,
+        };
+        assert_eq!(instance_pairs(&sides, &near), [(2, 3)]);
+    }
+
+    /// Named connected vehicles that never appeared are listed in the
+    /// error; with a penetration nobody is named.
+    #[test]
+    fn connected_vehicles_named_but_never_seen_are_an_error() {
+        let s = settings();
+        let mut seen = BTreeSet::new();
+        let frame = TrafficFrame {
+            step: 0,
+            time_s: 0.0,
+            objects: vec![car("cv0", 0.0, 0.0), car("other", 5.0, 0.0)],
+        };
+        note_connected(&s, &frame, &mut seen);
+        assert_eq!(seen.iter().collect::<Vec<_>>(), ["cv0"]);
+        let ids = ConnectedSelection::Ids(vec!["cv0".into(), "cv1".into()]);
+        match check_connected_appeared(&ids, &seen) {
+            Err(RunError::MissingConnectedVehicles(m)) => assert_eq!(m, ["cv1"]),
+            other => panic!("{other:?}"),
+        }
+        seen.insert("cv1".into());
+        assert!(check_connected_appeared(&ids, &seen).is_ok());
+        let share = ConnectedSelection::Penetration(0.5);
+        assert!(check_connected_appeared(&share, &BTreeSet::new()).is_ok());
+    }
+
+    /// Only connected vehicles within the radius of the junction sense;
+    /// their sides are sorted by id and carry their own node.
+    #[test]
+    fn the_connected_vehicles_near_the_junction_sense_in_id_order() {
+        let s = settings();
+        let scene = scene();
+        let far = s.scenario.radius_m + 10.0;
+        let frame = TrafficFrame {
+            step: 4,
+            time_s: 0.4,
+            objects: vec![
+                car("cv1", 5.0, 0.0),
+                car("x", 15.0, 0.0),
+                car("cv0", -20.0, 3.5),
+                car("y", far, 0.0),
+            ],
+        };
+        let sides = sense(&s, &scene, &frame).unwrap();
+        let ids: Vec<&str> = sides.iter().map(InstanceSide::id).collect();
+        assert_eq!(ids, ["cv0", "cv1"]);
+        assert!(sides.iter().all(|e| e.own_node().is_some()));
+        let mut none = s.clone();
+        none.scenario.radius_m = 1.0;
+        assert!(sense(&none, &scene, &frame).unwrap().is_empty());
+    }
+}
