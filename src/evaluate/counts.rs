@@ -27,21 +27,13 @@ impl PairCounts {
     /// correct / identified; undefined (NaN) when nothing was identified:
     /// a method that claims nothing has made no correct claim either.
     pub fn precision(&self) -> f64 {
-        if self.identified == 0 {
-            f64::NAN
-        } else {
-            self.correct as f64 / self.identified as f64
-        }
+        ratio(self.correct as f64, self.identified)
     }
 
     /// correct / ground truth; undefined (NaN) when there was nothing to
     /// find.
     pub fn recall(&self) -> f64 {
-        if self.ground_truth == 0 {
-            f64::NAN
-        } else {
-            self.correct as f64 / self.ground_truth as f64
-        }
+        ratio(self.correct as f64, self.ground_truth)
     }
 
     /// The harmonic mean of precision and recall, from the counts:
@@ -49,12 +41,19 @@ impl PairCounts {
     /// count is (0 when nothing was identified but there was something to
     /// find); NaN only when both are 0.
     pub fn f1(&self) -> f64 {
-        let denominator = self.identified + self.ground_truth;
-        if denominator == 0 {
-            f64::NAN
-        } else {
-            2.0 * self.correct as f64 / denominator as f64
-        }
+        ratio(
+            2.0 * self.correct as f64,
+            self.identified + self.ground_truth,
+        )
+    }
+}
+
+/// `numerator / denominator`, NaN (undefined) when the denominator is 0.
+fn ratio(numerator: f64, denominator: usize) -> f64 {
+    if denominator == 0 {
+        f64::NAN
+    } else {
+        numerator / denominator as f64
     }
 }
 

@@ -302,7 +302,7 @@ fn peer_pose(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::evaluate::testkit::{TestFrame, sensed};
+    use crate::evaluate::testkit::{TestFrame, paper_fusion, sensed};
     use crate::evaluate::{CorrespondenceSource, evaluate_frame};
     use crate::geometry::Pose2;
     use crate::matching::MultiVehicle;
@@ -333,17 +333,13 @@ mod tests {
             .collect();
         let frame = TestFrame::new(sensed, &poses);
         let pair = |i: usize, j: usize| frame.pair(i, j);
-        let fusion = FusionSettings {
-            variants: vec![FusionVariant::Paper],
-            align_min_matches: 3,
+        let fusion = paper_fusion();
+        let oracle = |pairs: &[PairAtLevel]| {
+            let source = CorrespondenceSource::Oracle;
+            evaluate_frame(pairs, &source, &fusion, MultiVehicle::Pairwise)
         };
         // Two vehicles: every view estimate is the pairwise one.
-        let two = evaluate_frame(
-            &[pair(0, 1)],
-            &CorrespondenceSource::Oracle,
-            &fusion,
-            MultiVehicle::Pairwise,
-        );
+        let two = oracle(&[pair(0, 1)]);
         let views = &two.views[0].1;
         assert_eq!(views.len(), 6);
         for v in views {
@@ -353,13 +349,7 @@ mod tests {
         }
         // Three vehicles: each ego fuses all three measurements, which is
         // the fusion of the three moved into the world frame.
-        let three = [pair(0, 1), pair(0, 2), pair(1, 2)];
-        let all = evaluate_frame(
-            &three,
-            &CorrespondenceSource::Oracle,
-            &fusion,
-            MultiVehicle::Pairwise,
-        );
+        let all = oracle(&[pair(0, 1), pair(0, 2), pair(1, 2)]);
         let views = &all.views[0].1;
         assert_eq!(views.len(), 9);
         for v in views {

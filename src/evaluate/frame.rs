@@ -187,14 +187,14 @@ impl<'a> FrameVehicles<'a> {
         Self { ids, n_detections }
     }
 
-    pub(super) fn index(&self, id: &str) -> usize {
+    fn index(&self, id: &str) -> usize {
         self.ids
             .binary_search(&id)
             .expect("every side is a frame vehicle")
     }
 
     /// The frame vehicle indices of a pair's first and second vehicle.
-    fn indices(&self, pair: &PairAtLevel) -> (usize, usize) {
+    pub(super) fn indices(&self, pair: &PairAtLevel) -> (usize, usize) {
         (
             self.index(&pair.first.obs.ego_id),
             self.index(&pair.second.obs.ego_id),
@@ -257,8 +257,7 @@ fn object_counts(
     vehicles: &FrameVehicles,
 ) -> PairCounts {
     let (first, second) = (pair.first.truth, pair.second.truth);
-    let i = vehicles.index(&pair.first.obs.ego_id);
-    let j = vehicles.index(&pair.second.obs.ego_id);
+    let (i, j) = vehicles.indices(pair);
     let mut together = Vec::new();
     for a in 0..first.detections.len() {
         for b in 0..second.detections.len() {
@@ -277,6 +276,9 @@ fn object_counts(
 
 #[cfg(test)]
 mod tests {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
     use super::*;
     use crate::evaluate::testkit::{TestFrame, paper_fusion, sensed};
     use crate::geometry::{Pose2, Vec2};
@@ -284,8 +286,10 @@ mod tests {
     use crate::sensor::{Observation, ObservationTruth};
 
     /// Pairs by the reported x position of the two egos: (a, b) and
-    /// (b, c) right and confident, (a, c) crossed and less sure.
-    struct Contradicting;
+    /// (b, c) right and confident, (a, c) crossed and less sure; counts
+    /// its calls.
+    #[derive(Default)]
+    struct Contradicting(Arc<AtomicUsize>);
 
     impl Matcher for Contradicting {
         fn method(&self) -> Method {
@@ -297,6 +301,7 @@ mod tests {
             second: &MatchView,
             _: &crate::fusion::PoseEstimate,
         ) -> Identification {
+            self.0.fetch_add(1, Ordering::Relaxed);
             let c = |a, b, probability| Correspondence {
                 a,
                 b,
@@ -331,59 +336,46 @@ mod tests {
         TestFrame::new(sensed, &poses)
     }
 
+    /// Correct pairs per instance, (chains, inconsistent chains) and the
+    /// implied objects' (identified, correct, ground truth) pairs.
+    fn assert_frame(
+        f: &FrameEval,
+        correct: [usize; 3],
+        triples: (usize, usize),
+        objects: (usize, usize, usize),
+    ) {
+        let per_pair: Vec<usize> = f.pairs.iter().map(|e| e.counts.correct).collect();
+        assert_eq!(per_pair, correct);
+        let (t, o) = (f.consistency.triples, f.consistency.objects);
+        assert_eq!((t.chains, t.inconsistent), triples);
+        assert_eq!((o.identified, o.correct, o.ground_truth), objects);
+    }
+
     #[test]
     fn a_contradictory_triple_is_counted_and_synchronisation_resolves_it() {
         let frame = three_in_a_row();
         let pairs = frame.every_pair();
         let fusion = paper_fusion();
-        let source = CorrespondenceSource::Matcher(Box::new(Contradicting));
+        let source = CorrespondenceSource::Matcher(Box::<Contradicting>::default());
         let pairwise = evaluate_frame(&pairs, &source, &fusion, MultiVehicle::Pairwise);
         // As decided: (a, c) wrong, so every chain through b is broken;
         // the closure puts all six detections into one object.
-        let correct: Vec<usize> = pairwise.pairs.iter().map(|e| e.counts.correct).collect();
-        assert_eq!(correct, [2, 0, 2]);
-        let t = pairwise.consistency.triples;
-        assert_eq!((t.chains, t.inconsistent), (6, 6));
-        let o = pairwise.consistency.objects;
-        assert_eq!((o.identified, o.correct, o.ground_truth), (12, 6, 6));
+        assert_frame(&pairwise, [2, 0, 2], (6, 6), (12, 6, 6));
         // Synchronised: the weak crossed pairs lose, (a, c) is implied by
         // the chains through b with probability 0.9 * 0.9.
         let synced = evaluate_frame(&pairs, &source, &fusion, MultiVehicle::Synchronized);
-        let correct: Vec<usize> = synced.pairs.iter().map(|e| e.counts.correct).collect();
-        assert_eq!(correct, [2, 2, 2]);
+        assert_frame(&synced, [2, 2, 2], (6, 0), (6, 6, 6));
         let ac = &synced.pairs[1].identification.matches;
         assert_eq!(
             ac.iter().map(|c| (c.a, c.b)).collect::<Vec<_>>(),
             [(0, 0), (1, 1)]
         );
         assert!((ac[0].probability - 0.81).abs() < 1e-12);
-        let t = synced.consistency.triples;
-        assert_eq!((t.chains, t.inconsistent), (6, 0));
-        let o = synced.consistency.objects;
-        assert_eq!((o.identified, o.correct, o.ground_truth), (6, 6, 6));
         // Fused from the consistent matches: exact views, exact result.
         for e in &synced.pairs {
             for x in &e.fused[0].1 {
                 assert!(x.match_correct && x.fused_error_m() < 1e-9, "{x:?}");
             }
-        }
-    }
-
-    /// [`Contradicting`], counting its calls.
-    struct Counted(std::sync::Arc<std::sync::atomic::AtomicUsize>);
-
-    impl Matcher for Counted {
-        fn method(&self) -> Method {
-            Method::Mogm
-        }
-        fn identify_with(
-            &self,
-            first: &MatchView,
-            second: &MatchView,
-            relative: &crate::fusion::PoseEstimate,
-        ) -> Identification {
-            self.0.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-            Contradicting.identify_with(first, second, relative)
         }
     }
 
@@ -395,17 +387,11 @@ mod tests {
         // b meets the map of a (in a's frame), c the map of a and b in the
         // frame of b, its nearest peer: the crossed (a, c) matching, which
         // pairwise matching gets wrong, is never asked for.
-        let calls = std::sync::Arc::default();
-        let source =
-            CorrespondenceSource::Matcher(Box::new(Counted(std::sync::Arc::clone(&calls))));
+        let calls = Arc::default();
+        let source = CorrespondenceSource::Matcher(Box::new(Contradicting(Arc::clone(&calls))));
         let map = evaluate_frame(&pairs, &source, &fusion, MultiVehicle::Map);
-        assert_eq!(calls.load(std::sync::atomic::Ordering::Relaxed), 2);
-        let correct: Vec<usize> = map.pairs.iter().map(|e| e.counts.correct).collect();
-        assert_eq!(correct, [2, 2, 2]);
-        let t = map.consistency.triples;
-        assert_eq!((t.chains, t.inconsistent), (6, 0));
-        let o = map.consistency.objects;
-        assert_eq!((o.identified, o.correct, o.ground_truth), (6, 6, 6));
+        assert_eq!(calls.load(Ordering::Relaxed), 2);
+        assert_frame(&map, [2, 2, 2], (6, 0), (6, 6, 6));
         // Joins are with each object's first detection (a's): (a, c) at
         // c's own probability, (b, c) through a.
         let p = |k: usize| map.pairs[k].identification.matches[0].probability;

@@ -118,8 +118,7 @@ impl<'a> Frame<'a> {
         let mut sides: Vec<Option<Side<'a>>> = vec![None; n];
         let mut peers = vec![Vec::new(); n];
         for p in pairs {
-            let i = vehicles.index(&p.first.obs.ego_id);
-            let j = vehicles.index(&p.second.obs.ego_id);
+            let (i, j) = vehicles.indices(p);
             sides[i] = Some(p.first);
             sides[j] = Some(p.second);
             peers[i].push(j);

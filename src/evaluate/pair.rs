@@ -63,10 +63,8 @@ pub(super) fn score(
 mod tests {
     use super::*;
     use crate::evaluate::Side;
-    use crate::evaluate::testkit::{Fixed, corr, exact_view, graph, sensed};
+    use crate::evaluate::testkit::{Fixed, corr, exact_view, graph, sensed, view_at};
     use crate::geometry::{Pose2, Vec2};
-    use crate::graph::SceneGraph;
-    use crate::matching::MatchView;
     use crate::matching::{Correspondence, MultiVehicle};
     use crate::sensor::{Observation, ObservationTruth, PoseNoiseLabel, PoseNoiseLevel};
 
@@ -207,27 +205,15 @@ mod tests {
             position_sigma_m: 0.0,
             heading_sigma_rad: 0.0,
         };
-        fn view<'a>(obs: &'a Observation, graph: &'a SceneGraph, pose: Pose2) -> MatchView<'a> {
-            MatchView {
-                detections: &obs.detections,
-                graph,
-                pose_reported: pose,
-                pose_noise: PoseNoiseLevel {
-                    label: PoseNoiseLabel::None,
-                    position_sigma_m: 0.0,
-                    heading_sigma_rad: 0.0,
-                },
-            }
-        }
         let pair = PairAtLevel {
             instance: 0,
             first: Side {
-                view: view(&oa, &ga, pa),
+                view: view_at(&oa, &ga, pa, level),
                 obs: &oa,
                 truth: &ta,
             },
             second: Side {
-                view: view(&ob, &gb, pb),
+                view: view_at(&ob, &gb, pb, level),
                 obs: &ob,
                 truth: &tb,
             },

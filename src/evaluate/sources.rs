@@ -52,10 +52,7 @@ impl ExternalMatches {
     /// The correspondences of `pair`'s instance at its level, those that
     /// name nodes it has ([`ExternalMatches::check`] refuses the others).
     fn for_pair(&self, pair: &PairAtLevel) -> Vec<Correspondence> {
-        let (n1, n2) = (
-            pair.first.view.detections.len(),
-            pair.second.view.detections.len(),
-        );
+        let (n1, n2) = node_counts(pair);
         self.by_instance
             .get(&(pair.instance, pair.level.label))
             .map(|m| m.iter().filter(|c| c.a < n1 && c.b < n2).copied().collect())
@@ -67,10 +64,7 @@ impl ExternalMatches {
     pub fn check(&self, pairs: &[PairAtLevel]) -> Result<(), String> {
         for pair in pairs {
             let key = (pair.instance, pair.level.label);
-            let (n1, n2) = (
-                pair.first.view.detections.len(),
-                pair.second.view.detections.len(),
-            );
+            let (n1, n2) = node_counts(pair);
             for c in self.by_instance.get(&key).into_iter().flatten() {
                 if c.a >= n1 || c.b >= n2 {
                     return Err(format!(
@@ -93,4 +87,12 @@ impl ExternalMatches {
             _ => Ok(()),
         }
     }
+}
+
+/// The node counts of `pair`'s first and second vehicle.
+fn node_counts(pair: &PairAtLevel) -> (usize, usize) {
+    (
+        pair.first.view.detections.len(),
+        pair.second.view.detections.len(),
+    )
 }

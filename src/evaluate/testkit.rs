@@ -71,21 +71,34 @@ impl Matcher for Fixed {
     }
 }
 
-pub(super) fn exact_view<'a>(
+/// The view of `obs` reported from `pose`, at pose-noise `level`.
+pub(super) fn view_at<'a>(
     obs: &'a Observation,
     graph: &'a SceneGraph,
     pose: Pose2,
+    level: PoseNoiseLevel,
 ) -> MatchView<'a> {
     MatchView {
         detections: &obs.detections,
         graph,
         pose_reported: pose,
-        pose_noise: PoseNoiseLevel {
-            label: PoseNoiseLabel::Gps,
-            position_sigma_m: 1.2,
-            heading_sigma_rad: 0.0035,
-        },
+        pose_noise: level,
     }
+}
+
+/// The view of `obs` reported from `pose` (exact when `pose` is the
+/// true pose), at the GPS pose-noise level.
+pub(super) fn exact_view<'a>(
+    obs: &'a Observation,
+    graph: &'a SceneGraph,
+    pose: Pose2,
+) -> MatchView<'a> {
+    let gps = PoseNoiseLevel {
+        label: PoseNoiseLabel::Gps,
+        position_sigma_m: 1.2,
+        heading_sigma_rad: 0.0035,
+    };
+    view_at(obs, graph, pose, gps)
 }
 
 /// Connected vehicles of a hand-made frame (exact views at GPS level).
@@ -97,13 +110,7 @@ pub(super) struct TestFrame {
 
 impl TestFrame {
     pub(super) fn new(sensed: Vec<(Observation, ObservationTruth)>, poses: &[Pose2]) -> Self {
-        let graphs = sensed
-            .iter()
-            .map(|(o, _)| {
-                let positions: Vec<Vec2> = o.detections.iter().map(|d| d.position_m).collect();
-                SceneGraph::delaunay(&positions).unwrap()
-            })
-            .collect();
+        let graphs = sensed.iter().map(|(o, _)| graph(o)).collect();
         Self {
             sensed,
             graphs,
