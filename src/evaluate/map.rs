@@ -24,7 +24,9 @@
 
 use std::collections::BTreeMap;
 
-use super::{FrameVehicles, PairAtLevel, Runner, Side, measured};
+use super::estimates::measured;
+use super::frame::FrameVehicles;
+use super::{CorrespondenceSource, PairAtLevel, Side};
 use crate::fusion::{Measurement, fuse, relative_pose_prior};
 use crate::geometry::Vec2;
 use crate::graph::SceneGraph;
@@ -38,7 +40,7 @@ use crate::sensor::{Detection, DetectionTruth, Observation, ObservationTruth, Po
 /// (both covariances, the GPS relative pose's included) within this gate
 /// (99.9 %, 2 dof; wider than the matchers' own 99 %), and a compatible
 /// appearance.
-pub const VIEW_GATE_CHI2: f64 = 13.82;
+const VIEW_GATE_CHI2: f64 = 13.82;
 
 /// A detection of the frame: (vehicle index, detection index).
 type Member = (usize, usize);
@@ -49,7 +51,7 @@ type Member = (usize, usize);
 /// the map's objects.
 pub(super) fn joins(
     pairs: &[PairAtLevel],
-    runner: &Runner,
+    source: &CorrespondenceSource,
     vehicles: &FrameVehicles,
 ) -> Vec<PairwiseMatches> {
     let frame = Frame::new(pairs, vehicles);
@@ -65,7 +67,7 @@ pub(super) fn joins(
                     second: side,
                     level: frame.level,
                 };
-                runner
+                source
                     .identify(&pair)
                     .matches
                     .into_iter()
@@ -116,8 +118,7 @@ impl<'a> Frame<'a> {
         let mut sides: Vec<Option<Side<'a>>> = vec![None; n];
         let mut peers = vec![Vec::new(); n];
         for p in pairs {
-            let i = vehicles.index(&p.first.obs.ego_id);
-            let j = vehicles.index(&p.second.obs.ego_id);
+            let (i, j) = vehicles.indices(p);
             sides[i] = Some(p.first);
             sides[j] = Some(p.second);
             peers[i].push(j);

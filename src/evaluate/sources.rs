@@ -1,0 +1,98 @@
+//! Where a pair's correspondences come from: a method that matches what
+//! the vehicles know, the oracle that reads the truth, or a file of
+//! matches made elsewhere (`coid score`), with the checks that such a file
+//! names instances and nodes the run has.
+
+use std::collections::BTreeMap;
+
+use super::PairAtLevel;
+use crate::matching::{Correspondence, Identification, Matcher, Method, oracle};
+use crate::sensor::PoseNoiseLabel;
+
+/// The source of a pair's correspondences: what the vehicles know, the
+/// truth, or a file.
+pub enum CorrespondenceSource {
+    Matcher(Box<dyn Matcher>),
+    /// The true correspondences ([`oracle::true_pairs`]).
+    Oracle,
+    /// Correspondences made elsewhere (`coid score`), for one run.
+    External(ExternalMatches),
+}
+
+impl CorrespondenceSource {
+    /// The method whose correspondences these are.
+    pub(super) fn method(&self) -> Method {
+        match self {
+            CorrespondenceSource::Matcher(m) => m.method(),
+            CorrespondenceSource::Oracle => Method::Oracle,
+            CorrespondenceSource::External(_) => Method::External,
+        }
+    }
+
+    /// `pair`'s correspondences (`a` a node of its first vehicle).
+    pub(super) fn identify(&self, pair: &PairAtLevel) -> Identification {
+        match self {
+            CorrespondenceSource::Matcher(m) => m.identify(&pair.first.view, &pair.second.view),
+            CorrespondenceSource::Oracle => {
+                Identification::plain(oracle::true_pairs(pair.first.truth, pair.second.truth))
+            }
+            CorrespondenceSource::External(e) => Identification::plain(e.for_pair(pair)),
+        }
+    }
+}
+
+/// One run's correspondences made elsewhere: per (instance, pose-noise
+/// level), pairs of the instance's first and second vehicle's nodes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ExternalMatches {
+    pub by_instance: BTreeMap<(usize, PoseNoiseLabel), Vec<Correspondence>>,
+}
+
+impl ExternalMatches {
+    /// The correspondences of `pair`'s instance at its level, those that
+    /// name nodes it has ([`ExternalMatches::check`] refuses the others).
+    fn for_pair(&self, pair: &PairAtLevel) -> Vec<Correspondence> {
+        let (n1, n2) = node_counts(pair);
+        self.by_instance
+            .get(&(pair.instance, pair.level.label))
+            .map(|m| m.iter().filter(|c| c.a < n1 && c.b < n2).copied().collect())
+            .unwrap_or_default()
+    }
+
+    /// Why the correspondences do not fit a frame's instances, if they do
+    /// not: a node index beyond what a vehicle detected.
+    pub fn check(&self, pairs: &[PairAtLevel]) -> Result<(), String> {
+        for pair in pairs {
+            let key = (pair.instance, pair.level.label);
+            let (n1, n2) = node_counts(pair);
+            for c in self.by_instance.get(&key).into_iter().flatten() {
+                if c.a >= n1 || c.b >= n2 {
+                    return Err(format!(
+                        "instance {} has {n1} and {n2} nodes, but a match pairs nodes {} and {}",
+                        pair.instance, c.a, c.b
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Why the correspondences do not fit a run of `n_instances`
+    /// instances, if they do not.
+    pub fn check_instances(&self, n_instances: usize) -> Result<(), String> {
+        match self.by_instance.keys().map(|k| k.0).max() {
+            Some(i) if i >= n_instances => Err(format!(
+                "the run has {n_instances} instances, but matches name instance {i}"
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// The node counts of `pair`'s first and second vehicle.
+fn node_counts(pair: &PairAtLevel) -> (usize, usize) {
+    (
+        pair.first.view.detections.len(),
+        pair.second.view.detections.len(),
+    )
+}
