@@ -551,7 +551,7 @@ fn matchers_cannot_reach_the_ground_truth() {
             "matching/oracle.rs",
             "evaluate/mod.rs",
             "evaluate/map.rs",
-            "tables.rs",
+            "tables/record.rs",
             "render.rs",
             "pipeline/mod.rs",
             "pipeline/over_time.rs",
