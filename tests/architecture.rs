@@ -557,7 +557,7 @@ fn matchers_cannot_reach_the_ground_truth() {
             "pipeline/over_time.rs",
             "pipeline/receptions.rs",
             "experiments.rs",
-            "export.rs",
+            "export/rows.rs",
             "cli/render.rs",
         ],
     );
