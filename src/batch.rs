@@ -398,10 +398,7 @@ pub fn aggregate(dir: &Path, batch: &BatchRecord) -> Result<Aggregate, OutputErr
 /// `header`) and the F1 plot.
 pub fn write_aggregate(dir: &Path, rows: &[AggregateRow], header: &str) -> Result<(), OutputError> {
     io::write_batch_summary(dir, rows, header, |tmp| {
-        render::batch_plot(tmp, rows).map_err(|e| OutputError::Picture {
-            path: dir.to_owned(),
-            message: e.to_string(),
-        })
+        render::batch_plot(tmp, rows).map_err(|e| OutputError::picture(dir, e))
     })
 }
 

@@ -155,10 +155,7 @@ pub fn export_run(
             matches.entry(f.method).or_default().extend(made);
         }
         if f.method == Method::Oracle {
-            if Some(level) == first_level {
-                rows.add_nodes(run.index, insts, pairs);
-            }
-            rows.add_instances(run.index, insts, pairs);
+            rows.add(run.index, insts, pairs, Some(level) == first_level);
             if rows.held() >= ROWS_PER_GROUP {
                 rows.write(out)?;
             }

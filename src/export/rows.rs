@@ -45,63 +45,62 @@ impl Rows {
         Ok(())
     }
 
-    /// One row per instance at this level: the reported poses.
-    pub(super) fn add_instances(
+    /// The rows of a frame's instances at one level: one row each (the
+    /// reported poses), and with `graphs` (at the first level: they are the
+    /// same at every level) both vehicles' nodes, edges and truth, and the
+    /// true pairs.
+    pub(super) fn add(
         &mut self,
         run: usize,
         insts: &[pipeline::Instance],
         pairs: &[PairAtLevel],
-    ) {
-        for (inst, pair) in insts.iter().zip(pairs) {
-            let first = pair.first.view.pose_reported;
-            let second = pair.second.view.pose_reported;
-            self.instances.push(Instance {
-                run: run as u64,
-                instance: inst.index as u64,
-                pose_noise: pair.level.label.as_str().to_owned(),
-                step: inst.frame.step,
-                time_s: inst.frame.time_s,
-                first_id: pair.first.obs.ego_id.clone(),
-                second_id: pair.second.obs.ego_id.clone(),
-                n_first: pair.first.obs.detections.len() as u64,
-                n_second: pair.second.obs.detections.len() as u64,
-                first_x_m: first.position_m().x,
-                first_y_m: first.position_m().y,
-                first_heading_rad: first.heading_rad(),
-                second_x_m: second.position_m().x,
-                second_y_m: second.position_m().y,
-                second_heading_rad: second.heading_rad(),
-                position_sigma_m: pair.level.position_sigma_m,
-                heading_sigma_rad: pair.level.heading_sigma_rad,
-            });
-        }
-    }
-
-    /// Both vehicles' nodes, edges and truth, and the true pairs, of each
-    /// instance.
-    pub(super) fn add_nodes(
-        &mut self,
-        run: usize,
-        insts: &[pipeline::Instance],
-        pairs: &[PairAtLevel],
+        graphs: bool,
     ) {
         for (inst, pair) in insts.iter().zip(pairs) {
             let at = At {
                 run: run as u64,
                 instance: inst.index as u64,
             };
-            for (side, s) in [&pair.first, &pair.second].into_iter().enumerate() {
-                self.add_side(at, side as u64, s);
+            if graphs {
+                for (side, s) in [&pair.first, &pair.second].into_iter().enumerate() {
+                    self.add_side(at, side as u64, s);
+                }
+                for c in oracle::true_pairs(pair.first.truth, pair.second.truth) {
+                    self.true_pairs.push(TruePair {
+                        run: at.run,
+                        instance: at.instance,
+                        a: c.a as u64,
+                        b: c.b as u64,
+                    });
+                }
             }
-            for c in oracle::true_pairs(pair.first.truth, pair.second.truth) {
-                self.true_pairs.push(TruePair {
-                    run: at.run,
-                    instance: at.instance,
-                    a: c.a as u64,
-                    b: c.b as u64,
-                });
-            }
+            self.add_instance(at, inst, pair);
         }
+    }
+
+    /// An instance's row at one level.
+    fn add_instance(&mut self, at: At, inst: &pipeline::Instance, pair: &PairAtLevel) {
+        let first = pair.first.view.pose_reported;
+        let second = pair.second.view.pose_reported;
+        self.instances.push(Instance {
+            run: at.run,
+            instance: at.instance,
+            pose_noise: pair.level.label.as_str().to_owned(),
+            step: inst.frame.step,
+            time_s: inst.frame.time_s,
+            first_id: pair.first.obs.ego_id.clone(),
+            second_id: pair.second.obs.ego_id.clone(),
+            n_first: pair.first.obs.detections.len() as u64,
+            n_second: pair.second.obs.detections.len() as u64,
+            first_x_m: first.position_m().x,
+            first_y_m: first.position_m().y,
+            first_heading_rad: first.heading_rad(),
+            second_x_m: second.position_m().x,
+            second_y_m: second.position_m().y,
+            second_heading_rad: second.heading_rad(),
+            position_sigma_m: pair.level.position_sigma_m,
+            heading_sigma_rad: pair.level.heading_sigma_rad,
+        });
     }
 
     /// One vehicle's nodes, their truth and its graph's edges.

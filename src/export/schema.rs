@@ -12,29 +12,18 @@ trait ColumnValue: Sized {
     fn column(values: Vec<Self>) -> TableColumn;
 }
 
-impl ColumnValue for u64 {
-    fn column(values: Vec<Self>) -> TableColumn {
-        TableColumn::Count(values)
-    }
+/// Each column type and the table column that holds it.
+macro_rules! column_values {
+    ($($ty:ty => $column:ident),+) => {
+        $(impl ColumnValue for $ty {
+            fn column(values: Vec<Self>) -> TableColumn {
+                TableColumn::$column(values)
+            }
+        })+
+    };
 }
 
-impl ColumnValue for f64 {
-    fn column(values: Vec<Self>) -> TableColumn {
-        TableColumn::Number(values)
-    }
-}
-
-impl ColumnValue for String {
-    fn column(values: Vec<Self>) -> TableColumn {
-        TableColumn::Text(values)
-    }
-}
-
-impl ColumnValue for bool {
-    fn column(values: Vec<Self>) -> TableColumn {
-        TableColumn::Flag(values)
-    }
-}
+column_values!(u64 => Count, f64 => Number, String => Text, bool => Flag);
 
 /// Declares the rows of one file (`in "<file>"` when its name is fixed):
 /// a struct with one field per column, in the file's column order, and
