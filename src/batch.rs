@@ -16,7 +16,7 @@
 use std::ffi::OsString;
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
 
 use crate::config::{ConfigError, Overrides, Settings};
@@ -205,85 +205,127 @@ pub fn run_children(
     mut line: impl FnMut(usize, &str),
     mut done: impl FnMut(usize, bool) -> bool,
 ) -> std::io::Result<Vec<Failure>> {
-    let (tx, rx) = mpsc::channel::<(usize, String)>();
+    let (sender, lines) = mpsc::channel::<ChildLine>();
     let mut queue = 0..jobs.len();
-    let mut active: Vec<(usize, Child, std::thread::JoinHandle<String>)> = Vec::new();
+    let mut running: Vec<Running> = Vec::new();
     let mut failures = Vec::new();
     loop {
-        while active.len() < workers.max(1) {
-            let Some(k) = queue.next() else { break };
-            let mut command = Command::new(exe);
-            command
-                .args(&jobs[k])
-                .stdout(Stdio::piped())
-                .stderr(Stdio::piped());
-            dies_with_parent(&mut command);
-            let mut child = command.spawn()?;
-            // Both pipes are drained while the child runs (a full pipe
-            // would block it): stdout line by line to `line`, stderr kept.
-            let stdout = child.stdout.take().map(BufReader::new);
-            let tx = tx.clone();
-            std::thread::spawn(move || {
-                for l in stdout
-                    .into_iter()
-                    .flat_map(BufRead::lines)
-                    .map_while(Result::ok)
-                {
-                    if tx.send((k, l)).is_err() {
-                        break;
-                    }
-                }
-            });
-            let mut stderr = child.stderr.take();
-            let err = std::thread::spawn(move || {
-                let mut text = String::new();
-                if let Some(e) = stderr.as_mut() {
-                    let _ = e.read_to_string(&mut text);
-                }
-                text
-            });
-            active.push((k, child, err));
+        while running.len() < workers.max(1) {
+            let Some(job) = queue.next() else { break };
+            running.push(Running::start(exe, job, &jobs[job], sender.clone())?);
         }
-        if active.is_empty() {
+        if running.is_empty() {
             break;
         }
-        // Forward output and wait for whichever child ends first (polling:
-        // the children run for seconds, some milliseconds do not matter).
-        let mut finished = None;
-        while finished.is_none() {
-            if let Ok((k, l)) = rx.recv_timeout(std::time::Duration::from_millis(20)) {
-                line(k, &l);
-                while let Ok((k, l)) = rx.try_recv() {
-                    line(k, &l);
-                }
-            }
-            for (a, (_, child, _)) in active.iter_mut().enumerate() {
-                if let Some(status) = child.try_wait()? {
-                    finished = Some((a, status));
-                    break;
-                }
-            }
-        }
-        let (a, status) = finished.expect("set above");
-        let (k, _child, err) = active.swap_remove(a);
-        let text = err.join().unwrap_or_default();
+        let (index, status) = wait_for_one(&mut running, &lines, &mut line)?;
+        let ended = running.swap_remove(index);
+        let stderr = ended.stderr.join().unwrap_or_default();
         // Lines the child printed just before it ended.
-        while let Ok((j, l)) = rx.try_recv() {
-            line(j, &l);
-        }
-        if !done(k, status.success()) {
-            let message = text
-                .lines()
-                .rev()
-                .find(|l| !l.trim().is_empty())
-                .unwrap_or("the child process exited without a message")
-                .trim()
-                .to_owned();
-            failures.push(Failure { run: k, message });
+        forward_waiting(&lines, &mut line);
+        if !done(ended.job, status.success()) {
+            let message = last_line(&stderr);
+            failures.push(Failure {
+                run: ended.job,
+                message,
+            });
         }
     }
     failures.sort_by_key(|f| f.run);
     Ok(failures)
+}
+
+/// A line a child printed on stdout.
+struct ChildLine {
+    job: usize,
+    text: String,
+}
+
+/// A child process doing one job; its stderr is read to the end by a
+/// thread of its own.
+struct Running {
+    job: usize,
+    child: Child,
+    stderr: std::thread::JoinHandle<String>,
+}
+
+impl Running {
+    /// Starts `job` (`args` to `exe`). Both pipes are drained while the
+    /// child runs (a full pipe would block it): stdout line by line into
+    /// `lines`, stderr kept.
+    fn start(
+        exe: &Path,
+        job: usize,
+        args: &[OsString],
+        lines: mpsc::Sender<ChildLine>,
+    ) -> std::io::Result<Self> {
+        let mut command = Command::new(exe);
+        command
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        dies_with_parent(&mut command);
+        let mut child = command.spawn()?;
+        let stdout = child.stdout.take().map(BufReader::new);
+        std::thread::spawn(move || {
+            for text in stdout
+                .into_iter()
+                .flat_map(BufRead::lines)
+                .map_while(Result::ok)
+            {
+                if lines.send(ChildLine { job, text }).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut stderr = child.stderr.take();
+        let stderr = std::thread::spawn(move || {
+            let mut text = String::new();
+            if let Some(e) = stderr.as_mut() {
+                let _ = e.read_to_string(&mut text);
+            }
+            text
+        });
+        Ok(Self { job, child, stderr })
+    }
+}
+
+/// Forwards the children's stdout lines to `line` until one of `running`
+/// ends; returns its index in `running` and how it ended (polling: the
+/// children run for seconds, some milliseconds do not matter).
+fn wait_for_one(
+    running: &mut [Running],
+    lines: &mpsc::Receiver<ChildLine>,
+    line: &mut impl FnMut(usize, &str),
+) -> std::io::Result<(usize, ExitStatus)> {
+    loop {
+        if let Ok(first) = lines.recv_timeout(std::time::Duration::from_millis(20)) {
+            line(first.job, &first.text);
+            forward_waiting(lines, line);
+        }
+        for (index, r) in running.iter_mut().enumerate() {
+            if let Some(status) = r.child.try_wait()? {
+                return Ok((index, status));
+            }
+        }
+    }
+}
+
+/// Forwards the lines already waiting in `lines` to `line`.
+fn forward_waiting(lines: &mpsc::Receiver<ChildLine>, line: &mut impl FnMut(usize, &str)) {
+    while let Ok(l) = lines.try_recv() {
+        line(l.job, &l.text);
+    }
+}
+
+/// Why a child failed: the last line it wrote on stderr that is not empty.
+fn last_line(stderr: &str) -> String {
+    stderr
+        .lines()
+        .rev()
+        .find(|l| !l.trim().is_empty())
+        .unwrap_or("the child process exited without a message")
+        .trim()
+        .to_owned()
 }
 
 /// What a batch is (its `batch.toml`): the digest of its configuration
@@ -356,10 +398,7 @@ pub fn aggregate(dir: &Path, batch: &BatchRecord) -> Result<Aggregate, OutputErr
 /// `header`) and the F1 plot.
 pub fn write_aggregate(dir: &Path, rows: &[AggregateRow], header: &str) -> Result<(), OutputError> {
     io::write_batch_summary(dir, rows, header, |tmp| {
-        render::batch_plot(tmp, rows).map_err(|e| OutputError::Picture {
-            path: dir.to_owned(),
-            message: e.to_string(),
-        })
+        render::batch_plot(tmp, rows).map_err(|e| OutputError::picture(dir, e))
     })
 }
 

@@ -15,7 +15,7 @@ use crate::matching::deep::train::{self, Example, TrainOptions, TrainProgress, T
 use crate::matching::{DecisionChoice, LambdaChoice, Method, MethodKind};
 use crate::pipeline::{self, Progress, RunError};
 use crate::sensor::PoseNoiseLabel;
-use crate::tables::{DecidedPair, RunEval, lambda_grid};
+use crate::tables::{DecidedPair, MethodLevel, RuleKey, RunEval, lambda_grid};
 
 /// The settings of run `seed`: traffic and sensor seeds both set to it.
 pub fn settings_for_seed(settings: &Settings, seed: u64) -> Settings {
@@ -312,7 +312,7 @@ pub fn validate(
 }
 
 /// A run's decided pairs of `key` (none when it kept none).
-fn decided(r: &RunEval, key: (Method, PoseNoiseLabel, Decision)) -> &[DecidedPair] {
+fn decided(r: &RunEval, key: RuleKey) -> &[DecidedPair] {
     r.decided
         .as_ref()
         .and_then(|d| d.get(&key))
@@ -331,7 +331,7 @@ fn choose(runs: &[RunEval], levels: &[PoseNoiseLabel], kind: UncertaintyKind, m:
         let all = runs.iter().flat_map(|r| {
             levels
                 .iter()
-                .flat_map(move |&l| decided(r, (m, l, decision)))
+                .flat_map(move |&l| decided(r, MethodLevel::new(m, l).rule(decision)))
         });
         let temperature = fit_temperature(all);
         for &lambda in &lambda_grid(&[]) {
@@ -341,8 +341,9 @@ fn choose(runs: &[RunEval], levels: &[PoseNoiseLabel], kind: UncertaintyKind, m:
                 let f: Vec<f64> = levels
                     .iter()
                     .filter_map(|&l| {
-                        let truth = r.unthresholded.get(&(m, l, decision))?.ground_truth;
-                        let kept = decided(r, (m, l, decision)).iter().filter(|d| {
+                        let rule = MethodLevel::new(m, l).rule(decision);
+                        let truth = r.unthresholded.get(&rule)?.ground_truth;
+                        let kept = decided(r, rule).iter().filter(|d| {
                             let (p, a) = (f64::from(d.p), f64::from(d.aleatoric));
                             pair_uncertainty(p, a, temperature, kind) < lambda
                         });

@@ -553,7 +553,7 @@ fn matchers_cannot_reach_the_ground_truth() {
             "evaluate/frame.rs",
             "evaluate/map.rs",
             "evaluate/estimates.rs",
-            "tables.rs",
+            "tables/record.rs",
             "render.rs",
             "pipeline/fleet.rs",
             "pipeline/fusion_over_time.rs",
@@ -564,7 +564,7 @@ fn matchers_cannot_reach_the_ground_truth() {
             "pipeline/simulate.rs",
             "pipeline/vehicle.rs",
             "experiments.rs",
-            "export.rs",
+            "export/rows.rs",
             "cli/render.rs",
         ],
     );

@@ -283,10 +283,7 @@ pub(super) fn write(
     let tables = tables::eval_tables(settings, runs, &lambdas);
     let plots = tables::plot_data(settings, runs, &lambdas);
     io::write_eval(dir, settings, &tables.files(), choices, pooled, |dir| {
-        render::eval_plots(dir, &plots).map_err(|e| OutputError::Picture {
-            path: dir.to_owned(),
-            message: e.to_string(),
-        })
+        render::eval_plots(dir, &plots).map_err(|e| OutputError::picture(dir, e))
     })
 }
 

@@ -76,7 +76,7 @@ pub fn export(a: ExportArgs) -> anyhow::Result<()> {
         pb.inc(1);
     }
     pb.finish_and_clear();
-    folder.write("runs.parquet", &export::run_table(&counts, &digest))?;
+    folder.write(export::RUNS_FILE, &export::run_table(&counts, &digest))?;
     folder.finish(&[("schema.md", export::SCHEMA.to_owned())])?;
     let instances: usize = counts.iter().map(|c| c.1).sum();
     eprintln!(
@@ -133,7 +133,7 @@ fn check_export(
             } else {
                 beside
             };
-            if !beside.join("runs.parquet").is_file() {
+            if !beside.join(export::RUNS_FILE).is_file() {
                 anyhow::bail!(
                     "cannot tell which export {} was made from: pass --export DIR (the folder \
                      `coid export` wrote; its runs.parquet names the configuration)",
@@ -143,7 +143,7 @@ fn check_export(
             beside.to_owned()
         }
     };
-    let path = dir.join("runs.parquet");
+    let path = dir.join(export::RUNS_FILE);
     let runs = io::frames::read_export_runs(&path)
         .map_err(|why| anyhow::anyhow!("cannot read {}: {why}", path.display()))?;
     let mine = settings.instances_digest()?;

@@ -2,12 +2,14 @@
 //! and loss curve into the models folder, then each one's lambda chosen on
 //! the validation runs. Several methods train at once in child `coid
 //! train` processes (burn's CPU backend trains on one core), which report
-//! their progress to this one as lines on stdout.
+//! their progress to this one as messages on stdout ([`ChildMessage`]: one
+//! JSON object a line).
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::{ConfigArg, QuietArg, label_arg, progress_bar};
 use crate::batch;
@@ -63,8 +65,7 @@ pub struct Args {
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Show {
     Bars,
-    /// Lines on stdout for a parent process: `collect <run> <runs>`,
-    /// `progress <method> <step> <steps> <loss>`, `note <text>`.
+    /// [`ChildMessage`]s on stdout, for a parent process.
     Lines,
     Quiet,
 }
@@ -72,9 +73,45 @@ enum Show {
 impl Show {
     fn note(self, text: &str) {
         match self {
-            Show::Lines => println!("note {text}"),
+            Show::Lines => ChildMessage::Note {
+                text: text.to_owned(),
+            }
+            .send(),
             _ => eprintln!("{text}"),
         }
+    }
+}
+
+/// What a child `coid train` (`--progress-lines`) tells its parent: one
+/// JSON object a line on stdout, `kind` naming the message.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+enum ChildMessage {
+    /// Collecting training or validation pairs: `run` of `runs` done.
+    Collect { run: usize, runs: usize },
+    /// Training `method`: `step` of `steps` done, the smoothed loss (none
+    /// when it is not a finite number, which JSON cannot carry).
+    Progress {
+        method: Method,
+        step: usize,
+        steps: usize,
+        loss: Option<f32>,
+    },
+    /// A line for the user.
+    Note { text: String },
+}
+
+impl ChildMessage {
+    /// Prints the message on stdout, as one line.
+    fn send(&self) {
+        match serde_json::to_string(self) {
+            Ok(line) => println!("{line}"),
+            Err(e) => eprintln!("coid: cannot report progress: {e}"),
+        }
+    }
+
+    fn parse(line: &str) -> Result<Self, serde_json::Error> {
+        serde_json::from_str(line)
     }
 }
 
@@ -179,81 +216,128 @@ fn train_in_children(
     let groups: Vec<Vec<Method>> = (0..workers)
         .map(|g| methods.iter().copied().skip(g).step_by(workers).collect())
         .collect();
+    let config = a.config.path();
     let jobs: Vec<Vec<OsString>> = groups
         .iter()
-        .map(|group| {
-            let names: Vec<&str> = group.iter().map(|m| m.as_str()).collect();
-            let mut args: Vec<OsString> = vec!["train".into(), "--config".into()];
-            args.push(a.config.path().into());
-            args.push("--out".into());
-            args.push(models_dir.into());
-            args.push("--methods".into());
-            args.push(names.join(",").into());
-            for flag in [
-                "--workers",
-                "1",
-                "--force",
-                "--skip-validation",
-                "--progress-lines",
-            ] {
-                args.push(flag.into());
-            }
-            args
-        })
+        .map(|group| child_args(&config, models_dir, group))
         .collect();
-    let bars = if a.quiet.quiet {
-        indicatif::MultiProgress::with_draw_target(indicatif::ProgressDrawTarget::hidden())
-    } else {
-        indicatif::MultiProgress::new()
-    };
-    let style = indicatif::ProgressStyle::with_template(
-        "{spinner} {prefix:<9} [{bar:30}] {pos}/{len} {msg} eta {eta}",
+    let bars = ChildBars::new(groups.len(), a.quiet.quiet);
+    let failures = batch::run_children(
+        &exe,
+        &jobs,
+        workers,
+        |child, line| bars.show(child, line),
+        |child, ok| {
+            bars.finish(child);
+            ok
+        },
     )
-    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
-    .progress_chars("=> ");
-    let pbs: Vec<indicatif::ProgressBar> = groups
-        .iter()
-        .map(|_| {
-            let pb = bars.add(indicatif::ProgressBar::new(0));
-            pb.set_style(style.clone());
-            pb.set_prefix("starting");
-            pb
-        })
-        .collect();
-    let on_line = |k: usize, line: &str| {
-        let pb = &pbs[k];
-        let mut w = line.split_whitespace();
-        match w.next() {
-            Some("collect") => {
-                pb.set_prefix("data");
-                pb.set_message("runs collected");
-                pb.set_position(w.next().and_then(|x| x.parse().ok()).unwrap_or(0));
-                pb.set_length(w.next().and_then(|x| x.parse().ok()).unwrap_or(0));
-            }
-            Some("progress") => {
-                let method = w.next().unwrap_or("?").to_owned();
-                if pb.prefix() != method {
-                    pb.reset();
-                    pb.set_prefix(method);
-                }
-                pb.set_position(w.next().and_then(|x| x.parse().ok()).unwrap_or(0));
-                pb.set_length(w.next().and_then(|x| x.parse().ok()).unwrap_or(0));
-                pb.set_message(format!("steps, loss {}", w.next().unwrap_or("?")));
-            }
-            Some("note") => bars.suspend(|| eprintln!("{}", line[4..].trim())),
-            _ => {}
-        }
-    };
-    let failures = batch::run_children(&exe, &jobs, workers, on_line, |k, ok| {
-        pbs[k].finish_and_clear();
-        ok
-    })
     .context("cannot start a training process")?;
     if let Some(f) = failures.first() {
-        let names: Vec<&str> = groups[f.run].iter().map(|m| m.as_str()).collect();
-        anyhow::bail!("training {} failed: {}", names.join(", "), f.message);
+        let group = labels(&groups[f.run]).join(", ");
+        anyhow::bail!("training {group} failed: {}", f.message);
     }
     Ok(())
+}
+
+/// The labels of `methods`.
+fn labels(methods: &[Method]) -> Vec<&'static str> {
+    methods.iter().map(|m| m.as_str()).collect()
+}
+
+/// The arguments of the child `coid train` that trains `group` into
+/// `models_dir`, reporting [`ChildMessage`]s.
+fn child_args(config: &Path, models_dir: &Path, group: &[Method]) -> Vec<OsString> {
+    let mut args: Vec<OsString> = vec!["train".into(), "--config".into(), config.into()];
+    args.extend(["--out".into(), models_dir.into()]);
+    args.extend(["--methods".into(), labels(group).join(",").into()]);
+    let flags = [
+        "--workers",
+        "1",
+        "--force",
+        "--skip-validation",
+        "--progress-lines",
+    ];
+    args.extend(flags.map(OsString::from));
+    args
+}
+
+/// One progress bar per child process, moved by its messages.
+struct ChildBars {
+    bars: MultiProgress,
+    child: Vec<ProgressBar>,
+}
+
+impl ChildBars {
+    fn new(children: usize, quiet: bool) -> Self {
+        let bars = if quiet {
+            MultiProgress::with_draw_target(ProgressDrawTarget::hidden())
+        } else {
+            MultiProgress::new()
+        };
+        let style = ProgressStyle::with_template(
+            "{spinner} {prefix:<9} [{bar:30}] {pos}/{len} {msg} eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> ");
+        let child = (0..children)
+            .map(|_| {
+                let pb = bars.add(ProgressBar::new(0));
+                pb.set_style(style.clone());
+                pb.set_prefix("starting");
+                pb
+            })
+            .collect();
+        Self { bars, child }
+    }
+
+    /// Shows a line child `k` printed: its message, or why it is none.
+    fn show(&self, k: usize, line: &str) {
+        match ChildMessage::parse(line) {
+            Ok(message) => self.apply(k, message),
+            Err(e) => self.note(&format!(
+                "coid: training process {} printed a line that is not a progress message ({e}): {line}",
+                k + 1
+            )),
+        }
+    }
+
+    fn apply(&self, k: usize, message: ChildMessage) {
+        let pb = &self.child[k];
+        match message {
+            ChildMessage::Collect { run, runs } => {
+                pb.set_prefix("data");
+                pb.set_message("runs collected");
+                pb.set_position(run as u64);
+                pb.set_length(runs as u64);
+            }
+            ChildMessage::Progress {
+                method,
+                step,
+                steps,
+                loss,
+            } => {
+                if pb.prefix() != method.as_str() {
+                    pb.reset();
+                    pb.set_prefix(method.as_str());
+                }
+                pb.set_position(step as u64);
+                pb.set_length(steps as u64);
+                let loss = loss.map_or_else(|| "?".to_owned(), |l| format!("{l:.3}"));
+                pb.set_message(format!("steps, loss {loss}"));
+            }
+            ChildMessage::Note { text } => self.note(&text),
+        }
+    }
+
+    /// A line on stderr, above the bars.
+    fn note(&self, text: &str) {
+        self.bars.suspend(|| eprintln!("{text}"));
+    }
+
+    fn finish(&self, k: usize) {
+        self.child[k].finish_and_clear();
+    }
 }
 
 /// The labelled pairs of `runs` (`what`: training or validation), with
@@ -270,7 +354,11 @@ fn collect(runs: &[Settings], what: &str, show: Show) -> anyhow::Result<Vec<deep
         pb.inc(1);
         pb.set_message(format!("{n} pairs"));
         if show == Show::Lines {
-            println!("collect {k} {n_runs}");
+            ChildMessage::Collect {
+                run: k,
+                runs: n_runs,
+            }
+            .send();
         }
     })
     .with_context(|| format!("collecting {what} data failed"))?;
@@ -349,11 +437,13 @@ impl deep::train::TrainProgress for Progress<'_> {
             self.pb.set_message(format!("loss {:.3}", self.smooth));
         }
         if self.show == Show::Lines && (step.is_multiple_of(20) || step == total) {
-            println!(
-                "progress {} {step} {total} {:.3}",
-                self.method.as_str(),
-                self.smooth
-            );
+            ChildMessage::Progress {
+                method: self.method,
+                step,
+                steps: total,
+                loss: Some(self.smooth).filter(|l| l.is_finite()),
+            }
+            .send();
         }
     }
 
@@ -428,4 +518,51 @@ fn train_one(
             .display()
     ));
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each message is one JSON line that reads back as itself (a note's
+    /// line breaks escaped); a line that is not a whole, known message is
+    /// an error, never a default.
+    #[test]
+    fn child_messages_are_json_lines_and_bad_lines_are_errors() {
+        let messages = [
+            ChildMessage::Collect { run: 3, runs: 7 },
+            ChildMessage::Progress {
+                method: Method::GcnGm,
+                step: 20,
+                steps: 100,
+                loss: Some(0.409),
+            },
+            ChildMessage::Progress {
+                method: Method::Dgmc,
+                step: 1,
+                steps: 1,
+                loss: None,
+            },
+            ChildMessage::Note {
+                text: "coid: two\nlines".into(),
+            },
+        ];
+        for m in messages {
+            let line = serde_json::to_string(&m).unwrap();
+            assert!(!line.contains('\n'), "{line}");
+            assert_eq!(ChildMessage::parse(&line).unwrap(), m);
+        }
+        let line = serde_json::to_string(&ChildMessage::Collect { run: 1, runs: 2 }).unwrap();
+        assert_eq!(line, r#"{"kind":"collect","run":1,"runs":2}"#);
+        for bad in [
+            "progress gcn-gm 1 2 0.5",
+            r#"{"kind":"collect","run":1}"#,
+            r#"{"kind":"collect","run":-1,"runs":2}"#,
+            r#"{"kind":"collect","run":1,"runs":2,"typo":0}"#,
+            r#"{"kind":"progress","method":"nope","step":1,"steps":1,"loss":null}"#,
+            r#"{"kind":"shout","text":"hi"}"#,
+        ] {
+            assert!(ChildMessage::parse(bad).is_err(), "{bad}");
+        }
+    }
 }

@@ -73,6 +73,16 @@ pub enum OutputError {
     Changed { path: PathBuf, kept: PathBuf },
 }
 
+impl OutputError {
+    /// A picture that could not be drawn into `dir`, and why.
+    pub fn picture(dir: &Path, why: impl std::fmt::Display) -> Self {
+        OutputError::Picture {
+            path: dir.to_owned(),
+            message: why.to_string(),
+        }
+    }
+}
+
 pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
     move |source| OutputError::Io {
         path: path.to_owned(),

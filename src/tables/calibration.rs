@@ -1,0 +1,79 @@
+//! How far each method's decided matches can be trusted: calibration of
+//! its probabilities on its identified pairs, and consistency across
+//! vehicles.
+
+use super::Inputs;
+use super::columns::{Columns, Scores};
+use super::record::MethodLevel;
+use crate::matching::synchronize::TripleCounts;
+use crate::report::{
+    ScoredPair, Table, brier_score, expected_calibration_error, uncertainty_auroc,
+};
+
+/// Every identified pair of a method at a level, pooled over the runs.
+pub(super) fn pooled(inp: &Inputs, key: MethodLevel) -> Vec<ScoredPair> {
+    inp.runs
+        .iter()
+        .filter_map(|r| r.scored.get(&key))
+        .flatten()
+        .copied()
+        .collect()
+}
+
+/// Calibration of each method's probabilities on its identified pairs,
+/// pooled over the runs: ECE (15 bins), Brier score, and the AUROC of the
+/// uncertainty for telling wrong pairs from right ones.
+pub(super) fn calibration(inp: &Inputs) -> Table {
+    struct Row {
+        key: MethodLevel,
+        pairs: Vec<ScoredPair>,
+    }
+    let rows: Vec<Row> = inp
+        .method_levels()
+        .map(|key| Row {
+            key,
+            pairs: pooled(inp, key),
+        })
+        .collect();
+    Columns::of(&rows)
+        .method_level(|r| r.key)
+        .count("n_pairs", |r| r.pairs.len())
+        .number("ece", |r| expected_calibration_error(&r.pairs))
+        .number("brier", |r| brier_score(&r.pairs))
+        .number("auroc", |r| uncertainty_auroc(&r.pairs))
+        .table()
+}
+
+/// Consistency across vehicles of each method's decided matches: triple
+/// chains and the share the third pair contradicts (pooled over the runs),
+/// and the implied objects as a clustering (precision, recall, F1: mean
+/// over the runs with a 95% interval).
+pub(super) fn consistency(inp: &Inputs) -> Table {
+    struct Row {
+        key: MethodLevel,
+        triples: TripleCounts,
+        objects: Scores,
+    }
+    let rows: Vec<Row> = inp
+        .method_levels()
+        .map(|key| {
+            let mut triples = TripleCounts::default();
+            for c in inp.runs.iter().filter_map(|run| run.consistency.get(&key)) {
+                triples.add(c.triples);
+            }
+            Row {
+                key,
+                triples,
+                objects: Scores::of(inp, |run| run.consistency.get(&key).map(|c| c.objects)),
+            }
+        })
+        .collect();
+    Columns::of(&rows)
+        .method_level(|r| r.key)
+        .count("triple_chains", |r| r.triples.chains)
+        .number("inconsistent_triple_share", |r| r.triples.share())
+        .stat("object_precision", |r| &r.objects.precision)
+        .stat("object_recall", |r| &r.objects.recall)
+        .stat("object_f1", |r| &r.objects.f1)
+        .table()
+}

@@ -1,0 +1,163 @@
+//! The paper's tables: Table 1 (precision, recall and F1 per method),
+//! Table 2 (F1 of the deep methods before and after thresholding at their
+//! own lambda), Table 3 (F1 of `ours` thresholded on each uncertainty
+//! type), the lambda sweep (Fig. 8a) and the case study of `ours`.
+
+use super::Inputs;
+use super::columns::{Columns, ErrorStats, Scores};
+use super::record::{LevelFusion, MethodLevel};
+use crate::matching::Method;
+use crate::matching::deep::decision::UncertaintyKind;
+use crate::report::{Metric, Table};
+use crate::sensor::PoseNoiseLabel;
+
+/// The uncertainty types of Table 3, in its order.
+const TABLE3_KINDS: [UncertaintyKind; 3] = [
+    UncertaintyKind::Epistemic,
+    UncertaintyKind::Aleatoric,
+    UncertaintyKind::Total,
+];
+
+/// How many runs have a defined precision (something identified), in
+/// Table 1 and the sweep.
+const N_RUNS_PRECISION: &str = "n_runs_precision";
+
+pub(super) fn table1(inp: &Inputs) -> Table {
+    struct Row {
+        key: MethodLevel,
+        scores: Scores,
+    }
+    let rows: Vec<Row> = inp
+        .method_levels()
+        .map(|key| Row {
+            key,
+            scores: Scores::of(inp, |run| run.table1.get(&key).copied()),
+        })
+        .collect();
+    Columns::of(&rows)
+        .method_level(|r| r.key)
+        .scores(|r| &r.scores)
+        .count("n_runs", |_| inp.runs.len())
+        .defined(N_RUNS_PRECISION, |r| &r.scores.precision)
+        .table()
+}
+
+pub(super) fn table2(inp: &Inputs) -> Table {
+    struct Row {
+        key: MethodLevel,
+        f1_before: Vec<f64>,
+        f1_after: Vec<f64>,
+    }
+    let mut rows = Vec::new();
+    for m in inp.deep_methods() {
+        for &l in &inp.levels {
+            let before = inp.rule(m, l);
+            let after = inp.own_threshold(m, l, inp.kind);
+            rows.push(Row {
+                key: MethodLevel::new(m, l),
+                f1_before: inp.per_run(|run| run.unthresholded.get(&before).map(|c| c.f1())),
+                f1_after: inp.per_run(|run| run.thresholded.get(&after).map(|c| c.f1())),
+            });
+        }
+    }
+    Columns::of(&rows)
+        .method_level(|r| r.key)
+        .stat("f1_before", |r| &r.f1_before)
+        .stat("f1_after", |r| &r.f1_after)
+        .table()
+}
+
+pub(super) fn table3(inp: &Inputs) -> Table {
+    struct Row {
+        kind: UncertaintyKind,
+        pose_noise: PoseNoiseLabel,
+        f1: Vec<f64>,
+    }
+    let mut rows = Vec::new();
+    for &l in &inp.levels {
+        for kind in TABLE3_KINDS {
+            let key = inp.own_threshold(Method::Ours, l, kind);
+            rows.push(Row {
+                kind,
+                pose_noise: l,
+                f1: inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())),
+            });
+        }
+    }
+    Columns::of(&rows)
+        .text("uncertainty", |r| r.kind.as_str().to_owned())
+        .pose_noise(|r| r.pose_noise)
+        .stat(Metric::F1.column(), |r| &r.f1)
+        .table()
+}
+
+/// One point of the lambda sweep of `ours` (its own decision rule, the
+/// configured uncertainty type).
+pub(super) struct SweepRow {
+    pub pose_noise: PoseNoiseLabel,
+    pub lambda: f64,
+    pub scores: Scores,
+}
+
+/// The lambda sweep, level by level, every lambda of the grid.
+pub(super) fn sweep_rows(inp: &Inputs) -> Vec<SweepRow> {
+    let mut rows = Vec::new();
+    for &l in &inp.levels {
+        let rule = inp.rule(Method::Ours, l);
+        for (k, &lambda) in inp.grid.iter().enumerate() {
+            let key = rule.threshold(inp.kind, k);
+            rows.push(SweepRow {
+                pose_noise: l,
+                lambda,
+                scores: Scores::of(inp, |run| run.thresholded.get(&key).copied()),
+            });
+        }
+    }
+    rows
+}
+
+pub(super) fn sweep(inp: &Inputs) -> Table {
+    Columns::of(&sweep_rows(inp))
+        .number("lambda", |r| r.lambda)
+        .pose_noise(|r| r.pose_noise)
+        .scores(|r| &r.scores)
+        .defined(N_RUNS_PRECISION, |r| &r.scores.precision)
+        .table()
+}
+
+/// The case study of `ours` (the paper's last table): precision, recall and
+/// displacement errors over the common object set and its covisible part,
+/// with oracle fusion on the same set for reference.
+pub(super) fn case_study(inp: &Inputs) -> Table {
+    struct Row {
+        key: LevelFusion,
+        scores: Scores,
+        errors: ErrorStats,
+        oracle_fused_m: Vec<f64>,
+    }
+    let mut rows = Vec::new();
+    for &l in &inp.levels {
+        let ours = MethodLevel::new(Method::Ours, l);
+        let oracle = MethodLevel::new(Method::Oracle, l);
+        for &v in &inp.variants {
+            rows.push(Row {
+                key: LevelFusion {
+                    pose_noise: l,
+                    fusion: v,
+                },
+                scores: Scores::of(inp, |run| run.table1.get(&ours).copied()),
+                errors: ErrorStats::of(inp, |run| run.errors.get(&ours.row(v))),
+                oracle_fused_m: inp
+                    .per_run(|run| run.errors.get(&oracle.row(v)).map(|e| e.all.mean_fused_m())),
+            });
+        }
+    }
+    Columns::of(&rows)
+        .pose_noise(|r| r.key.pose_noise)
+        .fusion(|r| r.key.fusion)
+        .stat(Metric::Precision.column(), |r| &r.scores.precision)
+        .stat(Metric::Recall.column(), |r| &r.scores.recall)
+        .errors(|r| &r.errors)
+        .stat("de_fused_oracle_m", |r| &r.oracle_fused_m)
+        .table()
+}

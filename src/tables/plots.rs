@@ -1,0 +1,98 @@
+//! The data of `coid eval`'s plots: the lambda sweep of `ours`, each
+//! method's F1, the error distributions of `ours` and each deep method's
+//! reliability diagrams.
+
+use std::collections::BTreeMap;
+
+use super::Inputs;
+use super::calibration::pooled;
+use super::paper::sweep_rows;
+use super::record::{LevelFusion, MethodLevel, RunEval};
+use crate::config::Settings;
+use crate::fusion::FusionVariant;
+use crate::matching::Method;
+use crate::report::{PlotData, SweepPoint, mean_ci95, reliability};
+
+/// The data of `coid eval`'s plots.
+pub fn plot_data(
+    settings: &Settings,
+    runs: &[RunEval],
+    lambdas: &BTreeMap<Method, f64>,
+) -> PlotData {
+    let inp = Inputs::new(settings, runs, lambdas);
+    let mean = |v: &[f64]| mean_ci95(v).0;
+    let sweep = sweep_rows(&inp);
+    let lambda_sweep = sweep
+        .chunks(inp.grid.len())
+        .zip(&inp.levels)
+        .map(|(points, l)| {
+            let points: Vec<SweepPoint> = points
+                .iter()
+                .map(|p| {
+                    let s = &p.scores;
+                    (p.lambda, mean(&s.precision), mean(&s.recall), mean(&s.f1))
+                })
+                .collect();
+            (l.as_str().to_owned(), points)
+        })
+        .collect();
+    let f1 = inp
+        .levels
+        .iter()
+        .map(|&l| {
+            let v = inp
+                .methods
+                .iter()
+                .map(|&m| {
+                    let key = MethodLevel::new(m, l);
+                    mean_ci95(&inp.per_run(|r| r.table1.get(&key).map(|c| c.f1())))
+                })
+                .collect();
+            (l.as_str().to_owned(), v)
+        })
+        .collect();
+    let reliability = inp
+        .deep_methods()
+        .iter()
+        .map(|&m| {
+            let per_level = inp
+                .levels
+                .iter()
+                .map(|&l| {
+                    let pairs = pooled(&inp, MethodLevel::new(m, l));
+                    (l.as_str().to_owned(), reliability(&pairs))
+                })
+                .collect();
+            (m.as_str().to_owned(), per_level)
+        })
+        .collect();
+    PlotData {
+        lambda_sweep,
+        methods: inp.methods.iter().map(|m| m.as_str().to_owned()).collect(),
+        f1,
+        errors: error_samples(&inp),
+        reliability,
+    }
+}
+
+/// Per level: the pooled single and fused errors of `ours` (aligned fusion
+/// when configured, else paper).
+fn error_samples(inp: &Inputs) -> Vec<(String, Vec<f64>, Vec<f64>)> {
+    let fusion = if inp.variants.contains(&FusionVariant::Aligned) {
+        FusionVariant::Aligned
+    } else {
+        FusionVariant::Paper
+    };
+    inp.levels
+        .iter()
+        .map(|&pose_noise| {
+            let key = LevelFusion { pose_noise, fusion };
+            let (mut single, mut fused) = (Vec::new(), Vec::new());
+            for samples in inp.runs.iter().filter_map(|r| r.ours_errors.get(&key)) {
+                single.extend_from_slice(&samples.single_m);
+                fused.extend_from_slice(&samples.fused_m);
+            }
+            (pose_noise.as_str().to_owned(), single, fused)
+        })
+        .collect()
+}

@@ -1,0 +1,117 @@
+//! Tables 1-3 and the sweep from hand-made distributions.
+
+use super::*;
+use crate::evaluate::{MethodEval, count_pairs};
+use crate::geometry::Pose2;
+use crate::matching::deep::decision::MatchDistribution;
+use crate::matching::{Correspondence, Identification};
+use crate::report::TableColumn;
+use crate::sensor::{DetectionTruth, ObservationTruth};
+
+/// Two vehicles that both see objects x and y (detections 0 and 1).
+fn truths() -> (ObservationTruth, ObservationTruth) {
+    let t = |ids: [&str; 2]| ObservationTruth {
+        ego_pose: Pose2::identity(),
+        detections: ids
+            .iter()
+            .map(|id| DetectionTruth {
+                object_id: Some((*id).to_owned()),
+                position_m: None,
+                visible_fraction: 1.0,
+                sender: false,
+            })
+            .collect(),
+    };
+    (t(["x", "y"]), t(["x", "y"]))
+}
+
+/// A 2 x 2 distribution of one sample: the right pairs with
+/// probabilities `p0` and `p1`.
+fn dist(p0: f32, p1: f32) -> MatchDistribution {
+    let s = vec![
+        p0,
+        0.0,
+        1.0 - p0, //
+        0.0,
+        p1,
+        1.0 - p1, //
+        1.0 - p0,
+        1.0 - p1,
+        0.0,
+    ];
+    MatchDistribution::from_samples(2, 2, &[s])
+}
+
+fn run_with(dists: &[MatchDistribution], grid: &[f64]) -> RunEval {
+    let (ta, tb) = truths();
+    let mut run = RunEval::default();
+    for d in dists {
+        let matches: Vec<Correspondence> = d.decide(Some((UncertaintyKind::Total, 0.7)));
+        let e = MethodEval {
+            method: Method::Ours,
+            counts: count_pairs(&ta, &tb, &matches),
+            identification: Identification {
+                matches,
+                distribution: Some(d.clone()),
+            },
+            fused: vec![],
+        };
+        run.record(&e, PoseNoiseLabel::Gps, (&ta, &tb), grid);
+    }
+    run
+}
+
+fn numbers(t: &Table, name: &str) -> Vec<f64> {
+    match t.column(name) {
+        Some(TableColumn::Number(v)) => v.clone(),
+        other => panic!("{name}: {other:?}"),
+    }
+}
+
+/// Table 2 and 3 from hand-made distributions: run 1 has pairs at
+/// p = 0.95 and 0.6 (entropy 0.29 and 0.97 bits), run 2 at 0.95 and
+/// 0.95. Before thresholding both runs find both pairs (F1 1); at
+/// lambda 0.7 run 1 keeps one of two (F1 2/3), run 2 both (F1 1).
+#[test]
+fn tables_two_and_three_from_hand_made_distributions() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("c.toml");
+    std::fs::write(&cfg, "[pose_noise]\nlevels = [\"gps\"]\n").unwrap();
+    let settings = Settings::load(&cfg).unwrap();
+    let lambdas = BTreeMap::from([(Method::Ours, 0.7)]);
+    let grid = lambda_grid(lambdas.values());
+    let runs = vec![
+        run_with(&[dist(0.95, 0.6)], &grid),
+        run_with(&[dist(0.95, 0.95)], &grid),
+    ];
+    let t = eval_tables(&settings, &runs, &lambdas);
+    assert_eq!(t.table2.height(), 1);
+    assert_eq!(numbers(&t.table2, "f1_before"), vec![1.0]);
+    let after = numbers(&t.table2, "f1_after")[0];
+    assert!((after - (2.0 / 3.0 + 1.0) / 2.0).abs() < 1e-12, "{after}");
+    let ci = numbers(&t.table2, "f1_after_ci95")[0];
+    // Two runs, 2/3 and 1: s = (1/3)/sqrt(2), half-width t(1) s / sqrt(2).
+    assert!((ci - 12.706204736 * (1.0 / 3.0) / 2.0).abs() < 1e-6, "{ci}");
+    // Table 3: one sample per distribution, so no epistemic part: the
+    // epistemic threshold keeps everything, aleatoric = entropy here.
+    let f = numbers(&t.table3, "f1");
+    assert_eq!(f.len(), 3);
+    assert_eq!(f[0], 1.0);
+    assert!((f[1] - after).abs() < 1e-12 && (f[2] - after).abs() < 1e-12);
+    // Table 1 holds the default decision (thresholded for `ours`).
+    assert!((numbers(&t.table1, "f1")[0] - after).abs() < 1e-12);
+    assert_eq!(
+        t.table1.column("n_runs"),
+        Some(&TableColumn::Count(vec![2]))
+    );
+    // The sweep at lambda 0: nothing kept, recall 0, precision
+    // undefined in both runs (not 1).
+    let recall = numbers(&t.lambda_sweep, "recall");
+    assert_eq!(recall.len(), grid.len());
+    assert_eq!(recall[0], 0.0);
+    assert!(numbers(&t.lambda_sweep, "precision")[0].is_nan());
+    match t.lambda_sweep.column("n_runs_precision") {
+        Some(TableColumn::Count(n)) => assert_eq!((n[0], n[grid.len() - 1]), (0, 2)),
+        other => panic!("{other:?}"),
+    }
+}
