@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 
 use crate::config::Settings;
 use crate::evaluate::PairCounts;
-use crate::evaluate::{self, ExternalMatches, Runner};
+use crate::evaluate::{self, CorrespondenceSource, ExternalMatches};
 use crate::fusion::FusionSettings;
 use crate::matching::deep::decision::{Decision, UncertaintyKind, calibrated, pair_uncertainty};
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainProgress, TrainReport};
@@ -114,7 +114,8 @@ pub fn collect_examples(
             |inst| {
                 for level in &run.pose_noise {
                     let pair = inst.at_level(seed, level);
-                    let labels = evaluate::evaluate(&pair, &Runner::Oracle, &no_fusion);
+                    let labels =
+                        evaluate::evaluate(&pair, &CorrespondenceSource::Oracle, &no_fusion);
                     let truth = &labels.identification.matches;
                     examples.extend(train::example(&pair.first.view, &pair.second.view, truth));
                 }
@@ -177,7 +178,7 @@ pub fn eval_run_with(
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
     let mut runners = pipeline::runners(settings, methods)?;
-    runners.extend(external.map(Runner::External));
+    runners.extend(external.map(CorrespondenceSource::External));
     eval_run_into(
         RunEval::default(),
         settings,
@@ -192,14 +193,14 @@ pub fn eval_run_with(
 fn eval_run_into(
     mut out: RunEval,
     settings: &Settings,
-    runners: &[Runner],
+    runners: &[CorrespondenceSource],
     lambdas: &BTreeMap<Method, f64>,
     threads: usize,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
     let grid = lambda_grid(lambdas.values());
     let external = runners.iter().find_map(|r| match r {
-        Runner::External(e) => Some(e),
+        CorrespondenceSource::External(e) => Some(e),
         _ => None,
     });
     let stats = pipeline::evaluate_frames(

@@ -2,7 +2,7 @@
 
 use super::{CommonArgs, label_arg, show_sim_progress};
 use crate::config::Settings;
-use crate::evaluate::{self, Runner};
+use crate::evaluate::{self, CorrespondenceSource};
 use crate::fusion::FusionSettings;
 use crate::io;
 use crate::io::markdown::fmt_num;
@@ -81,7 +81,7 @@ fn draw(
     settings: &Settings,
     inst: &Instance,
     level: &PoseNoiseLevel,
-    runner: &Runner,
+    runner: &CorrespondenceSource,
     stem: &std::path::Path,
 ) -> Result<(), RunError> {
     let pair = inst.at_level(settings.seeds.sensor, level);

@@ -29,9 +29,6 @@ pub use counts::{PairCounts, count_pairs, is_correct, share_a_detected_object};
 pub use estimates::{ObjectEstimate, ViewEstimate};
 pub use frame::{Consistency, FrameEval, evaluate_frame};
 pub use pair::{MethodEval, evaluate};
-/// The old name of [`CorrespondenceSource`], for the modules not yet
-/// renamed (`pipeline`, `experiments`, `export`, `cli`).
-pub use sources::CorrespondenceSource as Runner;
 pub use sources::{CorrespondenceSource, ExternalMatches};
 
 use crate::matching::MatchView;

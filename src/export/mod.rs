@@ -138,7 +138,7 @@ pub fn export_run(
     let s = &run.settings;
     // The oracle's pass makes the instance files; its matches, if asked
     // for, come from the same pass.
-    let mut runners = vec![crate::evaluate::Runner::Oracle];
+    let mut runners = vec![crate::evaluate::CorrespondenceSource::Oracle];
     let others: Vec<Method> = methods
         .iter()
         .copied()

@@ -7,7 +7,7 @@ use super::instance::Instance;
 use super::simulate::{Step, simulate_steps};
 use super::{Progress, RunError, SimStats, parallel};
 use crate::config::Settings;
-use crate::evaluate::{self, PairAtLevel, Runner};
+use crate::evaluate::{self, CorrespondenceSource, PairAtLevel};
 use crate::sensor::{PoseNoiseLabel, PoseNoiseLevel};
 
 /// What [`evaluate_frames`] hands on: a step's instances, their pairs at a
@@ -26,7 +26,7 @@ pub type OnEval<'a> = dyn FnMut(&[Instance], &[PairAtLevel], PoseNoiseLabel, eva
 /// number of threads.
 pub fn evaluate_frames(
     settings: &Settings,
-    runners: &[Runner],
+    runners: &[CorrespondenceSource],
     threads: usize,
     progress: impl FnMut(Progress),
     mut on_eval: impl FnMut(
@@ -52,7 +52,7 @@ pub fn evaluate_frames(
 pub(super) fn evaluate_step(
     settings: &Settings,
     step: &Step,
-    runner: &Runner,
+    runner: &CorrespondenceSource,
 ) -> Vec<evaluate::FrameEval> {
     let instances = step.instances();
     settings
@@ -115,7 +115,7 @@ mod tests {
     fn a_step_is_evaluated_at_every_level() {
         let s = settings();
         let step = two_vehicle_step(0);
-        let evals = evaluate_step(&s, &step, &Runner::Oracle);
+        let evals = evaluate_step(&s, &step, &CorrespondenceSource::Oracle);
         assert_eq!(evals.len(), s.pose_noise.len());
         for f in &evals {
             assert_eq!(f.method, Method::Oracle);
@@ -131,7 +131,10 @@ mod tests {
     fn evaluations_are_handed_on_level_by_level_then_runner_by_runner() {
         let s = settings();
         let step = two_vehicle_step(4);
-        let runners = [runner(&s, Method::GpsHungarian).unwrap(), Runner::Oracle];
+        let runners = [
+            runner(&s, Method::GpsHungarian).unwrap(),
+            CorrespondenceSource::Oracle,
+        ];
         let evals = runners
             .iter()
             .map(|r| evaluate_step(&s, &step, r))

@@ -12,7 +12,7 @@ use super::frames::{OnEval, evaluate_step, hand_on};
 use super::simulate::{Step, simulate_steps};
 use super::{Progress, RunError, SimStats};
 use crate::config::Settings;
-use crate::evaluate::{FrameEval, Runner};
+use crate::evaluate::{CorrespondenceSource, FrameEval};
 
 /// One task: a runner on a step.
 struct Task {
@@ -70,7 +70,7 @@ impl<S, E> InFlight<S, E> {
         self.steps.len()
     }
 
-    /// Runner `runner`'s evaluation of step `seq` (`None`: it panicked).
+    /// CorrespondenceSource `runner`'s evaluation of step `seq` (`None`: it panicked).
     fn put(&mut self, seq: usize, runner: usize, evals: Option<E>) -> Result<(), RunError> {
         let evals = evals.ok_or_else(|| {
             RunError::Worker("an evaluation thread panicked (a bug: please report it)".into())
@@ -103,7 +103,7 @@ impl<S, E> InFlight<S, E> {
 
 fn worker(
     settings: &Settings,
-    runners: &[Runner],
+    runners: &[CorrespondenceSource],
     tasks: &Mutex<Receiver<Task>>,
     done: Sender<Done>,
 ) {
@@ -131,7 +131,7 @@ fn worker(
 /// [`super::frames::evaluate_frames`] on `threads` threads.
 pub(super) fn evaluate_frames(
     settings: &Settings,
-    runners: &[Runner],
+    runners: &[CorrespondenceSource],
     threads: usize,
     progress: impl FnMut(Progress),
     on_eval: &mut OnEval,

@@ -218,7 +218,7 @@ fn identified(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::evaluate::Runner;
+    use crate::evaluate::CorrespondenceSource;
     use crate::matching::Method;
     use crate::pipeline::runners::runner;
     use crate::pipeline::tests::{centres, context, settings, vehicle_side};
@@ -254,7 +254,7 @@ mod tests {
 
     fn matcher() -> Box<dyn Matcher> {
         match runner(&settings(), Method::GpsHungarian) {
-            Ok(Runner::Matcher(m)) => m,
+            Ok(CorrespondenceSource::Matcher(m)) => m,
             _ => panic!("gps-hungarian is a matcher"),
         }
     }

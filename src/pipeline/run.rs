@@ -113,7 +113,7 @@ fn record_frame(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::evaluate::Runner;
+    use crate::evaluate::CorrespondenceSource;
     use crate::pipeline::frames::evaluate_step;
     use crate::pipeline::tests::{settings, two_vehicle_step};
 
@@ -135,7 +135,7 @@ mod tests {
         let s = settings();
         let step = two_vehicle_step(9);
         let level = &s.pose_noise[0];
-        let f = evaluate_step(&s, &step, &Runner::Oracle).remove(0);
+        let f = evaluate_step(&s, &step, &CorrespondenceSource::Oracle).remove(0);
         let mut results = empty_results(&s);
         let mut rows = Vec::new();
         record_frame(&mut results, &mut rows, &step.instances(), level.label, f);

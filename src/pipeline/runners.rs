@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 
 use super::RunError;
 use crate::config::Settings;
-use crate::evaluate::Runner;
+use crate::evaluate::CorrespondenceSource;
 use crate::io::{self, WeightsError};
 use crate::matching::deep::decision::Decision;
 use crate::matching::{
@@ -80,9 +80,9 @@ pub fn lambdas(settings: &Settings, methods: &[Method]) -> Result<BTreeMap<Metho
 /// How `method` runs with `settings`: deep methods get their weights from
 /// `[matching] models_dir` and their lambda and decision rule
 /// ([`choice_for`]); MC-dropout masks are seeded with the sensor seed.
-pub fn runner(settings: &Settings, method: Method) -> Result<Runner, RunError> {
+pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSource, RunError> {
     if method == Method::Oracle {
-        return Ok(Runner::Oracle);
+        return Ok(CorrespondenceSource::Oracle);
     }
     let m = &settings.matching;
     let (weights, choice) = if let MethodKind::Deep(_) = method.kind() {
@@ -105,7 +105,7 @@ pub fn runner(settings: &Settings, method: Method) -> Result<Runner, RunError> {
             }),
             other => RunError::Build(other),
         })?;
-    Ok(Runner::Matcher(matcher))
+    Ok(CorrespondenceSource::Matcher(matcher))
 }
 
 /// What a method that is not deep is built with (it reads neither).
@@ -116,7 +116,10 @@ const NO_CHOICE: DeepChoice = DeepChoice {
 };
 
 /// The runners of `methods`, in order.
-pub fn runners(settings: &Settings, methods: &[Method]) -> Result<Vec<Runner>, RunError> {
+pub fn runners(
+    settings: &Settings,
+    methods: &[Method],
+) -> Result<Vec<CorrespondenceSource>, RunError> {
     methods.iter().map(|&m| runner(settings, m)).collect()
 }
 
@@ -139,9 +142,15 @@ mod tests {
     fn only_deep_methods_need_weights() {
         let dir = tempfile::tempdir().unwrap();
         let s = without_models(&dir);
-        assert!(matches!(runner(&s, Method::Oracle), Ok(Runner::Oracle)));
+        assert!(matches!(
+            runner(&s, Method::Oracle),
+            Ok(CorrespondenceSource::Oracle)
+        ));
         for m in [Method::GpsHungarian, Method::GpsAppHungarian, Method::Mogm] {
-            assert!(matches!(runner(&s, m), Ok(Runner::Matcher(_))), "{m:?}");
+            assert!(
+                matches!(runner(&s, m), Ok(CorrespondenceSource::Matcher(_))),
+                "{m:?}"
+            );
         }
         match runner(&s, Method::Ours) {
             Err(RunError::Weights(e)) => assert_eq!(e.method, "ours"),

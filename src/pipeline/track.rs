@@ -17,7 +17,7 @@ use super::simulate::{check_connected_appeared, note_connected, sense};
 use super::{Progress, RunError};
 use crate::bridge::Sumo;
 use crate::config::Settings;
-use crate::evaluate::Runner;
+use crate::evaluate::CorrespondenceSource;
 use crate::matching::Matcher;
 use crate::report::{OverTimeCounts, VehicleTracking};
 use crate::sensor::PoseNoiseLevel;
@@ -82,7 +82,7 @@ pub fn track(
 /// matching method.
 fn frame_matcher(settings: &Settings) -> Result<Box<dyn Matcher>, RunError> {
     match runner(settings, settings.v2x.matcher)? {
-        Runner::Matcher(m) => Ok(m),
+        CorrespondenceSource::Matcher(m) => Ok(m),
         _ => Err(RunError::Worker(
             "[v2x] matcher must be a matching method".into(),
         )),
