@@ -117,11 +117,6 @@ pub fn prepare_process() {
     crate::interrupt::watch();
 }
 
-/// Where SUMO's Python environment lives ([`paths::venv_dir`]).
-pub fn venv_dir() -> PathBuf {
-    paths::venv_dir().unwrap_or_else(|_| PathBuf::from(".venv"))
-}
-
 /// The pinned SUMO packages (what `bridge/setup.sh` installs too).
 const REQUIREMENTS: &str = include_str!("../bridge/requirements.txt");
 /// Inside the environment: the requirements it was made with, written
@@ -403,7 +398,6 @@ impl Capture {
 pub struct Sumo {
     shim: Py<PyModule>,
     stderr_capture: Capture,
-    step_length_s: f64,
     time_s: f64,
     steps: u64,
     open: bool,
@@ -451,7 +445,8 @@ impl Sumo {
             if let Some(step) = step_length_s {
                 args.extend(["--step-length".into(), format!("{step}")]);
             }
-            let step_length_s: f64 = shim
+            // The shim answers SUMO's step length; runs keep their own count.
+            let _step_length_s: f64 = shim
                 .call_method1(
                     "start",
                     (args, stderr_capture.path().to_string_lossy().into_owned()),
@@ -464,7 +459,6 @@ impl Sumo {
             Ok(Sumo {
                 shim: shim.unbind(),
                 stderr_capture,
-                step_length_s,
                 time_s: 0.0,
                 steps: 0,
                 open: true,
@@ -474,10 +468,6 @@ impl Sumo {
             RUNNING.store(false, Ordering::SeqCst);
         }
         result
-    }
-
-    pub fn step_length_s(&self) -> f64 {
-        self.step_length_s
     }
 
     pub fn time_s(&self) -> f64 {

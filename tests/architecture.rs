@@ -578,6 +578,50 @@ fn matchers_cannot_reach_the_ground_truth() {
     );
 }
 
+/// `lib.rs` makes public exactly the modules the binary, the tests and the
+/// benches name (`coid_sim::x`); every other module is private to the
+/// crate, so the compiler keeps outsiders out of it.
+#[test]
+fn the_library_exports_only_what_its_users_name() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut named = std::collections::BTreeSet::new();
+    let mut files = vec![root.join("src/main.rs")];
+    for dir in ["tests", "benches"] {
+        let mut stack = vec![root.join(dir)];
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).unwrap().flatten() {
+                let p = e.path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else if p.extension().is_some_and(|x| x == "rs") {
+                    files.push(p);
+                }
+            }
+        }
+    }
+    for f in files.iter().filter(|f| !f.ends_with("architecture.rs")) {
+        let text = std::fs::read_to_string(f).unwrap();
+        for (k, _) in text.match_indices("coid_sim::") {
+            let rest = &text[k + "coid_sim::".len()..];
+            let name: String = rest
+                .chars()
+                .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                .collect();
+            named.insert(name);
+        }
+    }
+    let lib = std::fs::read_to_string(src().join("lib.rs")).unwrap();
+    let public: std::collections::BTreeSet<String> = lib
+        .lines()
+        .filter_map(|l| l.strip_prefix("pub mod "))
+        .map(|l| l.trim_end_matches(';').to_owned())
+        .collect();
+    assert_eq!(
+        public, named,
+        "lib.rs's `pub mod`s against what main, tests and benches name"
+    );
+}
+
 #[test]
 fn main_is_thin() {
     let main = std::fs::read_to_string(src().join("main.rs")).unwrap();

@@ -64,7 +64,8 @@ fn write_all(root: &Path) -> Result<(), OutputError> {
 }
 
 /// The bytes of a carried file (`models/ours.toml`, ...).
-pub fn carried(name: &str) -> Option<&'static [u8]> {
+#[cfg(test)]
+fn carried(name: &str) -> Option<&'static [u8]> {
     ASSETS.iter().find(|(n, _)| *n == name).map(|(_, b)| *b)
 }
 

@@ -40,7 +40,7 @@ mod vehicle;
 pub use frames::{OnEval, evaluate_frames};
 pub use instance::{Instance, InstanceSide, ViewSource};
 pub use run::run;
-pub use runners::{choice_for, choices, lambdas, runner, runners};
+pub use runners::{choice_for, choices, runner, runners};
 pub use simulate::{Step, simulate, simulate_frames, simulate_steps};
 pub use track::{TrackResults, track};
 

@@ -69,14 +69,6 @@ pub fn choices(
         .collect()
 }
 
-/// The lambda of every deep method among `methods`.
-pub fn lambdas(settings: &Settings, methods: &[Method]) -> Result<BTreeMap<Method, f64>, RunError> {
-    Ok(choices(settings, methods)?
-        .into_iter()
-        .map(|(m, c)| (m, c.lambda))
-        .collect())
-}
-
 /// How `method` runs with `settings`: deep methods get their weights from
 /// `[matching] models_dir` and their lambda and decision rule
 /// ([`choice_for`]); MC-dropout masks are seeded with the sensor seed.
@@ -197,10 +189,9 @@ mod tests {
             c.keys().copied().collect::<Vec<_>>(),
             [Method::Ours, Method::Dgmc]
         );
-        let l = lambdas(&s, &methods).unwrap();
         assert!(
-            l.values()
-                .all(|&v| (0.0..=1.0).contains(&v) || v == f64::INFINITY)
+            c.values()
+                .all(|c| (0.0..=1.0).contains(&c.lambda) || c.lambda == f64::INFINITY)
         );
     }
 }

@@ -23,9 +23,9 @@ mod tracking;
 pub use batch::{AggregateRow, KEY_COLUMNS, Metric, RunRow, aggregate, aggregate_table};
 pub use calibration::*;
 pub use exchange::{ExportRunRow, MatchRow};
-pub use plots::{LevelReliability, PlotData, SweepPoint};
+pub use plots::{PlotData, SweepPoint};
 pub use run::*;
-pub use stats::{mean_ci95, t_975};
+pub use stats::mean_ci95;
 pub use table::{Table, TableColumn};
 pub use tracking::*;
 

@@ -1,5 +1,6 @@
 //! The report's tests: pooling, aggregation, intervals, calibration.
 
+use super::stats::t_975;
 use super::*;
 use crate::evaluate::{ObjectEstimate, PairCounts};
 use crate::fusion::FusionVariant;

@@ -35,7 +35,6 @@ mod files;
 mod kinds;
 mod layout;
 
-pub use kinds::min_gap_rad;
 pub use layout::*;
 
 use crate::geometry::Polygon;

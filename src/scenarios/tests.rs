@@ -3,6 +3,7 @@
 use std::f64::consts::TAU;
 
 use super::buildings::{CLEAR_OF_JUNCTION_M, overlap, rectangle};
+use super::kinds::min_gap_rad;
 use super::*;
 use crate::geometry::Vec2;
 

@@ -34,9 +34,7 @@ mod record;
 
 pub use grid::lambda_grid;
 pub use plots::plot_data;
-pub use record::{
-    DecidedPair, ErrorSamples, LevelFusion, MethodLevel, RuleKey, RunEval, ThresholdKey, ViewKey,
-};
+pub use record::{DecidedPair, MethodLevel, RuleKey, RunEval, ThresholdKey};
 
 /// The paper's tables over the test runs.
 pub struct EvalTables {

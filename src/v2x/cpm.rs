@@ -12,7 +12,7 @@
 
 use std::collections::BTreeMap;
 
-use crate::geometry::{Cov2, Pose2, Vec2};
+use crate::geometry::{Cov2, Vec2};
 use crate::traffic::ObjectClass;
 
 /// `[v2x.cpm]`.
@@ -58,16 +58,6 @@ pub struct PerceivedObject {
     /// Time the sender has tracked it (s).
     pub age_s: f64,
     pub class: ObjectClass,
-}
-
-/// One message.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Cpm {
-    pub sender_id: String,
-    pub generated_s: f64,
-    /// The sender's pose as its GNSS reports it at generation time.
-    pub sender_pose_reported: Pose2,
-    pub objects: Vec<PerceivedObject>,
 }
 
 /// What a generator needs of a track: id, position and velocity in the
