@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use super::{ConfigArg, MAX_PARALLEL, QuietArg, ThreadsArg, in_range, progress_bar};
+use super::{ConfigArg, ForceArg, OutArg, QuietArg, ThreadsArg, WorkersArg, progress_bar};
 use crate::batch::{self, Shard};
 use crate::config::Settings;
 use crate::{io, pipeline};
@@ -17,20 +17,15 @@ pub struct Args {
     /// Number of runs (1 to 1 000 000).
     #[arg(long, value_parser = runs_in_range)]
     runs: usize,
-    /// Worker processes, 1 to 1024 (each runs one SUMO) [default: the
-    /// number of cores].
-    #[arg(long, short, value_parser = in_range(1, MAX_PARALLEL))]
-    workers: Option<usize>,
-    /// Threads inside each run, 1 to 1024 (the results do not depend on
-    /// it) [default: the cores shared among the workers, at least 1].
-    #[arg(long, value_parser = in_range(1, MAX_PARALLEL))]
-    threads: Option<usize>,
+    #[command(flatten)]
+    workers: WorkersArg,
+    #[command(flatten)]
+    threads: ThreadsArg,
     /// Master seed: run i gets traffic and sensor seeds derived from it.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Output folder [default: results/<config file stem>-batch].
-    #[arg(long, short)]
-    out: Option<PathBuf>,
+    #[command(flatten)]
+    out: OutArg,
     /// Only this slice of the runs, `k/n` (1-based): runs i with
     /// i mod n = k - 1; combine the shards' folders with `coid merge`.
     #[arg(long)]
@@ -48,10 +43,8 @@ pub struct MergeArgs {
     /// --force).
     #[arg(long, short)]
     out: PathBuf,
-    /// Replace the output folder if it exists (the old one is removed only
-    /// after the new one is complete).
-    #[arg(long)]
-    force: bool,
+    #[command(flatten)]
+    force: ForceArg,
     /// Merge what the folders hold even when runs of the batch are missing
     /// from all of them (a shard not given, or not finished); the
     /// aggregate says how many runs it covers.
@@ -94,7 +87,7 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
     let config = path
         .canonicalize()
         .with_context(|| format!("cannot resolve {}", path.display()))?;
-    let out = super::out_dir(a.out, &config, "-batch");
+    let out = super::out_dir(a.out.out, &config, "-batch");
     let identity = batch::identity(&settings, &config, &text, a.runs, a.seed)?;
     let _lock = io::claim_batch_folder(&out, &identity)?;
     // A resumed batch runs from the record it started with.
@@ -103,12 +96,10 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
     let mine = (0..a.runs)
         .filter(|i| a.shard.is_none_or(|s| i % s.count == s.index - 1))
         .count();
-    let wanted = a.workers.unwrap_or_else(super::cores);
+    let wanted = a.workers.get();
     let workers = wanted.min(pending.len()).max(1);
     // Workers x threads stay within the cores unless asked otherwise.
-    let threads = a
-        .threads
-        .unwrap_or_else(|| (super::cores() / workers).max(1));
+    let threads = a.threads.or((super::cores() / workers).max(1));
     let pb = progress_bar(
         a.quiet.quiet,
         mine as u64,
@@ -250,7 +241,11 @@ pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
             }
         );
     }
-    let claim = io::Claim::new(&a.out, io::ResultKind::Batch, io::Existing::when(a.force))?;
+    let claim = io::Claim::new(
+        &a.out,
+        io::ResultKind::Batch,
+        io::Existing::when(a.force.force),
+    )?;
     let out = claim.out().to_owned();
     claim.fill(|dir| -> anyhow::Result<()> {
         for (&i, run) in &runs {

@@ -198,12 +198,47 @@ impl ConfigArg {
     }
 }
 
+/// The output folder, for every command whose folder has a default.
+#[derive(clap::Args)]
+struct OutArg {
+    /// Output folder [default: results/<config file stem> plus the
+    /// command's suffix: -eval, -render, -batch, -models, -export, ...].
+    #[arg(long, short)]
+    out: Option<PathBuf>,
+}
+
+/// `--force`, for every command that writes a folder.
+#[derive(clap::Args)]
+struct ForceArg {
+    /// Replace the output folder (or, for train and scenarios, write into
+    /// it) if coid wrote it for this command and it did not change; the
+    /// old folder is removed only after the new one is complete.
+    #[arg(long)]
+    force: bool,
+}
+
+/// Worker processes, for `batch` and `train`.
+#[derive(clap::Args)]
+struct WorkersArg {
+    /// Worker processes, 1 to 1024: runs (batch) or groups of methods
+    /// (train) at once, each in its own process; the results do not
+    /// depend on it [default: the number of cores].
+    #[arg(long, short, value_parser = in_range(1, MAX_PARALLEL))]
+    workers: Option<usize>,
+}
+
+impl WorkersArg {
+    fn get(&self) -> usize {
+        self.workers.unwrap_or_else(cores)
+    }
+}
+
 /// Threads inside one run.
 #[derive(clap::Args)]
 struct ThreadsArg {
     /// Threads that evaluate a run's steps while SUMO advances (1 to
     /// 1024); the results do not depend on it [default: the number of
-    /// cores].
+    /// cores; in a batch, shared among its workers].
     #[arg(long, value_parser = in_range(1, MAX_PARALLEL))]
     threads: Option<usize>,
 }
@@ -211,6 +246,11 @@ struct ThreadsArg {
 impl ThreadsArg {
     fn get(&self) -> usize {
         self.threads.unwrap_or_else(cores)
+    }
+
+    /// The threads given, else `default`.
+    fn or(&self, default: usize) -> usize {
+        self.threads.unwrap_or(default)
     }
 }
 
@@ -238,14 +278,10 @@ fn cores() -> usize {
 struct CommonArgs {
     #[command(flatten)]
     config: ConfigArg,
-    /// Output folder [default: results/<config file stem>, plus -eval or
-    /// -render for those commands].
-    #[arg(long, short)]
-    out: Option<PathBuf>,
-    /// Replace the output folder if it exists (the old one is removed only
-    /// after the new one is complete).
-    #[arg(long)]
-    force: bool,
+    #[command(flatten)]
+    out: OutArg,
+    #[command(flatten)]
+    force: ForceArg,
     #[command(flatten)]
     quiet: QuietArg,
 }
@@ -272,8 +308,8 @@ impl CommonArgs {
     ) -> anyhow::Result<(crate::config::Settings, crate::io::Claim)> {
         let config = self.config.path();
         let settings = crate::config::Settings::load_with(&config, overrides)?;
-        let out = out_dir(self.out.clone(), &config, suffix);
-        let claim = crate::io::Claim::new(&out, kind, crate::io::Existing::when(self.force))?;
+        let out = out_dir(self.out.out.clone(), &config, suffix);
+        let claim = crate::io::Claim::new(&out, kind, crate::io::Existing::when(self.force.force))?;
         Ok((settings, claim))
     }
 

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use super::label_arg;
+use super::{ForceArg, QuietArg, label_arg};
 use crate::bridge;
 use crate::io;
 use crate::scenarios::{self, Kind, Scenario};
@@ -32,17 +32,15 @@ pub struct Args {
     /// Output folder.
     #[arg(long, short)]
     out: PathBuf,
-    /// Replace scenario folders that exist.
-    #[arg(long)]
-    force: bool,
-    /// No progress bar.
-    #[arg(long, short)]
-    quiet: bool,
+    #[command(flatten)]
+    force: ForceArg,
+    #[command(flatten)]
+    quiet: QuietArg,
 }
 
 pub fn scenarios(a: Args) -> anyhow::Result<()> {
     let bar = super::progress_bar(
-        a.quiet,
+        a.quiet.quiet,
         a.count,
         "{spinner} scenarios [{bar:30}] {pos}/{len} elapsed {elapsed} eta {eta}",
     );
@@ -103,7 +101,7 @@ fn write(a: &Args, s: &Scenario) -> anyhow::Result<()> {
     let claim = io::Claim::new(
         &a.out.join(&s.name),
         io::ResultKind::Scenario,
-        io::Existing::when(a.force),
+        io::Existing::when(a.force.force),
     )?;
     claim.fill(|dir| -> anyhow::Result<()> {
         io::write_texts(dir, &s.files())?;

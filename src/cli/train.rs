@@ -6,12 +6,12 @@
 //! JSON object a line).
 
 use std::ffi::OsString;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::Context;
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use super::{ConfigArg, QuietArg, label_arg, progress_bar};
+use super::{ConfigArg, ForceArg, OutArg, QuietArg, WorkersArg, label_arg, progress_bar};
 use crate::batch;
 use crate::config::Settings;
 use crate::experiments;
@@ -22,28 +22,15 @@ use crate::matching::{Method, MethodKind, deep};
 pub struct Args {
     #[command(flatten)]
     config: ConfigArg,
-    /// The models folder written: weights (<method>.bpk), their record
-    /// (<method>.toml: architecture, training and validation settings,
-    /// loss per epoch, validated temperature, decision rule and lambda)
-    /// and loss curve (<method>_loss.csv) [default: results/<config file
-    /// stem>-models]. Point [matching] models_dir at it to use the
-    /// weights; `--out models --force` in the checkout replaces the
-    /// shipped ones.
-    #[arg(long, short)]
-    out: Option<PathBuf>,
-    /// Write into the models folder although it exists (its weights of the
-    /// trained methods are replaced; with --validate-only, their records
-    /// are updated).
-    #[arg(long)]
-    force: bool,
+    #[command(flatten)]
+    out: OutArg,
+    #[command(flatten)]
+    force: ForceArg,
     /// Train only these methods [default: [train] methods].
     #[arg(long, value_delimiter = ',', value_parser = label_arg::<Method>("method"))]
     methods: Vec<Method>,
-    /// Worker processes, 1 to 1024: methods trained at once, each group in
-    /// its own process (the weights do not depend on this; never more than
-    /// the methods) [default: the number of cores].
-    #[arg(long, short, value_parser = super::in_range(1, super::MAX_PARALLEL))]
-    workers: Option<usize>,
+    #[command(flatten)]
+    workers: WorkersArg,
     /// Train only: choose no temperature, decision rule or lambda (a
     /// later `coid train --validate-only`, or numbers in [matching], are
     /// then needed).
@@ -118,7 +105,7 @@ impl ChildMessage {
 pub fn train(a: Args) -> anyhow::Result<()> {
     let config = a.config.path();
     let settings = Settings::load(&config)?;
-    let models_dir = super::out_dir(a.out.clone(), &config, "-models");
+    let models_dir = super::out_dir(a.out.out.clone(), &config, "-models");
     if a.validate_only && !models_dir.is_dir() {
         anyhow::bail!(
             "no models folder {} to validate (give the folder with --out)",
@@ -128,7 +115,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     io::check_extendable(
         &models_dir,
         io::ResultKind::Models,
-        io::Existing::when(a.force),
+        io::Existing::when(a.force.force),
     )?;
     super::no_repeats("--methods", &a.methods)?;
     let methods = if a.methods.is_empty() {
@@ -147,10 +134,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         (false, true) => Show::Quiet,
         (false, false) => Show::Bars,
     };
-    let workers = a
-        .workers
-        .unwrap_or_else(super::cores)
-        .clamp(1, methods.len().max(1));
+    let workers = a.workers.get().clamp(1, methods.len().max(1));
     let started = std::time::Instant::now();
     if a.validate_only {
         return validate(&settings, &models_dir, &methods, show == Show::Bars);
