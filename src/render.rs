@@ -258,6 +258,7 @@ fn draw_legend<DB: DrawingBackend>(
 }
 
 /// One panel of a line plot: named series of (x, y) points.
+#[derive(Default)]
 pub struct Panel {
     pub title: String,
     pub x_label: String,
@@ -265,6 +266,28 @@ pub struct Panel {
     pub x_range: (f64, f64),
     pub y_range: (f64, f64),
     pub series: Vec<(String, Vec<(f64, f64)>)>,
+    /// Per series, the half-width of the 95% interval at each of its
+    /// points, drawn as a band around the line (none where missing).
+    pub bands: Vec<Vec<f64>>,
+}
+
+/// An axis range that shows the differences among `values` (finite ones;
+/// each with its interval half-width `ci`, NaN when none): from the lowest
+/// to the highest, padded by a tenth of the span, and at least
+/// `min_span` wide; `(0, 1)` without any value.
+pub fn fitted_range(values: &[(f64, f64)], min_span: f64) -> (f64, f64) {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for &(v, ci) in values.iter().filter(|(v, _)| v.is_finite()) {
+        let ci = if ci.is_finite() { ci.abs() } else { 0.0 };
+        lo = lo.min(v - ci);
+        hi = hi.max(v + ci);
+    }
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    let mid = (lo + hi) / 2.0;
+    let half = ((hi - lo) * 1.2).max(min_span) / 2.0;
+    (mid - half, mid + half)
 }
 
 const SERIES_COLOURS: [RGBColor; 6] = [
@@ -326,6 +349,14 @@ fn draw_panels<DB: DrawingBackend>(
             .map_err(e)?;
         for (k, (name, points)) in panel.series.iter().enumerate() {
             let colour = SERIES_COLOURS[k % SERIES_COLOURS.len()];
+            if let Some(band) = panel.bands.get(k).filter(|b| b.len() == points.len()) {
+                chart
+                    .draw_series(std::iter::once(Polygon::new(
+                        band_outline(points, band),
+                        colour.mix(0.15).filled(),
+                    )))
+                    .map_err(e)?;
+            }
             // An undefined value (a precision with no pair identified,
             // the "no threshold" row of a sweep) is left out, not drawn
             // at some made-up height.
@@ -353,6 +384,20 @@ fn draw_panels<DB: DrawingBackend>(
             .map_err(e)?;
     }
     Ok(())
+}
+
+/// The outline of a band around `points`: `y + ci` forward, `y - ci` back
+/// (points without a finite value or interval left out).
+fn band_outline(points: &[(f64, f64)], ci: &[f64]) -> Vec<(f64, f64)> {
+    let kept: Vec<(f64, f64, f64)> = points
+        .iter()
+        .zip(ci)
+        .filter(|((x, y), c)| x.is_finite() && y.is_finite() && c.is_finite())
+        .map(|(&(x, y), &c)| (x, y, c))
+        .collect();
+    let upper = kept.iter().map(|&(x, y, c)| (x, y + c));
+    let lower = kept.iter().rev().map(|&(x, y, c)| (x, y - c));
+    upper.chain(lower).collect()
 }
 
 /// Grouped bars with 95% confidence intervals: one group per category
@@ -486,6 +531,7 @@ pub fn eval_plots(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
         .lambda_sweep
         .iter()
         .map(|(level, pts)| Panel {
+            bands: Vec::new(),
             title: format!("ours, lambda sweep, pose noise {level}"),
             x_label: "lambda (entropy threshold, bits)".into(),
             y_label: "mean over test runs".into(),
@@ -511,6 +557,7 @@ pub fn eval_plots(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
         .errors
         .iter()
         .map(|(level, s, f)| Panel {
+            bands: Vec::new(),
             title: format!("ours, displacement error, pose noise {level}"),
             x_label: "error (m)".into(),
             y_label: "share of objects".into(),
@@ -535,6 +582,7 @@ pub fn eval_plots(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
             (format!("pose noise {level}"), pts)
         }));
         let panel = Panel {
+            bands: Vec::new(),
             title: format!("{method}: reliability of identified pairs"),
             x_label: "probability E[Y] (15 bins)".into(),
             y_label: "share right".into(),
@@ -593,6 +641,19 @@ mod tests {
     use super::*;
     use crate::geometry::Polygon;
     use crate::traffic::{Lane, ObjectClass, TrafficObject};
+
+    #[test]
+    fn fitted_ranges_show_the_differences_and_bands_go_round_their_lines() {
+        // Values 0.80-0.84 with intervals: the axis spans them, not 0-1.
+        let (lo, hi) = fitted_range(&[(0.80, 0.01), (0.84, 0.02), (f64::NAN, 0.5)], 0.05);
+        assert!(lo < 0.79 && lo > 0.7 && hi > 0.86 && hi < 0.95, "{lo} {hi}");
+        // A flat line still gets the minimum span, centred on it.
+        let (lo, hi) = fitted_range(&[(2.0, f64::NAN), (2.0, f64::NAN)], 0.2);
+        assert!((lo - 1.9).abs() < 1e-12 && (hi - 2.1).abs() < 1e-12);
+        assert_eq!(fitted_range(&[], 0.1), (0.0, 1.0));
+        let band = band_outline(&[(0.0, 1.0), (1.0, 2.0), (2.0, f64::NAN)], &[0.5, 0.1, 0.1]);
+        assert_eq!(band, [(0.0, 1.5), (1.0, 2.1), (1.0, 1.9), (0.0, 0.5)]);
+    }
 
     fn non_white_share(path: &Path) -> (u32, u32, f64) {
         let img = image::open(path).unwrap().to_rgb8();

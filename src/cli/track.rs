@@ -209,52 +209,67 @@ fn latency_panels(t: &Table) -> Vec<render::Panel> {
         _ => Vec::new(),
     };
     let values = column("value");
-    let series = |factor: &str, metric: &str| -> Vec<(f64, f64)> {
-        let m = column(metric);
+    // (points, their 95% half-widths) of one metric against latency.
+    let series = |factor: &str, metric: &str| -> (Vec<(f64, f64)>, Vec<f64>) {
+        let (m, ci) = (column(metric), column(&format!("{metric}_ci95")));
         (0..factors.len())
             .filter(|&k| factors[k] == factor && m[k].is_finite())
-            .map(|k| (values[k], m[k]))
-            .collect()
+            .map(|k| ((values[k], m[k]), ci.get(k).copied().unwrap_or(f64::NAN)))
+            .unzip()
     };
-    let max_de = ["oracle_de_single_m", "oracle_de_fused_m"]
-        .iter()
-        .flat_map(|m| column(m))
-        .filter(|x| x.is_finite())
-        .fold(1.0, f64::max);
+    let panel = |title: &str, y_label: &str, min_span: f64, lines: &[(&str, &str, &str)]| {
+        let (series, bands): (Vec<_>, Vec<_>) = lines
+            .iter()
+            .map(|(name, factor, metric)| {
+                let (points, ci) = series(factor, metric);
+                (((*name).to_owned(), points), ci)
+            })
+            .unzip();
+        let mut all: Vec<(f64, f64)> = Vec::new();
+        for ((_, points), ci) in series.iter().zip(&bands) {
+            all.extend(points.iter().zip(ci).map(|(&(_, y), &c)| (y, c)));
+        }
+        render::Panel {
+            title: title.into(),
+            x_label: "latency (ms)".into(),
+            y_label: y_label.into(),
+            x_range: (0.0, 300.0),
+            // The axis spans what the lines and bands cover, so that the
+            // differences they are drawn for show.
+            y_range: render::fitted_range(&all, min_span),
+            series,
+            bands,
+        }
+    };
     vec![
-        render::Panel {
-            title: "pair F1 against latency".into(),
-            x_label: "latency (ms)".into(),
-            y_label: "F1, mean over runs".into(),
-            x_range: (0.0, 300.0),
-            y_range: (0.0, 1.05),
-            series: vec![
-                ("per message".into(), series("latency_ms", "f1_per_message")),
-                ("over time".into(), series("latency_ms", "f1_over_time")),
+        panel(
+            "pair F1 against latency",
+            "F1, mean over runs (band: 95% CI)",
+            0.05,
+            &[
+                ("per message", "latency_ms", "f1_per_message"),
+                ("over time", "latency_ms", "f1_over_time"),
                 (
-                    "over time, not compensated".into(),
-                    series("latency_ms_uncompensated", "f1_over_time"),
+                    "over time, not compensated",
+                    "latency_ms_uncompensated",
+                    "f1_over_time",
                 ),
             ],
-        },
-        render::Panel {
-            title: "displacement error against latency (true pairs)".into(),
-            x_label: "latency (ms)".into(),
-            y_label: "DE (m), mean over runs".into(),
-            x_range: (0.0, 300.0),
-            y_range: (0.0, max_de * 1.1),
-            series: vec![
-                ("single".into(), series("latency_ms", "oracle_de_single_m")),
-                ("fused".into(), series("latency_ms", "oracle_de_fused_m")),
+        ),
+        panel(
+            "displacement error against latency (true pairs)",
+            "DE (m), mean over runs (band: 95% CI)",
+            0.2,
+            &[
+                ("single", "latency_ms", "oracle_de_single_m"),
+                ("fused", "latency_ms", "oracle_de_fused_m"),
                 (
-                    "fused, not compensated".into(),
-                    series("latency_ms_uncompensated", "oracle_de_fused_m"),
+                    "fused, not compensated",
+                    "latency_ms_uncompensated",
+                    "oracle_de_fused_m",
                 ),
-                (
-                    "fused by CI".into(),
-                    series("latency_ms", "oracle_de_fused_ci_m"),
-                ),
+                ("fused by CI", "latency_ms", "oracle_de_fused_ci_m"),
             ],
-        },
+        ),
     ]
 }
