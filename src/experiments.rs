@@ -10,9 +10,11 @@ use crate::config::Settings;
 use crate::evaluate::PairCounts;
 use crate::evaluate::{self, CorrespondenceSource, ExternalMatches};
 use crate::fusion::FusionSettings;
-use crate::matching::deep::decision::{Decision, UncertaintyKind, calibrated, pair_uncertainty};
+use crate::matching::deep::decision::{
+    Decision, KindLambdas, UncertaintyKind, calibrated, pair_uncertainty,
+};
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainProgress, TrainReport};
-use crate::matching::{DecisionChoice, LambdaChoice, Method, MethodKind};
+use crate::matching::{DecisionChoice, LambdaChoice, Method, MethodKind, MethodLambdas};
 use crate::pipeline::{self, Progress, RunError};
 use crate::sensor::PoseNoiseLabel;
 use crate::tables::{DecidedPair, MethodLevel, RuleKey, RunEval, lambda_grid};
@@ -159,7 +161,7 @@ pub fn train_method(
 pub fn eval_run(
     settings: &Settings,
     methods: &[Method],
-    lambdas: &BTreeMap<Method, f64>,
+    lambdas: &MethodLambdas,
     threads: usize,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
@@ -173,7 +175,7 @@ pub fn eval_run_with(
     settings: &Settings,
     methods: &[Method],
     external: Option<ExternalMatches>,
-    lambdas: &BTreeMap<Method, f64>,
+    lambdas: &MethodLambdas,
     threads: usize,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
@@ -194,7 +196,7 @@ fn eval_run_into(
     mut out: RunEval,
     settings: &Settings,
     runners: &[CorrespondenceSource],
-    lambdas: &BTreeMap<Method, f64>,
+    lambdas: &MethodLambdas,
     threads: usize,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
@@ -235,7 +237,10 @@ fn eval_run_into(
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Chosen {
     pub temperature: f64,
+    /// On the configured uncertainty type.
     pub lambda: f64,
+    /// Each uncertainty type's, with the same decision rule.
+    pub lambdas: KindLambdas,
     pub decision: Decision,
     pub f1: f64,
 }
@@ -273,11 +278,13 @@ fn fit_temperature<'a>(pairs: impl Iterator<Item = &'a DecidedPair> + Clone) -> 
 
 /// Chooses each deep method's calibration temperature, decision rule and
 /// lambda on the validation runs (`[train] validation_seeds` and
-/// scenarios), never on the test runs: per rule, the temperature with the
-/// lowest log loss of the decided pairs; then the rule and threshold (the
-/// grid 0..1 by 0.05 and no threshold, the configured uncertainty type, on
-/// calibrated entropies) with the best mean F1; ties go to the assignment
-/// rule, then to the smaller lambda. `progress(run, runs)` after each run.
+/// scenarios), never on the test runs: the rule and threshold (the grid
+/// 0..1 by 0.05 and no threshold, on the configured uncertainty type) with
+/// the best mean F1, ties going to the assignment rule, then to the
+/// smaller lambda; then with that rule each uncertainty type's own
+/// threshold, the same way; and the temperature with the lowest log loss
+/// of the rule's decided pairs (it calibrates the reported probabilities
+/// and changes no decision). `progress(run, runs)` after each run.
 pub fn validate(
     settings: &Settings,
     methods: &[Method],
@@ -320,56 +327,86 @@ fn decided(r: &RunEval, key: RuleKey) -> &[DecidedPair] {
         .map_or(&[][..], Vec::as_slice)
 }
 
-/// The temperature, rule and lambda of [`validate`] for one method.
+/// The mean F1 over the validation runs (of the mean over the levels) of
+/// method `m` deciding by `decision`, thresholded at `lambda` on the
+/// uncertainty `kind`; a run (or level) without pairs to find or found has
+/// none.
+fn validation_f1(
+    runs: &[RunEval],
+    levels: &[PoseNoiseLabel],
+    m: Method,
+    decision: Decision,
+    (kind, lambda): (UncertaintyKind, f64),
+) -> f64 {
+    let f1_of_run = |r: &RunEval| {
+        let f: Vec<f64> = levels
+            .iter()
+            .filter_map(|&l| {
+                let rule = MethodLevel::new(m, l).rule(decision);
+                let truth = r.unthresholded.get(&rule)?.ground_truth;
+                let kept = decided(r, rule).iter().filter(|d| {
+                    let (p, a) = (f64::from(d.p), f64::from(d.aleatoric));
+                    pair_uncertainty(p, a, kind) < lambda
+                });
+                let counts = PairCounts {
+                    identified: kept.clone().count(),
+                    correct: kept.filter(|d| d.correct).count(),
+                    ground_truth: truth,
+                };
+                Some(counts.f1()).filter(|f| f.is_finite())
+            })
+            .collect();
+        (!f.is_empty()).then(|| f.iter().sum::<f64>() / f.len() as f64)
+    };
+    let per_run: Vec<f64> = runs.iter().filter_map(f1_of_run).collect();
+    per_run.iter().sum::<f64>() / per_run.len().max(1) as f64
+}
+
+/// The lambda of the grid (or none) with the best [`validation_f1`], the
+/// smaller one on ties, and that F1.
+fn best_lambda(f1_at: impl Fn(f64) -> f64) -> (f64, f64) {
+    let mut best = (f64::INFINITY, f64::NEG_INFINITY);
+    for &lambda in &lambda_grid([]) {
+        let f1 = f1_at(lambda);
+        if f1 > best.1 {
+            best = (lambda, f1);
+        }
+    }
+    best
+}
+
+/// The temperature, rule and lambda of [`validate`] for one method: the
+/// rule and lambda on the configured uncertainty `kind`, then, with that
+/// rule, each uncertainty type's own lambda.
 fn choose(runs: &[RunEval], levels: &[PoseNoiseLabel], kind: UncertaintyKind, m: Method) -> Chosen {
     let mut best = Chosen {
         temperature: 1.0,
         lambda: f64::INFINITY,
+        lambdas: KindLambdas::all(f64::INFINITY),
         decision: Decision::Assignment,
         f1: f64::NEG_INFINITY,
     };
     for decision in [Decision::Assignment, Decision::Mutual] {
-        let all = runs.iter().flat_map(|r| {
-            levels
-                .iter()
-                .flat_map(move |&l| decided(r, MethodLevel::new(m, l).rule(decision)))
-        });
-        let temperature = fit_temperature(all);
-        for &lambda in &lambda_grid(&[]) {
-            // Mean over the runs of the mean F1 over the levels; a run
-            // (or level) without pairs to find or found has none.
-            let f1_of_run = |r: &RunEval| {
-                let f: Vec<f64> = levels
+        let (lambda, f1) =
+            best_lambda(|lambda| validation_f1(runs, levels, m, decision, (kind, lambda)));
+        if f1 > best.f1 {
+            let all = runs.iter().flat_map(|r| {
+                levels
                     .iter()
-                    .filter_map(|&l| {
-                        let rule = MethodLevel::new(m, l).rule(decision);
-                        let truth = r.unthresholded.get(&rule)?.ground_truth;
-                        let kept = decided(r, rule).iter().filter(|d| {
-                            let (p, a) = (f64::from(d.p), f64::from(d.aleatoric));
-                            pair_uncertainty(p, a, temperature, kind) < lambda
-                        });
-                        let counts = PairCounts {
-                            identified: kept.clone().count(),
-                            correct: kept.filter(|d| d.correct).count(),
-                            ground_truth: truth,
-                        };
-                        Some(counts.f1()).filter(|f| f.is_finite())
-                    })
-                    .collect();
-                (!f.is_empty()).then(|| f.iter().sum::<f64>() / f.len() as f64)
+                    .flat_map(move |&l| decided(r, MethodLevel::new(m, l).rule(decision)))
+            });
+            best = Chosen {
+                temperature: fit_temperature(all),
+                lambda,
+                lambdas: best.lambdas,
+                decision,
+                f1,
             };
-            let per_run: Vec<f64> = runs.iter().filter_map(f1_of_run).collect();
-            let f1 = per_run.iter().sum::<f64>() / per_run.len().max(1) as f64;
-            if f1 > best.f1 {
-                best = Chosen {
-                    temperature,
-                    lambda,
-                    decision,
-                    f1,
-                };
-            }
         }
     }
+    best.lambdas = KindLambdas::from_fn(|k| {
+        best_lambda(|lambda| validation_f1(runs, levels, m, best.decision, (k, lambda))).0
+    });
     best
 }
 

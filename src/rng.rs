@@ -48,6 +48,8 @@ pub enum Purpose {
     NodeOrder = 9,
     /// Whether and when one V2X message reaches one receiver.
     Channel = 10,
+    /// The resamples of a bootstrap interval in the tables.
+    Bootstrap = 11,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.
@@ -116,11 +118,12 @@ mod tests {
             Purpose::EmbeddingDropout,
             Purpose::NodeOrder,
             Purpose::Channel,
+            Purpose::Bootstrap,
         ]
         .iter()
         .map(|&p| p as u64)
         .collect();
-        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9, 10]);
+        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]);
     }
 
     const GOLDEN_KEY_123: u64 = 17_067_510_238_710_318_979;

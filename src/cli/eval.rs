@@ -11,7 +11,7 @@ use super::{CommonArgs, ThreadsArg, progress_bar};
 use crate::config::Settings;
 use crate::experiments;
 use crate::io::{self, OutputError};
-use crate::matching::{DeepChoice, Method};
+use crate::matching::{self, DeepChoice, Method, MethodLambdas};
 use crate::tables::RunEval;
 use crate::{pipeline, render, tables};
 
@@ -60,7 +60,7 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
     // Table 1 plus the practical ones).
     let methods = &scenarios[0].settings.matching.methods.clone();
     let choices = pipeline::choices(&scenarios[0].settings, methods)?;
-    let lambdas: BTreeMap<Method, f64> = choices.iter().map(|(&m, c)| (m, c.lambda)).collect();
+    let lambdas = matching::method_lambdas(&choices);
     for s in &mut scenarios {
         s.runs = evaluate(s, methods, &lambdas, a.threads.get(), &pb)?;
     }
@@ -255,7 +255,7 @@ fn compatible(first: &Settings, other: &Settings) -> anyhow::Result<()> {
 fn evaluate(
     s: &Scenario,
     methods: &[Method],
-    lambdas: &BTreeMap<Method, f64>,
+    lambdas: &MethodLambdas,
     threads: usize,
     pb: &ProgressBar,
 ) -> anyhow::Result<Vec<RunEval>> {
@@ -279,7 +279,7 @@ pub(super) fn write(
     choices: &BTreeMap<Method, DeepChoice>,
     pooled: Option<&str>,
 ) -> Result<(), OutputError> {
-    let lambdas: BTreeMap<Method, f64> = choices.iter().map(|(&m, c)| (m, c.lambda)).collect();
+    let lambdas = matching::method_lambdas(choices);
     let tables = tables::eval_tables(settings, runs, &lambdas);
     let plots = tables::plot_data(settings, runs, &lambdas);
     io::write_eval(dir, settings, &tables.files(), choices, pooled, |dir| {

@@ -10,7 +10,7 @@ use anyhow::Context;
 use super::{CommonArgs, ThreadsArg, label_arg, progress_bar};
 use crate::export::{self, ExportRun, Split};
 use crate::io;
-use crate::matching::{Method, MultiVehicle};
+use crate::matching::{self, Method, MultiVehicle};
 use crate::tables::RunEval;
 
 #[derive(clap::Args)]
@@ -216,7 +216,7 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
     let unnamed = unnamed_runs(&external, &exported);
     let methods = settings.matching.methods.clone();
     let choices = crate::pipeline::choices(&settings, &methods)?;
-    let lambdas: BTreeMap<Method, f64> = choices.iter().map(|(&m, c)| (m, c.lambda)).collect();
+    let lambdas = matching::method_lambdas(&choices);
     let scored: Vec<&ExportRun> = runs.iter().filter(|r| r.split == a.split).collect();
     let pb = progress_bar(
         a.common.quiet.quiet,

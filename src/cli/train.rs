@@ -378,20 +378,28 @@ fn validate(
             f1: c.f1,
             seeds: seeds.clone(),
             uncertainty: settings.matching.uncertainty.as_str(),
+            lambdas: c.lambdas,
         };
         io::record_validation(models_dir, method, &validation)?;
+        let text = |l: f64| {
+            if l.is_finite() {
+                format!("{l:.2}")
+            } else {
+                "none".to_owned()
+            }
+        };
+        let [total, epistemic, aleatoric] = c.lambdas.values();
         eprintln!(
             "coid: {}: temperature {:.2}, decision {}, lambda {} (mean F1 {:.3} on the \
-             validation runs)",
+             validation runs; entropy {}, epistemic {}, aleatoric {})",
             method.as_str(),
             c.temperature,
             c.decision.as_str(),
-            if c.lambda.is_finite() {
-                format!("{:.2}", c.lambda)
-            } else {
-                "none".to_owned()
-            },
-            c.f1
+            text(c.lambda),
+            c.f1,
+            text(total),
+            text(epistemic),
+            text(aleatoric),
         );
     }
     Ok(())

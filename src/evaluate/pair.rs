@@ -109,6 +109,7 @@ mod tests {
         };
         let choice = crate::matching::DeepChoice {
             lambda: 0.7,
+            lambdas: crate::matching::deep::decision::KindLambdas::all(0.7),
             decision: crate::matching::deep::decision::Decision::Assignment,
             temperature: 1.0,
         };

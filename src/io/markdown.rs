@@ -6,6 +6,7 @@ use std::fmt::Write as _;
 use std::collections::BTreeMap;
 
 use crate::config::Settings;
+use crate::matching::deep::decision::UncertaintyKind;
 use crate::matching::{DeepChoice, LambdaChoice, Method};
 use crate::report::{AggregateRow, Metric, RunResults, SummaryRow, Table, TableColumn};
 
@@ -179,9 +180,11 @@ pub fn eval(
         .iter()
         .map(|(m, c)| {
             format!(
-                "{} {} (decision {}, temperature {:.2})",
+                "{} {} (epistemic {}, aleatoric {}; decision {}, temperature {:.2})",
                 m.as_str(),
-                lambda_text(c.lambda),
+                lambda_text(c.lambdas.get(UncertaintyKind::Total)),
+                lambda_text(c.lambdas.get(UncertaintyKind::Epistemic)),
+                lambda_text(c.lambdas.get(UncertaintyKind::Aleatoric)),
                 c.decision.as_str(),
                 c.temperature
             )
@@ -193,7 +196,7 @@ pub fn eval(
     };
     let _ = writeln!(
         md,
-        "- entropy thresholds lambda ({source}): {}",
+        "- thresholds lambda on the total entropy, and on each uncertainty type for Table 3 ({source}): {}",
         chosen.join(", ")
     );
     let _ = writeln!(

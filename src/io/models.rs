@@ -6,10 +6,10 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use super::records::{self, Lambda, ModelRecord, ValidationRecord};
+use super::records::{self, Lambda, LambdaByKind, ModelRecord, ValidationRecord};
 use super::{OutputError, io, publish_files, write_text};
 use crate::config::Settings;
-use crate::matching::deep::decision::Decision;
+use crate::matching::deep::decision::{Decision, KindLambdas, UncertaintyKind};
 use crate::matching::deep::train::TrainReport;
 use crate::matching::{Method, MethodKind};
 
@@ -103,6 +103,8 @@ pub struct Validation {
     pub seeds: Vec<u64>,
     /// The uncertainty the threshold applies to.
     pub uncertainty: &'static str,
+    /// The threshold chosen for each uncertainty type.
+    pub lambdas: KindLambdas,
 }
 
 /// The record of a model just trained (no validation yet).
@@ -156,6 +158,11 @@ pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(
         decision: v.decision,
         temperature: v.temperature,
         f1: v.f1,
+        lambdas: Some(LambdaByKind {
+            entropy: Lambda::from_f64(v.lambdas.get(UncertaintyKind::Total)),
+            epistemic: Lambda::from_f64(v.lambdas.get(UncertaintyKind::Epistemic)),
+            aleatoric: Lambda::from_f64(v.lambdas.get(UncertaintyKind::Aleatoric)),
+        }),
     });
     let name = format!("{}.toml", method.as_str());
     let body = record.to_toml().map_err(OutputError::Batch)?;
@@ -166,8 +173,8 @@ pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(
 /// its `<method>.toml` records it (each `None` when it records none).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Validated {
-    /// The entropy threshold (infinite: no threshold).
-    pub lambda: Option<f64>,
+    /// The threshold of each uncertainty type (infinite: no threshold).
+    pub lambdas: Option<KindLambdas>,
     pub decision: Option<Decision>,
     /// The calibration temperature of the reported probabilities.
     pub temperature: Option<f64>,
@@ -180,7 +187,7 @@ pub fn read_validated(models_dir: &Path, method: Method) -> Result<Validated, We
     let record = read_record(models_dir, method)?;
     let Some(v) = record.validation else {
         return Ok(Validated {
-            lambda: None,
+            lambdas: None,
             decision: None,
             temperature: None,
         });
@@ -190,15 +197,28 @@ pub fn read_validated(models_dir: &Path, method: Method) -> Result<Validated, We
         path: models_dir.join(format!("{}.toml", method.as_str())),
         reason: reason.to_owned(),
     };
-    let lambda = v
-        .lambda
-        .to_f64()
-        .ok_or_else(|| fail("validation.lambda is not in [0, 1] or \"none\""))?;
+    let lambdas = match v.lambdas {
+        Some(by_kind) => {
+            let read = |l: Lambda, kind: &str| {
+                l.to_f64().ok_or_else(|| {
+                    fail(&format!(
+                        "validation.lambdas.{kind} is not in [0, 1] or \"none\""
+                    ))
+                })
+            };
+            Some(KindLambdas::from_values([
+                read(by_kind.entropy, "entropy")?,
+                read(by_kind.epistemic, "epistemic")?,
+                read(by_kind.aleatoric, "aleatoric")?,
+            ]))
+        }
+        None => None,
+    };
     if !(v.temperature.is_finite() && v.temperature > 0.0) {
         return Err(fail("validation.temperature is not a positive number"));
     }
     Ok(Validated {
-        lambda: Some(lambda),
+        lambdas,
         decision: Some(v.decision),
         temperature: Some(v.temperature),
     })

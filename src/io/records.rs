@@ -64,6 +64,19 @@ pub struct ValidationRecord {
     pub decision: Decision,
     pub temperature: f64,
     pub f1: f64,
+    /// The threshold chosen for each uncertainty type (Table 3), with the
+    /// decision and temperature above; absent in records written before
+    /// the types had their own (their thresholds are not read).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lambdas: Option<LambdaByKind>,
+}
+
+/// A threshold per uncertainty type, by its label.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LambdaByKind {
+    pub entropy: Lambda,
+    pub epistemic: Lambda,
+    pub aleatoric: Lambda,
 }
 
 /// A threshold in [0, 1], or none.
@@ -281,6 +294,11 @@ mod tests {
                 decision: Decision::Mutual,
                 temperature: 1.5,
                 f1: 0.9,
+                lambdas: Some(LambdaByKind {
+                    entropy: Lambda::from_f64(f64::INFINITY),
+                    epistemic: Lambda::from_f64(0.3),
+                    aleatoric: Lambda::from_f64(0.6),
+                }),
             }),
         }
     }

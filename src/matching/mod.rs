@@ -22,7 +22,7 @@ pub use learning_free::{Mogm, Rgm};
 use std::path::PathBuf;
 
 use self::deep::arch::DeepMethod;
-use self::deep::decision::{Decision, MatchDistribution, UncertaintyKind};
+use self::deep::decision::{Decision, KindLambdas, MatchDistribution, UncertaintyKind};
 use crate::fusion::{PoseEstimate, relative_pose_prior};
 use crate::geometry::Pose2;
 use crate::graph::SceneGraph;
@@ -301,11 +301,23 @@ pub enum BuildError {
 /// on validation runs or fixed by the config.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DeepChoice {
+    /// The threshold on the configured uncertainty type.
     pub lambda: f64,
+    /// The threshold of every uncertainty type (Table 3).
+    pub lambdas: KindLambdas,
     pub decision: Decision,
     /// The calibration temperature of the reported probabilities (1: as
     /// they are).
     pub temperature: f64,
+}
+
+/// Each deep method's threshold of every uncertainty type.
+pub type MethodLambdas = std::collections::BTreeMap<Method, KindLambdas>;
+
+/// The thresholds of the deep methods' choices (what the tables and the
+/// lambda grid need of them).
+pub fn method_lambdas(choices: &std::collections::BTreeMap<Method, DeepChoice>) -> MethodLambdas {
+    choices.iter().map(|(&m, c)| (m, c.lambdas)).collect()
 }
 
 /// Builds the matcher of a method, in canonical node order and with the
@@ -379,6 +391,7 @@ mod tests {
 
     const CHOICE: DeepChoice = DeepChoice {
         lambda: 0.7,
+        lambdas: KindLambdas::all(0.7),
         decision: Decision::Assignment,
         temperature: 1.0,
     };
@@ -453,6 +466,7 @@ mod tests {
                 };
                 let all_pairs = DeepChoice {
                     lambda: f64::INFINITY,
+                    lambdas: KindLambdas::all(f64::INFINITY),
                     ..CHOICE
                 };
                 let m = build(method, &s, all_pairs, 1, weights.as_deref()).unwrap();

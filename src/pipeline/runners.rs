@@ -9,7 +9,7 @@ use super::RunError;
 use crate::config::Settings;
 use crate::evaluate::CorrespondenceSource;
 use crate::io::{self, WeightsError};
-use crate::matching::deep::decision::Decision;
+use crate::matching::deep::decision::{Decision, KindLambdas};
 use crate::matching::{
     self, BuildError, DecisionChoice, DeepChoice, LambdaChoice, Method, MethodKind,
 };
@@ -37,12 +37,13 @@ pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, Run
             ),
         })
     };
-    let lambda = match m.lambda {
-        LambdaChoice::Fixed(v) => v,
+    let lambdas = match m.lambda {
+        LambdaChoice::Fixed(v) => KindLambdas::all(v),
         LambdaChoice::Validated => validated
-            .and_then(|v| v.lambda)
+            .and_then(|v| v.lambdas)
             .ok_or_else(|| missing("lambda"))?,
     };
+    let lambda = lambdas.get(m.uncertainty);
     let decision = match m.decision {
         DecisionChoice::Fixed(d) => d,
         DecisionChoice::Validated => validated
@@ -52,6 +53,7 @@ pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, Run
     let temperature = validated.and_then(|v| v.temperature).unwrap_or(1.0);
     Ok(DeepChoice {
         lambda,
+        lambdas,
         decision,
         temperature,
     })
@@ -103,6 +105,7 @@ pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSourc
 /// What a method that is not deep is built with (it reads neither).
 const NO_CHOICE: DeepChoice = DeepChoice {
     lambda: f64::NAN,
+    lambdas: KindLambdas::all(f64::NAN),
     decision: Decision::Assignment,
     temperature: 1.0,
 };

@@ -25,7 +25,7 @@ pub use calibration::*;
 pub use exchange::{ExportRunRow, MatchRow};
 pub use plots::{PlotData, SweepPoint};
 pub use run::*;
-pub use stats::mean_ci95;
+pub use stats::{PairedDifference, mean_ci95, paired_bootstrap};
 pub use table::{Table, TableColumn};
 pub use tracking::*;
 

@@ -195,3 +195,35 @@ fn calibration_of_a_hand_made_set() {
     assert!(uncertainty_auroc(&fair[..7]).is_nan());
     assert!(expected_calibration_error(&[]).is_nan());
 }
+
+/// Pairing removes what the runs share: a method 0.01 better on every
+/// run of very different runs has an interval above 0 (its intervals
+/// over runs, unpaired, overlap widely); differences that go both ways
+/// cover 0; the same inputs give the same interval.
+#[test]
+fn paired_bootstrap_sees_a_small_consistent_difference_and_not_a_random_one() {
+    let b: Vec<f64> = (0..10).map(|k| 0.5 + 0.04 * f64::from(k)).collect();
+    let a: Vec<f64> = b.iter().map(|x| x + 0.01).collect();
+    let (ma, ca) = mean_ci95(&a);
+    let (mb, cb) = mean_ci95(&b);
+    assert!(ma - ca < mb + cb, "the unpaired intervals overlap");
+    let d = paired_bootstrap(&a, &b, 1);
+    assert_eq!(d.n, 10);
+    assert!((d.mean - 0.01).abs() < 1e-12);
+    assert!(d.lo > 0.0 && d.hi < 0.0101, "{d:?}");
+    assert_eq!(d.sign(), Some(true));
+    assert_eq!(paired_bootstrap(&b, &a, 1).sign(), Some(false));
+    let noisy: Vec<f64> = b
+        .iter()
+        .enumerate()
+        .map(|(k, x)| x + if k % 2 == 0 { 0.05 } else { -0.05 })
+        .collect();
+    let d = paired_bootstrap(&noisy, &b, 1);
+    assert!(d.lo < 0.0 && d.hi > 0.0, "{d:?}");
+    assert_eq!(d.sign(), None);
+    assert_eq!(paired_bootstrap(&noisy, &b, 1), d);
+    // A run undefined on either side is left out; one run: no interval.
+    let d = paired_bootstrap(&[0.5, f64::NAN], &[0.4, 0.3], 1);
+    assert_eq!(d.n, 1);
+    assert!(d.lo.is_nan() && d.sign().is_none());
+}

@@ -1,7 +1,8 @@
 //! The paper's tables from the test runs of `coid eval`: what each run
 //! contributes ([`RunEval`], pooled within the run), and Table 1 (P/R/F1 per
 //! method), Table 2 (F1 before and after uncertainty thresholding), Table 3
-//! (uncertainty types), the lambda sweep (Fig. 8a), the case study and the
+//! (uncertainty types), the paired differences against the strongest
+//! baseline (bootstrap intervals over runs), the lambda sweep (Fig. 8a), the case study and the
 //! consistency across vehicles, each metric as the mean over runs with its
 //! 95% interval. Table 1, the case study, calibration and consistency see
 //! the decided matches (synchronised with `multi_vehicle =
@@ -11,6 +12,7 @@
 //! One job per file: `record` (the per-run record and its typed keys),
 //! `grid` (the lambda grid), `columns` (a table from typed rows, each
 //! column named once), `paper` (Tables 1-3, the sweep, the case study),
+//! `paired` (differences against the strongest baseline),
 //! `calibration` (calibration and consistency), `errors` (displacement
 //! errors, fusion from every view), `plots` (the plots' data). This file:
 //! what every table is made from ([`Inputs`]) and the tables together.
@@ -20,7 +22,7 @@ use std::collections::BTreeMap;
 use crate::config::Settings;
 use crate::fusion::FusionVariant;
 use crate::matching::deep::decision::{Decision, UncertaintyKind};
-use crate::matching::{Method, MethodKind};
+use crate::matching::{Method, MethodKind, MethodLambdas};
 use crate::report::{RowKey, Table};
 use crate::sensor::PoseNoiseLabel;
 
@@ -28,6 +30,7 @@ mod calibration;
 mod columns;
 mod errors;
 mod grid;
+mod paired;
 mod paper;
 mod plots;
 mod record;
@@ -39,6 +42,9 @@ pub use record::{DecidedPair, MethodLevel, RuleKey, RunEval, ThresholdKey};
 /// The paper's tables over the test runs.
 pub struct EvalTables {
     pub table1: Table,
+    /// Each method's F1 minus the strongest baseline's, paired by run,
+    /// with a bootstrap interval.
+    pub paired: Table,
     pub table2: Table,
     pub table3: Table,
     pub lambda_sweep: Table,
@@ -55,6 +61,7 @@ impl EvalTables {
     pub fn files(&self) -> Vec<(&'static str, &Table)> {
         let mut files = vec![
             ("table1.csv", &self.table1),
+            ("paired.csv", &self.paired),
             ("table2.csv", &self.table2),
             ("table3.csv", &self.table3),
             ("lambda_sweep.csv", &self.lambda_sweep),
@@ -70,11 +77,7 @@ impl EvalTables {
 }
 
 /// The tables, each deep method thresholded at its own lambda.
-pub fn eval_tables(
-    settings: &Settings,
-    runs: &[RunEval],
-    lambdas: &BTreeMap<Method, f64>,
-) -> EvalTables {
+pub fn eval_tables(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambdas) -> EvalTables {
     let inp = Inputs::new(settings, runs, lambdas);
     let with_ours = inp.deep_methods().contains(&Method::Ours);
     let if_ours = |f: fn(&Inputs) -> Table| {
@@ -82,6 +85,7 @@ pub fn eval_tables(
     };
     EvalTables {
         table1: paper::table1(&inp),
+        paired: paired::paired(&inp),
         table2: paper::table2(&inp),
         table3: if_ours(paper::table3),
         lambda_sweep: if_ours(paper::sweep),
@@ -99,15 +103,16 @@ struct Inputs<'a> {
     levels: Vec<PoseNoiseLabel>,
     /// Methods of Table 1 (those the runs evaluated), in table order.
     methods: Vec<Method>,
-    /// Each deep method's lambda as an index into the grid, and the grid.
-    at: BTreeMap<Method, usize>,
+    /// Each deep method's lambda of each uncertainty type as an index
+    /// into the grid, and the grid.
+    at: BTreeMap<(Method, UncertaintyKind), usize>,
     grid: Vec<f64>,
     kind: UncertaintyKind,
     variants: Vec<FusionVariant>,
 }
 
 impl<'a> Inputs<'a> {
-    fn new(settings: &Settings, runs: &'a [RunEval], lambdas: &BTreeMap<Method, f64>) -> Self {
+    fn new(settings: &Settings, runs: &'a [RunEval], lambdas: &MethodLambdas) -> Self {
         let mut methods: Vec<Method> = runs
             .first()
             .map(|r| r.table1.keys().map(|k| k.method).collect())
@@ -116,7 +121,9 @@ impl<'a> Inputs<'a> {
         let grid = lambda_grid(lambdas.values());
         let at = lambdas
             .iter()
-            .map(|(&m, &l)| (m, grid::grid_index(&grid, l)))
+            .flat_map(|(&m, l)| {
+                UncertaintyKind::VARIANTS_ARRAY.map(|k| ((m, k), grid::grid_index(&grid, l.get(k))))
+            })
             .collect();
         Inputs {
             runs,
@@ -134,9 +141,10 @@ impl<'a> Inputs<'a> {
         self.runs.iter().filter_map(f).collect()
     }
 
-    /// A deep method's lambda index (0 when it has none).
-    fn at(&self, m: Method) -> usize {
-        self.at.get(&m).copied().unwrap_or(0)
+    /// A deep method's lambda index of uncertainty `kind` (0 when it has
+    /// none).
+    fn at(&self, m: Method, kind: UncertaintyKind) -> usize {
+        self.at.get(&(m, kind)).copied().unwrap_or(0)
     }
 
     /// A deep method's own decision rule, as it ran.
@@ -163,7 +171,7 @@ impl<'a> Inputs<'a> {
     /// `m` at level `l` under its own decision rule, thresholded at its own
     /// lambda on the uncertainty `kind`.
     fn own_threshold(&self, m: Method, l: PoseNoiseLabel, kind: UncertaintyKind) -> ThresholdKey {
-        self.rule(m, l).threshold(kind, self.at(m))
+        self.rule(m, l).threshold(kind, self.at(m, kind))
     }
 
     /// Every method at every level, in table order.

@@ -1,14 +1,15 @@
 //! The paper's tables: Table 1 (precision, recall and F1 per method),
 //! Table 2 (F1 of the deep methods before and after thresholding at their
-//! own lambda), Table 3 (F1 of `ours` thresholded on each uncertainty
-//! type), the lambda sweep (Fig. 8a) and the case study of `ours`.
+//! own lambda, and the paired change with its bootstrap interval), Table 3 (F1 of `ours` thresholded on each uncertainty
+//! type at that type's own validated lambda), the lambda sweep (Fig. 8a) and the case study of `ours`.
 
 use super::Inputs;
 use super::columns::{Columns, ErrorStats, Scores};
+use super::paired::BOOTSTRAP_SEED;
 use super::record::{LevelFusion, MethodLevel};
 use crate::matching::Method;
 use crate::matching::deep::decision::UncertaintyKind;
-use crate::report::{Metric, Table};
+use crate::report::{Metric, PairedDifference, Table, paired_bootstrap};
 use crate::sensor::PoseNoiseLabel;
 
 /// The uncertainty types of Table 3, in its order.
@@ -47,16 +48,31 @@ pub(super) fn table2(inp: &Inputs) -> Table {
         key: MethodLevel,
         f1_before: Vec<f64>,
         f1_after: Vec<f64>,
+        change: PairedDifference,
     }
     let mut rows = Vec::new();
     for m in inp.deep_methods() {
         for &l in &inp.levels {
             let before = inp.rule(m, l);
             let after = inp.own_threshold(m, l, inp.kind);
+            // NaN where a run lacks one, so that the runs stay paired.
+            let f1_of =
+                |counts: Option<&crate::evaluate::PairCounts>| counts.map_or(f64::NAN, |c| c.f1());
+            let before_per_run: Vec<f64> = inp
+                .runs
+                .iter()
+                .map(|run| f1_of(run.unthresholded.get(&before)))
+                .collect();
+            let after_per_run: Vec<f64> = inp
+                .runs
+                .iter()
+                .map(|run| f1_of(run.thresholded.get(&after)))
+                .collect();
             rows.push(Row {
                 key: MethodLevel::new(m, l),
-                f1_before: inp.per_run(|run| run.unthresholded.get(&before).map(|c| c.f1())),
-                f1_after: inp.per_run(|run| run.thresholded.get(&after).map(|c| c.f1())),
+                change: paired_bootstrap(&after_per_run, &before_per_run, BOOTSTRAP_SEED),
+                f1_before: before_per_run,
+                f1_after: after_per_run,
             });
         }
     }
@@ -64,12 +80,16 @@ pub(super) fn table2(inp: &Inputs) -> Table {
         .method_level(|r| r.key)
         .stat("f1_before", |r| &r.f1_before)
         .stat("f1_after", |r| &r.f1_after)
+        .number("f1_change", |r| r.change.mean)
+        .number("f1_change_lo95", |r| r.change.lo)
+        .number("f1_change_hi95", |r| r.change.hi)
         .table()
 }
 
 pub(super) fn table3(inp: &Inputs) -> Table {
     struct Row {
         kind: UncertaintyKind,
+        lambda: f64,
         pose_noise: PoseNoiseLabel,
         f1: Vec<f64>,
     }
@@ -79,6 +99,7 @@ pub(super) fn table3(inp: &Inputs) -> Table {
             let key = inp.own_threshold(Method::Ours, l, kind);
             rows.push(Row {
                 kind,
+                lambda: inp.grid[inp.at(Method::Ours, kind)],
                 pose_noise: l,
                 f1: inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())),
             });
@@ -86,6 +107,7 @@ pub(super) fn table3(inp: &Inputs) -> Table {
     }
     Columns::of(&rows)
         .text("uncertainty", |r| r.kind.as_str().to_owned())
+        .number("lambda", |r| r.lambda)
         .pose_noise(|r| r.pose_noise)
         .stat(Metric::F1.column(), |r| &r.f1)
         .table()

@@ -2,23 +2,17 @@
 //! method's F1, the error distributions of `ours` and each deep method's
 //! reliability diagrams.
 
-use std::collections::BTreeMap;
-
 use super::Inputs;
 use super::calibration::pooled;
 use super::paper::sweep_rows;
 use super::record::{LevelFusion, MethodLevel, RunEval};
 use crate::config::Settings;
 use crate::fusion::FusionVariant;
-use crate::matching::Method;
+use crate::matching::MethodLambdas;
 use crate::report::{PlotData, SweepPoint, mean_ci95, reliability};
 
 /// The data of `coid eval`'s plots.
-pub fn plot_data(
-    settings: &Settings,
-    runs: &[RunEval],
-    lambdas: &BTreeMap<Method, f64>,
-) -> PlotData {
+pub fn plot_data(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambdas) -> PlotData {
     let inp = Inputs::new(settings, runs, lambdas);
     let mean = |v: &[f64]| mean_ci95(v).0;
     let sweep = sweep_rows(&inp);

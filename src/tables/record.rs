@@ -134,13 +134,6 @@ pub struct DecidedPair {
     pub correct: bool,
 }
 
-/// The uncertainty types every threshold is counted on.
-const KINDS: [UncertaintyKind; 3] = [
-    UncertaintyKind::Total,
-    UncertaintyKind::Epistemic,
-    UncertaintyKind::Aleatoric,
-];
-
 impl RunEval {
     /// An empty run that also keeps every decided pair (validation).
     pub fn keeping_pairs() -> Self {
@@ -198,7 +191,7 @@ impl RunEval {
                     correct,
                 }));
         }
-        for kind in KINDS {
+        for kind in UncertaintyKind::VARIANTS_ARRAY {
             let u: Vec<f64> = pairs
                 .iter()
                 .map(|c| dist.uncertainty(c.a, c.b, kind))

@@ -1,9 +1,9 @@
 //! Tables 1-3 and the sweep from hand-made distributions.
 
 use super::*;
-use crate::evaluate::{MethodEval, count_pairs};
+use crate::evaluate::{MethodEval, PairCounts, count_pairs};
 use crate::geometry::Pose2;
-use crate::matching::deep::decision::MatchDistribution;
+use crate::matching::deep::decision::{KindLambdas, MatchDistribution};
 use crate::matching::{Correspondence, Identification};
 use crate::report::TableColumn;
 use crate::sensor::{DetectionTruth, ObservationTruth};
@@ -78,7 +78,7 @@ fn tables_two_and_three_from_hand_made_distributions() {
     let cfg = dir.path().join("c.toml");
     std::fs::write(&cfg, "[pose_noise]\nlevels = [\"gps\"]\n").unwrap();
     let settings = Settings::load(&cfg).unwrap();
-    let lambdas = BTreeMap::from([(Method::Ours, 0.7)]);
+    let lambdas = BTreeMap::from([(Method::Ours, KindLambdas::all(0.7))]);
     let grid = lambda_grid(lambdas.values());
     let runs = vec![
         run_with(&[dist(0.95, 0.6)], &grid),
@@ -114,4 +114,51 @@ fn tables_two_and_three_from_hand_made_distributions() {
         Some(TableColumn::Count(n)) => assert_eq!((n[0], n[grid.len() - 1]), (0, 2)),
         other => panic!("{other:?}"),
     }
+}
+
+/// The paired table compares every method with the strongest baseline
+/// (here GPS+appearance Hungarian, above MOGM), run by run: a method
+/// one pair better on every run is "better" though the runs differ
+/// widely, MOGM is "worse", and a method that wins and loses by turns
+/// shows "no difference".
+#[test]
+fn the_paired_table_compares_with_the_strongest_baseline_run_by_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("c.toml");
+    std::fs::write(&cfg, "[pose_noise]\nlevels = [\"gps\"]\n").unwrap();
+    let settings = Settings::load(&cfg).unwrap();
+    let counts = |correct: usize| PairCounts {
+        identified: 40,
+        correct,
+        ground_truth: 40,
+    };
+    let runs: Vec<RunEval> = (0..8)
+        .map(|k| {
+            let base = 20 + 2 * k;
+            let mut run = RunEval::default();
+            for (m, c) in [
+                (Method::Ours, base + 1),
+                (
+                    Method::CoidNon,
+                    if k % 2 == 0 { base + 3 } else { base - 3 },
+                ),
+                (Method::Mogm, base - 5),
+                (Method::GpsAppHungarian, base),
+            ] {
+                let key = MethodLevel::new(m, PoseNoiseLabel::Gps);
+                run.table1.insert(key, counts(c));
+            }
+            run
+        })
+        .collect();
+    let t = eval_tables(&settings, &runs, &BTreeMap::new());
+    let text = |name: &str| match t.paired.column(name) {
+        Some(TableColumn::Text(v)) => v.clone(),
+        other => panic!("{name}: {other:?}"),
+    };
+    assert_eq!(text("method"), ["ours", "coid+non", "mogm"]);
+    assert!(text("reference").iter().all(|r| r == "gps-app-hungarian"));
+    assert_eq!(text("verdict"), ["better", "no difference", "worse"]);
+    let d = numbers(&t.paired, "f1_difference");
+    assert!((d[0] - 1.0 / 40.0).abs() < 1e-12, "{d:?}");
 }

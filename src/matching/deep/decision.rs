@@ -7,24 +7,21 @@
 //! Entropy scale: each pair (i, j) is a binary event "i matches j" with
 //! probability p = E[Y]_ij, and its uncertainty is the binary entropy of p
 //! in bits, which lies in [0, 1] (0 = certain either way, 1 = p of 0.5).
-//! That is the scale the paper's lambda = 0.7 fits. Aleatoric = the mean
-//! over samples of the binary entropy of each sample's p_t (expected data
-//! uncertainty); epistemic = total - aleatoric (the mutual information
-//! between the pair's outcome and the weights, >= 0).
+//! That is the scale the paper's lambda = 0.7 fits. The three kinds of
+//! Table 3 are Depeweg et al.'s decomposition, all on the samples as the
+//! network gives them (one scale): total = the entropy of the mean
+//! H(E[p_t]) (Eq. 10); aleatoric = the mean entropy of the samples
+//! E[H(p_t)] (expected data uncertainty); epistemic = total - aleatoric,
+//! the mutual information between the pair's outcome and the weights
+//! (>= 0 because entropy is concave; zero when every sample agrees).
+//! Thresholding removes a pair whose uncertainty of the chosen kind is at
+//! least lambda, whatever its probability.
 //!
 //! Calibration: a temperature `tau`, fitted on validation runs (log loss
 //! of the decided pairs), maps a pair's E[Y] to the probability it
-//! reports, `sigmoid(logit(p) / tau)`; its total entropy is that
-//! probability's. The map is monotone and keeps 0.5 where it is, so it
-//! changes no decision and no ranking; the aleatoric part stays the mean
-//! entropy of the raw samples, capped at the total.
-//!
-//! Binary entropy is symmetric: a pair with p = 0.1 is as "certain" as one
-//! with p = 0.9, but certain of the opposite. The decision asks how sure we
-//! are that a kept pair *is* a match, so a mutual-best pair whose mean
-//! probability is below one half counts as maximally uncertain (1 bit, of
-//! every kind): thresholding at any lambda <= 1 removes it, and the
-//! uncertainty it reports (for calibration and AUROC) says so.
+//! reports, `sigmoid(logit(p) / tau)`. The map is monotone and keeps 0.5
+//! where it is, so it changes no decision and no ranking; it calibrates
+//! the reported probability only, never the uncertainties.
 
 use crate::matching::{Correspondence, binary_entropy_bits};
 
@@ -38,6 +35,46 @@ crate::label_enum! { "uncertainty";
         Epistemic,
         Aleatoric,
     }
+}
+
+/// A threshold lambda per uncertainty type (infinite: no threshold), as
+/// validation chooses them: Table 3 thresholds each type at its own.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KindLambdas([f64; 3]);
+
+impl KindLambdas {
+    /// The same lambda for every type (a configured number).
+    pub const fn all(lambda: f64) -> Self {
+        Self([lambda; 3])
+    }
+
+    /// Builds them from the lambda of each type.
+    pub fn from_fn(mut f: impl FnMut(UncertaintyKind) -> f64) -> Self {
+        Self(UncertaintyKind::VARIANTS_ARRAY.map(&mut f))
+    }
+
+    /// From the lambda of each type in [`UncertaintyKind`]'s order.
+    pub fn from_values(values: [f64; 3]) -> Self {
+        Self(values)
+    }
+
+    pub fn get(&self, kind: UncertaintyKind) -> f64 {
+        self.0[kind as usize]
+    }
+
+    /// Every type's lambda, in [`UncertaintyKind`]'s order.
+    pub fn values(&self) -> [f64; 3] {
+        self.0
+    }
+}
+
+impl UncertaintyKind {
+    /// Every type, in declaration order (total, epistemic, aleatoric).
+    pub const VARIANTS_ARRAY: [UncertaintyKind; 3] = [
+        UncertaintyKind::Total,
+        UncertaintyKind::Epistemic,
+        UncertaintyKind::Aleatoric,
+    ];
 }
 
 crate::label_enum! { "decision";
@@ -77,20 +114,16 @@ pub struct MatchDistribution {
 }
 
 /// The uncertainty of `kind` of a pair with mean probability `p` (E[Y])
-/// and aleatoric part `aleatoric` (bits), calibrated by `temperature`: 1
-/// bit when `p` < 0.5 (more likely not a match; see the module docs),
-/// else the binary entropy of the calibrated probability, its aleatoric
-/// part (capped at it) or the rest (epistemic).
-pub fn pair_uncertainty(p: f64, aleatoric: f64, temperature: f64, kind: UncertaintyKind) -> f64 {
-    if p < 0.5 {
-        return 1.0;
-    }
-    let total = binary_entropy_bits(calibrated(p, temperature));
-    let aleatoric = aleatoric.min(total);
+/// and mean sample entropy `aleatoric` (bits): the binary entropy of `p`
+/// (total), `aleatoric` (capped at the total, which it can pass only by
+/// rounding), or their difference (epistemic, the mutual information).
+pub fn pair_uncertainty(p: f64, aleatoric: f64, kind: UncertaintyKind) -> f64 {
+    let total = binary_entropy_bits(p);
+    let aleatoric = aleatoric.clamp(0.0, total);
     match kind {
         UncertaintyKind::Total => total,
         UncertaintyKind::Aleatoric => aleatoric,
-        UncertaintyKind::Epistemic => (total - aleatoric).max(0.0),
+        UncertaintyKind::Epistemic => total - aleatoric,
     }
 }
 
@@ -163,18 +196,17 @@ impl MatchDistribution {
     }
 
     /// The total uncertainty of pair (i, j): the binary entropy of its
-    /// probability, in bits.
+    /// E[Y], in bits.
     pub fn total(&self, i: usize, j: usize) -> f64 {
-        binary_entropy_bits(self.probability(i, j))
+        binary_entropy_bits(f64::from(self.p(i, j)))
     }
 
-    /// The uncertainty of `kind` that the decision uses for pair (i, j):
-    /// [`pair_uncertainty`] of its E[Y] and aleatoric part.
+    /// The uncertainty of `kind` of pair (i, j): [`pair_uncertainty`] of
+    /// its E[Y] and mean sample entropy.
     pub fn uncertainty(&self, i: usize, j: usize, kind: UncertaintyKind) -> f64 {
         pair_uncertainty(
             f64::from(self.p(i, j)),
             f64::from(self.aleatoric[i * self.n2 + j]),
-            self.temperature,
             kind,
         )
     }
@@ -231,7 +263,7 @@ impl MatchDistribution {
                 a: i,
                 b: j,
                 probability: self.probability(i, j),
-                uncertainty: self.uncertainty(i, j, UncertaintyKind::Total),
+                uncertainty: binary_entropy_bits(self.probability(i, j)),
             })
             .collect()
     }
@@ -301,25 +333,51 @@ mod tests {
         assert_eq!((kept[0].a, kept[0].b), (1, 1));
     }
 
+    /// Thresholding applies to the uncertainty as it is: an unlikely
+    /// mutual-best pair (p = 0.1, 0.47 bits) is kept at lambda 0.7 and
+    /// removed at 0.4; nothing collapses at p = 0.5.
     #[test]
-    fn an_unlikely_mutual_best_pair_is_uncertain_not_certain() {
-        // Row 0's best is column 0 at p = 0.1 (binary entropy 0.47 bits,
-        // "certain" by symmetry); everything else prefers the dustbins.
+    fn an_unlikely_pair_is_thresholded_on_its_entropy() {
+        // Row 0's best is column 0 at p = 0.1; everything else prefers
+        // the dustbins.
         let s = vec![
             0.1, 0.0, 0.09, //
             0.0, 0.05, 0.95, //
             0.05, 0.95, 0.0,
         ];
         let d = dist(&[s]);
-        assert!(d.total(0, 0) < 0.5);
-        assert_eq!(d.uncertainty(0, 0, UncertaintyKind::Total), 1.0);
-        assert_eq!(d.uncertainty(0, 0, UncertaintyKind::Epistemic), 1.0);
-        // Kept without a threshold, and then reported as 1 bit uncertain.
-        let m = d.decide(None);
-        assert_eq!(m.len(), 1);
-        assert_eq!(m[0].uncertainty, 1.0);
-        // Removed at lambda 0.7 and at lambda 1 (>= lambda is removed).
-        assert!(d.decide(Some((UncertaintyKind::Total, 0.7))).is_empty());
-        assert!(d.decide(Some((UncertaintyKind::Total, 1.0))).is_empty());
+        let h = binary_entropy_bits(0.1);
+        assert!((d.uncertainty(0, 0, UncertaintyKind::Total) - h).abs() < 1e-6);
+        assert!(d.uncertainty(0, 0, UncertaintyKind::Epistemic).abs() < 1e-6);
+        assert_eq!(d.decide(None).len(), 1);
+        assert_eq!(d.decide(Some((UncertaintyKind::Total, 0.7))).len(), 1);
+        assert!(d.decide(Some((UncertaintyKind::Total, 0.4))).is_empty());
+    }
+
+    /// Epistemic uncertainty is the mutual information: zero when every
+    /// sample agrees (however uncertain each is), positive when they
+    /// disagree, and total = aleatoric + epistemic on one scale.
+    #[test]
+    fn epistemic_is_zero_when_every_sample_agrees() {
+        let soft = vec![0.6, 0.0, 0.4, 0.0, 1.0, 0.0, 0.4, 0.0, 0.6];
+        let d = dist(&[soft.clone(), soft.clone(), soft]);
+        assert!(d.uncertainty(0, 0, UncertaintyKind::Epistemic).abs() < 1e-6);
+        let total = d.uncertainty(0, 0, UncertaintyKind::Total);
+        assert!((total - binary_entropy_bits(0.6)).abs() < 1e-6);
+        assert!((d.uncertainty(0, 0, UncertaintyKind::Aleatoric) - total).abs() < 1e-6);
+        // Two samples at 0.9 and 0.3 (mean 0.6): same total, less
+        // aleatoric, the rest epistemic.
+        let hi = vec![0.9, 0.0, 0.1, 0.0, 1.0, 0.0, 0.1, 0.0, 0.9];
+        let lo = vec![0.3, 0.0, 0.7, 0.0, 1.0, 0.0, 0.7, 0.0, 0.3];
+        let d = dist(&[hi, lo]);
+        let (t, a, e) = (
+            d.uncertainty(0, 0, UncertaintyKind::Total),
+            d.uncertainty(0, 0, UncertaintyKind::Aleatoric),
+            d.uncertainty(0, 0, UncertaintyKind::Epistemic),
+        );
+        assert!((t - total).abs() < 1e-6);
+        let mean_h = (binary_entropy_bits(0.9) + binary_entropy_bits(0.3)) / 2.0;
+        assert!((a - mean_h).abs() < 1e-6, "{a} {mean_h}");
+        assert!(e > 0.1 && (t - a - e).abs() < 1e-9, "{e}");
     }
 }

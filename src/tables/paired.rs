@@ -1,0 +1,83 @@
+//! Paired differences: each method's F1 minus the strongest baseline's, run
+//! by run (the same runs, hence the same instances, on both sides), with a
+//! percentile bootstrap interval over the runs. Where the interval covers
+//! 0 the table says "no difference".
+
+use super::Inputs;
+use super::columns::Columns;
+use super::record::MethodLevel;
+use crate::matching::{Method, MethodKind};
+use crate::report::{PairedDifference, Table, mean_ci95, paired_bootstrap};
+use crate::sensor::PoseNoiseLabel;
+
+/// The seed of every bootstrap: the same runs give the same interval.
+pub(super) const BOOTSTRAP_SEED: u64 = 0x0c01_d5ee_d000_0033;
+
+/// Whether `m` is a baseline a method is compared with: the learning-free
+/// and GPS-based methods (not the oracle, not a deep method, not an
+/// external file).
+fn is_baseline(m: Method) -> bool {
+    matches!(m.kind(), MethodKind::LearningFree | MethodKind::GpsBased)
+}
+
+/// The baseline with the highest mean F1 at level `l` (the strongest:
+/// the comparison hardest to win), if the runs hold one.
+fn strongest_baseline(inp: &Inputs, l: PoseNoiseLabel) -> Option<Method> {
+    inp.methods
+        .iter()
+        .copied()
+        .filter(|&m| is_baseline(m))
+        .map(|m| (m, mean_ci95(&f1_per_run(inp, MethodLevel::new(m, l))).0))
+        .filter(|(_, f1)| f1.is_finite())
+        .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
+        .map(|(m, _)| m)
+}
+
+/// The F1 of `key` in every run, NaN where undefined (so that runs stay
+/// aligned across methods).
+fn f1_per_run(inp: &Inputs, key: MethodLevel) -> Vec<f64> {
+    inp.runs
+        .iter()
+        .map(|r| r.table1.get(&key).map_or(f64::NAN, |c| c.f1()))
+        .collect()
+}
+
+/// Every other method against the strongest baseline, level by level.
+pub(super) fn paired(inp: &Inputs) -> Table {
+    struct Row {
+        key: MethodLevel,
+        reference: Method,
+        d: PairedDifference,
+    }
+    let mut rows = Vec::new();
+    for &l in &inp.levels {
+        let Some(reference) = strongest_baseline(inp, l) else {
+            continue;
+        };
+        let base = f1_per_run(inp, MethodLevel::new(reference, l));
+        for &m in inp.methods.iter().filter(|&&m| m != reference) {
+            let key = MethodLevel::new(m, l);
+            rows.push(Row {
+                key,
+                reference,
+                d: paired_bootstrap(&f1_per_run(inp, key), &base, BOOTSTRAP_SEED),
+            });
+        }
+    }
+    Columns::of(&rows)
+        .method_level(|r| r.key)
+        .text("reference", |r| r.reference.as_str().to_owned())
+        .count("n_runs", |r| r.d.n)
+        .number("f1_difference", |r| r.d.mean)
+        .number("f1_difference_lo95", |r| r.d.lo)
+        .number("f1_difference_hi95", |r| r.d.hi)
+        .text("verdict", |r| {
+            match r.d.sign() {
+                Some(true) => "better",
+                Some(false) => "worse",
+                None => "no difference",
+            }
+            .to_owned()
+        })
+        .table()
+}
