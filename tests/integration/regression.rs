@@ -3,7 +3,9 @@
 //! binary where a user meets the defect. Each failed on the code before
 //! its fix.
 
-use super::*;
+use crate::util::*;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 /// A config on the shipped scenario with the two fast methods.

@@ -1,0 +1,39 @@
+//! `coid render`: instances drawn as PNG and SVG.
+
+use crate::util::*;
+
+#[test]
+fn render_draws_real_instances_as_png_and_svg() {
+    let fx = Fixture::new();
+    let cfg = fx.config("r.toml", 80.0, "");
+    let out = fx.coid(&[
+        "render",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        "pics",
+        "--instances",
+        "0,1",
+    ]);
+    assert_ok(&out);
+    for name in ["instance-0000", "instance-0001"] {
+        let png = fx.path("pics").join(format!("{name}.png"));
+        let img = image::open(&png).unwrap().to_rgb8();
+        assert_eq!((img.width(), img.height()), (1000, 1000));
+        let colours: std::collections::HashSet<[u8; 3]> = img.pixels().map(|p| p.0).collect();
+        assert!(colours.len() > 20, "{name}: only {} colours", colours.len());
+        assert!(fx.path("pics").join(format!("{name}.svg")).is_file());
+    }
+    let bad = fx.coid(&[
+        "render",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        "none",
+        "--instances",
+        "100000",
+    ]);
+    assert!(!bad.status.success());
+    assert!(stderr(&bad).contains("no instance"), "{}", stderr(&bad));
+    assert!(!fx.path("none").exists());
+}

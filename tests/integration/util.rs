@@ -1,0 +1,136 @@
+//! What every test module uses: the binary, a temporary folder to run it
+//! in, readers of its tables.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use polars::prelude::*;
+
+pub const BIN: &str = env!("CARGO_BIN_EXE_coid");
+
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The `coid` binary in `dir`, with its data folder there too (each test
+/// writes out the carried files for itself) and SUMO's environment from
+/// `COID_VENV` or the checkout's `.venv` (never a new download).
+pub fn coid_in(dir: &Path) -> Command {
+    let mut c = Command::new(BIN);
+    c.current_dir(dir).env("COID_HOME", dir.join(".coid-home"));
+    if std::env::var_os("COID_VENV").is_none() {
+        c.env("COID_VENV", repo().join(".venv"));
+    }
+    c
+}
+
+pub fn shipped_sumocfg() -> PathBuf {
+    repo().join("sumo_nets/intersection/intersection.sumocfg")
+}
+
+/// A temporary folder with helpers to write configs and run the binary.
+pub struct Fixture {
+    pub dir: tempfile::TempDir,
+}
+
+impl Fixture {
+    pub fn new() -> Self {
+        Fixture {
+            dir: tempfile::tempdir().expect("temp dir"),
+        }
+    }
+
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.path().join(name)
+    }
+
+    /// Writes a config: the shipped scenario, run for `end_s`, plus `extra`
+    /// TOML (sections after `[scenario]`). Everything else comes from the
+    /// defaults, the shipped weights included.
+    pub fn config(&self, name: &str, end_s: f64, extra: &str) -> PathBuf {
+        let body = format!(
+            "[scenario]\nsumocfg = {:?}\njunction = \"C\"\nend_s = {end_s}\n{extra}",
+            shipped_sumocfg().to_string_lossy()
+        );
+        self.write(name, &body)
+    }
+
+    pub fn write(&self, name: &str, body: &str) -> PathBuf {
+        let p = self.path(name);
+        std::fs::write(&p, body).expect("write");
+        p
+    }
+
+    pub fn coid(&self, args: &[&str]) -> Output {
+        coid_in(self.dir.path())
+            .args(args)
+            .output()
+            .expect("run coid")
+    }
+
+    pub fn run(&self, config: &Path, out: &str) -> Output {
+        self.coid(&[
+            "run",
+            "--quiet",
+            "--config",
+            config.to_str().unwrap(),
+            "--out",
+            out,
+        ])
+    }
+}
+
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+pub fn assert_ok(o: &Output) {
+    assert!(o.status.success(), "coid failed: {}", stderr(o));
+}
+
+/// Polls `done` every 10 ms until it holds; fails with `what` once
+/// `deadline` has passed.
+pub fn wait_until(deadline: std::time::Instant, what: &str, mut done: impl FnMut() -> bool) {
+    while !done() {
+        assert!(std::time::Instant::now() < deadline, "{what}");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+}
+
+pub fn read_csv(path: &Path) -> DataFrame {
+    CsvReadOptions::default()
+        .with_has_header(true)
+        .try_into_reader_with_file_path(Some(path.to_owned()))
+        .expect("csv reader")
+        .finish()
+        .expect("read csv")
+}
+
+pub fn read_parquet(path: &Path) -> DataFrame {
+    ParquetReader::new(File::open(path).expect("open parquet"))
+        .finish()
+        .expect("read parquet")
+}
+
+pub fn f64s(df: &DataFrame, col: &str) -> Vec<f64> {
+    df.column(col)
+        .unwrap()
+        .cast(&DataType::Float64)
+        .unwrap()
+        .f64()
+        .unwrap()
+        .iter()
+        .map(|v| v.unwrap_or(f64::NAN))
+        .collect()
+}
+
+pub fn strs(df: &DataFrame, col: &str) -> Vec<String> {
+    df.column(col)
+        .unwrap()
+        .str()
+        .unwrap()
+        .iter()
+        .map(|v| v.unwrap_or("").to_owned())
+        .collect()
+}
