@@ -3,19 +3,10 @@
 
 use crate::util::*;
 use std::path::{Path, PathBuf};
-use std::process::Output;
 
-/// Runs `config` and checks: non-zero exit, one line on stderr that
-/// contains `expect`, no panic, and no output folder.
+/// Runs `config` into `out`: refused, and no output folder.
 fn fails_cleanly(fx: &Fixture, config: &Path, expect: &str) {
-    let out = fx.run(config, "out");
-    let err = stderr(&out);
-    assert!(!out.status.success(), "expected failure for {expect}");
-    assert!(!err.contains("panicked"), "panic: {err}");
-    assert_eq!(err.trim().lines().count(), 1, "not one line: {err}");
-    assert!(err.starts_with("error: "), "{err}");
-    assert!(err.contains(expect), "expected {expect:?} in: {err}");
-    assert!(!fx.path("out").exists(), "half-written results left behind");
+    assert_refused_unwritten(&fx.run(config, "out"), expect, &fx.path("out"));
 }
 
 #[test]
@@ -95,9 +86,8 @@ fn an_unwritable_out_is_refused_before_the_simulation() {
     let cfg = broken_sumo(&fx);
     fx.write("a-file", "not a folder");
     let out = fx.run(&cfg, "a-file/out");
-    let err = stderr(&out);
-    assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains("a-file") && !err.contains("SUMO"), "{err}");
+    assert_refused(&out, "a-file");
+    assert!(!stderr(&out).contains("SUMO"), "{}", stderr(&out));
 }
 
 #[test]
@@ -138,9 +128,7 @@ fn existing_results_are_kept_without_force() {
     let cfg = fx.config("e.toml", 60.0, "");
     std::fs::create_dir_all(fx.path("out")).unwrap();
     std::fs::write(fx.path("out/summary.csv"), "precious").unwrap();
-    let out = fx.run(&cfg, "out");
-    assert!(!out.status.success());
-    assert!(stderr(&out).contains("already exists"), "{}", stderr(&out));
+    assert_refused(&fx.run(&cfg, "out"), "already exists");
     assert_eq!(
         std::fs::read_to_string(fx.path("out/summary.csv")).unwrap(),
         "precious"
@@ -157,15 +145,6 @@ fn existing_results_are_kept_without_force() {
     assert!(after.starts_with(b"method,") && after != before);
 }
 
-/// A command refused with one line, no panic, a non-zero exit.
-fn refused(out: &Output, expect: &str) {
-    let err = stderr(out);
-    assert!(!out.status.success(), "expected a refusal ({expect})");
-    assert!(!err.contains("panicked"), "panic: {err}");
-    assert_eq!(err.trim().lines().count(), 1, "not one line: {err}");
-    assert!(err.contains(expect), "expected {expect:?} in: {err}");
-}
-
 /// `--force` replaces only what the same command wrote: never a
 /// user's folder (here the one holding the run's own config), nor a
 /// batch's or another command's results.
@@ -178,21 +157,21 @@ fn force_replaces_only_results_of_the_same_kind() {
         &std::fs::read_to_string(fx.config("c.toml", 60.0, "")).unwrap(),
     );
     let c = cfg.to_str().unwrap();
-    refused(
+    assert_refused(
         &fx.coid(&["run", "-q", "--force", "--config", c, "--out", "mine"]),
         "coid did not write it",
     );
     assert!(cfg.is_file(), "the config was removed");
     assert_ok(&fx.coid(&["run", "-q", "--config", c, "--out", "r"]));
-    refused(
+    assert_refused(
         &fx.coid(&["eval", "-q", "--force", "--config", c, "--out", "r"]),
         "not an evaluation",
     );
-    refused(
+    assert_refused(
         &fx.coid(&["batch", "-q", "--config", c, "--runs", "1", "--out", "r"]),
         "not a batch folder",
     );
-    refused(
+    assert_refused(
         &fx.coid(&["scenarios", "-q", "--count", "1", "--out", "mine"]),
         "coid did not write it",
     );
@@ -266,9 +245,6 @@ fn merge_refuses_a_shard_given_twice() {
         "batch", "-q", "--config", c, "--runs", "2", "--shard", "1/2", "--out", "s1",
     ];
     assert_ok(&fx.coid(&args));
-    refused(
-        &fx.coid(&["merge", "s1", "./s1", "--out", "m"]),
-        "given twice",
-    );
-    assert!(!fx.path("m").exists());
+    let merged = fx.coid(&["merge", "s1", "./s1", "--out", "m"]);
+    assert_refused_unwritten(&merged, "given twice", &fx.path("m"));
 }

@@ -178,19 +178,10 @@ fn a_batch_is_identified_by_content_not_by_path() {
         &format!("{text}[sensor]\ncolour_sigma = 0.07\n"),
     );
     let out = batch(&fx, &edited, "2", "1", "b", &["--shard", "1/2"]);
-    assert!(!out.status.success());
-    assert!(
-        stderr(&out).contains("has changed since"),
-        "{}",
-        stderr(&out)
-    );
-    assert_eq!(stderr(&out).trim().lines().count(), 1, "{}", stderr(&out));
+    assert_refused(&out, "has changed since");
     assert_ok(&batch(&fx, &edited, "2", "1", "e2", &["--shard", "2/2"]));
     let out = fx.coid(&["merge", "b", "e2", "--out", "mixed"]);
-    assert!(!out.status.success());
-    assert!(stderr(&out).contains("different batch"), "{}", stderr(&out));
-    assert_eq!(stderr(&out).trim().lines().count(), 1, "{}", stderr(&out));
-    assert!(!fx.path("mixed").exists());
+    assert_refused_unwritten(&out, "different batch", &fx.path("mixed"));
 }
 
 /// A resume checks every run folder: a summary cut short or a missing

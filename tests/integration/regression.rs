@@ -76,15 +76,6 @@ fn wait_for_staging(fx: &Fixture, name: &str, child: &mut std::process::Child) {
     });
 }
 
-/// A command refused with one line, no panic, exit code `code`.
-fn refused_with(out: &Output, code: i32, expect: &str) {
-    let err = stderr(out);
-    assert_eq!(out.status.code(), Some(code), "{err}");
-    assert!(!err.contains("panicked"), "panic: {err}");
-    assert_eq!(err.trim().lines().count(), 1, "not one line: {err}");
-    assert!(err.contains(expect), "expected {expect:?} in: {err}");
-}
-
 fn modified(p: &Path) -> std::time::SystemTime {
     std::fs::metadata(p).unwrap().modified().unwrap()
 }
@@ -143,7 +134,7 @@ fn r31_02_a_run_never_replaces_what_appeared_at_its_out() {
     std::fs::write(fx.path("out/mine.txt"), "precious").unwrap();
     let pid = child.id();
     let o = child.wait_with_output().unwrap();
-    refused_with(&o, 1, "appeared while");
+    assert_refused(&o, "appeared while");
     assert_eq!(names(&fx.path("out")), ["mine.txt"]);
     let kept = fx.path(&format!("out.coid-{pid}"));
     assert!(kept.join("summary.csv").is_file(), "the results were lost");
@@ -153,7 +144,7 @@ fn r31_02_a_run_never_replaces_what_appeared_at_its_out() {
     let mut child = spawn(&fx, &["run", "-q", "--force", "-c", c, "-o", "f"]);
     wait_for_staging(&fx, "f", &mut child);
     std::fs::write(fx.path("f/note.txt"), "added").unwrap();
-    refused_with(&child.wait_with_output().unwrap(), 1, "changed while");
+    assert_refused(&child.wait_with_output().unwrap(), "changed while");
     assert!(fx.path("f/note.txt").is_file());
     assert_eq!(std::fs::read(fx.path("f/summary.csv")).unwrap(), old);
     // Two runs with different configs into one folder at once.
@@ -213,7 +204,7 @@ fn r31_03_export_with_matches_oracle_writes_every_row_once() {
     ];
     assert_ok(&fx.coid(&score));
     let twice = ["--with-matches", "oracle", "oracle", "-o", "twice"];
-    refused_with(&fx.coid(&[&export[..], &twice[..]].concat()), 1, "twice");
+    assert_refused(&fx.coid(&[&export[..], &twice[..]].concat()), "twice");
 }
 
 /// 4. Editing the config while a batch runs changes nothing in it: every
@@ -242,7 +233,7 @@ fn r31_04_a_config_edited_mid_batch_does_not_mix_configurations() {
     let bytes = |d: &str| std::fs::read(fx.path(d).join("summary.csv")).unwrap();
     assert_eq!(bytes("edited"), bytes("plain"));
     let resumed = fx.coid(&[&args[..], &["-o", "edited"]].concat());
-    refused_with(&resumed, 1, "has changed since");
+    assert_refused(&resumed, "has changed since");
 }
 
 /// 5. A scenario named twice in an evaluation (by `--suite` or `[eval]
@@ -254,11 +245,11 @@ fn r31_05_eval_refuses_a_scenario_named_twice() {
     let cfg = fast(&fx, "e.toml", 60.0, "[eval]\ntraffic_seeds = [1]\n");
     let c = cfg.to_str().unwrap();
     let o = fx.coid(&["eval", "-q", "-c", c, "--suite", c, "-o", "e"]);
-    refused_with(&o, 1, "the same runs");
+    assert_refused(&o, "the same runs");
     std::fs::create_dir_all(fx.path("sub")).unwrap();
     std::fs::copy(&cfg, fx.path("sub/e.toml")).unwrap();
     let o = fx.coid(&["eval", "-q", "-c", c, "--suite", "sub/e.toml", "-o", "e"]);
-    refused_with(&o, 1, "the same runs");
+    assert_refused(&o, "the same runs");
     let own = fast(
         &fx,
         "own.toml",
@@ -266,7 +257,7 @@ fn r31_05_eval_refuses_a_scenario_named_twice() {
         "[eval]\ntraffic_seeds = [1]\nscenarios = [\"own.toml\"]\n",
     );
     let o = fx.coid(&["eval", "-q", "-c", own.to_str().unwrap(), "-o", "e"]);
-    refused_with(&o, 1, "the same runs");
+    assert_refused(&o, "the same runs");
     assert!(!fx.path("e").exists());
 }
 
@@ -277,8 +268,8 @@ fn r31_06_merge_with_a_shard_missing_fails() {
     let fx = Fixture::new();
     let cfg = fast(&fx, "b.toml", 75.0, "");
     assert_ok(&batch(&fx, &cfg, "3", "s1", &["--shard", "1/2"]));
-    refused_with(&fx.coid(&["merge", "s1", "-o", "m"]), 1, "missing (1)");
-    assert!(!fx.path("m").exists());
+    let merged = fx.coid(&["merge", "s1", "-o", "m"]);
+    assert_refused_unwritten(&merged, "missing (1)", &fx.path("m"));
     assert_ok(&fx.coid(&["merge", "s1", "--partial", "-o", "m"]));
     let md = std::fs::read_to_string(fx.path("m/summary.md")).unwrap();
     assert!(md.contains("2 of 3 runs complete"), "{md}");
@@ -310,7 +301,7 @@ fn r31_07_score_checks_the_export_it_scores() {
         "-o",
         "s",
     ]);
-    refused_with(&o, 1, "another configuration");
+    assert_refused(&o, "another configuration");
     // Only the first run's true pairs, as CSV outside the export.
     let pairs = read_parquet(&fx.path("ex/true_pairs.parquet"));
     let runs = f64s(&pairs, "run");
@@ -330,7 +321,7 @@ fn r31_07_score_checks_the_export_it_scores() {
     }
     fx.write("first.csv", &csv);
     let o = fx.coid(&["score", "-q", "-c", c, "--matches", "first.csv", "-o", "s"]);
-    refused_with(&o, 1, "pass --export");
+    assert_refused(&o, "pass --export");
     let score = [
         "score",
         "-q",
@@ -363,7 +354,7 @@ fn r31_08_batch_and_merge_take_only_their_own_runs() {
     let c = cfg.to_str().unwrap();
     let run = ["run", "-q", "--force", "-c", c, "--traffic-seed", "7"];
     assert_ok(&fx.coid(&[&run[..], &["-o", "b/runs/run-000001"]].concat()));
-    refused_with(&fx.coid(&["merge", "b", "-o", "m"]), 1, "missing (1)");
+    assert_refused(&fx.coid(&["merge", "b", "-o", "m"]), "missing (1)");
     let again = batch(&fx, &cfg, "2", "b", &[]);
     assert_ok(&again);
     assert!(stderr(&again).contains("1 runs done"), "{}", stderr(&again));
@@ -384,7 +375,7 @@ fn r31_09_force_never_replaces_a_folder_coid_did_not_write() {
     let c = cfg.to_str().unwrap();
     for cmd in ["run", "eval", "render"] {
         let o = fx.coid(&[cmd, "-q", "--force", "-c", c, "-o", "mine"]);
-        refused_with(&o, 1, "coid did not write it");
+        assert_refused(&o, "coid did not write it");
     }
     assert_eq!(names(&fx.path("mine")).len(), 3);
     assert_eq!(
@@ -395,7 +386,7 @@ fn r31_09_force_never_replaces_a_folder_coid_did_not_write() {
     fx.write("fam/s000/coid.toml", "# my own scenario");
     fx.write("fam/s000/net.net.xml", "<net/>");
     let o = fx.coid(&["scenarios", "-q", "--count", "1", "--force", "--out", "fam"]);
-    refused_with(&o, 1, "coid did not write it");
+    assert_refused(&o, "coid did not write it");
     assert_eq!(
         std::fs::read_to_string(fx.path("fam/s000/coid.toml")).unwrap(),
         "# my own scenario"
@@ -420,7 +411,7 @@ fn r31_10_mc_samples_beyond_the_bound_are_refused() {
     ] {
         let cfg = fx.config("c.toml", 60.0, extra);
         let o = fx.run(&cfg, "r");
-        refused_with(&o, 1, key);
+        assert_refused(&o, key);
         assert!(!fx.path("r").exists() && !any_staging(fx.dir.path()));
     }
 }
@@ -576,7 +567,7 @@ fn r31_13_repeated_list_entries_are_refused() {
         ),
     ] {
         let cfg = fx.config("c.toml", 60.0, extra);
-        refused_with(&fx.run(&cfg, "r"), 1, key);
+        assert_refused(&fx.run(&cfg, "r"), key);
     }
 }
 
@@ -588,23 +579,22 @@ fn r31_14_messages_say_what_is_wrong() {
     let c = cfg.to_str().unwrap();
     // A huge number is written as a number, not 300 digits.
     let huge = fx.config("h.toml", 20.0, "[sensor]\ncolour_sigma = -1e300\n");
-    refused_with(&fx.run(&huge, "r"), 1, "got -1e300");
+    assert_refused(&fx.run(&huge, "r"), "got -1e300");
     // An --out that is a file, or a symbolic link to nothing: before SUMO.
     fx.write("afile", "x");
-    refused_with(&fx.run(&cfg, "afile"), 1, "it is a file");
+    assert_refused(&fx.run(&cfg, "afile"), "it is a file");
     std::os::unix::fs::symlink(fx.path("nowhere"), fx.path("dangling")).unwrap();
     let started = Instant::now();
-    refused_with(&fx.run(&cfg, "dangling"), 1, "which does not exist");
+    assert_refused(&fx.run(&cfg, "dangling"), "which does not exist");
     assert!(started.elapsed() < Duration::from_secs(10));
     // A folder of another command's results is named as such.
     assert_ok(&fx.run(&cfg, "r"));
     let o = fx.coid(&["eval", "-q", "--force", "-c", c, "-o", "r"]);
-    refused_with(&o, 1, "it holds a run's results (coid run)");
+    assert_refused(&o, "it holds a run's results (coid run)");
     // A test seed in the training seeds, set in [eval]: reported there.
     let overlap = fx.config("o.toml", 20.0, "[eval]\ntraffic_seeds = [101]\n");
-    refused_with(
+    assert_refused(
         &fx.run(&overlap, "x"),
-        1,
         "eval.traffic_seeds: seed 101 is in both",
     );
     // A sumocfg that is a folder.
@@ -615,9 +605,8 @@ fn r31_14_messages_say_what_is_wrong() {
             repo().join("sumo_nets")
         ),
     );
-    refused_with(
+    assert_refused(
         &fx.run(&folder, "x"),
-        1,
         "is a folder, not a SUMO configuration",
     );
     // An --out name near the file system's limit (255 bytes) works.
@@ -642,7 +631,7 @@ fn r31_14_matches_files_and_track_lines_say_what_is_wrong() {
         &format!("run,instance,a,b,uncertainty\n{row},5.0\n"),
     );
     let score = |m: &str| fx.coid(&["score", "-q", "-c", c, "--matches", m, "-o", "s"]);
-    refused_with(&score("ex/bad.csv"), 1, "uncertainty 5 is not in [0, 1]");
+    assert_refused(&score("ex/bad.csv"), "uncertainty 5 is not in [0, 1]");
     // A CSV file named in capitals is read as CSV.
     fx.write("ex/OK.CSV", &format!("run,instance,a,b\n{row}\n"));
     assert_ok(&score("ex/OK.CSV"));

@@ -64,7 +64,7 @@ fn generation_is_deterministic_and_every_scenario_runs() {
         "--out",
         "a",
     ]);
-    assert!(!again.status.success() && stderr(&again).contains("exists"));
+    assert_refused(&again, "exists");
     let mut instances = 0.0;
     for s in ["s000", "s001", "s002"] {
         let dir = fx.path("a").join(s);

@@ -134,3 +134,24 @@ pub fn strs(df: &DataFrame, col: &str) -> Vec<String> {
         .map(|v| v.unwrap_or("").to_owned())
         .collect()
 }
+
+/// A command refused as coid refuses: exit code 1, no panic, and one line
+/// on stderr, `error: ...`, that holds `expect`.
+pub fn assert_refused(o: &Output, expect: &str) {
+    let err = stderr(o);
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "expected a refusal ({expect}): {err}"
+    );
+    assert!(!err.contains("panicked"), "panic: {err}");
+    assert_eq!(err.trim().lines().count(), 1, "not one line: {err}");
+    assert!(err.starts_with("error: "), "{err}");
+    assert!(err.contains(expect), "expected {expect:?} in: {err}");
+}
+
+/// `assert_refused`, and nothing written at `unwritten`.
+pub fn assert_refused_unwritten(o: &Output, expect: &str, unwritten: &Path) {
+    assert_refused(o, expect);
+    assert!(!unwritten.exists(), "{} was written", unwritten.display());
+}

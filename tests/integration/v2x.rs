@@ -220,13 +220,7 @@ fn track_refuses_missing_vehicles_and_says_when_none_came() {
     let fx = Fixture::new();
     let named = fx.config("n.toml", 20.0, "");
     let out = fx.coid(&["track", "-q", "-c", named.to_str().unwrap(), "-o", "n"]);
-    let err = stderr(&out);
-    assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(
-        err.contains("never appeared") && err.trim().lines().count() == 1,
-        "{err}"
-    );
-    assert!(!fx.path("n").exists());
+    assert_refused_unwritten(&out, "never appeared", &fx.path("n"));
     let few = fx.config("f.toml", 20.0, "[connected]\npenetration = 0.01\n");
     let out = fx.coid(&["track", "-q", "-c", few.to_str().unwrap(), "-o", "f"]);
     assert_ok(&out);
