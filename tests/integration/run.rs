@@ -362,9 +362,11 @@ fn ctrl_c_exits_130_and_leaves_no_results_folder() {
 fn the_ideal_mode_reproduces_the_results_from_before_v2x() {
     let fx = Fixture::new();
     assert_ok(&fx.coid(&["run", "-q", "-o", "r"]));
-    assert_eq!(
-        std::fs::read_to_string(fx.path("r/summary.csv")).unwrap(),
-        std::fs::read_to_string(repo().join("tests/golden/default-summary.csv")).unwrap()
+    let golden = "tests/golden/default-summary.csv";
+    assert_same_csv(
+        &std::fs::read_to_string(fx.path("r/summary.csv")).unwrap(),
+        &std::fs::read_to_string(repo().join(golden)).unwrap(),
+        golden,
     );
 }
 

@@ -155,3 +155,81 @@ pub fn assert_refused_unwritten(o: &Output, expect: &str, unwritten: &Path) {
     assert_refused(o, expect);
     assert!(!unwritten.exists(), "{} was written", unwritten.display());
 }
+
+/// Asserts that the CSV text `got` is byte for byte `expected` (`what`
+/// names it). On a difference, names it: the header's columns if they
+/// differ, the row counts, and the first few differing cells by row and
+/// column with both values. Plain CSV: no quoted commas.
+pub fn assert_same_csv(got: &str, expected: &str, what: &str) {
+    if got != expected {
+        panic!("{what} differs:\n{}", csv_differences(got, expected));
+    }
+}
+
+/// What `assert_same_csv` says about two texts that differ.
+pub fn csv_differences(got: &str, expected: &str) -> String {
+    const SHOWN: usize = 8;
+    let table = |text: &str| -> Vec<Vec<String>> {
+        text.lines()
+            .map(|l| l.split(',').map(str::to_owned).collect())
+            .collect()
+    };
+    let (got, expected) = (table(got), table(expected));
+    let empty = Vec::new();
+    let (got_header, expected_header) = (
+        got.first().unwrap_or(&empty),
+        expected.first().unwrap_or(&empty),
+    );
+    let mut out = Vec::new();
+    if got_header != expected_header {
+        let missing: Vec<&String> = expected_header
+            .iter()
+            .filter(|c| !got_header.contains(c))
+            .collect();
+        let extra: Vec<&String> = got_header
+            .iter()
+            .filter(|c| !expected_header.contains(c))
+            .collect();
+        out.push(format!(
+            "header: columns missing {missing:?}, extra {extra:?}\n  got      {got_header:?}\n  expected {expected_header:?}"
+        ));
+    }
+    if got.len() != expected.len() {
+        out.push(format!(
+            "{} data rows, expected {}",
+            got.len().saturating_sub(1),
+            expected.len().saturating_sub(1)
+        ));
+    }
+    // Cells compared by column name, rows by position (row 1: the first
+    // after the header); a row is labelled by its first three cells.
+    let mut cells = Vec::new();
+    for (k, (g, e)) in got.iter().zip(&expected).enumerate().skip(1) {
+        let label = e.iter().take(3).cloned().collect::<Vec<_>>().join("/");
+        for (j, name) in expected_header.iter().enumerate() {
+            let Some(i) = got_header.iter().position(|c| c == name) else {
+                continue;
+            };
+            let (gv, ev) = (g.get(i), e.get(j));
+            if gv != ev {
+                cells.push(format!(
+                    "row {k} ({label}), column {name}: got {}, expected {}",
+                    gv.map_or("(none)", String::as_str),
+                    ev.map_or("(none)", String::as_str)
+                ));
+            }
+        }
+    }
+    if !cells.is_empty() {
+        let more = cells.len().saturating_sub(SHOWN);
+        cells.truncate(SHOWN);
+        out.extend(cells);
+        if more > 0 {
+            out.push(format!("... and {more} more differing cell(s)"));
+        }
+    }
+    if out.is_empty() {
+        out.push("the same cells, other bytes (line endings or a last newline)".into());
+    }
+    out.join("\n")
+}
