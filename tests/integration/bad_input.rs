@@ -24,38 +24,31 @@ fn malformed_toml() {
 
 #[test]
 fn unknown_key() {
-    let fx = Fixture::new();
-    let cfg = fx.config("k.toml", 60.0, "[sensor]\nrange_sigma = 1.0\n");
+    let (fx, cfg) = Fixture::with_config(60.0, "[sensor]\nrange_sigma = 1.0\n");
     fails_cleanly(&fx, &cfg, "unknown field `range_sigma`");
 }
 
 #[test]
 fn missing_scenario_file() {
     let fx = Fixture::new();
-    let cfg = fx.write(
-        "m.toml",
-        "[scenario]\nsumocfg = \"missing.sumocfg\"\njunction = \"C\"\n",
-    );
+    let cfg = fx.write("m.toml", &scenario_toml(Path::new("missing.sumocfg"), "C"));
     fails_cleanly(&fx, &cfg, "no such file");
 }
 
 #[test]
 fn unknown_junction() {
     let fx = Fixture::new();
+    let scenario = scenario_toml(&shipped_sumocfg(), "Z9");
     let cfg = fx.write(
         "j.toml",
-        &format!(
-            "[scenario]\nsumocfg = {:?}\njunction = \"Z9\"\nend_s = 60\n[matching]\nmethods = [\"oracle\"]\n",
-            shipped_sumocfg().to_string_lossy()
-        ),
+        &format!("{scenario}end_s = 60\n[matching]\nmethods = [\"oracle\"]\n"),
     );
     fails_cleanly(&fx, &cfg, "junction 'Z9' does not exist");
 }
 
 #[test]
 fn unknown_connected_vehicle() {
-    let fx = Fixture::new();
-    let cfg = fx.config("v.toml", 60.0, "[connected]\nids = [\"cv0\", \"ghost\"]\n");
+    let (fx, cfg) = Fixture::with_config(60.0, "[connected]\nids = [\"cv0\", \"ghost\"]\n");
     fails_cleanly(&fx, &cfg, "\"ghost\"");
 }
 
@@ -65,9 +58,10 @@ fn broken_sumo(fx: &Fixture) -> PathBuf {
         "broken.sumocfg",
         "<configuration><input><net-file value=\"no-such.net.xml\"/></input></configuration>",
     );
+    let scenario = scenario_toml(Path::new("broken.sumocfg"), "C");
     fx.write(
         "s.toml",
-        "[scenario]\nsumocfg = \"broken.sumocfg\"\njunction = \"C\"\n[matching]\nmethods = [\"oracle\"]\n",
+        &format!("{scenario}[matching]\nmethods = [\"oracle\"]\n"),
     )
 }
 
@@ -115,33 +109,35 @@ fn sumo_fails_mid_run() {
                 .to_string_lossy()
         ),
     );
+    let scenario = scenario_toml(Path::new("mid.sumocfg"), "C");
     let cfg = fx.write(
         "mid.toml",
-        "[scenario]\nsumocfg = \"mid.sumocfg\"\njunction = \"C\"\nend_s = 60\n[connected]\nids = [\"a\", \"c\"]\n[matching]\nmethods = [\"oracle\"]\n",
+        &format!(
+            "{scenario}end_s = 60\n[connected]\nids = [\"a\", \"c\"]\n[matching]\nmethods = [\"oracle\"]\n"
+        ),
     );
     fails_cleanly(&fx, &cfg, "SUMO failed at t = ");
 }
 
 #[test]
 fn existing_results_are_kept_without_force() {
-    let fx = Fixture::new();
-    let cfg = fx.config("e.toml", 60.0, "");
+    let (fx, cfg) = Fixture::with_config(60.0, "");
     std::fs::create_dir_all(fx.path("out")).unwrap();
     std::fs::write(fx.path("out/summary.csv"), "precious").unwrap();
     assert_refused(&fx.run(&cfg, "out"), "already exists");
-    assert_eq!(
-        std::fs::read_to_string(fx.path("out/summary.csv")).unwrap(),
-        "precious"
-    );
+    assert_eq!(fx.read_text("out/summary.csv"), "precious");
     // With --force a run folder coid wrote is replaced by a complete
     // new one (a user's folder never is: regression::).
-    let c = cfg.to_str().unwrap();
-    assert_ok(&fx.coid(&["run", "-q", "--config", c, "--out", "mine"]));
-    let before = std::fs::read(fx.path("mine/summary.csv")).unwrap();
-    let seed = ["--traffic-seed", "2"];
-    let args = ["run", "-q", "--force", "--config", c, "--out", "mine"];
-    assert_ok(&fx.coid(&[&args[..], &seed[..]].concat()));
-    let after = std::fs::read(fx.path("mine/summary.csv")).unwrap();
+    assert_ok(&fx.run(&cfg, "mine"));
+    let before = fx.read("mine/summary.csv");
+    let again = fx
+        .cmd("run")
+        .quiet()
+        .arg("--force")
+        .config(&cfg)
+        .out("mine");
+    assert_ok(&again.args(["--traffic-seed", "2"]).output());
+    let after = fx.read("mine/summary.csv");
     assert!(after.starts_with(b"method,") && after != before);
 }
 
@@ -152,38 +148,24 @@ fn existing_results_are_kept_without_force() {
 fn force_replaces_only_results_of_the_same_kind() {
     let fx = Fixture::new();
     std::fs::create_dir_all(fx.path("mine")).unwrap();
-    let cfg = fx.write(
-        "mine/c.toml",
-        &std::fs::read_to_string(fx.config("c.toml", 60.0, "")).unwrap(),
-    );
-    let c = cfg.to_str().unwrap();
-    assert_refused(
-        &fx.coid(&["run", "-q", "--force", "--config", c, "--out", "mine"]),
-        "coid did not write it",
-    );
+    let cfg = fx.config("mine/c.toml", 60.0, "");
+    let forced = |command: &str| fx.cmd(command).quiet().arg("--force").config(&cfg);
+    assert_refused(&forced("run").out("mine").output(), "coid did not write it");
     assert!(cfg.is_file(), "the config was removed");
-    assert_ok(&fx.coid(&["run", "-q", "--config", c, "--out", "r"]));
-    assert_refused(
-        &fx.coid(&["eval", "-q", "--force", "--config", c, "--out", "r"]),
-        "not an evaluation",
-    );
-    assert_refused(
-        &fx.coid(&["batch", "-q", "--config", c, "--runs", "1", "--out", "r"]),
-        "not a batch folder",
-    );
-    assert_refused(
-        &fx.coid(&["scenarios", "-q", "--count", "1", "--out", "mine"]),
-        "coid did not write it",
-    );
-    assert_ok(&fx.coid(&["run", "-q", "--force", "--config", c, "--out", "r"]));
+    assert_ok(&fx.run(&cfg, "r"));
+    assert_refused(&forced("eval").out("r").output(), "not an evaluation");
+    let batch = fx.cmd("batch").quiet().config(&cfg).args(["--runs", "1"]);
+    assert_refused(&batch.out("r").output(), "not a batch folder");
+    let scenarios = fx.cmd("scenarios").quiet().args(["--count", "1"]);
+    assert_refused(&scenarios.out("mine").output(), "coid did not write it");
+    assert_ok(&forced("run").out("r").output());
 }
 
 /// Bounds that would exhaust memory or wrap around, and seeds SUMO
 /// cannot take, are refused before anything runs.
 #[test]
 fn out_of_range_arguments_are_refused() {
-    let fx = Fixture::new();
-    let c = fx.config("c.toml", 60.0, "");
+    let (fx, c) = Fixture::with_config(60.0, "");
     let c = c.to_str().unwrap();
     for (args, expect) in [
         (
@@ -211,8 +193,7 @@ fn out_of_range_arguments_are_refused() {
 /// so (and still writes its empty tables).
 #[test]
 fn a_run_without_instances_says_so() {
-    let fx = Fixture::new();
-    let cfg = fx.config("z.toml", 30.0, "[connected]\npenetration = 0.01\n");
+    let (fx, cfg) = Fixture::with_config(30.0, "[connected]\npenetration = 0.01\n");
     let out = fx.run(&cfg, "z");
     assert_ok(&out);
     assert!(stderr(&out).contains("no instance"), "{}", stderr(&out));
@@ -238,13 +219,9 @@ fn a_closed_pipe_ends_quietly() {
 /// One shard folder given twice would count its runs twice.
 #[test]
 fn merge_refuses_a_shard_given_twice() {
-    let fx = Fixture::new();
-    let cfg = fx.config("m.toml", 60.0, "[matching]\nmethods = [\"oracle\"]\n");
-    let c = cfg.to_str().unwrap();
-    let args = [
-        "batch", "-q", "--config", c, "--runs", "2", "--shard", "1/2", "--out", "s1",
-    ];
-    assert_ok(&fx.coid(&args));
+    let (fx, cfg) = Fixture::with_config(60.0, "[matching]\nmethods = [\"oracle\"]\n");
+    let batch = fx.cmd("batch").quiet().config(&cfg).args(["--runs", "2"]);
+    assert_ok(&batch.args(["--shard", "1/2"]).out("s1").output());
     let merged = fx.coid(&["merge", "s1", "./s1", "--out", "m"]);
     assert_refused_unwritten(&merged, "given twice", &fx.path("m"));
 }

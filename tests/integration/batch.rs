@@ -7,52 +7,32 @@ use std::time::{Duration, Instant};
 
 /// A fast batch config: short runs, cheap methods.
 fn fast_config(fx: &Fixture, sumocfg: &Path) -> PathBuf {
+    let scenario = scenario_toml(sumocfg, "C");
     fx.write(
         "b.toml",
-        &format!(
-            "[scenario]\nsumocfg = {:?}\njunction = \"C\"\nend_s = 75\n[matching]\nmethods = [\"gps-hungarian\", \"oracle\"]\n",
-            sumocfg.to_string_lossy()
-        ),
+        &format!("{scenario}end_s = 75\n[matching]\nmethods = [\"gps-hungarian\", \"oracle\"]\n"),
     )
 }
 
+/// `coid batch` of `runs` runs on `workers` workers into `out`, and
+/// `extra` arguments.
 fn batch(fx: &Fixture, cfg: &Path, runs: &str, workers: &str, out: &str, extra: &[&str]) -> Output {
-    let mut args = vec![
-        "batch",
-        "-q",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--runs",
-        runs,
-        "--workers",
-        workers,
-        "--out",
-        out,
-    ];
-    args.extend_from_slice(extra);
-    fx.coid(&args)
+    batch_cmd(fx, cfg, runs, workers, out).args(extra).output()
+}
+
+fn batch_cmd<'a>(fx: &'a Fixture, cfg: &Path, runs: &str, workers: &str, out: &str) -> Cmd<'a> {
+    let cmd = fx.cmd("batch").quiet().config(cfg);
+    cmd.args(["--runs", runs, "--workers", workers]).out(out)
 }
 
 fn bytes(fx: &Fixture, dir: &str) -> Vec<u8> {
-    std::fs::read(fx.path(dir).join("summary.csv")).unwrap()
+    fx.read(&format!("{dir}/summary.csv"))
 }
 
 /// Starts `coid batch` of `runs` runs on one worker into `out` without
 /// waiting for it.
 fn spawn_batch(fx: &Fixture, cfg: &Path, runs: &str, out: &str) -> std::process::Child {
-    coid_in(fx.dir.path())
-        .args([
-            "batch",
-            "-q",
-            "--config",
-            cfg.to_str().unwrap(),
-            "--runs",
-            runs,
-        ])
-        .args(["--workers", "1", "--out", out])
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap()
+    batch_cmd(fx, cfg, runs, "1", out).spawn()
 }
 
 /// Waits until the first run of the batch in `out` is complete.
@@ -94,32 +74,18 @@ fn a_killed_batch_resumes_to_the_same_bytes() {
     assert!(!fx.path("killed/summary.csv").exists() || bytes(&fx, "killed") != bytes(&fx, "whole"));
     // Only the missing runs run again: the finished one is left alone.
     let finished = fx.path("killed/runs/run-000000/summary.csv");
-    let before = std::fs::metadata(&finished).unwrap().modified().unwrap();
+    let before = modified(&finished);
     assert_ok(&batch(&fx, &cfg, "5", "2", "killed", &[]));
-    assert_eq!(
-        std::fs::metadata(&finished).unwrap().modified().unwrap(),
-        before
-    );
+    assert_eq!(modified(&finished), before);
     assert_eq!(bytes(&fx, "killed"), bytes(&fx, "whole"));
 }
 
 /// Killing `coid batch` ends its workers too (no orphans).
 #[test]
 fn the_workers_of_a_killed_batch_end_with_it() {
-    let fx = Fixture::new();
-    let cfg = fx.config("slow.toml", 200.0, "[connected]\npenetration = 0.3\n");
-    let mut parent = coid_in(fx.dir.path())
-        .args([
-            "batch",
-            "-q",
-            "--config",
-            cfg.to_str().unwrap(),
-            "--runs",
-            "4",
-        ])
-        .args(["--workers", "2", "--out", "b"])
-        .spawn()
-        .unwrap();
+    let (fx, cfg) = Fixture::with_config(200.0, "[connected]\npenetration = 0.3\n");
+    let batch = batch_cmd(&fx, &cfg, "4", "2", "b");
+    let mut parent = batch.command().spawn().unwrap();
     let children_of = |pid: u32| -> Vec<u32> {
         let tasks = format!("/proc/{pid}/task");
         std::fs::read_dir(tasks)
@@ -164,7 +130,7 @@ fn the_workers_of_a_killed_batch_end_with_it() {
 fn a_batch_is_identified_by_content_not_by_path() {
     let fx = Fixture::new();
     let cfg = fast_config(&fx, &shipped_sumocfg());
-    let text = std::fs::read_to_string(&cfg).unwrap();
+    let text = fx.read_text("b.toml");
     assert_ok(&batch(&fx, &cfg, "2", "1", "b", &["--shard", "1/2"]));
     // The same config at another path: the other shard, and a resume.
     std::fs::create_dir_all(fx.path("elsewhere")).unwrap();
@@ -197,20 +163,11 @@ fn a_resumed_batch_reruns_damaged_runs() {
     let summary = std::fs::read_to_string(run(0, "summary.csv")).unwrap();
     std::fs::write(run(0, "summary.csv"), &summary[..summary.len() * 2 / 3]).unwrap();
     std::fs::remove_file(run(1, "objects.parquet")).unwrap();
-    let untouched = std::fs::metadata(run(2, "summary.csv"))
-        .unwrap()
-        .modified()
-        .unwrap();
+    let untouched = modified(&run(2, "summary.csv"));
     assert_ok(&batch(&fx, &cfg, "3", "2", "damaged", &[]));
     assert_eq!(bytes(&fx, "damaged"), bytes(&fx, "whole"));
     assert!(run(1, "objects.parquet").is_file());
-    assert_eq!(
-        std::fs::metadata(run(2, "summary.csv"))
-            .unwrap()
-            .modified()
-            .unwrap(),
-        untouched
-    );
+    assert_eq!(modified(&run(2, "summary.csv")), untouched);
 }
 
 #[test]
@@ -222,8 +179,7 @@ fn merged_shards_equal_the_unsharded_batch() {
     assert_ok(&batch(&fx, &cfg, "5", "1", "s2", &["--shard", "2/2"]));
     assert_ok(&fx.coid(&["merge", "s1", "s2", "--out", "merged"]));
     assert_eq!(bytes(&fx, "merged"), bytes(&fx, "all"));
-    let report = |dir: &str| std::fs::read(fx.path(dir).join("summary.md")).unwrap();
-    assert_eq!(report("merged"), report("all"));
+    assert_eq!(fx.read("merged/summary.md"), fx.read("all/summary.md"));
 }
 
 #[test]

@@ -5,10 +5,9 @@ use crate::util::*;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// A short config with the fast methods, two test runs.
-fn small(fx: &Fixture) -> PathBuf {
-    fx.config(
-        "small.toml",
+/// A fixture with a short config: the fast methods, two test runs.
+fn small() -> (Fixture, PathBuf) {
+    Fixture::with_config(
         60.0,
         "[matching]\nmethods = [\"gps-hungarian\", \"gps-app-hungarian\", \"oracle\"]\n\
          [eval]\ntraffic_seeds = [1, 2]\n",
@@ -17,31 +16,32 @@ fn small(fx: &Fixture) -> PathBuf {
 
 /// `coid export` of the test runs into `ex`, with GPS-Hungarian's matches.
 fn export(fx: &Fixture, config: &Path) {
-    let c = config.to_str().unwrap();
-    assert_ok(&fx.coid(&[
-        "export",
-        "-q",
-        "-c",
-        c,
-        "--splits",
-        "test",
-        "--with-matches",
-        "gps-hungarian",
-        "-o",
-        "ex",
-    ]));
+    let export = fx
+        .cmd("export")
+        .quiet()
+        .config(config)
+        .args(["--splits", "test"]);
+    assert_ok(
+        &export
+            .args(["--with-matches", "gps-hungarian"])
+            .out("ex")
+            .output(),
+    );
 }
 
 /// `coid score` of `matches` (made from the export `ex`).
 fn score(fx: &Fixture, config: &Path, matches: &str, out: &str) -> Output {
-    let c = config.to_str().unwrap();
-    let args = ["score", "-q", "-c", c, "--matches", matches, "-o", out];
-    fx.coid(&[&args[..], &["--export", "ex"]].concat())
+    let score = fx
+        .cmd("score")
+        .quiet()
+        .config(config)
+        .args(["--matches", matches]);
+    score.out(out).args(["--export", "ex"]).output()
 }
 
 /// The lines of a table for `method`, without the method.
 fn rows(fx: &Fixture, dir: &str, file: &str, method: &str) -> Vec<String> {
-    let text = std::fs::read_to_string(fx.path(dir).join(file)).unwrap();
+    let text = fx.read_text(&format!("{dir}/{file}"));
     let prefix = format!("{method},");
     text.lines()
         .filter_map(|l| l.strip_prefix(&prefix).map(str::to_owned))
@@ -55,8 +55,7 @@ fn rows(fx: &Fixture, dir: &str, file: &str, method: &str) -> Vec<String> {
 /// holds.
 #[test]
 fn exported_matches_reproduce_the_built_in_rows() {
-    let fx = Fixture::new();
-    let config = small(&fx);
+    let (fx, config) = small();
     export(&fx, &config);
     let runs = read_parquet(&fx.path("ex/runs.parquet"));
     assert_eq!(strs(&runs, "split"), vec!["test", "test"]);
@@ -70,11 +69,7 @@ fn exported_matches_reproduce_the_built_in_rows() {
         nodes.height(),
         read_parquet(&fx.path("ex/truth.parquet")).height()
     );
-    assert!(
-        std::fs::read_to_string(fx.path("ex/schema.md"))
-            .unwrap()
-            .contains("schema version 2")
-    );
+    assert!(fx.read_text("ex/schema.md").contains("schema version 2"));
     assert_ok(&score(
         &fx,
         &config,
@@ -111,13 +106,9 @@ fn exported_matches_reproduce_the_built_in_rows() {
 /// same numbers for it.
 #[test]
 fn the_python_example_scores_what_its_rule_implies() {
-    let fx = Fixture::new();
-    let config = small(&fx);
+    let (fx, config) = small();
     export(&fx, &config);
-    let venv = std::env::var_os("COID_VENV")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| repo().join(".venv"));
-    let out = Command::new(venv.join("bin/python"))
+    let out = Command::new(venv().join("bin/python"))
         .arg(repo().join("examples/nearest_match.py"))
         .arg(fx.path("ex"))
         .arg("--out")
@@ -154,8 +145,7 @@ fn the_python_example_scores_what_its_rule_implies() {
 /// with one line and a non-zero exit, and nothing is written.
 #[test]
 fn a_matches_file_that_does_not_fit_is_refused_in_one_line() {
-    let fx = Fixture::new();
-    let config = small(&fx);
+    let (fx, config) = small();
     export(&fx, &config);
     let run = f64s(&read_parquet(&fx.path("ex/runs.parquet")), "run")[0] as u64;
     let cases = [

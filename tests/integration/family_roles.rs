@@ -9,16 +9,11 @@ use crate::util::*;
 #[test]
 fn train_and_eval_use_the_scenario_lists() {
     let fx = Fixture::new();
-    assert_ok(&fx.coid(&[
-        "scenarios",
-        "-q",
-        "--count",
-        "3",
-        "--seed",
-        "21",
-        "--out",
-        "fam",
-    ]));
+    let scenarios = fx
+        .cmd("scenarios")
+        .quiet()
+        .args(["--count", "3", "--seed", "21"]);
+    assert_ok(&scenarios.out("fam").output());
     for k in 0..3 {
         let p = fx.path(&format!("fam/s00{k}/coid.toml"));
         let own = std::fs::read_to_string(&p).unwrap();
@@ -36,15 +31,14 @@ fn train_and_eval_use_the_scenario_lists() {
          validation_scenarios = [\"fam/s001/coid.toml\"]\nruns_per_scenario = 1\n\
          [eval]\ntraffic_seeds = [1]\nscenarios = [\"fam/s002/coid.toml\"]\n",
     );
-    let c = cfg.to_str().unwrap();
-    let trained = fx.coid(&["train", "-q", "--config", c, "--out", "models"]);
+    let trained = fx.cmd("train").quiet().config(&cfg).out("models").output();
     assert_ok(&trained);
     assert!(
         stderr(&trained).contains("from 2 runs"),
         "{}",
         stderr(&trained)
     );
-    let meta = std::fs::read_to_string(fx.path("models/gcn-gm.toml")).unwrap();
+    let meta = fx.read_text("models/gcn-gm.toml");
     assert!(
         meta.contains("train_scenarios") && meta.contains("s000"),
         "{meta}"
@@ -53,7 +47,7 @@ fn train_and_eval_use_the_scenario_lists() {
         meta.contains("validation_scenarios") && meta.contains("s001"),
         "{meta}"
     );
-    assert_ok(&fx.coid(&["eval", "-q", "--config", c, "--out", "ev"]));
+    assert_ok(&fx.cmd("eval").quiet().config(&cfg).out("ev").output());
     for dir in ["ev/t", "ev/s002", "ev/pooled"] {
         assert!(fx.path(dir).join("table1.csv").is_file(), "{dir}");
     }

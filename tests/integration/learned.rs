@@ -19,13 +19,13 @@ fn train_writes_loadable_weights_and_a_loss_curve() {
     );
     // Without --out: a new folder, results/<config stem>-models, never
     // the shipped weights; a second time only with --force.
-    let train = || fx.coid(&["train", "-q", "--config", cfg.to_str().unwrap()]);
+    let train = || fx.cmd("train").quiet().config(&cfg).output();
     assert_ok(&train());
     for f in ["gcn-gm.bpk", "gcn-gm.toml", "gcn-gm_loss.csv"] {
         assert!(fx.path("results/t-models").join(f).is_file(), "{f} missing");
     }
     assert_refused(&train(), "already exists");
-    let curve = std::fs::read_to_string(fx.path("results/t-models/gcn-gm_loss.csv")).unwrap();
+    let curve = fx.read_text("results/t-models/gcn-gm_loss.csv");
     // Epoch 0 holds the validation loss before training only.
     let loss: f64 = curve
         .lines()
@@ -57,14 +57,7 @@ fn training_lowers_the_validation_loss_on_real_runs() {
             fx.path("models").to_string_lossy()
         ),
     );
-    assert_ok(&fx.coid(&[
-        "train",
-        "-q",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        "models",
-    ]));
+    assert_ok(&fx.cmd("train").quiet().config(&cfg).out("models").output());
     let curve = read_csv(&fx.path("models/gcn-gm_loss.csv"));
     let v = f64s(&curve, "validation_loss");
     assert!(v.len() >= 2 && v.iter().all(|l| l.is_finite()), "{v:?}");
@@ -74,7 +67,7 @@ fn training_lowers_the_validation_loss_on_real_runs() {
         "validation loss before training {} never beaten: {v:?}",
         v[0]
     );
-    let meta = std::fs::read_to_string(fx.path("models/gcn-gm.toml")).unwrap();
+    let meta = fx.read_text("models/gcn-gm.toml");
     assert!(meta.contains("best_epoch = "), "{meta}");
 }
 
@@ -82,20 +75,20 @@ fn training_lowers_the_validation_loss_on_real_runs() {
 /// losses and lambdas as one after the other in one process.
 #[test]
 fn training_in_child_processes_gives_the_same_models() {
-    let fx = Fixture::new();
-    let cfg = fx.config(
-        "t.toml",
+    let (fx, cfg) = Fixture::with_config(
         60.0,
         "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 1\n\
          methods = [\"gcn-gm\", \"dgmc\"]\n[pose_noise]\nlevels = [\"gps\"]\n",
     );
-    let c = cfg.to_str().unwrap();
-    let two = fx.coid(&["train", "-q", "--config", c, "--out", "two", "-w", "2"]);
+    let train = |out: &str, workers: &str| {
+        let cmd = fx.cmd("train").quiet().config(&cfg).out(out);
+        cmd.args(["-w", workers]).output()
+    };
+    let two = train("two", "2");
     assert_ok(&two);
-    assert_ok(&fx.coid(&["train", "-q", "--config", c, "--out", "one", "-w", "1"]));
+    assert_ok(&train("one", "1"));
     for m in ["gcn-gm", "dgmc"] {
-        let read =
-            |dir: &str, ext: &str| std::fs::read(fx.path(&format!("{dir}/{m}{ext}"))).unwrap();
+        let read = |dir: &str, ext: &str| fx.read(&format!("{dir}/{m}{ext}"));
         assert_eq!(
             read("two", ".bpk"),
             read("one", ".bpk"),
@@ -165,20 +158,11 @@ fn missing_weights_are_a_clear_error() {
 /// in F1.
 #[test]
 fn shipped_model_beats_gps_appearance_hungarian_at_gps_noise() {
-    let fx = Fixture::new();
-    let cfg = fx.config(
-        "e.toml",
+    let (fx, cfg) = Fixture::with_config(
         130.0,
         "[pose_noise]\nlevels = [\"gps\"]\n[eval]\ntraffic_seeds = [1, 2]\n",
     );
-    assert_ok(&fx.coid(&[
-        "eval",
-        "-q",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        "ev",
-    ]));
+    assert_ok(&fx.cmd("eval").quiet().config(&cfg).out("ev").output());
     let t1 = read_csv(&fx.path("ev/table1.csv"));
     let (m, f1) = (strs(&t1, "method"), f64s(&t1, "f1"));
     let f1_of = |name: &str| f1[m.iter().position(|x| x == name).unwrap()];

@@ -4,18 +4,12 @@ use crate::util::*;
 
 #[test]
 fn render_draws_real_instances_as_png_and_svg() {
-    let fx = Fixture::new();
-    let cfg = fx.config("r.toml", 80.0, "");
-    let out = fx.coid(&[
-        "render",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        "pics",
-        "--instances",
-        "0,1",
-    ]);
-    assert_ok(&out);
+    let (fx, cfg) = Fixture::with_config(80.0, "");
+    let render = |out: &str, instances: &str| {
+        let cmd = fx.cmd("render").config(&cfg).out(out);
+        cmd.args(["--instances", instances]).output()
+    };
+    assert_ok(&render("pics", "0,1"));
     for name in ["instance-0000", "instance-0001"] {
         let png = fx.path("pics").join(format!("{name}.png"));
         let img = image::open(&png).unwrap().to_rgb8();
@@ -24,14 +18,6 @@ fn render_draws_real_instances_as_png_and_svg() {
         assert!(colours.len() > 20, "{name}: only {} colours", colours.len());
         assert!(fx.path("pics").join(format!("{name}.svg")).is_file());
     }
-    let bad = fx.coid(&[
-        "render",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        "none",
-        "--instances",
-        "100000",
-    ]);
+    let bad = render("none", "100000");
     assert_refused_unwritten(&bad, "no instance", &fx.path("none"));
 }

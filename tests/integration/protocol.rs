@@ -10,12 +10,10 @@ use crate::util::*;
 fn a_minimal_user_config_runs_with_the_shipped_models() {
     let fx = Fixture::new();
     std::fs::create_dir_all(fx.path("mine")).unwrap();
-    let cfg = fx.write(
+    let cfg = fx.config(
         "mine/study.toml",
-        &format!(
-            "[scenario]\nsumocfg = {:?}\njunction = \"C\"\nend_s = 80\n[connected]\nids = [\"cv0\", \"cv1\"]\n",
-            shipped_sumocfg().to_string_lossy()
-        ),
+        80.0,
+        "[connected]\nids = [\"cv0\", \"cv1\"]\n",
     );
     assert_ok(&fx.run(&cfg, "mine/out"));
     let summary = read_csv(&fx.path("mine/out/summary.csv"));
@@ -29,9 +27,7 @@ fn a_minimal_user_config_runs_with_the_shipped_models() {
 /// precision is undefined (not 1), recall and F1 are 0.
 #[test]
 fn a_method_that_identifies_nothing_has_undefined_precision() {
-    let fx = Fixture::new();
-    let cfg = fx.config(
-        "zero.toml",
+    let (fx, cfg) = Fixture::with_config(
         70.0,
         "[matching]\nmethods = [\"ours\", \"oracle\"]\nlambda = 0.0\n[pose_noise]\nlevels = [\"gps\"]\n",
     );
@@ -51,7 +47,7 @@ fn a_method_that_identifies_nothing_has_undefined_precision() {
             assert_eq!(p[i], 1.0);
         }
     }
-    let md = std::fs::read_to_string(fx.path("zero/summary.md")).unwrap();
+    let md = fx.read_text("zero/summary.md");
     assert!(
         md.contains("| ours | gps | paper |") && md.contains("n/a"),
         "{md}"

@@ -113,8 +113,7 @@ fn check_errors_recompute(summary: &DataFrame, objects: &DataFrame) {
 
 #[test]
 fn short_real_run_writes_consistent_results() {
-    let fx = Fixture::new();
-    let cfg = fx.config("short.toml", 80.0, "");
+    let (fx, cfg) = Fixture::with_config(80.0, "");
     let out = fx.run(&cfg, "results/short");
     assert_ok(&out);
     assert!(stderr(&out).contains("instances"), "{}", stderr(&out));
@@ -144,20 +143,17 @@ fn same_seeds_give_identical_bytes_other_seeds_do_not() {
     assert_ok(&fx.run(&a, "one"));
     assert_ok(&fx.run(&a, "two"));
     assert_ok(&fx.run(&b, "other"));
-    let bytes = |d: &str, f: &str| std::fs::read(fx.path(d).join(f)).unwrap();
-    assert_eq!(bytes("one", "summary.csv"), bytes("two", "summary.csv"));
+    assert_eq!(fx.read("one/summary.csv"), fx.read("two/summary.csv"));
     assert_eq!(
-        bytes("one", "objects.parquet"),
-        bytes("two", "objects.parquet")
+        fx.read("one/objects.parquet"),
+        fx.read("two/objects.parquet")
     );
-    assert_ne!(bytes("one", "summary.csv"), bytes("other", "summary.csv"));
+    assert_ne!(fx.read("one/summary.csv"), fx.read("other/summary.csv"));
 }
 
 #[test]
 fn penetration_rate_selects_many_connected_vehicles() {
-    let fx = Fixture::new();
-    let cfg = fx.config(
-        "pen.toml",
+    let (fx, cfg) = Fixture::with_config(
         70.0,
         "[connected]\npenetration = 0.3\n[matching]\nmethods = [\"oracle\"]\n[pose_noise]\nlevels = [\"gps\"]\n",
     );
@@ -251,9 +247,8 @@ fn one_and_two_threads_give_identical_bytes() {
         let cfg = fx.config(&format!("{mode}.toml"), 65.0, &extra);
         for threads in ["1", "2"] {
             let out = format!("{mode}-{threads}");
-            let args = ["run", "-q", "--threads", threads, "--config"];
-            let o = fx.coid(&[&args[..], &[cfg.to_str().unwrap(), "--out", &out]].concat());
-            assert_ok(&o);
+            let cmd = fx.cmd("run").quiet().args(["--threads", threads]);
+            assert_ok(&cmd.config(&cfg).out(&out).output());
         }
         let objects = read_parquet(&fx.path(&format!("{mode}-1/objects.parquet")));
         assert!(
@@ -262,7 +257,7 @@ fn one_and_two_threads_give_identical_bytes() {
             objects.height()
         );
         for f in ["summary.csv", "objects.parquet", "summary.md"] {
-            let bytes = |t: &str| std::fs::read(fx.path(&format!("{mode}-{t}/{f}"))).unwrap();
+            let bytes = |t: &str| fx.read(&format!("{mode}-{t}/{f}"));
             assert!(
                 bytes("1") == bytes("2"),
                 "{mode}: {f} differs between 1 and 2 threads"
@@ -277,17 +272,9 @@ fn one_and_two_threads_give_identical_bytes() {
 #[test]
 fn a_killed_run_leaves_no_half_written_folder() {
     use std::time::{Duration, Instant};
-    let fx = Fixture::new();
-    let cfg = fx.config("k.toml", 120.0, "[connected]\npenetration = 0.3\n");
-    let args = [
-        "run",
-        "-q",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        "res/k",
-    ];
-    let mut child = coid_in(fx.dir.path()).args(args).spawn().unwrap();
+    let (fx, cfg) = Fixture::with_config(120.0, "[connected]\npenetration = 0.3\n");
+    let run = || fx.cmd("run").quiet().config(&cfg).out("res/k");
+    let mut child = run().command().spawn().unwrap();
     // Killed once its staging folder holds rows (a row group or more).
     let started = Instant::now();
     let staged_bytes = || -> u64 {
@@ -318,7 +305,7 @@ fn a_killed_run_leaves_no_half_written_folder() {
         staged_bytes() > 0,
         "the killed run's staging folder is there"
     );
-    assert_ok(&fx.coid(&args));
+    assert_ok(&run().output());
     let objects = read_parquet(&fx.path("res/k/objects.parquet"));
     assert!(objects.height() > 0);
     // The next command in that folder removed the dead run's staging.
@@ -330,25 +317,15 @@ fn a_killed_run_leaves_no_half_written_folder() {
 #[test]
 fn ctrl_c_exits_130_and_leaves_no_results_folder() {
     use std::time::Duration;
-    let fx = Fixture::new();
-    let cfg = fx.config("c.toml", 120.0, "[connected]\npenetration = 0.3\n");
-    let mut child = coid_in(fx.dir.path())
-        .args(["run", "-q", "--config", cfg.to_str().unwrap(), "--out", "c"])
-        .spawn()
-        .unwrap();
+    let (fx, cfg) = Fixture::with_config(120.0, "[connected]\npenetration = 0.3\n");
+    let run = fx.cmd("run").quiet().config(&cfg).out("c");
+    let mut child = run.command().spawn().unwrap();
     std::thread::sleep(Duration::from_millis(2500));
     assert!(
         child.try_wait().unwrap().is_none(),
         "the run ended too soon"
     );
-    let pid = child.id().to_string();
-    assert!(
-        Command::new("kill")
-            .args(["-INT", &pid])
-            .status()
-            .unwrap()
-            .success()
-    );
+    send_signal(&child, "-INT");
     let status = child.wait().unwrap();
     assert_eq!(status.code(), Some(130), "{status:?}");
     assert!(!fx.path("c").exists());
@@ -361,10 +338,10 @@ fn ctrl_c_exits_130_and_leaves_no_results_folder() {
 #[test]
 fn the_ideal_mode_reproduces_the_results_from_before_v2x() {
     let fx = Fixture::new();
-    assert_ok(&fx.coid(&["run", "-q", "-o", "r"]));
+    assert_ok(&fx.cmd("run").quiet().out("r").output());
     let golden = "tests/golden/default-summary.csv";
     assert_same_csv(
-        &std::fs::read_to_string(fx.path("r/summary.csv")).unwrap(),
+        &fx.read_text("r/summary.csv"),
         &std::fs::read_to_string(repo().join(golden)).unwrap(),
         golden,
     );
@@ -382,7 +359,6 @@ fn an_installed_coid_runs_from_any_folder_without_a_config() {
     std::fs::copy(BIN, &bin).unwrap();
     let work = fx.path("somewhere/else");
     std::fs::create_dir_all(&work).unwrap();
-    let venv = std::env::var_os("COID_VENV").map_or_else(|| repo().join(".venv"), PathBuf::from);
     // A bare environment: no Python on PATH but the system's (whose
     // standard library must not be taken for the linked one's).
     let out = Command::new(&bin)
@@ -392,7 +368,7 @@ fn an_installed_coid_runs_from_any_folder_without_a_config() {
         .env("PATH", "/usr/bin:/bin")
         .env("HOME", fx.path("home"))
         .env("COID_HOME", fx.path("home"))
-        .env("COID_VENV", venv)
+        .env("COID_VENV", venv())
         .output()
         .unwrap();
     assert_ok(&out);
@@ -417,18 +393,11 @@ fn an_installed_coid_runs_from_any_folder_without_a_config() {
         assert!(installed[0].join(f).is_file(), "{f}");
     }
     // The same bytes as a run of the checkout's default config.
-    let checkout = fx.coid(&[
-        "run",
-        "-q",
-        "--config",
-        repo().join("configs/default.toml").to_str().unwrap(),
-        "--out",
-        "ref",
-    ]);
-    assert_ok(&checkout);
+    let default = repo().join("configs/default.toml");
+    assert_ok(&fx.cmd("run").quiet().config(&default).out("ref").output());
     assert_eq!(
         std::fs::read(work.join("results/default/summary.csv")).unwrap(),
-        std::fs::read(fx.path("ref/summary.csv")).unwrap()
+        fx.read("ref/summary.csv")
     );
 }
 

@@ -24,28 +24,16 @@ fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
 #[test]
 fn generation_is_deterministic_and_every_scenario_runs() {
     let fx = Fixture::new();
+    let generate = |count: &str, seed: &str, out: &str| {
+        let cmd = fx.cmd("scenarios").quiet();
+        cmd.args(["--count", count, "--seed", seed])
+            .out(out)
+            .output()
+    };
     for out in ["a", "b"] {
-        assert_ok(&fx.coid(&[
-            "scenarios",
-            "-q",
-            "--count",
-            "3",
-            "--seed",
-            "4",
-            "--out",
-            out,
-        ]));
+        assert_ok(&generate("3", "4", out));
     }
-    assert_ok(&fx.coid(&[
-        "scenarios",
-        "-q",
-        "--count",
-        "1",
-        "--seed",
-        "5",
-        "--out",
-        "c",
-    ]));
+    assert_ok(&generate("1", "5", "c"));
     for s in ["s000", "s001", "s002"] {
         let (a, b) = (files(&fx.path("a").join(s)), files(&fx.path("b").join(s)));
         let names: Vec<&str> = a.iter().map(|f| f.0.as_str()).collect();
@@ -54,17 +42,7 @@ fn generation_is_deterministic_and_every_scenario_runs() {
     }
     assert_ne!(files(&fx.path("a/s000")), files(&fx.path("c/s000")));
     // Again into an existing folder: refused without --force.
-    let again = fx.coid(&[
-        "scenarios",
-        "-q",
-        "--count",
-        "1",
-        "--seed",
-        "4",
-        "--out",
-        "a",
-    ]);
-    assert_refused(&again, "exists");
+    assert_refused(&generate("1", "4", "a"), "exists");
     let mut instances = 0.0;
     for s in ["s000", "s001", "s002"] {
         let dir = fx.path("a").join(s);

@@ -1,6 +1,7 @@
 //! `coid eval --suite`: tables per scenario and pooled.
 
 use crate::util::*;
+use std::path::Path;
 
 /// `eval --suite`: tables per scenario and pooled over every run (the
 /// pooled run count is the sum), from the shipped intersection and a
@@ -15,17 +16,12 @@ fn eval_over_a_suite_writes_per_scenario_and_pooled_tables() {
         60.0,
         &format!("{levels}[eval]\ntraffic_seeds = [1, 2]\n"),
     );
-    assert_ok(&fx.coid(&[
-        "scenarios",
-        "-q",
-        "--count",
-        "1",
-        "--seed",
-        "3",
-        "--out",
-        "fam",
-    ]));
-    let own = std::fs::read_to_string(fx.path("fam/s000/coid.toml")).unwrap();
+    let scenarios = fx
+        .cmd("scenarios")
+        .quiet()
+        .args(["--count", "1", "--seed", "3"]);
+    assert_ok(&scenarios.out("fam").output());
+    let own = fx.read_text("fam/s000/coid.toml");
     let generated = fx.write(
         "fam/s000/short.toml",
         &(own
@@ -33,8 +29,11 @@ fn eval_over_a_suite_writes_per_scenario_and_pooled_tables() {
             .replace("penetration = 0.1", "penetration = 0.3")
             + &format!("{levels}[eval]\ntraffic_seeds = [3]\n")),
     );
-    let (b, g) = (base.to_str().unwrap(), generated.to_str().unwrap());
-    assert_ok(&fx.coid(&["eval", "-q", "--config", b, "--suite", g, "--out", "ev"]));
+    let suite = |other: &Path, out: &str| {
+        let cmd = fx.cmd("eval").quiet().config(&base);
+        cmd.arg("--suite").arg(other).out(out).output()
+    };
+    assert_ok(&suite(&generated, "ev"));
     let runs = |dir: &str| f64s(&read_csv(&fx.path(dir).join("table1.csv")), "n_runs")[0];
     assert_eq!(runs("ev/base"), 2.0);
     assert_eq!(runs("ev/short"), 1.0);
@@ -43,11 +42,10 @@ fn eval_over_a_suite_writes_per_scenario_and_pooled_tables() {
     let mut methods = strs(&read_csv(&fx.path("ev/pooled/table1.csv")), "method");
     methods.dedup();
     assert_eq!(methods, ["gps-hungarian", "oracle"]);
-    let md = std::fs::read_to_string(fx.path("ev/pooled/summary.md")).unwrap();
+    let md = fx.read_text("ev/pooled/summary.md");
     assert!(md.contains("base, short"), "{md}");
     // Other pose-noise levels cannot be pooled.
     let other = fx.config("other.toml", 60.0, "[pose_noise]\nlevels = [\"gps\"]\n");
-    let o = other.to_str().unwrap();
-    let refused = fx.coid(&["eval", "-q", "--config", b, "--suite", o, "--out", "ev2"]);
+    let refused = suite(&other, "ev2");
     assert_refused_unwritten(&refused, "pose-noise levels", &fx.path("ev2"));
 }

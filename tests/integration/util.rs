@@ -1,9 +1,10 @@
 //! What every test module uses: the binary, a temporary folder to run it
 //! in, readers of its tables.
 
+use std::ffi::{OsStr, OsString};
 use std::fs::File;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Child, Command, Output, Stdio};
 
 use polars::prelude::*;
 
@@ -13,20 +14,40 @@ pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// SUMO's Python environment: `COID_VENV`, or the checkout's `.venv`
+/// (never a new download).
+pub fn venv() -> PathBuf {
+    std::env::var_os("COID_VENV").map_or_else(|| repo().join(".venv"), PathBuf::from)
+}
+
 /// The `coid` binary in `dir`, with its data folder there too (each test
-/// writes out the carried files for itself) and SUMO's environment from
-/// `COID_VENV` or the checkout's `.venv` (never a new download).
+/// writes out the carried files for itself) and SUMO's environment
+/// (`venv`).
 pub fn coid_in(dir: &Path) -> Command {
     let mut c = Command::new(BIN);
-    c.current_dir(dir).env("COID_HOME", dir.join(".coid-home"));
-    if std::env::var_os("COID_VENV").is_none() {
-        c.env("COID_VENV", repo().join(".venv"));
-    }
+    c.current_dir(dir)
+        .env("COID_HOME", dir.join(".coid-home"))
+        .env("COID_VENV", venv());
     c
+}
+
+/// Sends `signal` (`-INT`, `-KILL`, ...) to `child` with kill(1).
+pub fn send_signal(child: &Child, signal: &str) {
+    let pid = child.id().to_string();
+    let sent = Command::new("kill").args([signal, &pid]).status();
+    assert!(sent.unwrap().success(), "kill {signal} {pid}");
 }
 
 pub fn shipped_sumocfg() -> PathBuf {
     repo().join("sumo_nets/intersection/intersection.sumocfg")
+}
+
+/// A config's `[scenario]` section: `sumocfg` and `junction`, nothing else.
+pub fn scenario_toml(sumocfg: &Path, junction: &str) -> String {
+    format!(
+        "[scenario]\nsumocfg = {:?}\njunction = \"{junction}\"\n",
+        sumocfg.to_string_lossy()
+    )
 }
 
 /// A temporary folder with helpers to write configs and run the binary.
@@ -49,11 +70,15 @@ impl Fixture {
     /// TOML (sections after `[scenario]`). Everything else comes from the
     /// defaults, the shipped weights included.
     pub fn config(&self, name: &str, end_s: f64, extra: &str) -> PathBuf {
-        let body = format!(
-            "[scenario]\nsumocfg = {:?}\njunction = \"C\"\nend_s = {end_s}\n{extra}",
-            shipped_sumocfg().to_string_lossy()
-        );
-        self.write(name, &body)
+        let scenario = scenario_toml(&shipped_sumocfg(), "C");
+        self.write(name, &format!("{scenario}end_s = {end_s}\n{extra}"))
+    }
+
+    /// A new fixture holding one config, `c.toml`, as `config` writes it.
+    pub fn with_config(end_s: f64, extra: &str) -> (Fixture, PathBuf) {
+        let fx = Fixture::new();
+        let config = fx.config("c.toml", end_s, extra);
+        (fx, config)
     }
 
     pub fn write(&self, name: &str, body: &str) -> PathBuf {
@@ -62,23 +87,99 @@ impl Fixture {
         p
     }
 
-    pub fn coid(&self, args: &[&str]) -> Output {
-        coid_in(self.dir.path())
-            .args(args)
-            .output()
-            .expect("run coid")
+    /// The contents of the file `name`.
+    pub fn read(&self, name: &str) -> Vec<u8> {
+        std::fs::read(self.path(name)).unwrap_or_else(|e| panic!("{name}: {e}"))
     }
 
-    pub fn run(&self, config: &Path, out: &str) -> Output {
-        self.coid(&[
-            "run",
-            "--quiet",
-            "--config",
-            config.to_str().unwrap(),
-            "--out",
-            out,
-        ])
+    /// The text of the file `name`.
+    pub fn read_text(&self, name: &str) -> String {
+        std::fs::read_to_string(self.path(name)).unwrap_or_else(|e| panic!("{name}: {e}"))
     }
+
+    pub fn coid(&self, args: &[&str]) -> Output {
+        self.cmd(args[0]).args(&args[1..]).output()
+    }
+
+    /// `coid <command>` in this folder, its arguments to be added.
+    pub fn cmd(&self, command: &str) -> Cmd<'_> {
+        Cmd {
+            dir: self.dir.path(),
+            args: vec![command.into()],
+            env: Vec::new(),
+        }
+    }
+
+    /// `coid run --quiet --config <config> --out <out>`.
+    pub fn run(&self, config: &Path, out: &str) -> Output {
+        self.cmd("run").quiet().config(config).out(out).output()
+    }
+}
+
+/// A `coid` command line being built (`Fixture::cmd`).
+pub struct Cmd<'a> {
+    dir: &'a Path,
+    args: Vec<OsString>,
+    env: Vec<(OsString, OsString)>,
+}
+
+impl Cmd<'_> {
+    pub fn arg(mut self, arg: impl AsRef<OsStr>) -> Self {
+        self.args.push(arg.as_ref().to_owned());
+        self
+    }
+
+    pub fn args<S: AsRef<OsStr>>(mut self, args: impl IntoIterator<Item = S>) -> Self {
+        self.args
+            .extend(args.into_iter().map(|a| a.as_ref().to_owned()));
+        self
+    }
+
+    /// `--quiet`.
+    pub fn quiet(self) -> Self {
+        self.arg("--quiet")
+    }
+
+    /// `--config <config>`.
+    pub fn config(self, config: &Path) -> Self {
+        self.arg("--config").arg(config)
+    }
+
+    /// `--out <out>`.
+    pub fn out(self, out: &str) -> Self {
+        self.arg("--out").arg(out)
+    }
+
+    /// The environment variable `key` set to `value`.
+    pub fn env(mut self, key: &str, value: impl AsRef<OsStr>) -> Self {
+        self.env.push((key.into(), value.as_ref().to_owned()));
+        self
+    }
+
+    /// The command, to set more on (pipes).
+    pub fn command(self) -> Command {
+        let mut c = coid_in(self.dir);
+        c.args(&self.args).envs(self.env);
+        c
+    }
+
+    /// Runs it to the end.
+    pub fn output(self) -> Output {
+        self.command().output().expect("run coid")
+    }
+
+    /// Starts it without waiting, its stderr piped.
+    pub fn spawn(self) -> Child {
+        self.command()
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start coid")
+    }
+}
+
+/// When the file at `p` was last modified.
+pub fn modified(p: &Path) -> std::time::SystemTime {
+    std::fs::metadata(p).unwrap().modified().unwrap()
 }
 
 pub fn stderr(o: &Output) -> String {

@@ -4,9 +4,16 @@
 use crate::util::*;
 use polars::prelude::DataFrame;
 use std::path::Path;
+use std::process::Output;
 
+/// `coid track` of `config` into `out`.
+fn track_cmd(fx: &Fixture, config: &Path, out: &str) -> Output {
+    fx.cmd("track").quiet().config(config).out(out).output()
+}
+
+/// `coid track` of `config` into `out`, and its `tracking.csv`.
 fn track(fx: &Fixture, config: &Path, out: &str) -> DataFrame {
-    assert_ok(&fx.coid(&["track", "-q", "-c", config.to_str().unwrap(), "-o", out]));
+    assert_ok(&track_cmd(fx, config, out));
     read_csv(&fx.path(out).join("tracking.csv"))
 }
 
@@ -25,11 +32,8 @@ fn trackers_and_messages_follow_the_settings() {
     let base = "[connected]\npenetration = 0.3\n";
     let cfg = fx.config("t.toml", 60.0, base);
     let t = track(&fx, &cfg, "a");
-    assert_ok(&fx.coid(&["track", "-q", "-c", cfg.to_str().unwrap(), "-o", "b"]));
-    assert_eq!(
-        std::fs::read(fx.path("a/tracking.csv")).unwrap(),
-        std::fs::read(fx.path("b/tracking.csv")).unwrap()
-    );
+    assert_ok(&track_cmd(&fx, &cfg, "b"));
+    assert_eq!(fx.read("a/tracking.csv"), fx.read("b/tracking.csv"));
     let last = t.height() - 1;
     assert_eq!(strs(&t, "ego_id")[last], "all");
     // Fusing every reception into a running estimate as if it were
@@ -109,19 +113,15 @@ fn stale_messages_err_more(fx: &Fixture, methods: &str, fresh: &DataFrame) {
 /// reception is drawn; synchronized matching runs with more vehicles.
 #[test]
 fn cpm_mode_runs_batches_and_draws() {
-    let fx = Fixture::new();
     let methods = "[matching]\nmethods = [\"gps-app-hungarian\", \"oracle\"]\n";
-    let cfg = fx.config("c.toml", 90.0, &format!("{methods}[v2x]\nmode = \"cpm\"\n"));
-    let c = cfg.to_str().unwrap();
+    let (fx, cfg) = Fixture::with_config(90.0, &format!("{methods}[v2x]\nmode = \"cpm\"\n"));
     for (threads, out) in [("1", "t1"), ("2", "t2")] {
-        assert_ok(&fx.coid(&["run", "-q", "-c", c, "-o", out, "--threads", threads]));
+        let run = fx.cmd("run").quiet().config(&cfg).out(out);
+        assert_ok(&run.args(["--threads", threads]).output());
     }
     for f in ["summary.csv", "objects.parquet"] {
-        assert_eq!(
-            std::fs::read(fx.path("t1").join(f)).unwrap(),
-            std::fs::read(fx.path("t2").join(f)).unwrap(),
-            "{f}"
-        );
+        let (t1, t2) = (fx.read(&format!("t1/{f}")), fx.read(&format!("t2/{f}")));
+        assert_eq!(t1, t2, "{f}");
     }
     let objects = read_parquet(&fx.path("t1/objects.parquet"));
     let ids = strs(&objects, "ego_id");
@@ -147,26 +147,17 @@ fn cpm_mode_runs_batches_and_draws() {
     }
     stale_messages_err_more(&fx, methods, &s);
     let b = |workers: &str, out: &str| {
-        fx.coid(&[
-            "batch",
-            "-q",
-            "-c",
-            c,
-            "--runs",
-            "2",
-            "--workers",
-            workers,
-            "-o",
-            out,
-        ])
+        let batch = fx.cmd("batch").quiet().config(&cfg);
+        batch
+            .args(["--runs", "2", "--workers", workers])
+            .out(out)
+            .output()
     };
     assert_ok(&b("1", "b1"));
     assert_ok(&b("2", "b2"));
-    assert_eq!(
-        std::fs::read(fx.path("b1/summary.csv")).unwrap(),
-        std::fs::read(fx.path("b2/summary.csv")).unwrap()
-    );
-    assert_ok(&fx.coid(&["render", "-c", c, "-o", "pics", "--instances", "0"]));
+    assert_eq!(fx.read("b1/summary.csv"), fx.read("b2/summary.csv"));
+    let render = fx.cmd("render").config(&cfg).out("pics");
+    assert_ok(&render.args(["--instances", "0"]).output());
     assert!(fx.path("pics/instance-0000.png").is_file());
     let sync = fx.config(
         "s.toml",
@@ -186,14 +177,12 @@ fn cpm_mode_runs_batches_and_draws() {
 /// values (100 ms, 10 %, 10 Hz) are the same runs, so the same numbers.
 #[test]
 fn a_sweep_covers_latency_loss_and_rate() {
-    let fx = Fixture::new();
-    let cfg = fx.config(
-        "s.toml",
+    let (fx, cfg) = Fixture::with_config(
         40.0,
         "[connected]\npenetration = 0.3\n[eval]\ntraffic_seeds = [1, 2]\n",
     );
-    let c = cfg.to_str().unwrap();
-    assert_ok(&fx.coid(&["track", "-q", "--sweep", "-c", c, "-o", "sw"]));
+    let sweep = fx.cmd("track").quiet().arg("--sweep").config(&cfg);
+    assert_ok(&sweep.out("sw").output());
     let t = read_csv(&fx.path("sw/sweep.csv"));
     assert_eq!(t.height(), 12);
     assert!(f64s(&t, "n_runs").iter().all(|&n| n == 2.0));
@@ -219,10 +208,10 @@ fn a_sweep_covers_latency_loss_and_rate() {
 fn track_refuses_missing_vehicles_and_says_when_none_came() {
     let fx = Fixture::new();
     let named = fx.config("n.toml", 20.0, "");
-    let out = fx.coid(&["track", "-q", "-c", named.to_str().unwrap(), "-o", "n"]);
+    let out = track_cmd(&fx, &named, "n");
     assert_refused_unwritten(&out, "never appeared", &fx.path("n"));
     let few = fx.config("f.toml", 20.0, "[connected]\npenetration = 0.01\n");
-    let out = fx.coid(&["track", "-q", "-c", few.to_str().unwrap(), "-o", "f"]);
+    let out = track_cmd(&fx, &few, "f");
     assert_ok(&out);
     assert!(
         stderr(&out).contains("no connected vehicle"),
