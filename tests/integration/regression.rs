@@ -3,7 +3,9 @@
 //! binary where a user meets the defect. Each failed on the code before
 //! its fix.
 
-use super::*;
+use crate::util::*;
+use std::path::{Path, PathBuf};
+use std::process::Output;
 use std::time::{Duration, Instant};
 
 /// A config on the shipped scenario with the two fast methods.
@@ -15,29 +17,11 @@ fn fast(fx: &Fixture, name: &str, end_s: f64, extra: &str) -> PathBuf {
     )
 }
 
+/// `coid batch` of `runs` runs on two workers into `out`, and `extra`.
 fn batch(fx: &Fixture, cfg: &Path, runs: &str, out: &str, extra: &[&str]) -> Output {
-    let c = cfg.to_str().unwrap();
-    let args = [
-        "batch",
-        "-q",
-        "-c",
-        c,
-        "--runs",
-        runs,
-        "--workers",
-        "2",
-        "-o",
-        out,
-    ];
-    fx.coid(&[&args[..], extra].concat())
-}
-
-fn spawn(fx: &Fixture, args: &[&str]) -> std::process::Child {
-    coid_in(fx.dir.path())
-        .args(args)
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap()
+    let batch = fx.cmd("batch").quiet().config(cfg);
+    let batch = batch.args(["--runs", runs, "--workers", "2"]).out(out);
+    batch.args(extra).output()
 }
 
 /// Names in `dir` (sorted).
@@ -72,19 +56,6 @@ fn wait_for_staging(fx: &Fixture, name: &str, child: &mut std::process::Child) {
         assert!(child.try_wait().unwrap().is_none(), "it ended too soon");
         staging(fx.dir.path(), name)
     });
-}
-
-/// A command refused with one line, no panic, exit code `code`.
-fn refused_with(out: &Output, code: i32, expect: &str) {
-    let err = stderr(out);
-    assert_eq!(out.status.code(), Some(code), "{err}");
-    assert!(!err.contains("panicked"), "panic: {err}");
-    assert_eq!(err.trim().lines().count(), 1, "not one line: {err}");
-    assert!(err.contains(expect), "expected {expect:?} in: {err}");
-}
-
-fn modified(p: &Path) -> std::time::SystemTime {
-    std::fs::metadata(p).unwrap().modified().unwrap()
 }
 
 /// 1. A run in which no two connected vehicles share an object is a
@@ -132,33 +103,30 @@ fn r31_01_a_batch_with_a_run_without_instances_completes() {
 ///    `--out`, exactly one writes it.
 #[test]
 fn r31_02_a_run_never_replaces_what_appeared_at_its_out() {
-    let fx = Fixture::new();
-    let cfg = fx.config("c.toml", 130.0, "");
-    let c = cfg.to_str().unwrap();
-    let mut child = spawn(&fx, &["run", "-q", "-c", c, "-o", "out"]);
+    let (fx, cfg) = Fixture::with_config(130.0, "");
+    let run = |cfg: &Path, out: &str| fx.cmd("run").quiet().config(cfg).out(out);
+    let mut child = run(&cfg, "out").spawn();
     wait_for_staging(&fx, "out", &mut child);
     std::fs::create_dir_all(fx.path("out")).unwrap();
     std::fs::write(fx.path("out/mine.txt"), "precious").unwrap();
     let pid = child.id();
     let o = child.wait_with_output().unwrap();
-    refused_with(&o, 1, "appeared while");
+    assert_refused(&o, "appeared while");
     assert_eq!(names(&fx.path("out")), ["mine.txt"]);
     let kept = fx.path(&format!("out.coid-{pid}"));
     assert!(kept.join("summary.csv").is_file(), "the results were lost");
     // --force, and the folder it replaces gets a file meanwhile.
-    assert_ok(&fx.coid(&["run", "-q", "-c", c, "-o", "f"]));
-    let old = std::fs::read(fx.path("f/summary.csv")).unwrap();
-    let mut child = spawn(&fx, &["run", "-q", "--force", "-c", c, "-o", "f"]);
+    assert_ok(&fx.run(&cfg, "f"));
+    let old = fx.read("f/summary.csv");
+    let mut child = run(&cfg, "f").arg("--force").spawn();
     wait_for_staging(&fx, "f", &mut child);
     std::fs::write(fx.path("f/note.txt"), "added").unwrap();
-    refused_with(&child.wait_with_output().unwrap(), 1, "changed while");
+    assert_refused(&child.wait_with_output().unwrap(), "changed while");
     assert!(fx.path("f/note.txt").is_file());
-    assert_eq!(std::fs::read(fx.path("f/summary.csv")).unwrap(), old);
+    assert_eq!(fx.read("f/summary.csv"), old);
     // Two runs with different configs into one folder at once.
     let other = fx.config("d.toml", 130.0, "[seeds]\ntraffic = 2\n");
-    let d = other.to_str().unwrap();
-    let a = spawn(&fx, &["run", "-q", "-c", c, "-o", "both"]);
-    let b = spawn(&fx, &["run", "-q", "-c", d, "-o", "both"]);
+    let (a, b) = (run(&cfg, "both").spawn(), run(&other, "both").spawn());
     let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
     assert_ne!(
         a.status.success(),
@@ -182,11 +150,15 @@ fn r31_02_a_run_never_replaces_what_appeared_at_its_out() {
 fn r31_03_export_with_matches_oracle_writes_every_row_once() {
     let fx = Fixture::new();
     let cfg = fast(&fx, "e.toml", 60.0, "[eval]\ntraffic_seeds = [1]\n");
-    let c = cfg.to_str().unwrap();
-    let export = ["export", "-q", "-c", c, "--splits", "test"];
-    assert_ok(&fx.coid(&[&export[..], &["-o", "plain"]].concat()));
-    let with = ["--with-matches", "oracle", "-o", "with"];
-    assert_ok(&fx.coid(&[&export[..], &with[..]].concat()));
+    let export = || {
+        fx.cmd("export")
+            .quiet()
+            .config(&cfg)
+            .args(["--splits", "test"])
+    };
+    assert_ok(&export().out("plain").output());
+    let with = export().args(["--with-matches", "oracle"]).out("with");
+    assert_ok(&with.output());
     for f in ["nodes", "edges", "truth", "true_pairs", "instances"] {
         let file = format!("{f}.parquet");
         let (p, w) = (
@@ -199,19 +171,15 @@ fn r31_03_export_with_matches_oracle_writes_every_row_once() {
     let oracle = read_parquet(&fx.path("with/matches-oracle.parquet")).height();
     assert!(pairs > 0);
     assert_eq!(oracle, 3 * pairs, "one row per true pair and level");
-    let score = [
-        "score",
-        "-q",
-        "-c",
-        c,
-        "--matches",
-        "with/true_pairs.parquet",
-        "-o",
-        "s",
-    ];
-    assert_ok(&fx.coid(&score));
-    let twice = ["--with-matches", "oracle", "oracle", "-o", "twice"];
-    refused_with(&fx.coid(&[&export[..], &twice[..]].concat()), 1, "twice");
+    let score = fx.cmd("score").quiet().config(&cfg);
+    let score = score
+        .args(["--matches", "with/true_pairs.parquet"])
+        .out("s");
+    assert_ok(&score.output());
+    let twice = export()
+        .args(["--with-matches", "oracle", "oracle"])
+        .out("twice");
+    assert_refused(&twice.output(), "twice");
 }
 
 /// 4. Editing the config while a batch runs changes nothing in it: every
@@ -221,10 +189,12 @@ fn r31_03_export_with_matches_oracle_writes_every_row_once() {
 fn r31_04_a_config_edited_mid_batch_does_not_mix_configurations() {
     let fx = Fixture::new();
     let cfg = fast(&fx, "b.toml", 75.0, "");
-    let c = cfg.to_str().unwrap();
-    let args = ["batch", "-q", "-c", c, "--runs", "4", "--workers", "1"];
-    assert_ok(&fx.coid(&[&args[..], &["-o", "plain"]].concat()));
-    let mut child = spawn(&fx, &[&args[..], &["-o", "edited"]].concat());
+    let batch = |out: &str| {
+        let batch = fx.cmd("batch").quiet().config(&cfg);
+        batch.args(["--runs", "4", "--workers", "1"]).out(out)
+    };
+    assert_ok(&batch("plain").output());
+    let mut child = batch("edited").spawn();
     let first = fx.path("edited/runs/run-000000/summary.csv");
     let deadline = Instant::now() + Duration::from_secs(60);
     wait_until(deadline, "the first run never finished", || {
@@ -234,13 +204,14 @@ fn r31_04_a_config_edited_mid_batch_does_not_mix_configurations() {
         );
         first.is_file()
     });
-    let text = std::fs::read_to_string(&cfg).unwrap();
-    std::fs::write(&cfg, format!("{text}[sensor]\nrange_sigma_per_m = 0.3\n")).unwrap();
+    let text = fx.read_text("b.toml");
+    fx.write(
+        "b.toml",
+        &format!("{text}[sensor]\nrange_sigma_per_m = 0.3\n"),
+    );
     assert_ok(&child.wait_with_output().unwrap());
-    let bytes = |d: &str| std::fs::read(fx.path(d).join("summary.csv")).unwrap();
-    assert_eq!(bytes("edited"), bytes("plain"));
-    let resumed = fx.coid(&[&args[..], &["-o", "edited"]].concat());
-    refused_with(&resumed, 1, "has changed since");
+    assert_eq!(fx.read("edited/summary.csv"), fx.read("plain/summary.csv"));
+    assert_refused(&batch("edited").output(), "has changed since");
 }
 
 /// 5. A scenario named twice in an evaluation (by `--suite` or `[eval]
@@ -250,22 +221,20 @@ fn r31_04_a_config_edited_mid_batch_does_not_mix_configurations() {
 fn r31_05_eval_refuses_a_scenario_named_twice() {
     let fx = Fixture::new();
     let cfg = fast(&fx, "e.toml", 60.0, "[eval]\ntraffic_seeds = [1]\n");
-    let c = cfg.to_str().unwrap();
-    let o = fx.coid(&["eval", "-q", "-c", c, "--suite", c, "-o", "e"]);
-    refused_with(&o, 1, "the same runs");
+    let eval = |cfg: &Path| fx.cmd("eval").quiet().config(cfg);
+    let suite = |other: &Path| eval(&cfg).arg("--suite").arg(other).out("e").output();
+    assert_refused(&suite(&cfg), "the same runs");
     std::fs::create_dir_all(fx.path("sub")).unwrap();
     std::fs::copy(&cfg, fx.path("sub/e.toml")).unwrap();
-    let o = fx.coid(&["eval", "-q", "-c", c, "--suite", "sub/e.toml", "-o", "e"]);
-    refused_with(&o, 1, "the same runs");
+    assert_refused(&suite(Path::new("sub/e.toml")), "the same runs");
     let own = fast(
         &fx,
         "own.toml",
         60.0,
         "[eval]\ntraffic_seeds = [1]\nscenarios = [\"own.toml\"]\n",
     );
-    let o = fx.coid(&["eval", "-q", "-c", own.to_str().unwrap(), "-o", "e"]);
-    refused_with(&o, 1, "the same runs");
-    assert!(!fx.path("e").exists());
+    let o = eval(&own).out("e").output();
+    assert_refused_unwritten(&o, "the same runs", &fx.path("e"));
 }
 
 /// 6. `merge` without every run of the batch fails (unless `--partial`),
@@ -275,10 +244,10 @@ fn r31_06_merge_with_a_shard_missing_fails() {
     let fx = Fixture::new();
     let cfg = fast(&fx, "b.toml", 75.0, "");
     assert_ok(&batch(&fx, &cfg, "3", "s1", &["--shard", "1/2"]));
-    refused_with(&fx.coid(&["merge", "s1", "-o", "m"]), 1, "missing (1)");
-    assert!(!fx.path("m").exists());
+    let merged = fx.coid(&["merge", "s1", "-o", "m"]);
+    assert_refused_unwritten(&merged, "missing (1)", &fx.path("m"));
     assert_ok(&fx.coid(&["merge", "s1", "--partial", "-o", "m"]));
-    let md = std::fs::read_to_string(fx.path("m/summary.md")).unwrap();
+    let md = fx.read_text("m/summary.md");
     assert!(md.contains("2 of 3 runs complete"), "{md}");
 }
 
@@ -288,27 +257,25 @@ fn r31_06_merge_with_a_shard_missing_fails() {
 fn r31_07_score_checks_the_export_it_scores() {
     let fx = Fixture::new();
     let cfg = fast(&fx, "a.toml", 60.0, "[eval]\ntraffic_seeds = [1, 2]\n");
-    let c = cfg.to_str().unwrap();
-    let export = ["export", "-q", "-c", c, "--splits", "test", "-o", "ex"];
-    assert_ok(&fx.coid(&[&export[..], &["--with-matches", "gps-hungarian"]].concat()));
+    let export = fx
+        .cmd("export")
+        .quiet()
+        .config(&cfg)
+        .args(["--splits", "test"]);
+    let export = export.out("ex").args(["--with-matches", "gps-hungarian"]);
+    assert_ok(&export.output());
     let other = fast(
         &fx,
         "b.toml",
         60.0,
         "[eval]\ntraffic_seeds = [1, 2]\n[sensor]\nfalse_positives_per_frame = 0.5\n",
     );
-    let matches = "ex/matches-gps-hungarian.parquet";
-    let o = fx.coid(&[
-        "score",
-        "-q",
-        "-c",
-        other.to_str().unwrap(),
-        "--matches",
-        matches,
-        "-o",
-        "s",
-    ]);
-    refused_with(&o, 1, "another configuration");
+    let score = |cfg: &Path, matches: &str| {
+        let score = fx.cmd("score").quiet().config(cfg);
+        score.args(["--matches", matches]).out("s")
+    };
+    let o = score(&other, "ex/matches-gps-hungarian.parquet").output();
+    assert_refused(&o, "another configuration");
     // Only the first run's true pairs, as CSV outside the export.
     let pairs = read_parquet(&fx.path("ex/true_pairs.parquet"));
     let runs = f64s(&pairs, "run");
@@ -327,21 +294,8 @@ fn r31_07_score_checks_the_export_it_scores() {
         }
     }
     fx.write("first.csv", &csv);
-    let o = fx.coid(&["score", "-q", "-c", c, "--matches", "first.csv", "-o", "s"]);
-    refused_with(&o, 1, "pass --export");
-    let score = [
-        "score",
-        "-q",
-        "-c",
-        c,
-        "--matches",
-        "first.csv",
-        "--export",
-        "ex",
-        "-o",
-        "s",
-    ];
-    let o = fx.coid(&score);
+    assert_refused(&score(&cfg, "first.csv").output(), "pass --export");
+    let o = score(&cfg, "first.csv").args(["--export", "ex"]).output();
     assert_ok(&o);
     assert!(
         stderr(&o).contains("names no instance of run(s)"),
@@ -357,15 +311,15 @@ fn r31_08_batch_and_merge_take_only_their_own_runs() {
     let fx = Fixture::new();
     let cfg = fast(&fx, "b.toml", 75.0, "");
     assert_ok(&batch(&fx, &cfg, "2", "b", &[]));
-    let whole = std::fs::read(fx.path("b/summary.csv")).unwrap();
-    let c = cfg.to_str().unwrap();
-    let run = ["run", "-q", "--force", "-c", c, "--traffic-seed", "7"];
-    assert_ok(&fx.coid(&[&run[..], &["-o", "b/runs/run-000001"]].concat()));
-    refused_with(&fx.coid(&["merge", "b", "-o", "m"]), 1, "missing (1)");
+    let whole = fx.read("b/summary.csv");
+    let run = fx.cmd("run").quiet().arg("--force").config(&cfg);
+    let run = run.args(["--traffic-seed", "7"]).out("b/runs/run-000001");
+    assert_ok(&run.output());
+    assert_refused(&fx.coid(&["merge", "b", "-o", "m"]), "missing (1)");
     let again = batch(&fx, &cfg, "2", "b", &[]);
     assert_ok(&again);
     assert!(stderr(&again).contains("1 runs done"), "{}", stderr(&again));
-    assert_eq!(std::fs::read(fx.path("b/summary.csv")).unwrap(), whole);
+    assert_eq!(fx.read("b/summary.csv"), whole);
 }
 
 /// 9. `--force` never replaces a folder coid did not write, whatever
@@ -379,25 +333,21 @@ fn r31_09_force_never_replaces_a_folder_coid_did_not_write() {
     for f in ["summary.csv", "summary.md", "objects.parquet"] {
         fx.write(&format!("mine/{f}"), "mine");
     }
-    let c = cfg.to_str().unwrap();
     for cmd in ["run", "eval", "render"] {
-        let o = fx.coid(&[cmd, "-q", "--force", "-c", c, "-o", "mine"]);
-        refused_with(&o, 1, "coid did not write it");
+        let o = fx.cmd(cmd).quiet().arg("--force").config(&cfg).out("mine");
+        assert_refused(&o.output(), "coid did not write it");
     }
     assert_eq!(names(&fx.path("mine")).len(), 3);
-    assert_eq!(
-        std::fs::read_to_string(fx.path("mine/summary.csv")).unwrap(),
-        "mine"
-    );
+    assert_eq!(fx.read_text("mine/summary.csv"), "mine");
     std::fs::create_dir_all(fx.path("fam/s000")).unwrap();
     fx.write("fam/s000/coid.toml", "# my own scenario");
     fx.write("fam/s000/net.net.xml", "<net/>");
-    let o = fx.coid(&["scenarios", "-q", "--count", "1", "--force", "--out", "fam"]);
-    refused_with(&o, 1, "coid did not write it");
-    assert_eq!(
-        std::fs::read_to_string(fx.path("fam/s000/coid.toml")).unwrap(),
-        "# my own scenario"
-    );
+    let o = fx
+        .cmd("scenarios")
+        .quiet()
+        .args(["--count", "1", "--force"]);
+    assert_refused(&o.out("fam").output(), "coid did not write it");
+    assert_eq!(fx.read_text("fam/s000/coid.toml"), "# my own scenario");
 }
 
 /// 10. A value that would allocate without bound is refused in one line
@@ -418,7 +368,7 @@ fn r31_10_mc_samples_beyond_the_bound_are_refused() {
     ] {
         let cfg = fx.config("c.toml", 60.0, extra);
         let o = fx.run(&cfg, "r");
-        refused_with(&o, 1, key);
+        assert_refused(&o, key);
         assert!(!fx.path("r").exists() && !any_staging(fx.dir.path()));
     }
 }
@@ -429,66 +379,29 @@ fn r31_10_mc_samples_beyond_the_bound_are_refused() {
 fn r31_11_threads_and_workers_out_of_range_are_refused() {
     let fx = Fixture::new();
     let cfg = fast(&fx, "c.toml", 60.0, "");
-    let c = cfg.to_str().unwrap();
-    for args in [
-        vec!["run", "-q", "-c", c, "--threads", "100000", "-o", "r"],
-        vec!["run", "-q", "-c", c, "--threads", "0", "-o", "r"],
-        vec![
-            "batch",
-            "-q",
-            "-c",
-            c,
-            "--runs",
-            "1",
-            "--workers",
-            "0",
-            "-o",
-            "b",
-        ],
-        vec![
-            "batch",
-            "-q",
-            "-c",
-            c,
-            "--runs",
-            "1",
-            "--workers",
-            "100000",
-            "-o",
-            "b",
-        ],
-        vec![
-            "batch",
-            "-q",
-            "-c",
-            c,
-            "--runs",
-            "1",
-            "--threads",
-            "100000",
-            "-o",
-            "b",
-        ],
+    let run = |flag: &str, n: &str| {
+        let run = fx.cmd("run").quiet().config(&cfg);
+        (format!("run {flag} {n}"), run.args([flag, n]).out("r"))
+    };
+    let batch = |flag: &str, n: &str| {
+        let batch = fx.cmd("batch").quiet().config(&cfg).args(["--runs", "1"]);
+        (format!("batch {flag} {n}"), batch.args([flag, n]).out("b"))
+    };
+    for (what, cmd) in [
+        run("--threads", "100000"),
+        run("--threads", "0"),
+        batch("--workers", "0"),
+        batch("--workers", "100000"),
+        batch("--threads", "100000"),
     ] {
-        let o = fx.coid(&args);
-        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        let o = cmd.output();
+        assert_eq!(o.status.code(), Some(2), "{what}: {}", stderr(&o));
         assert!(stderr(&o).contains("is not in 1..=1024"), "{}", stderr(&o));
         assert!(!stderr(&o).contains("panicked"));
     }
     assert!(!fx.path("r").exists() && !fx.path("b").exists());
     assert!(!any_staging(fx.dir.path()));
-    let o = fx.coid(&[
-        "batch",
-        "-q",
-        "-c",
-        c,
-        "--runs",
-        "1",
-        "--workers",
-        "8",
-        "-o",
-        "b",
-    ]);
+    let o = batch("--workers", "8").1.output();
     assert_ok(&o);
     assert!(stderr(&o).contains("on 1 worker "), "{}", stderr(&o));
 }
@@ -503,27 +416,19 @@ fn r31_12_no_temporary_files_are_left_behind() {
     let tmp = fx.path("tmp");
     std::fs::create_dir_all(&tmp).unwrap();
     let cfg = fast(&fx, "c.toml", 130.0, "[connected]\npenetration = 0.3\n");
-    let c = cfg.to_str().unwrap();
-    let run = |out: &str| {
-        coid_in(fx.dir.path())
+    let run = |cfg: &Path, out: &str| {
+        fx.cmd("run")
+            .quiet()
+            .config(cfg)
+            .out(out)
             .env("TMPDIR", &tmp)
-            .args(["run", "-q", "-c", c, "-o", out])
-            .spawn()
-            .unwrap()
     };
-    assert!(run("a").wait().unwrap().success());
+    assert!(run(&cfg, "a").command().status().unwrap().success());
     assert!(names(&tmp).is_empty(), "{:?}", names(&tmp));
     for (signal, code) in [("-INT", Some(130)), ("-TERM", Some(143)), ("-KILL", None)] {
-        let mut child = run("b");
+        let mut child = run(&cfg, "b").command().spawn().unwrap();
         wait_for_staging(&fx, "b", &mut child);
-        let pid = child.id().to_string();
-        assert!(
-            Command::new("kill")
-                .args([signal, &pid])
-                .status()
-                .unwrap()
-                .success()
-        );
+        send_signal(&child, signal);
         assert_eq!(child.wait().unwrap().code(), code, "{signal}");
         assert!(!fx.path("b").exists());
         if code.is_some() {
@@ -539,12 +444,7 @@ fn r31_12_no_temporary_files_are_left_behind() {
     // the same folder, whatever its --out.
     assert!(staging(fx.dir.path(), "b"));
     let quick = fast(&fx, "q.toml", 20.0, "[connected]\npenetration = 0.3\n");
-    let o = coid_in(fx.dir.path())
-        .env("TMPDIR", &tmp)
-        .args(["run", "-q", "-c", quick.to_str().unwrap(), "-o", "other"])
-        .output()
-        .unwrap();
-    assert_ok(&o);
+    assert_ok(&run(&quick, "other").output());
     assert!(!any_staging(fx.dir.path()), "{:?}", names(fx.dir.path()));
     assert!(names(&tmp).is_empty(), "{:?}", names(&tmp));
 }
@@ -574,7 +474,7 @@ fn r31_13_repeated_list_entries_are_refused() {
         ),
     ] {
         let cfg = fx.config("c.toml", 60.0, extra);
-        refused_with(&fx.run(&cfg, "r"), 1, key);
+        assert_refused(&fx.run(&cfg, "r"), key);
     }
 }
 
@@ -583,39 +483,30 @@ fn r31_13_repeated_list_entries_are_refused() {
 fn r31_14_messages_say_what_is_wrong() {
     let fx = Fixture::new();
     let cfg = fast(&fx, "c.toml", 60.0, "");
-    let c = cfg.to_str().unwrap();
     // A huge number is written as a number, not 300 digits.
     let huge = fx.config("h.toml", 20.0, "[sensor]\ncolour_sigma = -1e300\n");
-    refused_with(&fx.run(&huge, "r"), 1, "got -1e300");
+    assert_refused(&fx.run(&huge, "r"), "got -1e300");
     // An --out that is a file, or a symbolic link to nothing: before SUMO.
     fx.write("afile", "x");
-    refused_with(&fx.run(&cfg, "afile"), 1, "it is a file");
+    assert_refused(&fx.run(&cfg, "afile"), "it is a file");
     std::os::unix::fs::symlink(fx.path("nowhere"), fx.path("dangling")).unwrap();
     let started = Instant::now();
-    refused_with(&fx.run(&cfg, "dangling"), 1, "which does not exist");
+    assert_refused(&fx.run(&cfg, "dangling"), "which does not exist");
     assert!(started.elapsed() < Duration::from_secs(10));
     // A folder of another command's results is named as such.
     assert_ok(&fx.run(&cfg, "r"));
-    let o = fx.coid(&["eval", "-q", "--force", "-c", c, "-o", "r"]);
-    refused_with(&o, 1, "it holds a run's results (coid run)");
+    let o = fx.cmd("eval").quiet().arg("--force").config(&cfg).out("r");
+    assert_refused(&o.output(), "it holds a run's results (coid run)");
     // A test seed in the training seeds, set in [eval]: reported there.
     let overlap = fx.config("o.toml", 20.0, "[eval]\ntraffic_seeds = [101]\n");
-    refused_with(
+    assert_refused(
         &fx.run(&overlap, "x"),
-        1,
         "eval.traffic_seeds: seed 101 is in both",
     );
     // A sumocfg that is a folder.
-    let folder = fx.write(
-        "d.toml",
-        &format!(
-            "[scenario]\nsumocfg = {:?}\njunction = \"C\"\n",
-            repo().join("sumo_nets")
-        ),
-    );
-    refused_with(
+    let folder = fx.write("d.toml", &scenario_toml(&repo().join("sumo_nets"), "C"));
+    assert_refused(
         &fx.run(&folder, "x"),
-        1,
         "is a folder, not a SUMO configuration",
     );
     // An --out name near the file system's limit (255 bytes) works.
@@ -629,8 +520,12 @@ fn r31_14_messages_say_what_is_wrong() {
 fn r31_14_matches_files_and_track_lines_say_what_is_wrong() {
     let fx = Fixture::new();
     let cfg = fast(&fx, "e.toml", 60.0, "[eval]\ntraffic_seeds = [1]\n");
-    let c = cfg.to_str().unwrap();
-    assert_ok(&fx.coid(&["export", "-q", "-c", c, "--splits", "test", "-o", "ex"]));
+    let export = fx
+        .cmd("export")
+        .quiet()
+        .config(&cfg)
+        .args(["--splits", "test"]);
+    assert_ok(&export.out("ex").output());
     let pairs = read_parquet(&fx.path("ex/true_pairs.parquet"));
     let v = |col: &str| f64s(&pairs, col)[0] as u64;
     let row = format!("{},{},{},{}", v("run"), v("instance"), v("a"), v("b"));
@@ -639,14 +534,17 @@ fn r31_14_matches_files_and_track_lines_say_what_is_wrong() {
         "ex/bad.csv",
         &format!("run,instance,a,b,uncertainty\n{row},5.0\n"),
     );
-    let score = |m: &str| fx.coid(&["score", "-q", "-c", c, "--matches", m, "-o", "s"]);
-    refused_with(&score("ex/bad.csv"), 1, "uncertainty 5 is not in [0, 1]");
+    let score = |m: &str| {
+        let score = fx.cmd("score").quiet().config(&cfg);
+        score.args(["--matches", m]).out("s").output()
+    };
+    assert_refused(&score("ex/bad.csv"), "uncertainty 5 is not in [0, 1]");
     // A CSV file named in capitals is read as CSV.
     fx.write("ex/OK.CSV", &format!("run,instance,a,b\n{row}\n"));
     assert_ok(&score("ex/OK.CSV"));
     // Every message lost: no NaN in the one-line summary.
     let lossy = fx.config("t.toml", 60.0, "[v2x.channel]\nloss_probability = 1.0\n");
-    let o = fx.coid(&["track", "-q", "-c", lossy.to_str().unwrap(), "-o", "t"]);
+    let o = fx.cmd("track").quiet().config(&lossy).out("t").output();
     assert_ok(&o);
     assert!(!stderr(&o).contains("NaN"), "{}", stderr(&o));
     assert!(stderr(&o).contains("no pair to score"), "{}", stderr(&o));

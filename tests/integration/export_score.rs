@@ -1,0 +1,187 @@
+//! `coid export` and `coid score`: exported matches score as the built-in
+//! method.
+
+use crate::util::*;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// A fixture with a short config: the fast methods, two test runs.
+fn small() -> (Fixture, PathBuf) {
+    Fixture::with_config(
+        60.0,
+        "[matching]\nmethods = [\"gps-hungarian\", \"gps-app-hungarian\", \"oracle\"]\n\
+         [eval]\ntraffic_seeds = [1, 2]\n",
+    )
+}
+
+/// `coid export` of the test runs into `ex`, with GPS-Hungarian's matches.
+fn export(fx: &Fixture, config: &Path) {
+    let export = fx
+        .cmd("export")
+        .quiet()
+        .config(config)
+        .args(["--splits", "test"]);
+    assert_ok(
+        &export
+            .args(["--with-matches", "gps-hungarian"])
+            .out("ex")
+            .output(),
+    );
+}
+
+/// `coid score` of `matches` (made from the export `ex`).
+fn score(fx: &Fixture, config: &Path, matches: &str, out: &str) -> Output {
+    let score = fx
+        .cmd("score")
+        .quiet()
+        .config(config)
+        .args(["--matches", matches]);
+    score.out(out).args(["--export", "ex"]).output()
+}
+
+/// The lines of a table for `method`, without the method.
+fn rows(fx: &Fixture, dir: &str, file: &str, method: &str) -> Vec<String> {
+    let text = fx.read_text(&format!("{dir}/{file}"));
+    let prefix = format!("{method},");
+    text.lines()
+        .filter_map(|l| l.strip_prefix(&prefix).map(str::to_owned))
+        .collect()
+}
+
+/// Export then score: GPS-Hungarian's exported matches score exactly
+/// as GPS-Hungarian (P/R/F1, displacement errors with both fusion
+/// variants, calibration, consistency, all-view fusion), and the
+/// exported true pairs exactly as the oracle; the export says what it
+/// holds.
+#[test]
+fn exported_matches_reproduce_the_built_in_rows() {
+    let (fx, config) = small();
+    export(&fx, &config);
+    let runs = read_parquet(&fx.path("ex/runs.parquet"));
+    assert_eq!(strs(&runs, "split"), vec!["test", "test"]);
+    assert_eq!(f64s(&runs, "schema_version"), vec![2.0, 2.0]);
+    let instances: f64 = f64s(&runs, "n_instances").iter().sum();
+    assert!(instances > 0.0);
+    let levels = read_parquet(&fx.path("ex/instances.parquet")).height() as f64;
+    assert_eq!(levels, 3.0 * instances);
+    let nodes = read_parquet(&fx.path("ex/nodes.parquet"));
+    assert_eq!(
+        nodes.height(),
+        read_parquet(&fx.path("ex/truth.parquet")).height()
+    );
+    assert!(fx.read_text("ex/schema.md").contains("schema version 2"));
+    assert_ok(&score(
+        &fx,
+        &config,
+        "ex/matches-gps-hungarian.parquet",
+        "s1",
+    ));
+    assert_ok(&score(&fx, &config, "ex/true_pairs.parquet", "s2"));
+    for file in [
+        "table1.csv",
+        "errors.csv",
+        "calibration.csv",
+        "consistency.csv",
+        "views.csv",
+    ] {
+        let built_in = rows(&fx, "s1", file, "gps-hungarian");
+        assert!(!built_in.is_empty(), "{file}");
+        assert_eq!(rows(&fx, "s1", file, "external"), built_in, "{file}");
+        assert_eq!(
+            rows(&fx, "s2", file, "external"),
+            rows(&fx, "s2", file, "oracle"),
+            "{file}"
+        );
+    }
+    // Another method's matches are not GPS-Hungarian's.
+    assert_ne!(
+        rows(&fx, "s1", "table1.csv", "external"),
+        rows(&fx, "s1", "table1.csv", "gps-app-hungarian")
+    );
+}
+
+/// The Python example (polars and numpy, through the project's
+/// environment) reads the export, writes matches, and prints the
+/// precision, recall and F1 its rule implies; `coid score` finds the
+/// same numbers for it.
+#[test]
+fn the_python_example_scores_what_its_rule_implies() {
+    let (fx, config) = small();
+    export(&fx, &config);
+    let out = Command::new(venv().join("bin/python"))
+        .arg(repo().join("examples/nearest_match.py"))
+        .arg(fx.path("ex"))
+        .arg("--out")
+        .arg(fx.path("nm.parquet"))
+        .env_remove("PYTHONHOME")
+        .output()
+        .expect("run python");
+    assert_ok(&out);
+    let printed = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert_ok(&score(&fx, &config, "nm.parquet", "s"));
+    let table = read_csv(&fx.path("s/table1.csv"));
+    let (methods, levels) = (strs(&table, "method"), strs(&table, "pose_noise"));
+    let mut checked = 0;
+    for line in printed.lines().filter(|l| l.contains(" f1 ")) {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        let level = words[0].trim_end_matches(':');
+        let k = (0..table.height())
+            .find(|&k| methods[k] == "external" && levels[k] == level)
+            .unwrap_or_else(|| panic!("no external row at {level}"));
+        for (name, at) in [("precision", 2), ("recall", 4), ("f1", 6)] {
+            let python: f64 = words[at].parse().unwrap();
+            let coid = f64s(&table, name)[k];
+            assert!(
+                (python - coid).abs() < 1e-6,
+                "{name} at {level}: {python} vs {coid}"
+            );
+        }
+        checked += 1;
+    }
+    assert_eq!(checked, 3, "{printed}");
+}
+
+/// A matches file that does not fit the exported instances is refused
+/// with one line and a non-zero exit, and nothing is written.
+#[test]
+fn a_matches_file_that_does_not_fit_is_refused_in_one_line() {
+    let (fx, config) = small();
+    export(&fx, &config);
+    let run = f64s(&read_parquet(&fx.path("ex/runs.parquet")), "run")[0] as u64;
+    let cases = [
+        (
+            format!("run,instance,a,b\n{run},0,999,0\n"),
+            "a match pairs nodes 999",
+        ),
+        (
+            format!("run,instance,a,b\n{run},100000,0,0\n"),
+            "matches name instance 100000",
+        ),
+        ("run,instance,a,b\n0,0,0,0\n".into(), "a train run"),
+        (
+            "run,instance,a,b\n99999,0,0,0\n".into(),
+            "this configuration has",
+        ),
+        (
+            format!("run,instance,pose_noise,a,b\n{run},0,foo,0,0\n"),
+            "pose-noise level 'foo'",
+        ),
+        (
+            format!("run,instance,a,b\n{run},0,0,0\n{run},0,0,1\n"),
+            "a second time",
+        ),
+        (
+            format!("run,instance,a,b,probability\n{run},0,0,0,2\n"),
+            "not in [0, 1]",
+        ),
+        (format!("run,instance,a\n{run},0,0\n"), "no column 'b'"),
+        (format!("run,instance,a,b\n{run},0,-1,0\n"), "negative"),
+        ("run,instance,a,b\n".into(), "names no test run"),
+    ];
+    for (k, (body, expect)) in cases.iter().enumerate() {
+        let file = format!("bad{k}.csv");
+        fx.write(&file, body);
+        let o = score(&fx, &config, &file, "s");
+        assert_refused_unwritten(&o, expect, &fx.path("s"));
+    }
+}

@@ -1,0 +1,220 @@
+//! The learned methods: training, early stopping, training in child
+//! processes, weights checked against their record, the shipped model
+//! against the strongest baseline.
+
+use crate::util::*;
+
+/// Real burn training on a small real data set (one SUMO run, one
+/// epoch), then a run that loads the weights it wrote.
+#[test]
+fn train_writes_loadable_weights_and_a_loss_curve() {
+    let fx = Fixture::new();
+    let cfg = fx.config(
+        "t.toml",
+        80.0,
+        &format!(
+            "[train]\ntraffic_seeds = [201]\nepochs = 1\nmethods = [\"gcn-gm\"]\n[matching]\nmethods = [\"gcn-gm\", \"oracle\"]\nmodels_dir = {:?}\n[pose_noise]\nlevels = [\"gps\"]\n",
+            fx.path("results/t-models").to_string_lossy()
+        ),
+    );
+    // Without --out: a new folder, results/<config stem>-models, never
+    // the shipped weights; a second time only with --force.
+    let train = || fx.cmd("train").quiet().config(&cfg).output();
+    assert_ok(&train());
+    for f in ["gcn-gm.bpk", "gcn-gm.toml", "gcn-gm_loss.csv"] {
+        assert!(fx.path("results/t-models").join(f).is_file(), "{f} missing");
+    }
+    assert_refused(&train(), "already exists");
+    let curve = fx.read_text("results/t-models/gcn-gm_loss.csv");
+    // Epoch 0 holds the validation loss before training only.
+    let loss: f64 = curve
+        .lines()
+        .find(|l| l.starts_with("1,"))
+        .unwrap()
+        .split(',')
+        .nth(1)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(loss.is_finite() && loss > 0.0, "{curve}");
+    assert_ok(&fx.run(&cfg, "with-model"));
+    let summary = read_csv(&fx.path("with-model/summary.csv"));
+    assert!(strs(&summary, "method").iter().any(|m| m == "gcn-gm"));
+}
+
+/// Training lowers the loss on held-out validation runs of real SUMO
+/// data (one training run, one validation run; early stopping keeps
+/// the epoch with the lowest validation loss and records it).
+#[test]
+fn training_lowers_the_validation_loss_on_real_runs() {
+    let fx = Fixture::new();
+    let cfg = fx.config(
+        "t.toml",
+        80.0,
+        &format!(
+            "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 3\npatience = 2\n\
+             methods = [\"gcn-gm\"]\n[matching]\nmodels_dir = {:?}\n[pose_noise]\nlevels = [\"gps\"]\n",
+            fx.path("models").to_string_lossy()
+        ),
+    );
+    assert_ok(&fx.cmd("train").quiet().config(&cfg).out("models").output());
+    let curve = read_csv(&fx.path("models/gcn-gm_loss.csv"));
+    let v = f64s(&curve, "validation_loss");
+    assert!(v.len() >= 2 && v.iter().all(|l| l.is_finite()), "{v:?}");
+    let best = v[1..].iter().copied().fold(f64::INFINITY, f64::min);
+    assert!(
+        best < v[0],
+        "validation loss before training {} never beaten: {v:?}",
+        v[0]
+    );
+    let meta = fx.read_text("models/gcn-gm.toml");
+    assert!(meta.contains("best_epoch = "), "{meta}");
+}
+
+/// Two methods trained in two child processes give the same weights,
+/// losses and lambdas as one after the other in one process.
+#[test]
+fn training_in_child_processes_gives_the_same_models() {
+    let (fx, cfg) = Fixture::with_config(
+        60.0,
+        "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 1\n\
+         methods = [\"gcn-gm\", \"dgmc\"]\n[pose_noise]\nlevels = [\"gps\"]\n",
+    );
+    let train = |out: &str, workers: &str| {
+        let cmd = fx.cmd("train").quiet().config(&cfg).out(out);
+        cmd.args(["-w", workers]).output()
+    };
+    let two = train("two", "2");
+    assert_ok(&two);
+    assert_ok(&train("one", "1"));
+    for m in ["gcn-gm", "dgmc"] {
+        let read = |dir: &str, ext: &str| fx.read(&format!("{dir}/{m}{ext}"));
+        assert_eq!(
+            read("two", ".bpk"),
+            read("one", ".bpk"),
+            "{m} weights differ"
+        );
+        assert_eq!(
+            read("two", "_loss.csv"),
+            read("one", "_loss.csv"),
+            "{m} losses differ"
+        );
+        let lambda = |dir: &str| {
+            String::from_utf8(read(dir, ".toml"))
+                .unwrap()
+                .lines()
+                .skip_while(|l| *l != "[validation]")
+                .find(|l| l.starts_with("lambda = "))
+                .map(str::to_owned)
+        };
+        assert!(lambda("two").is_some());
+        assert_eq!(lambda("two"), lambda("one"));
+    }
+    assert!(stderr(&two).contains("trained dgmc"), "{}", stderr(&two));
+}
+
+/// Weights that are not the ones their record names (here another
+/// method's) are refused with one line, before anything runs.
+#[test]
+fn weights_that_do_not_match_their_record_are_refused() {
+    let fx = Fixture::new();
+    std::fs::create_dir_all(fx.path("models")).unwrap();
+    for f in ["ours.bpk", "ours.toml"] {
+        std::fs::copy(repo().join("models").join(f), fx.path("models").join(f)).unwrap();
+    }
+    std::fs::copy(repo().join("models/dgmc.bpk"), fx.path("models/ours.bpk")).unwrap();
+    let cfg = fx.config(
+        "w.toml",
+        60.0,
+        &format!(
+            "[matching]\nmethods = [\"ours\"]\nmodels_dir = {:?}\n",
+            fx.path("models").to_string_lossy()
+        ),
+    );
+    let out = fx.run(&cfg, "w");
+    assert_refused_unwritten(&out, "not the ones recorded", &fx.path("w"));
+    assert!(stderr(&out).contains("ours"), "{}", stderr(&out));
+}
+
+#[test]
+fn missing_weights_are_a_clear_error() {
+    let fx = Fixture::new();
+    let cfg = fx.config(
+        "m.toml",
+        60.0,
+        &format!(
+            "[matching]\nmethods = [\"ours\"]\nmodels_dir = {:?}\n",
+            fx.path("nowhere").to_string_lossy()
+        ),
+    );
+    let out = fx.run(&cfg, "out");
+    assert_refused(&out, "coid train");
+    assert!(stderr(&out).contains("ours"), "{}", stderr(&out));
+}
+
+/// The shipped default weights on a small fixed test set (two test runs,
+/// never used in training or validation) at 1.2 m pose noise: the full
+/// method must beat the strongest baseline, GPS+appearance Hungarian,
+/// in F1.
+#[test]
+fn shipped_model_beats_gps_appearance_hungarian_at_gps_noise() {
+    let (fx, cfg) = Fixture::with_config(
+        130.0,
+        "[pose_noise]\nlevels = [\"gps\"]\n[eval]\ntraffic_seeds = [1, 2]\n",
+    );
+    assert_ok(&fx.cmd("eval").quiet().config(&cfg).out("ev").output());
+    let t1 = read_csv(&fx.path("ev/table1.csv"));
+    let (m, f1) = (strs(&t1, "method"), f64s(&t1, "f1"));
+    let f1_of = |name: &str| f1[m.iter().position(|x| x == name).unwrap()];
+    assert!(
+        f1_of("ours") > f1_of("gps-app-hungarian"),
+        "ours F1 {} vs gps-app-hungarian F1 {}",
+        f1_of("ours"),
+        f1_of("gps-app-hungarian")
+    );
+    for f in [
+        "table2.csv",
+        "table3.csv",
+        "lambda_sweep.csv",
+        "case_study.csv",
+        "summary.md",
+        "calibration.csv",
+        "lambda_sweep.svg",
+        "error_cdf.svg",
+        "f1_per_method.svg",
+        "reliability_ours.svg",
+    ] {
+        assert!(fx.path("ev").join(f).is_file(), "{f} missing");
+    }
+    let cal = read_csv(&fx.path("ev/calibration.csv"));
+    for c in ["method", "pose_noise", "ece", "brier", "auroc"] {
+        assert!(cal.column(c).is_ok(), "calibration.csv lacks {c}");
+    }
+    // Every method identified pairs here, so each row is measured on
+    // them: a count above zero and the three measures in [0, 1].
+    let (n, ece) = (f64s(&cal, "n_pairs"), f64s(&cal, "ece"));
+    let (brier, auroc) = (f64s(&cal, "brier"), f64s(&cal, "auroc"));
+    for (k, name) in strs(&cal, "method").iter().enumerate() {
+        assert!(n[k] > 0.0, "{name}: no identified pairs");
+        for v in [ece[k], brier[k]] {
+            assert!((0.0..=1.0).contains(&v), "{name}: {v}");
+        }
+        // The oracle is never wrong, so the AUROC is undefined for it.
+        assert_eq!(auroc[k].is_nan(), name == "oracle", "{name}: {}", auroc[k]);
+    }
+    for (plot, w, h) in [
+        ("lambda_sweep", 420, 380),
+        ("error_cdf", 420, 380),
+        ("reliability_ours", 420, 380),
+        ("f1_per_method", 990, 420),
+    ] {
+        let img = image::open(fx.path("ev").join(format!("{plot}.png")))
+            .unwrap()
+            .to_rgb8();
+        assert_eq!(img.height(), h, "{plot}");
+        assert_eq!(img.width() % w, 0, "{plot}: width {}", img.width());
+        let ink = img.pixels().filter(|p| p.0 != [255, 255, 255]).count() as f64;
+        let share = ink / f64::from(img.width() * img.height());
+        assert!(share > 0.03 && share < 0.9, "{plot}: ink share {share}");
+    }
+}

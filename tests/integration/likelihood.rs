@@ -1,0 +1,72 @@
+//! The library itself, SUMO included, in this test process: the untrained
+//! deep methods decide as GPS+appearance Hungarian.
+
+use coid_sim::config::Settings;
+use coid_sim::matching::deep::arch::DeepMethod;
+use coid_sim::matching::deep::decision::Decision;
+use coid_sim::matching::deep::{DeepMatcher, Inference};
+use coid_sim::matching::{GpsHungarian, Matcher};
+use coid_sim::pipeline;
+
+use crate::util::*;
+
+/// Untrained (the residual's gate at zero), every deep method that uses
+/// positions decides exactly as GPS+appearance Hungarian does, pair for
+/// pair, on every instance of a real scene (the shipped intersection
+/// through the real bridge, 60 s, every pose-noise level): they start
+/// from the same likelihood and the same assignment.
+#[test]
+fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() {
+    let fx = Fixture::new();
+    let settings = Settings::load(&fx.config("u.toml", 60.0, "")).unwrap();
+    let hungarian = GpsHungarian {
+        gate_chi2: settings.matching.gate_chi2,
+        appearance: true,
+    };
+    let run = Inference {
+        samples: 4,
+        threshold: None,
+        decision: Decision::Assignment,
+        temperature: 1.0,
+        seed: 1,
+        gate_chi2: settings.matching.gate_chi2,
+    };
+    let deep: Vec<DeepMatcher> = [
+        DeepMethod::Ours,
+        DeepMethod::CoidNon,
+        DeepMethod::CoidUnc,
+        DeepMethod::Dgmc,
+        DeepMethod::GcnGm,
+    ]
+    .iter()
+    .map(|&m| DeepMatcher::untrained(m.method(), m.architecture(), 7, run))
+    .collect();
+    let pairs = |m: &dyn Matcher, pair: &coid_sim::evaluate::PairAtLevel| -> Vec<(usize, usize)> {
+        let id = m.identify(&pair.first.view, &pair.second.view);
+        id.matches.iter().map(|c| (c.a, c.b)).collect()
+    };
+    let mut compared = 0;
+    pipeline::simulate(
+        &settings,
+        |_| {},
+        |inst| {
+            for level in &settings.pose_noise {
+                let pair = inst.at_level(settings.seeds.sensor, level);
+                let expected = pairs(&hungarian, &pair);
+                for m in &deep {
+                    assert_eq!(
+                        pairs(m, &pair),
+                        expected,
+                        "{:?} at step {}",
+                        m.method,
+                        inst.frame.step
+                    );
+                }
+                compared += expected.len();
+            }
+            Ok(())
+        },
+    )
+    .unwrap();
+    assert!(compared > 100, "only {compared} pairs compared");
+}
