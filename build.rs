@@ -16,6 +16,9 @@ use std::process::Command;
 const ASSET_DIRS: &[&str] = &["models", "sumo_nets/intersection"];
 /// Single files it carries.
 const ASSET_FILES: &[&str] = &[];
+/// Files compiled in elsewhere (`include_str!`) and written out with the
+/// assets: part of the folder's name, not of `ASSETS`.
+const NAMED_FILES: &[&str] = &["configs/default.toml"];
 
 fn main() {
     println!("cargo:rerun-if-env-changed=PYO3_PYTHON");
@@ -96,6 +99,13 @@ fn assets() {
         ));
     }
     code.push_str("];\n");
+    for f in NAMED_FILES {
+        println!("cargo:rerun-if-changed={f}");
+        let bytes = std::fs::read(root.join(f)).unwrap_or_else(|e| panic!("cannot read {f}: {e}"));
+        feed(f.as_bytes());
+        feed(&(bytes.len() as u64).to_le_bytes());
+        feed(&bytes);
+    }
     let out = PathBuf::from(std::env::var("OUT_DIR").expect("cargo sets it")).join("assets.rs");
     std::fs::write(&out, code).expect("write assets.rs");
     println!("cargo:rustc-env=COID_ASSETS_ID={hash:016x}");

@@ -45,8 +45,13 @@ pub fn install() -> Result<PathBuf, OutputError> {
     Ok(dir)
 }
 
+/// Whether `dir` holds this build's files: its stamp, and the defaults
+/// this binary was compiled with (a folder written by a build whose
+/// defaults differed is written again, never read for its stale ones).
 fn is_complete(dir: &Path) -> bool {
     std::fs::read_to_string(dir.join(STAMP)).is_ok_and(|s| s.trim() == paths::ASSETS_ID)
+        && std::fs::read(dir.join("configs/default.toml"))
+            .is_ok_and(|b| b == DEFAULTS_TOML.as_bytes())
 }
 
 fn write_all(root: &Path) -> Result<(), OutputError> {
@@ -103,5 +108,20 @@ mod tests {
         assert!(dir.path().join("models/ours.bpk").is_file());
         std::fs::write(dir.path().join(STAMP), "another build").unwrap();
         assert!(!is_complete(dir.path()));
+    }
+
+    /// Regression: a build whose defaults changed (`[seeds]` moved off the
+    /// test runs) kept reading the defaults an earlier build had written
+    /// into the same folder, whose name covered the models and the
+    /// scenario but not the defaults.
+    #[test]
+    fn stale_defaults_in_the_install_folder_are_never_read() {
+        let dir = tempfile::tempdir().unwrap();
+        write_all(dir.path()).unwrap();
+        let defaults = dir.path().join("configs/default.toml");
+        std::fs::write(&defaults, "[seeds]\ntraffic = 1\n").unwrap();
+        assert!(!is_complete(dir.path()));
+        write_all(dir.path()).unwrap();
+        assert_eq!(std::fs::read_to_string(&defaults).unwrap(), DEFAULTS_TOML);
     }
 }

@@ -28,6 +28,24 @@ fn with_ci(m: f64, ci: f64) -> String {
     }
 }
 
+/// Which of the config's run lists this run's traffic seed is in: a
+/// number read from a test run was measured where nothing may be chosen,
+/// and one from a training or validation run on data a model or a
+/// threshold saw.
+fn seed_role(settings: &Settings) -> String {
+    let seed = settings.seeds.traffic;
+    let role = if settings.eval.traffic_seeds.contains(&seed) {
+        "a test run (`[eval] traffic_seeds`)"
+    } else if settings.train.validation_seeds.contains(&seed) {
+        "a validation run (`[train] validation_seeds`): thresholds were chosen on it"
+    } else if settings.train.traffic_seeds.contains(&seed) {
+        "a training run (`[train] traffic_seeds`): the models were fitted on it"
+    } else {
+        "none of the training, validation or test runs"
+    };
+    format!("traffic seed {seed} is {role}")
+}
+
 /// The report of one run.
 pub fn run(settings: &Settings, results: &RunResults, rows: &[SummaryRow]) -> String {
     let mut s = String::new();
@@ -48,6 +66,7 @@ pub fn run(settings: &Settings, results: &RunResults, rows: &[SummaryRow]) -> St
         results.n_steps,
         results.n_instances
     );
+    let _ = writeln!(s, "- {}", seed_role(settings));
     let _ = writeln!(s, "{RUN_PROTOCOL}\n");
     let _ = writeln!(
         s,

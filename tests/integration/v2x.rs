@@ -113,7 +113,11 @@ fn stale_messages_err_more(fx: &Fixture, methods: &str, fresh: &DataFrame) {
 /// reception is drawn; synchronized matching runs with more vehicles.
 #[test]
 fn cpm_mode_runs_batches_and_draws() {
-    let methods = "[matching]\nmethods = [\"gps-app-hungarian\", \"oracle\"]\n";
+    // Seeds 1/1: a scene where both connected vehicles drive while they
+    // exchange messages, so that stale ones show (at the default seeds
+    // they mostly wait at the light). A mechanism checked, no number
+    // chosen on it.
+    let methods = "[seeds]\ntraffic = 1\nsensor = 1\n[matching]\nmethods = [\"gps-app-hungarian\", \"oracle\"]\n";
     let (fx, cfg) = Fixture::with_config(90.0, &format!("{methods}[v2x]\nmode = \"cpm\"\n"));
     for (threads, out) in [("1", "t1"), ("2", "t2")] {
         let run = fx.cmd("run").quiet().config(&cfg).out(out);
