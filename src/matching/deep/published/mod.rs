@@ -38,6 +38,7 @@ mod train;
 #[cfg(test)]
 mod tests;
 
+pub use self::conv::GraphTensors;
 pub use self::graph::{PaperGraph, length_basis};
 pub use self::model::{
     Assignments, PublishedConfig, PublishedKind, PublishedMasks, PublishedNet, Sampling,
