@@ -465,6 +465,7 @@ fn only_the_deep_matcher_sees_tensors() {
             "matching/deep/weights.rs",
             "matching/deep/train.rs",
             "matching/deep/matcher.rs",
+            "matching/deep/published/",
         ],
     );
 }

@@ -12,7 +12,10 @@
 //! `init` (seeded weights), `spline` (graphs as tensors, the SplineCNN
 //! layer), `network` (embeddings, pair scores), `masks` (dropout),
 //! `sinkhorn`, `loss`, `weights` (to and from bytes), `train` (fitting)
-//! and `matcher` ([`DeepMatcher`], inference). Callers get
+//! and `matcher` ([`DeepMatcher`], inference). `published`: GCN-GM and
+//! DGMC as published (issue 33), on the paper's inputs only (no GPS pose,
+//! no heading, no likelihood prior); they share only the node attributes,
+//! the seeded initialisation, the mask draw and Sinkhorn with the rest. Callers get
 //! [`decision::MatchDistribution`]s, correspondences, and weights as
 //! bytes: reading and writing weight files is the caller's business
 //! (`io`).
@@ -26,6 +29,7 @@ mod loss;
 mod masks;
 mod matcher;
 mod network;
+pub mod published;
 mod sinkhorn;
 mod spline;
 pub mod train;

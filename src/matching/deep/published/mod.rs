@@ -1,0 +1,75 @@
+//! GCN-GM and DGMC as published (Fey et al. 2018, 2020; issue 33), our own
+//! code after the papers and the structure of DGMC's public code, on the
+//! paper's inputs only: each vehicle's detections in its own body frame,
+//! appearance attributes, Delaunay graphs with edge lengths. No GPS pose, no
+//! heading, no likelihood prior: nothing here shares the project's own
+//! network (`network.rs`).
+//!
+//! - `graph`: [`PaperGraph`] (plain Rust) and the 1-D B-spline basis over
+//!   edge length ([`length_basis`]).
+//! - `conv`: the graphs as tensors, `SplineConv` over edge length, DGMC's
+//!   `SplineCNN` stack.
+//! - `model`: [`PublishedNet`]. GCN-GM: psi_1 (two SplineConvs, 256 and
+//!   32 channels, each followed by ReLU, dropout 0.4 once on the 256
+//!   hidden channels, DGMC's final linear layer 32 -> 32),
+//!   `S_0 = Sinkhorn(H_s H_t^T)`. DGMC: the same `S_0`, then L
+//!   steps of `R_t = S^T R_s` (random node indicators), `o = psi_2(R)` on
+//!   both graphs (two SplineConvs of `rnd_dim`, input and outputs
+//!   concatenated, a final linear layer, as DGMC's psi_2), `S_hat +=
+//!   MLP(o_s,i - o_t,j)`, renormalised.
+//! - `train`: [`PublishedTrainer`] (Adam, NLL of the true correspondences
+//!   on `S_0` and `S_L`).
+//!
+//! Normalisation: Sinkhorn with a dustbin row and column and one learned
+//! "no match" score (as the paper's Sinkhorn with "no match", and
+//! SuperGlue), not DGMC's row softmax: the two graphs only partly overlap,
+//! a softmax over the other graph's nodes forces every node onto some
+//! partner, and the decision code ([`crate::matching::deep::decision`])
+//! reads `(n1 + 1) x (n2 + 1)` assignments with dustbins. The consensus
+//! steps push the indicators through the real block of the same
+//! normalised assignment (a node that goes to its dustbin passes on
+//! nothing).
+
+mod conv;
+mod graph;
+mod model;
+mod train;
+
+#[cfg(test)]
+mod tests;
+
+pub use self::conv::GraphTensors;
+pub use self::graph::{PaperGraph, length_basis};
+pub use self::model::{
+    Assignments, PublishedConfig, PublishedKind, PublishedMasks, PublishedNet, Sampling,
+    draw_masks, sample_assignments,
+};
+pub use self::train::{PublishedTrainer, TrainPair};
+
+use burn::prelude::*;
+
+use crate::matching::deep::init::Init;
+
+/// The network's weights as bytes (burn's burnpack format).
+pub fn to_bytes(net: &PublishedNet) -> Result<Vec<u8>, String> {
+    let bytes = net
+        .clone()
+        .into_record()
+        .into_bytes()
+        .map_err(|e| format!("{e:?}"))?;
+    Ok(bytes.to_vec())
+}
+
+/// A network of `cfg` on `device` with the weights of [`to_bytes`].
+pub fn from_bytes(
+    cfg: &PublishedConfig,
+    bytes: &[u8],
+    device: &Device,
+) -> Result<PublishedNet, String> {
+    let record =
+        burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec()))
+            .map_err(|e| format!("{e:?}"))?;
+    PublishedNet::new(cfg, Init::Zeros, device)
+        .try_load_record(record)
+        .map_err(|e| format!("{e:?}"))
+}

@@ -1,0 +1,290 @@
+//! The two published networks as one burn module: GCN-GM (psi_1 and the
+//! Sinkhorn-normalised similarity `S_0`) and DGMC (the same `S_0`, then `L`
+//! consensus steps with psi_2 on random node indicator functions, giving
+//! `S_L`), their dropout masks and indicators drawn by the caller, and
+//! inference as plain per-sample assignments.
+
+use burn::module::Param;
+use burn::nn::Linear;
+use burn::prelude::*;
+use burn::tensor::activation;
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+
+use super::conv::{GraphTensors, SplineCnn};
+use super::graph::PaperGraph;
+use crate::matching::deep::features::NODE_FEATURES;
+use crate::matching::deep::init::{Init, named_param};
+use crate::matching::deep::masks::dropout_mask_16;
+use crate::matching::deep::sinkhorn::{BLOCKED, log_sinkhorn};
+
+/// Which published network.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PublishedKind {
+    /// psi_1 embeddings, `S_0 = Sinkhorn(H_s H_t^T)`.
+    GcnGm,
+    /// GCN-GM's `S_0`, then `steps` neighbourhood-consensus steps.
+    Dgmc,
+}
+
+/// The architecture and its fixed settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PublishedConfig {
+    pub kind: PublishedKind,
+    /// psi_1's first layer (paper: 256).
+    pub hidden: usize,
+    /// psi_1's embedding (paper: 32).
+    pub out: usize,
+    /// Dropout on psi_1's 256 hidden channels (paper: 0.4; once, as
+    /// DGMC's `SplineCNN` applies it); MC dropout at inference uses the
+    /// same rate.
+    pub dropout: f64,
+    /// Random node indicators per consensus step, and psi_2's width (DGMC's
+    /// `rnd_dim`).
+    pub rnd_dim: usize,
+    /// Consensus steps L (DGMC's `num_steps`; 0 for GCN-GM).
+    pub steps: usize,
+    /// Sinkhorn iterations of every normalisation.
+    pub sinkhorn_iters: usize,
+    /// The last B-spline knot (edge lengths beyond are clipped), metres.
+    pub edge_scale_m: f64,
+}
+
+impl PublishedConfig {
+    /// The paper's sizes; DGMC with 10 consensus steps (DGMC's PascalVOC
+    /// and WILLOW setting).
+    pub fn new(kind: PublishedKind) -> Self {
+        Self {
+            kind,
+            hidden: 256,
+            out: 32,
+            dropout: 0.4,
+            rnd_dim: 32,
+            steps: match kind {
+                PublishedKind::GcnGm => 0,
+                PublishedKind::Dgmc => 10,
+            },
+            sinkhorn_iters: 20,
+            edge_scale_m: 60.0,
+        }
+    }
+
+    /// Consensus steps this configuration runs.
+    pub fn consensus_steps(&self) -> usize {
+        match self.kind {
+            PublishedKind::GcnGm => 0,
+            PublishedKind::Dgmc => self.steps,
+        }
+    }
+}
+
+/// The dustbin score before training.
+const INITIAL_DUSTBIN: f32 = 1.0;
+
+#[derive(Module, Debug)]
+pub struct PublishedNet {
+    psi1: SplineCnn,
+    /// DGMC's second network on the indicator functions (`cat = true`).
+    psi2: Option<SplineCnn>,
+    /// DGMC's MLP on the consensus differences: `rnd_dim -> rnd_dim -> 1`.
+    mlp_in: Option<Linear>,
+    mlp_out: Option<Linear>,
+    /// The "no match" score of every node and of the corner, `[1]`.
+    dustbin: Param<Tensor<1>>,
+}
+
+/// The dropout masks and indicators of one forward pass over `B` pairs
+/// with `T` samples each (values 0 or 1 / (1 - p)).
+pub struct PublishedMasks {
+    /// psi_1's masks of the first and second graphs, `[B, T, N1, hidden]`
+    /// and `[B, T, N2, hidden]`.
+    pub psi1: [Tensor<4>; 2],
+    /// One `[B, T, N1, rnd_dim]` standard-normal draw per consensus step.
+    pub indicators: Vec<Tensor<4>>,
+}
+
+/// The normalised assignments, log, `[B, T, N1 + 1, N2 + 1]` with a
+/// dustbin row and column: `S_0`, and `S_L` after consensus (DGMC).
+pub struct Assignments {
+    pub initial: Tensor<4>,
+    pub refined: Option<Tensor<4>>,
+}
+
+impl Assignments {
+    /// The network's answer: `S_L` when there is one, else `S_0`.
+    pub fn last(self) -> Tensor<4> {
+        self.refined.unwrap_or(self.initial)
+    }
+}
+
+impl PublishedNet {
+    pub fn new(cfg: &PublishedConfig, init: Init, device: &Device) -> Self {
+        let name = match cfg.kind {
+            PublishedKind::GcnGm => "gcn_gm",
+            PublishedKind::Dgmc => "dgmc",
+        };
+        let psi1 = SplineCnn::new(
+            &format!("{name}.psi1"),
+            [NODE_FEATURES, cfg.hidden, cfg.out],
+            false,
+            init,
+            device,
+        );
+        let r = cfg.rnd_dim;
+        let consensus = cfg.kind == PublishedKind::Dgmc;
+        Self {
+            psi1,
+            psi2: consensus
+                .then(|| SplineCnn::new(&format!("{name}.psi2"), [r, r, r], true, init, device)),
+            mlp_in: consensus.then(|| init.linear(&format!("{name}.mlp_in"), r, r, device)),
+            mlp_out: consensus.then(|| init.linear(&format!("{name}.mlp_out"), r, 1, device)),
+            dustbin: named_param(
+                &format!("{name}.dustbin"),
+                Tensor::from_data(TensorData::new(vec![INITIAL_DUSTBIN], [1]), device),
+            ),
+        }
+    }
+
+    /// Log assignments of `B` pairs (`graphs[0]` the first graphs,
+    /// `graphs[1]` the second), T samples each as the masks say.
+    pub fn forward(
+        &self,
+        cfg: &PublishedConfig,
+        graphs: [&GraphTensors; 2],
+        masks: PublishedMasks,
+    ) -> Assignments {
+        let [g1, g2] = graphs;
+        let [m1, m2] = masks.psi1;
+        let h1 = self.psi1.forward(g1.x.clone(), g1, Some(m1)); // [B, T, N1, out]
+        let h2 = self.psi1.forward(g2.x.clone(), g2, Some(m2)); // [B, T, N2, out]
+        let blocked = blocked(g1, g2);
+        let mut s_hat = h1.matmul(h2.swap_dims(2, 3)); // [B, T, N1, N2]
+        let initial = self.normalise(cfg, s_hat.clone(), &blocked, [g1, g2]);
+        let (Some(psi2), Some(mlp_in), Some(mlp_out)) = (&self.psi2, &self.mlp_in, &self.mlp_out)
+        else {
+            return Assignments {
+                initial,
+                refined: None,
+            };
+        };
+        let [b, t, n1, n2] = s_hat.dims();
+        let mut current = initial.clone();
+        for r_s in masks.indicators {
+            let s = current.exp().slice([0..b, 0..t, 0..n1, 0..n2]);
+            let r_s = r_s * g1.node_mask.clone(); // [B, T, N1, R]
+            let r_t = s.swap_dims(2, 3).matmul(r_s.clone()); // [B, T, N2, R]
+            let o_s = psi2.forward(r_s, g1, None);
+            let o_t = psi2.forward(r_t, g2, None);
+            let d = o_s.unsqueeze_dim::<5>(3) - o_t.unsqueeze_dim::<5>(2); // [B, T, N1, N2, R]
+            let delta = mlp_out.forward(activation::relu(mlp_in.forward(d)));
+            s_hat = s_hat + delta.reshape([b, t, n1, n2]);
+            current = self.normalise(cfg, s_hat.clone(), &blocked, [g1, g2]);
+        }
+        Assignments {
+            initial,
+            refined: Some(current),
+        }
+    }
+
+    /// Dustbin Sinkhorn of the scores `[B, T, N1, N2]`, padding blocked.
+    fn normalise(
+        &self,
+        cfg: &PublishedConfig,
+        scores: Tensor<4>,
+        blocked: &Tensor<4, Bool>,
+        [g1, g2]: [&GraphTensors; 2],
+    ) -> Tensor<4> {
+        let [b, t, n1, n2] = scores.dims();
+        let scores = scores.mask_fill(blocked.clone().expand([b, t, n1, n2]), BLOCKED);
+        let bin = self.dustbin.val();
+        let dust = [n1, n2].map(|n| bin.clone().reshape([1, 1, 1]).expand([b, 1, n]));
+        log_sinkhorn(
+            scores,
+            dust,
+            bin,
+            [&g1.counts, &g2.counts],
+            cfg.sinkhorn_iters,
+        )
+    }
+}
+
+/// `[B, 1, N1, N2]`: true where either node is padding.
+fn blocked(g1: &GraphTensors, g2: &GraphTensors) -> Tensor<4, Bool> {
+    let [n1, n2] = [g1.n(), g2.n()];
+    let mut v = Vec::with_capacity(g1.counts.len() * n1 * n2);
+    for (&c1, &c2) in g1.counts.iter().zip(&g2.counts) {
+        for i in 0..n1 {
+            v.extend((0..n2).map(|j| i >= c1 || j >= c2));
+        }
+    }
+    let b = g1.counts.len();
+    Tensor::from_data(TensorData::new(v, [b, 1, n1, n2]), &g1.x.device())
+}
+
+/// Masks and indicators for `b` pairs of graphs padded to `n1` and `n2`
+/// nodes, `t` samples each, from `rng`; without `dropout` every mask is 1
+/// (the indicators are random all the same).
+pub fn draw_masks(
+    rng: &mut ChaCha8Rng,
+    cfg: &PublishedConfig,
+    [b, t, n1, n2]: [usize; 4],
+    dropout: bool,
+    device: &Device,
+) -> PublishedMasks {
+    let p = if dropout { cfg.dropout } else { 0.0 };
+    let mut mask = |n: usize, d: usize| {
+        let shape = [b, t, n, d];
+        let v = dropout_mask_16(rng, shape.iter().product(), p);
+        Tensor::<4>::from_data(TensorData::new(v, shape), device)
+    };
+    let psi1 = [n1, n2].map(|n| mask(n, cfg.hidden));
+    let r = cfg.rnd_dim;
+    let indicators = (0..cfg.consensus_steps())
+        .map(|_| {
+            let v: Vec<f32> = (0..b * t * n1 * r)
+                .map(|_| rng.sample::<f64, _>(rand_distr::StandardNormal) as f32)
+                .collect();
+            Tensor::from_data(TensorData::new(v, [b, t, n1, r]), device)
+        })
+        .collect();
+    PublishedMasks { psi1, indicators }
+}
+
+/// How many samples to draw, and whether with MC dropout.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sampling {
+    pub samples: usize,
+    pub mc_dropout: bool,
+}
+
+/// The soft assignment of `first` to `second`, one per sample: each a
+/// row-major `(n1 + 1) x (n2 + 1)` matrix of probabilities whose last row
+/// and column are the dustbins, as
+/// [`crate::matching::deep::decision::MatchDistribution::from_samples`]
+/// takes them. Masks and indicators come from `rng`; the network should be
+/// on a device without autodiff (`net.valid()`).
+pub fn sample_assignments(
+    net: &PublishedNet,
+    cfg: &PublishedConfig,
+    [first, second]: [&PaperGraph; 2],
+    sampling: Sampling,
+    rng: &mut ChaCha8Rng,
+) -> Vec<Vec<f32>> {
+    let (n1, n2, t) = (first.n, second.n, sampling.samples);
+    if n1 == 0 || n2 == 0 {
+        // Everything in the dustbins.
+        let mut s = vec![0f32; (n1 + 1) * (n2 + 1)];
+        (0..n1).for_each(|i| s[i * (n2 + 1) + n2] = 1.0);
+        (0..n2).for_each(|j| s[n1 * (n2 + 1) + j] = 1.0);
+        return vec![s; t];
+    }
+    let device = net.dustbin.val().device();
+    let g1 = GraphTensors::new(&[first], cfg.edge_scale_m, &device);
+    let g2 = GraphTensors::new(&[second], cfg.edge_scale_m, &device);
+    let masks = draw_masks(rng, cfg, [1, t, n1, n2], sampling.mc_dropout, &device);
+    let p = net.forward(cfg, [&g1, &g2], masks).last().exp();
+    let v: Vec<f32> = p.try_into_vec_as::<f32>().expect("f32 assignments");
+    v.chunks_exact((n1 + 1) * (n2 + 1))
+        .map(<[f32]>::to_vec)
+        .collect()
+}
