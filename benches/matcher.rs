@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use coid_sim::geometry::{Cov2, Pose2, Vec2};
 use coid_sim::graph::SceneGraph;
-use coid_sim::matching::deep::arch::{Architecture, PairLoss};
+use coid_sim::matching::deep::arch::{Architecture, MaskScope, PairLoss};
 use coid_sim::matching::deep::decision::Decision;
 use coid_sim::matching::deep::train::{Example, Prepared, TrainOptions, Trainer, example};
 use coid_sim::matching::deep::{DeepMatcher, Inference};
@@ -87,6 +87,7 @@ fn main() {
         decision: Decision::Assignment,
         temperature: 1.0,
         seed: 1,
+        masks: MaskScope::Shared,
         gate_chi2: 9.21,
     };
     let per_pair = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run)

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use super::{ConfigError, Settings};
 use crate::fusion::FusionSettings;
-use crate::matching::deep::arch::PairLoss;
+use crate::matching::deep::arch::{MaskScope, PairLoss};
 use crate::matching::deep::decision::UncertaintyKind;
 use crate::matching::{DecisionChoice, LambdaChoice, MatchingSettings, MethodKind, MultiVehicle};
 use crate::rng::Seeds;
@@ -79,6 +79,7 @@ impl Settings {
             gate_chi2: 0.0,
             models_dir: PathBuf::new(),
             mc_samples: 0,
+            dropout_masks: MaskScope::Shared,
             lambda: LambdaChoice::Validated,
             decision: DecisionChoice::Validated,
             uncertainty: UncertaintyKind::Total,

@@ -9,7 +9,7 @@ use serde::Deserialize;
 use crate::fusion::FusionVariant;
 use crate::matching::Method;
 use crate::matching::MultiVehicle;
-use crate::matching::deep::arch::PairLoss;
+use crate::matching::deep::arch::{MaskScope, PairLoss};
 use crate::matching::deep::decision::UncertaintyKind;
 use crate::sensor::PoseNoiseLabel;
 use crate::v2x::V2xMode;
@@ -167,6 +167,7 @@ pub(super) struct RawMatching {
     pub(super) gate_chi2: f64,
     pub(super) models_dir: PathBuf,
     pub(super) mc_samples: usize,
+    pub(super) dropout_masks: MaskScope,
     pub(super) lambda: RawLambda,
     pub(super) decision: String,
     pub(super) uncertainty: UncertaintyKind,

@@ -334,6 +334,7 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
         gate_chi2: m.gate_chi2,
         models_dir: c.resolve(&m.models_dir),
         mc_samples: m.mc_samples,
+        dropout_masks: m.dropout_masks,
         lambda,
         decision,
         uncertainty: m.uncertainty,

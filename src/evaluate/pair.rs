@@ -100,6 +100,7 @@ mod tests {
             gate_chi2: 9.21,
             models_dir: std::path::PathBuf::new(),
             mc_samples: 20,
+            dropout_masks: crate::matching::deep::arch::MaskScope::PerNode,
             lambda: crate::matching::LambdaChoice::Fixed(0.7),
             decision: crate::matching::DecisionChoice::Validated,
             uncertainty: crate::matching::deep::decision::UncertaintyKind::Total,

@@ -21,7 +21,7 @@ pub use learning_free::{Mogm, Rgm};
 
 use std::path::PathBuf;
 
-use self::deep::arch::DeepMethod;
+use self::deep::arch::{DeepMethod, MaskScope};
 use self::deep::decision::{Decision, KindLambdas, MatchDistribution, UncertaintyKind};
 use crate::fusion::{PoseEstimate, relative_pose_prior};
 use crate::geometry::Pose2;
@@ -146,6 +146,8 @@ pub struct MatchingSettings {
     pub models_dir: PathBuf,
     /// MC-dropout samples at inference (paper: T = 20).
     pub mc_samples: usize,
+    /// How the MC-dropout masks are drawn at inference (Eq. 8: shared).
+    pub dropout_masks: MaskScope,
     /// Pairs whose uncertainty (binary entropy in bits, in [0, 1]) is at
     /// least lambda are removed by the methods that threshold.
     pub lambda: LambdaChoice,
@@ -352,6 +354,7 @@ pub fn build(
                 decision: choice.decision,
                 temperature: choice.temperature,
                 seed: dropout_seed,
+                masks: settings.dropout_masks,
                 gate_chi2: settings.gate_chi2,
             };
             let matcher =
@@ -380,6 +383,7 @@ mod tests {
             gate_chi2: 9.21,
             models_dir: PathBuf::new(),
             mc_samples: 20,
+            dropout_masks: MaskScope::PerNode,
             lambda: LambdaChoice::Fixed(0.7),
             decision: DecisionChoice::Fixed(Decision::Assignment),
             uncertainty: UncertaintyKind::Total,

@@ -29,6 +29,7 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
         decision: Decision::Assignment,
         temperature: 1.0,
         seed: 1,
+        masks: settings.matching.dropout_masks,
         gate_chi2: settings.matching.gate_chi2,
     };
     let deep: Vec<DeepMatcher> = [

@@ -120,6 +120,22 @@ pub fn likelihood_terms(arch: &Architecture, gate_chi2: f64) -> LikelihoodTerms 
     }
 }
 
+crate::label_enum! { "dropout masks";
+    /// How MC dropout draws its masks at inference.
+    pub enum MaskScope {
+        /// The paper's Eq. 8: in each sample, one Bernoulli mask over each
+        /// layer's input units, shared by every node of every graph and
+        /// every pair: sample t is one draw of the weights, W^(t).
+        #[strum(serialize = "shared")]
+        Shared,
+        /// A mask per node and unit (and per pair entry in the consensus
+        /// MLP), drawn from each graph's and each pair's own stream: how
+        /// the shipped weights were trained.
+        #[strum(serialize = "per-node")]
+        PerNode,
+    }
+}
+
 crate::label_enum! { "pair loss";
     /// The term of the loss that teaches which pairs are the same object.
     #[strum(serialize_all = "lowercase")]

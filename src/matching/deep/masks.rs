@@ -8,7 +8,7 @@ use burn::prelude::*;
 use rand::{Rng, RngCore};
 use rand_chacha::ChaCha8Rng;
 
-use super::arch::Architecture;
+use super::arch::{Architecture, MaskScope};
 use super::spline::GraphBatch;
 
 /// The dropout masks of one training forward pass with T samples (values
@@ -108,19 +108,55 @@ pub(super) fn draw_masks(
 }
 
 /// The conv dropout masks of one vehicle's embedding with `t` samples,
-/// `[1, t, n, hidden]` and `[1, t, n, out]`.
+/// `[1, t, n, hidden]` and `[1, t, n, out]`: a mask per node and unit
+/// ([`MaskScope::PerNode`]), or one per sample and unit repeated over the
+/// nodes ([`MaskScope::Shared`]; with the same stream for every graph,
+/// every graph then sees the same weights in sample t).
 pub(super) fn draw_embedding_masks(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
-    t: usize,
-    n: usize,
+    [t, n]: [usize; 2],
+    scope: MaskScope,
     device: &Device,
 ) -> (Tensor<4>, Tensor<4>) {
     let p = arch.dropout_conv;
+    let rows = match scope {
+        MaskScope::PerNode => n,
+        MaskScope::Shared => 1,
+    };
+    let (m1, m2) = (
+        mask4(rng, dropout_mask_16, [1, t, rows, arch.hidden], p, device),
+        mask4(rng, dropout_mask_16, [1, t, rows, arch.out], p, device),
+    );
     (
-        mask4(rng, dropout_mask_16, [1, t, n, arch.hidden], p, device),
-        mask4(rng, dropout_mask_16, [1, t, n, arch.out], p, device),
+        m1.expand([1, t, n, arch.hidden]),
+        m2.expand([1, t, n, arch.out]),
     )
+}
+
+/// The consensus MLP's dropout mask of one pair at inference, `[1, t,
+/// n1, n2, consensus_dim]`: per pair entry and unit, or one per sample and
+/// unit ([`MaskScope::Shared`], from a stream the same for every pair).
+pub(super) fn draw_phi_mask(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    [t, n1, n2]: [usize; 3],
+    scope: MaskScope,
+    device: &Device,
+) -> Tensor<5> {
+    let r = arch.consensus_dim;
+    let [a, b] = match scope {
+        MaskScope::PerNode => [n1, n2],
+        MaskScope::Shared => [1, 1],
+    };
+    Tensor::<5>::from_data(
+        TensorData::new(
+            dropout_mask_16(rng, t * a * b * r, arch.dropout_phi),
+            [1, t, a, b, r],
+        ),
+        device,
+    )
+    .expand([1, t, n1, n2, r])
 }
 
 /// The consensus masks of `b` pairs with `t` samples each: the phi
@@ -173,5 +209,34 @@ mod tests {
         assert!((kept - 0.8).abs() < 0.01, "{kept}");
         assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.8).abs() < 1e-6));
         assert!(dropout_mask_16(&mut rng, 7, 0.0).iter().all(|&v| v == 1.0));
+    }
+
+    /// Eq. 8's masks: in each sample one mask over a layer's units, the
+    /// same for every node; per-node masks differ between nodes.
+    #[test]
+    fn shared_masks_are_one_draw_per_sample_and_unit() {
+        let arch = Architecture::default();
+        let device = Device::flex();
+        let rows = |scope| {
+            let mut rng = ChaCha8Rng::seed_from_u64(3);
+            let (m1, _) = draw_embedding_masks(&mut rng, &arch, [4, 5], scope, &device);
+            let v = m1.try_into_vec_as::<f32>().unwrap();
+            let h = arch.hidden;
+            // Sample 2's rows, one per node.
+            (0..5)
+                .map(|i| v[(2 * 5 + i) * h..(2 * 5 + i + 1) * h].to_vec())
+                .collect::<Vec<_>>()
+        };
+        let shared = rows(MaskScope::Shared);
+        assert!(shared.iter().all(|r| *r == shared[0]));
+        assert!(shared[0].contains(&0.0) && shared[0].iter().any(|&x| x > 1.0));
+        let per_node = rows(MaskScope::PerNode);
+        assert!(per_node.iter().any(|r| *r != per_node[0]));
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let phi = draw_phi_mask(&mut rng, &arch, [2, 3, 4], MaskScope::Shared, &device);
+        let v = phi.try_into_vec_as::<f32>().unwrap();
+        let r = arch.consensus_dim;
+        let first = &v[..r];
+        assert!((0..12).all(|k| &v[k * r..(k + 1) * r] == first));
     }
 }

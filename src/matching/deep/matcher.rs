@@ -13,11 +13,13 @@ use std::sync::{Arc, Mutex};
 
 use burn::prelude::*;
 
-use super::arch::{Architecture, DeepMethod, likelihood_terms};
+use super::arch::{Architecture, DeepMethod, MaskScope, likelihood_terms};
 use super::decision::{Decision, MatchDistribution, UncertaintyKind};
 use super::features::{GraphInput, graph_input, pair_input};
 use super::init::Init;
-use super::masks::{draw_embedding_masks, draw_pair_masks, dropout_mask_16};
+use super::masks::{
+    MaskDraw, PairMasks, draw_embedding_masks, draw_pair_masks, draw_phi_mask, dropout_mask_16,
+};
 use super::network::{Combination, Network, PairTensors};
 use super::sinkhorn::sinkhorn_probabilities;
 use super::spline::{CellWeights, GraphBatch};
@@ -69,6 +71,10 @@ const CACHE_CAPACITY: usize = 256;
 /// a scenario's few most common sets cover most graphs).
 const CELL_SETS_KEPT: usize = 16;
 
+/// The stream name of the masks every graph and pair shares
+/// ([`MaskScope::Shared`]).
+const SHARED_MASKS_KEY: u64 = 0x5a4e_d0e8_0000_0008;
+
 /// A stable key of a matching problem's inputs: the masks of a pair depend
 /// only on the pair, not on what was matched before.
 fn problem_key(first: &MatchView, second: &MatchView) -> u64 {
@@ -113,6 +119,8 @@ pub struct DeepMatcher {
     pub temperature: f64,
     /// Seed of the dropout-mask streams.
     pub seed: u64,
+    /// How the MC-dropout masks are drawn.
+    pub masks: MaskScope,
     /// The shared likelihood's terms and gates.
     terms: LikelihoodTerms,
     /// Reuse each vehicle's embedding across the pairs it is in.
@@ -136,6 +144,8 @@ pub struct Inference {
     pub temperature: f64,
     /// Seed of the dropout-mask streams.
     pub seed: u64,
+    /// How the MC-dropout masks are drawn (Eq. 8: shared).
+    pub masks: MaskScope,
     /// The likelihood's gate on the squared Mahalanobis distance.
     pub gate_chi2: f64,
 }
@@ -154,6 +164,7 @@ impl DeepMatcher {
             decision: run.decision,
             temperature: run.temperature,
             seed: run.seed,
+            masks: run.masks,
             terms: likelihood_terms(&arch, run.gate_chi2),
             share_embeddings: true,
             cache: Mutex::default(),
@@ -191,9 +202,20 @@ impl DeepMatcher {
             Some(weights) => graph.with_weights(weights),
             None => graph,
         };
-        let mut stream = rng::stream(self.seed, Purpose::EmbeddingDropout, &[key]);
-        let (m1, m2) =
-            draw_embedding_masks(&mut stream, &self.arch, self.samples, input.n, &self.device);
+        // Shared masks: one stream for every graph, so that sample t is
+        // one draw of the weights wherever it is used.
+        let stream_key = match self.masks {
+            MaskScope::PerNode => key,
+            MaskScope::Shared => SHARED_MASKS_KEY,
+        };
+        let mut stream = rng::stream(self.seed, Purpose::EmbeddingDropout, &[stream_key]);
+        let (m1, m2) = draw_embedding_masks(
+            &mut stream,
+            &self.arch,
+            [self.samples, input.n],
+            self.masks,
+            &self.device,
+        );
         let h = self.net.embed(&graph, m1, m2);
         let e = Arc::new(Embedded { graph, h });
         if self.share_embeddings
@@ -248,6 +270,44 @@ impl DeepMatcher {
         to_bytes(&self.net)
     }
 
+    /// The consensus masks of one pair: all from the pair's own stream
+    /// (per node), or its random indicators from it and the consensus
+    /// MLP's dropout mask of each sample, the same for every pair
+    /// (shared).
+    fn pair_masks(&self, first: &MatchView, second: &MatchView) -> PairMasks {
+        let (n1, n2, t) = (
+            first.detections.len(),
+            second.detections.len(),
+            self.samples,
+        );
+        let mut stream = rng::stream(self.seed, Purpose::Dropout, &[problem_key(first, second)]);
+        let shape = [1, t, n1, n2];
+        match self.masks {
+            MaskScope::PerNode => draw_pair_masks(
+                &mut stream,
+                &self.arch,
+                shape,
+                dropout_mask_16,
+                &self.device,
+            ),
+            MaskScope::Shared => {
+                let ones: MaskDraw = |_, len, _| vec![1.0; len];
+                let mut m = draw_pair_masks(&mut stream, &self.arch, shape, ones, &self.device);
+                if self.arch.consensus {
+                    let mut shared = rng::stream(self.seed, Purpose::Dropout, &[SHARED_MASKS_KEY]);
+                    m.phi = draw_phi_mask(
+                        &mut shared,
+                        &self.arch,
+                        [t, n1, n2],
+                        self.masks,
+                        &self.device,
+                    );
+                }
+                m
+            }
+        }
+    }
+
     /// The `samples` MC-dropout passes over one pair (both sides
     /// non-empty), with `relative` the second vehicle's pose in the first
     /// one's frame.
@@ -265,14 +325,7 @@ impl DeepMatcher {
         let (e1, e2) = (self.embedding(first), self.embedding(second));
         let input = pair_input(first, second, relative, &self.terms);
         let tensors = PairTensors::new(&[&input], [n1, n2], &self.device);
-        let mut stream = rng::stream(self.seed, Purpose::Dropout, &[problem_key(first, second)]);
-        let masks = draw_pair_masks(
-            &mut stream,
-            &self.arch,
-            [1, t, n1, n2],
-            dropout_mask_16,
-            &self.device,
-        );
+        let masks = self.pair_masks(first, second);
         let out = self
             .net
             .pair((&e1.h, &e1.graph), (&e2.h, &e2.graph), &tensors, masks);
@@ -397,6 +450,7 @@ mod tests {
         decision: Decision::Assignment,
         temperature: 1.0,
         seed: 3,
+        masks: MaskScope::PerNode,
         gate_chi2: 9.21,
     };
 
@@ -448,6 +502,23 @@ mod tests {
             samples.iter().all(|s| *s == samples[0]),
             "p = 0 must give identical samples"
         );
+    }
+
+    /// Eq. 8's shared masks: the samples still vary, the same seed gives
+    /// the same samples, and they are other draws than per-node masks.
+    #[test]
+    fn shared_dropout_masks_vary_by_sample_and_repeat_by_seed() {
+        let shared = |seed| {
+            let mut m = opened(Architecture::default(), 3);
+            m.masks = MaskScope::Shared;
+            m.seed = seed;
+            mc_samples(&m)
+        };
+        let s = shared(3);
+        assert!(max_variance(&s) > 1e-4);
+        assert_eq!(s, shared(3));
+        assert_ne!(s, shared(4));
+        assert_ne!(s, mc_samples(&opened(Architecture::default(), 3)));
     }
 
     #[test]
