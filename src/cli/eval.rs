@@ -33,6 +33,13 @@ pub struct Args {
     /// configs must share the models, pose-noise levels and fusion variants.
     #[arg(long, num_args = 1.., value_name = "CONFIG")]
     suite: Vec<PathBuf>,
+    /// The paper's Fig. 8b for `ours`: MC-dropout samples T (1, 10, ...,
+    /// 100) and the dropout rate at inference (0.1 to 0.8, T = 20), one at
+    /// a time, on the validation runs and on the test runs:
+    /// mc_sweep.csv and mc_sweep.png/.svg, into
+    /// results/<config file stem>-mc-sweep
+    #[arg(long, conflicts_with_all = ["validation", "suite"])]
+    mc_sweep: bool,
 }
 
 /// One scenario of the evaluation: its name, settings and evaluated runs.
@@ -43,6 +50,10 @@ struct Scenario {
 }
 
 pub fn eval(a: Args) -> anyhow::Result<()> {
+    if a.mc_sweep {
+        let (settings, claim) = a.common.prepare("-mc-sweep", io::ResultKind::Eval)?;
+        return super::mc_sweep::mc_sweep(&settings, claim, a.common.quiet.quiet, a.threads.get());
+    }
     let suffix = if a.validation { "-validation" } else { "-eval" };
     let (settings, claim) = a.common.prepare(suffix, io::ResultKind::Eval)?;
     let out = claim.out().to_owned();

@@ -6,6 +6,7 @@
 mod batch;
 mod eval;
 mod export;
+mod mc_sweep;
 mod render;
 mod run;
 mod scenarios;

@@ -80,6 +80,7 @@ impl Settings {
             models_dir: PathBuf::new(),
             mc_samples: 0,
             dropout_masks: MaskScope::Shared,
+            mc_dropout: None,
             lambda: LambdaChoice::Validated,
             decision: DecisionChoice::Validated,
             uncertainty: UncertaintyKind::Total,

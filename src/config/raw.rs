@@ -168,12 +168,21 @@ pub(super) struct RawMatching {
     pub(super) models_dir: PathBuf,
     pub(super) mc_samples: usize,
     pub(super) dropout_masks: MaskScope,
+    pub(super) mc_dropout: RawRate,
     pub(super) lambda: RawLambda,
     pub(super) decision: String,
     pub(super) uncertainty: UncertaintyKind,
     pub(super) sender_as_node: bool,
     pub(super) multi_vehicle: MultiVehicle,
     pub(super) rematch: usize,
+}
+
+/// `mc_dropout = 0.3` or `mc_dropout = "trained"`.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub(super) enum RawRate {
+    Value(f64),
+    Word(String),
 }
 
 /// `lambda = 0.7` or `lambda = "validated"`.

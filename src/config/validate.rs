@@ -8,7 +8,7 @@ use std::path::Path;
 
 use super::check::{Checker, field, num};
 use super::raw::{
-    RawCamera, RawConfig, RawConnected, RawFusion, RawLambda, RawMatching, RawPoseNoise,
+    RawCamera, RawConfig, RawConnected, RawFusion, RawLambda, RawMatching, RawPoseNoise, RawRate,
     RawScenario, RawSensor,
 };
 use super::{ConfigError, Settings};
@@ -277,6 +277,23 @@ fn pose_noise(c: &Checker, p: RawPoseNoise) -> Result<Vec<PoseNoiseLevel>, Confi
         .collect()
 }
 
+/// The dropout rate of MC dropout at inference: the trained one, or a
+/// number in [0, 0.95].
+fn mc_dropout(c: &Checker, raw: RawRate) -> Result<Option<f64>, ConfigError> {
+    match raw {
+        RawRate::Word(w) if w == "trained" => Ok(None),
+        RawRate::Value(v) if (0.0..=0.95).contains(&v) => Ok(Some(v)),
+        RawRate::Value(v) => Err(c.invalid(
+            "matching.mc_dropout",
+            format!("must be a rate in [0, 0.95] or \"trained\", got {}", num(v)),
+        )),
+        RawRate::Word(w) => Err(c.invalid(
+            "matching.mc_dropout",
+            format!("must be a rate in [0, 0.95] or \"trained\", got \"{w}\""),
+        )),
+    }
+}
+
 fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError> {
     if m.methods.is_empty() {
         return Err(c.invalid("matching.methods", "need at least one method".into()));
@@ -335,6 +352,7 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
         models_dir: c.resolve(&m.models_dir),
         mc_samples: m.mc_samples,
         dropout_masks: m.dropout_masks,
+        mc_dropout: mc_dropout(c, m.mc_dropout)?,
         lambda,
         decision,
         uncertainty: m.uncertainty,

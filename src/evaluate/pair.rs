@@ -101,6 +101,7 @@ mod tests {
             models_dir: std::path::PathBuf::new(),
             mc_samples: 20,
             dropout_masks: crate::matching::deep::arch::MaskScope::PerNode,
+            mc_dropout: None,
             lambda: crate::matching::LambdaChoice::Fixed(0.7),
             decision: crate::matching::DecisionChoice::Validated,
             uncertainty: crate::matching::deep::decision::UncertaintyKind::Total,

@@ -148,6 +148,9 @@ pub struct MatchingSettings {
     pub mc_samples: usize,
     /// How the MC-dropout masks are drawn at inference (Eq. 8: shared).
     pub dropout_masks: MaskScope,
+    /// Every dropout rate at inference (`None`: as trained); Fig. 8b
+    /// sweeps it.
+    pub mc_dropout: Option<f64>,
     /// Pairs whose uncertainty (binary entropy in bits, in [0, 1]) is at
     /// least lambda are removed by the methods that threshold.
     pub lambda: LambdaChoice,
@@ -355,6 +358,7 @@ pub fn build(
                 temperature: choice.temperature,
                 seed: dropout_seed,
                 masks: settings.dropout_masks,
+                dropout: settings.mc_dropout,
                 gate_chi2: settings.gate_chi2,
             };
             let matcher =
@@ -384,6 +388,7 @@ mod tests {
             models_dir: PathBuf::new(),
             mc_samples: 20,
             dropout_masks: MaskScope::PerNode,
+            mc_dropout: None,
             lambda: LambdaChoice::Fixed(0.7),
             decision: DecisionChoice::Fixed(Decision::Assignment),
             uncertainty: UncertaintyKind::Total,

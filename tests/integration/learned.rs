@@ -218,3 +218,44 @@ fn shipped_model_beats_gps_appearance_hungarian_at_gps_noise() {
         assert!(share > 0.03 && share < 0.9, "{plot}: ink share {share}");
     }
 }
+
+/// `coid eval --mc-sweep` (Fig. 8b): every sample count and dropout rate
+/// on the validation and the test runs, one row per setting, split and
+/// level; T = 1 (one dropout draw) is a row of its own; the picture is
+/// drawn; the sweep cannot be asked of another run list.
+#[test]
+fn the_mc_sweep_covers_samples_and_dropout_on_both_splits() {
+    let (fx, cfg) = Fixture::with_config(
+        60.0,
+        "[train]\nvalidation_seeds = [125]\n[eval]\ntraffic_seeds = [1]\n[pose_noise]\nlevels = [\"gps\"]\n",
+    );
+    assert_ok(
+        &fx.cmd("eval")
+            .quiet()
+            .config(&cfg)
+            .out("sw")
+            .arg("--mc-sweep")
+            .output(),
+    );
+    let t = read_csv(&fx.path("sw/mc_sweep.csv"));
+    assert_eq!(t.height(), 19 * 2, "{t}");
+    let (factor, split) = (strs(&t, "factor"), strs(&t, "split"));
+    let value = f64s(&t, "value");
+    assert_eq!(
+        (factor[0].as_str(), value[0], split[0].as_str()),
+        ("samples", 1.0, "validation")
+    );
+    assert_eq!((factor[1].as_str(), split[1].as_str()), ("samples", "test"));
+    assert!(factor[22..].iter().all(|f| f == "dropout"));
+    let f1 = f64s(&t, "f1");
+    assert!(f1.iter().all(|f| (0.0..=1.0).contains(f)), "{t}");
+    assert!(fx.path("sw/mc_sweep.png").is_file());
+    let o = fx
+        .cmd("eval")
+        .quiet()
+        .config(&cfg)
+        .out("x")
+        .args(["--mc-sweep", "--validation"])
+        .output();
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+}

@@ -30,6 +30,7 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
         temperature: 1.0,
         seed: 1,
         masks: settings.matching.dropout_masks,
+        dropout: settings.matching.mc_dropout,
         gate_chi2: settings.matching.gate_chi2,
     };
     let deep: Vec<DeepMatcher> = [

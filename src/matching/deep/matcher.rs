@@ -146,12 +146,18 @@ pub struct Inference {
     pub seed: u64,
     /// How the MC-dropout masks are drawn (Eq. 8: shared).
     pub masks: MaskScope,
+    /// Every layer's dropout rate at inference (`None`: as trained).
+    pub dropout: Option<f64>,
     /// The likelihood's gate on the squared Mahalanobis distance.
     pub gate_chi2: f64,
 }
 
 impl DeepMatcher {
-    fn new(method: Method, net: Network, arch: Architecture, run: Inference) -> Self {
+    fn new(method: Method, net: Network, mut arch: Architecture, run: Inference) -> Self {
+        // The masks are drawn at this rate; the network is the same.
+        if let Some(p) = run.dropout {
+            (arch.dropout_conv, arch.dropout_phi) = (p, p);
+        }
         let net = net.valid();
         let combination = net.combination();
         Self {
@@ -451,6 +457,7 @@ mod tests {
         temperature: 1.0,
         seed: 3,
         masks: MaskScope::PerNode,
+        dropout: None,
         gate_chi2: 9.21,
     };
 
