@@ -88,6 +88,7 @@ fn main() {
         temperature: 1.0,
         seed: 1,
         masks: MaskScope::Shared,
+        dropout: None,
         gate_chi2: 9.21,
     };
     let per_pair = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run)
