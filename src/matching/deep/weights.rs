@@ -13,7 +13,12 @@ use super::network::Network;
 /// The network's weights as bytes (burn's burnpack format, what a
 /// `<method>.bpk` file holds).
 pub fn to_bytes(net: &Network) -> Result<Vec<u8>, String> {
-    let bytes = net
+    module_bytes(net)
+}
+
+/// Any network's weights as bytes (burnpack).
+pub(super) fn module_bytes<M: Module + Clone>(module: &M) -> Result<Vec<u8>, String> {
+    let bytes = module
         .clone()
         .into_record()
         .into_bytes()
@@ -21,22 +26,29 @@ pub fn to_bytes(net: &Network) -> Result<Vec<u8>, String> {
     Ok(bytes.to_vec())
 }
 
+/// The weights of [`module_bytes`] loaded into `empty` (a network of the
+/// right shape); weights that do not fit or hold a value that is not
+/// finite are refused.
+pub(super) fn load_module<M: Module>(empty: M, bytes: &[u8]) -> Result<M, String> {
+    let record =
+        burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec()))
+            .map_err(|e| format!("{e:?}"))?;
+    let module = empty
+        .try_load_record(record)
+        .map_err(|e| format!("{e:?}"))?;
+    let mut finite = AllFinite(true);
+    module.visit(&mut finite);
+    if !finite.0 {
+        return Err("the weights hold a value that is not a finite number".into());
+    }
+    Ok(module)
+}
+
 /// A network of architecture `arch` on `device` with the weights of
 /// [`to_bytes`]; weights whose scalar parameters are not finite are
 /// refused.
 pub fn from_bytes(arch: &Architecture, bytes: &[u8], device: &Device) -> Result<Network, String> {
-    let record =
-        burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec()))
-            .map_err(|e| format!("{e:?}"))?;
-    let net = Network::new(arch, Init::Zeros, device)
-        .try_load_record(record)
-        .map_err(|e| format!("{e:?}"))?;
-    let mut finite = AllFinite(true);
-    net.visit(&mut finite);
-    if !finite.0 {
-        return Err("the weights hold a value that is not a finite number".into());
-    }
-    Ok(net)
+    load_module(Network::new(arch, Init::Zeros, device), bytes)
 }
 
 /// Whether every float parameter of a module is finite.

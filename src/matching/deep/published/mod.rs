@@ -52,24 +52,15 @@ use crate::matching::deep::init::Init;
 
 /// The network's weights as bytes (burn's burnpack format).
 pub fn to_bytes(net: &PublishedNet) -> Result<Vec<u8>, String> {
-    let bytes = net
-        .clone()
-        .into_record()
-        .into_bytes()
-        .map_err(|e| format!("{e:?}"))?;
-    Ok(bytes.to_vec())
+    super::weights::module_bytes(net)
 }
 
-/// A network of `cfg` on `device` with the weights of [`to_bytes`].
+/// A network of `cfg` on `device` with the weights of [`to_bytes`];
+/// weights that do not fit or are not finite are refused.
 pub fn from_bytes(
     cfg: &PublishedConfig,
     bytes: &[u8],
     device: &Device,
 ) -> Result<PublishedNet, String> {
-    let record =
-        burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec()))
-            .map_err(|e| format!("{e:?}"))?;
-    PublishedNet::new(cfg, Init::Zeros, device)
-        .try_load_record(record)
-        .map_err(|e| format!("{e:?}"))
+    super::weights::load_module(PublishedNet::new(cfg, Init::Zeros, device), bytes)
 }
