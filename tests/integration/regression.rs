@@ -549,3 +549,36 @@ fn r31_14_matches_files_and_track_lines_say_what_is_wrong() {
     assert!(!stderr(&o).contains("NaN"), "{}", stderr(&o));
     assert!(stderr(&o).contains("no pair to score"), "{}", stderr(&o));
 }
+
+/// Issue 33, found when `coid run`'s default seeds moved: the install
+/// folder's name covered the shipped models and scenario but not the
+/// compiled defaults, so a build with other defaults read the defaults an
+/// earlier build had written there. A folder whose defaults are not this
+/// binary's is written again: `coid run` without a config runs at this
+/// binary's default seeds.
+#[test]
+fn r33_stale_defaults_in_the_install_folder_are_never_read() {
+    let fx = Fixture::new();
+    assert_ok(&fx.cmd("run").quiet().out("a").output());
+    let home = fx.path(".coid-home");
+    let install = std::fs::read_dir(&home)
+        .unwrap()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .find(|p| {
+            p.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with("install-")
+        })
+        .expect("an install folder");
+    let defaults = install.join("configs/default.toml");
+    let text = std::fs::read_to_string(&defaults).unwrap();
+    let stale = text
+        .replace("traffic = 1001", "traffic = 1")
+        .replace("sensor = 1001", "sensor = 1");
+    assert_ne!(stale, text, "the defaults name seeds 1001");
+    std::fs::write(&defaults, stale).unwrap();
+    assert_ok(&fx.cmd("run").quiet().out("b").output());
+    let md = fx.read_text("b/summary.md");
+    assert!(md.contains("seeds: traffic 1001, sensor 1001"), "{md}");
+}
