@@ -410,6 +410,144 @@ fn choose(runs: &[RunEval], levels: &[PoseNoiseLabel], kind: UncertaintyKind, m:
     best
 }
 
+/// One baseline's threshold as [`tune_baselines`] chose it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TunedBaseline {
+    pub method: Method,
+    /// What the value is ([`crate::matching::BaselineKnob::name`]).
+    pub parameter: &'static str,
+    pub value: f64,
+    /// Its mean F1 over the validation runs (of the mean over the levels).
+    pub f1: f64,
+    /// The value fixed before any data was seen, and its mean F1.
+    pub a_priori: f64,
+    pub f1_a_priori: f64,
+}
+
+/// The mean over runs of each run's mean F1 over `levels` (runs and
+/// levels without pairs to find or found left out).
+fn mean_f1(runs: &[RunEval], levels: &[PoseNoiseLabel], m: Method) -> f64 {
+    let per_run: Vec<f64> = runs
+        .iter()
+        .filter_map(|r| {
+            let f: Vec<f64> = levels
+                .iter()
+                .filter_map(|&l| r.table1.get(&MethodLevel::new(m, l)).map(|c| c.f1()))
+                .filter(|f| f.is_finite())
+                .collect();
+            (!f.is_empty()).then(|| f.iter().sum::<f64>() / f.len() as f64)
+        })
+        .collect();
+    per_run.iter().sum::<f64>() / per_run.len().max(1) as f64
+}
+
+/// The a-priori threshold of baseline `m` ([`crate::matching::build`]'s
+/// value when none is given).
+fn a_priori_value(settings: &Settings, m: Method) -> f64 {
+    match m {
+        Method::Mogm => crate::matching::Mogm::default().min_score,
+        Method::Rgm => crate::matching::Rgm::default().lambda,
+        _ => settings.matching.gate_chi2,
+    }
+}
+
+/// Chooses each baseline's threshold among `[matching] methods` on the
+/// validation runs, never on the test runs, as the deep methods' lambda:
+/// every value of its grid ([`Method::baseline_knob`]) runs on every
+/// validation run, and the value with the best mean F1 (over the runs,
+/// of the mean over the pose-noise levels) wins, the a-priori value on
+/// ties, else the earlier one of the grid. Values that shape the
+/// optimisation (RGM's price, the gates) are run, not re-decided.
+/// `progress(pass, passes)` after each pass over the runs.
+pub fn tune_baselines(
+    settings: &Settings,
+    threads: usize,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Vec<TunedBaseline>, RunError> {
+    let knobs: Vec<(Method, crate::matching::BaselineKnob)> = settings
+        .matching
+        .methods
+        .iter()
+        .filter_map(|&m| m.baseline_knob().map(|k| (m, k)))
+        .collect();
+    if knobs.is_empty() {
+        return Ok(Vec::new());
+    }
+    let validation = validation_runs(settings)?;
+    let levels: Vec<_> = settings.pose_noise.iter().map(|l| l.label).collect();
+    // Pass 0 runs the a-priori values that are not in their grid; pass k
+    // the k-th value of each grid.
+    let off_grid = |m: Method, k: &crate::matching::BaselineKnob| {
+        !k.grid.contains(&a_priori_value(settings, m))
+    };
+    let passes = 1 + knobs.iter().map(|(_, k)| k.grid.len()).max().unwrap_or(0);
+    let mut f1: BTreeMap<(Method, usize), f64> = BTreeMap::new();
+    for pass in 0..passes {
+        let mut values = BTreeMap::new();
+        for (m, k) in &knobs {
+            match pass.checked_sub(1) {
+                None if off_grid(*m, k) => {
+                    values.insert(*m, a_priori_value(settings, *m));
+                }
+                Some(i) if i < k.grid.len() => {
+                    values.insert(*m, k.grid[i]);
+                }
+                _ => {}
+            }
+        }
+        let methods: Vec<Method> = values.keys().copied().collect();
+        if methods.is_empty() {
+            progress(pass + 1, passes);
+            continue;
+        }
+        let mut evals = Vec::with_capacity(validation.len());
+        for run in &validation {
+            let mut s = run.clone();
+            s.matching.baselines = crate::matching::BaselineChoice::APriori;
+            s.matching.baseline_values = values.clone();
+            let runners = pipeline::runners(&s, &methods)?;
+            let no_lambdas = BTreeMap::new();
+            evals.push(eval_run_into(
+                RunEval::default(),
+                &s,
+                &runners,
+                &no_lambdas,
+                threads,
+                |_| {},
+            )?);
+        }
+        for &m in &methods {
+            f1.insert((m, pass), mean_f1(&evals, &levels, m));
+        }
+        progress(pass + 1, passes);
+    }
+    Ok(knobs
+        .into_iter()
+        .map(|(m, k)| {
+            let a_priori = a_priori_value(settings, m);
+            let f1_a_priori = match k.grid.iter().position(|&v| v == a_priori) {
+                Some(i) => f1[&(m, i + 1)],
+                None => f1[&(m, 0)],
+            };
+            let (mut value, mut best) = (a_priori, f1_a_priori);
+            for (i, &v) in k.grid.iter().enumerate() {
+                let f = f1[&(m, i + 1)];
+                if f > best {
+                    (value, best) = (v, f);
+                }
+            }
+            TunedBaseline {
+                method: m,
+                parameter: k.name,
+                value,
+                f1: best,
+                a_priori,
+                f1_a_priori,
+            }
+        })
+        .collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

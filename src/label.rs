@@ -20,9 +20,28 @@ pub trait Label: Copy + std::str::FromStr + strum::VariantNames + 'static {
     }
 }
 
-/// Parses a label, or says which labels exist.
+/// Labels that no longer exist, by kind: `(what, old label, what to
+/// write instead)`. A config or command line naming one is refused with
+/// its replacement, in one line.
+const RENAMED: &[(&str, &str, &str)] = &[(
+    "method",
+    "ours-noprior",
+    "'coid' (the paper's network on the paper's inputs: no GPS pose and, \
+     unlike 'ours-noprior', no heading)",
+)];
+
+/// Parses a label, or says which labels exist (or what a renamed one is
+/// called now).
 pub fn parse<T: Label>(what: &str, given: &str) -> Result<T, String> {
-    given.parse().map_err(|_| T::unknown(what, given))
+    given.parse().map_err(|_| {
+        match RENAMED
+            .iter()
+            .find(|&&(kind, old, _)| kind == what && old == given)
+        {
+            Some((_, _, now)) => format!("{what} '{given}' was renamed: write {now}"),
+            None => T::unknown(what, given),
+        }
+    })
 }
 
 /// Declares a labelled enum: `label_enum! { "what"; <enum> }` with the

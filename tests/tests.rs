@@ -32,5 +32,7 @@ mod run;
 mod scenarios;
 #[path = "integration/suite.rs"]
 mod suite;
+#[path = "integration/tables.rs"]
+mod tables;
 #[path = "integration/v2x.rs"]
 mod v2x;

@@ -64,7 +64,10 @@ enum Command {
     /// runs ([eval] traffic_seeds) and
     /// write the paper's tables, means with 95% confidence intervals over
     /// runs. Writes into --out: table1.csv (P/R/F1 per method and pose
-    /// noise), table2.csv (F1 before/after uncertainty thresholding),
+    /// noise, the methods that see the paper's inputs only), table1b.csv
+    /// (the methods that see the reported poses too), paired.csv (each
+    /// method minus the strongest baseline seeing the same inputs, run by
+    /// run), table2.csv (F1 before/after uncertainty thresholding),
     /// table3.csv (uncertainty types), lambda_sweep.csv, case_study.csv
     /// (displacement errors), errors.csv (every method's displacement
     /// errors), calibration.csv, consistency.csv, views.csv,
@@ -84,7 +87,7 @@ enum Command {
     /// Evaluate correspondences made elsewhere (`--matches FILE`, for the
     /// runs of `coid export`) beside the configured built-in methods, as
     /// method `external`, on the test (or validation) runs. Writes into
-    /// --out what `coid eval` writes: table1.csv, errors.csv (displacement
+    /// --out what `coid eval` writes: table1.csv, table1b.csv, errors.csv (displacement
     /// errors of every method, both fusion variants, common object set),
     /// calibration.csv, consistency.csv, views.csv, the deep methods'
     /// tables, summary.md and pictures.

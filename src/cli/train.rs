@@ -118,16 +118,30 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         io::Existing::when(a.force.force),
     )?;
     super::no_repeats("--methods", &a.methods)?;
-    let methods = if a.methods.is_empty() {
-        settings.train.methods.clone()
+    let (methods, baselines) = if a.methods.is_empty() {
+        let tuned = settings.matching.methods.iter();
+        let tuned = tuned.filter(|m| m.baseline_knob().is_some());
+        (settings.train.methods.clone(), tuned.copied().collect())
     } else {
-        a.methods.clone()
+        let (deep, other): (Vec<Method>, Vec<Method>) = a
+            .methods
+            .iter()
+            .partition(|m| matches!(m.kind(), MethodKind::Deep(_)));
+        (deep, other)
     };
-    if let Some(m) = methods
-        .iter()
-        .find(|m| !matches!(m.kind(), MethodKind::Deep(_)))
-    {
+    if let Some(m) = baselines.iter().find(|m| m.baseline_knob().is_none()) {
         anyhow::bail!("'{}' is not a trainable (deep) method", m.as_str());
+    }
+    if let Some(m) = baselines
+        .first()
+        .filter(|_| !a.validate_only && !a.methods.is_empty())
+    {
+        anyhow::bail!(
+            "'{}' is not a trainable (deep) method; `coid train --validate-only --methods {}` \
+             chooses its threshold on the validation runs",
+            m.as_str(),
+            m.as_str()
+        );
     }
     let show = match (a.progress_lines, a.quiet.quiet) {
         (true, _) => Show::Lines,
@@ -137,7 +151,8 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     let workers = a.workers.get().clamp(1, methods.len().max(1));
     let started = std::time::Instant::now();
     if a.validate_only {
-        return validate(&settings, &models_dir, &methods, show == Show::Bars);
+        validate(&settings, &models_dir, &methods, show == Show::Bars)?;
+        return tune_baselines(&settings, &models_dir, &baselines, show == Show::Bars);
     }
     if workers > 1 {
         train_in_children(&a, &models_dir, &methods, workers)?;
@@ -146,6 +161,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     }
     if !a.skip_validation {
         validate(&settings, &models_dir, &methods, show == Show::Bars)?;
+        tune_baselines(&settings, &models_dir, &baselines, show == Show::Bars)?;
     }
     if show != Show::Lines {
         eprintln!(
@@ -358,6 +374,9 @@ fn validate(
     methods: &[Method],
     bars: bool,
 ) -> anyhow::Result<()> {
+    if methods.is_empty() {
+        return Ok(());
+    }
     let seeds = &settings.train.validation_seeds;
     let pb = progress_bar(
         !bars,
@@ -400,6 +419,58 @@ fn validate(
             text(total),
             text(epistemic),
             text(aleatoric),
+        );
+    }
+    Ok(())
+}
+
+/// Chooses the thresholds of `baselines` on the validation runs and
+/// records them in the models folder's `baselines.toml`.
+fn tune_baselines(
+    settings: &Settings,
+    models_dir: &Path,
+    baselines: &[Method],
+    bars: bool,
+) -> anyhow::Result<()> {
+    if baselines.is_empty() {
+        return Ok(());
+    }
+    let mut only = settings.clone();
+    only.matching.methods = baselines.to_vec();
+    let passes = 1 + baselines
+        .iter()
+        .filter_map(|m| m.baseline_knob().map(|k| k.grid.len()))
+        .max()
+        .unwrap_or(0);
+    let pb = progress_bar(
+        !bars,
+        passes as u64,
+        "{spinner} choosing the baselines' thresholds on the validation runs: value {pos}/{len} [{bar:30}] eta {eta}",
+    );
+    let tuned = experiments::tune_baselines(&only, super::cores(), |_, _| pb.inc(1))
+        .context("validation runs failed")?;
+    pb.finish_and_clear();
+    let entries: Vec<io::BaselineEntry> = tuned
+        .iter()
+        .map(|t| io::BaselineEntry {
+            method: t.method,
+            parameter: t.parameter.to_owned(),
+            value: t.value,
+            f1: t.f1,
+            a_priori: t.a_priori,
+            f1_a_priori: t.f1_a_priori,
+        })
+        .collect();
+    io::record_baselines(models_dir, settings, &entries)?;
+    for t in &tuned {
+        eprintln!(
+            "coid: {}: {} {} (mean F1 {:.3} on the validation runs; a priori {}: {:.3})",
+            t.method.as_str(),
+            t.parameter,
+            t.value,
+            t.f1,
+            t.a_priori,
+            t.f1_a_priori
         );
     }
     Ok(())

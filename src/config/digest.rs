@@ -10,7 +10,9 @@ use super::{ConfigError, Settings};
 use crate::fusion::FusionSettings;
 use crate::matching::deep::arch::{MaskScope, PairLoss};
 use crate::matching::deep::decision::UncertaintyKind;
-use crate::matching::{DecisionChoice, LambdaChoice, MatchingSettings, MethodKind, MultiVehicle};
+use crate::matching::{
+    BaselineChoice, DecisionChoice, LambdaChoice, MatchingSettings, MethodKind, MultiVehicle,
+};
 use crate::rng::Seeds;
 
 impl Settings {
@@ -37,6 +39,19 @@ impl Settings {
         let dir = self.scenario.sumocfg.parent().unwrap_or(Path::new("."));
         for name in sumocfg_inputs(&sumocfg) {
             d.file(&self.source, &dir.join(name))?;
+        }
+        let tuned = self.matching.baselines == BaselineChoice::Validated
+            && self
+                .matching
+                .methods
+                .iter()
+                .any(|m| m.baseline_knob().is_some());
+        if tuned {
+            let p = self
+                .matching
+                .models_dir
+                .join(crate::matching::BASELINES_FILE);
+            d.file(&self.source, &p)?;
         }
         for m in &self.matching.methods {
             if let MethodKind::Deep(_) = m.kind() {
@@ -76,6 +91,8 @@ impl Settings {
         };
         s.matching = MatchingSettings {
             methods: Vec::new(),
+            baselines: BaselineChoice::APriori,
+            baseline_values: Default::default(),
             gate_chi2: 0.0,
             models_dir: PathBuf::new(),
             mc_samples: 0,

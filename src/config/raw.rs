@@ -7,10 +7,10 @@ use std::path::PathBuf;
 use serde::Deserialize;
 
 use crate::fusion::FusionVariant;
-use crate::matching::Method;
 use crate::matching::MultiVehicle;
 use crate::matching::deep::arch::{MaskScope, PairLoss};
 use crate::matching::deep::decision::UncertaintyKind;
+use crate::matching::{BaselineChoice, Method};
 use crate::sensor::PoseNoiseLabel;
 use crate::v2x::V2xMode;
 use crate::v2x::channel::LossKind;
@@ -164,6 +164,7 @@ pub(super) struct RawPoseLevel {
 #[serde(deny_unknown_fields)]
 pub(super) struct RawMatching {
     pub(super) methods: Vec<Method>,
+    pub(super) baselines: BaselineChoice,
     pub(super) gate_chi2: f64,
     pub(super) models_dir: PathBuf,
     pub(super) mc_samples: usize,

@@ -348,6 +348,8 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
     }
     Ok(MatchingSettings {
         methods: c.distinct("matching.methods", m.methods)?,
+        baselines: m.baselines,
+        baseline_values: Default::default(),
         gate_chi2: m.gate_chi2,
         models_dir: c.resolve(&m.models_dir),
         mc_samples: m.mc_samples,

@@ -97,6 +97,8 @@ mod tests {
     fn built(method: Method) -> CorrespondenceSource {
         let settings = crate::matching::MatchingSettings {
             methods: vec![],
+            baselines: crate::matching::BaselineChoice::APriori,
+            baseline_values: Default::default(),
             gate_chi2: 9.21,
             models_dir: std::path::PathBuf::new(),
             mc_samples: 20,

@@ -82,9 +82,15 @@ mod tests {
     #[test]
     fn the_binary_carries_every_shipped_model_and_the_default_scenario() {
         let names: Vec<&str> = ASSETS.iter().map(|(n, _)| *n).collect();
+        // Every deep method the defaults run, and every one with the poses.
+        let defaults = crate::config::Settings::defaults().unwrap();
         let deep = Method::all()
             .iter()
             .filter(|m| matches!(m.kind(), crate::matching::MethodKind::Deep(_)))
+            .filter(|m| {
+                defaults.matching.methods.contains(m)
+                    || m.inputs() == crate::matching::Inputs::V2xPoses
+            })
             .map(|m| m.as_str());
         for m in deep {
             assert!(names.contains(&format!("models/{m}.bpk").as_str()), "{m}");

@@ -231,12 +231,20 @@ fn check_runs(runs: &Path) -> Result<(), String> {
 }
 
 /// A models folder: only `<method>.bpk`, `<method>.toml` (a model record,
-/// as `coid train` writes it) and `<method>_loss.csv` of known methods.
+/// as `coid train` writes it) and `<method>_loss.csv` of known methods, and
+/// `baselines.toml` (the baselines' validated thresholds).
 fn check_models(dir: &Path) -> Result<(), String> {
     for e in std::fs::read_dir(dir).map_err(|e| e.to_string())? {
         let e = e.map_err(|e| e.to_string())?;
         let name = e.file_name().to_string_lossy().into_owned();
         if is_staging_name(&name) {
+            continue;
+        }
+        if name == crate::matching::BASELINES_FILE {
+            let text = std::fs::read_to_string(e.path()).unwrap_or_default();
+            if super::records::BaselinesRecord::from_toml(&text).is_err() {
+                return Err(format!("it holds {name}, which coid did not write there"));
+            }
             continue;
         }
         let method = ["_loss.csv", ".bpk", ".toml"]

@@ -26,6 +26,7 @@ mod staging;
 pub use batches::*;
 pub use folder::{Claim, Existing, ResultKind, check_extendable, publish_files};
 pub use models::*;
+pub use records::BaselineEntry;
 pub use results::*;
 
 use std::path::{Path, PathBuf};

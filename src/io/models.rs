@@ -6,12 +6,14 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use super::records::{self, Lambda, LambdaByKind, ModelRecord, ValidationRecord};
+use super::records::{
+    self, BaselineEntry, BaselinesRecord, Lambda, LambdaByKind, ModelRecord, ValidationRecord,
+};
 use super::{OutputError, io, publish_files, write_text};
 use crate::config::Settings;
 use crate::matching::deep::decision::{Decision, KindLambdas, UncertaintyKind};
 use crate::matching::deep::train::TrainReport;
-use crate::matching::{Method, MethodKind};
+use crate::matching::{BASELINES_FILE, Method, MethodKind};
 
 /// The weights file of a method in a models folder.
 pub fn weights_path(models_dir: &Path, method: Method) -> PathBuf {
@@ -40,7 +42,7 @@ pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, Weight
         return Err(fail("not a deep method".into()));
     };
     record
-        .check(method, &deep.architecture(), &bytes)
+        .check(method, &deep.backbone(), &bytes)
         .map_err(fail)?;
     Ok(bytes)
 }
@@ -77,6 +79,83 @@ fn read_model_file<T>(
             e.to_string()
         })
     })
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "cannot read the baselines' validated thresholds from {path} ({reason}); run `coid train \
+     --validate-only` to choose them, or set [matching] baselines = \"a-priori\""
+)]
+pub struct BaselinesError {
+    pub path: PathBuf,
+    pub reason: String,
+}
+
+/// Each baseline's threshold as `baselines.toml` of `models_dir` records
+/// it; an error when the file is missing or malformed, or lacks one of
+/// `methods` that has a threshold.
+pub fn read_baselines(
+    models_dir: &Path,
+    methods: &[Method],
+) -> Result<std::collections::BTreeMap<Method, f64>, BaselinesError> {
+    let path = models_dir.join(BASELINES_FILE);
+    let fail = |reason: String| BaselinesError {
+        path: path.clone(),
+        reason,
+    };
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        fail(if e.kind() == std::io::ErrorKind::NotFound {
+            "no such file".into()
+        } else {
+            e.to_string()
+        })
+    })?;
+    let record = BaselinesRecord::from_toml(&text).map_err(fail)?;
+    let values: std::collections::BTreeMap<Method, f64> = record
+        .baselines
+        .iter()
+        .map(|b| (b.method, b.value))
+        .collect();
+    for m in methods.iter().filter(|m| m.baseline_knob().is_some()) {
+        match values.get(m) {
+            Some(v) if v.is_finite() && *v >= 0.0 => {}
+            Some(v) => return Err(fail(format!("'{}' has value {v}", m.as_str()))),
+            None => return Err(fail(format!("'{}' is not in it", m.as_str()))),
+        }
+    }
+    Ok(values)
+}
+
+/// Records the baselines' thresholds chosen on the validation runs in
+/// `baselines.toml` of `dir`, replacing the entries of the same methods
+/// and keeping the others; renamed into place.
+pub fn record_baselines(
+    dir: &Path,
+    settings: &Settings,
+    chosen: &[BaselineEntry],
+) -> Result<(), OutputError> {
+    let path = dir.join(BASELINES_FILE);
+    let mut kept: Vec<BaselineEntry> = std::fs::read_to_string(&path)
+        .ok()
+        .and_then(|t| BaselinesRecord::from_toml(&t).ok())
+        .map(|r| r.baselines)
+        .unwrap_or_default();
+    kept.retain(|b| chosen.iter().all(|c| c.method != b.method));
+    kept.extend(chosen.iter().cloned());
+    kept.sort_by_key(|b| b.method);
+    let t = &settings.train;
+    let record = BaselinesRecord {
+        config: settings.source.display().to_string(),
+        validation_seeds: t.validation_seeds.clone(),
+        validation_scenarios: t
+            .validation_scenarios
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect(),
+        baselines: kept,
+    };
+    let body = record.to_toml().map_err(OutputError::Batch)?;
+    publish_files(dir, |tmp| write_text(&tmp.join(BASELINES_FILE), &body))
 }
 
 /// What `coid train` records beside each model's weights.
@@ -120,7 +199,7 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
     let r = record.report;
     Ok(ModelRecord {
         method: record.method.as_str().to_owned(),
-        architecture: deep.architecture(),
+        architecture: deep.backbone(),
         weights_fnv64: records::fnv64_hex(weights),
         config: record.settings.source.display().to_string(),
         train_traffic_seeds: t.traffic_seeds.clone(),

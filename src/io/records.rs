@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::matching::Method;
-use crate::matching::deep::arch::Architecture;
+use crate::matching::deep::arch::Backbone;
 use crate::matching::deep::decision::Decision;
 
 /// `<method>.toml` beside `<method>.bpk`: how the weights were made, what
@@ -15,7 +15,7 @@ use crate::matching::deep::decision::Decision;
 pub struct ModelRecord {
     pub method: String,
     /// The network the weights belong to; loading refuses any other.
-    pub architecture: Architecture,
+    pub architecture: Backbone,
     /// FNV-1a 64 of the `.bpk` bytes (hex); loading refuses other bytes.
     pub weights_fnv64: String,
     pub config: String,
@@ -52,6 +52,48 @@ pub struct ModelRecord {
     /// `coid train` validated the weights.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub validation: Option<ValidationRecord>,
+}
+
+/// `baselines.toml` of a models folder: each baseline's threshold chosen
+/// on the validation runs (`coid train`), as the deep methods' lambdas.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BaselinesRecord {
+    pub config: String,
+    pub validation_seeds: Vec<u64>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub validation_scenarios: Vec<String>,
+    #[serde(rename = "baseline", default)]
+    pub baselines: Vec<BaselineEntry>,
+}
+
+/// One baseline's chosen threshold.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BaselineEntry {
+    pub method: Method,
+    /// What the value is (`min_score`, `price_per_match`, `gate_chi2`).
+    pub parameter: String,
+    pub value: f64,
+    /// Its mean F1 on the validation runs.
+    pub f1: f64,
+    /// The a-priori value, and its mean F1 on the same runs.
+    pub a_priori: f64,
+    pub f1_a_priori: f64,
+}
+
+impl BaselinesRecord {
+    pub fn to_toml(&self) -> Result<String, String> {
+        let head = "# Written by `coid train`: each baseline's threshold, chosen on the validation\n\
+                    # runs like the deep methods' lambdas (best mean F1 over the runs and levels).\n";
+        toml::to_string(self)
+            .map(|t| format!("{head}{t}"))
+            .map_err(|e| e.to_string())
+    }
+
+    pub fn from_toml(text: &str) -> Result<Self, String> {
+        toml::from_str(text).map_err(|e| e.message().replace('\n', " "))
+    }
 }
 
 /// What the validation runs chose for one model.
@@ -129,11 +171,25 @@ impl ModelRecord {
 
     /// `Ok` when these are the weights this record describes, for the
     /// network of `method`.
-    pub fn check(&self, method: Method, arch: &Architecture, weights: &[u8]) -> Result<(), String> {
+    pub fn check(&self, method: Method, arch: &Backbone, weights: &[u8]) -> Result<(), String> {
         if self.method != method.as_str() {
             return Err(format!("the record is of '{}'", self.method));
         }
         if self.architecture != *arch {
+            if let (Backbone::Likelihood(_), Some(now)) = (self.architecture, renamed_to(method)) {
+                return Err(format!(
+                    "these weights are of the method now called '{}' (the project's network \
+                     with the reported poses); '{}' is the published network on the paper's \
+                     inputs: rename the files to {}.bpk and {}.toml (method = \"{}\"), or \
+                     train '{}'",
+                    now.as_str(),
+                    method.as_str(),
+                    now.as_str(),
+                    now.as_str(),
+                    now.as_str(),
+                    method.as_str()
+                ));
+            }
             return Err("the weights were trained for another architecture".into());
         }
         let sum = fnv64_hex(weights);
@@ -144,6 +200,19 @@ impl ModelRecord {
             ));
         }
         Ok(())
+    }
+}
+
+/// The name that the project's network, once recorded as `method`, has
+/// now: the deep baselines and ablations with the reported poses carry a
+/// `+gps` suffix since the published networks took their names.
+fn renamed_to(method: Method) -> Option<Method> {
+    match method {
+        Method::Dgmc => Some(Method::DgmcGps),
+        Method::GcnGm => Some(Method::GcnGmGps),
+        Method::CoidNon => Some(Method::CoidNonGps),
+        Method::CoidUnc => Some(Method::CoidUncGps),
+        _ => None,
     }
 }
 
@@ -260,11 +329,12 @@ impl FolderRecord {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::matching::deep::arch::Architecture;
 
     fn record() -> ModelRecord {
         ModelRecord {
             method: "ours".into(),
-            architecture: Architecture::default(),
+            architecture: Backbone::Likelihood(Architecture::default()),
             weights_fnv64: fnv64_hex(b"weights"),
             config: "c.toml".into(),
             train_traffic_seeds: vec![1, 2],
@@ -312,7 +382,7 @@ mod tests {
             back.validation.unwrap().lambda.to_f64(),
             Some(f64::INFINITY)
         );
-        let arch = Architecture::default();
+        let arch = Backbone::Likelihood(Architecture::default());
         assert!(r.check(Method::Ours, &arch, b"weights").is_ok());
         assert!(
             r.check(Method::Ours, &arch, b"other")
@@ -320,11 +390,25 @@ mod tests {
                 .contains("checksum")
         );
         assert!(r.check(Method::Dgmc, &arch, b"weights").is_err());
-        let other = Architecture {
+        let other = Backbone::Likelihood(Architecture {
             hidden: 128,
-            ..arch
-        };
+            ..Architecture::default()
+        });
         assert!(r.check(Method::Ours, &other, b"weights").is_err());
+        // Weights of the project's network recorded as 'dgmc' (before the
+        // published DGMC took the name) are refused with the new name.
+        let old = ModelRecord {
+            method: "dgmc".into(),
+            ..record()
+        };
+        let published = Method::Dgmc.kind();
+        let crate::matching::MethodKind::Deep(d) = published else {
+            unreachable!()
+        };
+        let e = old
+            .check(Method::Dgmc, &d.backbone(), b"weights")
+            .unwrap_err();
+        assert!(e.contains("now called 'dgmc+gps'"), "{e}");
         // A NaN loss is written as TOML's nan and read back.
         let nan = ModelRecord {
             final_epoch_loss: Some(f64::NAN),

@@ -4,14 +4,15 @@
 //! A candidate is a pair (i, a) of a detection of the first vehicle and one
 //! of the second whose appearance is compatible. The affinity between two
 //! candidates (i, a) and (j, b) scores how well the edge i-j agrees with the
-//! edge a-b in length (second order: distances) and in direction (the edge's
-//! bearing in the world, from each vehicle's reported heading: GPS heading
-//! noise is 0.2 deg, position noise does not enter). The diagonal holds the
-//! appearance similarity (first order). Nothing here uses the vehicles'
-//! reported positions: the graph structure must carry the match.
+//! edge a-b in length (second order: distances, which the unknown rigid
+//! motion between the two body frames leaves unchanged). The diagonal holds
+//! the appearance similarity (first order). Both see the paper's inputs
+//! only: nothing here uses the vehicles' reported positions or headings
+//! (an edge's direction would need the heading to compare across frames);
+//! the graph structure must carry the match.
 //!
 //! MOGM: learning-free multi-order graph matching. First order: appearance;
-//! second order: edge lengths and edge directions (see the affinity above).
+//! second order: edge lengths (see the affinity above).
 //! Solved by spectral matching (principal eigenvector of the affinity) and a
 //! greedy one-to-one discretisation; candidates whose eigenvector entry is
 //! below `min_score` of the largest stay unmatched ("no match").
@@ -28,7 +29,6 @@ use nalgebra::{DMatrix, DVector};
 
 use super::{Correspondence, Identification, MatchView, Matcher, Method, binary_entropy_bits};
 use crate::fusion::PoseEstimate;
-use crate::geometry::{Vec2, wrap_angle};
 use crate::sensor::{Appearance, Detection};
 
 /// Constants of the affinity, fixed a priori (not fitted to test data).
@@ -83,27 +83,21 @@ pub struct AffinityProblem {
     pub n_second: usize,
 }
 
-/// An edge between two detections as seen in the world: length, bearing
-/// (reported heading plus the edge's direction in the ego frame), and the
-/// variances of both from the two detections' covariances.
+/// An edge between two detections of one vehicle: its length and the
+/// variance of the length from the two detections' covariances.
 struct EdgeView {
     length_m: f64,
-    bearing_rad: f64,
     length_var_m2: f64,
-    bearing_var_rad2: f64,
 }
 
-fn edge(p: &Detection, q: &Detection, heading_rad: f64) -> EdgeView {
+fn edge(p: &Detection, q: &Detection) -> EdgeView {
     let d = q.position_m - p.position_m;
     let length_m = d.norm().max(1e-3);
     let u = d / length_m;
-    let perp = Vec2::new(-u.y, u.x);
     let cov = p.cov_m2 + q.cov_m2;
     EdgeView {
         length_m,
-        bearing_rad: heading_rad + d.y.atan2(d.x),
         length_var_m2: (u.transpose() * cov * u)[(0, 0)],
-        bearing_var_rad2: (perp.transpose() * cov * perp)[(0, 0)] / (length_m * length_m),
     }
 }
 
@@ -122,10 +116,6 @@ pub fn build(first: &MatchView, second: &MatchView, params: &AffinityParams) -> 
     }
     let k = candidates.len();
     let mut affinity = DMatrix::zeros(k, k);
-    let h1 = first.pose_reported.heading_rad();
-    let h2 = second.pose_reported.heading_rad();
-    let heading_var =
-        first.pose_noise.heading_sigma_rad.powi(2) + second.pose_noise.heading_sigma_rad.powi(2);
     for u in 0..k {
         affinity[(u, u)] = unary[u];
         let (i, a) = candidates[u];
@@ -134,17 +124,14 @@ pub fn build(first: &MatchView, second: &MatchView, params: &AffinityParams) -> 
             if i == j || a == b {
                 continue; // one-to-one: conflicting candidates never agree
             }
-            let e1 = edge(&first.detections[i], &first.detections[j], h1);
-            let e2 = edge(&second.detections[a], &second.detections[b], h2);
+            let e1 = edge(&first.detections[i], &first.detections[j]);
+            let e2 = edge(&second.detections[a], &second.detections[b]);
             if e1.length_m > params.max_edge_m || e2.length_m > params.max_edge_m {
                 continue;
             }
             let length_var = e1.length_var_m2 + e2.length_var_m2;
             let length = (-(e1.length_m - e2.length_m).powi(2) / (2.0 * length_var)).exp();
-            let bearing_var = e1.bearing_var_rad2 + e2.bearing_var_rad2 + heading_var;
-            let angle =
-                (-wrap_angle(e1.bearing_rad - e2.bearing_rad).powi(2) / (2.0 * bearing_var)).exp();
-            let w = length * angle * (unary[u] * unary[v]).sqrt();
+            let w = length * (unary[u] * unary[v]).sqrt();
             affinity[(u, v)] = w;
             affinity[(v, u)] = w;
         }

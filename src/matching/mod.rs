@@ -21,7 +21,7 @@ pub use learning_free::{Mogm, Rgm};
 
 use std::path::PathBuf;
 
-use self::deep::arch::{DeepMethod, MaskScope};
+use self::deep::arch::{Backbone, DeepMethod, MaskScope};
 use self::deep::decision::{Decision, KindLambdas, MatchDistribution, UncertaintyKind};
 use crate::fusion::{PoseEstimate, relative_pose_prior};
 use crate::geometry::Pose2;
@@ -30,36 +30,57 @@ use crate::sensor::{Detection, PoseNoiseLevel};
 
 crate::label_enum! { "method";
     /// The matching methods, with the labels used in configs and results.
-    /// Rows of every table come in this order.
+    /// Rows of every table come in this order: first the methods that see
+    /// the paper's inputs only (Table 1), then those that also see the
+    /// reported poses (Table 1b), then the oracle. A method named after a
+    /// published one implements it as published; a `+gps` suffix names an
+    /// extension that adds the reported poses.
     pub enum Method {
-        /// The paper's Bayesian deep graph matcher: L_coid + L_non + L_unc,
-        /// MC-dropout uncertainty, thresholding.
-        #[strum(serialize = "ours")]
-        Ours,
-        /// The paper's network as published: `ours` without the GPS
-        /// position term (appearance and graph structure only).
-        #[strum(serialize = "ours-noprior")]
-        OursNoPrior,
+        /// The paper's Bayesian deep graph matcher on the paper's inputs:
+        /// DGMC's network trained with L_coid + L_non + L_unc, MC-dropout
+        /// uncertainty, thresholding.
+        #[strum(serialize = "coid")]
+        Coid,
         /// Ablation: L_coid + L_non.
         #[strum(serialize = "coid+non")]
         CoidNon,
         /// Ablation: L_coid + L_unc.
         #[strum(serialize = "coid+unc")]
         CoidUnc,
-        /// DGMC: GNN + neighbourhood consensus, L_coid only.
+        /// DGMC as published (Fey et al. 2020): SplineCNN, Sinkhorn, L
+        /// consensus steps on random indicator functions.
         #[strum(serialize = "dgmc")]
         Dgmc,
-        /// GCN-GM: GNN similarity + Sinkhorn, L_coid only.
+        /// GCN-GM as published (Fey et al. 2018): SplineCNN embeddings and
+        /// Sinkhorn similarity.
         #[strum(serialize = "gcn-gm")]
         GcnGm,
-        /// Learning-free multi-order graph matching (appearance, edge lengths,
-        /// edge directions; spectral solution).
+        /// Learning-free multi-order graph matching (appearance and edge
+        /// lengths; spectral solution).
         #[strum(serialize = "mogm")]
         Mogm,
         /// Learning-free regularised graph matching that allows "no match"
         /// (IPFP with a price per match).
         #[strum(serialize = "rgm")]
         Rgm,
+        /// Our learned correction of the shared pair likelihood (reported
+        /// poses, appearance, graph structure): L_coid + L_non + L_unc,
+        /// MC-dropout uncertainty, thresholding.
+        #[strum(serialize = "ours")]
+        Ours,
+        /// `ours` trained with L_coid + L_non.
+        #[strum(serialize = "coid+non+gps")]
+        CoidNonGps,
+        /// `ours` trained with L_coid + L_unc.
+        #[strum(serialize = "coid+unc+gps")]
+        CoidUncGps,
+        /// `ours` trained with L_coid only: DGMC's consensus on our network
+        /// with the poses.
+        #[strum(serialize = "dgmc+gps")]
+        DgmcGps,
+        /// `dgmc+gps` without the consensus.
+        #[strum(serialize = "gcn-gm+gps")]
+        GcnGmGps,
         /// Detections moved into the ego frame with the GPS poses, gated
         /// Hungarian assignment on Mahalanobis distance.
         #[strum(serialize = "gps-hungarian")]
@@ -77,6 +98,24 @@ crate::label_enum! { "method";
     }
 }
 
+crate::label_enum! { "inputs";
+    /// What a method sees besides each vehicle's own detections.
+    pub enum Inputs {
+        /// The paper's inputs: each vehicle's detections in its own body
+        /// frame, their appearance and Delaunay graphs; no GPS pose, no
+        /// heading (Table 1).
+        #[strum(serialize = "paper")]
+        Paper,
+        /// The paper's inputs and both vehicles' reported (V2X) poses
+        /// (Table 1b).
+        #[strum(serialize = "v2x-poses")]
+        V2xPoses,
+        /// The ground truth (the oracle).
+        #[strum(serialize = "truth")]
+        Truth,
+    }
+}
+
 impl Method {
     /// Every method, in table order.
     pub fn all() -> &'static [Method] {
@@ -86,16 +125,45 @@ impl Method {
     /// What kind of method this is.
     pub fn kind(self) -> MethodKind {
         match self {
-            Method::Ours => MethodKind::Deep(DeepMethod::Ours),
-            Method::OursNoPrior => MethodKind::Deep(DeepMethod::OursNoPrior),
+            Method::Coid => MethodKind::Deep(DeepMethod::Coid),
             Method::CoidNon => MethodKind::Deep(DeepMethod::CoidNon),
             Method::CoidUnc => MethodKind::Deep(DeepMethod::CoidUnc),
             Method::Dgmc => MethodKind::Deep(DeepMethod::Dgmc),
             Method::GcnGm => MethodKind::Deep(DeepMethod::GcnGm),
+            Method::Ours => MethodKind::Deep(DeepMethod::Ours),
+            Method::CoidNonGps => MethodKind::Deep(DeepMethod::CoidNonGps),
+            Method::CoidUncGps => MethodKind::Deep(DeepMethod::CoidUncGps),
+            Method::DgmcGps => MethodKind::Deep(DeepMethod::DgmcGps),
+            Method::GcnGmGps => MethodKind::Deep(DeepMethod::GcnGmGps),
             Method::Mogm | Method::Rgm => MethodKind::LearningFree,
             Method::GpsHungarian | Method::GpsAppHungarian => MethodKind::GpsBased,
             Method::Oracle => MethodKind::Oracle,
             Method::External => MethodKind::External,
+        }
+    }
+
+    /// What the method sees: the paper's inputs (Table 1) or the reported
+    /// poses too (Table 1b).
+    pub fn inputs(self) -> Inputs {
+        match self {
+            Method::Coid
+            | Method::CoidNon
+            | Method::CoidUnc
+            | Method::Dgmc
+            | Method::GcnGm
+            | Method::Mogm
+            | Method::Rgm => Inputs::Paper,
+            Method::Ours
+            | Method::CoidNonGps
+            | Method::CoidUncGps
+            | Method::DgmcGps
+            | Method::GcnGmGps
+            | Method::GpsHungarian
+            | Method::GpsAppHungarian => Inputs::V2xPoses,
+            // What `coid export` hands a matcher written elsewhere: the
+            // reported poses included.
+            Method::External => Inputs::V2xPoses,
+            Method::Oracle => Inputs::Truth,
         }
     }
 }
@@ -135,10 +203,74 @@ crate::label_enum! { "multi-vehicle mode";
     }
 }
 
+crate::label_enum! { "baseline thresholds";
+    /// Where the baselines' thresholds come from.
+    pub enum BaselineChoice {
+        /// Each baseline's own, chosen on the validation runs by `coid
+        /// train` (as the deep methods' lambdas) and recorded in the models
+        /// folder's `baselines.toml`.
+        #[strum(serialize = "validated")]
+        Validated,
+        /// The values fixed before any data was seen: MOGM's minimum score
+        /// 0.3, RGM's price per match 1.2, the GPS Hungarians' gate
+        /// `[matching] gate_chi2`.
+        #[strum(serialize = "a-priori")]
+        APriori,
+    }
+}
+
+/// The file of a models folder that records the baselines' validated
+/// thresholds.
+pub const BASELINES_FILE: &str = "baselines.toml";
+
+/// The one threshold of a baseline that validation chooses, and the grid
+/// it is chosen from (the same procedure as the deep methods' lambda: the
+/// value with the best mean F1 on the validation runs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BaselineKnob {
+    /// What the value is, for records and messages.
+    pub name: &'static str,
+    pub grid: Vec<f64>,
+}
+
+impl Method {
+    /// The baseline's threshold that validation chooses, if it has one:
+    /// MOGM's minimum share of the largest eigenvector entry (applied after
+    /// the spectral solution), RGM's price per match (it shapes the
+    /// optimisation), a GPS Hungarian's gate on the squared Mahalanobis
+    /// distance (the chi-square 2-dof 90 % to 99.9999 % points).
+    pub fn baseline_knob(self) -> Option<BaselineKnob> {
+        let knob = |name, grid: &[f64]| {
+            Some(BaselineKnob {
+                name,
+                grid: grid.to_vec(),
+            })
+        };
+        match self {
+            Method::Mogm => knob(
+                "min_score",
+                &[0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9],
+            ),
+            Method::Rgm => knob("price_per_match", &[0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.5, 2.0]),
+            Method::GpsHungarian | Method::GpsAppHungarian => {
+                knob("gate_chi2", &[4.61, 5.99, 9.21, 13.82, 18.42, 23.03, 27.63])
+            }
+            _ => None,
+        }
+    }
+}
+
 /// `[matching]`: which methods run and how they decide.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MatchingSettings {
     pub methods: Vec<Method>,
+    /// Where the baselines' thresholds come from.
+    pub baselines: BaselineChoice,
+    /// The baselines' thresholds to run with (from `baselines.toml`, or a
+    /// grid point during validation); a baseline not listed runs at its
+    /// a-priori value. Filled when the runners are built, never by the
+    /// config.
+    pub baseline_values: std::collections::BTreeMap<Method, f64>,
     /// GPS-Hungarian gate on the squared Mahalanobis distance (9.21 is the
     /// 99% point of chi-square with 2 degrees of freedom).
     pub gate_chi2: f64,
@@ -337,11 +469,24 @@ pub fn build(
     dropout_seed: u64,
     weights: Option<&[u8]>,
 ) -> Result<Box<dyn Matcher>, BuildError> {
+    let value = settings.baseline_values.get(&method).copied();
     let inner: Box<dyn Matcher> = match method.kind() {
-        MethodKind::LearningFree if method == Method::Mogm => Box::new(Mogm::default()),
-        MethodKind::LearningFree => Box::new(Rgm::default()),
+        MethodKind::LearningFree if method == Method::Mogm => {
+            let a_priori = Mogm::default();
+            Box::new(Mogm {
+                min_score: value.unwrap_or(a_priori.min_score),
+                ..a_priori
+            })
+        }
+        MethodKind::LearningFree => {
+            let a_priori = Rgm::default();
+            Box::new(Rgm {
+                lambda: value.unwrap_or(a_priori.lambda),
+                ..a_priori
+            })
+        }
         MethodKind::GpsBased => Box::new(GpsHungarian {
-            gate_chi2: settings.gate_chi2,
+            gate_chi2: value.unwrap_or(settings.gate_chi2),
             appearance: method == Method::GpsAppHungarian,
         }),
         MethodKind::Oracle => return Err(BuildError::Oracle),
@@ -361,14 +506,19 @@ pub fn build(
                 dropout: settings.mc_dropout,
                 gate_chi2: settings.gate_chi2,
             };
-            let matcher =
-                deep::DeepMatcher::from_weights(deep_method, bytes, run).map_err(|reason| {
-                    BuildError::BadWeights {
-                        method: method.as_str(),
-                        reason,
-                    }
-                })?;
-            Box::new(matcher)
+            let bad = |reason| BuildError::BadWeights {
+                method: method.as_str(),
+                reason,
+            };
+            match deep_method.backbone() {
+                Backbone::Likelihood(_) => {
+                    Box::new(deep::DeepMatcher::from_weights(deep_method, bytes, run).map_err(bad)?)
+                }
+                Backbone::Published(cfg) => Box::new(
+                    deep::published::PublishedMatcher::from_weights(method, cfg, bytes, run)
+                        .map_err(bad)?,
+                ),
+            }
         }
     };
     Ok(Box::new(drive::Driven::new(inner, settings.rematch)))
@@ -384,6 +534,8 @@ mod tests {
     fn settings() -> MatchingSettings {
         MatchingSettings {
             methods: vec![],
+            baselines: BaselineChoice::APriori,
+            baseline_values: Default::default(),
             gate_chi2: 9.21,
             models_dir: PathBuf::new(),
             mc_samples: 20,
@@ -494,8 +646,14 @@ mod tests {
                     .collect();
                 back.sort_by_key(|c| c.a);
                 assert_eq!(back, before.matches, "{method:?}, rematch {rematch}");
+                // An untrained published network sends every node to its
+                // dustbin; its distribution is compared below.
+                let published = matches!(
+                    method.kind(),
+                    MethodKind::Deep(d) if d.architecture().is_none()
+                );
                 assert!(
-                    !before.matches.is_empty() || method == Method::Rgm,
+                    !before.matches.is_empty() || method == Method::Rgm || published,
                     "{method:?}"
                 );
                 if let (Some(d0), Some(d1)) = (&before.distribution, &after.distribution) {
@@ -574,19 +732,36 @@ mod tests {
         assert_eq!(
             labels,
             [
-                "ours",
-                "ours-noprior",
+                "coid",
                 "coid+non",
                 "coid+unc",
                 "dgmc",
                 "gcn-gm",
                 "mogm",
                 "rgm",
+                "ours",
+                "coid+non+gps",
+                "coid+unc+gps",
+                "dgmc+gps",
+                "gcn-gm+gps",
                 "gps-hungarian",
                 "gps-app-hungarian",
                 "oracle",
                 "external"
             ]
+        );
+    }
+
+    /// A config naming a method that was renamed is refused in one line
+    /// that names its replacement.
+    #[test]
+    fn a_renamed_method_is_refused_with_its_new_name() {
+        let e = crate::label::parse::<Method>("method", "ours-noprior").unwrap_err();
+        assert!(e.contains("renamed") && e.contains("'coid'"), "{e}");
+        assert!(!e.contains('\n'));
+        assert_eq!(
+            crate::label::parse::<Method>("method", "dgmc+gps"),
+            Ok(Method::DgmcGps)
         );
     }
 

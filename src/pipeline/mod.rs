@@ -53,6 +53,8 @@ pub enum RunError {
     #[error(transparent)]
     Weights(#[from] WeightsError),
     #[error(transparent)]
+    Baselines(#[from] crate::io::BaselinesError),
+    #[error(transparent)]
     Build(#[from] BuildError),
     #[error("{0}")]
     Render(String),

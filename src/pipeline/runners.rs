@@ -11,7 +11,7 @@ use crate::evaluate::CorrespondenceSource;
 use crate::io::{self, WeightsError};
 use crate::matching::deep::decision::{Decision, KindLambdas};
 use crate::matching::{
-    self, BuildError, DecisionChoice, DeepChoice, LambdaChoice, Method, MethodKind,
+    self, BaselineChoice, BuildError, DecisionChoice, DeepChoice, LambdaChoice, Method, MethodKind,
 };
 
 /// How a deep method decides: its entropy threshold and decision rule as
@@ -74,11 +74,18 @@ pub fn choices(
 /// How `method` runs with `settings`: deep methods get their weights from
 /// `[matching] models_dir` and their lambda and decision rule
 /// ([`choice_for`]); MC-dropout masks are seeded with the sensor seed.
+/// The baselines run at the thresholds `settings.matching.baseline_values`
+/// holds, or with `baselines = "validated"` at those of the models
+/// folder's `baselines.toml`.
 pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSource, RunError> {
     if method == Method::Oracle {
         return Ok(CorrespondenceSource::Oracle);
     }
-    let m = &settings.matching;
+    let mut m = settings.matching.clone();
+    if m.baselines == BaselineChoice::Validated && method.baseline_knob().is_some() {
+        m.baseline_values = io::read_baselines(&m.models_dir, &[method])?;
+    }
+    let m = &m;
     let (weights, choice) = if let MethodKind::Deep(_) = method.kind() {
         (
             Some(io::read_weights(&m.models_dir, method)?),
@@ -131,16 +138,23 @@ mod tests {
     }
 
     /// The oracle is no matcher; the methods that are not deep build
-    /// without weights; a deep method without weights is an error that
-    /// names its file.
+    /// without weights (at their a-priori thresholds; validated ones need
+    /// the models folder's record); a deep method without weights is an
+    /// error that names its file.
     #[test]
     fn only_deep_methods_need_weights() {
         let dir = tempfile::tempdir().unwrap();
-        let s = without_models(&dir);
+        let mut s = without_models(&dir);
         assert!(matches!(
             runner(&s, Method::Oracle),
             Ok(CorrespondenceSource::Oracle)
         ));
+        s.matching.baselines = BaselineChoice::Validated;
+        assert!(matches!(
+            runner(&s, Method::Mogm),
+            Err(RunError::Baselines(_))
+        ));
+        s.matching.baselines = BaselineChoice::APriori;
         for m in [Method::GpsHungarian, Method::GpsAppHungarian, Method::Mogm] {
             assert!(
                 matches!(runner(&s, m), Ok(CorrespondenceSource::Matcher(_))),
@@ -190,7 +204,7 @@ mod tests {
         let c = choices(&s, &methods).unwrap();
         assert_eq!(
             c.keys().copied().collect::<Vec<_>>(),
-            [Method::Ours, Method::Dgmc]
+            [Method::Dgmc, Method::Ours]
         );
         assert!(
             c.values()

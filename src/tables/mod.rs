@@ -22,7 +22,7 @@ use std::collections::BTreeMap;
 use crate::config::Settings;
 use crate::fusion::FusionVariant;
 use crate::matching::deep::decision::{Decision, UncertaintyKind};
-use crate::matching::{Method, MethodKind, MethodLambdas};
+use crate::matching::{Inputs as MethodInputs, Method, MethodKind, MethodLambdas};
 use crate::report::{RowKey, Table};
 use crate::sensor::PoseNoiseLabel;
 
@@ -41,7 +41,10 @@ pub use record::{DecidedPair, MethodLevel, RuleKey, RunEval, ThresholdKey};
 
 /// The paper's tables over the test runs.
 pub struct EvalTables {
+    /// The methods that see the paper's inputs only (and the oracle).
     pub table1: Table,
+    /// The methods that see the reported poses too (and the oracle).
+    pub table1b: Table,
     /// Each method's F1 minus the strongest baseline's, paired by run,
     /// with a bootstrap interval.
     pub paired: Table,
@@ -61,6 +64,7 @@ impl EvalTables {
     pub fn files(&self) -> Vec<(&'static str, &Table)> {
         let mut files = vec![
             ("table1.csv", &self.table1),
+            ("table1b.csv", &self.table1b),
             ("paired.csv", &self.paired),
             ("table2.csv", &self.table2),
             ("table3.csv", &self.table3),
@@ -83,11 +87,26 @@ pub fn eval_tables(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambda
     let if_ours = |f: fn(&Inputs) -> Table| {
         if with_ours { f(&inp) } else { Table::default() }
     };
+    let seeing = |inputs: MethodInputs| {
+        let only = inp.only(|m| m.inputs() == inputs || m.kind() == MethodKind::Oracle);
+        let has_rows = only.methods.iter().any(|m| m.inputs() == inputs);
+        if has_rows {
+            paper::table1(&only)
+        } else {
+            Table::default()
+        }
+    };
+    let table3 = if paper::table3_methods(&inp).is_empty() {
+        Table::default()
+    } else {
+        paper::table3(&inp)
+    };
     EvalTables {
-        table1: paper::table1(&inp),
+        table1: seeing(MethodInputs::Paper),
+        table1b: seeing(MethodInputs::V2xPoses),
         paired: paired::paired(&inp),
         table2: paper::table2(&inp),
-        table3: if_ours(paper::table3),
+        table3,
         lambda_sweep: if_ours(paper::sweep),
         case_study: if_ours(paper::case_study),
         errors: errors::errors(&inp),
@@ -98,6 +117,7 @@ pub fn eval_tables(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambda
 }
 
 /// Everything the tables are made from.
+#[derive(Clone)]
 struct Inputs<'a> {
     runs: &'a [RunEval],
     levels: Vec<PoseNoiseLabel>,
@@ -134,6 +154,13 @@ impl<'a> Inputs<'a> {
             kind: settings.matching.uncertainty,
             variants: settings.fusion.variants.clone(),
         }
+    }
+
+    /// The same inputs with only the methods `keep` keeps.
+    fn only(&self, keep: impl Fn(Method) -> bool) -> Self {
+        let mut only = self.clone();
+        only.methods.retain(|&m| keep(m));
+        only
     }
 
     /// The per-run values of a metric (runs without it left out).

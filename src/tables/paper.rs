@@ -37,6 +37,7 @@ pub(super) fn table1(inp: &Inputs) -> Table {
         .collect();
     Columns::of(&rows)
         .method_level(|r| r.key)
+        .text("inputs", |r| r.key.method.inputs().as_str().to_owned())
         .scores(|r| &r.scores)
         .count("n_runs", |_| inp.runs.len())
         .defined(N_RUNS_PRECISION, |r| &r.scores.precision)
@@ -86,26 +87,40 @@ pub(super) fn table2(inp: &Inputs) -> Table {
         .table()
 }
 
+/// The methods of Table 3: the paper's method on its inputs, and ours
+/// with the poses, those of them the runs evaluated.
+pub(super) fn table3_methods(inp: &Inputs) -> Vec<Method> {
+    inp.deep_methods()
+        .into_iter()
+        .filter(|m| matches!(m, Method::Coid | Method::Ours))
+        .collect()
+}
+
 pub(super) fn table3(inp: &Inputs) -> Table {
     struct Row {
+        method: Method,
         kind: UncertaintyKind,
         lambda: f64,
         pose_noise: PoseNoiseLabel,
         f1: Vec<f64>,
     }
     let mut rows = Vec::new();
-    for &l in &inp.levels {
-        for kind in TABLE3_KINDS {
-            let key = inp.own_threshold(Method::Ours, l, kind);
-            rows.push(Row {
-                kind,
-                lambda: inp.grid[inp.at(Method::Ours, kind)],
-                pose_noise: l,
-                f1: inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())),
-            });
+    for m in table3_methods(inp) {
+        for &l in &inp.levels {
+            for kind in TABLE3_KINDS {
+                let key = inp.own_threshold(m, l, kind);
+                rows.push(Row {
+                    method: m,
+                    kind,
+                    lambda: inp.grid[inp.at(m, kind)],
+                    pose_noise: l,
+                    f1: inp.per_run(|run| run.thresholded.get(&key).map(|c| c.f1())),
+                });
+            }
         }
     }
     Columns::of(&rows)
+        .method(|r| r.method)
         .text("uncertainty", |r| r.kind.as_str().to_owned())
         .number("lambda", |r| r.lambda)
         .pose_noise(|r| r.pose_noise)

@@ -122,7 +122,11 @@ fn weights_that_do_not_match_their_record_are_refused() {
     for f in ["ours.bpk", "ours.toml"] {
         std::fs::copy(repo().join("models").join(f), fx.path("models").join(f)).unwrap();
     }
-    std::fs::copy(repo().join("models/dgmc.bpk"), fx.path("models/ours.bpk")).unwrap();
+    std::fs::copy(
+        repo().join("models/dgmc+gps.bpk"),
+        fx.path("models/ours.bpk"),
+    )
+    .unwrap();
     let cfg = fx.config(
         "w.toml",
         60.0,
@@ -163,7 +167,7 @@ fn shipped_model_beats_gps_appearance_hungarian_at_gps_noise() {
         "[pose_noise]\nlevels = [\"gps\"]\n[eval]\ntraffic_seeds = [1, 2]\n",
     );
     assert_ok(&fx.cmd("eval").quiet().config(&cfg).out("ev").output());
-    let t1 = read_csv(&fx.path("ev/table1.csv"));
+    let t1 = read_csv(&fx.path("ev/table1b.csv"));
     let (m, f1) = (strs(&t1, "method"), f64s(&t1, "f1"));
     let f1_of = |name: &str| f1[m.iter().position(|x| x == name).unwrap()];
     assert!(
@@ -206,7 +210,7 @@ fn shipped_model_beats_gps_appearance_hungarian_at_gps_noise() {
         ("lambda_sweep", 420, 380),
         ("error_cdf", 420, 380),
         ("reliability_ours", 420, 380),
-        ("f1_per_method", 990, 420),
+        ("f1_per_method", 90, 420), // 90 px per method
     ] {
         let img = image::open(fx.path("ev").join(format!("{plot}.png")))
             .unwrap()

@@ -35,13 +35,16 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
     };
     let deep: Vec<DeepMatcher> = [
         DeepMethod::Ours,
-        DeepMethod::CoidNon,
-        DeepMethod::CoidUnc,
-        DeepMethod::Dgmc,
-        DeepMethod::GcnGm,
+        DeepMethod::CoidNonGps,
+        DeepMethod::CoidUncGps,
+        DeepMethod::DgmcGps,
+        DeepMethod::GcnGmGps,
     ]
     .iter()
-    .map(|&m| DeepMatcher::untrained(m.method(), m.architecture(), 7, run))
+    .map(|&m| {
+        let arch = m.architecture().expect("a method with the poses");
+        DeepMatcher::untrained(m.method(), arch, 7, run)
+    })
     .collect();
     let pairs = |m: &dyn Matcher, pair: &coid_sim::evaluate::PairAtLevel| -> Vec<(usize, usize)> {
         let id = m.identify(&pair.first.view, &pair.second.view);

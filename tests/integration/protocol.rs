@@ -18,7 +18,7 @@ fn a_minimal_user_config_runs_with_the_shipped_models() {
     assert_ok(&fx.run(&cfg, "mine/out"));
     let summary = read_csv(&fx.path("mine/out/summary.csv"));
     let methods = strs(&summary, "method");
-    for m in ["ours", "ours-noprior", "gps-app-hungarian", "oracle"] {
+    for m in ["coid", "dgmc", "ours", "gps-app-hungarian", "oracle"] {
         assert!(methods.iter().any(|x| x == m), "{m} missing");
     }
 }

@@ -34,12 +34,12 @@ fn eval_over_a_suite_writes_per_scenario_and_pooled_tables() {
         cmd.arg("--suite").arg(other).out(out).output()
     };
     assert_ok(&suite(&generated, "ev"));
-    let runs = |dir: &str| f64s(&read_csv(&fx.path(dir).join("table1.csv")), "n_runs")[0];
+    let runs = |dir: &str| f64s(&read_csv(&fx.path(dir).join("table1b.csv")), "n_runs")[0];
     assert_eq!(runs("ev/base"), 2.0);
     assert_eq!(runs("ev/short"), 1.0);
     assert_eq!(runs("ev/pooled"), 3.0);
     // eval runs the configured methods only.
-    let mut methods = strs(&read_csv(&fx.path("ev/pooled/table1.csv")), "method");
+    let mut methods = strs(&read_csv(&fx.path("ev/pooled/table1b.csv")), "method");
     methods.dedup();
     assert_eq!(methods, ["gps-hungarian", "oracle"]);
     let md = fx.read_text("ev/pooled/summary.md");

@@ -10,48 +10,96 @@ use crate::matching::likelihood::LikelihoodTerms;
 
 /// A deep method: the [`Method`]s that are a trained network, as a type of
 /// their own ([`Method::kind`] gives it), so that what only a deep method
-/// has (an architecture, loss terms, weights) is asked of this type.
+/// has (a network, loss terms, weights) is asked of this type. The first
+/// five see the paper's inputs only (Table 1: [`Backbone::Published`]);
+/// the others the reported poses too (Table 1b: [`Backbone::Likelihood`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DeepMethod {
-    Ours,
-    OursNoPrior,
+    Coid,
     CoidNon,
     CoidUnc,
     Dgmc,
     GcnGm,
+    Ours,
+    CoidNonGps,
+    CoidUncGps,
+    DgmcGps,
+    GcnGmGps,
+}
+
+/// The network a deep method trains and runs.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(untagged)]
+pub enum Backbone {
+    /// GCN-GM's or DGMC's network as Fey et al. publish it, on the paper's
+    /// inputs (`matching::deep::published`).
+    Published(PublishedConfig),
+    /// The project's network: a learned correction of the shared pair
+    /// likelihood, which sees the reported poses.
+    Likelihood(Architecture),
 }
 
 impl DeepMethod {
     /// The method this is.
     pub fn method(self) -> Method {
         match self {
-            DeepMethod::Ours => Method::Ours,
-            DeepMethod::OursNoPrior => Method::OursNoPrior,
+            DeepMethod::Coid => Method::Coid,
             DeepMethod::CoidNon => Method::CoidNon,
             DeepMethod::CoidUnc => Method::CoidUnc,
             DeepMethod::Dgmc => Method::Dgmc,
             DeepMethod::GcnGm => Method::GcnGm,
+            DeepMethod::Ours => Method::Ours,
+            DeepMethod::CoidNonGps => Method::CoidNonGps,
+            DeepMethod::CoidUncGps => Method::CoidUncGps,
+            DeepMethod::DgmcGps => Method::DgmcGps,
+            DeepMethod::GcnGmGps => Method::GcnGmGps,
         }
     }
 
-    /// Its network: neighbourhood consensus for all but GCN-GM; the
-    /// likelihood's position term for all but `ours-noprior`.
-    pub fn architecture(self) -> Architecture {
-        Architecture {
-            consensus: self != DeepMethod::GcnGm,
-            positions: self != DeepMethod::OursNoPrior,
-            ..Architecture::default()
+    /// Its network. On the paper's inputs: GCN-GM's for `gcn-gm`, DGMC's
+    /// for `dgmc` and for the paper's method and its ablations (the paper
+    /// builds on DGMC: SplineCNN, consensus, Sinkhorn with "no match").
+    /// With the poses: the project's network, with the consensus for all
+    /// but `gcn-gm+gps`.
+    pub fn backbone(self) -> Backbone {
+        match self {
+            DeepMethod::GcnGm => Backbone::Published(PublishedConfig::new(PublishedKind::GcnGm)),
+            DeepMethod::Coid | DeepMethod::CoidNon | DeepMethod::CoidUnc | DeepMethod::Dgmc => {
+                Backbone::Published(PublishedConfig::new(PublishedKind::Dgmc))
+            }
+            DeepMethod::Ours
+            | DeepMethod::CoidNonGps
+            | DeepMethod::CoidUncGps
+            | DeepMethod::DgmcGps
+            | DeepMethod::GcnGmGps => Backbone::Likelihood(Architecture {
+                consensus: self != DeepMethod::GcnGmGps,
+                ..Architecture::default()
+            }),
         }
     }
 
-    /// The terms it trains with: the pair likelihood, and the paper's
-    /// Eq. 12 and 13 as the rows of Table 1 have them.
+    /// The project's network of a method with the poses (`None` on the
+    /// paper's inputs).
+    pub fn architecture(self) -> Option<Architecture> {
+        match self.backbone() {
+            Backbone::Likelihood(a) => Some(a),
+            Backbone::Published(_) => None,
+        }
+    }
+
+    /// The terms it trains with: the pair term, and the paper's Eq. 12
+    /// and 13 as the rows of Table 1 have them. The published networks'
+    /// pair term is their own (the NLL of the true correspondences under
+    /// `S_0` and `S_L`); the project's network's is the likelihood of the
+    /// true assignment.
     pub fn loss_terms(self) -> LossTerms {
         let (non, unc) = match self {
-            DeepMethod::Ours | DeepMethod::OursNoPrior => (true, true),
-            DeepMethod::CoidNon => (true, false),
-            DeepMethod::CoidUnc => (false, true),
-            DeepMethod::Dgmc | DeepMethod::GcnGm => (false, false),
+            DeepMethod::Coid | DeepMethod::Ours => (true, true),
+            DeepMethod::CoidNon | DeepMethod::CoidNonGps => (true, false),
+            DeepMethod::CoidUnc | DeepMethod::CoidUncGps => (false, true),
+            DeepMethod::Dgmc | DeepMethod::GcnGm | DeepMethod::DgmcGps | DeepMethod::GcnGmGps => {
+                (false, false)
+            }
         };
         LossTerms {
             pairs: PairLoss::Likelihood,
@@ -65,15 +113,76 @@ impl DeepMethod {
     /// published, do not (their thresholded F1 is still reported in Table
     /// 2).
     pub fn thresholds_by_default(self) -> bool {
-        matches!(
-            self,
-            DeepMethod::Ours | DeepMethod::OursNoPrior | DeepMethod::CoidNon | DeepMethod::CoidUnc
-        )
+        let terms = self.loss_terms();
+        terms.non || terms.unc
+    }
+}
+
+/// Which published network.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PublishedKind {
+    /// psi_1 embeddings, `S_0 = Sinkhorn(H_s H_t^T)`.
+    GcnGm,
+    /// GCN-GM's `S_0`, then `steps` neighbourhood-consensus steps.
+    Dgmc,
+}
+
+/// The architecture of a published network and its fixed settings.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PublishedConfig {
+    pub kind: PublishedKind,
+    /// psi_1's first layer (paper: 256).
+    pub hidden: usize,
+    /// psi_1's embedding (paper: 32).
+    pub out: usize,
+    /// Dropout on psi_1's 256 hidden channels (paper: 0.4; once, as
+    /// DGMC's `SplineCNN` applies it); MC dropout at inference uses the
+    /// same rate.
+    pub dropout: f64,
+    /// Random node indicators per consensus step, and psi_2's width (DGMC's
+    /// `rnd_dim`).
+    pub rnd_dim: usize,
+    /// Consensus steps L (DGMC's `num_steps`; 0 for GCN-GM).
+    pub steps: usize,
+    /// Sinkhorn iterations of every normalisation.
+    pub sinkhorn_iters: usize,
+    /// The last B-spline knot (edge lengths beyond are clipped), metres.
+    pub edge_scale_m: f64,
+}
+
+impl PublishedConfig {
+    /// The paper's sizes; DGMC with 10 consensus steps (DGMC's PascalVOC
+    /// and WILLOW setting).
+    pub fn new(kind: PublishedKind) -> Self {
+        Self {
+            kind,
+            hidden: 256,
+            out: 32,
+            dropout: 0.4,
+            rnd_dim: 32,
+            steps: match kind {
+                PublishedKind::GcnGm => 0,
+                PublishedKind::Dgmc => 10,
+            },
+            sinkhorn_iters: 20,
+            edge_scale_m: 60.0,
+        }
+    }
+
+    /// Consensus steps this configuration runs.
+    pub fn consensus_steps(&self) -> usize {
+        match self.kind {
+            PublishedKind::GcnGm => 0,
+            PublishedKind::Dgmc => self.steps,
+        }
     }
 }
 
 /// Architecture and regularisation of one matcher variant.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Architecture {
     pub node_features: usize,
     pub hidden: usize,
@@ -162,19 +271,24 @@ pub struct LossTerms {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::matching::MethodKind;
+    use crate::matching::{Inputs, MethodKind};
 
-    /// The deep methods and their rows of Table 1:
-    /// (consensus, positions, non, unc).
+    /// The deep methods and their rows of Tables 1 and 1b: (inputs,
+    /// consensus, non, unc).
     #[test]
     fn each_deep_method_has_its_table_row() {
+        use Inputs::{Paper, V2xPoses};
         let rows = [
-            (Method::Ours, (true, true, true, true)),
-            (Method::OursNoPrior, (true, false, true, true)),
-            (Method::CoidNon, (true, true, true, false)),
-            (Method::CoidUnc, (true, true, false, true)),
-            (Method::Dgmc, (true, true, false, false)),
-            (Method::GcnGm, (false, true, false, false)),
+            (Method::Coid, (Paper, true, true, true)),
+            (Method::CoidNon, (Paper, true, true, false)),
+            (Method::CoidUnc, (Paper, true, false, true)),
+            (Method::Dgmc, (Paper, true, false, false)),
+            (Method::GcnGm, (Paper, false, false, false)),
+            (Method::Ours, (V2xPoses, true, true, true)),
+            (Method::CoidNonGps, (V2xPoses, true, true, false)),
+            (Method::CoidUncGps, (V2xPoses, true, false, true)),
+            (Method::DgmcGps, (V2xPoses, true, false, false)),
+            (Method::GcnGmGps, (V2xPoses, false, false, false)),
         ];
         let deep: Vec<Method> = Method::all()
             .iter()
@@ -187,15 +301,41 @@ mod tests {
                 unreachable!()
             };
             assert_eq!(d.method(), m);
-            let (a, t) = (d.architecture(), d.loss_terms());
-            assert_eq!((a.consensus, a.positions, t.non, t.unc), row, "{m:?}");
-            assert_eq!(t.pairs, PairLoss::Likelihood);
-            let thresholds = !matches!(m, Method::Dgmc | Method::GcnGm);
+            let consensus = match d.backbone() {
+                Backbone::Published(c) => c.consensus_steps() > 0,
+                Backbone::Likelihood(a) => a.consensus && a.positions,
+            };
+            let t = d.loss_terms();
+            assert_eq!((m.inputs(), consensus, t.non, t.unc), row, "{m:?}");
+            assert_eq!(d.architecture().is_some(), m.inputs() == V2xPoses);
+            let thresholds = t.non || t.unc;
             assert_eq!(d.thresholds_by_default(), thresholds);
         }
         assert!(!matches!(
             Method::GpsAppHungarian.kind(),
             MethodKind::Deep(_)
         ));
+    }
+
+    /// A record's network reads back as the kind it was written as: the
+    /// published configuration is not taken for the project's network,
+    /// nor the other way round.
+    #[test]
+    fn backbones_round_trip_through_toml() {
+        #[derive(serde::Serialize, serde::Deserialize)]
+        struct Holder {
+            architecture: Backbone,
+        }
+        for m in Method::all() {
+            let MethodKind::Deep(d) = m.kind() else {
+                continue;
+            };
+            let text = toml::to_string(&Holder {
+                architecture: d.backbone(),
+            })
+            .unwrap();
+            let back: Holder = toml::from_str(&text).unwrap();
+            assert_eq!(back.architecture, d.backbone(), "{m:?}: {text}");
+        }
     }
 }

@@ -53,18 +53,34 @@ pub fn loss(log_assign: Tensor<4>, labels: &LabelTensors, terms: LossTerms) -> T
         }
     };
     if terms.non {
-        let kept = per_pair((-(p.clone() * labels.non.clone())).exp() * labels.real.clone());
-        total = total - (kept / n_real.clone()).log();
+        total = total + non_term(p.clone(), &labels.non, &labels.real, n_real.clone());
     }
     if terms.unc {
-        let q = p.clamp(1e-6, 1.0 - 1e-6);
-        let one_minus = q.clone().neg() + 1.0;
-        let h =
-            -(q.clone() * q.log() + one_minus.clone() * one_minus.log()) / std::f32::consts::LN_2;
-        let kept = per_pair(h.neg().exp() * labels.real.clone());
-        total = total - (kept / n_real).log();
+        total = total + unc_term(p, &labels.real, n_real);
     }
     total.mean()
+}
+
+/// Eq. 12 per pair of the batch: `-log(mean(exp(-P o N)))` over the real
+/// entries, with P `[B, N1, N2]` the mean assignment's real block, N 1
+/// where row i or column j is a non-covisible object, `n_real` `[B]` the
+/// real entries of each pair.
+pub fn non_term(p: Tensor<3>, non: &Tensor<3>, real: &Tensor<3>, n_real: Tensor<1>) -> Tensor<1> {
+    let per_pair = |t: Tensor<3>| t.sum_dims_squeeze::<1, usize>(&[1, 2]);
+    let kept = per_pair((-(p * non.clone())).exp() * real.clone());
+    -(kept / n_real).log()
+}
+
+/// Eq. 13 per pair of the batch: `-log(mean(exp(-H(P))))` over the real
+/// entries, H the binary entropy in bits of each entry of P `[B, N1,
+/// N2]`.
+pub fn unc_term(p: Tensor<3>, real: &Tensor<3>, n_real: Tensor<1>) -> Tensor<1> {
+    let per_pair = |t: Tensor<3>| t.sum_dims_squeeze::<1, usize>(&[1, 2]);
+    let q = p.clamp(1e-6, 1.0 - 1e-6);
+    let one_minus = q.clone().neg() + 1.0;
+    let h = -(q.clone() * q.log() + one_minus.clone() * one_minus.log()) / std::f32::consts::LN_2;
+    let kept = per_pair(h.neg().exp() * real.clone());
+    -(kept / n_real).log()
 }
 
 #[cfg(test)]

@@ -259,7 +259,12 @@ impl DeepMatcher {
         weights: &[u8],
         run: Inference,
     ) -> Result<Self, String> {
-        let arch = method.architecture();
+        let arch = method.architecture().ok_or_else(|| {
+            format!(
+                "'{}' is a published network, not the project's",
+                method.method().as_str()
+            )
+        })?;
         let net = from_bytes(&arch, weights, &Device::flex())?;
         Ok(Self::new(method.method(), net, arch, run))
     }
@@ -414,9 +419,17 @@ impl DeepMatcher {
 /// learned parts touch, without training.
 #[cfg(test)]
 pub(crate) fn opened_weights(method: DeepMethod, seed: u64) -> Vec<u8> {
-    let arch = method.architecture();
-    let net = Network::new(&arch, Init::Seeded(seed), &Device::flex()).with_gates(1.0);
-    to_bytes(&net).expect("weights")
+    match method.backbone() {
+        super::arch::Backbone::Likelihood(arch) => {
+            let net = Network::new(&arch, Init::Seeded(seed), &Device::flex()).with_gates(1.0);
+            to_bytes(&net).expect("weights")
+        }
+        super::arch::Backbone::Published(cfg) => {
+            let net =
+                super::published::PublishedNet::new(&cfg, Init::Seeded(seed), &Device::flex());
+            super::published::to_bytes(&net).expect("weights")
+        }
+    }
 }
 
 impl Matcher for DeepMatcher {
@@ -541,6 +554,9 @@ mod tests {
             loaded.distribution(&va, &vb, &relative)
         );
         // gcn-gm has no consensus: the weights of `ours` do not fit it.
+        let e = DeepMatcher::from_weights(DeepMethod::GcnGmGps, &m.weights().unwrap(), RUN);
+        assert!(e.is_err());
+        // gcn-gm (as published) is not this network at all.
         let e = DeepMatcher::from_weights(DeepMethod::GcnGm, &m.weights().unwrap(), RUN);
         assert!(e.is_err());
     }
@@ -623,16 +639,21 @@ mod tests {
         assert!(expected.len() >= 6, "{expected:?}");
         for method in [
             DeepMethod::Ours,
-            DeepMethod::CoidNon,
-            DeepMethod::CoidUnc,
-            DeepMethod::Dgmc,
-            DeepMethod::GcnGm,
+            DeepMethod::CoidNonGps,
+            DeepMethod::CoidUncGps,
+            DeepMethod::DgmcGps,
+            DeepMethod::GcnGmGps,
         ] {
-            let m = DeepMatcher::untrained(method.method(), method.architecture(), 5, RUN);
+            let arch = method.architecture().unwrap();
+            let m = DeepMatcher::untrained(method.method(), arch, 5, RUN);
             assert_eq!(pairs(&m), expected, "{method:?}");
         }
-        let arch = DeepMethod::OursNoPrior.architecture();
-        let noprior = DeepMatcher::untrained(Method::OursNoPrior, arch, 5, RUN);
+        // Without the position term: an appearance-only Hungarian.
+        let arch = Architecture {
+            positions: false,
+            ..Architecture::default()
+        };
+        let noprior = DeepMatcher::untrained(Method::Ours, arch, 5, RUN);
         assert_eq!(pairs(&noprior), hungarian(true));
         assert_ne!(hungarian(true), expected);
         let net = Network::new(&Architecture::default(), Init::Seeded(5), &Device::flex());

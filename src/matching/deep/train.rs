@@ -12,12 +12,13 @@ use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
-use super::arch::{Architecture, LossTerms, PairLoss};
+use super::arch::{Architecture, Backbone, LossTerms, PairLoss};
 use super::features::{GraphInput, PairInput};
 use super::init::Init;
 use super::loss::{LabelTensors, loss};
 use super::masks::{Masks, draw_masks};
 use super::network::{Network, PairTensors};
+use super::published::{PublishedTrainer, TrainPair};
 use super::spline::GraphBatch;
 use super::weights::to_bytes;
 use crate::matching::{Method, MethodKind};
@@ -178,7 +179,11 @@ impl BatchTensors {
 /// The batches of one pass over `n` pairs: shuffled, then grouped by size
 /// within windows of a few batches (less padding), the batch order
 /// shuffled again. `sizes[k]`: the padded cost of pair k.
-fn batches(sizes: &[usize], batch_size: usize, stream: Option<&mut ChaCha8Rng>) -> Vec<Vec<usize>> {
+pub(crate) fn batches(
+    sizes: &[usize],
+    batch_size: usize,
+    stream: Option<&mut ChaCha8Rng>,
+) -> Vec<Vec<usize>> {
     let mut order: Vec<usize> = (0..sizes.len()).collect();
     let batch_size = batch_size.max(1);
     match stream {
@@ -216,7 +221,13 @@ impl Trainer {
         let MethodKind::Deep(deep) = method.kind() else {
             return Err(format!("{} is not a deep method", method.as_str()));
         };
-        let (arch, mut terms) = (deep.architecture(), deep.loss_terms());
+        let Some(arch) = deep.architecture() else {
+            return Err(format!(
+                "{} is a published network (see published::PublishedTrainer)",
+                method.as_str()
+            ));
+        };
+        let mut terms = deep.loss_terms();
         terms.pairs = opts.loss;
         let device = Device::flex().autodiff();
         Ok(Self {
@@ -327,9 +338,78 @@ pub trait TrainProgress {
     fn epoch(&mut self, epoch: usize, train_loss: f64, validation_loss: Option<f64>);
 }
 
+/// A network being fitted, as the training loop drives it: its own
+/// training and validation pairs, by index.
+trait Fit {
+    /// The batches of one epoch over the training pairs.
+    fn epoch_batches(&mut self) -> Vec<Vec<usize>>;
+    /// One optimiser step on these training pairs; the loss before it.
+    fn step(&mut self, batch: &[usize], lr: f64) -> Result<f32, String>;
+    /// The mean loss over the validation pairs.
+    fn validation_loss(&self) -> f64;
+    fn weights(&self) -> Result<Vec<u8>, String>;
+}
+
+/// The project's network with its prepared pairs.
+struct LikelihoodFit {
+    trainer: Trainer,
+    train: Vec<Prepared>,
+    validation: Vec<Prepared>,
+}
+
+impl Fit for LikelihoodFit {
+    fn epoch_batches(&mut self) -> Vec<Vec<usize>> {
+        self.trainer.epoch_batches(&self.train)
+    }
+
+    fn step(&mut self, batch: &[usize], lr: f64) -> Result<f32, String> {
+        let batch: Vec<&Prepared> = batch.iter().map(|&k| &self.train[k]).collect();
+        self.trainer.step(&batch, lr)
+    }
+
+    fn validation_loss(&self) -> f64 {
+        self.trainer.validation_loss(&self.validation)
+    }
+
+    fn weights(&self) -> Result<Vec<u8>, String> {
+        self.trainer.weights()
+    }
+}
+
+/// A published network with its pairs on the paper's inputs.
+struct PublishedFit {
+    trainer: PublishedTrainer,
+    train: Vec<TrainPair>,
+    sizes: Vec<usize>,
+    validation: Vec<TrainPair>,
+    opts: TrainOptions,
+}
+
+impl Fit for PublishedFit {
+    fn epoch_batches(&mut self) -> Vec<Vec<usize>> {
+        self.trainer
+            .epoch_batches(&self.sizes, self.opts.batch_size)
+    }
+
+    fn step(&mut self, batch: &[usize], lr: f64) -> Result<f32, String> {
+        let batch: Vec<&TrainPair> = batch.iter().map(|&k| &self.train[k]).collect();
+        self.trainer.step(&batch, lr)
+    }
+
+    fn validation_loss(&self) -> f64 {
+        self.trainer
+            .validation_loss(&self.validation, self.opts.seed, self.opts.batch_size)
+    }
+
+    fn weights(&self) -> Result<Vec<u8>, String> {
+        self.trainer.weights()
+    }
+}
+
 /// Trains a deep method on `examples`; returns its weights (bytes) and the
 /// loss curve. With `opts.patience > 0` and `validation` examples, stops
-/// early on the validation loss and returns the best weights.
+/// early on the validation loss and returns the best weights. The
+/// published networks see the examples' paper inputs only.
 pub fn train(
     method: Method,
     examples: &[Example],
@@ -337,49 +417,88 @@ pub fn train(
     opts: &TrainOptions,
     progress: &mut impl TrainProgress,
 ) -> Result<(Vec<u8>, TrainReport), String> {
-    let mut trainer = Trainer::new(method, opts)?;
+    let MethodKind::Deep(deep) = method.kind() else {
+        return Err(format!("{} is not a deep method", method.as_str()));
+    };
     if examples.is_empty() {
         return Err("no training examples (no instance with a covisible object)".into());
     }
-    let prepared = trainer.prepare(examples);
-    let validation = trainer.prepare(validation);
     let stopping = opts.patience > 0 && !validation.is_empty();
-    let mut report = TrainReport {
+    let report = TrainReport {
         edges: EdgeStats::of(examples),
         ..TrainReport::default()
     };
+    match deep.backbone() {
+        Backbone::Likelihood(_) => {
+            let trainer = Trainer::new(method, opts)?;
+            let fit = LikelihoodFit {
+                train: trainer.prepare(examples),
+                validation: trainer.prepare(validation),
+                trainer,
+            };
+            fit_loop(fit, examples.len(), stopping, opts, progress, report)
+        }
+        Backbone::Published(cfg) => {
+            let label = method.as_str();
+            let trainer = PublishedTrainer::with_terms(
+                cfg,
+                deep.loss_terms(),
+                opts.samples,
+                opts.seed,
+                label,
+            );
+            let train: Vec<TrainPair> = examples.iter().map(TrainPair::of).collect();
+            let fit = PublishedFit {
+                sizes: train.iter().map(TrainPair::padded_size).collect(),
+                train,
+                validation: validation.iter().map(TrainPair::of).collect(),
+                trainer,
+                opts: *opts,
+            };
+            fit_loop(fit, examples.len(), stopping, opts, progress, report)
+        }
+    }
+}
+
+/// The epochs of a fit: a warm-up then cosine learning rate, and early
+/// stopping on the validation loss when `stopping`.
+fn fit_loop(
+    mut fit: impl Fit,
+    n_examples: usize,
+    stopping: bool,
+    opts: &TrainOptions,
+    progress: &mut impl TrainProgress,
+    mut report: TrainReport,
+) -> Result<(Vec<u8>, TrainReport), String> {
     let mut best = None;
     if stopping {
-        report
-            .validation_losses
-            .push(trainer.validation_loss(&validation));
-        best = Some((0, report.validation_losses[0], trainer.weights()?));
+        report.validation_losses.push(fit.validation_loss());
+        best = Some((0, report.validation_losses[0], fit.weights()?));
     }
-    let per_epoch = examples.len().div_ceil(opts.batch_size.max(1));
+    let per_epoch = n_examples.div_ceil(opts.batch_size.max(1));
     let total = opts.epochs * per_epoch;
     for epoch in 1..=opts.epochs {
         let mut sum = 0.0;
-        for batch in trainer.epoch_batches(&prepared) {
-            let batch: Vec<&Prepared> = batch.iter().map(|&k| &prepared[k]).collect();
+        for batch in fit.epoch_batches() {
             let lr = learning_rate(opts.learning_rate, report.steps, total);
-            let value = trainer
+            let value = fit
                 .step(&batch, lr)
                 .map_err(|e| format!("{e} at step {}", report.steps))?;
             sum += f64::from(value) * batch.len() as f64;
             report.steps += 1;
             progress.step(report.steps, total, value);
         }
-        let train_loss = sum / examples.len() as f64;
+        let train_loss = sum / n_examples as f64;
         report.epoch_losses.push(train_loss);
         let Some((best_epoch, best_loss, weights)) = &mut best else {
             progress.epoch(epoch, train_loss, None);
             continue;
         };
-        let loss = trainer.validation_loss(&validation);
+        let loss = fit.validation_loss();
         report.validation_losses.push(loss);
         progress.epoch(epoch, train_loss, Some(loss));
         if loss < *best_loss {
-            (*best_epoch, *best_loss, *weights) = (epoch, loss, trainer.weights()?);
+            (*best_epoch, *best_loss, *weights) = (epoch, loss, fit.weights()?);
         } else if epoch - *best_epoch >= opts.patience {
             break;
         }
@@ -389,6 +508,6 @@ pub fn train(
             report.best_epoch = Some(epoch);
             Ok((weights, report))
         }
-        None => Ok((trainer.weights()?, report)),
+        None => Ok((fit.weights()?, report)),
     }
 }

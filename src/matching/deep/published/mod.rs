@@ -18,7 +18,14 @@
 //!   concatenated, a final linear layer, as DGMC's psi_2), `S_hat +=
 //!   MLP(o_s,i - o_t,j)`, renormalised.
 //! - `train`: [`PublishedTrainer`] (Adam, NLL of the true correspondences
-//!   on `S_0` and `S_L`).
+//!   on `S_0` and `S_L`; the paper's method adds its Eq. 12 and 13).
+//! - `matcher`: [`PublishedMatcher`], a trained network as a `Matcher`
+//!   with MC-dropout inference.
+//!
+//! The paper's method and its ablations (`coid`, `coid+non`, `coid+unc`)
+//! are DGMC's network trained with the paper's losses: the paper builds
+//! on DGMC (SplineCNN, neighbourhood consensus, Sinkhorn with "no
+//! match") and adds the losses, MC dropout and thresholding.
 //!
 //! Normalisation: Sinkhorn with a dustbin row and column and one learned
 //! "no match" score (as the paper's Sinkhorn with "no match", and
@@ -32,6 +39,7 @@
 
 mod conv;
 mod graph;
+mod matcher;
 mod model;
 mod train;
 
@@ -40,9 +48,10 @@ mod tests;
 
 pub use self::conv::GraphTensors;
 pub use self::graph::{PaperGraph, length_basis};
+pub use self::matcher::PublishedMatcher;
 pub use self::model::{
-    Assignments, PublishedConfig, PublishedKind, PublishedMasks, PublishedNet, Sampling,
-    draw_masks, sample_assignments,
+    Assignments, Dropout, PublishedConfig, PublishedKind, PublishedMasks, PublishedNet, Sampling,
+    draw_indicators, draw_masks, draw_psi1_masks, sample_assignments,
 };
 pub use self::train::{PublishedTrainer, TrainPair};
 

@@ -13,70 +13,12 @@ use rand_chacha::ChaCha8Rng;
 
 use super::conv::{GraphTensors, SplineCnn};
 use super::graph::PaperGraph;
+use crate::matching::deep::arch::MaskScope;
+pub use crate::matching::deep::arch::{PublishedConfig, PublishedKind};
 use crate::matching::deep::features::NODE_FEATURES;
 use crate::matching::deep::init::{Init, named_param};
 use crate::matching::deep::masks::dropout_mask_16;
 use crate::matching::deep::sinkhorn::{BLOCKED, log_sinkhorn};
-
-/// Which published network.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PublishedKind {
-    /// psi_1 embeddings, `S_0 = Sinkhorn(H_s H_t^T)`.
-    GcnGm,
-    /// GCN-GM's `S_0`, then `steps` neighbourhood-consensus steps.
-    Dgmc,
-}
-
-/// The architecture and its fixed settings.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PublishedConfig {
-    pub kind: PublishedKind,
-    /// psi_1's first layer (paper: 256).
-    pub hidden: usize,
-    /// psi_1's embedding (paper: 32).
-    pub out: usize,
-    /// Dropout on psi_1's 256 hidden channels (paper: 0.4; once, as
-    /// DGMC's `SplineCNN` applies it); MC dropout at inference uses the
-    /// same rate.
-    pub dropout: f64,
-    /// Random node indicators per consensus step, and psi_2's width (DGMC's
-    /// `rnd_dim`).
-    pub rnd_dim: usize,
-    /// Consensus steps L (DGMC's `num_steps`; 0 for GCN-GM).
-    pub steps: usize,
-    /// Sinkhorn iterations of every normalisation.
-    pub sinkhorn_iters: usize,
-    /// The last B-spline knot (edge lengths beyond are clipped), metres.
-    pub edge_scale_m: f64,
-}
-
-impl PublishedConfig {
-    /// The paper's sizes; DGMC with 10 consensus steps (DGMC's PascalVOC
-    /// and WILLOW setting).
-    pub fn new(kind: PublishedKind) -> Self {
-        Self {
-            kind,
-            hidden: 256,
-            out: 32,
-            dropout: 0.4,
-            rnd_dim: 32,
-            steps: match kind {
-                PublishedKind::GcnGm => 0,
-                PublishedKind::Dgmc => 10,
-            },
-            sinkhorn_iters: 20,
-            edge_scale_m: 60.0,
-        }
-    }
-
-    /// Consensus steps this configuration runs.
-    pub fn consensus_steps(&self) -> usize {
-        match self.kind {
-            PublishedKind::GcnGm => 0,
-            PublishedKind::Dgmc => self.steps,
-        }
-    }
-}
 
 /// The dustbin score before training.
 const INITIAL_DUSTBIN: f32 = 1.0;
@@ -221,9 +163,66 @@ fn blocked(g1: &GraphTensors, g2: &GraphTensors) -> Tensor<4, Bool> {
     Tensor::from_data(TensorData::new(v, [b, 1, n1, n2]), &g1.x.device())
 }
 
+/// The dropout of psi_1's hidden channels in one forward pass.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Dropout {
+    /// Every mask 1 (one deterministic pass per sample).
+    Off,
+    /// At this rate, drawn as `scope` says: a mask per node and channel,
+    /// or (Eq. 8) one mask over the channels per sample, shared by every
+    /// node of every graph.
+    On(f64, MaskScope),
+}
+
+/// psi_1's masks of `b` pairs of graphs padded to `n1` and `n2` nodes,
+/// `t` samples each, from `rng`: `[B, T, N1, hidden]` and `[B, T, N2,
+/// hidden]`, values 0 or 1 / (1 - p).
+pub fn draw_psi1_masks(
+    rng: &mut ChaCha8Rng,
+    cfg: &PublishedConfig,
+    [b, t, n1, n2]: [usize; 4],
+    dropout: Dropout,
+    device: &Device,
+) -> [Tensor<4>; 2] {
+    let d = cfg.hidden;
+    match dropout {
+        Dropout::Off => [n1, n2].map(|n| Tensor::ones([b, t, n, d], device)),
+        Dropout::On(p, MaskScope::PerNode) => [n1, n2].map(|n| {
+            let shape = [b, t, n, d];
+            let v = dropout_mask_16(rng, shape.iter().product(), p);
+            Tensor::<4>::from_data(TensorData::new(v, shape), device)
+        }),
+        Dropout::On(p, MaskScope::Shared) => {
+            let v = dropout_mask_16(rng, t * d, p);
+            let m = Tensor::<4>::from_data(TensorData::new(v, [1, t, 1, d]), device);
+            [n1, n2].map(|n| m.clone().expand([b, t, n, d]))
+        }
+    }
+}
+
+/// DGMC's random node indicators of the first graphs, one standard-normal
+/// `[B, T, N1, rnd_dim]` draw per consensus step.
+pub fn draw_indicators(
+    rng: &mut ChaCha8Rng,
+    cfg: &PublishedConfig,
+    [b, t, n1]: [usize; 3],
+    device: &Device,
+) -> Vec<Tensor<4>> {
+    let r = cfg.rnd_dim;
+    (0..cfg.consensus_steps())
+        .map(|_| {
+            let v: Vec<f32> = (0..b * t * n1 * r)
+                .map(|_| rng.sample::<f64, _>(rand_distr::StandardNormal) as f32)
+                .collect();
+            Tensor::from_data(TensorData::new(v, [b, t, n1, r]), device)
+        })
+        .collect()
+}
+
 /// Masks and indicators for `b` pairs of graphs padded to `n1` and `n2`
-/// nodes, `t` samples each, from `rng`; without `dropout` every mask is 1
-/// (the indicators are random all the same).
+/// nodes, `t` samples each, all from `rng`; without `dropout` every mask
+/// is 1 (the indicators are random all the same). Masks per node at the
+/// configured rate.
 pub fn draw_masks(
     rng: &mut ChaCha8Rng,
     cfg: &PublishedConfig,
@@ -231,22 +230,13 @@ pub fn draw_masks(
     dropout: bool,
     device: &Device,
 ) -> PublishedMasks {
-    let p = if dropout { cfg.dropout } else { 0.0 };
-    let mut mask = |n: usize, d: usize| {
-        let shape = [b, t, n, d];
-        let v = dropout_mask_16(rng, shape.iter().product(), p);
-        Tensor::<4>::from_data(TensorData::new(v, shape), device)
+    let dropout = if dropout {
+        Dropout::On(cfg.dropout, MaskScope::PerNode)
+    } else {
+        Dropout::Off
     };
-    let psi1 = [n1, n2].map(|n| mask(n, cfg.hidden));
-    let r = cfg.rnd_dim;
-    let indicators = (0..cfg.consensus_steps())
-        .map(|_| {
-            let v: Vec<f32> = (0..b * t * n1 * r)
-                .map(|_| rng.sample::<f64, _>(rand_distr::StandardNormal) as f32)
-                .collect();
-            Tensor::from_data(TensorData::new(v, [b, t, n1, r]), device)
-        })
-        .collect();
+    let psi1 = draw_psi1_masks(rng, cfg, [b, t, n1, n2], dropout, device);
+    let indicators = draw_indicators(rng, cfg, [b, t, n1], device);
     PublishedMasks { psi1, indicators }
 }
 

@@ -3,7 +3,9 @@
 //! `S_0` plus the same under `S_L` (DGMC), each dropout sample a draw of
 //! its own. Graphs only partly overlap, so the dustbins carry labels too:
 //! a node with no true partner should go to its dustbin (DGMC's code,
-//! which has no dustbin, leaves such nodes out of the loss).
+//! which has no dustbin, leaves such nodes out of the loss). The paper's
+//! method and its ablations add its Eq. 12 (`L_non`) and Eq. 13 (`L_unc`)
+//! on the mean over the samples of the network's answer (`S_L`).
 
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
@@ -13,7 +15,10 @@ use rand_chacha::ChaCha8Rng;
 use super::conv::GraphTensors;
 use super::graph::PaperGraph;
 use super::model::{PublishedConfig, PublishedNet, draw_masks};
+use crate::matching::deep::arch::LossTerms;
+use crate::matching::deep::examples::Example;
 use crate::matching::deep::init::Init;
+use crate::matching::deep::loss::{non_term, unc_term};
 use crate::rng::{self, Purpose};
 
 /// A labelled training pair: two graphs and the true partner in `second`
@@ -23,6 +28,60 @@ pub struct TrainPair {
     pub first: PaperGraph,
     pub second: PaperGraph,
     pub partner: Vec<Option<usize>>,
+}
+
+impl TrainPair {
+    /// The paper's inputs of a labelled pair: both vehicles' graphs (body
+    /// frames, appearance, edge lengths) and the true partners; the
+    /// reported poses are left behind.
+    pub fn of(e: &Example) -> Self {
+        let mut partner = vec![None; e.first.detections.len()];
+        for &(a, b) in &e.true_pairs {
+            partner[a] = Some(b);
+        }
+        Self {
+            first: PaperGraph::new(&e.first.detections, &e.first.graph),
+            second: PaperGraph::new(&e.second.detections, &e.second.graph),
+            partner,
+        }
+    }
+}
+
+/// `[B, N1, N2]` of Eq. 12 and 13: 1 where row i or column j is a
+/// non-covisible object, and 1 for every entry between real nodes; and
+/// `[B]` the real entries of each pair.
+fn covisibility(
+    batch: &[&TrainPair],
+    [n1, n2]: [usize; 2],
+    device: &Device,
+) -> (Tensor<3>, Tensor<3>, Tensor<1>) {
+    let b = batch.len();
+    let (mut non, mut real) = (vec![0f32; b * n1 * n2], vec![0f32; b * n1 * n2]);
+    let mut counts = Vec::with_capacity(b);
+    for (k, p) in batch.iter().enumerate() {
+        let mut col_has = vec![false; p.second.n];
+        p.partner.iter().flatten().for_each(|&j| col_has[j] = true);
+        for i in 0..p.first.n {
+            for (j, &has) in col_has.iter().enumerate() {
+                let at = k * n1 * n2 + i * n2 + j;
+                real[at] = 1.0;
+                if p.partner[i].is_none() || !has {
+                    non[at] = 1.0;
+                }
+            }
+        }
+        counts.push(((p.first.n * p.second.n) as f32).max(1.0));
+    }
+    let t3 = |v: Vec<f32>| Tensor::<3>::from_data(TensorData::new(v, [b, n1, n2]), device);
+    let n_real = Tensor::<1>::from_data(TensorData::new(counts, [b]), device);
+    (t3(non), t3(real), n_real)
+}
+
+impl TrainPair {
+    /// The padded cost of the pair, for grouping pairs of similar size.
+    pub fn padded_size(&self) -> usize {
+        self.first.n.max(self.second.n)
+    }
 }
 
 /// `[B, 1, N1 + 1, N2 + 1]` weights of the labelled entries (true pairs,
@@ -62,6 +121,10 @@ fn nll(log_p: Tensor<4>, weights: &Tensor<4>) -> Tensor<1> {
 /// A published network being trained, with its optimiser and stream.
 pub struct PublishedTrainer {
     pub cfg: PublishedConfig,
+    /// Eq. 12 and 13 on top of the NLL (the pair term is the NLL).
+    terms: LossTerms,
+    /// Dropout samples per training pair.
+    samples: usize,
     net: PublishedNet,
     optim: ModuleOptimizer,
     device: Device,
@@ -71,13 +134,33 @@ pub struct PublishedTrainer {
 }
 
 impl PublishedTrainer {
-    /// A fresh network (initial weights from `seed`).
+    /// A fresh network (initial weights from `seed`) trained on the NLL
+    /// alone, one dropout sample per pair (as published).
     pub fn new(cfg: PublishedConfig, seed: u64) -> Self {
+        let terms = LossTerms {
+            pairs: crate::matching::deep::arch::PairLoss::Likelihood,
+            non: false,
+            unc: false,
+        };
+        Self::with_terms(cfg, terms, 1, seed, "")
+    }
+
+    /// A fresh network trained with `terms` on `samples` dropout samples
+    /// per pair; `name` (the method's label) keys its stream.
+    pub fn with_terms(
+        cfg: PublishedConfig,
+        terms: LossTerms,
+        samples: usize,
+        seed: u64,
+        name: &str,
+    ) -> Self {
         let device = Device::flex().autodiff();
-        let kind = format!("{:?}", cfg.kind);
+        let kind = format!("{:?}{name}", cfg.kind);
         Self {
             net: PublishedNet::new(&cfg, Init::Seeded(seed), &device),
             cfg,
+            terms,
+            samples: samples.max(1),
             optim: AdamConfig::new().init(),
             device,
             stream: rng::stream(
@@ -88,34 +171,56 @@ impl PublishedTrainer {
         }
     }
 
-    /// The loss of `batch`: NLL under `S_0`, plus under `S_L` with
-    /// consensus.
-    fn loss(&mut self, batch: &[&TrainPair]) -> Tensor<1> {
+    /// The loss of `batch` on `net` with masks from `stream`: NLL under
+    /// `S_0`, plus under `S_L` with consensus, plus Eq. 12 and 13 on the
+    /// mean answer when the terms have them.
+    fn loss(
+        &self,
+        net: &PublishedNet,
+        device: &Device,
+        batch: &[&TrainPair],
+        stream: &mut ChaCha8Rng,
+    ) -> Tensor<1> {
         let scale = self.cfg.edge_scale_m;
         let firsts: Vec<&PaperGraph> = batch.iter().map(|p| &p.first).collect();
         let seconds: Vec<&PaperGraph> = batch.iter().map(|p| &p.second).collect();
-        let g1 = GraphTensors::new(&firsts, scale, &self.device);
-        let g2 = GraphTensors::new(&seconds, scale, &self.device);
+        let g1 = GraphTensors::new(&firsts, scale, device);
+        let g2 = GraphTensors::new(&seconds, scale, device);
         let (n1, n2) = (g1.n(), g2.n());
-        let masks = draw_masks(
-            &mut self.stream,
-            &self.cfg,
-            [batch.len(), 1, n1, n2],
-            true,
-            &self.device,
-        );
-        let weights = label_weights(batch, [n1, n2], &self.device);
-        let out = self.net.forward(&self.cfg, [&g1, &g2], masks);
-        let mut loss = nll(out.initial, &weights);
-        if let Some(refined) = out.refined {
-            loss = loss + nll(refined, &weights);
+        let b = batch.len();
+        let masks = draw_masks(stream, &self.cfg, [b, self.samples, n1, n2], true, device);
+        let weights = label_weights(batch, [n1, n2], device);
+        let out = net.forward(&self.cfg, [&g1, &g2], masks);
+        let mut loss = nll(out.initial.clone(), &weights);
+        let last = match out.refined {
+            Some(refined) => {
+                loss = loss + nll(refined.clone(), &weights);
+                refined
+            }
+            None => out.initial,
+        };
+        if self.terms.non || self.terms.unc {
+            let p = last
+                .exp()
+                .mean_dim(1)
+                .reshape([b, n1 + 1, n2 + 1])
+                .slice([0..b, 0..n1, 0..n2]);
+            let (non, real, n_real) = covisibility(batch, [n1, n2], device);
+            if self.terms.non {
+                loss = loss + non_term(p.clone(), &non, &real, n_real.clone()).mean();
+            }
+            if self.terms.unc {
+                loss = loss + unc_term(p, &real, n_real).mean();
+            }
         }
         loss
     }
 
     /// One Adam step on `batch` at learning rate `lr`; the loss before it.
     pub fn step(&mut self, batch: &[&TrainPair], lr: f64) -> Result<f32, String> {
-        let loss = self.loss(batch);
+        let mut stream = self.stream.clone();
+        let loss = self.loss(&self.net, &self.device, batch, &mut stream);
+        self.stream = stream;
         let value = loss.clone().into_scalar::<f32>();
         if !value.is_finite() {
             return Err(format!("training diverged (loss {value})"));
@@ -146,6 +251,34 @@ impl PublishedTrainer {
             losses.push(sum / pairs.len().max(1) as f32);
         }
         Ok(losses)
+    }
+
+    /// The batches of one training epoch over pairs of these padded sizes
+    /// (shuffled, grouped by size as the project's trainer does).
+    pub fn epoch_batches(&mut self, sizes: &[usize], batch_size: usize) -> Vec<Vec<usize>> {
+        crate::matching::deep::train::batches(sizes, batch_size, Some(&mut self.stream))
+    }
+
+    /// The mean loss over `pairs` without changing the network: masks from
+    /// a stream that is the same at every call, so that values of
+    /// different epochs compare.
+    pub fn validation_loss(&self, pairs: &[TrainPair], seed: u64, batch_size: usize) -> f64 {
+        let mut stream = rng::stream(seed, Purpose::Training, &[rng::hash_str("validation")]);
+        let net = self.net.valid();
+        let device = Device::flex();
+        let sizes: Vec<usize> = pairs.iter().map(TrainPair::padded_size).collect();
+        let mut sum = 0.0;
+        for batch in crate::matching::deep::train::batches(&sizes, batch_size, None) {
+            let batch: Vec<&TrainPair> = batch.iter().map(|&k| &pairs[k]).collect();
+            let loss = self.loss(&net, &device, &batch, &mut stream);
+            sum += f64::from(loss.into_scalar::<f32>()) * batch.len() as f64;
+        }
+        sum / pairs.len().max(1) as f64
+    }
+
+    /// The weights as bytes (what a `.bpk` file holds).
+    pub fn weights(&self) -> Result<Vec<u8>, String> {
+        super::to_bytes(&self.net)
     }
 
     /// The trained network for inference (no autodiff).
