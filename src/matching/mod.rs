@@ -752,6 +752,51 @@ mod tests {
         );
     }
 
+    /// The methods of Table 1 see the paper's inputs only: another
+    /// reported pose and another claimed accuracy for either vehicle (the
+    /// detections, in each body frame, unchanged) change nothing they say,
+    /// bit for bit; a method with the poses does change.
+    #[test]
+    fn the_methods_on_the_papers_inputs_never_read_a_pose() {
+        let world = testkit::world_objects();
+        let all: Vec<usize> = (0..world.len()).collect();
+        let a = Side::of(testkit::POSE_A, &world, &all, testkit::GPS);
+        let b = Side::of(testkit::POSE_B, &world, &[3, 0, 5, 2, 7, 6], testkit::GPS);
+        let (mut a2, mut b2) = (a.clone(), b.clone());
+        a2.pose = crate::geometry::Pose2::new(a.pose.position_m() + Vec2::new(30.0, -8.0), 1.1);
+        b2.pose = crate::geometry::Pose2::new(b.pose.position_m() + Vec2::new(-2.0, 4.0), 0.3);
+        (a2.level, b2.level) = (testkit::EXACT, testkit::EXACT);
+        let s = MatchingSettings {
+            rematch: 2,
+            ..settings()
+        };
+        let all_pairs = DeepChoice {
+            lambda: f64::INFINITY,
+            lambdas: KindLambdas::all(f64::INFINITY),
+            ..CHOICE
+        };
+        let paper: Vec<Method> = Method::all()
+            .iter()
+            .copied()
+            .filter(|m| m.inputs() == Inputs::Paper)
+            .collect();
+        assert_eq!(paper.len(), 7);
+        for method in paper.into_iter().chain([Method::GpsAppHungarian]) {
+            let weights = match method.kind() {
+                MethodKind::Deep(d) => Some(deep::opened_weights(d, 3)),
+                _ => None,
+            };
+            let m = build(method, &s, all_pairs, 1, weights.as_deref()).unwrap();
+            let before = m.identify(&a.view(), &b.view());
+            let moved = m.identify(&a2.view(), &b2.view());
+            if method.inputs() == Inputs::Paper {
+                assert_eq!(before, moved, "{method:?}");
+            } else {
+                assert_ne!(before, moved, "{method:?}");
+            }
+        }
+    }
+
     /// A config naming a method that was renamed is refused in one line
     /// that names its replacement.
     #[test]

@@ -66,6 +66,7 @@ pub(crate) fn detection(position_m: Vec2, class: ObjectClass, colour: [f64; 3]) 
 
 /// One vehicle of a fixture: its detections, their true object indices,
 /// its graph and its reported pose.
+#[derive(Clone)]
 pub(crate) struct Side {
     pub detections: Vec<Detection>,
     /// The world object behind each detection.

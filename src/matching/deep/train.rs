@@ -288,13 +288,7 @@ impl Trainer {
             &mut stream,
         );
         self.stream = stream;
-        let value = loss.clone().into_scalar::<f32>();
-        if !value.is_finite() {
-            return Err(format!("training diverged (loss {value})"));
-        }
-        let grads = GradientsParams::from_grads(loss.backward(), &self.net);
-        self.net = self.optim.step(lr, self.net.clone(), grads);
-        Ok(value)
+        descend(&mut self.optim, &mut self.net, loss, lr)
     }
 
     /// The mean loss over `prepared` without changing the network:
@@ -323,6 +317,23 @@ impl Trainer {
     pub fn weights(&self) -> Result<Vec<u8>, String> {
         to_bytes(&self.net)
     }
+}
+
+/// One optimiser step of `net` down the gradient of `loss` at learning
+/// rate `lr`; the loss before it (an error when it is not finite).
+pub(crate) fn descend<M: burn::module::Module>(
+    optim: &mut ModuleOptimizer,
+    net: &mut M,
+    loss: Tensor<1>,
+    lr: f64,
+) -> Result<f32, String> {
+    let value = loss.clone().into_scalar::<f32>();
+    if !value.is_finite() {
+        return Err(format!("training diverged (loss {value})"));
+    }
+    let grads = GradientsParams::from_grads(loss.backward(), net);
+    *net = optim.step(lr, net.clone(), grads);
+    Ok(value)
 }
 
 /// The padded cost of a pair, for grouping pairs of similar size.

@@ -7,7 +7,7 @@
 //! method and its ablations add its Eq. 12 (`L_non`) and Eq. 13 (`L_unc`)
 //! on the mean over the samples of the network's answer (`S_L`).
 
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
@@ -221,13 +221,7 @@ impl PublishedTrainer {
         let mut stream = self.stream.clone();
         let loss = self.loss(&self.net, &self.device, batch, &mut stream);
         self.stream = stream;
-        let value = loss.clone().into_scalar::<f32>();
-        if !value.is_finite() {
-            return Err(format!("training diverged (loss {value})"));
-        }
-        let grads = GradientsParams::from_grads(loss.backward(), &self.net);
-        self.net = self.optim.step(lr, self.net.clone(), grads);
-        Ok(value)
+        crate::matching::deep::train::descend(&mut self.optim, &mut self.net, loss, lr)
     }
 
     /// `epochs` passes over `pairs` in shuffled batches of `batch_size` at
