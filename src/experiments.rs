@@ -441,14 +441,12 @@ fn mean_f1(runs: &[RunEval], levels: &[PoseNoiseLabel], m: Method) -> f64 {
     per_run.iter().sum::<f64>() / per_run.len().max(1) as f64
 }
 
-/// The a-priori threshold of baseline `m` ([`crate::matching::build`]'s
-/// value when none is given).
+/// The a-priori threshold of baseline `m` (what it runs with when no
+/// value is given).
 fn a_priori_value(settings: &Settings, m: Method) -> f64 {
-    match m {
-        Method::Mogm => crate::matching::Mogm::default().min_score,
-        Method::Rgm => crate::matching::Rgm::default().lambda,
-        _ => settings.matching.gate_chi2,
-    }
+    let mut none = settings.matching.clone();
+    none.baseline_values.clear();
+    none.baseline_value(m)
 }
 
 /// Chooses each baseline's threshold among `[matching] methods` on the

@@ -437,18 +437,16 @@ fn tune_baselines(
     }
     let mut only = settings.clone();
     only.matching.methods = baselines.to_vec();
-    let passes = 1 + baselines
-        .iter()
-        .filter_map(|m| m.baseline_knob().map(|k| k.grid.len()))
-        .max()
-        .unwrap_or(0);
     let pb = progress_bar(
         !bars,
-        passes as u64,
+        0,
         "{spinner} choosing the baselines' thresholds on the validation runs: value {pos}/{len} [{bar:30}] eta {eta}",
     );
-    let tuned = experiments::tune_baselines(&only, super::cores(), |_, _| pb.inc(1))
-        .context("validation runs failed")?;
+    let tuned = experiments::tune_baselines(&only, super::cores(), |pass, passes| {
+        pb.set_length(passes as u64);
+        pb.set_position(pass as u64);
+    })
+    .context("validation runs failed")?;
     pb.finish_and_clear();
     let entries: Vec<io::BaselineEntry> = tuned
         .iter()

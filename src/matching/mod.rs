@@ -299,6 +299,25 @@ pub struct MatchingSettings {
     pub rematch: usize,
 }
 
+impl MatchingSettings {
+    /// The threshold baseline `method` runs with: its entry of
+    /// `baseline_values`, else its a-priori value (MOGM's minimum score
+    /// 0.3, RGM's price per match 1.2, a GPS Hungarian's `gate_chi2`).
+    /// NaN for a method without one.
+    pub fn baseline_value(&self, method: Method) -> f64 {
+        let a_priori = match method {
+            Method::Mogm => Mogm::default().min_score,
+            Method::Rgm => Rgm::default().lambda,
+            Method::GpsHungarian | Method::GpsAppHungarian => self.gate_chi2,
+            _ => f64::NAN,
+        };
+        self.baseline_values
+            .get(&method)
+            .copied()
+            .unwrap_or(a_priori)
+    }
+}
+
 /// Where the entropy threshold lambda comes from.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum LambdaChoice {
@@ -469,24 +488,18 @@ pub fn build(
     dropout_seed: u64,
     weights: Option<&[u8]>,
 ) -> Result<Box<dyn Matcher>, BuildError> {
-    let value = settings.baseline_values.get(&method).copied();
+    let value = settings.baseline_value(method);
     let inner: Box<dyn Matcher> = match method.kind() {
-        MethodKind::LearningFree if method == Method::Mogm => {
-            let a_priori = Mogm::default();
-            Box::new(Mogm {
-                min_score: value.unwrap_or(a_priori.min_score),
-                ..a_priori
-            })
-        }
-        MethodKind::LearningFree => {
-            let a_priori = Rgm::default();
-            Box::new(Rgm {
-                lambda: value.unwrap_or(a_priori.lambda),
-                ..a_priori
-            })
-        }
+        MethodKind::LearningFree if method == Method::Mogm => Box::new(Mogm {
+            min_score: value,
+            ..Mogm::default()
+        }),
+        MethodKind::LearningFree => Box::new(Rgm {
+            lambda: value,
+            ..Rgm::default()
+        }),
         MethodKind::GpsBased => Box::new(GpsHungarian {
-            gate_chi2: value.unwrap_or(settings.gate_chi2),
+            gate_chi2: value,
             appearance: method == Method::GpsAppHungarian,
         }),
         MethodKind::Oracle => return Err(BuildError::Oracle),
