@@ -12,7 +12,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// Folders (relative to the package) whose files the binary carries.
+/// Folders (relative to the package) whose files the binary carries (and
+/// `models/seed-<N>/`, the other training seeds' weights).
 const ASSET_DIRS: &[&str] = &["models", "sumo_nets/intersection"];
 /// Single files it carries.
 const ASSET_FILES: &[&str] = &[];
@@ -61,12 +62,32 @@ fn python() {
     }
 }
 
+/// `ASSET_DIRS`, and the other training seeds' models folders inside
+/// `models` (`models/seed-<N>`), in order.
+fn asset_dirs(root: &Path) -> Vec<String> {
+    let mut dirs: Vec<String> = ASSET_DIRS.iter().map(|d| (*d).to_owned()).collect();
+    let mut seeds: Vec<String> = std::fs::read_dir(root.join("models"))
+        .map(|entries| {
+            entries
+                .filter_map(|e| e.ok())
+                .filter(|e| e.path().is_dir())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|name| name.starts_with("seed-"))
+                .map(|name| format!("models/{name}"))
+                .collect()
+        })
+        .unwrap_or_default();
+    seeds.sort();
+    dirs.extend(seeds);
+    dirs
+}
+
 fn assets() {
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets it"));
     let mut files: Vec<String> = ASSET_FILES.iter().map(|f| (*f).to_owned()).collect();
-    for dir in ASSET_DIRS {
+    for dir in asset_dirs(&root) {
         println!("cargo:rerun-if-changed={dir}");
-        let mut names: Vec<String> = std::fs::read_dir(root.join(dir))
+        let mut names: Vec<String> = std::fs::read_dir(root.join(&dir))
             .unwrap_or_else(|e| panic!("cannot list {dir}: {e}"))
             .filter_map(|e| e.ok())
             .filter(|e| e.path().is_file())

@@ -165,6 +165,7 @@ fn training_step(
         patience: 0,
         loss: PairLoss::Likelihood,
         samples: 2,
+        masks: MaskScope::PerNode,
         batch_size: 32,
         gate_chi2: 9.21,
     };

@@ -147,6 +147,7 @@ pub fn train_method(
         patience: t.patience,
         loss: t.loss,
         samples: t.mc_samples,
+        masks: t.dropout_masks,
         batch_size: t.batch_size,
         gate_chi2: settings.matching.gate_chi2,
     };
@@ -217,7 +218,9 @@ fn eval_run_into(
             out.record_consistency(f.method, level, f.consistency);
             out.record_views(f.method, level, &f.views);
             for (pair, e) in pairs.iter().zip(&f.pairs) {
-                out.record(e, level, (pair.first.truth, pair.second.truth), &grid);
+                let truths = (pair.first.truth, pair.second.truth);
+                out.record(e, level, truths, &grid);
+                out.record_candidates(e, level, pair.instance, truths);
             }
             Ok(())
         },
@@ -227,6 +230,7 @@ fn eval_run_into(
             .map_err(RunError::Matches)?;
     }
     out.instances = stats.n_instances;
+    out.close_common();
     Ok(out)
 }
 

@@ -530,9 +530,9 @@ pub fn eval_plots(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
     let sweep: Vec<Panel> = d
         .lambda_sweep
         .iter()
-        .map(|(level, pts)| Panel {
+        .map(|(what, pts)| Panel {
             bands: Vec::new(),
-            title: format!("ours, lambda sweep, pose noise {level}"),
+            title: format!("{what}: lambda sweep"),
             x_label: "lambda (entropy threshold, bits)".into(),
             y_label: "mean over test runs".into(),
             x_range: (0.0, 1.0),

@@ -11,7 +11,7 @@ use super::{CommonArgs, ThreadsArg, progress_bar};
 use crate::config::Settings;
 use crate::experiments;
 use crate::io::{self, OutputError};
-use crate::matching::{self, DeepChoice, Method, MethodLambdas};
+use crate::matching::{self, DeepChoice, Method, MethodKind, MethodLambdas};
 use crate::tables::RunEval;
 use crate::{pipeline, render, tables};
 
@@ -58,22 +58,24 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
     let (settings, claim) = a.common.prepare(suffix, io::ResultKind::Eval)?;
     let out = claim.out().to_owned();
     let mut scenarios = gather(&a, settings)?;
+    // The configured methods (by default every method of the paper's
+    // Table 1 plus the practical ones).
+    let methods = &scenarios[0].settings.matching.methods.clone();
+    let passes = seed_passes(&scenarios[0].settings, methods)?;
     let total: usize = scenarios
         .iter()
-        .map(|s| s.settings.eval.traffic_seeds.len())
+        .map(|s| s.settings.eval.traffic_seeds.len() * (1 + passes.len()))
         .sum();
     let pb = progress_bar(
         a.common.quiet.quiet,
         total as u64,
         "{spinner} evaluating: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
     );
-    // The configured methods (by default every method of the paper's
-    // Table 1 plus the practical ones).
-    let methods = &scenarios[0].settings.matching.methods.clone();
     let choices = pipeline::choices(&scenarios[0].settings, methods)?;
     let lambdas = matching::method_lambdas(&choices);
     for s in &mut scenarios {
         s.runs = evaluate(s, methods, &lambdas, a.threads.get(), &pb)?;
+        evaluate_seeds(s, &passes, a.threads.get(), &pb)?;
     }
     pb.finish_and_clear();
     warn_empty(&scenarios);
@@ -280,6 +282,116 @@ fn evaluate(
         pb.inc(1);
     }
     Ok(runs)
+}
+
+/// The deep methods evaluated again with the weights of another training
+/// seed (`[eval] training_seeds`), from the models folder's `seed-<N>/`.
+struct SeedPass {
+    seed: u64,
+    models_dir: PathBuf,
+    methods: Vec<Method>,
+}
+
+/// The passes `[eval] training_seeds` asks for beyond the models folder's
+/// own weights: each seed other than a deep method's own, with the deep
+/// methods it has weights for. Refused when a deep method's own seed is
+/// not listed, or a seed's folder holds weights of another seed.
+fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<SeedPass>> {
+    let seeds = &settings.eval.training_seeds;
+    let dir = &settings.matching.models_dir;
+    let deep: Vec<Method> = methods
+        .iter()
+        .copied()
+        .filter(|m| matches!(m.kind(), MethodKind::Deep(_)))
+        .collect();
+    if seeds.is_empty() || deep.is_empty() {
+        return Ok(Vec::new());
+    }
+    let mut passes: Vec<SeedPass> = Vec::new();
+    for &m in &deep {
+        let own = io::trained_seed(dir, m)?;
+        if !seeds.contains(&own) {
+            anyhow::bail!(
+                "the weights of '{}' in {} were trained with seed {own}, which [eval] \
+                 training_seeds ({seeds:?}) does not list",
+                m.as_str(),
+                dir.display()
+            );
+        }
+        for &seed in seeds.iter().filter(|&&s| s != own) {
+            let seed_dir = io::seed_models_dir(dir, seed);
+            let found = io::trained_seed(&seed_dir, m).with_context(|| {
+                format!(
+                    "[eval] training_seeds lists {seed}: train it with `coid train --seed {seed} \
+                     --methods {} --out {}`",
+                    m.as_str(),
+                    seed_dir.display()
+                )
+            })?;
+            if found != seed {
+                anyhow::bail!(
+                    "{} holds weights of '{}' trained with seed {found}, not {seed}",
+                    seed_dir.display(),
+                    m.as_str()
+                );
+            }
+            match passes.iter_mut().find(|p| p.seed == seed) {
+                Some(p) => p.methods.push(m),
+                None => passes.push(SeedPass {
+                    seed,
+                    models_dir: seed_dir,
+                    methods: vec![m],
+                }),
+            }
+        }
+    }
+    passes.sort_by_key(|p| p.seed);
+    Ok(passes)
+}
+
+/// Runs every seed pass on the scenario's runs and records each deep
+/// method's Table 1 counts per training seed (its own seed's too) in
+/// them.
+fn evaluate_seeds(
+    s: &mut Scenario,
+    passes: &[SeedPass],
+    threads: usize,
+    pb: &ProgressBar,
+) -> anyhow::Result<()> {
+    if passes.is_empty() {
+        return Ok(());
+    }
+    let dir = s.settings.matching.models_dir.clone();
+    for run in &mut s.runs {
+        let keys: Vec<_> = run
+            .table1
+            .iter()
+            .filter(|(k, _)| matches!(k.method.kind(), MethodKind::Deep(_)))
+            .map(|(&k, &c)| (k, c))
+            .collect();
+        for (k, c) in keys {
+            run.by_seed
+                .insert((k, io::trained_seed(&dir, k.method)?), c);
+        }
+    }
+    for pass in passes {
+        let mut settings = s.settings.clone();
+        settings.matching.models_dir = pass.models_dir.clone();
+        let choices = pipeline::choices(&settings, &pass.methods)?;
+        let lambdas = matching::method_lambdas(&choices);
+        let seeded = Scenario {
+            name: format!("{} (training seed {})", s.name, pass.seed),
+            settings,
+            runs: Vec::new(),
+        };
+        let runs = evaluate(&seeded, &pass.methods, &lambdas, threads, pb)?;
+        for (into, from) in s.runs.iter_mut().zip(runs) {
+            for (k, c) in from.table1 {
+                into.by_seed.insert((k, pass.seed), c);
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The tables and plots of `runs` into the folder `dir`.

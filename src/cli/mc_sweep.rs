@@ -1,4 +1,5 @@
-//! `coid eval --mc-sweep`: the paper's Fig. 8b for `ours`. The number of
+//! `coid eval --mc-sweep`: the paper's Fig. 8b for the paper's method
+//! (`coid`) and `ours`, those of them `[matching] methods` lists. The number of
 //! MC-dropout samples T (1, 10, 20, ..., 100, at the trained dropout
 //! rates) and the dropout rate at inference (0.1 to 0.8 in every layer,
 //! T = 20), one at a time, each on the validation runs (where a setting may
@@ -48,8 +49,10 @@ fn settings_of_sweep() -> Vec<Setting> {
     by_samples.chain(by_rate).collect()
 }
 
-/// One row: a setting on one split at one level, with its per-run F1.
+/// One row: a method at a setting on one split at one level, with its
+/// per-run F1.
 struct Row {
+    method: Method,
     setting: Setting,
     split: &'static str,
     level: PoseNoiseLabel,
@@ -62,7 +65,16 @@ pub(super) fn mc_sweep(
     quiet: bool,
     threads: usize,
 ) -> anyhow::Result<()> {
-    let methods = [Method::Ours];
+    let methods: Vec<Method> = settings
+        .matching
+        .methods
+        .iter()
+        .copied()
+        .filter(|m| matches!(m, Method::Coid | Method::Ours))
+        .collect();
+    if methods.is_empty() {
+        anyhow::bail!("--mc-sweep sweeps coid and ours: [matching] methods lists neither");
+    }
     let lambdas = matching::method_lambdas(&pipeline::choices(settings, &methods)?);
     let splits = [
         ("validation", experiments::validation_runs(settings)?),
@@ -83,7 +95,7 @@ pub(super) fn mc_sweep(
             let mut evals: Vec<RunEval> = Vec::new();
             for run in runs {
                 let mut s = run.clone();
-                s.matching.methods = methods.to_vec();
+                s.matching.methods.clone_from(&methods);
                 s.matching.mc_samples = setting.samples;
                 s.matching.mc_dropout = setting.rate;
                 let e = experiments::eval_run(&s, &methods, &lambdas, threads, |_| {})
@@ -91,23 +103,12 @@ pub(super) fn mc_sweep(
                 evals.push(e);
                 pb.inc(1);
             }
-            for &level in &levels {
-                let key = MethodLevel::new(Method::Ours, level);
-                rows.push(Row {
-                    setting: *setting,
-                    split,
-                    level,
-                    f1: evals
-                        .iter()
-                        .filter_map(|e| e.table1.get(&key).map(|c| c.f1()))
-                        .collect(),
-                });
-            }
+            rows.extend(rows_of(&evals, &methods, &levels, *setting, split));
         }
     }
     pb.finish_and_clear();
     let table = sweep_table(&rows);
-    let panels = panels(&rows);
+    let panels: Vec<render::Panel> = methods.iter().flat_map(|&m| panels(&rows, m)).collect();
     let out = claim.out().to_owned();
     claim.fill(|dir| {
         io::write_tracking(dir, &[("mc_sweep.csv", &table)], |dir| {
@@ -116,8 +117,13 @@ pub(super) fn mc_sweep(
         })
     })?;
     eprintln!(
-        "coid: swept {} settings of ours on {} validation and {} test runs; wrote {}",
+        "coid: swept {} settings of {} on {} validation and {} test runs; wrote {}",
         sweep.len(),
+        methods
+            .iter()
+            .map(|m| m.as_str())
+            .collect::<Vec<_>>()
+            .join(" and "),
         splits[0].1.len(),
         splits[1].1.len(),
         out.display()
@@ -125,11 +131,45 @@ pub(super) fn mc_sweep(
     Ok(())
 }
 
+/// The rows of one setting on one split: each method at each level (a
+/// method on the paper's inputs, the same at every level, at the first).
+fn rows_of(
+    evals: &[RunEval],
+    methods: &[Method],
+    levels: &[PoseNoiseLabel],
+    setting: Setting,
+    split: &'static str,
+) -> Vec<Row> {
+    let mut rows = Vec::new();
+    for &method in methods {
+        let take = if method.inputs() == crate::matching::Inputs::Paper {
+            1
+        } else {
+            levels.len()
+        };
+        for &level in levels.iter().take(take) {
+            let key = MethodLevel::new(method, level);
+            rows.push(Row {
+                method,
+                setting,
+                split,
+                level,
+                f1: evals
+                    .iter()
+                    .filter_map(|e| e.table1.get(&key).map(|c| c.f1()))
+                    .collect(),
+            });
+        }
+    }
+    rows
+}
+
 /// `mc_sweep.csv`: per setting, split and level, F1's mean and 95%
 /// interval over runs.
 fn sweep_table(rows: &[Row]) -> Table {
     let mut t = Table::default();
     let texts = |f: fn(&Row) -> String| rows.iter().map(f).collect::<Vec<_>>();
+    t.text("method", texts(|r| r.method.as_str().to_owned()));
     t.text("factor", texts(|r| r.setting.factor.to_owned()));
     t.number("value", rows.iter().map(|r| r.setting.value).collect());
     t.text("split", texts(|r| r.split.to_owned()));
@@ -140,9 +180,11 @@ fn sweep_table(rows: &[Row]) -> Table {
     t
 }
 
-/// F1 against T and against the dropout rate: a line per split and
-/// level, its 95% interval as a band.
-fn panels(rows: &[Row]) -> Vec<render::Panel> {
+/// `method`'s F1 against T and against the dropout rate: a line per
+/// split and level, its 95% interval as a band.
+fn panels(rows: &[Row], method: Method) -> Vec<render::Panel> {
+    let rows: Vec<&Row> = rows.iter().filter(|r| r.method == method).collect();
+    let name = method.as_str();
     let panel = |factor: &str, title: &str, x_label: &str, x_range: (f64, f64)| {
         let mut keys: Vec<(&str, PoseNoiseLabel)> = Vec::new();
         for r in rows.iter().filter(|r| r.setting.factor == factor) {
@@ -168,9 +210,9 @@ fn panels(rows: &[Row]) -> Vec<render::Panel> {
             bands.push(ci);
         }
         render::Panel {
-            title: title.into(),
+            title: format!("{name}: {title}"),
             x_label: x_label.into(),
-            y_label: "F1 of ours, mean over runs (band: 95% CI)".into(),
+            y_label: format!("F1 of {name}, mean over runs (band: 95% CI)"),
             x_range,
             y_range: render::fitted_range(&all, 0.05),
             series,

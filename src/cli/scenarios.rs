@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use super::{ForceArg, QuietArg, label_arg};
 use crate::bridge;
 use crate::io;
-use crate::scenarios::{self, Kind, Scenario};
+use crate::scenarios::{self, Demand, Kind, Scenario};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -29,6 +29,12 @@ pub struct Args {
     /// validation and test families.
     #[arg(long)]
     cycle_kinds: bool,
+    /// Road users of the demand: "mix" (the shipped intersection's vehicle
+    /// classes, sizes and colours) or "plain" (SUMO's default types only,
+    /// one size and colour, as demand from SUMO's own tools usually is).
+    /// The layouts are the same for both.
+    #[arg(long, default_value = "mix", value_parser = label_arg::<Demand>("demand"))]
+    demand: Demand,
     /// Output folder.
     #[arg(long, short)]
     out: PathBuf,
@@ -53,7 +59,7 @@ pub fn scenarios(a: Args) -> anyhow::Result<()> {
         .ok_or_else(|| anyhow::anyhow!("--first + --count must stay within 1 000 000 scenarios"))?;
     let mut lines = Vec::new();
     for index in a.first..end {
-        let s = if a.cycle_kinds {
+        let mut s = if a.cycle_kinds {
             let kinds = if a.kinds.is_empty() {
                 Kind::all()
             } else {
@@ -64,6 +70,7 @@ pub fn scenarios(a: Args) -> anyhow::Result<()> {
         } else {
             scenarios::generate(a.seed, index, &a.kinds)
         };
+        s.demand = a.demand;
         write(&a, &s)?;
         lines.push(format!("- {}", s.describe()));
         bar.inc(1);
@@ -77,6 +84,9 @@ pub fn scenarios(a: Args) -> anyhow::Result<()> {
     };
     if a.cycle_kinds {
         kinds.push_str(" --cycle-kinds");
+    }
+    if a.demand != Demand::Mix {
+        kinds.push_str(&format!(" --demand {}", a.demand.as_str()));
     }
     let index = format!(
         "# Generated scenarios\n\n`coid scenarios --count {} --seed {} --first {}{kinds}`; each \

@@ -41,6 +41,12 @@ pub struct Args {
     /// and record them beside the weights.
     #[arg(long)]
     validate_only: bool,
+    /// Train with this seed (weight initialisation, shuffling, training
+    /// dropout) instead of [train] seed. Another seed's weights go into
+    /// the models folder's `seed-<N>/` folder, where `coid eval` finds them
+    /// ([eval] training_seeds): `--seed 8 --out models/seed-8`.
+    #[arg(long)]
+    seed: Option<u64>,
     /// Report progress as lines on stdout (for a parent `coid train`).
     #[arg(long, hide = true)]
     progress_lines: bool,
@@ -104,7 +110,11 @@ impl ChildMessage {
 
 pub fn train(a: Args) -> anyhow::Result<()> {
     let config = a.config.path();
-    let settings = Settings::load(&config)?;
+    let overrides = crate::config::Overrides {
+        train_seed: a.seed,
+        ..Default::default()
+    };
+    let settings = Settings::load_with(&config, &overrides)?;
     let models_dir = super::out_dir(a.out.out.clone(), &config, "-models");
     if a.validate_only && !models_dir.is_dir() {
         anyhow::bail!(
@@ -118,6 +128,14 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         io::Existing::when(a.force.force),
     )?;
     super::no_repeats("--methods", &a.methods)?;
+    if let Some(m) = a.methods.iter().find(|m| m.single_pass()) {
+        anyhow::bail!(
+            "'{}' runs the weights and choices of '{}' in one pass: train or validate '{}'",
+            m.as_str(),
+            m.weights_owner().as_str(),
+            m.weights_owner().as_str()
+        );
+    }
     let (methods, baselines) = if a.methods.is_empty() {
         let tuned = settings.matching.methods.iter();
         let tuned = tuned.filter(|m| m.baseline_knob().is_some());
@@ -219,7 +237,7 @@ fn train_in_children(
     let config = a.config.path();
     let jobs: Vec<Vec<OsString>> = groups
         .iter()
-        .map(|group| child_args(&config, models_dir, group))
+        .map(|group| child_args(&config, models_dir, group, a.seed))
         .collect();
     let bars = ChildBars::new(groups.len(), a.quiet.quiet);
     let failures = batch::run_children(
@@ -247,10 +265,18 @@ fn labels(methods: &[Method]) -> Vec<&'static str> {
 
 /// The arguments of the child `coid train` that trains `group` into
 /// `models_dir`, reporting [`ChildMessage`]s.
-fn child_args(config: &Path, models_dir: &Path, group: &[Method]) -> Vec<OsString> {
+fn child_args(
+    config: &Path,
+    models_dir: &Path,
+    group: &[Method],
+    seed: Option<u64>,
+) -> Vec<OsString> {
     let mut args: Vec<OsString> = vec!["train".into(), "--config".into(), config.into()];
     args.extend(["--out".into(), models_dir.into()]);
     args.extend(["--methods".into(), labels(group).join(",").into()]);
+    if let Some(s) = seed {
+        args.extend(["--seed".into(), s.to_string().into()]);
+    }
     let flags = [
         "--workers",
         "1",

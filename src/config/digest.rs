@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use super::{ConfigError, Settings};
 use crate::fusion::FusionSettings;
-use crate::matching::deep::arch::{MaskScope, PairLoss};
+use crate::matching::deep::arch::{MaskChoice, MaskScope, PairLoss};
 use crate::matching::deep::decision::UncertaintyKind;
 use crate::matching::{
     BaselineChoice, DecisionChoice, LambdaChoice, MatchingSettings, MethodKind, MultiVehicle,
@@ -59,7 +59,7 @@ impl Settings {
                     let p = self
                         .matching
                         .models_dir
-                        .join(format!("{}.{ext}", m.as_str()));
+                        .join(format!("{}.{ext}", m.weights_owner().as_str()));
                     d.file(&self.source, &p)?;
                 }
             }
@@ -96,7 +96,7 @@ impl Settings {
             gate_chi2: 0.0,
             models_dir: PathBuf::new(),
             mc_samples: 0,
-            dropout_masks: MaskScope::Shared,
+            dropout_masks: MaskChoice::Shared,
             mc_dropout: None,
             lambda: LambdaChoice::Validated,
             decision: DecisionChoice::Validated,
@@ -113,6 +113,7 @@ impl Settings {
         (t.methods, t.epochs, t.learning_rate, t.seed) = (Vec::new(), 0, 0.0, 0);
         (t.patience, t.mc_samples, t.batch_size) = (0, 0, 0);
         t.loss = PairLoss::Likelihood;
+        t.dropout_masks = MaskScope::PerNode;
         s.digest()
     }
 }

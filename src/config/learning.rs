@@ -62,6 +62,7 @@ pub(super) fn train_and_eval(
         patience: t.patience,
         loss: t.loss,
         mc_samples: t.mc_samples,
+        dropout_masks: t.dropout_masks,
         batch_size: t.batch_size,
         sample_every_s: t.sample_every_s,
     };
@@ -70,8 +71,19 @@ pub(super) fn train_and_eval(
         EvalSettings {
             traffic_seeds: e.traffic_seeds,
             scenarios: lists.test,
+            training_seeds: training_seeds(c, e.training_seeds)?,
         },
     ))
+}
+
+/// `[eval] training_seeds`: weight seeds, none twice.
+fn training_seeds(c: &Checker, seeds: Vec<u64>) -> Result<Vec<u64>, ConfigError> {
+    for (k, s) in seeds.iter().enumerate() {
+        if seeds[..k].contains(s) {
+            return Err(c.invalid("eval.training_seeds", format!("seed {s} is listed twice")));
+        }
+    }
+    Ok(seeds)
 }
 
 /// `[train]`'s methods and fitting settings.
@@ -82,8 +94,20 @@ fn fitting(c: &Checker, t: &RawTrain) -> Result<(), ConfigError> {
     {
         return Err(c.invalid(
             "train.methods",
-            "only deep methods (ours, ours-noprior, coid+non, coid+unc, dgmc, gcn-gm) are trained"
+            "only deep methods (coid, coid+non, coid+unc, dgmc, gcn-gm, ours and the +gps ones) \
+             are trained"
                 .into(),
+        ));
+    }
+    if let Some(m) = t.methods.iter().find(|m| m.single_pass()) {
+        return Err(c.invalid(
+            "train.methods",
+            format!(
+                "'{}' runs the weights of '{}' in one pass: train '{}'",
+                m.as_str(),
+                m.weights_owner().as_str(),
+                m.weights_owner().as_str()
+            ),
         ));
     }
     if t.epochs == 0 {

@@ -70,10 +70,15 @@ pub fn defaults_dir() -> PathBuf {
 pub struct Overrides {
     pub traffic_seed: Option<u64>,
     pub sensor_seed: Option<u64>,
+    /// `[train] seed`.
+    pub train_seed: Option<u64>,
 }
 
 impl Overrides {
     fn apply(&self, raw: &mut raw::RawConfig) {
+        if let Some(t) = self.train_seed {
+            raw.train.seed = t;
+        }
         if let Some(t) = self.traffic_seed {
             raw.seeds.traffic = t;
         }

@@ -8,7 +8,7 @@ use serde::Deserialize;
 
 use crate::fusion::FusionVariant;
 use crate::matching::MultiVehicle;
-use crate::matching::deep::arch::{MaskScope, PairLoss};
+use crate::matching::deep::arch::{MaskChoice, MaskScope, PairLoss};
 use crate::matching::deep::decision::UncertaintyKind;
 use crate::matching::{BaselineChoice, Method};
 use crate::sensor::PoseNoiseLabel;
@@ -168,7 +168,7 @@ pub(super) struct RawMatching {
     pub(super) gate_chi2: f64,
     pub(super) models_dir: PathBuf,
     pub(super) mc_samples: usize,
-    pub(super) dropout_masks: MaskScope,
+    pub(super) dropout_masks: MaskChoice,
     pub(super) mc_dropout: RawRate,
     pub(super) lambda: RawLambda,
     pub(super) decision: String,
@@ -209,6 +209,7 @@ pub(super) struct RawTrain {
     pub(super) patience: usize,
     pub(super) loss: PairLoss,
     pub(super) mc_samples: usize,
+    pub(super) dropout_masks: MaskScope,
     pub(super) batch_size: usize,
     pub(super) sample_every_s: f64,
 }
@@ -218,6 +219,7 @@ pub(super) struct RawTrain {
 pub(super) struct RawEval {
     pub(super) traffic_seeds: Vec<u64>,
     pub(super) scenarios: Vec<PathBuf>,
+    pub(super) training_seeds: Vec<u64>,
 }
 
 #[derive(Debug, Deserialize)]

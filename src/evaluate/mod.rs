@@ -43,6 +43,10 @@ pub struct EvalSettings {
     /// More scenarios (config files) to test on, each on `traffic_seeds`;
     /// disjoint from the training and validation scenarios.
     pub scenarios: Vec<std::path::PathBuf>,
+    /// The training seeds whose weights the deep methods are evaluated
+    /// with: the models folder's own, and the others in its `seed-<N>/`
+    /// folders (empty: the models folder's weights alone).
+    pub training_seeds: Vec<u64>,
 }
 
 /// One vehicle of an instance at one pose-noise level: what it knows (its

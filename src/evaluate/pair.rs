@@ -102,7 +102,7 @@ mod tests {
             gate_chi2: 9.21,
             models_dir: std::path::PathBuf::new(),
             mc_samples: 20,
-            dropout_masks: crate::matching::deep::arch::MaskScope::PerNode,
+            dropout_masks: crate::matching::deep::arch::MaskChoice::AsTrained,
             mc_dropout: None,
             lambda: crate::matching::LambdaChoice::Fixed(0.7),
             decision: crate::matching::DecisionChoice::Validated,
@@ -116,6 +116,7 @@ mod tests {
             lambdas: crate::matching::deep::decision::KindLambdas::all(0.7),
             decision: crate::matching::deep::decision::Decision::Assignment,
             temperature: 1.0,
+            trained_masks: crate::matching::deep::arch::MaskScope::PerNode,
         };
         CorrespondenceSource::Matcher(
             crate::matching::build(method, &settings, choice, 1, None).unwrap(),

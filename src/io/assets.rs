@@ -91,7 +91,7 @@ mod tests {
                 defaults.matching.methods.contains(m)
                     || m.inputs() == crate::matching::Inputs::V2xPoses
             })
-            .map(|m| m.as_str());
+            .map(|m| m.weights_owner().as_str());
         for m in deep {
             assert!(names.contains(&format!("models/{m}.bpk").as_str()), "{m}");
             assert!(names.contains(&format!("models/{m}.toml").as_str()), "{m}");

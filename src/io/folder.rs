@@ -240,6 +240,16 @@ fn check_models(dir: &Path) -> Result<(), String> {
         if is_staging_name(&name) {
             continue;
         }
+        // Another training seed's models (`coid train --seed N --out
+        // <models>/seed-N`), a models folder of its own.
+        if e.path().is_dir()
+            && name
+                .strip_prefix("seed-")
+                .is_some_and(|s| s.parse::<u64>().is_ok())
+        {
+            check_models(&e.path()).map_err(|why| format!("{name}: {why}"))?;
+            continue;
+        }
         if name == crate::matching::BASELINES_FILE {
             let text = std::fs::read_to_string(e.path()).unwrap_or_default();
             if super::records::BaselinesRecord::from_toml(&text).is_err() {

@@ -11,13 +11,15 @@ use super::records::{
 };
 use super::{OutputError, io, publish_files, write_text};
 use crate::config::Settings;
+use crate::matching::deep::arch::MaskScope;
 use crate::matching::deep::decision::{Decision, KindLambdas, UncertaintyKind};
 use crate::matching::deep::train::TrainReport;
 use crate::matching::{BASELINES_FILE, Method, MethodKind};
 
-/// The weights file of a method in a models folder.
+/// The weights file of a method in a models folder (a single-pass
+/// variant's are those of the method it is one pass of).
 pub fn weights_path(models_dir: &Path, method: Method) -> PathBuf {
-    models_dir.join(format!("{}.bpk", method.as_str()))
+    models_dir.join(format!("{}.bpk", method.weights_owner().as_str()))
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -34,6 +36,7 @@ pub struct WeightsError {
 /// beside it (`<method>.toml`: the method, its architecture and the
 /// weights' checksum), so that stale or foreign weights never load.
 pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, WeightsError> {
+    let method = method.weights_owner();
     let path = weights_path(models_dir, method);
     let bytes = read_model_file(method, &path, "no such file", |p| std::fs::read(p))?;
     let record = read_record(models_dir, method)?;
@@ -47,8 +50,21 @@ pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, Weight
     Ok(bytes)
 }
 
-/// A method's `<method>.toml`.
+/// Where the weights trained with another training seed live: a models
+/// folder of its own, `seed-<seed>/`, inside the models folder.
+pub fn seed_models_dir(models_dir: &Path, seed: u64) -> PathBuf {
+    models_dir.join(format!("seed-{seed}"))
+}
+
+/// The training seed `method`'s weights in `models_dir` were made with
+/// (their record's).
+pub fn trained_seed(models_dir: &Path, method: Method) -> Result<u64, WeightsError> {
+    Ok(read_record(models_dir, method)?.seed)
+}
+
+/// A method's `<method>.toml` (a single-pass variant's: its owner's).
 fn read_record(models_dir: &Path, method: Method) -> Result<ModelRecord, WeightsError> {
+    let method = method.weights_owner();
     let path = models_dir.join(format!("{}.toml", method.as_str()));
     let missing = "no record beside the weights";
     let text = read_model_file(method, &path, missing, |p| std::fs::read_to_string(p))?;
@@ -219,6 +235,7 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
         edge_clipped_share: r.edges.clipped_share,
         loss: t.loss.as_str().to_owned(),
         mc_samples: t.mc_samples,
+        dropout_masks: t.dropout_masks,
         batch_size: t.batch_size,
         patience: r.best_epoch.map(|_| t.patience),
         best_epoch: r.best_epoch,
@@ -257,18 +274,22 @@ pub struct Validated {
     pub decision: Option<Decision>,
     /// The calibration temperature of the reported probabilities.
     pub temperature: Option<f64>,
+    /// The dropout masks the weights were trained with.
+    pub trained_masks: MaskScope,
 }
 
 /// What `coid train` chose for `method` on the validation runs (its
 /// `<method>.toml`); an error when the file is missing or malformed, or a
 /// value it records is out of range.
 pub fn read_validated(models_dir: &Path, method: Method) -> Result<Validated, WeightsError> {
+    let method = method.weights_owner();
     let record = read_record(models_dir, method)?;
     let Some(v) = record.validation else {
         return Ok(Validated {
             lambdas: None,
             decision: None,
             temperature: None,
+            trained_masks: record.dropout_masks,
         });
     };
     let fail = |reason: &str| WeightsError {
@@ -300,6 +321,7 @@ pub fn read_validated(models_dir: &Path, method: Method) -> Result<Validated, We
         lambdas,
         decision: Some(v.decision),
         temperature: Some(v.temperature),
+        trained_masks: record.dropout_masks,
     })
 }
 

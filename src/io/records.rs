@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::matching::Method;
-use crate::matching::deep::arch::Backbone;
+use crate::matching::deep::arch::{Backbone, MaskScope};
 use crate::matching::deep::decision::Decision;
 
 /// `<method>.toml` beside `<method>.bpk`: how the weights were made, what
@@ -42,6 +42,10 @@ pub struct ModelRecord {
     pub edge_clipped_share: f64,
     pub loss: String,
     pub mc_samples: usize,
+    /// The training's dropout masks (records written before they could be
+    /// chosen: per node).
+    #[serde(default = "per_node")]
+    pub dropout_masks: MaskScope,
     pub batch_size: usize,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub patience: Option<usize>,
@@ -52,6 +56,11 @@ pub struct ModelRecord {
     /// `coid train` validated the weights.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub validation: Option<ValidationRecord>,
+}
+
+/// The dropout masks of weights whose record does not say.
+fn per_node() -> MaskScope {
+    MaskScope::PerNode
 }
 
 /// `baselines.toml` of a models folder: each baseline's threshold chosen
@@ -354,6 +363,7 @@ mod tests {
             edge_clipped_share: 0.05,
             loss: "likelihood".into(),
             mc_samples: 2,
+            dropout_masks: MaskScope::Shared,
             batch_size: 32,
             patience: Some(3),
             best_epoch: Some(1),
@@ -417,6 +427,22 @@ mod tests {
         let back = ModelRecord::from_toml(&nan.to_toml().unwrap()).unwrap();
         assert!(back.final_epoch_loss.unwrap().is_nan());
         assert!(ModelRecord::from_toml("method = 3").is_err());
+    }
+
+    /// The training's dropout masks are recorded; a record written before
+    /// they could be chosen reads as per-node masks (how such weights were
+    /// trained).
+    #[test]
+    fn a_record_without_dropout_masks_was_trained_per_node() {
+        let text = record().to_toml().unwrap();
+        assert!(text.contains("dropout_masks = \"shared\""), "{text}");
+        let old: String = text
+            .lines()
+            .filter(|l| !l.starts_with("dropout_masks"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        let back = ModelRecord::from_toml(&old).unwrap();
+        assert_eq!(back.dropout_masks, MaskScope::PerNode);
     }
 
     #[test]

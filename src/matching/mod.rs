@@ -21,7 +21,7 @@ pub use learning_free::{Mogm, Rgm};
 
 use std::path::PathBuf;
 
-use self::deep::arch::{Backbone, DeepMethod, MaskScope};
+use self::deep::arch::{Backbone, DeepMethod, MaskChoice, MaskScope};
 use self::deep::decision::{Decision, KindLambdas, MatchDistribution, UncertaintyKind};
 use crate::fusion::{PoseEstimate, relative_pose_prior};
 use crate::geometry::Pose2;
@@ -41,6 +41,11 @@ crate::label_enum! { "method";
         /// uncertainty, thresholding.
         #[strum(serialize = "coid")]
         Coid,
+        /// `coid`'s weights and choices in one pass with every dropout off
+        /// (T = 1; DGMC's random indicators are still drawn): what MC
+        /// dropout buys.
+        #[strum(serialize = "coid-t1")]
+        CoidT1,
         /// Ablation: L_coid + L_non.
         #[strum(serialize = "coid+non")]
         CoidNon,
@@ -68,6 +73,10 @@ crate::label_enum! { "method";
         /// MC-dropout uncertainty, thresholding.
         #[strum(serialize = "ours")]
         Ours,
+        /// `ours`'s weights and choices in one pass with every dropout off
+        /// (T = 1).
+        #[strum(serialize = "ours-t1")]
+        OursT1,
         /// `ours` trained with L_coid + L_non.
         #[strum(serialize = "coid+non+gps")]
         CoidNonGps,
@@ -125,12 +134,12 @@ impl Method {
     /// What kind of method this is.
     pub fn kind(self) -> MethodKind {
         match self {
-            Method::Coid => MethodKind::Deep(DeepMethod::Coid),
+            Method::Coid | Method::CoidT1 => MethodKind::Deep(DeepMethod::Coid),
             Method::CoidNon => MethodKind::Deep(DeepMethod::CoidNon),
             Method::CoidUnc => MethodKind::Deep(DeepMethod::CoidUnc),
             Method::Dgmc => MethodKind::Deep(DeepMethod::Dgmc),
             Method::GcnGm => MethodKind::Deep(DeepMethod::GcnGm),
-            Method::Ours => MethodKind::Deep(DeepMethod::Ours),
+            Method::Ours | Method::OursT1 => MethodKind::Deep(DeepMethod::Ours),
             Method::CoidNonGps => MethodKind::Deep(DeepMethod::CoidNonGps),
             Method::CoidUncGps => MethodKind::Deep(DeepMethod::CoidUncGps),
             Method::DgmcGps => MethodKind::Deep(DeepMethod::DgmcGps),
@@ -147,6 +156,7 @@ impl Method {
     pub fn inputs(self) -> Inputs {
         match self {
             Method::Coid
+            | Method::CoidT1
             | Method::CoidNon
             | Method::CoidUnc
             | Method::Dgmc
@@ -154,6 +164,7 @@ impl Method {
             | Method::Mogm
             | Method::Rgm => Inputs::Paper,
             Method::Ours
+            | Method::OursT1
             | Method::CoidNonGps
             | Method::CoidUncGps
             | Method::DgmcGps
@@ -165,6 +176,31 @@ impl Method {
             Method::External => Inputs::V2xPoses,
             Method::Oracle => Inputs::Truth,
         }
+    }
+
+    /// Whose weights and validated choices a deep method runs with: its
+    /// own, or for a single-pass variant (`coid-t1`, `ours-t1`) those of
+    /// the method it is one pass of.
+    pub fn weights_owner(self) -> Method {
+        match self {
+            Method::CoidT1 => Method::Coid,
+            Method::OursT1 => Method::Ours,
+            m => m,
+        }
+    }
+
+    /// Whether the method runs one pass with every dropout off (no MC
+    /// dropout).
+    pub fn single_pass(self) -> bool {
+        self.weights_owner() != self
+    }
+
+    /// The single-pass variant of a method, if it has one.
+    pub fn single_pass_variant(self) -> Option<Method> {
+        Method::all()
+            .iter()
+            .copied()
+            .find(|m| m.single_pass() && m.weights_owner() == self)
     }
 }
 
@@ -278,8 +314,9 @@ pub struct MatchingSettings {
     pub models_dir: PathBuf,
     /// MC-dropout samples at inference (paper: T = 20).
     pub mc_samples: usize,
-    /// How the MC-dropout masks are drawn at inference (Eq. 8: shared).
-    pub dropout_masks: MaskScope,
+    /// How the MC-dropout masks are drawn at inference: as the weights
+    /// were trained, or Eq. 8's shared masks, or per node.
+    pub dropout_masks: MaskChoice,
     /// Every dropout rate at inference (`None`: as trained); Fig. 8b
     /// sweeps it.
     pub mc_dropout: Option<f64>,
@@ -465,6 +502,8 @@ pub struct DeepChoice {
     /// The calibration temperature of the reported probabilities (1: as
     /// they are).
     pub temperature: f64,
+    /// The dropout masks the weights were trained with (their record's).
+    pub trained_masks: MaskScope,
 }
 
 /// Each deep method's threshold of every uncertainty type.
@@ -509,14 +548,20 @@ pub fn build(
             let threshold = deep_method
                 .thresholds_by_default()
                 .then_some((settings.uncertainty, choice.lambda));
+            // A single-pass variant: one sample with every dropout off.
+            let (samples, dropout) = if method.single_pass() {
+                (1, Some(0.0))
+            } else {
+                (settings.mc_samples, settings.mc_dropout)
+            };
             let run = deep::Inference {
-                samples: settings.mc_samples,
+                samples,
                 threshold,
                 decision: choice.decision,
                 temperature: choice.temperature,
                 seed: dropout_seed,
-                masks: settings.dropout_masks,
-                dropout: settings.mc_dropout,
+                masks: settings.dropout_masks.resolve(choice.trained_masks),
+                dropout,
                 gate_chi2: settings.gate_chi2,
             };
             let bad = |reason| BuildError::BadWeights {
@@ -524,9 +569,11 @@ pub fn build(
                 reason,
             };
             match deep_method.backbone() {
-                Backbone::Likelihood(_) => {
-                    Box::new(deep::DeepMatcher::from_weights(deep_method, bytes, run).map_err(bad)?)
-                }
+                Backbone::Likelihood(_) => Box::new(
+                    deep::DeepMatcher::from_weights(deep_method, bytes, run)
+                        .map_err(bad)?
+                        .labelled(method),
+                ),
                 Backbone::Published(cfg) => Box::new(
                     deep::published::PublishedMatcher::from_weights(method, cfg, bytes, run)
                         .map_err(bad)?,
@@ -552,7 +599,7 @@ mod tests {
             gate_chi2: 9.21,
             models_dir: PathBuf::new(),
             mc_samples: 20,
-            dropout_masks: MaskScope::PerNode,
+            dropout_masks: MaskChoice::AsTrained,
             mc_dropout: None,
             lambda: LambdaChoice::Fixed(0.7),
             decision: DecisionChoice::Fixed(Decision::Assignment),
@@ -568,6 +615,7 @@ mod tests {
         lambdas: KindLambdas::all(0.7),
         decision: Decision::Assignment,
         temperature: 1.0,
+        trained_masks: MaskScope::PerNode,
     };
 
     fn plain(method: Method) -> Box<dyn Matcher> {
@@ -746,6 +794,7 @@ mod tests {
             labels,
             [
                 "coid",
+                "coid-t1",
                 "coid+non",
                 "coid+unc",
                 "dgmc",
@@ -753,6 +802,7 @@ mod tests {
                 "mogm",
                 "rgm",
                 "ours",
+                "ours-t1",
                 "coid+non+gps",
                 "coid+unc+gps",
                 "dgmc+gps",
@@ -763,6 +813,51 @@ mod tests {
                 "external"
             ]
         );
+    }
+
+    /// A single-pass variant is its owner's weights run once with every
+    /// dropout off (T = 1; the consensus's random indicators are still
+    /// drawn): exactly the owner with one sample at rate 0, under its own
+    /// label, with no epistemic uncertainty (its one sample's entropy is
+    /// the mean's), where the owner's MC dropout has some.
+    #[test]
+    fn single_pass_variants_are_one_pass_without_epistemic_uncertainty() {
+        let world = testkit::world_objects();
+        let all: Vec<usize> = (0..world.len()).collect();
+        let a = Side::of(testkit::POSE_A, &world, &all, testkit::GPS);
+        let b = Side::of(testkit::POSE_B, &world, &[3, 0, 5, 2, 7, 6], testkit::GPS);
+        let one_pass = MatchingSettings {
+            mc_samples: 1,
+            mc_dropout: Some(0.0),
+            ..settings()
+        };
+        for (one, owner) in [
+            (Method::CoidT1, Method::Coid),
+            (Method::OursT1, Method::Ours),
+        ] {
+            let MethodKind::Deep(d) = owner.kind() else {
+                unreachable!()
+            };
+            let weights = deep::opened_weights(d, 3);
+            let dist = |m: Method, s: &MatchingSettings| {
+                let matcher = build(m, s, CHOICE, 1, Some(&weights)).unwrap();
+                assert_eq!(matcher.method(), m);
+                matcher
+                    .identify(&a.view(), &b.view())
+                    .distribution
+                    .expect("a deep method's distribution")
+            };
+            let single = dist(one, &settings());
+            assert_eq!(single, dist(owner, &one_pass), "{one:?}");
+            let epistemic = |d: &MatchDistribution| {
+                let pairs = (0..d.n1).flat_map(|i| (0..d.n2).map(move |j| (i, j)));
+                pairs
+                    .map(|(i, j)| d.uncertainty(i, j, UncertaintyKind::Epistemic))
+                    .fold(0.0, f64::max)
+            };
+            assert!(epistemic(&single) < 1e-5, "{one:?}");
+            assert!(epistemic(&dist(owner, &settings())) > 1e-3, "{owner:?}");
+        }
     }
 
     /// The methods of Table 1 see the paper's inputs only: another
@@ -793,7 +888,7 @@ mod tests {
             .copied()
             .filter(|m| m.inputs() == Inputs::Paper)
             .collect();
-        assert_eq!(paper.len(), 7);
+        assert_eq!(paper.len(), 8);
         for method in paper.into_iter().chain([Method::GpsAppHungarian]) {
             let weights = match method.kind() {
                 MethodKind::Deep(d) => Some(deep::opened_weights(d, 3)),

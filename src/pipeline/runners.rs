@@ -9,6 +9,7 @@ use super::RunError;
 use crate::config::Settings;
 use crate::evaluate::CorrespondenceSource;
 use crate::io::{self, WeightsError};
+use crate::matching::deep::arch::MaskScope;
 use crate::matching::deep::decision::{Decision, KindLambdas};
 use crate::matching::{
     self, BaselineChoice, BuildError, DecisionChoice, DeepChoice, LambdaChoice, Method, MethodKind,
@@ -50,12 +51,16 @@ pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, Run
             .and_then(|v| v.decision)
             .ok_or_else(|| missing("decision"))?,
     };
-    let temperature = validated.and_then(|v| v.temperature).unwrap_or(1.0);
+    let temperature = validated
+        .as_ref()
+        .and_then(|v| v.temperature)
+        .unwrap_or(1.0);
     Ok(DeepChoice {
         lambda,
         lambdas,
         decision,
         temperature,
+        trained_masks: validated.map_or(MaskScope::PerNode, |v| v.trained_masks),
     })
 }
 
@@ -115,6 +120,7 @@ const NO_CHOICE: DeepChoice = DeepChoice {
     lambdas: KindLambdas::all(f64::NAN),
     decision: Decision::Assignment,
     temperature: 1.0,
+    trained_masks: MaskScope::PerNode,
 };
 
 /// The runners of `methods`, in order.

@@ -11,7 +11,7 @@ pub type SweepPoint = (f64, f64, f64, f64);
 /// The data behind `coid eval`'s plots.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PlotData {
-    /// Per level: (level, points) of `ours`.
+    /// Per Table 3 method and level: (what it is, points).
     pub lambda_sweep: Vec<(String, Vec<SweepPoint>)>,
     /// Methods, and per level the (mean, ci) F1 of each method.
     pub methods: Vec<String>,

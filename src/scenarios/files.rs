@@ -5,7 +5,7 @@
 use std::fmt::Write as _;
 
 use super::layout::Control;
-use super::{END_S, JUNCTION_ID, PENETRATION, Scenario, VTYPES};
+use super::{Demand, END_S, JUNCTION_ID, PENETRATION, Scenario, VTYPES};
 
 const XML_HEAD: &str = "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n";
 
@@ -14,7 +14,7 @@ impl Scenario {
     pub fn describe(&self) -> String {
         format!(
             "{}: {}: {}, building blocks: {} (setback {:.1} m), {:.0} vehicles/h per lane, \
-             {:.0} pedestrians/h (family seed {}, index {})",
+             {:.0} pedestrians/h{} (family seed {}, index {})",
             self.name,
             self.kind.as_str(),
             self.layout.description,
@@ -22,6 +22,10 @@ impl Scenario {
             self.setback_m,
             self.vehicles_per_lane_s * 3600.0,
             self.pedestrians_s * 3600.0,
+            match self.demand {
+                Demand::Mix => "",
+                Demand::Plain => ", SUMO's default types only",
+            },
             self.seed,
             self.index,
         )
@@ -103,23 +107,34 @@ impl Scenario {
         x + "</additional>\n"
     }
 
-    /// The demand: the shipped types, the layout's vehicle flows (random
-    /// departures from SUMO's seed), bicycles, pedestrians.
+    /// The demand: the layout's vehicle flows (random departures from
+    /// SUMO's seed), bicycles and pedestrians, of the shipped types
+    /// ([`Demand::Mix`]) or of SUMO's default ones ([`Demand::Plain`]).
     pub fn routes_xml(&self) -> String {
-        let types = VTYPES
-            .split_once("<additional>")
-            .and_then(|(_, rest)| rest.rsplit_once("</additional>"))
-            .map_or("", |(body, _)| body);
+        // Flow ids stay the same for both demands; the types differ.
+        let (types, [vehicle, bicycle, ped]) = match self.demand {
+            Demand::Mix => (
+                VTYPES
+                    .split_once("<additional>")
+                    .and_then(|(_, rest)| rest.rsplit_once("</additional>"))
+                    .map_or("", |(body, _)| body),
+                ["mix", "bicycle", "ped"],
+            ),
+            Demand::Plain => (
+                "\n",
+                ["DEFAULT_VEHTYPE", "DEFAULT_BIKETYPE", "DEFAULT_PEDTYPE"],
+            ),
+        };
         let mut x = format!("{XML_HEAD}<routes>{types}");
         for (k, f) in self.layout.flows.iter().enumerate() {
-            let mut kinds = vec![("mix", f.vehicles_s)];
+            let mut kinds = vec![("mix", vehicle, f.vehicles_s)];
             if f.bicycles {
-                kinds.push(("bicycle", 0.05 * f.vehicles_s));
+                kinds.push(("bicycle", bicycle, 0.05 * f.vehicles_s));
             }
-            for (kind, p) in kinds {
+            for (id, kind, p) in kinds {
                 let _ = writeln!(
                     x,
-                    "    <flow id=\"{kind}_{k}\" type=\"{kind}\" begin=\"0\" end=\"3600\" \
+                    "    <flow id=\"{id}_{k}\" type=\"{kind}\" begin=\"0\" end=\"3600\" \
                      probability=\"{:.5}\" from=\"{}\" to=\"{}\" departLane=\"best\" \
                      departSpeed=\"max\"/>",
                     p.min(1.0),
@@ -132,7 +147,7 @@ impl Scenario {
         for (k, (from, to)) in walks.iter().enumerate() {
             let _ = writeln!(
                 x,
-                "    <personFlow id=\"ped_{k}\" type=\"ped\" begin=\"0\" end=\"3600\" \
+                "    <personFlow id=\"ped_{k}\" type=\"{ped}\" begin=\"0\" end=\"3600\" \
                  probability=\"{:.5}\"><walk from=\"{from}\" to=\"{to}\"/></personFlow>",
                 self.pedestrians_s / walks.len() as f64,
             );

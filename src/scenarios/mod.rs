@@ -53,6 +53,22 @@ pub(super) const LANE_WIDTH_M: f64 = 3.2;
 /// The shipped intersection's vehicle and pedestrian types.
 pub(super) const VTYPES: &str = include_str!("../../sumo_nets/vtypes.add.xml");
 
+crate::label_enum! { "demand";
+    /// Which road users the demand sends.
+    #[strum(serialize_all = "lowercase")]
+    pub enum Demand {
+        /// The shipped intersection's vehicle classes, sizes and colour
+        /// mix (`sumo_nets/vtypes.add.xml`), bicycles and pedestrians.
+        Mix,
+        /// SUMO's default types only, as demand made with SUMO's own tools
+        /// usually is: every motor vehicle one passenger car of one size
+        /// and SUMO's default colour, bicycles and pedestrians of SUMO's
+        /// default types. Appearance then says almost nothing; only
+        /// structure and positions can tell the objects apart.
+        Plain,
+    }
+}
+
 crate::label_enum! { "scenario kind";
     /// The layouts of the family (see the module docs).
     #[strum(serialize_all = "lowercase")]
@@ -100,6 +116,10 @@ pub struct Scenario {
     pub vehicles_per_lane_s: f64,
     /// Pedestrians per second starting a walk (0 without sidewalks).
     pub pedestrians_s: f64,
+    /// Which road users the demand sends (not drawn: [`Demand::Mix`]
+    /// unless the caller says otherwise, so a family's layouts do not
+    /// depend on it).
+    pub demand: Demand,
 }
 
 /// The `index`-th scenario of the family drawn from `seed`, of one of
@@ -149,6 +169,7 @@ pub fn generate(seed: u64, index: u64, kinds: &[Kind]) -> Scenario {
         setback_m,
         vehicles_per_lane_s,
         pedestrians_s,
+        demand: Demand::Mix,
     }
 }
 #[cfg(test)]

@@ -132,3 +132,34 @@ fn demand_names_every_approach_pair_once() {
             .any(|l| l.contains("type=\"bicycle\"") && l.contains("from=\"M1\""))
     );
 }
+
+/// Plain demand: the same layout and flows (same ids, same rates), but
+/// SUMO's default vehicle, bicycle and pedestrian types instead of the
+/// shipped mix; nothing else of the scenario changes.
+#[test]
+fn plain_demand_keeps_the_flows_with_sumos_default_types() {
+    let mix = generate(5, 3, &[Kind::Crossing]);
+    let mut plain = mix.clone();
+    plain.demand = Demand::Plain;
+    let (m, p) = (mix.routes_xml(), plain.routes_xml());
+    assert!(!p.contains("vType"), "no shipped types");
+    assert!(!p.contains("type=\"mix\""));
+    assert_eq!(
+        m.matches("<flow id=").count(),
+        p.matches("type=\"DEFAULT_VEHTYPE\"").count() + p.matches("DEFAULT_BIKETYPE").count()
+    );
+    assert_eq!(
+        m.matches("<personFlow").count(),
+        p.matches("type=\"DEFAULT_PEDTYPE\"").count()
+    );
+    let rates = |x: &str| -> Vec<String> {
+        x.lines()
+            .filter(|l| l.contains("<flow") || l.contains("<personFlow"))
+            .filter_map(|l| l.split_once("probability=").map(|(_, r)| r.to_owned()))
+            .collect()
+    };
+    assert_eq!(rates(&m), rates(&p));
+    assert_eq!(mix.nodes_xml(), plain.nodes_xml());
+    assert!(plain.describe().contains("default types"));
+    assert!(!mix.describe().contains("default types"));
+}

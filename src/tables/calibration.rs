@@ -20,27 +20,48 @@ pub(super) fn pooled(inp: &Inputs, key: MethodLevel) -> Vec<ScoredPair> {
         .collect()
 }
 
-/// Calibration of each method's probabilities on its identified pairs,
-/// pooled over the runs: ECE (15 bins), Brier score, and the AUROC of the
-/// uncertainty for telling wrong pairs from right ones.
+/// Calibration of each method's probabilities, pooled over the runs. On
+/// its own identified pairs: ECE (15 bins), Brier score, and the AUROC of
+/// the uncertainty for telling wrong pairs from right ones. On one common
+/// set of pairs (the deep methods: in every instance, the pairs any of
+/// them decided, each scored by every one's probability): ECE, Brier
+/// score, and the AUROC of the probability for telling true pairs from
+/// false ones; the same pairs for every method, so these compare.
 pub(super) fn calibration(inp: &Inputs) -> Table {
     struct Row {
         key: MethodLevel,
         pairs: Vec<ScoredPair>,
+        common: Vec<ScoredPair>,
     }
     let rows: Vec<Row> = inp
         .method_levels()
         .map(|key| Row {
             key,
             pairs: pooled(inp, key),
+            common: inp
+                .runs
+                .iter()
+                .filter_map(|r| r.common.get(&key))
+                .flatten()
+                .copied()
+                .collect(),
         })
         .collect();
+    let or_nan = |pairs: &[ScoredPair], f: fn(&[ScoredPair]) -> f64| {
+        if pairs.is_empty() { f64::NAN } else { f(pairs) }
+    };
     Columns::of(&rows)
         .method_level(|r| r.key)
         .count("n_pairs", |r| r.pairs.len())
         .number("ece", |r| expected_calibration_error(&r.pairs))
         .number("brier", |r| brier_score(&r.pairs))
         .number("auroc", |r| uncertainty_auroc(&r.pairs))
+        .count("common_n_pairs", |r| r.common.len())
+        .number("common_ece", |r| {
+            or_nan(&r.common, expected_calibration_error)
+        })
+        .number("common_brier", |r| or_nan(&r.common, brier_score))
+        .number("common_auroc", |r| or_nan(&r.common, uncertainty_auroc))
         .table()
 }
 

@@ -34,6 +34,7 @@ mod paired;
 mod paper;
 mod plots;
 mod record;
+mod seeds;
 
 pub use grid::lambda_grid;
 pub use plots::plot_data;
@@ -96,6 +97,11 @@ pub fn eval_tables(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambda
             Table::default()
         }
     };
+    let lambda_sweep = if paper::table3_methods(&inp).is_empty() {
+        Table::default()
+    } else {
+        paper::sweep(&inp)
+    };
     let table3 = if paper::table3_methods(&inp).is_empty() {
         Table::default()
     } else {
@@ -107,7 +113,7 @@ pub fn eval_tables(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambda
         paired: paired::paired(&inp),
         table2: paper::table2(&inp),
         table3,
-        lambda_sweep: if_ours(paper::sweep),
+        lambda_sweep,
         case_study: if_ours(paper::case_study),
         errors: errors::errors(&inp),
         calibration: calibration::calibration(&inp),

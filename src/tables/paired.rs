@@ -1,8 +1,12 @@
 //! Paired differences: each method's F1 minus the strongest baseline's
 //! that sees the same inputs (Table 1: the paper's inputs; Table 1b: the
-//! reported poses too), run by run (the same runs, hence the same
-//! instances, on both sides), with a percentile bootstrap interval over
-//! the runs. Where the interval covers 0 the table says "no difference".
+//! reported poses too), and each MC-dropout method's minus its own single
+//! deterministic pass (`coid` against `coid-t1`), run by run (the same
+//! runs, hence the same instances, on both sides), with a percentile
+//! bootstrap interval over the runs. Where the interval covers 0 the table
+//! says "no difference". A deep method evaluated with several training
+//! seeds enters with its mean over the seeds in each run, and the table
+//! counts how many seeds are better or worse on their own.
 
 use super::Inputs;
 use super::columns::Columns;
@@ -37,12 +41,23 @@ fn strongest_baseline(inp: &Inputs, inputs: MethodInputs, l: PoseNoiseLabel) -> 
 }
 
 /// The F1 of `key` in every run, NaN where undefined (so that runs stay
-/// aligned across methods).
+/// aligned across methods); over several training seeds, their mean.
 fn f1_per_run(inp: &Inputs, key: MethodLevel) -> Vec<f64> {
-    inp.runs
+    inp.per_run_over_seeds(key, crate::evaluate::PairCounts::f1)
+}
+
+/// Of `key`'s training seeds (when it has several), how many are better
+/// and how many worse than `base` by their own paired interval.
+fn seed_verdicts(inp: &Inputs, key: MethodLevel, base: &[f64]) -> (usize, usize) {
+    let seeds = inp.seeds(key);
+    let signs: Vec<Option<bool>> = seeds
         .iter()
-        .map(|r| r.table1.get(&key).map_or(f64::NAN, |c| c.f1()))
-        .collect()
+        .map(|&s| paired_bootstrap(&inp.f1_per_run_of_seed(key, s), base, BOOTSTRAP_SEED).sign())
+        .collect();
+    (
+        signs.iter().filter(|s| **s == Some(true)).count(),
+        signs.iter().filter(|s| **s == Some(false)).count(),
+    )
 }
 
 /// Every other method against the strongest baseline, level by level.
@@ -51,29 +66,47 @@ pub(super) fn paired(inp: &Inputs) -> Table {
         key: MethodLevel,
         reference: Method,
         d: PairedDifference,
+        /// Training seeds, and of them how many are better and how many
+        /// worse on their own.
+        seeds: usize,
+        verdicts: (usize, usize),
     }
     let mut rows = Vec::new();
+    let mut push = |key: MethodLevel, reference: Method| {
+        let base = f1_per_run(inp, MethodLevel::new(reference, key.pose_noise));
+        rows.push(Row {
+            key,
+            reference,
+            d: paired_bootstrap(&f1_per_run(inp, key), &base, BOOTSTRAP_SEED),
+            seeds: inp.seeds(key).len(),
+            verdicts: seed_verdicts(inp, key, &base),
+        });
+    };
     for inputs in [MethodInputs::Paper, MethodInputs::V2xPoses] {
         for &l in &inp.levels {
             let Some(reference) = strongest_baseline(inp, inputs, l) else {
                 continue;
             };
-            let base = f1_per_run(inp, MethodLevel::new(reference, l));
             let others = inp
                 .methods
                 .iter()
                 .filter(|&&m| m != reference && m.inputs() == inputs);
             for &m in others {
-                let key = MethodLevel::new(m, l);
-                rows.push(Row {
-                    key,
-                    reference,
-                    d: paired_bootstrap(&f1_per_run(inp, key), &base, BOOTSTRAP_SEED),
-                });
+                push(MethodLevel::new(m, l), reference);
             }
         }
     }
-    Columns::of(&rows)
+    // What MC dropout buys: each method against its own single pass.
+    for &m in &inp.methods {
+        let Some(one) = m.single_pass_variant().filter(|v| inp.methods.contains(v)) else {
+            continue;
+        };
+        for &l in &inp.levels {
+            push(MethodLevel::new(m, l), one);
+        }
+    }
+    let with_seeds = rows.iter().any(|r| r.seeds > 1);
+    let columns = Columns::of(&rows)
         .method_level(|r| r.key)
         .text("inputs", |r| r.key.method.inputs().as_str().to_owned())
         .text("reference", |r| r.reference.as_str().to_owned())
@@ -88,6 +121,13 @@ pub(super) fn paired(inp: &Inputs) -> Table {
                 None => "no difference",
             }
             .to_owned()
-        })
+        });
+    if !with_seeds {
+        return columns.table();
+    }
+    columns
+        .count("n_training_seeds", |r| r.seeds)
+        .count("seeds_better", |r| r.verdicts.0)
+        .count("seeds_worse", |r| r.verdicts.1)
         .table()
 }

@@ -7,6 +7,8 @@ use super::Inputs;
 use super::columns::{Columns, ErrorStats, Scores};
 use super::paired::BOOTSTRAP_SEED;
 use super::record::{LevelFusion, MethodLevel};
+use super::seeds::SeedSpread;
+use crate::evaluate::PairCounts;
 use crate::matching::Method;
 use crate::matching::deep::decision::UncertaintyKind;
 use crate::report::{Metric, PairedDifference, Table, paired_bootstrap};
@@ -23,25 +25,53 @@ const TABLE3_KINDS: [UncertaintyKind; 3] = [
 /// Table 1 and the sweep.
 const N_RUNS_PRECISION: &str = "n_runs_precision";
 
+/// Table 1 (or 1b): precision, recall and F1 of each method over the runs;
+/// a deep method evaluated with several training seeds has, in each run,
+/// the mean over its seeds, and the spread of its seeds' F1 beside.
 pub(super) fn table1(inp: &Inputs) -> Table {
     struct Row {
         key: MethodLevel,
         scores: Scores,
+        spread: Option<SeedSpread>,
     }
     let rows: Vec<Row> = inp
         .method_levels()
-        .map(|key| Row {
-            key,
-            scores: Scores::of(inp, |run| run.table1.get(&key).copied()),
+        .map(|key| match inp.seed_spread(key) {
+            Some(spread) => Row {
+                key,
+                scores: Scores {
+                    precision: inp.per_run_over_seeds(key, PairCounts::precision),
+                    recall: inp.per_run_over_seeds(key, PairCounts::recall),
+                    f1: inp.per_run_over_seeds(key, PairCounts::f1),
+                },
+                spread: Some(spread),
+            },
+            None => Row {
+                key,
+                scores: Scores::of(inp, |run| run.table1.get(&key).copied()),
+                spread: None,
+            },
         })
         .collect();
-    Columns::of(&rows)
+    let spread = |r: &Row, f: fn(&SeedSpread) -> f64| r.spread.as_ref().map_or(f64::NAN, f);
+    let mut columns = Columns::of(&rows)
         .method_level(|r| r.key)
         .text("inputs", |r| r.key.method.inputs().as_str().to_owned())
         .scores(|r| &r.scores)
         .count("n_runs", |_| inp.runs.len())
-        .defined(N_RUNS_PRECISION, |r| &r.scores.precision)
-        .table()
+        .defined(N_RUNS_PRECISION, |r| &r.scores.precision);
+    if rows.iter().any(|r| r.spread.is_some()) {
+        columns = columns
+            .text("training_seeds", |r| {
+                r.spread
+                    .as_ref()
+                    .map_or_else(String::new, SeedSpread::label)
+            })
+            .number("f1_seeds_sd", |r| spread(r, SeedSpread::sd))
+            .number("f1_seeds_min", |r| spread(r, SeedSpread::min))
+            .number("f1_seeds_max", |r| spread(r, SeedSpread::max));
+    }
+    columns.table()
 }
 
 pub(super) fn table2(inp: &Inputs) -> Table {
@@ -128,26 +158,31 @@ pub(super) fn table3(inp: &Inputs) -> Table {
         .table()
 }
 
-/// One point of the lambda sweep of `ours` (its own decision rule, the
-/// configured uncertainty type).
+/// One point of the lambda sweep (Fig. 8a) of the paper's method or
+/// `ours` (its own decision rule, the configured uncertainty type).
 pub(super) struct SweepRow {
+    pub method: Method,
     pub pose_noise: PoseNoiseLabel,
     pub lambda: f64,
     pub scores: Scores,
 }
 
-/// The lambda sweep, level by level, every lambda of the grid.
+/// The lambda sweep of each Table 3 method, level by level, every lambda
+/// of the grid.
 pub(super) fn sweep_rows(inp: &Inputs) -> Vec<SweepRow> {
     let mut rows = Vec::new();
-    for &l in &inp.levels {
-        let rule = inp.rule(Method::Ours, l);
-        for (k, &lambda) in inp.grid.iter().enumerate() {
-            let key = rule.threshold(inp.kind, k);
-            rows.push(SweepRow {
-                pose_noise: l,
-                lambda,
-                scores: Scores::of(inp, |run| run.thresholded.get(&key).copied()),
-            });
+    for m in table3_methods(inp) {
+        for &l in &inp.levels {
+            let rule = inp.rule(m, l);
+            for (k, &lambda) in inp.grid.iter().enumerate() {
+                let key = rule.threshold(inp.kind, k);
+                rows.push(SweepRow {
+                    method: m,
+                    pose_noise: l,
+                    lambda,
+                    scores: Scores::of(inp, |run| run.thresholded.get(&key).copied()),
+                });
+            }
         }
     }
     rows
@@ -155,6 +190,7 @@ pub(super) fn sweep_rows(inp: &Inputs) -> Vec<SweepRow> {
 
 pub(super) fn sweep(inp: &Inputs) -> Table {
     Columns::of(&sweep_rows(inp))
+        .method(|r| r.method)
         .number("lambda", |r| r.lambda)
         .pose_noise(|r| r.pose_noise)
         .scores(|r| &r.scores)

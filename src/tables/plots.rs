@@ -1,4 +1,5 @@
-//! The data of `coid eval`'s plots: the lambda sweep of `ours`, each
+//! The data of `coid eval`'s plots: the lambda sweep of the paper's
+//! method and `ours`, each
 //! method's F1, the error distributions of `ours` and each deep method's
 //! reliability diagrams.
 
@@ -16,10 +17,26 @@ pub fn plot_data(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambdas)
     let inp = Inputs::new(settings, runs, lambdas);
     let mean = |v: &[f64]| mean_ci95(v).0;
     let sweep = sweep_rows(&inp);
+    // One panel per method and level; a method on the paper's inputs is
+    // the same at every level, so it gets one.
     let lambda_sweep = sweep
-        .chunks(inp.grid.len())
-        .zip(&inp.levels)
-        .map(|(points, l)| {
+        .chunks(inp.grid.len().max(1))
+        .filter(|points| {
+            let first = &points[0];
+            first.method.inputs() != crate::matching::Inputs::Paper
+                || Some(&first.pose_noise) == inp.levels.first()
+        })
+        .map(|points| {
+            let first = &points[0];
+            let label = if first.method.inputs() == crate::matching::Inputs::Paper {
+                format!("{}, any pose noise", first.method.as_str())
+            } else {
+                format!(
+                    "{}, pose noise {}",
+                    first.method.as_str(),
+                    first.pose_noise.as_str()
+                )
+            };
             let points: Vec<SweepPoint> = points
                 .iter()
                 .map(|p| {
@@ -27,7 +44,7 @@ pub fn plot_data(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambdas)
                     (p.lambda, mean(&s.precision), mean(&s.recall), mean(&s.f1))
                 })
                 .collect();
-            (l.as_str().to_owned(), points)
+            (label, points)
         })
         .collect();
     let f1 = inp

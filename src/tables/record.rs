@@ -116,11 +116,32 @@ pub struct RunEval {
     /// Every identified pair of each method (its default decision), for
     /// calibration.
     pub scored: BTreeMap<MethodLevel, Vec<ScoredPair>>,
+    /// Calibration on one common set of pairs: in every instance, the
+    /// pairs any deep method decided, each scored by every deep method's
+    /// own probability (made by [`RunEval::close_common`]).
+    pub common: BTreeMap<MethodLevel, Vec<ScoredPair>>,
+    /// The deep methods' probabilities per instance and level until the
+    /// run's common set is made.
+    pending: BTreeMap<(PoseNoiseLabel, usize), PendingInstance>,
     /// Consistency across vehicles of each method's decided matches.
     pub consistency: BTreeMap<MethodLevel, Consistency>,
     /// Fusion from every view.
     pub views: BTreeMap<ViewKey, ViewSums>,
+    /// Table 1's counts of each deep method with the weights of each
+    /// training seed evaluated (`[eval] training_seeds`: the models
+    /// folder's own and the others'); empty when one seed was.
+    pub by_seed: BTreeMap<(MethodLevel, u64), PairCounts>,
     pub instances: usize,
+}
+
+/// One instance at one level while its run goes on: which of its pairs
+/// are true, which any deep method decided, and each deep method's
+/// calibrated probability of every pair (`n1 x n2`, row-major).
+#[derive(Clone, Debug, Default)]
+struct PendingInstance {
+    truth: Vec<bool>,
+    decided: std::collections::BTreeSet<usize>,
+    probabilities: Vec<(Method, Vec<f32>)>,
 }
 
 /// One pair a deep method's rule decided on, before any threshold: what
@@ -158,6 +179,59 @@ impl RunEval {
                     seen_by: seen_by_group(v.seen_by),
                 };
                 self.views.entry(key).or_default().add(v);
+            }
+        }
+    }
+
+    /// Keeps a deep method's probabilities of every pair of one instance
+    /// (`instance`, its index in the run) at one level, and the pairs it
+    /// decided, for the common pair set.
+    pub fn record_candidates(
+        &mut self,
+        e: &MethodEval,
+        level: PoseNoiseLabel,
+        instance: usize,
+        (ta, tb): (&ObservationTruth, &ObservationTruth),
+    ) {
+        let Some(dist) = &e.identification.distribution else {
+            return;
+        };
+        let (n1, n2) = (dist.n1, dist.n2);
+        let pending = self.pending.entry((level, instance)).or_default();
+        if pending.truth.is_empty() {
+            pending.truth = (0..n1 * n2)
+                .map(|k| {
+                    let a = ta.object_id(k / n2);
+                    a.is_some() && a == tb.object_id(k % n2)
+                })
+                .collect();
+        }
+        let matches = &e.identification.matches;
+        pending
+            .decided
+            .extend(matches.iter().map(|c| c.a * n2 + c.b));
+        let p = (0..n1 * n2)
+            .map(|k| dist.probability(k / n2, k % n2) as f32)
+            .collect();
+        pending.probabilities.push((e.method, p));
+    }
+
+    /// Makes the run's common pair set: in every instance and level, the
+    /// pairs any deep method decided, each scored by every deep method's
+    /// probability (its uncertainty `1 - p`, so that the AUROC is that of
+    /// the probability for telling true pairs from false ones).
+    pub fn close_common(&mut self) {
+        for ((level, _), pending) in std::mem::take(&mut self.pending) {
+            for (method, p) in &pending.probabilities {
+                let scored = pending.decided.iter().map(|&k| ScoredPair {
+                    probability: f64::from(p[k]),
+                    uncertainty: 1.0 - f64::from(p[k]),
+                    correct: pending.truth[k],
+                });
+                self.common
+                    .entry(MethodLevel::new(*method, level))
+                    .or_default()
+                    .extend(scored);
             }
         }
     }

@@ -5,7 +5,7 @@ use crate::evaluate::{MethodEval, PairCounts, count_pairs};
 use crate::geometry::Pose2;
 use crate::matching::deep::decision::{KindLambdas, MatchDistribution};
 use crate::matching::{Correspondence, Identification};
-use crate::report::TableColumn;
+use crate::report::{ScoredPair, TableColumn};
 use crate::sensor::{DetectionTruth, ObservationTruth};
 
 /// Two vehicles that both see objects x and y (detections 0 and 1).
@@ -184,4 +184,61 @@ fn the_paired_table_compares_with_the_strongest_baseline_run_by_run() {
     let d = numbers(&t.paired, "f1_difference");
     assert!((d[0] - 2.0 / 40.0).abs() < 1e-12, "{d:?}");
     assert!((d[1] - 1.0 / 40.0).abs() < 1e-12, "{d:?}");
+}
+
+/// Calibration on a common pair set: in each instance the pairs any deep
+/// method decided, each scored by every deep method's own probability;
+/// a method without a distribution has no common pairs.
+#[test]
+fn calibration_uses_one_common_set_of_pairs() {
+    let (ta, tb) = truths();
+    let mut run = RunEval::default();
+    // 2 x 2, one sample: rows are vehicle 0's detections.
+    let two_by_two = |p: [f32; 4]| {
+        let s = vec![p[0], p[1], 0.0, p[2], p[3], 0.0, 0.0, 0.0, 0.0];
+        MatchDistribution::from_samples(2, 2, &[s])
+    };
+    let pair = |a: usize, b: usize, d: &MatchDistribution| Correspondence {
+        a,
+        b,
+        probability: d.probability(a, b),
+        uncertainty: d.total(a, b),
+    };
+    let a = two_by_two([0.9, 0.1, 0.2, 0.3]);
+    let b = two_by_two([0.6, 0.7, 0.1, 0.8]);
+    let evals = [
+        (Method::Ours, vec![pair(0, 0, &a)], Some(a.clone())),
+        (
+            Method::Coid,
+            vec![pair(0, 1, &b), pair(1, 1, &b)],
+            Some(b.clone()),
+        ),
+        (Method::GpsAppHungarian, vec![pair(1, 0, &a)], None),
+    ];
+    // Every method on the same instance, 0.
+    for (method, matches, distribution) in evals {
+        let e = MethodEval {
+            method,
+            counts: count_pairs(&ta, &tb, &matches),
+            identification: Identification {
+                matches,
+                distribution,
+            },
+            fused: vec![],
+        };
+        run.record_candidates(&e, PoseNoiseLabel::Gps, 0, (&ta, &tb));
+    }
+    run.close_common();
+    let common = |m: Method| run.common.get(&MethodLevel::new(m, PoseNoiseLabel::Gps));
+    let ours = common(Method::Ours).unwrap();
+    let coid = common(Method::Coid).unwrap();
+    // The union of the deep methods' pairs, (0, 0), (0, 1), (1, 1), in
+    // pair order; the baseline's (1, 0) is not among them.
+    let p = |v: &[ScoredPair]| v.iter().map(|s| s.probability as f32).collect::<Vec<_>>();
+    assert_eq!(p(ours), [0.9, 0.1, 0.3]);
+    assert_eq!(p(coid), [0.6, 0.7, 0.8]);
+    let right: Vec<bool> = ours.iter().map(|s| s.correct).collect();
+    assert_eq!(right, [true, false, true]);
+    assert_eq!(right, coid.iter().map(|s| s.correct).collect::<Vec<_>>());
+    assert!(common(Method::GpsAppHungarian).is_none());
 }

@@ -224,8 +224,9 @@ fn shipped_model_beats_gps_appearance_hungarian_at_gps_noise() {
 }
 
 /// `coid eval --mc-sweep` (Fig. 8b): every sample count and dropout rate
-/// on the validation and the test runs, one row per setting, split and
-/// level; T = 1 (one dropout draw) is a row of its own; the picture is
+/// on the validation and the test runs, one row per method (the paper's
+/// method and ours), setting, split and level; T = 1 (one dropout draw)
+/// is a row of its own; the picture is
 /// drawn; the sweep cannot be asked of another run list.
 #[test]
 fn the_mc_sweep_covers_samples_and_dropout_on_both_splits() {
@@ -242,15 +243,23 @@ fn the_mc_sweep_covers_samples_and_dropout_on_both_splits() {
             .output(),
     );
     let t = read_csv(&fx.path("sw/mc_sweep.csv"));
-    assert_eq!(t.height(), 19 * 2, "{t}");
+    // 19 settings, 2 splits, 2 methods (coid and ours; one level each).
+    assert_eq!(t.height(), 19 * 2 * 2, "{t}");
     let (factor, split) = (strs(&t, "factor"), strs(&t, "split"));
+    let method = strs(&t, "method");
     let value = f64s(&t, "value");
     assert_eq!(
-        (factor[0].as_str(), value[0], split[0].as_str()),
-        ("samples", 1.0, "validation")
+        (
+            method[0].as_str(),
+            factor[0].as_str(),
+            value[0],
+            split[0].as_str()
+        ),
+        ("coid", "samples", 1.0, "validation")
     );
-    assert_eq!((factor[1].as_str(), split[1].as_str()), ("samples", "test"));
-    assert!(factor[22..].iter().all(|f| f == "dropout"));
+    assert_eq!(method[1], "ours");
+    assert_eq!((factor[2].as_str(), split[2].as_str()), ("samples", "test"));
+    assert!(factor[44..].iter().all(|f| f == "dropout"));
     let f1 = f64s(&t, "f1");
     assert!(f1.iter().all(|f| (0.0..=1.0).contains(f)), "{t}");
     assert!(fx.path("sw/mc_sweep.png").is_file());
@@ -262,4 +271,66 @@ fn the_mc_sweep_covers_samples_and_dropout_on_both_splits() {
         .args(["--mc-sweep", "--validation"])
         .output();
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+}
+
+/// A deep method trained with two seeds (`coid train --seed 8 --out
+/// models/seed-8` beside the models folder's own seed 7) and evaluated
+/// with `[eval] training_seeds`: Table 1b gives its row as the mean over
+/// the seeds, with each seed's F1 (as evaluating that seed's weights
+/// alone gives it) as the spread; the paired table counts the seeds; a
+/// listed seed without weights is refused with the command that makes
+/// them.
+#[test]
+fn training_seeds_give_each_deep_row_its_spread_over_seeds() {
+    let fx = Fixture::new();
+    let body = |models: &str, seeds: &str| {
+        format!(
+            "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 2\nlearning_rate = 0.05\nseed = 7\n\
+             methods = [\"ours\"]\n[eval]\ntraffic_seeds = [1, 2]\ntraining_seeds = {seeds}\n\
+             [matching]\nmethods = [\"ours\", \"gps-hungarian\", \"oracle\"]\nbaselines = \"a-priori\"\n\
+             models_dir = {:?}\n[pose_noise]\nlevels = [\"gps\"]\n",
+            fx.path(models).to_string_lossy()
+        )
+    };
+    let cfg = fx.config("s.toml", 60.0, &body("models", "[7, 8]"));
+    let train = fx.cmd("train").quiet().config(&cfg);
+    assert_ok(&train.out("models").output());
+    let train = fx.cmd("train").quiet().config(&cfg).args(["--seed", "8"]);
+    assert_ok(&train.out("models/seed-8").output());
+    assert!(fx.read_text("models/seed-8/ours.toml").contains("seed = 8"));
+    let eval = |cfg: &std::path::Path, out: &str| {
+        let o = fx.cmd("eval").quiet().config(cfg).out(out).output();
+        assert_ok(&o);
+        read_csv(&fx.path(&format!("{out}/table1b.csv")))
+    };
+    let both = eval(&cfg, "both");
+    let row = strs(&both, "method")
+        .iter()
+        .position(|m| m == "ours")
+        .unwrap();
+    assert_eq!(strs(&both, "training_seeds")[row], "7 8");
+    let alone = |models: &str, out: &str| {
+        let c = fx.config(&format!("{out}.toml"), 60.0, &body(models, "[]"));
+        let t = eval(&c, out);
+        assert!(t.column("training_seeds").is_err(), "one seed, no spread");
+        let k = strs(&t, "method").iter().position(|m| m == "ours");
+        f64s(&t, "f1")[k.unwrap()]
+    };
+    let (f7, f8) = (alone("models", "seven"), alone("models/seed-8", "eight"));
+    // The two seeds' weights decide differently on these runs, so the
+    // spread says which seed is which.
+    assert_ne!(f7, f8);
+    let near = |a: f64, b: f64| (a - b).abs() < 1e-9;
+    assert!(near(f64s(&both, "f1_seeds_min")[row], f7.min(f8)));
+    assert!(near(f64s(&both, "f1_seeds_max")[row], f7.max(f8)));
+    let baseline = strs(&both, "method")
+        .iter()
+        .position(|m| m == "gps-hungarian");
+    assert_eq!(strs(&both, "training_seeds")[baseline.unwrap()], "");
+    let paired = read_csv(&fx.path("both/paired.csv"));
+    let k = strs(&paired, "method").iter().position(|m| m == "ours");
+    assert_eq!(f64s(&paired, "n_training_seeds")[k.unwrap()], 2.0);
+    let missing = fx.config("m.toml", 60.0, &body("models", "[7, 9]"));
+    let o = fx.cmd("eval").quiet().config(&missing).out("m").output();
+    assert_refused(&o, "coid train --seed 9");
 }

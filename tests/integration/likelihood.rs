@@ -29,7 +29,10 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
         decision: Decision::Assignment,
         temperature: 1.0,
         seed: 1,
-        masks: settings.matching.dropout_masks,
+        masks: settings
+            .matching
+            .dropout_masks
+            .resolve(coid_sim::matching::deep::arch::MaskScope::PerNode),
         dropout: settings.matching.mc_dropout,
         gate_chi2: settings.matching.gate_chi2,
     };

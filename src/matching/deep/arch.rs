@@ -230,18 +230,48 @@ pub fn likelihood_terms(arch: &Architecture, gate_chi2: f64) -> LikelihoodTerms 
 }
 
 crate::label_enum! { "dropout masks";
-    /// How MC dropout draws its masks at inference.
+    /// How (MC) dropout draws its masks, in training and at inference.
     pub enum MaskScope {
         /// The paper's Eq. 8: in each sample, one Bernoulli mask over each
-        /// layer's input units, shared by every node of every graph and
-        /// every pair: sample t is one draw of the weights, W^(t).
+        /// layer's input units, shared by every node of the graphs (and, at
+        /// inference, by every graph and pair): sample t is one draw of
+        /// the weights, W^(t). In training each pair's sample is a draw of
+        /// its own, shared by both of its graphs.
         #[strum(serialize = "shared")]
         Shared,
         /// A mask per node and unit (and per pair entry in the consensus
-        /// MLP), drawn from each graph's and each pair's own stream: how
-        /// the shipped weights were trained.
+        /// MLP), drawn from each graph's and each pair's own stream.
         #[strum(serialize = "per-node")]
         PerNode,
+    }
+}
+
+crate::label_enum! { "dropout masks";
+    /// `[matching] dropout_masks`: the masks MC dropout draws at
+    /// inference.
+    pub enum MaskChoice {
+        /// As the weights were trained (their record's
+        /// `dropout_masks`; "per-node" for weights whose record predates
+        /// it).
+        #[strum(serialize = "as-trained")]
+        AsTrained,
+        /// Eq. 8's shared masks, whatever the training drew.
+        #[strum(serialize = "shared")]
+        Shared,
+        /// Masks per node and unit, whatever the training drew.
+        #[strum(serialize = "per-node")]
+        PerNode,
+    }
+}
+
+impl MaskChoice {
+    /// The scope inference uses for weights trained with `trained`.
+    pub fn resolve(self, trained: MaskScope) -> MaskScope {
+        match self {
+            MaskChoice::AsTrained => trained,
+            MaskChoice::Shared => MaskScope::Shared,
+            MaskChoice::PerNode => MaskScope::PerNode,
+        }
     }
 }
 
@@ -290,12 +320,21 @@ mod tests {
             (Method::DgmcGps, (V2xPoses, true, false, false)),
             (Method::GcnGmGps, (V2xPoses, false, false, false)),
         ];
+        // Single-pass variants run their owner's network.
         let deep: Vec<Method> = Method::all()
             .iter()
             .copied()
-            .filter(|m| matches!(m.kind(), MethodKind::Deep(_)))
+            .filter(|m| matches!(m.kind(), MethodKind::Deep(_)) && !m.single_pass())
             .collect();
         assert_eq!(deep, rows.map(|(m, _)| m));
+        for (t1, owner) in [
+            (Method::CoidT1, Method::Coid),
+            (Method::OursT1, Method::Ours),
+        ] {
+            assert_eq!(t1.kind(), owner.kind());
+            assert_eq!(t1.inputs(), owner.inputs());
+            assert_eq!(owner.single_pass_variant(), Some(t1));
+        }
         for (m, row) in rows {
             let MethodKind::Deep(d) = m.kind() else {
                 unreachable!()

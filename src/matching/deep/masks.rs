@@ -9,7 +9,6 @@ use rand::{Rng, RngCore};
 use rand_chacha::ChaCha8Rng;
 
 use super::arch::{Architecture, MaskScope};
-use super::spline::GraphBatch;
 
 /// The dropout masks of one training forward pass with T samples (values
 /// 0 or 1 / (1 - p), inverted dropout).
@@ -85,16 +84,38 @@ fn mask4(
 }
 
 /// All masks of one training forward pass over a batch of `b` pairs with
-/// `t` samples each, from one stream.
+/// `t` samples each, graphs padded to `n1` and `n2` nodes, from one
+/// stream: per node and unit, or (Eq. 8,
+/// [`MaskScope::Shared`]) one mask per pair and sample over each layer's
+/// units, the same for every node of both graphs and every pair entry.
 pub(super) fn draw_masks(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
-    [b, t]: [usize; 2],
-    graphs: [&GraphBatch; 2],
+    [b, t, n1, n2]: [usize; 4],
+    scope: MaskScope,
     device: &Device,
 ) -> Masks {
-    let [n1, n2] = graphs.map(GraphBatch::n);
     let (h, o, p) = (arch.hidden, arch.out, arch.dropout_conv);
+    if scope == MaskScope::Shared {
+        let conv1 = mask4(rng, dropout_mask, [b, t, 1, h], p, device);
+        let conv2 = mask4(rng, dropout_mask, [b, t, 1, o], p, device);
+        let r = arch.consensus_dim;
+        let phi = if arch.consensus {
+            let v = dropout_mask(rng, b * t * r, arch.dropout_phi);
+            Tensor::<5>::from_data(TensorData::new(v, [b, t, 1, 1, r]), device)
+                .expand([b, t, n1, n2, r])
+        } else {
+            Tensor::<5>::ones([1, 1, 1, 1, 1], device)
+        };
+        return Masks {
+            conv1: [n1, n2].map(|n| conv1.clone().expand([b, t, n, h])),
+            conv2: [n1, n2].map(|n| conv2.clone().expand([b, t, n, o])),
+            pair: PairMasks {
+                phi,
+                indicators: indicators(rng, arch, [b, n1], device),
+            },
+        };
+    }
     let conv1 = [
         mask4(rng, dropout_mask, [b, t, n1, h], p, device),
         mask4(rng, dropout_mask, [b, t, n2, h], p, device),
@@ -181,14 +202,26 @@ pub(super) fn draw_pair_masks(
     } else {
         Tensor::<5>::ones([1, 1, 1, 1, 1], device)
     };
-    let normal = rand_distr::StandardNormal;
-    let indicators: Vec<f32> = (0..b * n1 * r)
-        .map(|_| rng.sample::<f64, _>(normal) as f32)
-        .collect();
     PairMasks {
         phi,
-        indicators: Tensor::from_data(TensorData::new(indicators, [b, 1, n1, r]), device),
+        indicators: indicators(rng, arch, [b, n1], device),
     }
+}
+
+/// The consensus's random node indicators of `b` first graphs of `n1`
+/// nodes, `[B, 1, N1, consensus_dim]`, standard normal.
+fn indicators(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    [b, n1]: [usize; 2],
+    device: &Device,
+) -> Tensor<4> {
+    let r = arch.consensus_dim;
+    let normal = rand_distr::StandardNormal;
+    let v: Vec<f32> = (0..b * n1 * r)
+        .map(|_| rng.sample::<f64, _>(normal) as f32)
+        .collect();
+    Tensor::from_data(TensorData::new(v, [b, 1, n1, r]), device)
 }
 
 #[cfg(test)]
@@ -238,5 +271,44 @@ mod tests {
         let r = arch.consensus_dim;
         let first = &v[..r];
         assert!((0..12).all(|k| &v[k * r..(k + 1) * r] == first));
+    }
+
+    /// Training with Eq. 8's masks: in each pair's sample one mask over a
+    /// layer's units, the same for every node of both graphs and every
+    /// pair entry; other pairs and samples draw their own. Per-node
+    /// training masks differ between nodes.
+    #[test]
+    fn shared_training_masks_are_one_draw_per_pair_and_sample() {
+        let arch = Architecture::default();
+        let device = Device::flex();
+        let (b, t, n1, n2, h) = (2, 3, 4, 5, arch.hidden);
+        let draw = |scope| {
+            let mut rng = ChaCha8Rng::seed_from_u64(9);
+            draw_masks(&mut rng, &arch, [b, t, n1, n2], scope, &device)
+        };
+        let m = draw(MaskScope::Shared);
+        let g1 = m.conv1[0].clone().try_into_vec_as::<f32>().unwrap();
+        let g2 = m.conv1[1].clone().try_into_vec_as::<f32>().unwrap();
+        let row1 = |pair: usize, sample: usize, node: usize| {
+            let at = ((pair * t + sample) * n1 + node) * h;
+            g1[at..at + h].to_vec()
+        };
+        let row2 = |pair: usize, sample: usize, node: usize| {
+            let at = ((pair * t + sample) * n2 + node) * h;
+            g2[at..at + h].to_vec()
+        };
+        for (pair, sample) in [(0, 0), (1, 2)] {
+            let first = row1(pair, sample, 0);
+            assert!((0..n1).all(|i| row1(pair, sample, i) == first));
+            assert!((0..n2).all(|j| row2(pair, sample, j) == first));
+        }
+        assert_ne!(row1(0, 0, 0), row1(0, 1, 0), "samples draw their own");
+        assert_ne!(row1(0, 0, 0), row1(1, 0, 0), "pairs draw their own");
+        let r = arch.consensus_dim;
+        let phi = m.pair.phi.try_into_vec_as::<f32>().unwrap();
+        assert!((0..n1 * n2).all(|k| phi[k * r..(k + 1) * r] == phi[..r]));
+        let per_node = draw(MaskScope::PerNode);
+        let v = per_node.conv1[0].clone().try_into_vec_as::<f32>().unwrap();
+        assert_ne!(v[..h], v[h..2 * h]);
     }
 }

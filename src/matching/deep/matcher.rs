@@ -269,6 +269,13 @@ impl DeepMatcher {
         Ok(Self::new(method.method(), net, arch, run))
     }
 
+    /// The same matcher reporting its answers as `method`'s (a
+    /// single-pass variant of the method whose weights it runs).
+    pub fn labelled(mut self, method: Method) -> Self {
+        self.method = method;
+        self
+    }
+
     /// A deep method with freshly initialised weights (`init_seed`), as
     /// training starts from: for benchmarks, and for tests.
     pub fn untrained(method: Method, arch: Architecture, init_seed: u64, run: Inference) -> Self {

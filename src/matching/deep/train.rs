@@ -12,7 +12,7 @@ use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
-use super::arch::{Architecture, Backbone, LossTerms, PairLoss};
+use super::arch::{Architecture, Backbone, LossTerms, MaskScope, PairLoss};
 use super::features::{GraphInput, PairInput};
 use super::init::Init;
 use super::loss::{LabelTensors, loss};
@@ -58,6 +58,9 @@ pub struct TrainSettings {
     pub loss: PairLoss,
     /// MC-dropout samples per training pair (losses on their mean).
     pub mc_samples: usize,
+    /// How the training's dropout masks are drawn (per node, or Eq. 8's
+    /// one mask per sample over each layer's input units).
+    pub dropout_masks: MaskScope,
     /// Pairs per optimiser step.
     pub batch_size: usize,
     /// Training pairs are sampled at most this often per vehicle pair
@@ -83,6 +86,8 @@ pub struct TrainOptions {
     /// MC-dropout samples per pair: the losses are taken on their mean
     /// assignment E[Y] (Eq. 11-13).
     pub samples: usize,
+    /// How the dropout masks are drawn.
+    pub masks: MaskScope,
     pub batch_size: usize,
     /// The likelihood's gate on the squared Mahalanobis distance.
     pub gate_chi2: f64,
@@ -271,7 +276,8 @@ impl Trainer {
     ) -> Tensor<1> {
         let tensors = BatchTensors::new(batch, device);
         let [g1, g2] = &tensors.graphs;
-        let masks: Masks = draw_masks(stream, &self.arch, [batch.len(), samples], [g1, g2], device);
+        let dims = [batch.len(), samples, g1.n(), g2.n()];
+        let masks: Masks = draw_masks(stream, &self.arch, dims, self.opts.masks, device);
         let log_p = net.forward([g1, g2], &tensors.pair, masks, self.arch.sinkhorn_iters);
         loss(log_p, &tensors.labels, self.terms)
     }
@@ -455,6 +461,7 @@ pub fn train(
                 cfg,
                 deep.loss_terms(),
                 opts.samples,
+                opts.masks,
                 opts.seed,
                 label,
             );

@@ -240,6 +240,30 @@ pub fn draw_masks(
     PublishedMasks { psi1, indicators }
 }
 
+/// The masks and indicators of one training pass over `b` pairs, `t`
+/// samples each: psi_1's masks per node and channel, or (Eq. 8,
+/// [`MaskScope::Shared`]) one mask per pair and sample over the channels,
+/// the same for every node of both graphs.
+pub fn draw_training_masks(
+    rng: &mut ChaCha8Rng,
+    cfg: &PublishedConfig,
+    [b, t, n1, n2]: [usize; 4],
+    scope: MaskScope,
+    device: &Device,
+) -> PublishedMasks {
+    match scope {
+        MaskScope::PerNode => draw_masks(rng, cfg, [b, t, n1, n2], true, device),
+        MaskScope::Shared => {
+            let d = cfg.hidden;
+            let v = dropout_mask_16(rng, b * t * d, cfg.dropout);
+            let m = Tensor::<4>::from_data(TensorData::new(v, [b, t, 1, d]), device);
+            let psi1 = [n1, n2].map(|n| m.clone().expand([b, t, n, d]));
+            let indicators = draw_indicators(rng, cfg, [b, t, n1], device);
+            PublishedMasks { psi1, indicators }
+        }
+    }
+}
+
 /// How many samples to draw, and whether with MC dropout.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Sampling {

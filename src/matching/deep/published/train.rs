@@ -14,8 +14,8 @@ use rand_chacha::ChaCha8Rng;
 
 use super::conv::GraphTensors;
 use super::graph::PaperGraph;
-use super::model::{PublishedConfig, PublishedNet, draw_masks};
-use crate::matching::deep::arch::LossTerms;
+use super::model::{PublishedConfig, PublishedNet, draw_training_masks};
+use crate::matching::deep::arch::{LossTerms, MaskScope};
 use crate::matching::deep::examples::Example;
 use crate::matching::deep::init::Init;
 use crate::matching::deep::loss::{non_term, unc_term};
@@ -125,6 +125,8 @@ pub struct PublishedTrainer {
     terms: LossTerms,
     /// Dropout samples per training pair.
     samples: usize,
+    /// How the dropout masks are drawn.
+    masks: MaskScope,
     net: PublishedNet,
     optim: ModuleOptimizer,
     device: Device,
@@ -142,15 +144,17 @@ impl PublishedTrainer {
             non: false,
             unc: false,
         };
-        Self::with_terms(cfg, terms, 1, seed, "")
+        Self::with_terms(cfg, terms, 1, MaskScope::PerNode, seed, "")
     }
 
     /// A fresh network trained with `terms` on `samples` dropout samples
-    /// per pair; `name` (the method's label) keys its stream.
+    /// per pair, masks drawn as `masks` says; `name` (the method's label)
+    /// keys its stream.
     pub fn with_terms(
         cfg: PublishedConfig,
         terms: LossTerms,
         samples: usize,
+        masks: MaskScope,
         seed: u64,
         name: &str,
     ) -> Self {
@@ -161,6 +165,7 @@ impl PublishedTrainer {
             cfg,
             terms,
             samples: samples.max(1),
+            masks,
             optim: AdamConfig::new().init(),
             device,
             stream: rng::stream(
@@ -188,7 +193,13 @@ impl PublishedTrainer {
         let g2 = GraphTensors::new(&seconds, scale, device);
         let (n1, n2) = (g1.n(), g2.n());
         let b = batch.len();
-        let masks = draw_masks(stream, &self.cfg, [b, self.samples, n1, n2], true, device);
+        let masks = draw_training_masks(
+            stream,
+            &self.cfg,
+            [b, self.samples, n1, n2],
+            self.masks,
+            device,
+        );
         let weights = label_weights(batch, [n1, n2], device);
         let out = net.forward(&self.cfg, [&g1, &g2], masks);
         let mut loss = nll(out.initial.clone(), &weights);
