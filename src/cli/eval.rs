@@ -294,8 +294,10 @@ struct SeedPass {
 
 /// The passes `[eval] training_seeds` asks for beyond the models folder's
 /// own weights: each seed other than a deep method's own, with the deep
-/// methods it has weights for. Refused when a deep method's own seed is
-/// not listed, or a seed's folder holds weights of another seed.
+/// methods it has weights for (a seed without a method's weights is
+/// named in a warning and left out of that method's rows). Refused when
+/// a deep method's own seed is not listed, or a seed's folder holds
+/// weights of another seed.
 fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<SeedPass>> {
     let seeds = &settings.eval.training_seeds;
     let dir = &settings.matching.models_dir;
@@ -320,14 +322,21 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
         }
         for &seed in seeds.iter().filter(|&&s| s != own) {
             let seed_dir = io::seed_models_dir(dir, seed);
-            let found = io::trained_seed(&seed_dir, m).with_context(|| {
-                format!(
-                    "[eval] training_seeds lists {seed}: train it with `coid train --seed {seed} \
-                     --methods {} --out {}`",
+            if !io::weights_path(&seed_dir, m).exists() {
+                // Seeds are trained one command at a time: a row says
+                // which seeds it averages (`training_seeds`).
+                eprintln!(
+                    "coid: warning: [eval] training_seeds lists {seed}, but {} has no weights of \
+                     '{}' (train them with `coid train --seed {seed} --methods {} --out {}`); \
+                     its rows average the seeds it has",
+                    seed_dir.display(),
                     m.as_str(),
+                    m.weights_owner().as_str(),
                     seed_dir.display()
-                )
-            })?;
+                );
+                continue;
+            }
+            let found = io::trained_seed(&seed_dir, m)?;
             if found != seed {
                 anyhow::bail!(
                     "{} holds weights of '{}' trained with seed {found}, not {seed}",

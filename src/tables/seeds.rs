@@ -45,7 +45,7 @@ impl SeedSpread {
 
 impl Inputs<'_> {
     /// The training seeds the runs evaluated `key` with (empty unless
-    /// several were).
+    /// `[eval] training_seeds` asked for them).
     pub(super) fn seeds(&self, key: MethodLevel) -> Vec<u64> {
         let mut seeds: Vec<u64> = self
             .runs
@@ -97,10 +97,11 @@ impl Inputs<'_> {
             .collect()
     }
 
-    /// The spread of `key`'s F1 over its training seeds, if it has several.
+    /// The spread of `key`'s F1 over its training seeds, if the runs
+    /// evaluated it per seed (with one seed: no standard deviation).
     pub(super) fn seed_spread(&self, key: MethodLevel) -> Option<SeedSpread> {
         let seeds = self.seeds(key);
-        if seeds.len() < 2 {
+        if seeds.is_empty() {
             return None;
         }
         let f1 = seeds

@@ -278,8 +278,8 @@ fn the_mc_sweep_covers_samples_and_dropout_on_both_splits() {
 /// with `[eval] training_seeds`: Table 1b gives its row as the mean over
 /// the seeds, with each seed's F1 (as evaluating that seed's weights
 /// alone gives it) as the spread; the paired table counts the seeds; a
-/// listed seed without weights is refused with the command that makes
-/// them.
+/// listed seed without weights is named in a warning with the command
+/// that makes them, and one with another seed's weights is refused.
 #[test]
 fn training_seeds_give_each_deep_row_its_spread_over_seeds() {
     let fx = Fixture::new();
@@ -330,7 +330,20 @@ fn training_seeds_give_each_deep_row_its_spread_over_seeds() {
     let paired = read_csv(&fx.path("both/paired.csv"));
     let k = strs(&paired, "method").iter().position(|m| m == "ours");
     assert_eq!(f64s(&paired, "n_training_seeds")[k.unwrap()], 2.0);
-    let missing = fx.config("m.toml", 60.0, &body("models", "[7, 9]"));
+    // A listed seed without weights: a warning with the command that
+    // makes them, and the row averages the seeds it has.
+    let missing = fx.config("m.toml", 60.0, &body("models", "[7, 8, 9]"));
     let o = fx.cmd("eval").quiet().config(&missing).out("m").output();
-    assert_refused(&o, "coid train --seed 9");
+    assert_ok(&o);
+    assert!(stderr(&o).contains("coid train --seed 9"), "{}", stderr(&o));
+    let t = read_csv(&fx.path("m/table1b.csv"));
+    assert_eq!(strs(&t, "training_seeds")[row], "7 8");
+    // A listed seed whose folder holds another seed's weights is refused.
+    let dir = fx.path("models/seed-9");
+    std::fs::create_dir_all(&dir).unwrap();
+    for f in ["ours.bpk", "ours.toml"] {
+        std::fs::copy(fx.path("models/seed-8").join(f), dir.join(f)).unwrap();
+    }
+    let o = fx.cmd("eval").quiet().config(&missing).out("m2").output();
+    assert_refused(&o, "trained with seed 8, not 9");
 }

@@ -108,6 +108,18 @@ impl DeepMethod {
         }
     }
 
+    /// The dropout masks it trains with when `[train] dropout_masks` says
+    /// `configured`: DGMC and GCN-GM as published draw standard dropout, a
+    /// mask per node and channel, whatever the setting; every other
+    /// method (the paper's, its ablations, the project's network) as
+    /// configured.
+    pub fn training_masks(self, configured: MaskScope) -> MaskScope {
+        match self {
+            DeepMethod::Dgmc | DeepMethod::GcnGm => MaskScope::PerNode,
+            _ => configured,
+        }
+    }
+
     /// Whether its decision removes uncertain pairs: the methods trained
     /// with the paper's uncertainty-aware losses do; DGMC and GCN-GM, as
     /// published, do not (their thresholded F1 is still reported in Table
@@ -354,6 +366,25 @@ mod tests {
             Method::GpsAppHungarian.kind(),
             MethodKind::Deep(_)
         ));
+    }
+
+    /// DGMC and GCN-GM train with standard dropout as published; the
+    /// others as configured.
+    #[test]
+    fn published_baselines_train_with_standard_dropout() {
+        for m in Method::all() {
+            let MethodKind::Deep(d) = m.kind() else {
+                continue;
+            };
+            let published = matches!(m, Method::Dgmc | Method::GcnGm);
+            let expect = if published {
+                MaskScope::PerNode
+            } else {
+                MaskScope::Shared
+            };
+            assert_eq!(d.training_masks(MaskScope::Shared), expect, "{m:?}");
+            assert_eq!(d.training_masks(MaskScope::PerNode), MaskScope::PerNode);
+        }
     }
 
     /// A record's network reads back as the kind it was written as: the
