@@ -332,7 +332,7 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
                     seed_dir.display(),
                     m.as_str(),
                     m.weights_owner().as_str(),
-                    seed_dir.display()
+                    dir.display()
                 );
                 continue;
             }

@@ -41,12 +41,14 @@ pub struct Args {
     /// and record them beside the weights.
     #[arg(long)]
     validate_only: bool,
-    /// Train with this seed (weight initialisation, shuffling, training
-    /// dropout) instead of [train] seed. Another seed's weights go into
-    /// the models folder's `seed-<N>/` folder, where `coid eval` finds them
-    /// ([eval] training_seeds): `--seed 8 --out models/seed-8`.
-    #[arg(long)]
-    seed: Option<u64>,
+    /// Train (or validate) with these seeds (weight initialisation,
+    /// shuffling, training dropout) instead of [train] seed, one model per
+    /// method and seed, from one collection of the training data. [train]
+    /// seed's weights go into the models folder, every other seed's into
+    /// its `seed-<N>/` folder, where `coid eval` finds them ([eval]
+    /// training_seeds): `--seed 7,8,9 --out models`.
+    #[arg(long, value_delimiter = ',')]
+    seed: Vec<u64>,
     /// Report progress as lines on stdout (for a parent `coid train`).
     #[arg(long, hide = true)]
     progress_lines: bool,
@@ -108,25 +110,67 @@ impl ChildMessage {
     }
 }
 
-pub fn train(a: Args) -> anyhow::Result<()> {
-    let config = a.config.path();
-    let overrides = crate::config::Overrides {
-        train_seed: a.seed,
-        ..Default::default()
-    };
-    let settings = Settings::load_with(&config, &overrides)?;
-    let models_dir = super::out_dir(a.out.out.clone(), &config, "-models");
-    if a.validate_only && !models_dir.is_dir() {
-        anyhow::bail!(
-            "no models folder {} to validate (give the folder with --out)",
-            models_dir.display()
-        );
+/// One training seed of a `coid train`: the settings with it as `[train]
+/// seed`, and the folder its models go into.
+struct SeedRun {
+    settings: Settings,
+    dir: std::path::PathBuf,
+}
+
+/// The seeds `--seed` asks for (else `[train] seed`), each with its
+/// settings and folder: `[train] seed`'s the models folder, every other's
+/// its `seed-<N>/` folder; each checked to be extendable.
+fn seed_runs(a: &Args, settings: &Settings, models_dir: &Path) -> anyhow::Result<Vec<SeedRun>> {
+    if let Some((_, s)) = a
+        .seed
+        .iter()
+        .enumerate()
+        .find(|(k, s)| a.seed[..*k].contains(s))
+    {
+        anyhow::bail!("--seed lists {s} twice");
     }
-    io::check_extendable(
-        &models_dir,
-        io::ResultKind::Models,
-        io::Existing::when(a.force.force),
-    )?;
+    let own = settings.train.seed;
+    let seeds = if a.seed.is_empty() {
+        vec![own]
+    } else {
+        a.seed.clone()
+    };
+    let config = a.config.path();
+    let mut runs = Vec::with_capacity(seeds.len());
+    for seed in seeds {
+        let dir = if seed == own {
+            models_dir.to_owned()
+        } else {
+            io::seed_models_dir(models_dir, seed)
+        };
+        if a.validate_only && !dir.is_dir() {
+            anyhow::bail!(
+                "no models folder {} to validate (give the folder with --out)",
+                dir.display()
+            );
+        }
+        io::check_extendable(
+            &dir,
+            io::ResultKind::Models,
+            io::Existing::when(a.force.force),
+        )?;
+        let overrides = crate::config::Overrides {
+            train_seed: Some(seed),
+            ..Default::default()
+        };
+        runs.push(SeedRun {
+            settings: Settings::load_with(&config, &overrides)?,
+            dir,
+        });
+    }
+    Ok(runs)
+}
+
+/// The deep methods to train (or validate) and the baselines to tune:
+/// `--methods` split by kind, else `[train] methods` and the baselines of
+/// `[matching] methods`; refused when `--methods` names a method twice,
+/// a single-pass variant, or a baseline to train.
+fn methods_of(a: &Args, settings: &Settings) -> anyhow::Result<(Vec<Method>, Vec<Method>)> {
     super::no_repeats("--methods", &a.methods)?;
     if let Some(m) = a.methods.iter().find(|m| m.single_pass()) {
         anyhow::bail!(
@@ -161,25 +205,54 @@ pub fn train(a: Args) -> anyhow::Result<()> {
             m.as_str()
         );
     }
+    Ok((methods, baselines))
+}
+
+pub fn train(a: Args) -> anyhow::Result<()> {
+    let config = a.config.path();
+    let settings = Settings::load(&config)?;
+    let models_dir = super::out_dir(a.out.out.clone(), &config, "-models");
+    if a.validate_only && !models_dir.is_dir() {
+        anyhow::bail!(
+            "no models folder {} to validate (give the folder with --out)",
+            models_dir.display()
+        );
+    }
+    io::check_extendable(
+        &models_dir,
+        io::ResultKind::Models,
+        io::Existing::when(a.force.force),
+    )?;
+    let seeds = seed_runs(&a, &settings, &models_dir)?;
+    // The baselines have no training seed: tuned with [train] seed's run.
+    let tunes_baselines = seeds.iter().any(|s| s.dir == models_dir);
+    let (methods, baselines) = methods_of(&a, &settings)?;
     let show = match (a.progress_lines, a.quiet.quiet) {
         (true, _) => Show::Lines,
         (false, true) => Show::Quiet,
         (false, false) => Show::Bars,
     };
-    let workers = a.workers.get().clamp(1, methods.len().max(1));
+    let jobs = methods.len() * seeds.len();
+    let workers = a.workers.get().clamp(1, jobs.max(1));
     let started = std::time::Instant::now();
+    let bars = show == Show::Bars;
+    let baselines: &[Method] = if tunes_baselines { &baselines } else { &[] };
     if a.validate_only {
-        validate(&settings, &models_dir, &methods, show == Show::Bars)?;
-        return tune_baselines(&settings, &models_dir, &baselines, show == Show::Bars);
+        for s in &seeds {
+            validate(&s.settings, &s.dir, &methods, bars)?;
+        }
+        return tune_baselines(&settings, &models_dir, baselines, bars);
     }
     if workers > 1 {
         train_in_children(&a, &models_dir, &methods, workers)?;
     } else {
-        train_here(&settings, &methods, &models_dir, show)?;
+        train_here(&seeds, &methods, show)?;
     }
     if !a.skip_validation {
-        validate(&settings, &models_dir, &methods, show == Show::Bars)?;
-        tune_baselines(&settings, &models_dir, &baselines, show == Show::Bars)?;
+        for s in &seeds {
+            validate(&s.settings, &s.dir, &methods, bars)?;
+        }
+        tune_baselines(&settings, &models_dir, baselines, bars)?;
     }
     if show != Show::Lines {
         eprintln!(
@@ -191,14 +264,14 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Collects the data and trains `methods` one after another in this
-/// process, writing each model (without its lambda).
-fn train_here(
-    settings: &Settings,
-    methods: &[Method],
-    models_dir: &Path,
-    show: Show,
-) -> anyhow::Result<()> {
+/// Collects the data once and trains `methods` with every seed one after
+/// another in this process, writing each model (without its lambda). The
+/// data does not depend on the training seed.
+fn train_here(seeds: &[SeedRun], methods: &[Method], show: Show) -> anyhow::Result<()> {
+    let Some(first) = seeds.first() else {
+        return Ok(());
+    };
+    let settings = &first.settings;
     let training = experiments::training_runs(settings)?;
     let examples = collect(&training, "training", show)?;
     show.note(&format!(
@@ -216,14 +289,23 @@ fn train_here(
             show,
         )?
     };
-    for &method in methods {
-        train_one(settings, method, (&examples, &validation), models_dir, show)?;
+    for s in seeds {
+        for &method in methods {
+            train_one(&s.settings, method, (&examples, &validation), &s.dir, show)?;
+        }
     }
     Ok(())
 }
 
-/// Trains `methods` in `workers` child processes (method k in group k mod
-/// workers), showing one progress bar per child.
+/// Every `n`-th item of `items` from the `k`-th.
+fn every<T: Copy>(items: &[T], k: usize, n: usize) -> Vec<T> {
+    items.iter().copied().skip(k).step_by(n).collect()
+}
+
+/// Trains `methods` with the seeds of `--seed` in `workers` child
+/// processes (method k in group k mod workers, with every seed; or, with
+/// fewer methods than workers, seed k in group k mod workers, with every
+/// method), showing one progress bar per child.
 fn train_in_children(
     a: &Args,
     models_dir: &Path,
@@ -231,13 +313,19 @@ fn train_in_children(
     workers: usize,
 ) -> anyhow::Result<()> {
     let exe = std::env::current_exe().context("cannot locate the coid executable")?;
-    let groups: Vec<Vec<Method>> = (0..workers)
-        .map(|g| methods.iter().copied().skip(g).step_by(workers).collect())
+    let groups: Vec<(Vec<Method>, Vec<u64>)> = (0..workers)
+        .map(|g| {
+            if methods.len() >= workers {
+                (every(methods, g, workers), a.seed.clone())
+            } else {
+                (methods.to_vec(), every(&a.seed, g, workers))
+            }
+        })
         .collect();
     let config = a.config.path();
     let jobs: Vec<Vec<OsString>> = groups
         .iter()
-        .map(|group| child_args(&config, models_dir, group, a.seed))
+        .map(|(group, seeds)| child_args(&config, models_dir, group, seeds))
         .collect();
     let bars = ChildBars::new(groups.len(), a.quiet.quiet);
     let failures = batch::run_children(
@@ -252,8 +340,15 @@ fn train_in_children(
     )
     .context("cannot start a training process")?;
     if let Some(f) = failures.first() {
-        let group = labels(&groups[f.run]).join(", ");
-        anyhow::bail!("training {group} failed: {}", f.message);
+        let (methods, seeds) = &groups[f.run];
+        let group = labels(methods).join(", ");
+        let seeds: Vec<String> = seeds.iter().map(u64::to_string).collect();
+        let seeds = if seeds.is_empty() {
+            String::new()
+        } else {
+            format!(" (seeds {})", seeds.join(", "))
+        };
+        anyhow::bail!("training {group}{seeds} failed: {}", f.message);
     }
     Ok(())
 }
@@ -265,17 +360,13 @@ fn labels(methods: &[Method]) -> Vec<&'static str> {
 
 /// The arguments of the child `coid train` that trains `group` into
 /// `models_dir`, reporting [`ChildMessage`]s.
-fn child_args(
-    config: &Path,
-    models_dir: &Path,
-    group: &[Method],
-    seed: Option<u64>,
-) -> Vec<OsString> {
+fn child_args(config: &Path, models_dir: &Path, group: &[Method], seeds: &[u64]) -> Vec<OsString> {
     let mut args: Vec<OsString> = vec!["train".into(), "--config".into(), config.into()];
     args.extend(["--out".into(), models_dir.into()]);
     args.extend(["--methods".into(), labels(group).join(",").into()]);
-    if let Some(s) = seed {
-        args.extend(["--seed".into(), s.to_string().into()]);
+    if !seeds.is_empty() {
+        let seeds: Vec<String> = seeds.iter().map(u64::to_string).collect();
+        args.extend(["--seed".into(), seeds.join(",").into()]);
     }
     let flags = [
         "--workers",

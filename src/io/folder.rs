@@ -240,8 +240,8 @@ fn check_models(dir: &Path) -> Result<(), String> {
         if is_staging_name(&name) {
             continue;
         }
-        // Another training seed's models (`coid train --seed N --out
-        // <models>/seed-N`), a models folder of its own.
+        // Another training seed's models (`coid train --seed N`: into
+        // `<models>/seed-N`), a models folder of its own.
         if e.path().is_dir()
             && name
                 .strip_prefix("seed-")

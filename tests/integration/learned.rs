@@ -273,8 +273,8 @@ fn the_mc_sweep_covers_samples_and_dropout_on_both_splits() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
 }
 
-/// A deep method trained with two seeds (`coid train --seed 8 --out
-/// models/seed-8` beside the models folder's own seed 7) and evaluated
+/// A deep method trained with two seeds in one command (`coid train
+/// --seed 7,8 --out models`: seed 8 into models/seed-8) and evaluated
 /// with `[eval] training_seeds`: Table 1b gives its row as the mean over
 /// the seeds, with each seed's F1 (as evaluating that seed's weights
 /// alone gives it) as the spread; the paired table counts the seeds; a
@@ -293,11 +293,24 @@ fn training_seeds_give_each_deep_row_its_spread_over_seeds() {
         )
     };
     let cfg = fx.config("s.toml", 60.0, &body("models", "[7, 8]"));
-    let train = fx.cmd("train").quiet().config(&cfg);
+    // Both seeds in one command, one child each: [train] seed's weights
+    // in the models folder, seed 8's in its seed-8 folder, the same bytes
+    // as seed 8 trained alone.
+    let train = fx
+        .cmd("train")
+        .quiet()
+        .config(&cfg)
+        .args(["--seed", "7,8", "-w", "2"]);
     assert_ok(&train.out("models").output());
-    let train = fx.cmd("train").quiet().config(&cfg).args(["--seed", "8"]);
-    assert_ok(&train.out("models/seed-8").output());
+    assert!(fx.read_text("models/ours.toml").contains("seed = 7"));
     assert!(fx.read_text("models/seed-8/ours.toml").contains("seed = 8"));
+    let alone = fx.cmd("train").quiet().config(&cfg).args(["--seed", "8"]);
+    assert_ok(&alone.out("alone").output());
+    assert_eq!(
+        fx.read("alone/seed-8/ours.bpk"),
+        fx.read("models/seed-8/ours.bpk")
+    );
+    assert!(!fx.path("alone/ours.bpk").exists());
     let eval = |cfg: &std::path::Path, out: &str| {
         let o = fx.cmd("eval").quiet().config(cfg).out(out).output();
         assert_ok(&o);
