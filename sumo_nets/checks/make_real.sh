@@ -18,13 +18,23 @@
 #
 # Demand departs until 400 s (coid.toml runs 300 s); a second argument
 # sets another end, for longer runs (the city-scale benchmark runs 800 s).
+# A third, "plain", gives the vehicles SUMO's default type instead of the
+# shipped classes and colours (one car of one colour, as randomTrips
+# makes it without a type file): networks where appearance says almost
+# nothing.
 #
-#   sumo_nets/checks/make_real.sh /tmp/real [DEMAND_END_S]
+#   sumo_nets/checks/make_real.sh /tmp/real [DEMAND_END_S] [mix|plain]
 #   ./coid eval --config /tmp/real/ingolstadt/coid.toml
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
-out="${1:?usage: make_real.sh OUT_DIR [DEMAND_END_S]}"
+out="${1:?usage: make_real.sh OUT_DIR [DEMAND_END_S] [mix|plain]}"
 demand_end="${2:-400}"
+demand="${3:-mix}"
+case "$demand" in
+    mix) types=(--additional-file "$here/../vtypes.add.xml" --trip-attributes 'type="mix" departLane="best"') ;;
+    plain) types=(--trip-attributes 'departLane="best"') ;;
+    *) echo "make_real.sh: demand must be mix or plain, not $demand" >&2; exit 2 ;;
+esac
 py="$here/../../.venv/bin/python"
 sumo_home="$("$py" -c 'import sumo; print(sumo.SUMO_HOME)')"
 export SUMO_HOME="$sumo_home" PYTHONPATH="$sumo_home/tools"
@@ -46,8 +56,7 @@ make() {
         extra='<additional-files value="buildings.poly.xml"/>'
     fi
     "$py" "$sumo_home/tools/randomTrips.py" -n "$dir/net.net.xml" -o "$dir/trips.xml" \
-        -r "$dir/routes.rou.xml" --additional-file "$here/../vtypes.add.xml" \
-        --trip-attributes 'type="mix" departLane="best"' --period "$period" --seed "$seed" \
+        -r "$dir/routes.rou.xml" "${types[@]}" --period "$period" --seed "$seed" \
         --fringe-factor 5 --end "$demand_end" --validate --prefix v >/dev/null 2>&1
     # -r: with --pedestrians, randomTrips also routes the walks, by default
     # into routes.rou.xml of the working directory; SUMO routes them itself.
@@ -78,7 +87,7 @@ PY
 )"
     cat > "$dir/coid.toml" <<EOF
 # $name: a real network shipped with SUMO; junction: the signalised one with
-# the most incoming lanes. Made by sumo_nets/checks/make_real.sh.
+# the most incoming lanes; $demand demand. Made by sumo_nets/checks/make_real.sh.
 [scenario]
 sumocfg = "scenario.sumocfg"
 junction = "$junction"
