@@ -117,6 +117,23 @@ struct SeedRun {
     dir: std::path::PathBuf,
 }
 
+/// Checks that `dir` can take models (or, with `--validate-only`, holds
+/// some).
+fn models_folder(a: &Args, dir: &Path) -> anyhow::Result<()> {
+    if a.validate_only && !dir.is_dir() {
+        anyhow::bail!(
+            "no models folder {} to validate (give the folder with --out)",
+            dir.display()
+        );
+    }
+    io::check_extendable(
+        dir,
+        io::ResultKind::Models,
+        io::Existing::when(a.force.force),
+    )?;
+    Ok(())
+}
+
 /// The seeds `--seed` asks for (else `[train] seed`), each with its
 /// settings and folder: `[train] seed`'s the models folder, every other's
 /// its `seed-<N>/` folder; each checked to be extendable.
@@ -143,17 +160,7 @@ fn seed_runs(a: &Args, settings: &Settings, models_dir: &Path) -> anyhow::Result
         } else {
             io::seed_models_dir(models_dir, seed)
         };
-        if a.validate_only && !dir.is_dir() {
-            anyhow::bail!(
-                "no models folder {} to validate (give the folder with --out)",
-                dir.display()
-            );
-        }
-        io::check_extendable(
-            &dir,
-            io::ResultKind::Models,
-            io::Existing::when(a.force.force),
-        )?;
+        models_folder(a, &dir)?;
         let overrides = crate::config::Overrides {
             train_seed: Some(seed),
             ..Default::default()
@@ -212,17 +219,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     let config = a.config.path();
     let settings = Settings::load(&config)?;
     let models_dir = super::out_dir(a.out.out.clone(), &config, "-models");
-    if a.validate_only && !models_dir.is_dir() {
-        anyhow::bail!(
-            "no models folder {} to validate (give the folder with --out)",
-            models_dir.display()
-        );
-    }
-    io::check_extendable(
-        &models_dir,
-        io::ResultKind::Models,
-        io::Existing::when(a.force.force),
-    )?;
+    models_folder(&a, &models_dir)?;
     let seeds = seed_runs(&a, &settings, &models_dir)?;
     // The baselines have no training seed: tuned with [train] seed's run.
     let tunes_baselines = seeds.iter().any(|s| s.dir == models_dir);

@@ -74,16 +74,11 @@ impl Inputs<'_> {
                 if seeds.is_empty() {
                     return r.table1.get(&key).map_or(f64::NAN, &metric);
                 }
-                let defined: Vec<f64> = seeds
-                    .iter()
-                    .filter_map(|&s| r.by_seed.get(&(key, s)).map(&metric))
-                    .filter(|v| v.is_finite())
-                    .collect();
-                if defined.is_empty() {
-                    f64::NAN
-                } else {
-                    defined.iter().sum::<f64>() / defined.len() as f64
-                }
+                finite_mean(
+                    seeds
+                        .iter()
+                        .filter_map(|&s| r.by_seed.get(&(key, s)).map(&metric)),
+                )
             })
             .collect()
     }
@@ -106,19 +101,17 @@ impl Inputs<'_> {
         }
         let f1 = seeds
             .iter()
-            .map(|&s| {
-                let v: Vec<f64> = self
-                    .f1_per_run_of_seed(key, s)
-                    .into_iter()
-                    .filter(|v| v.is_finite())
-                    .collect();
-                if v.is_empty() {
-                    f64::NAN
-                } else {
-                    v.iter().sum::<f64>() / v.len() as f64
-                }
-            })
+            .map(|&s| finite_mean(self.f1_per_run_of_seed(key, s)))
             .collect();
         Some(SeedSpread { seeds, f1 })
     }
+}
+
+/// The mean of the finite `values` (NaN when there is none).
+fn finite_mean(values: impl IntoIterator<Item = f64>) -> f64 {
+    let (sum, n) = values
+        .into_iter()
+        .filter(|v| v.is_finite())
+        .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    if n == 0 { f64::NAN } else { sum / n as f64 }
 }
