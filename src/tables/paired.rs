@@ -1,7 +1,9 @@
 //! Paired differences: each method's F1 minus the strongest baseline's
 //! that sees the same inputs (Table 1: the paper's inputs; Table 1b: the
-//! reported poses too), and each MC-dropout method's minus its own single
-//! deterministic pass (`coid` against `coid-t1`), run by run (the same
+//! reported poses too); the paper's method (`coid`) and `ours` minus every
+//! other method that sees what they see (DGMC, GCN-GM, the ablations);
+//! and each MC-dropout method's minus its own single pass (`coid`
+//! against `coid-t1`), run by run (the same
 //! runs, hence the same instances, on both sides), with a percentile
 //! bootstrap interval over the runs. Where the interval covers 0 the table
 //! says "no difference". A deep method evaluated with several training
@@ -93,6 +95,22 @@ pub(super) fn paired(inp: &Inputs) -> Table {
                 .filter(|&&m| m != reference && m.inputs() == inputs);
             for &m in others {
                 push(MethodLevel::new(m, l), reference);
+            }
+            // The paper's method (on its inputs) and ours (with the poses)
+            // against every other method that sees what they see, the
+            // published networks and the ablations among them.
+            let headline = [Method::Coid, Method::Ours];
+            for &m in headline.iter().filter(|m| inp.methods.contains(m)) {
+                let others = inp.methods.iter().filter(|&&o| {
+                    o != m
+                        && o != reference
+                        && o.inputs() == m.inputs()
+                        && m.inputs() == inputs
+                        && !o.single_pass()
+                });
+                for &o in others {
+                    push(MethodLevel::new(m, l), o);
+                }
             }
         }
     }
