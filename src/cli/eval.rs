@@ -310,6 +310,9 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
         return Ok(Vec::new());
     }
     let mut passes: Vec<SeedPass> = Vec::new();
+    // Seeds are trained one command at a time: a method without a seed's
+    // weights averages the seeds it has (its rows' `training_seeds`).
+    let mut missing: BTreeMap<u64, Vec<&'static str>> = BTreeMap::new();
     for &m in &deep {
         let own = io::trained_seed(dir, m)?;
         if !seeds.contains(&own) {
@@ -323,17 +326,11 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
         for &seed in seeds.iter().filter(|&&s| s != own) {
             let seed_dir = io::seed_models_dir(dir, seed);
             if !io::weights_path(&seed_dir, m).exists() {
-                // Seeds are trained one command at a time: a row says
-                // which seeds it averages (`training_seeds`).
-                eprintln!(
-                    "coid: warning: [eval] training_seeds lists {seed}, but {} has no weights of \
-                     '{}' (train them with `coid train --seed {seed} --methods {} --out {}`); \
-                     its rows average the seeds it has",
-                    seed_dir.display(),
-                    m.as_str(),
-                    m.weights_owner().as_str(),
-                    dir.display()
-                );
+                let owner = m.weights_owner().as_str();
+                let list = missing.entry(seed).or_default();
+                if !list.contains(&owner) {
+                    list.push(owner);
+                }
                 continue;
             }
             let found = io::trained_seed(&seed_dir, m)?;
@@ -353,6 +350,17 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
                 }),
             }
         }
+    }
+    for (seed, methods) in missing {
+        eprintln!(
+            "coid: warning: [eval] training_seeds lists {seed}, but {} has no weights of {} \
+             (train them with `coid train --seed {seed} --methods {} --out {}`); their rows \
+             average the seeds they have",
+            io::seed_models_dir(dir, seed).display(),
+            methods.join(", "),
+            methods.join(","),
+            dir.display()
+        );
     }
     passes.sort_by_key(|p| p.seed);
     Ok(passes)
