@@ -123,7 +123,7 @@ fn weights_that_do_not_match_their_record_are_refused() {
         std::fs::copy(repo().join("models").join(f), fx.path("models").join(f)).unwrap();
     }
     std::fs::copy(
-        repo().join("models/dgmc+gps.bpk"),
+        repo().join("models/gcn-gm.bpk"),
         fx.path("models/ours.bpk"),
     )
     .unwrap();

@@ -28,10 +28,11 @@ fn r33_old_weights_under_a_published_name_are_refused_with_their_new_name() {
     let fx = Fixture::new();
     std::fs::create_dir_all(fx.path("models")).unwrap();
     let shipped = repo().join("models");
-    std::fs::copy(shipped.join("dgmc+gps.bpk"), fx.path("models/dgmc.bpk")).unwrap();
-    let record = std::fs::read_to_string(shipped.join("dgmc+gps.toml"))
+    // The project's network, as `ours` ships it, recorded as `dgmc`.
+    std::fs::copy(shipped.join("ours.bpk"), fx.path("models/dgmc.bpk")).unwrap();
+    let record = std::fs::read_to_string(shipped.join("ours.toml"))
         .unwrap()
-        .replace("method = \"dgmc+gps\"", "method = \"dgmc\"");
+        .replace("method = \"ours\"", "method = \"dgmc\"");
     std::fs::write(fx.path("models/dgmc.toml"), record).unwrap();
     let cfg = fx.config(
         "old.toml",
