@@ -150,7 +150,7 @@ pub fn train_method(
         patience: t.patience,
         loss: t.loss,
         samples: t.mc_samples,
-        masks: deep.training_masks(t.dropout_masks),
+        masks: deep.training_masks(t.dropout_masks, t.paper_dropout_masks),
         batch_size: t.batch_size,
         gate_chi2: settings.matching.gate_chi2,
     };

@@ -114,6 +114,7 @@ impl Settings {
         (t.patience, t.mc_samples, t.batch_size) = (0, 0, 0);
         t.loss = PairLoss::Likelihood;
         t.dropout_masks = MaskScope::PerNode;
+        t.paper_dropout_masks = MaskScope::PerNode;
         s.digest()
     }
 }

@@ -63,6 +63,7 @@ pub(super) fn train_and_eval(
         loss: t.loss,
         mc_samples: t.mc_samples,
         dropout_masks: t.dropout_masks,
+        paper_dropout_masks: t.paper_dropout_masks,
         batch_size: t.batch_size,
         sample_every_s: t.sample_every_s,
     };

@@ -210,6 +210,7 @@ pub(super) struct RawTrain {
     pub(super) loss: PairLoss,
     pub(super) mc_samples: usize,
     pub(super) dropout_masks: MaskScope,
+    pub(super) paper_dropout_masks: MaskScope,
     pub(super) batch_size: usize,
     pub(super) sample_every_s: f64,
 }

@@ -108,15 +108,16 @@ impl DeepMethod {
         }
     }
 
-    /// The dropout masks it trains with when `[train] dropout_masks` says
-    /// `configured`: DGMC and GCN-GM as published draw standard dropout, a
-    /// mask per node and channel, whatever the setting; every other
-    /// method (the paper's, its ablations, the project's network) as
-    /// configured.
-    pub fn training_masks(self, configured: MaskScope) -> MaskScope {
+    /// The dropout masks it trains with: DGMC and GCN-GM as published
+    /// draw standard dropout, a mask per node and channel, whatever the
+    /// settings; the paper's method and its ablations (on DGMC's network)
+    /// as `[train] paper_dropout_masks` says (`paper`); the project's
+    /// network as `[train] dropout_masks` says (`project`).
+    pub fn training_masks(self, project: MaskScope, paper: MaskScope) -> MaskScope {
         match self {
             DeepMethod::Dgmc | DeepMethod::GcnGm => MaskScope::PerNode,
-            _ => configured,
+            DeepMethod::Coid | DeepMethod::CoidNon | DeepMethod::CoidUnc => paper,
+            _ => project,
         }
     }
 
@@ -369,21 +370,29 @@ mod tests {
     }
 
     /// DGMC and GCN-GM train with standard dropout as published; the
-    /// others as configured.
+    /// paper's method and its ablations as `paper_dropout_masks` says, the
+    /// project's network as `dropout_masks` says.
     #[test]
     fn published_baselines_train_with_standard_dropout() {
+        use MaskScope::{PerNode, Shared};
         for m in Method::all() {
             let MethodKind::Deep(d) = m.kind() else {
                 continue;
             };
             let published = matches!(m, Method::Dgmc | Method::GcnGm);
-            let expect = if published {
-                MaskScope::PerNode
-            } else {
-                MaskScope::Shared
+            let paper = m.inputs() == Inputs::Paper && !published;
+            let expect = |project, paper_masks| match (published, paper) {
+                (true, _) => PerNode,
+                (false, true) => paper_masks,
+                (false, false) => project,
             };
-            assert_eq!(d.training_masks(MaskScope::Shared), expect, "{m:?}");
-            assert_eq!(d.training_masks(MaskScope::PerNode), MaskScope::PerNode);
+            for (project, paper_masks) in [(Shared, PerNode), (PerNode, Shared)] {
+                assert_eq!(
+                    d.training_masks(project, paper_masks),
+                    expect(project, paper_masks),
+                    "{m:?}"
+                );
+            }
         }
     }
 

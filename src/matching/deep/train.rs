@@ -58,9 +58,11 @@ pub struct TrainSettings {
     pub loss: PairLoss,
     /// MC-dropout samples per training pair (losses on their mean).
     pub mc_samples: usize,
-    /// How the training's dropout masks are drawn (per node, or Eq. 8's
-    /// one mask per sample over each layer's input units).
+    /// How the project's network's training dropout masks are drawn (per
+    /// node, or Eq. 8's one mask per sample over each layer's input units).
     pub dropout_masks: MaskScope,
+    /// The same for the paper's method and its ablations (DGMC's network).
+    pub paper_dropout_masks: MaskScope,
     /// Pairs per optimiser step.
     pub batch_size: usize,
     /// Training pairs are sampled at most this often per vehicle pair
