@@ -122,11 +122,7 @@ fn weights_that_do_not_match_their_record_are_refused() {
     for f in ["ours.bpk", "ours.toml"] {
         std::fs::copy(repo().join("models").join(f), fx.path("models").join(f)).unwrap();
     }
-    std::fs::copy(
-        repo().join("models/gcn-gm.bpk"),
-        fx.path("models/ours.bpk"),
-    )
-    .unwrap();
+    std::fs::copy(repo().join("models/gcn-gm.bpk"), fx.path("models/ours.bpk")).unwrap();
     let cfg = fx.config(
         "w.toml",
         60.0,
