@@ -118,7 +118,8 @@ struct SeedRun {
 }
 
 /// Checks that `dir` can take models (or, with `--validate-only`, holds
-/// some).
+/// some: validating only adds records beside the weights, so an existing
+/// models folder needs no `--force`).
 fn models_folder(a: &Args, dir: &Path) -> anyhow::Result<()> {
     if a.validate_only && !dir.is_dir() {
         anyhow::bail!(
@@ -129,7 +130,7 @@ fn models_folder(a: &Args, dir: &Path) -> anyhow::Result<()> {
     io::check_extendable(
         dir,
         io::ResultKind::Models,
-        io::Existing::when(a.force.force),
+        io::Existing::when(a.force.force || a.validate_only),
     )?;
     Ok(())
 }

@@ -46,6 +46,27 @@ fn r33_old_weights_under_a_published_name_are_refused_with_their_new_name() {
     assert_refused_unwritten(&out, "now called 'dgmc+gps'", &fx.path("out"));
 }
 
+/// `coid train --validate-only` works on the models folder it validates:
+/// the folder must exist, so it needs no `--force` (it did, and every user
+/// validating weights met "already exists").
+#[test]
+fn r33_validate_only_needs_no_force() {
+    let fx = Fixture::new();
+    std::fs::create_dir_all(fx.path("models")).unwrap();
+    let cfg = fx.config(
+        "v.toml",
+        60.0,
+        "[train]\nvalidation_seeds = [125]\n[pose_noise]\nlevels = [\"gps\"]\n\
+         [matching]\nmethods = [\"gps-hungarian\", \"oracle\"]\n",
+    );
+    let cmd = fx.cmd("train").quiet().config(&cfg).out("models");
+    let tuned = cmd
+        .args(["--validate-only", "--methods", "gps-hungarian"])
+        .output();
+    assert_ok(&tuned);
+    assert!(fx.read_text("models/baselines.toml").contains("gate_chi2"));
+}
+
 /// `coid train --validate-only --methods gps-hungarian` chooses the gate
 /// on the validation run from its grid and records it with its F1 and the
 /// a-priori value's; a run then uses it (`baselines = "validated"`), a
