@@ -123,14 +123,7 @@ fn weights_that_do_not_match_their_record_are_refused() {
         std::fs::copy(repo().join("models").join(f), fx.path("models").join(f)).unwrap();
     }
     std::fs::copy(repo().join("models/gcn-gm.bpk"), fx.path("models/ours.bpk")).unwrap();
-    let cfg = fx.config(
-        "w.toml",
-        60.0,
-        &format!(
-            "[matching]\nmethods = [\"ours\"]\nmodels_dir = {:?}\n",
-            fx.path("models").to_string_lossy()
-        ),
-    );
+    let cfg = fx.method_config("w.toml", "ours", "models");
     let out = fx.run(&cfg, "w");
     assert_refused_unwritten(&out, "not the ones recorded", &fx.path("w"));
     assert!(stderr(&out).contains("ours"), "{}", stderr(&out));
@@ -139,14 +132,7 @@ fn weights_that_do_not_match_their_record_are_refused() {
 #[test]
 fn missing_weights_are_a_clear_error() {
     let fx = Fixture::new();
-    let cfg = fx.config(
-        "m.toml",
-        60.0,
-        &format!(
-            "[matching]\nmethods = [\"ours\"]\nmodels_dir = {:?}\n",
-            fx.path("nowhere").to_string_lossy()
-        ),
-    );
+    let cfg = fx.method_config("m.toml", "ours", "nowhere");
     let out = fx.run(&cfg, "out");
     assert_refused(&out, "coid train");
     assert!(stderr(&out).contains("ours"), "{}", stderr(&out));

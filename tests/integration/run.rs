@@ -343,9 +343,12 @@ fn ctrl_c_exits_130_and_leaves_no_results_folder() {
 /// baselines' thresholds came from the validation runs (`ours`'s rows,
 /// and the renamed `+gps` methods' under their old names, stayed byte for
 /// byte); then the single-pass rows `coid-t1` and `ours-t1` were added
-/// (every other row byte for byte; the default run's masks are "as
-/// trained", per node for the shipped weights, as before). A change that
-/// moves the default results must say why and renew the file.
+/// (every other row byte for byte); then the deep methods' weights were
+/// retrained on the family with one-vehicle-type demand (`ours` with
+/// Eq. 8's shared masks, `coid` per node, as validation chose; the rows of
+/// the learning-free methods, the Hungarians and the oracle byte for
+/// byte). A change that moves the default results must say why and renew
+/// the file.
 #[test]
 fn the_ideal_mode_reproduces_the_results_from_before_v2x() {
     let fx = Fixture::new();

@@ -34,14 +34,7 @@ fn r33_old_weights_under_a_published_name_are_refused_with_their_new_name() {
         .unwrap()
         .replace("method = \"ours\"", "method = \"dgmc\"");
     std::fs::write(fx.path("models/dgmc.toml"), record).unwrap();
-    let cfg = fx.config(
-        "old.toml",
-        60.0,
-        &format!(
-            "[matching]\nmethods = [\"dgmc\"]\nmodels_dir = {:?}\n",
-            fx.path("models").to_string_lossy()
-        ),
-    );
+    let cfg = fx.method_config("old.toml", "dgmc", "models");
     let out = fx.run(&cfg, "out");
     assert_refused_unwritten(&out, "now called 'dgmc+gps'", &fx.path("out"));
 }

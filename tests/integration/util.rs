@@ -74,6 +74,16 @@ impl Fixture {
         self.write(name, &format!("{scenario}end_s = {end_s}\n{extra}"))
     }
 
+    /// A 60 s config running `method` alone with the weights of the
+    /// fixture's folder `models` (which need not exist).
+    pub fn method_config(&self, name: &str, method: &str, models: &str) -> PathBuf {
+        let extra = format!(
+            "[matching]\nmethods = [{method:?}]\nmodels_dir = {:?}\n",
+            self.path(models).to_string_lossy()
+        );
+        self.config(name, 60.0, &extra)
+    }
+
     /// A new fixture holding one config, `c.toml`, as `config` writes it.
     pub fn with_config(end_s: f64, extra: &str) -> (Fixture, PathBuf) {
         let fx = Fixture::new();
