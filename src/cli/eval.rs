@@ -313,6 +313,9 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
     // Seeds are trained one command at a time: a method without a seed's
     // weights averages the seeds it has (its rows' `training_seeds`).
     let mut missing: BTreeMap<u64, Vec<&'static str>> = BTreeMap::new();
+    // The recipe the missing seeds must repeat: the configuration the
+    // models folder's own weights were trained with.
+    let mut recipe = None;
     for &m in &deep {
         let own = io::trained_seed(dir, m)?;
         if !seeds.contains(&own) {
@@ -330,6 +333,9 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
                 let list = missing.entry(seed).or_default();
                 if !list.contains(&owner) {
                     list.push(owner);
+                }
+                if recipe.is_none() {
+                    recipe = Some(io::trained_config(dir, m)?);
                 }
                 continue;
             }
@@ -351,11 +357,12 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
             }
         }
     }
+    let recipe = recipe.unwrap_or_default();
     for (seed, methods) in missing {
         eprintln!(
             "coid: warning: [eval] training_seeds lists {seed}, but {} has no weights of {} \
-             (train them with `coid train --seed {seed} --methods {} --out {}`); their rows \
-             average the seeds they have",
+             (train them with the recipe of the weights beside it: `coid train -c {recipe} \
+             --seed {seed} --methods {} --out {}`); their rows average the seeds they have",
             io::seed_models_dir(dir, seed).display(),
             methods.join(", "),
             methods.join(","),

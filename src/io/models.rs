@@ -62,6 +62,12 @@ pub fn trained_seed(models_dir: &Path, method: Method) -> Result<u64, WeightsErr
     Ok(read_record(models_dir, method)?.seed)
 }
 
+/// The configuration a method's weights were trained with (its record's
+/// `config`), for a command that trains more of the same recipe.
+pub fn trained_config(models_dir: &Path, method: Method) -> Result<String, WeightsError> {
+    Ok(read_record(models_dir, method)?.config)
+}
+
 /// A method's `<method>.toml` (a single-pass variant's: its owner's).
 fn read_record(models_dir: &Path, method: Method) -> Result<ModelRecord, WeightsError> {
     let method = method.weights_owner();

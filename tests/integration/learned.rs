@@ -330,7 +330,10 @@ fn training_seeds_give_each_deep_row_its_spread_over_seeds() {
     let missing = fx.config("m.toml", 60.0, &body("models", "[7, 8, 9]"));
     let o = fx.cmd("eval").quiet().config(&missing).out("m").output();
     assert_ok(&o);
-    assert!(stderr(&o).contains("coid train --seed 9"), "{}", stderr(&o));
+    // r33: the command repeats the recipe of the weights beside it (their
+    // record's config), not the defaults' training runs.
+    let hint = format!("coid train -c {} --seed 9 --methods ours", cfg.display());
+    assert!(stderr(&o).contains(&hint), "{}", stderr(&o));
     let t = read_csv(&fx.path("m/table1b.csv"));
     assert_eq!(strs(&t, "training_seeds")[row], "7 8");
     // A listed seed whose folder holds another seed's weights is refused.
