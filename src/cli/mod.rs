@@ -369,12 +369,17 @@ fn progress_bar(quiet: bool, len: u64, template: &str) -> ProgressBar {
 
 /// Refuses a list argument that names something twice.
 fn no_repeats<T: PartialEq + Label>(flag: &str, list: &[T]) -> anyhow::Result<()> {
-    for (k, x) in list.iter().enumerate() {
-        if list[..k].contains(x) {
-            anyhow::bail!("{flag} names '{}' twice", x.label());
-        }
+    match first_repeat(list) {
+        Some(x) => anyhow::bail!("{flag} names '{}' twice", x.label()),
+        None => Ok(()),
     }
-    Ok(())
+}
+
+/// The first entry of `list` that an earlier one repeats.
+fn first_repeat<T: PartialEq>(list: &[T]) -> Option<&T> {
+    (0..list.len())
+        .find(|&k| list[..k].contains(&list[k]))
+        .map(|k| &list[k])
 }
 
 /// A clap parser for a labelled enum: the labels are its possible values

@@ -139,12 +139,7 @@ fn models_folder(a: &Args, dir: &Path) -> anyhow::Result<()> {
 /// settings and folder: `[train] seed`'s the models folder, every other's
 /// its `seed-<N>/` folder; each checked to be extendable.
 fn seed_runs(a: &Args, settings: &Settings, models_dir: &Path) -> anyhow::Result<Vec<SeedRun>> {
-    if let Some((_, s)) = a
-        .seed
-        .iter()
-        .enumerate()
-        .find(|(k, s)| a.seed[..*k].contains(s))
-    {
+    if let Some(s) = super::first_repeat(&a.seed) {
         anyhow::bail!("--seed lists {s} twice");
     }
     let own = settings.train.seed;
@@ -340,11 +335,10 @@ fn train_in_children(
     if let Some(f) = failures.first() {
         let (methods, seeds) = &groups[f.run];
         let group = labels(methods).join(", ");
-        let seeds: Vec<String> = seeds.iter().map(u64::to_string).collect();
         let seeds = if seeds.is_empty() {
             String::new()
         } else {
-            format!(" (seeds {})", seeds.join(", "))
+            format!(" (seeds {})", seed_list(seeds, ", "))
         };
         anyhow::bail!("training {group}{seeds} failed: {}", f.message);
     }
@@ -356,6 +350,12 @@ fn labels(methods: &[Method]) -> Vec<&'static str> {
     methods.iter().map(|m| m.as_str()).collect()
 }
 
+/// `seeds` joined by `sep`.
+fn seed_list(seeds: &[u64], sep: &str) -> String {
+    let seeds: Vec<String> = seeds.iter().map(u64::to_string).collect();
+    seeds.join(sep)
+}
+
 /// The arguments of the child `coid train` that trains `group` into
 /// `models_dir`, reporting [`ChildMessage`]s.
 fn child_args(config: &Path, models_dir: &Path, group: &[Method], seeds: &[u64]) -> Vec<OsString> {
@@ -363,8 +363,7 @@ fn child_args(config: &Path, models_dir: &Path, group: &[Method], seeds: &[u64])
     args.extend(["--out".into(), models_dir.into()]);
     args.extend(["--methods".into(), labels(group).join(",").into()]);
     if !seeds.is_empty() {
-        let seeds: Vec<String> = seeds.iter().map(u64::to_string).collect();
-        args.extend(["--seed".into(), seeds.join(",").into()]);
+        args.extend(["--seed".into(), seed_list(seeds, ",").into()]);
     }
     let flags = [
         "--workers",
