@@ -297,7 +297,7 @@ struct SeedPass {
 /// methods it has weights for (a seed without a method's weights is
 /// named in a warning and left out of that method's rows). Refused when
 /// a deep method's own seed is not listed, or a seed's folder holds
-/// weights of another seed.
+/// weights of another seed or of another recipe.
 fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<SeedPass>> {
     let seeds = &settings.eval.training_seeds;
     let dir = &settings.matching.models_dir;
@@ -339,14 +339,7 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
                 }
                 continue;
             }
-            let found = io::trained_seed(&seed_dir, m)?;
-            if found != seed {
-                anyhow::bail!(
-                    "{} holds weights of '{}' trained with seed {found}, not {seed}",
-                    seed_dir.display(),
-                    m.as_str()
-                );
-            }
+            check_seed_folder(dir, &seed_dir, m, seed)?;
             match passes.iter_mut().find(|p| p.seed == seed) {
                 Some(p) => p.methods.push(m),
                 None => passes.push(SeedPass {
@@ -371,6 +364,37 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
     }
     passes.sort_by_key(|p| p.seed);
     Ok(passes)
+}
+
+/// Refuses a seed folder whose weights of `m` are not seed `seed` of the
+/// recipe of the models folder's own.
+fn check_seed_folder(dir: &Path, seed_dir: &Path, m: Method, seed: u64) -> anyhow::Result<()> {
+    let found = io::trained_seed(seed_dir, m)?;
+    if found != seed {
+        anyhow::bail!(
+            "{} holds weights of '{}' trained with seed {found}, not {seed}",
+            seed_dir.display(),
+            m.as_str()
+        );
+    }
+    // A row's mean over seeds is a spread over seeds of one
+    // recipe, never over recipes.
+    let differ = io::recipe_differences(dir, seed_dir, m)?;
+    if !differ.is_empty() {
+        anyhow::bail!(
+            "{} holds weights of '{}' trained with another recipe than those in {} \
+             ({} differ); train seed {seed} again with theirs: `coid train -c {} \
+             --seed {seed} --methods {} --out {}`",
+            seed_dir.display(),
+            m.as_str(),
+            dir.display(),
+            differ.join(", "),
+            io::trained_config(dir, m)?,
+            m.weights_owner().as_str(),
+            dir.display()
+        );
+    }
+    Ok(())
 }
 
 /// Runs every seed pass on the scenario's runs and records each deep

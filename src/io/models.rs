@@ -68,6 +68,18 @@ pub fn trained_config(models_dir: &Path, method: Method) -> Result<String, Weigh
     Ok(read_record(models_dir, method)?.config)
 }
 
+/// What makes the training of `method`'s weights in `other_dir` differ
+/// from those in `models_dir` ([`ModelRecord::recipe_differences`]):
+/// empty when both are seeds of one recipe.
+pub fn recipe_differences(
+    models_dir: &Path,
+    other_dir: &Path,
+    method: Method,
+) -> Result<Vec<&'static str>, WeightsError> {
+    let own = read_record(models_dir, method)?;
+    Ok(own.recipe_differences(&read_record(other_dir, method)?))
+}
+
 /// A method's `<method>.toml` (a single-pass variant's: its owner's).
 fn read_record(models_dir: &Path, method: Method) -> Result<ModelRecord, WeightsError> {
     let method = method.weights_owner();

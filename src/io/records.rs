@@ -210,6 +210,50 @@ impl ModelRecord {
         }
         Ok(())
     }
+
+    /// What makes `other`'s training differ from this one's, by field
+    /// name: empty when both ran one recipe (only the training seed and
+    /// what it led to may differ). The training data are compared by what
+    /// they are (traffic seeds, runs per scenario, number of scenarios,
+    /// examples and their edge statistics), not by the paths they were
+    /// read from, which depend on the folder the command ran in.
+    pub fn recipe_differences(&self, other: &Self) -> Vec<&'static str> {
+        let fields = [
+            ("method", self.method == other.method),
+            ("architecture", self.architecture == other.architecture),
+            (
+                "train_traffic_seeds",
+                self.train_traffic_seeds == other.train_traffic_seeds,
+            ),
+            (
+                "train_scenarios",
+                self.train_scenarios.len() == other.train_scenarios.len(),
+            ),
+            (
+                "runs_per_scenario",
+                self.runs_per_scenario == other.runs_per_scenario,
+            ),
+            ("examples", self.examples == other.examples),
+            (
+                "edge statistics",
+                self.edge_median_m == other.edge_median_m
+                    && self.edge_p95_m == other.edge_p95_m
+                    && self.edge_clipped_share == other.edge_clipped_share,
+            ),
+            ("epochs", self.epochs == other.epochs),
+            ("learning_rate", self.learning_rate == other.learning_rate),
+            ("loss", self.loss == other.loss),
+            ("mc_samples", self.mc_samples == other.mc_samples),
+            ("dropout_masks", self.dropout_masks == other.dropout_masks),
+            ("batch_size", self.batch_size == other.batch_size),
+            ("patience", self.patience == other.patience),
+        ];
+        fields
+            .into_iter()
+            .filter(|(_, same)| !same)
+            .map(|(name, _)| name)
+            .collect()
+    }
 }
 
 /// The name that the project's network, once recorded as `method`, has
@@ -443,6 +487,35 @@ mod tests {
             .collect();
         let back = ModelRecord::from_toml(&old).unwrap();
         assert_eq!(back.dropout_masks, MaskScope::PerNode);
+    }
+
+    /// Two seeds of one recipe differ only in the seed and what it led
+    /// to; another folder or another recipe is told apart by field.
+    #[test]
+    fn seeds_of_one_recipe_differ_only_in_what_the_seed_led_to() {
+        let seven = record();
+        let eight = ModelRecord {
+            seed: 8,
+            weights_fnv64: fnv64_hex(b"other weights"),
+            config: "/elsewhere/c.toml".into(),
+            steps: 5,
+            seconds: 9.0,
+            final_epoch_loss: Some(0.5),
+            best_epoch: Some(2),
+            validation: None,
+            ..record()
+        };
+        assert!(seven.recipe_differences(&eight).is_empty());
+        let other = ModelRecord {
+            epochs: 3,
+            examples: 11,
+            dropout_masks: MaskScope::PerNode,
+            ..eight
+        };
+        assert_eq!(
+            seven.recipe_differences(&other),
+            ["examples", "epochs", "dropout_masks"]
+        );
     }
 
     #[test]

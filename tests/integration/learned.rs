@@ -344,4 +344,15 @@ fn training_seeds_give_each_deep_row_its_spread_over_seeds() {
     }
     let o = fx.cmd("eval").quiet().config(&missing).out("m2").output();
     assert_refused(&o, "trained with seed 8, not 9");
+    // So is one trained with another recipe: a mean over recipes is not
+    // a spread over seeds.
+    let record = fx.read_text("models/seed-9/ours.toml");
+    let edited = record
+        .replace("seed = 8", "seed = 9")
+        .replace("epochs = 2", "epochs = 3");
+    assert_ne!(edited, record);
+    std::fs::write(dir.join("ours.toml"), edited).unwrap();
+    let o = fx.cmd("eval").quiet().config(&missing).out("m3").output();
+    assert_refused(&o, "another recipe");
+    assert!(stderr(&o).contains("(epochs differ)"), "{}", stderr(&o));
 }
