@@ -7,7 +7,7 @@ use polars::prelude::DataFrame;
 use std::path::PathBuf;
 use std::process::Command;
 
-/// The columns of a run's `summary.csv`, and its rows' invariants: 11
+/// The columns of a run's `summary.csv`, and its rows' invariants: 13
 /// methods x 3 pose-noise levels x 2 fusion variants, enough
 /// instances, rates in [0, 1], one object set (the same single-vehicle
 /// error) for every method, a perfect oracle whose fusion beats the
@@ -35,8 +35,8 @@ fn check_summary(summary: &DataFrame) {
     ] {
         assert!(cols.iter().any(|x| x == c), "column {c} missing: {cols:?}");
     }
-    // 11 methods x 3 pose-noise levels x 2 fusion variants.
-    assert_eq!(summary.height(), 66);
+    // 13 methods x 3 pose-noise levels x 2 fusion variants.
+    assert_eq!(summary.height(), 78);
     let (methods, noise) = (strs(summary, "method"), strs(summary, "pose_noise"));
     let fusion = strs(summary, "fusion");
     let (p, r) = (f64s(summary, "precision"), f64s(summary, "recall"));
@@ -347,7 +347,8 @@ fn ctrl_c_exits_130_and_leaves_no_results_folder() {
 /// retrained on the family with one-vehicle-type demand (`ours` with
 /// Eq. 8's shared masks, `coid` per node, as validation chose; the rows of
 /// the learning-free methods, the Hungarians and the oracle byte for
-/// byte). A change that moves the default results must say why and renew
+/// byte); then the ablations `coid+non` and `coid+unc` were added (every
+/// other row byte for byte). A change that moves the default results must say why and renew
 /// the file.
 #[test]
 fn the_ideal_mode_reproduces_the_results_from_before_v2x() {
