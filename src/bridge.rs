@@ -362,11 +362,13 @@ impl Capture {
 
     fn new() -> std::io::Result<Capture> {
         Self::remove_stale();
-        let dir = tempfile::Builder::new()
-            .prefix(&format!("{}{}-", Self::PREFIX, std::process::id()))
-            .tempdir()?;
+        let (dir, registered) = crate::interrupt::make_registered(|| {
+            tempfile::Builder::new()
+                .prefix(&format!("{}{}-", Self::PREFIX, std::process::id()))
+                .tempdir()
+        })?;
         Ok(Capture {
-            _registered: crate::interrupt::register(dir.path()),
+            _registered: registered,
             dir,
         })
     }

@@ -108,12 +108,21 @@ fn remove_paths(paths: &[PathBuf]) {
 #[derive(Debug)]
 pub struct Registered(PathBuf);
 
-/// Registers `path` for removal on interruption.
-pub fn register(path: &Path) -> Registered {
-    if let Ok(mut v) = TEMPORARY.lock() {
-        v.push(path.to_owned());
-    }
-    Registered(path.to_owned())
+/// Makes a temporary path with `make` and registers it in one step. The
+/// watcher reads the registry under the same lock, so a signal taken
+/// between the path's creation and its registration waits for the
+/// registration and then removes it: no window in which a made path
+/// escapes removal.
+pub fn make_registered<T: AsRef<Path>, E>(
+    make: impl FnOnce() -> Result<T, E>,
+) -> Result<(T, Registered), E> {
+    let mut paths = TEMPORARY
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let made = make()?;
+    let path = made.as_ref().to_owned();
+    paths.push(path.clone());
+    Ok((made, Registered(path)))
 }
 
 impl Drop for Registered {
@@ -141,6 +150,33 @@ pub fn process_runs(pid: i32) -> bool {
 mod tests {
     use super::*;
 
+    /// Regression (CI of 2026-11-26, `r31_12_no_temporary_files_are_left_behind`):
+    /// Ctrl-C right after a staging folder was made, before it was
+    /// registered, left it behind. The watcher's read of the registry now
+    /// waits for a path being made and finds it.
+    #[test]
+    fn r33_ctrl_c_while_a_staging_folder_is_made_finds_it_registered() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("staging");
+        let (inside, wait) = std::sync::mpsc::channel();
+        let maker = {
+            let path = path.clone();
+            std::thread::spawn(move || {
+                make_registered(|| {
+                    inside.send(()).unwrap();
+                    std::thread::sleep(std::time::Duration::from_millis(100));
+                    std::fs::create_dir(&path).map(|()| path.clone())
+                })
+                .unwrap()
+            })
+        };
+        wait.recv().unwrap();
+        // What the watcher reads when a signal comes now.
+        assert!(registered().contains(&path));
+        drop(maker.join().unwrap());
+        assert!(!registered().contains(&path));
+    }
+
     #[test]
     fn registered_paths_are_listed_until_dropped_and_removed_on_demand() {
         let dir = tempfile::tempdir().unwrap();
@@ -150,6 +186,7 @@ mod tests {
         std::fs::write(&b, "x").unwrap();
         let kept = dir.path().join("kept");
         std::fs::create_dir_all(&kept).unwrap();
+        let register = |p: &PathBuf| make_registered(|| Ok::<_, ()>(p.clone())).unwrap().1;
         let (ra, rb) = (register(&a), register(&b));
         drop(register(&kept));
         let now = registered();
@@ -159,6 +196,18 @@ mod tests {
         assert!(kept.exists());
         drop((ra, rb));
         assert!(!registered().contains(&a));
+        // Made and registered in one step; a failed make is an error.
+        let made = dir.path().join("made");
+        let (path, r) = make_registered(|| {
+            std::fs::create_dir(&made)?;
+            Ok::<_, std::io::Error>(made.clone())
+        })
+        .unwrap();
+        assert_eq!(path, made);
+        assert!(registered().contains(&made));
+        drop(r);
+        assert!(!registered().contains(&made));
+        assert!(make_registered(|| Err::<PathBuf, _>("no")).is_err());
         assert!(process_runs(std::process::id() as i32));
         assert!(!process_runs(2_147_483_000));
     }

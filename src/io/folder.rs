@@ -446,7 +446,9 @@ impl Claim {
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "out".into());
-        let staging = staging_dir(&parent, &name)?;
+        // Registered as it is made: Ctrl-C from here on removes it.
+        let (staging, registered) =
+            crate::interrupt::make_registered(|| staging_dir(&parent, &name))?;
         if let Some(pid) = other_writer(&parent, &name, staging.path()) {
             return Err(OutputError::Busy {
                 path: out.to_owned(),
@@ -460,7 +462,7 @@ impl Claim {
             kind,
             found,
             batch_run: None,
-            _registered: crate::interrupt::register(staging.path()),
+            _registered: registered,
             staging,
         })
     }
@@ -566,8 +568,7 @@ pub fn publish_files(
     fill: impl FnOnce(&Path) -> Result<(), OutputError>,
 ) -> Result<(), OutputError> {
     std::fs::create_dir_all(dir).map_err(io(dir))?;
-    let staged = staging_dir(dir, "staging")?;
-    let _registered = crate::interrupt::register(staged.path());
+    let (staged, _registered) = crate::interrupt::make_registered(|| staging_dir(dir, "staging"))?;
     fill(staged.path())?;
     let mut names: Vec<_> = std::fs::read_dir(staged.path())
         .map_err(io(staged.path()))?
