@@ -10,6 +10,7 @@ use indicatif::ProgressBar;
 use super::{CommonArgs, ThreadsArg, progress_bar};
 use crate::config::Settings;
 use crate::experiments;
+use crate::io::records::ModelRecord;
 use crate::io::{self, OutputError};
 use crate::matching::{self, DeepChoice, Method, MethodKind, MethodLambdas};
 use crate::tables::RunEval;
@@ -317,7 +318,8 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
     // models folder's own weights were trained with.
     let mut recipe = None;
     for &m in &deep {
-        let own = io::trained_seed(dir, m)?;
+        let record = io::read_model_record(dir, m)?;
+        let own = record.seed;
         if !seeds.contains(&own) {
             anyhow::bail!(
                 "the weights of '{}' in {} were trained with seed {own}, which [eval] \
@@ -335,11 +337,11 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
                     list.push(owner);
                 }
                 if recipe.is_none() {
-                    recipe = Some(io::trained_config(dir, m)?);
+                    recipe = Some(record.config.clone());
                 }
                 continue;
             }
-            check_seed_folder(dir, &seed_dir, m, seed)?;
+            check_seed_folder(dir, &record, &seed_dir, m, seed)?;
             match passes.iter_mut().find(|p| p.seed == seed) {
                 Some(p) => p.methods.push(m),
                 None => passes.push(SeedPass {
@@ -367,9 +369,16 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
 }
 
 /// Refuses a seed folder whose weights of `m` are not seed `seed` of the
-/// recipe of the models folder's own.
-fn check_seed_folder(dir: &Path, seed_dir: &Path, m: Method, seed: u64) -> anyhow::Result<()> {
-    let found = io::trained_seed(seed_dir, m)?;
+/// recipe of the models folder's own (`own`, their record in `dir`).
+fn check_seed_folder(
+    dir: &Path,
+    own: &ModelRecord,
+    seed_dir: &Path,
+    m: Method,
+    seed: u64,
+) -> anyhow::Result<()> {
+    let other = io::read_model_record(seed_dir, m)?;
+    let found = other.seed;
     if found != seed {
         anyhow::bail!(
             "{} holds weights of '{}' trained with seed {found}, not {seed}",
@@ -379,7 +388,7 @@ fn check_seed_folder(dir: &Path, seed_dir: &Path, m: Method, seed: u64) -> anyho
     }
     // A row's mean over seeds is a spread over seeds of one
     // recipe, never over recipes.
-    let differ = io::recipe_differences(dir, seed_dir, m)?;
+    let differ = own.recipe_differences(&other);
     if !differ.is_empty() {
         anyhow::bail!(
             "{} holds weights of '{}' trained with another recipe than those in {} \
@@ -389,7 +398,7 @@ fn check_seed_folder(dir: &Path, seed_dir: &Path, m: Method, seed: u64) -> anyho
             m.as_str(),
             dir.display(),
             differ.join(", "),
-            io::trained_config(dir, m)?,
+            own.config,
             m.weights_owner().as_str(),
             dir.display()
         );

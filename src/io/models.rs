@@ -39,7 +39,7 @@ pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, Weight
     let method = method.weights_owner();
     let path = weights_path(models_dir, method);
     let bytes = read_model_file(method, &path, "no such file", |p| std::fs::read(p))?;
-    let record = read_record(models_dir, method)?;
+    let record = read_model_record(models_dir, method)?;
     let fail = model_error(method, &path);
     let MethodKind::Deep(deep) = method.kind() else {
         return Err(fail("not a deep method".into()));
@@ -59,29 +59,11 @@ pub fn seed_models_dir(models_dir: &Path, seed: u64) -> PathBuf {
 /// The training seed `method`'s weights in `models_dir` were made with
 /// (their record's).
 pub fn trained_seed(models_dir: &Path, method: Method) -> Result<u64, WeightsError> {
-    Ok(read_record(models_dir, method)?.seed)
-}
-
-/// The configuration a method's weights were trained with (its record's
-/// `config`), for a command that trains more of the same recipe.
-pub fn trained_config(models_dir: &Path, method: Method) -> Result<String, WeightsError> {
-    Ok(read_record(models_dir, method)?.config)
-}
-
-/// What makes the training of `method`'s weights in `other_dir` differ
-/// from those in `models_dir` ([`ModelRecord::recipe_differences`]):
-/// empty when both are seeds of one recipe.
-pub fn recipe_differences(
-    models_dir: &Path,
-    other_dir: &Path,
-    method: Method,
-) -> Result<Vec<&'static str>, WeightsError> {
-    let own = read_record(models_dir, method)?;
-    Ok(own.recipe_differences(&read_record(other_dir, method)?))
+    Ok(read_model_record(models_dir, method)?.seed)
 }
 
 /// A method's `<method>.toml` (a single-pass variant's: its owner's).
-fn read_record(models_dir: &Path, method: Method) -> Result<ModelRecord, WeightsError> {
+pub fn read_model_record(models_dir: &Path, method: Method) -> Result<ModelRecord, WeightsError> {
     let method = method.weights_owner();
     let path = models_dir.join(format!("{}.toml", method.as_str()));
     let missing = "no record beside the weights";
@@ -264,7 +246,8 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
 /// Adds what the validation runs chose to the record that [`write_model`]
 /// wrote (replacing an earlier choice), renamed into place.
 pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(), OutputError> {
-    let mut record = read_record(dir, method).map_err(|e| OutputError::Batch(e.to_string()))?;
+    let mut record =
+        read_model_record(dir, method).map_err(|e| OutputError::Batch(e.to_string()))?;
     record.validation = Some(ValidationRecord {
         seeds: v.seeds.clone(),
         uncertainty: v.uncertainty.to_owned(),
@@ -301,7 +284,7 @@ pub struct Validated {
 /// value it records is out of range.
 pub fn read_validated(models_dir: &Path, method: Method) -> Result<Validated, WeightsError> {
     let method = method.weights_owner();
-    let record = read_record(models_dir, method)?;
+    let record = read_model_record(models_dir, method)?;
     let Some(v) = record.validation else {
         return Ok(Validated {
             lambdas: None,
