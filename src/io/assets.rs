@@ -82,19 +82,27 @@ mod tests {
     #[test]
     fn the_binary_carries_every_shipped_model_and_the_default_scenario() {
         let names: Vec<&str> = ASSETS.iter().map(|(n, _)| *n).collect();
-        // Every deep method the defaults run, and every one with the poses.
+        // Every deep method the defaults run or train (the +gps deep
+        // baselines are neither: not shipped, trained on demand).
         let defaults = crate::config::Settings::defaults().unwrap();
         let deep = Method::all()
             .iter()
             .filter(|m| matches!(m.kind(), crate::matching::MethodKind::Deep(_)))
-            .filter(|m| {
-                defaults.matching.methods.contains(m)
-                    || m.inputs() == crate::matching::Inputs::V2xPoses
-            })
+            .filter(|m| defaults.matching.methods.contains(m) || defaults.train.methods.contains(m))
             .map(|m| m.weights_owner().as_str());
         for m in deep {
             assert!(names.contains(&format!("models/{m}.bpk").as_str()), "{m}");
             assert!(names.contains(&format!("models/{m}.toml").as_str()), "{m}");
+        }
+        // And nothing else: shipped weights are the default training's.
+        for name in &names {
+            if let Some(m) = name
+                .strip_prefix("models/")
+                .and_then(|n| n.strip_suffix(".bpk"))
+            {
+                let m = crate::label::parse::<Method>("method", m.rsplit('/').next().unwrap());
+                assert!(defaults.train.methods.contains(&m.unwrap()), "{name}");
+            }
         }
         assert!(names.contains(&"sumo_nets/intersection/intersection.sumocfg"));
         assert!(carried("models/ours.toml").is_some());

@@ -24,7 +24,7 @@ pub fn weights_path(models_dir: &Path, method: Method) -> PathBuf {
 
 #[derive(Debug, thiserror::Error)]
 #[error(
-    "cannot load the weights of '{method}' from {path} ({reason}); run `coid train` to make them"
+    "cannot load the weights of '{method}' from {path} ({reason}); run `coid train --methods {method}` to make them"
 )]
 pub struct WeightsError {
     pub method: &'static str,

@@ -39,6 +39,18 @@ fn r33_old_weights_under_a_published_name_are_refused_with_their_new_name() {
     assert_refused_unwritten(&out, "now called 'dgmc+gps'", &fx.path("out"));
 }
 
+/// The deep baselines with the poses (`dgmc+gps`, ...) are not shipped
+/// (only weights of the shipped recipe, three seeds each, are): a run
+/// naming one with the shipped models folder is refused before anything
+/// runs, with the command that trains it.
+#[test]
+fn r33_an_unshipped_deep_baseline_names_the_command_that_trains_it() {
+    let (fx, cfg) =
+        Fixture::with_config(60.0, "[matching]\nmethods = [\"dgmc+gps\", \"oracle\"]\n");
+    let out = fx.run(&cfg, "out");
+    assert_refused_unwritten(&out, "run `coid train --methods dgmc+gps`", &fx.path("out"));
+}
+
 /// `coid train --validate-only` works on the models folder it validates:
 /// the folder must exist, so it needs no `--force` (it did, and every user
 /// validating weights met "already exists").
