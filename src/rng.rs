@@ -50,6 +50,10 @@ pub enum Purpose {
     Channel = 10,
     /// The resamples of a bootstrap interval in the tables.
     Bootstrap = 11,
+    /// The part of a detector profile's localisation error that persists
+    /// over time, per (observer, object, axis): one normal per tick of its
+    /// grid ([`normal_at`]).
+    PersistentError = 12,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.
@@ -90,6 +94,16 @@ pub fn unit(seed: u64, purpose: Purpose, parts: &[u64]) -> f64 {
     (key(&all) >> 11) as f64 / (1u64 << 53) as f64
 }
 
+/// A standard normal that depends only on its name: `base` (a [`key`] of
+/// seed, purpose and entity) and `tick`. Allocation-free, for sums over
+/// many ticks (Box-Muller on two uniforms of the name).
+pub fn normal_at(base: u64, tick: u64) -> f64 {
+    let h = mix(base ^ mix(tick));
+    let u1 = ((h >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+    let u2 = (mix(h) >> 11) as f64 / (1u64 << 53) as f64;
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -119,15 +133,30 @@ mod tests {
             Purpose::NodeOrder,
             Purpose::Channel,
             Purpose::Bootstrap,
+            Purpose::PersistentError,
         ]
         .iter()
         .map(|&p| p as u64)
         .collect();
-        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]);
+        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]);
     }
 
     const GOLDEN_KEY_123: u64 = 17_067_510_238_710_318_979;
     const GOLDEN_FIRST_DRAW: u64 = 17_821_553_819_117_425_788;
+
+    #[test]
+    fn named_normals_are_standard_normal() {
+        let n = 200_000u64;
+        let xs: Vec<f64> = (0..n).map(|t| normal_at(key(&[3, 12, 5]), t)).collect();
+        let mean = xs.iter().sum::<f64>() / n as f64;
+        let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n as f64;
+        let beyond_2 = xs.iter().filter(|x| x.abs() > 2.0).count() as f64 / n as f64;
+        assert!(mean.abs() < 0.01, "{mean}");
+        assert!((var - 1.0).abs() < 0.02, "{var}");
+        assert!((beyond_2 - 0.0455).abs() < 0.003, "{beyond_2}");
+        assert_eq!(normal_at(9, 4), normal_at(9, 4));
+        assert_ne!(normal_at(9, 4), normal_at(9, 5));
+    }
 
     #[test]
     fn other_names_give_other_draws() {

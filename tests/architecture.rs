@@ -545,7 +545,8 @@ fn matchers_cannot_reach_the_ground_truth() {
     only_in(
         &["ObservationTruth", "DetectionTruth", ".truth$"],
         &[
-            "sensor.rs",
+            "sensor/mod.rs",
+            "sensor/profile.rs",
             "matching/oracle.rs",
             "evaluate/mod.rs",
             "evaluate/counts.rs",

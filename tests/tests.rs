@@ -12,6 +12,8 @@ mod util;
 mod bad_input;
 #[path = "integration/batch.rs"]
 mod batch;
+#[path = "integration/detectors.rs"]
+mod detectors;
 #[path = "integration/export_score.rs"]
 mod export_score;
 #[path = "integration/family_roles.rs"]

@@ -17,9 +17,11 @@
 //! over the defaults), `check` (what every section's validation uses),
 //! `validate` (the stage sections), `learning` (`[train]`, `[eval]`),
 //! `lists` (scenario lists: the only part that reads folders), `v2x`,
+//! `detector` (`[detector]`: the detector profiles),
 //! `digest` (what a configuration makes a run do, as one value).
 
 mod check;
+mod detector;
 mod digest;
 mod learning;
 mod lists;
@@ -38,6 +40,7 @@ use crate::fusion::FusionSettings;
 use crate::matching::MatchingSettings;
 use crate::matching::deep::train::TrainSettings;
 use crate::rng::Seeds;
+use crate::sensor::profile::{DetectorProfile, DetectorSettings};
 use crate::sensor::{
     CameraSettings, ConnectedSelection, LinkSettings, PoseNoiseLevel, SensorSettings,
 };
@@ -129,9 +132,12 @@ pub struct Settings {
     pub train: TrainSettings,
     pub eval: EvalSettings,
     pub v2x: V2xSettings,
+    /// `[detector]`: the detector profile (the paper's by default).
+    pub detector: DetectorSettings,
 }
 
-/// As derived, but `v2x` is shown only when it is not the default: the
+/// As derived, but `v2x` is shown only when it is not the default (and
+/// `detector` only when its profile is not the paper's): the
 /// digest of a config ([`Settings::digest`]) hashes this text, and configs
 /// from before `[v2x]` existed keep their digest (and their batches).
 impl std::fmt::Debug for Settings {
@@ -151,6 +157,11 @@ impl std::fmt::Debug for Settings {
             .field("eval", &self.eval);
         if self.v2x != V2xSettings::default() {
             d.field("v2x", &self.v2x);
+        }
+        // The profiles' parameters change nothing while the paper's model
+        // senses: shown only when another profile does.
+        if self.detector.profile != DetectorProfile::Paper {
+            d.field("detector", &self.detector);
         }
         d.finish()
     }

@@ -12,6 +12,7 @@ use crate::matching::deep::arch::{MaskChoice, MaskScope, PairLoss};
 use crate::matching::deep::decision::UncertaintyKind;
 use crate::matching::{BaselineChoice, Method};
 use crate::sensor::PoseNoiseLabel;
+use crate::sensor::profile::{DetectorProfile, Mount};
 use crate::v2x::V2xMode;
 use crate::v2x::channel::LossKind;
 
@@ -29,6 +30,41 @@ pub(super) struct RawConfig {
     pub(super) train: RawTrain,
     pub(super) eval: RawEval,
     pub(super) v2x: RawV2x,
+    pub(super) detector: RawDetector,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawDetector {
+    pub(super) profile: DetectorProfile,
+    pub(super) camera: RawProfile,
+    pub(super) lidar: RawProfile,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawProfile {
+    pub(super) fov_deg: f64,
+    pub(super) range_m: f64,
+    pub(super) height_m: f64,
+    pub(super) mount: Mount,
+    pub(super) yaw_offsets_deg: Vec<f64>,
+    pub(super) bin_edges_m: Vec<f64>,
+    pub(super) recall: Vec<f64>,
+    pub(super) mean_error_m: Vec<f64>,
+    pub(super) depth_to_lateral: f64,
+    pub(super) depth_bias_per_m: f64,
+    pub(super) tail_dof: f64,
+    pub(super) persistent_share: f64,
+    pub(super) correlation_time_s: f64,
+    pub(super) partial_shift: f64,
+    pub(super) occlusion_recall_loss: f64,
+    pub(super) false_positives_per_frame: f64,
+    pub(super) duplicate_prob: f64,
+    pub(super) ghost_prob: f64,
+    pub(super) ghost_distance_m: [f64; 2],
+    pub(super) class_confusion: [[f64; 7]; 7],
+    pub(super) sees_colour: bool,
 }
 
 #[derive(Debug, Deserialize)]

@@ -59,6 +59,7 @@ pub(super) fn validate(
         train,
         eval,
         v2x: super::v2x::v2x(&c, raw.v2x)?,
+        detector: super::detector::detector(&c, raw.detector)?,
     })
 }
 

@@ -222,7 +222,18 @@ pub(super) fn sense(
             &[frame.step, id_hash],
         );
         let (camera, sensor) = (&settings.camera, &settings.sensor);
-        let mut sensed = sensor::observe(frame, scene, k, camera, sensor, &mut stream);
+        let mut sensed = match settings.detector.model() {
+            None => sensor::observe(frame, scene, k, camera, sensor, &mut stream),
+            Some(model) => sensor::profile::observe_profile(
+                frame,
+                scene,
+                k,
+                model,
+                sensor,
+                settings.seeds.sensor,
+                &mut stream,
+            ),
+        };
         if settings.matching.sender_as_node {
             sensed.add_sender(o);
         }

@@ -10,6 +10,8 @@
 //! ego's true pose), so that matchers, which receive observations, cannot
 //! reach the truth by construction.
 
+pub mod profile;
+
 use rand::Rng;
 use rand_distr::{Distribution, Normal, Poisson};
 

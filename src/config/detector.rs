@@ -1,0 +1,48 @@
+//! Validation of `[detector]`: the profile, and each profile's parameters
+//! (checked, and their error scale calibrated, by
+//! [`ProfileModel::new`](crate::sensor::profile::ProfileModel::new)).
+
+use super::ConfigError;
+use super::check::Checker;
+use super::raw::{RawDetector, RawProfile};
+use crate::sensor::profile::{DetectorSettings, ProfileModel, ProfileParams};
+
+pub(super) fn detector(c: &Checker, d: RawDetector) -> Result<DetectorSettings, ConfigError> {
+    Ok(DetectorSettings {
+        profile: d.profile,
+        camera: profile(c, "camera", d.camera)?,
+        lidar: profile(c, "lidar", d.lidar)?,
+    })
+}
+
+fn profile(c: &Checker, name: &str, r: RawProfile) -> Result<ProfileModel, ConfigError> {
+    ProfileModel::new(ProfileParams {
+        fov_rad: r.fov_deg.to_radians(),
+        range_m: r.range_m,
+        height_m: r.height_m,
+        mount: r.mount,
+        yaw_offsets_rad: r.yaw_offsets_deg.iter().map(|y| y.to_radians()).collect(),
+        bin_edges_m: r.bin_edges_m,
+        recall: r.recall,
+        mean_error_m: r.mean_error_m,
+        depth_to_lateral: r.depth_to_lateral,
+        depth_bias_per_m: r.depth_bias_per_m,
+        tail_dof: r.tail_dof,
+        persistent_share: r.persistent_share,
+        correlation_time_s: r.correlation_time_s,
+        partial_shift: r.partial_shift,
+        occlusion_recall_loss: r.occlusion_recall_loss,
+        false_positives_per_frame: r.false_positives_per_frame,
+        duplicate_prob: r.duplicate_prob,
+        ghost_prob: r.ghost_prob,
+        ghost_distance_m: r.ghost_distance_m,
+        class_confusion: r.class_confusion,
+        sees_colour: r.sees_colour,
+    })
+    .map_err(|e| {
+        // The key names the profile's table; an error ends the command, so
+        // the few bytes of its name are leaked once.
+        let key: &'static str = Box::leak(format!("detector.{name}.{}", e.field).into_boxed_str());
+        c.invalid(key, e.message)
+    })
+}
