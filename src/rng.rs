@@ -54,6 +54,9 @@ pub enum Purpose {
     /// over time, per (observer, object, axis): one normal per tick of its
     /// grid ([`normal_at`]).
     PersistentError = 12,
+    /// The GNSS error of one vehicle at one level drifting over time in
+    /// `ideal` runs, per axis: one normal per tick of its grid.
+    GnssDrift = 13,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.
@@ -104,6 +107,30 @@ pub fn normal_at(base: u64, tick: u64) -> f64 {
     (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
+/// A stationary first-order Gauss-Markov (AR(1), Ornstein-Uhlenbeck)
+/// process of unit variance and correlation time `tau_s`, at `time_s`, as
+/// a pure function of its name `base` (a [`key`]): the weighted sum of its
+/// innovations on a grid of `tick_s` ([`normal_at`] of each tick), the
+/// terms below 1e-4 of the newest dropped and the rest scaled to unit
+/// variance. The value at a time never depends on which times were asked
+/// before; `tau_s <= 0` gives 0.
+pub fn gauss_markov_at(base: u64, time_s: f64, tau_s: f64, tick_s: f64) -> f64 {
+    if tau_s <= 0.0 || tick_s <= 0.0 {
+        return 0.0;
+    }
+    let a = (-tick_s / tau_s).exp();
+    let terms = ((1e-4f64.ln() / a.ln()).ceil() as u64).clamp(1, 100_000);
+    let norm = ((1.0 - a * a) / (1.0 - a.powi(2 * terms as i32))).sqrt();
+    let tick = (time_s / tick_s).round().max(0.0) as u64 + terms;
+    let mut w = 1.0;
+    let mut sum = 0.0;
+    for k in 0..terms {
+        sum += w * normal_at(base, tick - k);
+        w *= a;
+    }
+    norm * sum
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -134,11 +161,12 @@ mod tests {
             Purpose::Channel,
             Purpose::Bootstrap,
             Purpose::PersistentError,
+            Purpose::GnssDrift,
         ]
         .iter()
         .map(|&p| p as u64)
         .collect();
-        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]);
+        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13]);
     }
 
     const GOLDEN_KEY_123: u64 = 17_067_510_238_710_318_979;

@@ -73,6 +73,7 @@ pub(super) struct RawV2x {
     pub(super) mode: V2xMode,
     pub(super) step_length_s: f64,
     pub(super) gnss_correlation_s: f64,
+    pub(super) gnss_heading_speed_sigma_mps: f64,
     pub(super) matcher: Method,
     pub(super) pose_noise: PoseNoiseLabel,
     pub(super) compensate_latency: bool,

@@ -23,6 +23,7 @@ pub(super) fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
         ));
     }
     c.non_negative(field!("v2x", v.gnss_correlation_s))?;
+    c.non_negative(field!("v2x", v.gnss_heading_speed_sigma_mps))?;
     if matches!(v.matcher, Method::Oracle | Method::External) {
         return Err(c.invalid("v2x.matcher", "must be a matching method".into()));
     }
@@ -44,6 +45,7 @@ pub(super) fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
         mode: v.mode,
         step_length_s: v.step_length_s,
         gnss_correlation_s: v.gnss_correlation_s,
+        gnss_heading_speed_sigma_mps: v.gnss_heading_speed_sigma_mps,
         matcher: v.matcher,
         pose_noise: v.pose_noise,
         compensate_latency: v.compensate_latency,

@@ -12,11 +12,11 @@ use super::{Progress, RunError, SimStats, receptions};
 use crate::bridge::Sumo;
 use crate::config::Settings;
 use crate::evaluate;
-use crate::geometry::Vec2;
+use crate::geometry::{Pose2, Vec2};
 use crate::rng::{self, Purpose};
-use crate::sensor::{self, ConnectedSelection, LinkSettings};
-use crate::traffic::{StaticScene, TrafficFrame};
-use crate::v2x::V2xMode;
+use crate::sensor::{self, ConnectedSelection, LinkSettings, PoseNoiseLabel};
+use crate::traffic::{StaticScene, TrafficFrame, TrafficObject};
+use crate::v2x::{V2xMode, gnss};
 
 /// Runs the scenario of `settings` from start to end and hands every
 /// instance to `on_instance`, in a fixed order (by step, then by vehicle
@@ -238,17 +238,49 @@ pub(super) fn sense(
             sensed.add_sender(o);
         }
         let keys = [frame.step, id_hash];
+        let reported = ideal_gnss(settings, frame, o, id_hash);
         sides.push(InstanceSide::new(
             ViewSource::Vehicle(o.id.clone()),
             sensed,
             settings.seeds.sensor,
             &keys,
             o.speed_mps,
-            None,
+            reported,
         )?);
     }
     sides.sort_by(|a, b| a.id().cmp(b.id()));
     Ok(sides)
+}
+
+/// With `[v2x] mode = "ideal"` and a GNSS that drifts or whose heading
+/// error grows at low speed, the pose `o` reports at every level (drawn
+/// here, carried by its side); `None` with the white model, whose poses
+/// the side draws from its own stream when asked (the shipped results).
+fn ideal_gnss(
+    settings: &Settings,
+    frame: &TrafficFrame,
+    o: &TrafficObject,
+    id_hash: u64,
+) -> Option<Vec<(PoseNoiseLabel, Pose2)>> {
+    let v = &settings.v2x;
+    let (tau_s, speed_sigma) = (v.gnss_correlation_s, v.gnss_heading_speed_sigma_mps);
+    if v.mode != V2xMode::Ideal || (tau_s == 0.0 && speed_sigma == 0.0) {
+        return None;
+    }
+    let seed = settings.seeds.sensor;
+    let poses = settings.pose_noise.iter().map(|level| {
+        let level = gnss::at_speed(level, o.speed_mps, speed_sigma);
+        let pose = if tau_s > 0.0 {
+            gnss::drift_error(seed, id_hash, &level, frame.time_s, tau_s).apply(&o.pose)
+        } else {
+            // The white model's own stream, with the heading at speed.
+            let code = level.label.stream_code();
+            let mut s = rng::stream(seed, Purpose::PoseNoise, &[frame.step, id_hash, code]);
+            sensor::reported_pose(&o.pose, &level, &mut s)
+        };
+        (level.label, pose)
+    });
+    Some(poses.collect())
 }
 
 #[cfg(test)]

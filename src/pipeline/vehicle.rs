@@ -14,7 +14,7 @@ use crate::rng::{self, Purpose};
 use crate::sensor::{Detection, DetectionTruth};
 use crate::v2x::V2xSettings;
 use crate::v2x::cpm::{CpmGenerator, PerceivedObject, TrackSnapshot};
-use crate::v2x::gnss::{GnssError, next_error};
+use crate::v2x::gnss::{GnssError, at_speed, next_error};
 use crate::v2x::tracker::{MotCounter, TrackMeasurement, Tracker};
 
 /// A track within this distance of an object counts as tracking it
@@ -185,11 +185,12 @@ impl ConnectedVehicle {
                 &[ctx.step, side.id_hash, level.label.stream_code()],
             );
             let last = previous.get(k).map(|&(t, e)| (ctx.time_s - t, e));
+            let level = at_speed(level, side.speed_mps, ctx.v.gnss_heading_speed_sigma_mps);
             let e = next_error(
                 last.map(|p| p.1),
                 last.map_or(0.0, |p| p.0),
                 ctx.v.gnss_correlation_s,
-                level,
+                &level,
                 &mut stream,
             );
             self.gnss.push((ctx.time_s, e));

@@ -67,10 +67,6 @@ crate::label_enum! { "sensor mount";
 /// The grid the persistent error is sampled on (seconds).
 pub const PERSISTENT_TICK_S: f64 = 0.1;
 
-/// Terms of the persistent error's sum are dropped once their weight
-/// falls below this (the rest carries less than 1e-8 of the variance).
-const PERSISTENT_CUTOFF: f64 = 1e-4;
-
 /// More sensors per vehicle than this are refused.
 const MAX_SENSORS: usize = 16;
 
@@ -454,9 +450,9 @@ fn calibrate_scale(p: &ProfileParams, d_m: f64, target_m: f64) -> Result<f64, St
 
 /// The persistent part (depth, lateral; unit variance) of `observer`'s
 /// error on `object` at `time_s`: a stationary AR(1) with correlation time
-/// `tau_s` on the [`PERSISTENT_TICK_S`] grid, summed over its recent
-/// innovations (each a normal named by seed, observer, object, axis and
-/// tick), so that it is the same whichever frames were sensed before.
+/// `tau_s` on the [`PERSISTENT_TICK_S`] grid ([`rng::gauss_markov_at`],
+/// each axis named by seed, observer, object and axis), so that it is the
+/// same whichever frames were sensed before.
 pub fn persistent_error(
     seed: u64,
     observer: &str,
@@ -464,24 +460,10 @@ pub fn persistent_error(
     time_s: f64,
     tau_s: f64,
 ) -> [f64; 2] {
-    if tau_s <= 0.0 {
-        return [0.0, 0.0];
-    }
-    let a = (-PERSISTENT_TICK_S / tau_s).exp();
-    let terms = ((PERSISTENT_CUTOFF.ln() / a.ln()).ceil() as u64).clamp(1, 100_000);
-    // Exactly unit variance for the truncated sum.
-    let norm = ((1.0 - a * a) / (1.0 - a.powi(2 * terms as i32))).sqrt();
-    let tick = (time_s / PERSISTENT_TICK_S).round().max(0.0) as u64 + terms;
     let (o, j) = (rng::hash_str(observer), rng::hash_str(object));
     [0u64, 1].map(|axis| {
         let base = rng::key(&[seed, Purpose::PersistentError as u64, o, j, axis]);
-        let mut w = 1.0;
-        let mut sum = 0.0;
-        for k in 0..terms {
-            sum += w * rng::normal_at(base, tick - k);
-            w *= a;
-        }
-        norm * sum
+        rng::gauss_markov_at(base, time_s, tau_s, PERSISTENT_TICK_S)
     })
 }
 

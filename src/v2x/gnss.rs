@@ -3,12 +3,68 @@
 //! `a = exp(-dt / tau)`, started from its stationary distribution, so
 //! every step has the level's sigma and errors decorrelate over `tau`.
 //! `tau = 0` gives independent errors per step (today's model).
+//!
+//! The `cpm` mode steps the process frame by frame ([`next_error`]); the
+//! `ideal` mode, which senses only at sampled steps, takes it as a pure
+//! function of the vehicle, the level and the time ([`drift_error`]). In
+//! both, the heading error may grow at low speed ([`at_speed`]).
 
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::geometry::{Pose2, Vec2};
+use crate::rng::{self, Purpose};
 use crate::sensor::PoseNoiseLevel;
+
+/// Below this speed a course-over-ground heading is as bad as at it
+/// (m/s; GNSS receivers call course over ground erratic below about 0.75
+/// kn).
+pub const MIN_HEADING_SPEED_MPS: f64 = 0.4;
+
+/// The drift's grid: this share of the correlation time, at least 0.1 s.
+const DRIFT_TICKS_PER_TAU: f64 = 50.0;
+
+/// `level` at a vehicle's speed: its heading sigma and course over
+/// ground's `speed_sigma_mps / max(v, MIN_HEADING_SPEED_MPS)` in
+/// quadrature. Perfect self-localisation (both sigmas 0) stays perfect;
+/// `speed_sigma_mps = 0` gives the level itself.
+pub fn at_speed(level: &PoseNoiseLevel, speed_mps: f64, speed_sigma_mps: f64) -> PoseNoiseLevel {
+    if speed_sigma_mps <= 0.0 || (level.position_sigma_m == 0.0 && level.heading_sigma_rad == 0.0) {
+        return *level;
+    }
+    let course = speed_sigma_mps / speed_mps.abs().max(MIN_HEADING_SPEED_MPS);
+    PoseNoiseLevel {
+        heading_sigma_rad: level.heading_sigma_rad.hypot(course),
+        ..*level
+    }
+}
+
+/// The GNSS error of vehicle `vehicle_hash` at `level` and `time_s`,
+/// drifting with correlation time `tau_s > 0`: per axis the level's sigma
+/// times a unit Gauss-Markov process ([`rng::gauss_markov_at`] on a grid
+/// of `tau_s / 50`, at least 0.1 s), named by seed, vehicle, level and
+/// axis, so that it is the same whichever steps were sensed before.
+pub fn drift_error(
+    seed: u64,
+    vehicle_hash: u64,
+    level: &PoseNoiseLevel,
+    time_s: f64,
+    tau_s: f64,
+) -> GnssError {
+    let tick_s = (tau_s / DRIFT_TICKS_PER_TAU).max(0.1);
+    let unit = |axis: u64| {
+        let code = level.label.stream_code();
+        let base = rng::key(&[seed, Purpose::GnssDrift as u64, vehicle_hash, code, axis]);
+        rng::gauss_markov_at(base, time_s, tau_s, tick_s)
+    };
+    GnssError {
+        position_m: Vec2::new(
+            level.position_sigma_m * unit(0),
+            level.position_sigma_m * unit(1),
+        ),
+        heading_rad: level.heading_sigma_rad * unit(2),
+    }
+}
 
 /// A vehicle's GNSS error at one time.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -61,6 +117,59 @@ mod tests {
 
     use super::*;
     use crate::sensor::PoseNoiseLabel;
+
+    /// The ideal mode's drift: the level's sigma at any time, correlation
+    /// exp(-lag / tau) between two times, the same value whenever asked.
+    #[test]
+    fn the_drift_keeps_sigma_and_correlates_over_tau() {
+        let level = PoseNoiseLevel {
+            label: PoseNoiseLabel::Gps,
+            position_sigma_m: 1.2,
+            heading_sigma_rad: 0.0035,
+        };
+        let tau = 30.0;
+        let n = 3000u64;
+        let at = |v: u64, t: f64| drift_error(5, v, &level, t, tau).position_m.x;
+        let x0: Vec<f64> = (0..n).map(|v| at(v, 200.0)).collect();
+        let var = x0.iter().map(|x| x * x).sum::<f64>() / n as f64;
+        assert!((var.sqrt() - 1.2).abs() < 0.06, "sigma {}", var.sqrt());
+        for (lag, expect) in [(3.0, (-0.1f64).exp()), (30.0, (-1f64).exp()), (300.0, 0.0)] {
+            let c = (0..n)
+                .map(|v| x0[v as usize] * at(v, 200.0 + lag))
+                .sum::<f64>()
+                / n as f64
+                / var;
+            assert!((c - expect).abs() < 0.06, "lag {lag}: {c} vs {expect}");
+        }
+        assert_eq!(at(9, 12.5), at(9, 12.5));
+    }
+
+    /// Course over ground: the heading sigma grows as sigma_v / v below a
+    /// walking pace's floor; perfect self-localisation stays perfect.
+    #[test]
+    fn the_heading_error_grows_at_low_speed() {
+        let gps = PoseNoiseLevel {
+            label: PoseNoiseLabel::Gps,
+            position_sigma_m: 1.2,
+            heading_sigma_rad: 0.2f64.to_radians(),
+        };
+        let at = |v: f64| at_speed(&gps, v, 0.05).heading_sigma_rad;
+        assert!((at(100.0 / 3.6) - gps.heading_sigma_rad).abs() < 0.001);
+        assert!(
+            (at(10.0 / 3.6).to_degrees() - 1.02).abs() < 0.05,
+            "{}",
+            at(10.0 / 3.6).to_degrees()
+        );
+        assert_eq!(at(0.0), at(MIN_HEADING_SPEED_MPS));
+        assert!(at(0.0) > at(1.0));
+        assert_eq!(at_speed(&gps, 0.0, 0.0), gps);
+        let none = PoseNoiseLevel {
+            label: PoseNoiseLabel::None,
+            position_sigma_m: 0.0,
+            heading_sigma_rad: 0.0,
+        };
+        assert_eq!(at_speed(&none, 0.0, 0.05), none);
+    }
 
     /// The process keeps the level's sigma at every step and its lag
     /// correlation is exp(-dt / tau); tau = 0 is white.

@@ -36,8 +36,12 @@ pub struct V2xSettings {
     /// SUMO's step (the camera frame period) for `coid track` and the
     /// `cpm` mode (s); the `ideal` mode keeps the scenario's.
     pub step_length_s: f64,
-    /// Correlation time of the GNSS error (s); 0: independent per step.
+    /// Correlation time of the GNSS error (s), in both modes; 0:
+    /// independent per step.
     pub gnss_correlation_s: f64,
+    /// The GNSS heading error grows at low speed as `sigma_v / v` (course
+    /// over ground), added in quadrature to the level's (m/s); 0: off.
+    pub gnss_heading_speed_sigma_mps: f64,
     /// The frame matcher each receiver runs on every message.
     pub matcher: Method,
     /// The GNSS accuracy (one of the configured levels).
@@ -56,6 +60,7 @@ impl Default for V2xSettings {
             mode: V2xMode::Ideal,
             step_length_s: 0.1,
             gnss_correlation_s: 0.0,
+            gnss_heading_speed_sigma_mps: 0.0,
             matcher: Method::GpsAppHungarian,
             pose_noise: PoseNoiseLabel::Gps,
             compensate_latency: true,

@@ -66,3 +66,45 @@ fn r34_unusable_profile_parameters_are_refused_by_name() {
     let out = fx.run(&cfg, "out");
     assert_refused_unwritten(&out, "unknown detector profile 'radar'", &fx.path("out"));
 }
+
+/// GNSS that drifts (`[v2x] gnss_correlation_s`) and a heading error that
+/// grows at low speed now act in `ideal` runs too: exact poses are
+/// untouched, the noisy levels change, one or two threads agree, and a
+/// negative sigma is refused by name.
+#[test]
+fn r34_gnss_drifts_in_ideal_runs_and_its_heading_error_grows_at_low_speed() {
+    let fx = Fixture::new();
+    let methods = "[matching]\nmethods = [\"gps-hungarian\", \"oracle\"]\n";
+    let white = fx.config("white.toml", 65.0, methods);
+    let drift = fx.config(
+        "drift.toml",
+        65.0,
+        &format!(
+            "{methods}[v2x]\ngnss_correlation_s = 30.0\ngnss_heading_speed_sigma_mps = 0.05\n"
+        ),
+    );
+    assert_ok(&fx.cmd("run").quiet().config(&white).out("white").output());
+    for threads in ["1", "2"] {
+        let cmd = fx.cmd("run").quiet().args(["--threads", threads]);
+        assert_ok(&cmd.config(&drift).out(&format!("drift-{threads}")).output());
+    }
+    assert!(fx.read("drift-1/summary.csv") == fx.read("drift-2/summary.csv"));
+    let rows = |out: &str| -> Vec<String> {
+        fx.read_text(&format!("{out}/summary.csv"))
+            .lines()
+            .map(str::to_owned)
+            .collect()
+    };
+    let (w, d) = (rows("white"), rows("drift-1"));
+    assert_eq!(w.len(), d.len());
+    for (a, b) in w.iter().zip(&d) {
+        if a.contains(",none,") {
+            assert_eq!(a, b, "exact poses are untouched");
+        } else if a.starts_with("gps-hungarian,gps,") {
+            assert_ne!(a, b, "the noisy levels change");
+        }
+    }
+    let (fx, cfg) = Fixture::with_config(60.0, "[v2x]\ngnss_heading_speed_sigma_mps = -1.0\n");
+    let out = fx.run(&cfg, "out");
+    assert_refused_unwritten(&out, "v2x.gnss_heading_speed_sigma_mps", &fx.path("out"));
+}
