@@ -540,7 +540,8 @@ fn every_random_draw_comes_from_a_named_stream() {
 #[test]
 fn matchers_cannot_reach_the_ground_truth() {
     // The truth types are named only by the sensor (which makes them), the
-    // oracle, the evaluation, the tables and pictures that score and draw
+    // oracle, the evaluation, the tables, the detector report and the
+    // pictures that score and draw
     // it, and the pipeline and render command that pass it along.
     only_in(
         &["ObservationTruth", "DetectionTruth", ".truth$"],
@@ -556,6 +557,7 @@ fn matchers_cannot_reach_the_ground_truth() {
             "evaluate/map.rs",
             "evaluate/estimates.rs",
             "tables/record.rs",
+            "report/detector.rs",
             "render.rs",
             "pipeline/fleet.rs",
             "pipeline/fusion_over_time.rs",

@@ -55,9 +55,12 @@ pub enum ResultKind {
     /// Trackers and messages over a run (`coid track`): `tracking.csv`,
     /// `association.csv`; or a sweep: `sweep.csv`, `sweep_latency.*`.
     Track,
+    /// A detector profile measured on the validation runs (`coid
+    /// detector`): `detector.csv`.
+    Detector,
 }
 
-const KINDS: [ResultKind; 9] = [
+const KINDS: [ResultKind; 10] = [
     ResultKind::Run,
     ResultKind::Eval,
     ResultKind::Render,
@@ -67,6 +70,7 @@ const KINDS: [ResultKind; 9] = [
     ResultKind::Models,
     ResultKind::Export,
     ResultKind::Track,
+    ResultKind::Detector,
 ];
 
 impl ResultKind {
@@ -82,6 +86,7 @@ impl ResultKind {
             ResultKind::Models => "a models folder (coid train)",
             ResultKind::Export => "an export (coid export)",
             ResultKind::Track => "tracking results (coid track)",
+            ResultKind::Detector => "a detector report (coid detector)",
         }
     }
 
@@ -97,6 +102,7 @@ impl ResultKind {
             ResultKind::Models => "models",
             ResultKind::Export => "export",
             ResultKind::Track => "track",
+            ResultKind::Detector => "detector",
         }
     }
 

@@ -41,7 +41,7 @@ pub use frames::{OnEval, evaluate_frames};
 pub use instance::{Instance, InstanceSide, ViewSource};
 pub use run::run;
 pub use runners::{choice_for, choices, runner, runners};
-pub use simulate::{Step, simulate, simulate_frames, simulate_steps};
+pub use simulate::{Step, sense_steps, simulate, simulate_frames, simulate_steps};
 pub use track::{TrackResults, track};
 
 #[derive(Debug, thiserror::Error)]
@@ -158,6 +158,7 @@ mod tests {
             .map(|(o, p)| VisibleObject {
                 object_id: (*o).to_owned(),
                 position_m: *p,
+                visible_fraction: 1.0,
             })
             .collect();
         let sensed = Sensed {

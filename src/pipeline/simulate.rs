@@ -14,7 +14,7 @@ use crate::config::Settings;
 use crate::evaluate;
 use crate::geometry::{Pose2, Vec2};
 use crate::rng::{self, Purpose};
-use crate::sensor::{self, ConnectedSelection, LinkSettings, PoseNoiseLabel};
+use crate::sensor::{self, ConnectedSelection, LinkSettings, PoseNoiseLabel, Sensed};
 use crate::traffic::{StaticScene, TrafficFrame, TrafficObject};
 use crate::v2x::{V2xMode, gnss};
 
@@ -216,24 +216,7 @@ pub(super) fn sense(
             continue;
         }
         let id_hash = rng::hash_str(&o.id);
-        let mut stream = rng::stream(
-            settings.seeds.sensor,
-            Purpose::Detections,
-            &[frame.step, id_hash],
-        );
-        let (camera, sensor) = (&settings.camera, &settings.sensor);
-        let mut sensed = match settings.detector.model() {
-            None => sensor::observe(frame, scene, k, camera, sensor, &mut stream),
-            Some(model) => sensor::profile::observe_profile(
-                frame,
-                scene,
-                k,
-                model,
-                sensor,
-                settings.seeds.sensor,
-                &mut stream,
-            ),
-        };
+        let mut sensed = sense_one(settings, scene, frame, k);
         if settings.matching.sender_as_node {
             sensed.add_sender(o);
         }
@@ -250,6 +233,64 @@ pub(super) fn sense(
     }
     sides.sort_by(|a, b| a.id().cmp(b.id()));
     Ok(sides)
+}
+
+/// What connected vehicle `frame.objects[k]` senses at this step, under
+/// the configured detector profile (its own stream per step and vehicle).
+fn sense_one(settings: &Settings, scene: &StaticScene, frame: &TrafficFrame, k: usize) -> Sensed {
+    let id_hash = rng::hash_str(&frame.objects[k].id);
+    let mut stream = rng::stream(
+        settings.seeds.sensor,
+        Purpose::Detections,
+        &[frame.step, id_hash],
+    );
+    let (camera, sensor) = (&settings.camera, &settings.sensor);
+    match settings.detector.model() {
+        None => sensor::observe(frame, scene, k, camera, sensor, &mut stream),
+        Some(model) => sensor::profile::observe_profile(
+            frame,
+            scene,
+            k,
+            model,
+            sensor,
+            settings.seeds.sensor,
+            &mut stream,
+        ),
+    }
+}
+
+/// Runs the scenario of `settings` from start to end and hands what every
+/// connected vehicle near the junction senses at every sampled step
+/// (`[scenario] sample_every_s`, whether or not it makes an instance) to
+/// `on_sensed`, with the frame: the detector report's input. Returns the
+/// number of sensings.
+pub fn sense_steps(
+    settings: &Settings,
+    mut on_sensed: impl FnMut(&TrafficFrame, &Sensed),
+) -> Result<u64, RunError> {
+    let sc = &settings.scenario;
+    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, None)?;
+    let scene = sumo.static_scene(&sc.junction)?;
+    let mut next_sample_s = f64::NEG_INFINITY;
+    let mut n = 0;
+    let eps = 1e-6;
+    while sumo.time_s() + eps < sc.end_s {
+        let frame = sumo.step()?;
+        if frame.time_s + eps < next_sample_s {
+            continue;
+        }
+        next_sample_s = frame.time_s + sc.sample_every_s;
+        for (k, o) in frame.objects.iter().enumerate() {
+            if settings.connected.carries_rig(settings.seeds.sensor, o)
+                && (o.pose.position_m() - scene.junction_position_m).norm() <= sc.radius_m
+            {
+                on_sensed(&frame, &sense_one(settings, &scene, &frame, k));
+                n += 1;
+            }
+        }
+    }
+    sumo.close()?;
+    Ok(n)
 }
 
 /// With `[v2x] mode = "ideal"` and a GNSS that drifts or whose heading

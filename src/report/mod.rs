@@ -8,11 +8,13 @@
 //! the summary with its one column table, per-object rows), `table` (named
 //! columns), `batch` (a run's summary read back, the aggregate over runs,
 //! keyed by [`RowKey`], its columns named once by [`Metric`]), `tracking`
-//! (cooperation over time), `calibration`, `exchange` (rows read from
+//! (cooperation over time), `calibration`, `detector` (the detector
+//! report: a profile against its figures), `exchange` (rows read from
 //! other tools' files), `plots`.
 
 mod batch;
 mod calibration;
+mod detector;
 mod exchange;
 mod plots;
 mod run;
@@ -22,6 +24,7 @@ mod tracking;
 
 pub use batch::{AggregateRow, KEY_COLUMNS, Metric, RunRow, aggregate, aggregate_table};
 pub use calibration::*;
+pub use detector::DetectorStats;
 pub use exchange::{ExportRunRow, MatchRow};
 pub use plots::{PlotData, SweepPoint};
 pub use run::*;

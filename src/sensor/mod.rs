@@ -265,6 +265,8 @@ pub struct VisibleObject {
     pub object_id: String,
     /// True centre, world frame.
     pub position_m: Vec2,
+    /// The share of its footprint samples the camera saw.
+    pub visible_fraction: f64,
 }
 
 /// How well a sender knows its own centre in its own body frame: its
@@ -555,6 +557,7 @@ impl Camera<'_> {
         let object = VisibleObject {
             object_id: obj.id.clone(),
             position_m: obj.pose.position_m(),
+            visible_fraction: vis,
         };
         if u < p_miss {
             return Some((object, None));

@@ -480,13 +480,19 @@ struct ProfileSensor<'a> {
     sensor: &'a SensorSettings,
 }
 
+/// Where a sensor on `mount` sits in the body frame of a vehicle
+/// `length_m` long (metres).
+pub fn sensor_in_body_m(mount: Mount, length_m: f64) -> Vec2 {
+    match mount {
+        Mount::Front => Vec2::new(length_m / 2.0, 0.0),
+        Mount::Roof => Vec2::zeros(),
+    }
+}
+
 /// Where a sensor sits on `ego`, yawed by `yaw_rad`.
 fn sensor_pose(ego: &TrafficObject, mount: Mount, yaw_rad: f64) -> Pose2 {
-    let at = match mount {
-        Mount::Front => Vec2::new(ego.length_m / 2.0, 0.0),
-        Mount::Roof => Vec2::zeros(),
-    };
-    ego.pose.compose(&Pose2::new(at, yaw_rad))
+    ego.pose
+        .compose(&Pose2::new(sensor_in_body_m(mount, ego.length_m), yaw_rad))
 }
 
 impl ProfileSensor<'_> {
@@ -604,6 +610,7 @@ impl ProfileSensor<'_> {
         let object = VisibleObject {
             object_id: obj.id.clone(),
             position_m: obj.pose.position_m(),
+            visible_fraction: vis,
         };
         if u >= recall {
             return Some((object, Vec::new()));

@@ -108,3 +108,29 @@ fn r34_gnss_drifts_in_ideal_runs_and_its_heading_error_grows_at_low_speed() {
     let out = fx.run(&cfg, "out");
     assert_refused_unwritten(&out, "v2x.gnss_heading_speed_sigma_mps", &fx.path("out"));
 }
+
+/// `coid detector` measures a profile on the validation runs: the lidar's
+/// recall of fully visible objects and its mean error in the nearest bin
+/// come out as configured from the published figures (0.81, 0.34 m), its
+/// NEES above the 2 a true covariance would give, and the CSV is written.
+#[test]
+fn r34_the_detector_report_measures_a_profile_against_its_figures() {
+    let (fx, cfg) = Fixture::with_config(65.0, "[train]\nvalidation_seeds = [125, 126]\n");
+    let out = fx
+        .cmd("detector")
+        .quiet()
+        .config(&cfg)
+        .out("det")
+        .args(["--profile", "lidar"])
+        .output();
+    assert_ok(&out);
+    let t = read_csv(&fx.path("det/detector.csv"));
+    let near = |col: &str| f64s(&t, col)[0];
+    assert!(near("fully_visible") > 300.0, "{}", near("fully_visible"));
+    let recall = near("recall_fully_visible");
+    assert!((recall - 0.81).abs() < 0.06, "recall {recall}");
+    let error = near("mean_error_fully_visible_m");
+    assert!((error / 0.34 - 1.0).abs() < 0.15, "mean error {error} m");
+    assert!(near("nees_mean") > 2.2, "NEES {}", near("nees_mean"));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("| recall |"));
+}

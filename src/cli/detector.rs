@@ -1,0 +1,87 @@
+//! `coid detector`: the configured detector profile measured on the
+//! validation runs, per range bin, beside the figures it was configured
+//! with (`docs/detectors.md`).
+
+use anyhow::Context;
+
+use super::{CommonArgs, label_arg, progress_bar};
+use crate::experiments::validation_runs;
+use crate::report::DetectorStats;
+use crate::sensor::profile::{DetectorProfile, Mount, sensor_in_body_m};
+use crate::{io, pipeline};
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// Measure this profile instead of the config's [detector] profile.
+    #[arg(long, value_parser = label_arg::<DetectorProfile>("detector profile"))]
+    profile: Option<DetectorProfile>,
+}
+
+pub fn detector(a: Args) -> anyhow::Result<()> {
+    let (mut settings, claim) = a.common.prepare("-detector", io::ResultKind::Detector)?;
+    if let Some(p) = a.profile {
+        settings.detector.profile = p;
+    }
+    let out = claim.out().to_owned();
+    let profile = settings.detector.profile;
+    // The bins, the configured figures, where the sensors sit.
+    let (edges, recall, error, clutter, mount, sensors) = match settings.detector.model() {
+        Some(m) => {
+            let p = &m.params;
+            let edges = p.bin_edges_m.clone();
+            (
+                edges,
+                p.recall.clone(),
+                p.mean_error_m.clone(),
+                p.false_positives_per_frame,
+                p.mount,
+                p.yaw_offsets_rad.len(),
+            )
+        }
+        None => {
+            let range = settings.camera.range_m;
+            let mut edges: Vec<f64> = [30.0, 50.0].into_iter().filter(|e| *e < range).collect();
+            edges.push(range);
+            let clutter = settings.sensor.false_positives_per_frame;
+            let cameras = settings.camera.yaw_offsets_rad.len();
+            (
+                edges,
+                Vec::new(),
+                Vec::new(),
+                clutter,
+                Mount::Front,
+                cameras,
+            )
+        }
+    };
+    let runs = validation_runs(&settings)?;
+    let pb = progress_bar(
+        a.common.quiet.quiet,
+        runs.len() as u64,
+        "{spinner} measuring the detector: run {pos}/{len} [{bar:30}] eta {eta}",
+    );
+    let mut stats = DetectorStats::new(edges);
+    let mut sensings = 0;
+    for (k, run) in runs.iter().enumerate() {
+        sensings += pipeline::sense_steps(run, |frame, sensed| {
+            let ego = frame.find(&sensed.observation.ego_id);
+            let length_m = ego.map_or(0.0, |i| frame.objects[i].length_m);
+            stats.add(sensed, sensor_in_body_m(mount, length_m), sensors as u64);
+        })
+        .with_context(|| format!("validation run {} failed", k + 1))?;
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let table = stats.table(&recall, &error, clutter);
+    claim.fill(|dir| io::write_tracking(dir, &[("detector.csv", &table)], |_| Ok(())))?;
+    println!("{}", io::markdown::table(&table));
+    eprintln!(
+        "coid: the '{}' detector over {} validation runs ({sensings} sensings); wrote {}",
+        profile.as_str(),
+        runs.len(),
+        out.display()
+    );
+    Ok(())
+}
