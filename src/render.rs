@@ -22,6 +22,7 @@ use crate::geometry::{Pose2, Vec2};
 use crate::matching::{Correspondence, Method};
 use crate::report::{AggregateRow, Metric, PlotData};
 use crate::sensor::PoseNoiseLabel;
+use crate::sensor::profile::{Mount, sensor_in_body_m};
 use crate::sensor::{CameraSettings, Observation, ObservationTruth};
 use crate::traffic::{StaticScene, TrafficFrame};
 
@@ -46,7 +47,10 @@ pub struct RenderError {
 pub struct SceneView<'a> {
     pub scene: &'a StaticScene,
     pub frame: &'a TrafficFrame,
+    /// The sensors each connected vehicle carries (the detector
+    /// profile's), and where they sit on it.
     pub camera: &'a CameraSettings,
+    pub mount: Mount,
     /// The two connected vehicles' observations with the truth beside
     /// them (detections are placed in the world with each vehicle's true
     /// pose: what it measured about its surroundings).
@@ -145,19 +149,21 @@ fn draw_ground<DB: DrawingBackend>(
     Ok(())
 }
 
-/// Each connected vehicle's camera frustums.
+/// Each connected vehicle's sensors' fields of view (a full turn: a
+/// rotating lidar's disc).
 fn draw_frustums<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> DrawResult<DB> {
     for (k, vehicle) in view.vehicles.iter().enumerate() {
         let Some(obj) = view.frame.find(vehicle).map(|i| &view.frame.objects[i]) else {
             continue;
         };
         for &yaw in &view.camera.yaw_offsets_rad {
-            let cam = obj
-                .pose
-                .compose(&Pose2::new(Vec2::new(obj.length_m / 2.0, 0.0), yaw));
+            let at = sensor_in_body_m(view.mount, obj.length_m);
+            let cam = obj.pose.compose(&Pose2::new(at, yaw));
             let mut pts = vec![pt(&cam.position_m())];
-            for s in 0..=16 {
-                let a = -view.camera.fov_rad / 2.0 + view.camera.fov_rad * f64::from(s) / 16.0;
+            let segments = (view.camera.fov_rad / 0.1).ceil().max(16.0) as u32;
+            for s in 0..=segments {
+                let a = -view.camera.fov_rad / 2.0
+                    + view.camera.fov_rad * f64::from(s) / f64::from(segments);
                 pts.push(pt(
                     &cam.to_parent(&(Vec2::new(a.cos(), a.sin()) * view.camera.range_m))
                 ));
@@ -667,6 +673,24 @@ mod tests {
 
     #[test]
     fn a_scene_with_one_vehicle_and_no_detections_renders() {
+        let share = render_one_vehicle(1.5, Mount::Front);
+        // Road, building, frustum and legend cover part of the picture,
+        // not all of it.
+        assert!(share > 0.05 && share < 0.9, "non-white share {share}");
+    }
+
+    /// A rotating lidar's field of view is a disc around the roof: it
+    /// covers more of the picture than a front camera's frustum.
+    #[test]
+    fn a_lidar_is_drawn_as_a_disc() {
+        let camera = render_one_vehicle(1.5, Mount::Front);
+        let lidar = render_one_vehicle(std::f64::consts::TAU, Mount::Roof);
+        assert!(lidar > camera + 0.1, "lidar {lidar}, camera {camera}");
+    }
+
+    /// Renders one vehicle with sensors of `fov_rad` on `mount`; the
+    /// picture's non-white share.
+    fn render_one_vehicle(fov_rad: f64, mount: Mount) -> f64 {
         let scene = StaticScene {
             junction_id: "C".into(),
             junction_position_m: Vec2::zeros(),
@@ -715,7 +739,7 @@ mod tests {
             detections: vec![],
         };
         let camera = CameraSettings {
-            fov_rad: 1.5,
+            fov_rad,
             range_m: 70.0,
             height_m: 1.5,
             yaw_offsets_rad: vec![0.0],
@@ -724,6 +748,7 @@ mod tests {
             scene: &scene,
             frame: &frame,
             camera: &camera,
+            mount,
             egos: [(&obs, &truth), (&other, &other_truth)],
             vehicles: ["cv0", "cv1"],
             matches: &[],
@@ -735,10 +760,8 @@ mod tests {
         render_scene(&view, &stem, 400).unwrap();
         let (w, h, share) = non_white_share(&stem.with_extension("png"));
         assert_eq!((w, h), (400, 400));
-        // Road, building, frustum and legend cover part of the picture,
-        // not all of it.
-        assert!(share > 0.05 && share < 0.9, "non-white share {share}");
         let svg = std::fs::read_to_string(stem.with_extension("svg")).unwrap();
         assert!(svg.starts_with("<svg") && svg.contains("polygon"));
+        share
     }
 }

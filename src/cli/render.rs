@@ -9,6 +9,7 @@ use crate::io::markdown::fmt_num;
 use crate::matching::Method;
 use crate::pipeline::{self, Instance, RunError};
 use crate::render::{self, SceneView};
+use crate::sensor::profile::Mount;
 use crate::sensor::{PoseNoiseLabel, PoseNoiseLevel};
 
 #[derive(clap::Args)]
@@ -91,10 +92,16 @@ fn draw(
     };
     let e = evaluate::evaluate(&pair, runner, &no_fusion);
     let (a, b) = (&pair.first, &pair.second);
+    // The detector profile's sensors (the paper's: [camera], in front).
+    let (rig, mount) = match settings.detector.model() {
+        Some(m) => (m.rig(), m.params.mount),
+        None => (settings.camera.clone(), Mount::Front),
+    };
     let view = SceneView {
         scene: inst.scene,
         frame: inst.frame,
-        camera: &settings.camera,
+        camera: &rig,
+        mount,
         egos: [(a.obs, a.truth), (b.obs, b.truth)],
         vehicles: [inst.a.source.vehicle(), inst.b.source.vehicle()],
         matches: &e.identification.matches,
@@ -108,7 +115,7 @@ fn draw(
             fmt_num(e.counts.precision(), 2),
             fmt_num(e.counts.recall(), 2)
         ),
-        half_window_m: settings.camera.range_m + 10.0,
+        half_window_m: rig.range_m + 10.0,
     };
     render::render_scene(&view, stem, 1000).map_err(|e| RunError::Render(e.to_string()))
 }
