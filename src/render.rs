@@ -47,10 +47,9 @@ pub struct RenderError {
 pub struct SceneView<'a> {
     pub scene: &'a StaticScene,
     pub frame: &'a TrafficFrame,
-    /// The sensors each connected vehicle carries (the detector
-    /// profile's), and where they sit on it.
-    pub camera: &'a CameraSettings,
-    pub mount: Mount,
+    /// The sensors each of the two connected vehicles carries (its
+    /// detector profile's), and where they sit on it.
+    pub sensors: [(CameraSettings, Mount); 2],
     /// The two connected vehicles' observations with the truth beside
     /// them (detections are placed in the world with each vehicle's true
     /// pose: what it measured about its surroundings).
@@ -156,16 +155,16 @@ fn draw_frustums<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> DrawR
         let Some(obj) = view.frame.find(vehicle).map(|i| &view.frame.objects[i]) else {
             continue;
         };
-        for &yaw in &view.camera.yaw_offsets_rad {
-            let at = sensor_in_body_m(view.mount, obj.length_m);
+        let (camera, mount) = &view.sensors[k];
+        for &yaw in &camera.yaw_offsets_rad {
+            let at = sensor_in_body_m(*mount, obj.length_m);
             let cam = obj.pose.compose(&Pose2::new(at, yaw));
             let mut pts = vec![pt(&cam.position_m())];
-            let segments = (view.camera.fov_rad / 0.1).ceil().max(16.0) as u32;
+            let segments = (camera.fov_rad / 0.1).ceil().max(16.0) as u32;
             for s in 0..=segments {
-                let a = -view.camera.fov_rad / 2.0
-                    + view.camera.fov_rad * f64::from(s) / f64::from(segments);
+                let a = -camera.fov_rad / 2.0 + camera.fov_rad * f64::from(s) / f64::from(segments);
                 pts.push(pt(
-                    &cam.to_parent(&(Vec2::new(a.cos(), a.sin()) * view.camera.range_m))
+                    &cam.to_parent(&(Vec2::new(a.cos(), a.sin()) * camera.range_m))
                 ));
             }
             area.draw(&Polygon::new(pts, EGO_COLOURS[k].mix(0.08).filled()))?;
@@ -747,8 +746,7 @@ mod tests {
         let view = SceneView {
             scene: &scene,
             frame: &frame,
-            camera: &camera,
-            mount,
+            sensors: [(camera.clone(), mount), (camera, mount)],
             egos: [(&obs, &truth), (&other, &other_truth)],
             vehicles: ["cv0", "cv1"],
             matches: &[],

@@ -57,6 +57,9 @@ pub enum Purpose {
     /// The GNSS error of one vehicle at one level drifting over time in
     /// `ideal` runs, per axis: one normal per tick of its grid.
     GnssDrift = 13,
+    /// Which detector profile a connected vehicle carries in a mixed
+    /// fleet (`[detector] mix`), per vehicle id.
+    DetectorMix = 14,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.
@@ -162,11 +165,12 @@ mod tests {
             Purpose::Bootstrap,
             Purpose::PersistentError,
             Purpose::GnssDrift,
+            Purpose::DetectorMix,
         ]
         .iter()
         .map(|&p| p as u64)
         .collect();
-        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13]);
+        assert_eq!(codes, vec![1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14]);
     }
 
     const GOLDEN_KEY_123: u64 = 17_067_510_238_710_318_979;

@@ -24,6 +24,8 @@ pub fn detector(a: Args) -> anyhow::Result<()> {
     if let Some(p) = a.profile {
         settings.detector.profile = p;
     }
+    // One profile at a time: a mixed fleet's vehicles all carry it here.
+    settings.detector.mix.clear();
     let out = claim.out().to_owned();
     let profile = settings.detector.profile;
     // The bins, the configured figures, where the sensors sit.

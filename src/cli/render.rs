@@ -92,18 +92,23 @@ fn draw(
     };
     let e = evaluate::evaluate(&pair, runner, &no_fusion);
     let (a, b) = (&pair.first, &pair.second);
-    // The detector profile's sensors (the paper's: [camera], in front).
-    let (rig, mount) = match settings.detector.model() {
-        Some(m) => (m.rig(), m.params.mount),
-        None => (settings.camera.clone(), Mount::Front),
-    };
+    // Each vehicle's detector profile's sensors (the paper's: [camera],
+    // in front).
+    let vehicles = [inst.a.source.vehicle(), inst.b.source.vehicle()];
+    let sensors = vehicles.map(|v| {
+        let profile = settings.detector.profile_of(settings.seeds.sensor, v);
+        match settings.detector.model_of(profile) {
+            Some(m) => (m.rig(), m.params.mount),
+            None => (settings.camera.clone(), Mount::Front),
+        }
+    });
+    let reach_m = sensors[0].0.range_m.max(sensors[1].0.range_m);
     let view = SceneView {
         scene: inst.scene,
         frame: inst.frame,
-        camera: &rig,
-        mount,
+        sensors,
         egos: [(a.obs, a.truth), (b.obs, b.truth)],
-        vehicles: [inst.a.source.vehicle(), inst.b.source.vehicle()],
+        vehicles,
         matches: &e.identification.matches,
         caption: format!(
             "{} @ {} pose noise, t = {:.1} s: {} vs {}, precision {}, recall {}",
@@ -115,7 +120,7 @@ fn draw(
             fmt_num(e.counts.precision(), 2),
             fmt_num(e.counts.recall(), 2)
         ),
-        half_window_m: rig.range_m + 10.0,
+        half_window_m: reach_m + 10.0,
     };
     render::render_scene(&view, stem, 1000).map_err(|e| RunError::Render(e.to_string()))
 }

@@ -3,13 +3,37 @@
 //! [`ProfileModel::new`](crate::sensor::profile::ProfileModel::new)).
 
 use super::ConfigError;
-use super::check::Checker;
+use super::check::{Checker, num};
 use super::raw::{RawDetector, RawProfile};
-use crate::sensor::profile::{DetectorSettings, ProfileModel, ProfileParams};
+use crate::sensor::profile::{DetectorProfile, DetectorSettings, ProfileModel, ProfileParams};
 
 pub(super) fn detector(c: &Checker, d: RawDetector) -> Result<DetectorSettings, ConfigError> {
+    let mut mix = Vec::new();
+    for (name, share) in &d.mix {
+        let p = crate::label::parse::<DetectorProfile>("detector profile", name)
+            .map_err(|e| c.invalid("detector.mix", e))?;
+        if !(0.0..=1.0).contains(share) {
+            return Err(c.invalid(
+                "detector.mix",
+                format!(
+                    "the share of '{name}' must be in [0, 1], got {}",
+                    num(*share)
+                ),
+            ));
+        }
+        mix.push((p, *share));
+    }
+    mix.sort_by_key(|m| m.0);
+    let total: f64 = mix.iter().map(|m| m.1).sum();
+    if !mix.is_empty() && (total - 1.0).abs() > 1e-6 {
+        return Err(c.invalid(
+            "detector.mix",
+            format!("the shares must sum to 1, they sum to {}", num(total)),
+        ));
+    }
     Ok(DetectorSettings {
         profile: d.profile,
+        mix,
         camera: profile(c, "camera", d.camera)?,
         lidar: profile(c, "lidar", d.lidar)?,
     })

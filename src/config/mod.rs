@@ -40,7 +40,7 @@ use crate::fusion::FusionSettings;
 use crate::matching::MatchingSettings;
 use crate::matching::deep::train::TrainSettings;
 use crate::rng::Seeds;
-use crate::sensor::profile::{DetectorProfile, DetectorSettings};
+use crate::sensor::profile::DetectorSettings;
 use crate::sensor::{
     CameraSettings, ConnectedSelection, LinkSettings, PoseNoiseLevel, SensorSettings,
 };
@@ -160,7 +160,7 @@ impl std::fmt::Debug for Settings {
         }
         // The profiles' parameters change nothing while the paper's model
         // senses: shown only when another profile does.
-        if self.detector.profile != DetectorProfile::Paper {
+        if !self.detector.is_paper() {
             d.field("detector", &self.detector);
         }
         d.finish()

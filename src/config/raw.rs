@@ -37,6 +37,7 @@ pub(super) struct RawConfig {
 #[serde(deny_unknown_fields)]
 pub(super) struct RawDetector {
     pub(super) profile: DetectorProfile,
+    pub(super) mix: std::collections::BTreeMap<String, f64>,
     pub(super) camera: RawProfile,
     pub(super) lidar: RawProfile,
 }

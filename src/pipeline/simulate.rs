@@ -245,7 +245,9 @@ fn sense_one(settings: &Settings, scene: &StaticScene, frame: &TrafficFrame, k: 
         &[frame.step, id_hash],
     );
     let (camera, sensor) = (&settings.camera, &settings.sensor);
-    match settings.detector.model() {
+    let d = &settings.detector;
+    let profile = d.profile_of(settings.seeds.sensor, &frame.objects[k].id);
+    match d.model_of(profile) {
         None => sensor::observe(frame, scene, k, camera, sensor, &mut stream),
         Some(model) => sensor::profile::observe_profile(
             frame,

@@ -83,6 +83,10 @@ const CALIBRATION_SAMPLES: usize = 20_000;
 #[derive(Clone, Debug, PartialEq)]
 pub struct DetectorSettings {
     pub profile: DetectorProfile,
+    /// A mixed fleet: each profile's share of the connected vehicles
+    /// (summing to 1, in label order), drawn per vehicle id; empty: every
+    /// vehicle carries `profile`.
+    pub mix: Vec<(DetectorProfile, f64)>,
     pub camera: ProfileModel,
     pub lidar: ProfileModel,
 }
@@ -90,11 +94,43 @@ pub struct DetectorSettings {
 impl DetectorSettings {
     /// The chosen profile's model (`None`: the paper's).
     pub fn model(&self) -> Option<&ProfileModel> {
-        match self.profile {
+        self.model_of(self.profile)
+    }
+
+    /// A profile's model (`None`: the paper's).
+    pub fn model_of(&self, profile: DetectorProfile) -> Option<&ProfileModel> {
+        match profile {
             DetectorProfile::Paper => None,
             DetectorProfile::Camera => Some(&self.camera),
             DetectorProfile::Lidar => Some(&self.lidar),
         }
+    }
+
+    /// The profile connected vehicle `vehicle_id` carries: `profile`, or
+    /// in a mixed fleet one drawn by the vehicle's id (the same vehicle
+    /// carries the same profile at every step).
+    pub fn profile_of(&self, sensor_seed: u64, vehicle_id: &str) -> DetectorProfile {
+        if self.mix.is_empty() {
+            return self.profile;
+        }
+        let u = rng::unit(
+            sensor_seed,
+            Purpose::DetectorMix,
+            &[rng::hash_str(vehicle_id)],
+        );
+        let mut acc = 0.0;
+        for &(p, share) in &self.mix {
+            acc += share;
+            if u < acc {
+                return p;
+            }
+        }
+        self.mix.last().map_or(self.profile, |m| m.0)
+    }
+
+    /// Whether every vehicle senses with the paper's model.
+    pub fn is_paper(&self) -> bool {
+        self.mix.is_empty() && self.profile == DetectorProfile::Paper
     }
 }
 
@@ -1007,6 +1043,33 @@ mod tests {
         let a = &s.observation.detections[0].appearance;
         assert_eq!(a.class, ObjectClass::Van);
         assert_eq!(a.colour_rgb, [0.5; 3]);
+    }
+
+    /// In a mixed fleet each vehicle carries the profile its id draws, at
+    /// every step, in the configured shares; without a mix, `profile`.
+    #[test]
+    fn a_mixed_fleet_draws_each_vehicles_profile_by_its_id() {
+        let model = ProfileModel::new(params()).unwrap();
+        let mut d = DetectorSettings {
+            profile: DetectorProfile::Paper,
+            mix: vec![
+                (DetectorProfile::Camera, 0.7),
+                (DetectorProfile::Lidar, 0.3),
+            ],
+            camera: model.clone(),
+            lidar: model,
+        };
+        let n = 20_000;
+        let lidar = (0..n)
+            .filter(|k| d.profile_of(5, &format!("veh{k}")) == DetectorProfile::Lidar)
+            .count() as f64
+            / f64::from(n);
+        assert!((lidar - 0.3).abs() < 0.015, "lidar share {lidar}");
+        assert_eq!(d.profile_of(5, "veh7"), d.profile_of(5, "veh7"));
+        assert!(!d.is_paper());
+        d.mix.clear();
+        assert_eq!(d.profile_of(5, "veh7"), DetectorProfile::Paper);
+        assert!(d.is_paper());
     }
 
     #[test]

@@ -134,3 +134,46 @@ fn r34_the_detector_report_measures_a_profile_against_its_figures() {
     assert!(near("nees_mean") > 2.2, "NEES {}", near("nees_mean"));
     assert!(String::from_utf8_lossy(&out.stdout).contains("| recall |"));
 }
+
+/// A mixed fleet (`[detector] mix`): each connected vehicle carries the
+/// profile its id draws; the run differs from an all-camera and an
+/// all-lidar fleet, one or two threads agree, and shares that do not sum
+/// to 1 are refused by key.
+#[test]
+fn r34_a_mixed_fleet_carries_a_profile_per_vehicle() {
+    let fx = Fixture::new();
+    let base = "[connected]\npenetration = 0.3\n[matching]\nmethods = [\"gps-app-hungarian\", \"oracle\"]\n";
+    let runs = [
+        ("mixed", "mix = { camera = 0.5, lidar = 0.5 }"),
+        ("camera", "profile = \"camera\""),
+        ("lidar", "profile = \"lidar\""),
+    ];
+    for (name, detector) in runs {
+        let cfg = fx.config(
+            &format!("{name}.toml"),
+            65.0,
+            &format!("{base}[detector]\n{detector}\n"),
+        );
+        assert_ok(&fx.cmd("run").quiet().config(&cfg).out(name).output());
+    }
+    let mixed = fx.path("mixed.toml");
+    let two = fx
+        .cmd("run")
+        .quiet()
+        .args(["--threads", "2"])
+        .config(&mixed);
+    assert_ok(&two.out("mixed-2").output());
+    let summary = |out: &str| fx.read(&format!("{out}/summary.csv"));
+    assert!(
+        summary("mixed") == summary("mixed-2"),
+        "1 and 2 threads differ"
+    );
+    assert!(summary("mixed") != summary("camera") && summary("mixed") != summary("lidar"));
+    let (fx, cfg) = Fixture::with_config(60.0, "[detector]\nmix = { camera = 0.5, lidar = 0.4 }\n");
+    let out = fx.run(&cfg, "out");
+    assert_refused_unwritten(
+        &out,
+        "detector.mix: the shares must sum to 1",
+        &fx.path("out"),
+    );
+}
