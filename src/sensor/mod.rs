@@ -578,32 +578,56 @@ impl Camera<'_> {
     /// frustum's area, of any class and colour.
     fn false_positives(&self, rng: &mut impl Rng) -> Vec<(Detection, DetectionTruth)> {
         let (camera, sensor) = (self.camera, self.sensor);
-        let n_fp = if sensor.false_positives_per_frame > 0.0 {
-            Poisson::new(sensor.false_positives_per_frame)
-                .map(|p| p.sample(rng) as usize)
-                .unwrap_or(0)
-        } else {
-            0
-        };
-        (0..n_fp)
+        (0..clutter_count(sensor.false_positives_per_frame, rng))
             .map(|_| {
-                let r = camera.range_m * rng.random::<f64>().sqrt().max(0.05);
-                let b = camera.fov_rad * (rng.random::<f64>() - 0.5);
-                let p_cam = Vec2::new(r * b.cos(), r * b.sin());
+                let (p_cam, r) = clutter_point(camera, rng);
                 let (p_meas, cov_cam) = measure(&p_cam, sensor, rng);
-                let class = ObjectClass::ALL[rng.random_range(0..ObjectClass::ALL.len())];
-                let colour = [rng.random::<u8>(), rng.random::<u8>(), rng.random::<u8>()];
+                let (class, colour) = clutter_look(rng);
                 let size = typical_size_m(class);
                 let appearance = observe_appearance(class, colour, size, r, camera, sensor, rng);
-                let truth = DetectionTruth {
-                    object_id: None,
-                    position_m: None,
-                    visible_fraction: 0.0,
-                    sender: false,
-                };
-                (self.detection(&p_meas, &cov_cam, appearance), truth)
+                (
+                    self.detection(&p_meas, &cov_cam, appearance),
+                    false_positive(),
+                )
             })
             .collect()
+    }
+}
+
+/// How many clutter detections a sensor makes in one frame: Poisson with
+/// `mean` (none at 0).
+fn clutter_count(mean: f64, rng: &mut impl Rng) -> usize {
+    if mean > 0.0 {
+        Poisson::new(mean)
+            .map(|p| p.sample(rng) as usize)
+            .unwrap_or(0)
+    } else {
+        0
+    }
+}
+
+/// Where a clutter detection lies: uniform over the sensor's field's area
+/// (sensor frame; at least 5 % of the range away), and its range.
+fn clutter_point(camera: &CameraSettings, rng: &mut impl Rng) -> (Vec2, f64) {
+    let r = camera.range_m * rng.random::<f64>().sqrt().max(0.05);
+    let b = camera.fov_rad * (rng.random::<f64>() - 0.5);
+    (Vec2::new(r * b.cos(), r * b.sin()), r)
+}
+
+/// A clutter detection's class and colour: any.
+fn clutter_look(rng: &mut impl Rng) -> (ObjectClass, [u8; 3]) {
+    let class = ObjectClass::ALL[rng.random_range(0..ObjectClass::ALL.len())];
+    let colour = [rng.random::<u8>(), rng.random::<u8>(), rng.random::<u8>()];
+    (class, colour)
+}
+
+/// The truth behind a false positive: no object.
+fn false_positive() -> DetectionTruth {
+    DetectionTruth {
+        object_id: None,
+        position_m: None,
+        visible_fraction: 0.0,
+        sender: false,
     }
 }
 
@@ -638,17 +662,30 @@ pub fn observe(
             if let Some((object, d)) = cam.detect(frame, scene, ego_index, k, rng) {
                 // A camera that missed it leaves it to the next camera.
                 *already = d.is_some();
-                if !visible
-                    .iter()
-                    .any(|v: &VisibleObject| v.object_id == object.object_id)
-                {
-                    visible.push(object);
-                }
+                note_visible(&mut visible, object);
                 found.extend(d);
             }
         }
         found.extend(cam.false_positives(rng));
     }
+    sensed_from(ego, found, visible)
+}
+
+/// Adds an object a sensor could see to `visible`, unless another of the
+/// ego's sensors already saw it.
+fn note_visible(visible: &mut Vec<VisibleObject>, object: VisibleObject) {
+    if !visible.iter().any(|v| v.object_id == object.object_id) {
+        visible.push(object);
+    }
+}
+
+/// What `ego`'s sensors found (detections with their truths, in step)
+/// and every object they could see, as one [`Sensed`].
+fn sensed_from(
+    ego: &TrafficObject,
+    found: Vec<(Detection, DetectionTruth)>,
+    visible: Vec<VisibleObject>,
+) -> Sensed {
     let (detections, truths) = found.into_iter().unzip();
     Sensed {
         observation: Observation {
@@ -721,8 +758,9 @@ mod tests {
         }
     }
 
-    /// The sensor these tests use (the shipped defaults' values).
-    fn sensor() -> SensorSettings {
+    /// The sensor these tests use (the shipped defaults' values); the
+    /// profiles' tests use it too.
+    pub(super) fn sensor() -> SensorSettings {
         SensorSettings {
             min_visible_fraction: 0.3,
             aim_height_fraction: 0.6,

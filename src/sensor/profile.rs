@@ -27,11 +27,12 @@
 //! detector would publish). The true error distribution stays here.
 
 use rand::Rng;
-use rand_distr::{Distribution, Poisson, StudentT};
+use rand_distr::{Distribution, StudentT};
 
 use super::{
-    Appearance, CameraSettings, Detection, DetectionTruth, Observation, ObservationTruth, Sensed,
-    SensorSettings, VisibleObject, observe_appearance, typical_size_m, visible_fraction,
+    Appearance, CameraSettings, Detection, DetectionTruth, Sensed, SensorSettings, VisibleObject,
+    clutter_count, clutter_look, clutter_point, false_positive, note_visible, observe_appearance,
+    sensed_from, typical_size_m, visible_fraction,
 };
 use crate::geometry::{Cov2, Pose2, Vec2};
 use crate::rng::{self, Purpose};
@@ -674,33 +675,15 @@ impl ProfileSensor<'_> {
     /// of any class and colour.
     fn clutter(&self, rng: &mut impl Rng) -> Vec<(Detection, DetectionTruth)> {
         let p = &self.model.params;
-        let n = if p.false_positives_per_frame > 0.0 {
-            Poisson::new(p.false_positives_per_frame)
-                .map(|d| d.sample(rng) as usize)
-                .unwrap_or(0)
-        } else {
-            0
-        };
-        (0..n)
+        (0..clutter_count(p.false_positives_per_frame, rng))
             .map(|_| {
-                let r = self.rig.range_m * rng.random::<f64>().sqrt().max(0.05);
-                let b = self.rig.fov_rad * (rng.random::<f64>() - 0.5);
-                let at = self.measure(&Vec2::new(r * b.cos(), r * b.sin()), [0.0, 0.0], rng);
-                let class = ObjectClass::ALL[rng.random_range(0..ObjectClass::ALL.len())];
-                let colour = [rng.random::<u8>(), rng.random::<u8>(), rng.random::<u8>()];
+                let (point, r) = clutter_point(self.rig, rng);
+                let at = self.measure(&point, [0.0, 0.0], rng);
+                let (class, colour) = clutter_look(rng);
                 let look = self.appearance(class, colour, typical_size_m(class), r, rng);
                 (self.detection(&at, look), false_positive())
             })
             .collect()
-    }
-}
-
-fn false_positive() -> DetectionTruth {
-    DetectionTruth {
-        object_id: None,
-        position_m: None,
-        visible_fraction: 0.0,
-        sender: false,
     }
 }
 
@@ -745,30 +728,18 @@ pub fn observe_profile(
             }
             if let Some((object, dets)) = s.detect(frame, scene, ego_index, k, seed, rng) {
                 *already = !dets.is_empty();
-                if !visible.iter().any(|v| v.object_id == object.object_id) {
-                    visible.push(object);
-                }
+                note_visible(&mut visible, object);
                 found.extend(dets);
             }
         }
         found.extend(s.clutter(rng));
     }
-    let (detections, truths) = found.into_iter().unzip();
-    Sensed {
-        observation: Observation {
-            ego_id: ego.id.clone(),
-            detections,
-        },
-        truth: ObservationTruth {
-            ego_pose: ego.pose,
-            detections: truths,
-        },
-        visible,
-    }
+    sensed_from(ego, found, visible)
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::tests::sensor;
     use super::*;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
@@ -801,25 +772,6 @@ mod tests {
             ghost_distance_m: [1.0, 3.0],
             class_confusion: identity,
             sees_colour: true,
-        }
-    }
-
-    fn sensor() -> SensorSettings {
-        SensorSettings {
-            min_visible_fraction: 0.3,
-            aim_height_fraction: 0.6,
-            range_sigma_base_m: 0.3,
-            range_sigma_per_m: 0.085,
-            bearing_sigma_base_rad: 0.5_f64.to_radians(),
-            bearing_sigma_per_m_rad: 0.02_f64.to_radians(),
-            miss_prob_base: 0.03,
-            miss_prob_at_max_range: 0.15,
-            miss_prob_occlusion: 0.3,
-            false_positives_per_frame: 0.3,
-            class_confusion_prob: 0.1,
-            colour_sigma: 0.06,
-            lighting_spread: 0.25,
-            size_sigma_fraction: 0.1,
         }
     }
 
@@ -998,13 +950,8 @@ mod tests {
         assert_eq!(persistent_error(3, "ego", "x", 1.0, 0.0), [0.0, 0.0]);
     }
 
-    #[test]
-    fn duplicates_and_ghosts_are_false_positives_beside_the_object() {
-        let mut p = params();
-        p.duplicate_prob = 1.0;
-        p.ghost_prob = 1.0;
-        p.recall = vec![1.0; 3];
-        let model = ProfileModel::new(p).unwrap();
+    /// What a sensor at the ego's centre makes of one car 15 m ahead.
+    fn sense_a_lone_car(model: &ProfileModel) -> Sensed {
         let mut f = TrafficFrame {
             step: 0,
             time_s: 0.0,
@@ -1012,7 +959,17 @@ mod tests {
         };
         f.objects[0].length_m = 0.0;
         let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let s = observe_profile(&f, &scene(), 0, &model, &sensor(), 7, &mut rng);
+        observe_profile(&f, &scene(), 0, model, &sensor(), 7, &mut rng)
+    }
+
+    #[test]
+    fn duplicates_and_ghosts_are_false_positives_beside_the_object() {
+        let mut p = params();
+        p.duplicate_prob = 1.0;
+        p.ghost_prob = 1.0;
+        p.recall = vec![1.0; 3];
+        let model = ProfileModel::new(p).unwrap();
+        let s = sense_a_lone_car(&model);
         let ids: Vec<_> = s
             .truth
             .detections
@@ -1032,14 +989,7 @@ mod tests {
         p.class_confusion[0] = [0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]; // a car is always a van
         p.sees_colour = false;
         let model = ProfileModel::new(p).unwrap();
-        let mut f = TrafficFrame {
-            step: 0,
-            time_s: 0.0,
-            objects: vec![car("ego", 0.0, 0.0), car("a", 15.0, 0.0)],
-        };
-        f.objects[0].length_m = 0.0;
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let s = observe_profile(&f, &scene(), 0, &model, &sensor(), 7, &mut rng);
+        let s = sense_a_lone_car(&model);
         let a = &s.observation.detections[0].appearance;
         assert_eq!(a.class, ObjectClass::Van);
         assert_eq!(a.colour_rgb, [0.5; 3]);
