@@ -152,6 +152,17 @@ fn the_defaults_are_the_shipped_file_and_valid() {
     changed.v2x.channel.latency_s = 0.3;
     assert!(format!("{changed:?}").contains("v2x"));
     assert_ne!(d.digest().unwrap(), changed.digest().unwrap());
+    // Issue 34's knobs leave the text of configs from before them alone:
+    // the low-speed heading error while off, the detector profiles while
+    // every vehicle senses with the paper's model.
+    assert!(!format!("{changed:?}").contains("gnss_heading_speed_sigma_mps"));
+    assert!(!format!("{d:?}").contains("detector"));
+    let mut heading = changed.clone();
+    heading.v2x.gnss_heading_speed_sigma_mps = 0.05;
+    assert!(format!("{heading:?}").contains("gnss_heading_speed_sigma_mps"));
+    let mut lidar = d.clone();
+    lidar.detector.profile = crate::sensor::profile::DetectorProfile::Lidar;
+    assert_ne!(d.digest().unwrap(), lidar.digest().unwrap());
 }
 
 #[test]

@@ -30,7 +30,7 @@ crate::label_enum! { "v2x mode";
 }
 
 /// `[v2x]`.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, PartialEq)]
 pub struct V2xSettings {
     pub mode: V2xMode,
     /// SUMO's step (the camera frame period) for `coid track` and the
@@ -52,6 +52,32 @@ pub struct V2xSettings {
     pub cpm: cpm::CpmSettings,
     pub channel: channel::ChannelSettings,
     pub association: receiver::AssociationSettings,
+}
+
+/// As derived, but `gnss_heading_speed_sigma_mps` is shown only when it
+/// is on: a config's digest hashes this text, and configs from before it
+/// existed keep their digest (and their batches and exports).
+impl std::fmt::Debug for V2xSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("V2xSettings");
+        d.field("mode", &self.mode)
+            .field("step_length_s", &self.step_length_s)
+            .field("gnss_correlation_s", &self.gnss_correlation_s);
+        if self.gnss_heading_speed_sigma_mps != 0.0 {
+            d.field(
+                "gnss_heading_speed_sigma_mps",
+                &self.gnss_heading_speed_sigma_mps,
+            );
+        }
+        d.field("matcher", &self.matcher)
+            .field("pose_noise", &self.pose_noise)
+            .field("compensate_latency", &self.compensate_latency)
+            .field("tracker", &self.tracker)
+            .field("cpm", &self.cpm)
+            .field("channel", &self.channel)
+            .field("association", &self.association)
+            .finish()
+    }
 }
 
 impl Default for V2xSettings {
