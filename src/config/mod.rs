@@ -45,7 +45,7 @@ use crate::sensor::{
     CameraSettings, ConnectedSelection, LinkSettings, PoseNoiseLevel, SensorSettings,
 };
 use crate::traffic::ScenarioSettings;
-use crate::v2x::V2xSettings;
+use crate::v2x::{V2xMode, V2xSettings};
 
 pub use check::MAX_TRAFFIC_SEED;
 
@@ -157,6 +157,13 @@ impl std::fmt::Debug for Settings {
             .field("eval", &self.eval);
         if self.v2x != V2xSettings::default() {
             d.field("v2x", &self.v2x);
+        }
+        // Since issue 34 the GNSS drifts in `ideal` runs too (it was
+        // white there whatever `gnss_correlation_s` said): such configs'
+        // digests change with their results, so that a batch or export
+        // made before is refused, never mixed.
+        if self.v2x.mode == V2xMode::Ideal && self.v2x.gnss_correlation_s > 0.0 {
+            d.field("ideal_gnss_drift", &true);
         }
         // The profiles' parameters change nothing while the paper's model
         // senses: shown only when another profile does.

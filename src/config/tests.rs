@@ -160,6 +160,9 @@ fn the_defaults_are_the_shipped_file_and_valid() {
     let mut heading = changed.clone();
     heading.v2x.gnss_heading_speed_sigma_mps = 0.05;
     assert!(format!("{heading:?}").contains("gnss_heading_speed_sigma_mps"));
+    let mut drift = d.clone();
+    drift.v2x.gnss_correlation_s = 30.0;
+    assert!(format!("{drift:?}").contains("ideal_gnss_drift"));
     let mut lidar = d.clone();
     lidar.detector.profile = crate::sensor::profile::DetectorProfile::Lidar;
     assert_ne!(d.digest().unwrap(), lidar.digest().unwrap());
