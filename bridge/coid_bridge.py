@@ -77,21 +77,25 @@ def _type_info(type_id, is_person):
 def step():
     """Advances one step; returns (time_s, min_expected, rows).
 
-    rows: [(id, vclass, (x, y, angle_nav_deg, speed, length, width, height), (r, g, b))]
+    rows: [(id, vclass, (x, y, angle_nav_deg, speed, length, width, height), (r, g, b), type_id)]
     """
     libsumo.simulationStep()
     rows = []
     veh = libsumo.vehicle
     get_pos, get_angle, get_speed, get_type = veh.getPosition, veh.getAngle, veh.getSpeed, veh.getTypeID
     for vid in veh.getIDList():
-        vclass, length, width, height, colour = _type_info(get_type(vid), False)
+        type_id = get_type(vid)
+        vclass, length, width, height, colour = _type_info(type_id, False)
         x, y = get_pos(vid)
-        rows.append((vid, vclass, (x, y, get_angle(vid), get_speed(vid), length, width, height), colour))
+        rows.append((vid, vclass, (x, y, get_angle(vid), get_speed(vid), length, width, height), colour,
+                     type_id))
     per = libsumo.person
     get_pos, get_angle, get_speed, get_type = per.getPosition, per.getAngle, per.getSpeed, per.getTypeID
     for pid in per.getIDList():
-        vclass, length, width, height, colour = _type_info(get_type(pid), True)
+        type_id = get_type(pid)
+        vclass, length, width, height, colour = _type_info(type_id, True)
         x, y = get_pos(pid)
-        rows.append((pid, vclass, (x, y, get_angle(pid), get_speed(pid), length, width, height), colour))
+        rows.append((pid, vclass, (x, y, get_angle(pid), get_speed(pid), length, width, height), colour,
+                     type_id))
     sim = libsumo.simulation
     return (sim.getTime(), sim.getMinExpectedNumber(), rows)

@@ -306,12 +306,13 @@ pub fn resolve_junction<'a>(ids: &'a [String], id: &str) -> Option<&'a str> {
 }
 
 /// One road user as the shim returns it:
-/// `(id, vclass, (x, y, angle_nav_deg, speed, length, width, height), (r, g, b))`.
+/// `(id, vclass, (x, y, angle_nav_deg, speed, length, width, height), (r, g, b), type_id)`.
 type Row = (
     String,
     String,
     (f64, f64, f64, f64, f64, f64, f64),
     (u8, u8, u8),
+    String,
 );
 
 /// One lane as the shim returns it: `(id, width, shape)`.
@@ -570,9 +571,10 @@ impl Sumo {
         let objects = rows
             .into_iter()
             .map(
-                |(id, vclass, (x, y, angle, speed, length, width, height), (r, g, b))| {
+                |(id, vclass, (x, y, angle, speed, length, width, height), (r, g, b), type_id)| {
                     TrafficObject {
                         id,
+                        type_id,
                         class: ObjectClass::from_sumo_vclass(&vclass),
                         pose: centre_pose_from_sumo(x, y, angle, length),
                         length_m: length,

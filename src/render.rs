@@ -715,6 +715,7 @@ mod tests {
             height_m: 1.5,
             colour_rgb: [240, 240, 240],
             speed_mps: 5.0,
+            type_id: "car".into(),
         };
         let frame = TrafficFrame {
             step: 0,

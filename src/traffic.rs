@@ -102,6 +102,8 @@ pub struct TrafficObject {
     pub height_m: f64,
     pub colour_rgb: [u8; 3],
     pub speed_mps: f64,
+    /// SUMO's vehicle (or person) type id (`[detector] by_type` keys).
+    pub type_id: String,
 }
 
 impl TrafficObject {

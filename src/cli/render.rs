@@ -96,7 +96,13 @@ fn draw(
     // in front).
     let vehicles = [inst.a.source.vehicle(), inst.b.source.vehicle()];
     let sensors = vehicles.map(|v| {
-        let profile = settings.detector.profile_of(settings.seeds.sensor, v);
+        let type_id = inst
+            .frame
+            .find(v)
+            .map_or("", |i| &inst.frame.objects[i].type_id);
+        let profile = settings
+            .detector
+            .profile_of(settings.seeds.sensor, v, type_id);
         match settings.detector.model_of(profile) {
             Some(m) => (m.rig(), m.params.mount),
             None => (settings.camera.clone(), Mount::Front),

@@ -31,9 +31,19 @@ pub(super) fn detector(c: &Checker, d: RawDetector) -> Result<DetectorSettings, 
             format!("the shares must sum to 1, they sum to {}", num(total)),
         ));
     }
+    let by_type = d
+        .by_type
+        .iter()
+        .map(|(t, name)| {
+            crate::label::parse::<DetectorProfile>("detector profile", name)
+                .map(|p| (t.clone(), p))
+                .map_err(|e| c.invalid("detector.by_type", format!("type '{t}': {e}")))
+        })
+        .collect::<Result<_, _>>()?;
     Ok(DetectorSettings {
         profile: d.profile,
         mix,
+        by_type,
         camera: profile(c, "camera", d.camera)?,
         lidar: profile(c, "lidar", d.lidar)?,
     })

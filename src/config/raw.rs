@@ -38,6 +38,7 @@ pub(super) struct RawConfig {
 pub(super) struct RawDetector {
     pub(super) profile: DetectorProfile,
     pub(super) mix: std::collections::BTreeMap<String, f64>,
+    pub(super) by_type: std::collections::BTreeMap<String, String>,
     pub(super) camera: RawProfile,
     pub(super) lidar: RawProfile,
 }

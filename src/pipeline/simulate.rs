@@ -246,7 +246,8 @@ fn sense_one(settings: &Settings, scene: &StaticScene, frame: &TrafficFrame, k: 
     );
     let (camera, sensor) = (&settings.camera, &settings.sensor);
     let d = &settings.detector;
-    let profile = d.profile_of(settings.seeds.sensor, &frame.objects[k].id);
+    let o = &frame.objects[k];
+    let profile = d.profile_of(settings.seeds.sensor, &o.id, &o.type_id);
     match d.model_of(profile) {
         None => sensor::observe(frame, scene, k, camera, sensor, &mut stream),
         Some(model) => sensor::profile::observe_profile(

@@ -738,6 +738,7 @@ mod tests {
             height_m: 1.5,
             colour_rgb: [200, 10, 10],
             speed_mps: 0.0,
+            type_id: "car".into(),
         }
     }
 

@@ -88,6 +88,10 @@ pub struct DetectorSettings {
     /// (summing to 1, in label order), drawn per vehicle id; empty: every
     /// vehicle carries `profile`.
     pub mix: Vec<(DetectorProfile, f64)>,
+    /// Profiles by SUMO vehicle type id (`[detector] by_type`): a vehicle
+    /// of a listed type carries its profile, whatever `mix` and `profile`
+    /// say.
+    pub by_type: Vec<(String, DetectorProfile)>,
     pub camera: ProfileModel,
     pub lidar: ProfileModel,
 }
@@ -107,10 +111,14 @@ impl DetectorSettings {
         }
     }
 
-    /// The profile connected vehicle `vehicle_id` carries: `profile`, or
-    /// in a mixed fleet one drawn by the vehicle's id (the same vehicle
-    /// carries the same profile at every step).
-    pub fn profile_of(&self, sensor_seed: u64, vehicle_id: &str) -> DetectorProfile {
+    /// The profile connected vehicle `vehicle_id` of SUMO type `type_id`
+    /// carries: its type's (`by_type`), else in a mixed fleet one drawn by
+    /// the vehicle's id (the same vehicle carries the same profile at
+    /// every step), else `profile`.
+    pub fn profile_of(&self, sensor_seed: u64, vehicle_id: &str, type_id: &str) -> DetectorProfile {
+        if let Some((_, p)) = self.by_type.iter().find(|(t, _)| t == type_id) {
+            return *p;
+        }
         if self.mix.is_empty() {
             return self.profile;
         }
@@ -131,7 +139,7 @@ impl DetectorSettings {
 
     /// Whether every vehicle senses with the paper's model.
     pub fn is_paper(&self) -> bool {
-        self.mix.is_empty() && self.profile == DetectorProfile::Paper
+        self.mix.is_empty() && self.by_type.is_empty() && self.profile == DetectorProfile::Paper
     }
 }
 
@@ -785,6 +793,7 @@ mod tests {
             height_m: 1.5,
             colour_rgb: [200, 10, 10],
             speed_mps: 0.0,
+            type_id: "car".into(),
         }
     }
 
@@ -1006,19 +1015,27 @@ mod tests {
                 (DetectorProfile::Camera, 0.7),
                 (DetectorProfile::Lidar, 0.3),
             ],
+            by_type: Vec::new(),
             camera: model.clone(),
             lidar: model,
         };
         let n = 20_000;
         let lidar = (0..n)
-            .filter(|k| d.profile_of(5, &format!("veh{k}")) == DetectorProfile::Lidar)
+            .filter(|k| d.profile_of(5, &format!("veh{k}"), "car") == DetectorProfile::Lidar)
             .count() as f64
             / f64::from(n);
         assert!((lidar - 0.3).abs() < 0.015, "lidar share {lidar}");
-        assert_eq!(d.profile_of(5, "veh7"), d.profile_of(5, "veh7"));
+        assert_eq!(
+            d.profile_of(5, "veh7", "car"),
+            d.profile_of(5, "veh7", "car")
+        );
         assert!(!d.is_paper());
+        d.by_type = vec![("bus_cv".into(), DetectorProfile::Lidar)];
+        assert_eq!(d.profile_of(5, "veh7", "bus_cv"), DetectorProfile::Lidar);
         d.mix.clear();
-        assert_eq!(d.profile_of(5, "veh7"), DetectorProfile::Paper);
+        assert_eq!(d.profile_of(5, "veh7", "car"), DetectorProfile::Paper);
+        assert!(!d.is_paper());
+        d.by_type.clear();
         assert!(d.is_paper());
     }
 

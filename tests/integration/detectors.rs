@@ -177,3 +177,40 @@ fn r34_a_mixed_fleet_carries_a_profile_per_vehicle() {
         &fx.path("out"),
     );
 }
+
+/// Profiles by SUMO vehicle type (`[detector] by_type`): the default
+/// scenario's connected vehicles are of type `cv`, so `{ cv = "lidar" }`
+/// senses exactly as an all-lidar fleet, byte for byte; a type of no
+/// connected vehicle changes nothing; an unknown profile is refused.
+#[test]
+fn r34_profiles_by_vehicle_type() {
+    let fx = Fixture::new();
+    let methods = "[matching]\nmethods = [\"gps-app-hungarian\", \"oracle\"]\n";
+    let runs = [
+        ("by-type", "by_type = { cv = \"lidar\" }"),
+        ("lidar", "profile = \"lidar\""),
+        ("other-type", "by_type = { bus = \"lidar\" }"),
+        ("paper", "profile = \"paper\""),
+    ];
+    for (name, detector) in runs {
+        let cfg = fx.config(
+            &format!("{name}.toml"),
+            65.0,
+            &format!("{methods}[detector]\n{detector}\n"),
+        );
+        assert_ok(&fx.cmd("run").quiet().config(&cfg).out(name).output());
+    }
+    let summary = |out: &str| fx.read(&format!("{out}/summary.csv"));
+    assert!(
+        summary("by-type") == summary("lidar"),
+        "by type differs from all-lidar"
+    );
+    assert!(
+        summary("other-type") == summary("paper"),
+        "a bus type changed the cv fleet"
+    );
+    assert!(summary("lidar") != summary("paper"));
+    let (fx, cfg) = Fixture::with_config(60.0, "[detector]\nby_type = { cv = \"radar\" }\n");
+    let out = fx.run(&cfg, "out");
+    assert_refused_unwritten(&out, "detector.by_type: type 'cv'", &fx.path("out"));
+}
