@@ -104,7 +104,7 @@ fn draw(
             .detector
             .profile_of(settings.seeds.sensor, v, type_id);
         match settings.detector.model_of(profile) {
-            Some(m) => (m.rig(), m.params.mount),
+            Some(m) => (m.rig().clone(), m.params.mount),
             None => (settings.camera.clone(), Mount::Front),
         }
     });

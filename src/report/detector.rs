@@ -56,8 +56,7 @@ impl DetectorStats {
     }
 
     fn bin(&self, d_m: f64) -> usize {
-        let n = self.edges_m.len();
-        self.edges_m.iter().position(|e| d_m <= *e).unwrap_or(n - 1)
+        crate::sensor::profile::range_bin(&self.edges_m, d_m)
     }
 
     /// Adds one vehicle's sensing: distances from the sensor at

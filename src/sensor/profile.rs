@@ -208,6 +208,8 @@ pub struct ProfileModel {
     /// Per bin: the random error's scale (metres; the per-axis standard
     /// deviation of an isotropic error).
     scale_m: Vec<f64>,
+    /// The sensors' geometry as the visibility test reads it (made once).
+    rig: CameraSettings,
 }
 
 /// Why a profile's parameters cannot be used.
@@ -240,16 +242,22 @@ impl ProfileModel {
                     .map_err(|m| invalid("mean_error_m", format!("bin {b}: {m}")))
             })
             .collect::<Result<_, _>>()?;
-        Ok(ProfileModel { params, scale_m })
+        let rig = CameraSettings {
+            fov_rad: params.fov_rad,
+            range_m: params.range_m,
+            height_m: params.height_m,
+            yaw_offsets_rad: params.yaw_offsets_rad.clone(),
+        };
+        Ok(ProfileModel {
+            params,
+            scale_m,
+            rig,
+        })
     }
 
-    /// The bin of a distance (the last for anything beyond).
+    /// The bin of a distance.
     fn bin(&self, d_m: f64) -> usize {
-        let edges = &self.params.bin_edges_m;
-        edges
-            .iter()
-            .position(|e| d_m <= *e)
-            .unwrap_or(edges.len() - 1)
+        range_bin(&self.params.bin_edges_m, d_m)
     }
 
     /// The random error's per-axis scale at distance `d_m` (metres).
@@ -258,13 +266,8 @@ impl ProfileModel {
     }
 
     /// The sensors' geometry as the visibility test reads it.
-    pub fn rig(&self) -> CameraSettings {
-        CameraSettings {
-            fov_rad: self.params.fov_rad,
-            range_m: self.params.range_m,
-            height_m: self.params.height_m,
-            yaw_offsets_rad: self.params.yaw_offsets_rad.clone(),
-        }
+    pub fn rig(&self) -> &CameraSettings {
+        &self.rig
     }
 
     /// Standard deviations (depth, lateral) of the random error at a
@@ -413,6 +416,16 @@ fn check_errors(p: &ProfileParams) -> Result<(), ProfileError> {
         }
     }
     Ok(())
+}
+
+/// The range bin of distance `d_m` among bins with upper `edges_m`
+/// (ascending, at least one): the first that reaches it, the last for
+/// anything beyond.
+pub fn range_bin(edges_m: &[f64], d_m: f64) -> usize {
+    edges_m
+        .iter()
+        .position(|e| d_m <= *e)
+        .unwrap_or(edges_m.len() - 1)
 }
 
 /// Per-axis factors (depth, lateral) with `cd / cl = ratio` and
@@ -726,7 +739,7 @@ pub fn observe_profile(
         let s = ProfileSensor {
             pose,
             in_ego: ego.pose.relative(&pose),
-            rig: &rig,
+            rig,
             model,
             sensor,
         };
