@@ -1052,6 +1052,225 @@ mod tests {
         assert!(d.is_paper());
     }
 
+    /// The clean profile: Gaussian, white, unbiased, no false positives,
+    /// no confusion, nothing for partly hidden objects.
+    fn clean() -> ProfileParams {
+        let mut p = params();
+        p.depth_bias_per_m = 0.0;
+        p.tail_dof = 1e6;
+        p.persistent_share = 0.0;
+        p.partial_shift = 0.0;
+        p.occlusion_recall_loss = 0.0;
+        p
+    }
+
+    /// What one profile does to a lone car 30 m ahead, over `N` cars each
+    /// seen twice 0.1 s apart.
+    #[derive(Debug, PartialEq)]
+    struct Signature {
+        recall: f64,
+        mean_depth_error_m: f64,
+        /// Share of NEES (against the nominal covariance) beyond the
+        /// Gaussian's 99.9 % point.
+        tail_share: f64,
+        /// Correlation of the depth errors of one car 0.1 s apart.
+        lag_correlation: f64,
+        false_positives_per_frame: f64,
+        wrong_class_share: f64,
+    }
+
+    fn signature(p: ProfileParams) -> Signature {
+        const N: u64 = 3000;
+        let model = ProfileModel::new(p).unwrap();
+        let cov_inv = model
+            .nominal_covariance(&Vec2::new(30.0, 0.0))
+            .try_inverse()
+            .unwrap();
+        let see = |obj: u64, time_s: f64, stream: u64| {
+            let f = TrafficFrame {
+                step: 0,
+                time_s,
+                objects: vec![
+                    TrafficObject {
+                        length_m: 0.0,
+                        ..car("ego", 0.0, 0.0)
+                    },
+                    car(&format!("o{obj}"), 30.0, 0.0),
+                ],
+            };
+            let mut rng = ChaCha8Rng::seed_from_u64(stream);
+            observe_profile(&f, &scene(), 0, &model, &sensor(), 7, &mut rng)
+        };
+        let (mut found, mut fp, mut wrong) = (0usize, 0usize, 0usize);
+        let mut errors = Vec::new();
+        let mut pairs = Vec::new();
+        for o in 0..N {
+            let mut depth = [None, None];
+            for (i, t) in [50.0, 50.1].into_iter().enumerate() {
+                let s = see(o, t, 2 * o + i as u64);
+                for (d, truth) in s.observation.detections.iter().zip(&s.truth.detections) {
+                    if truth.object_id.is_none() {
+                        fp += 1;
+                        continue;
+                    }
+                    found += 1;
+                    wrong += usize::from(d.appearance.class != ObjectClass::Car);
+                    let e = d.position_m - Vec2::new(30.0, 0.0);
+                    errors.push(e);
+                    depth[i] = Some(e.x);
+                }
+            }
+            if let [Some(a), Some(b)] = depth {
+                pairs.push((a, b));
+            }
+        }
+        let n = errors.len() as f64;
+        let mean = |v: &mut dyn Iterator<Item = f64>, n: f64| v.sum::<f64>() / n;
+        let (ma, mb) = (
+            mean(&mut pairs.iter().map(|p| p.0), pairs.len() as f64),
+            mean(&mut pairs.iter().map(|p| p.1), pairs.len() as f64),
+        );
+        let cov: f64 = pairs.iter().map(|p| (p.0 - ma) * (p.1 - mb)).sum();
+        let va: f64 = pairs.iter().map(|p| (p.0 - ma).powi(2)).sum();
+        let vb: f64 = pairs.iter().map(|p| (p.1 - mb).powi(2)).sum();
+        Signature {
+            recall: found as f64 / (2 * N) as f64,
+            mean_depth_error_m: mean(&mut errors.iter().map(|e| e.x), n),
+            tail_share: errors
+                .iter()
+                .filter(|e| (e.transpose() * cov_inv * *e)[(0, 0)] > 13.8)
+                .count() as f64
+                / n,
+            lag_correlation: cov / (va * vb).sqrt(),
+            false_positives_per_frame: fp as f64 / (2 * N) as f64,
+            wrong_class_share: wrong as f64 / n,
+        }
+    }
+
+    /// Each error component switched on alone, from the clean profile,
+    /// moves its own statistic and leaves the others where the clean
+    /// profile has them (within sampling noise); the components for
+    /// partly hidden objects change nothing for a car in plain view.
+    #[test]
+    fn each_error_component_alone_changes_what_it_should_and_nothing_else() {
+        let base = signature(clean());
+        assert!(base.mean_depth_error_m.abs() < 0.06, "{base:?}");
+        assert!(base.tail_share < 0.004, "{base:?}");
+        assert!(base.lag_correlation.abs() < 0.05, "{base:?}");
+        assert_eq!(base.false_positives_per_frame, 0.0);
+        assert_eq!(base.wrong_class_share, 0.0);
+        type Edit = fn(&mut ProfileParams);
+        let cases: [(&str, Edit); 8] = [
+            ("depth bias", |p| p.depth_bias_per_m = 0.01),
+            ("heavy tails", |p| p.tail_dof = 3.0),
+            ("persistent error", |p| p.persistent_share = 0.6),
+            ("duplicates", |p| p.duplicate_prob = 0.5),
+            ("ghosts", |p| p.ghost_prob = 0.5),
+            ("class confusion", |p| {
+                p.class_confusion[0] = [0.8, 0.2, 0.0, 0.0, 0.0, 0.0, 0.0]
+            }),
+            ("partial shift", |p| p.partial_shift = 1.0),
+            ("occlusion recall loss", |p| p.occlusion_recall_loss = 1.0),
+        ];
+        for (name, edit) in cases {
+            let mut p = clean();
+            edit(&mut p);
+            let s = signature(p);
+            let moved = |a: f64, b: f64, tol: f64| (a - b).abs() > tol;
+            let changed = [
+                ("recall", moved(s.recall, base.recall, 0.0)),
+                (
+                    "bias",
+                    moved(s.mean_depth_error_m, base.mean_depth_error_m, 0.1),
+                ),
+                ("tails", moved(s.tail_share, base.tail_share, 0.004)),
+                (
+                    "persistence",
+                    moved(s.lag_correlation, base.lag_correlation, 0.1),
+                ),
+                (
+                    "false positives",
+                    moved(s.false_positives_per_frame, 0.0, 0.0),
+                ),
+                ("class", moved(s.wrong_class_share, 0.0, 0.0)),
+            ];
+            let expected: &[&str] = match name {
+                "depth bias" => &["bias"],
+                "heavy tails" => &["tails"],
+                "persistent error" => &["persistence"],
+                "duplicates" | "ghosts" => &["false positives"],
+                "class confusion" => &["class"],
+                _ => &[],
+            };
+            let got: Vec<&str> = changed.iter().filter(|c| c.1).map(|c| c.0).collect();
+            assert_eq!(got, expected, "{name}: {s:?} against {base:?}");
+            if expected.is_empty() {
+                assert_eq!(s, base, "{name} changed a car in plain view");
+            }
+        }
+    }
+
+    /// A car half hidden behind another: its detection lies closer to the
+    /// sensor by `partial_shift` x the hidden share x half its depth
+    /// extent; the car in front, in plain view, does not move.
+    #[test]
+    fn a_partly_hidden_objects_centre_shifts_toward_the_sensor() {
+        let frame = TrafficFrame {
+            step: 0,
+            time_s: 0.0,
+            objects: vec![
+                TrafficObject {
+                    length_m: 0.0,
+                    ..car("ego", 0.0, 0.0)
+                },
+                car("front", 10.0, 0.9),
+                car("hidden", 20.0, 0.0),
+            ],
+        };
+        let model = |shift: f64| {
+            let mut p = clean();
+            p.recall = vec![1.0; 3];
+            p.partial_shift = shift;
+            ProfileModel::new(p).unwrap()
+        };
+        let (without, with) = (model(0.0), model(1.0));
+        let sense = |shift: f64, seed: u64| {
+            let model = if shift > 0.0 { &with } else { &without };
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            observe_profile(&frame, &scene(), 0, model, &sensor(), 7, &mut rng)
+        };
+        let at = |s: &Sensed, id: &str| {
+            let k = s
+                .truth
+                .detections
+                .iter()
+                .position(|t| t.object_id.as_deref() == Some(id))
+                .unwrap();
+            (
+                s.observation.detections[k].position_m,
+                s.truth.detections[k].visible_fraction,
+            )
+        };
+        let (mut closer, mut n) = (0.0, 0.0);
+        let mut vis = 0.0;
+        for seed in 0..2000 {
+            let (off, on) = (sense(0.0, seed), sense(1.0, seed));
+            assert_eq!(at(&off, "front"), at(&on, "front"));
+            let (p_off, v) = at(&off, "hidden");
+            let (p_on, _) = at(&on, "hidden");
+            closer += p_off.norm() - p_on.norm();
+            n += 1.0;
+            vis = v;
+        }
+        assert!(vis > 0.2 && vis < 0.8, "visible fraction {vis}");
+        let expected = (1.0 - vis) * 4.6 / 2.0;
+        let closer = closer / n;
+        assert!(
+            (closer / expected - 1.0).abs() < 0.1,
+            "{closer} m closer, expected {expected} m"
+        );
+    }
+
     #[test]
     fn unusable_parameters_are_refused_by_name() {
         type Edit = Box<dyn Fn(&mut ProfileParams)>;
