@@ -3,7 +3,11 @@
 The Rust bridge (src/bridge.rs) loads this file into the embedded
 interpreter. One call per simulation step returns every vehicle and person
 as plain tuples, so the per-object cost stays that of a plain Python libsumo
-loop. Per-type attributes (class, size, colour) are read once and cached.
+loop. Per-type attributes (class, size, colour) are read once and cached; a
+road user's own colour (the demand's `color` on a vehicle, flow or person)
+is read once per id and kept while it is on the road. Its colour is its own
+if the demand gives one, else its type's; SUMO reports "none" as its
+default yellow (255, 255, 0), which the Rust side may replace.
 Positions and angles are returned exactly as SUMO reports them (front
 bumper, navigational degrees); the Rust side converts them.
 """
@@ -13,6 +17,8 @@ import os
 import libsumo
 
 _type_cache = {}
+_own_colours = {}
+_DEFAULT_COLOUR = (255, 255, 0)
 
 
 def start(args, stderr_path):
@@ -23,6 +29,7 @@ def start(args, stderr_path):
     "Process Error"), and the caller reports them in one line instead.
     """
     _type_cache.clear()
+    _own_colours.clear()
     saved = os.dup(2)
     capture = os.open(stderr_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     try:
@@ -74,18 +81,31 @@ def _type_info(type_id, is_person):
     return info
 
 
+def _colour(own, uid, get_colour, type_colour):
+    """The road user's own colour if the demand gives it one, else its type's."""
+    c = own.get(uid)
+    if c is None:
+        r, g, b, _a = get_colour(uid)
+        c = (int(r), int(g), int(b))
+    _own_colours[uid] = c
+    return type_colour if c == _DEFAULT_COLOUR else c
+
+
 def step():
     """Advances one step; returns (time_s, min_expected, rows).
 
     rows: [(id, vclass, (x, y, angle_nav_deg, speed, length, width, height), (r, g, b), type_id)]
     """
+    global _own_colours
     libsumo.simulationStep()
     rows = []
+    own, _own_colours = _own_colours, {}  # keeps only the road users still on the road
     veh = libsumo.vehicle
     get_pos, get_angle, get_speed, get_type = veh.getPosition, veh.getAngle, veh.getSpeed, veh.getTypeID
     for vid in veh.getIDList():
         type_id = get_type(vid)
         vclass, length, width, height, colour = _type_info(type_id, False)
+        colour = _colour(own, vid, veh.getColor, colour)
         x, y = get_pos(vid)
         rows.append((vid, vclass, (x, y, get_angle(vid), get_speed(vid), length, width, height), colour,
                      type_id))
@@ -94,6 +114,7 @@ def step():
     for pid in per.getIDList():
         type_id = get_type(pid)
         vclass, length, width, height, colour = _type_info(type_id, True)
+        colour = _colour(own, pid, per.getColor, colour)
         x, y = get_pos(pid)
         rows.append((pid, vclass, (x, y, get_angle(pid), get_speed(pid), length, width, height), colour,
                      type_id))

@@ -111,7 +111,7 @@ pub enum BatchError {
     #[error(transparent)]
     Config(#[from] ConfigError),
     #[error(
-        "the configuration or a file it reads has changed since the batch started (digest {then} then, {now} now); start a new batch in another folder"
+        "the configuration or a file it reads has changed since the batch started, or the batch was made by an older coid that ran it differently (digest {then} then, {now} now); start a new batch in another folder"
     )]
     Changed { then: String, now: String },
 }

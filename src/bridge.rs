@@ -19,7 +19,10 @@ use pyo3::types::PyModule;
 
 use crate::geometry::{Polygon, Pose2, Vec2};
 use crate::paths;
-use crate::traffic::{Lane, ObjectClass, StaticScene, TrafficFrame, TrafficObject};
+use crate::traffic::{
+    Lane, ObjectClass, SUMO_DEFAULT_COLOUR, StaticScene, TrafficFrame, TrafficObject, UnsetColours,
+    drawn_colour,
+};
 
 const SHIM: &str = include_str!("../bridge/coid_bridge.py");
 
@@ -404,6 +407,9 @@ pub struct Sumo {
     time_s: f64,
     steps: u64,
     open: bool,
+    /// The traffic seed colours are drawn with for road users whose
+    /// demand gives none; `None` keeps SUMO's yellow.
+    draw_colours: Option<u64>,
 }
 
 impl Sumo {
@@ -465,12 +471,21 @@ impl Sumo {
                 time_s: 0.0,
                 steps: 0,
                 open: true,
+                draw_colours: None,
             })
         });
         if result.is_err() {
             RUNNING.store(false, Ordering::SeqCst);
         }
         result
+    }
+
+    /// How road users whose demand gives no colour look from now on:
+    /// SUMO's yellow, or a colour drawn per id with `traffic_seed`
+    /// ([`crate::traffic::drawn_colour`]).
+    pub fn with_unset_colours(mut self, rule: UnsetColours, traffic_seed: u64) -> Self {
+        self.draw_colours = (rule == UnsetColours::Drawn).then_some(traffic_seed);
+        self
     }
 
     pub fn time_s(&self) -> f64 {
@@ -572,15 +587,22 @@ impl Sumo {
             .into_iter()
             .map(
                 |(id, vclass, (x, y, angle, speed, length, width, height), (r, g, b), type_id)| {
+                    let class = ObjectClass::from_sumo_vclass(&vclass);
+                    let colour_rgb = match self.draw_colours {
+                        Some(seed) if [r, g, b] == SUMO_DEFAULT_COLOUR => {
+                            drawn_colour(seed, &id, class)
+                        }
+                        _ => [r, g, b],
+                    };
                     TrafficObject {
                         id,
                         type_id,
-                        class: ObjectClass::from_sumo_vclass(&vclass),
+                        class,
                         pose: centre_pose_from_sumo(x, y, angle, length),
                         length_m: length,
                         width_m: width,
                         height_m: height,
-                        colour_rgb: [r, g, b],
+                        colour_rgb,
                         speed_mps: speed,
                     }
                 },

@@ -60,6 +60,9 @@ pub enum Purpose {
     /// Which detector profile a connected vehicle carries in a mixed
     /// fleet (`[detector] mix`), per vehicle id.
     DetectorMix = 14,
+    /// The colour drawn for a road user whose demand gives none, per id
+    /// (`[sensor] unset_colours`).
+    Colour = 15,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.

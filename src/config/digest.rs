@@ -1,8 +1,13 @@
 //! What a configuration makes a run do, as one digest: the settings
-//! (format version 1: their `Debug` text, `[v2x]` shown only when not at
-//! its defaults, paths left out) and the bytes of every file a run reads.
-//! Batches (`batch.toml`) and exports (`runs.parquet`) record it, so its
-//! value for a given configuration must not change without a new version.
+//! (their `Debug` text, `[v2x]` shown only when not at its defaults, paths
+//! left out) and the bytes of every file a run reads. Batches
+//! (`batch.toml`) and exports (`runs.parquet`) record it, so its value for
+//! a given configuration must not change without a new version.
+//!
+//! Format versions: 1 until issue 34; 2 since `[sensor] unset_colours`
+//! (always in the text): a road user whose demand gives no colour was
+//! SUMO's yellow before and is drawn since, so every digest changed once
+//! and batches or exports made before are refused, never mixed.
 
 use std::path::{Path, PathBuf};
 

@@ -182,6 +182,7 @@ pub(super) struct RawSensor {
     pub(super) colour_sigma: f64,
     pub(super) lighting_spread: f64,
     pub(super) size_sigma_fraction: f64,
+    pub(super) unset_colours: crate::traffic::UnsetColours,
 }
 
 #[derive(Debug, Deserialize)]

@@ -166,6 +166,13 @@ fn the_defaults_are_the_shipped_file_and_valid() {
     let mut lidar = d.clone();
     lidar.detector.profile = crate::sensor::profile::DetectorProfile::Lidar;
     assert_ne!(d.digest().unwrap(), lidar.digest().unwrap());
+    // Digest format 2: how unset colours look is always in the text (it
+    // changes results on demand without colours, and batches made before
+    // it existed kept SUMO's yellow), so every digest changed once.
+    assert!(format!("{d:?}").contains("unset_colours: Drawn"));
+    let mut yellow = d.clone();
+    yellow.sensor.unset_colours = crate::traffic::UnsetColours::Sumo;
+    assert_ne!(d.digest().unwrap(), yellow.digest().unwrap());
 }
 
 #[test]

@@ -247,6 +247,7 @@ fn sensor(c: &Checker, s: RawSensor) -> Result<SensorSettings, ConfigError> {
         colour_sigma: s.colour_sigma,
         lighting_spread: s.lighting_spread,
         size_sigma_fraction: s.size_sigma_fraction,
+        unset_colours: s.unset_colours,
     })
 }
 

@@ -99,7 +99,8 @@ pub fn simulate_steps(
     let sc = &settings.scenario;
     let cpm = settings.v2x.mode == V2xMode::Cpm;
     let step_length_s = cpm.then_some(settings.v2x.step_length_s);
-    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, step_length_s)?;
+    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, step_length_s)?
+        .with_unset_colours(settings.sensor.unset_colours, settings.seeds.traffic);
     let scene = Arc::new(sumo.static_scene(&sc.junction)?);
     let mut receptions = cpm.then(receptions::Receptions::default);
     let mut stats = SimStats::default();
@@ -272,7 +273,8 @@ pub fn sense_steps(
     mut on_sensed: impl FnMut(&TrafficFrame, &Sensed),
 ) -> Result<u64, RunError> {
     let sc = &settings.scenario;
-    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, None)?;
+    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, None)?
+        .with_unset_colours(settings.sensor.unset_colours, settings.seeds.traffic);
     let scene = sumo.static_scene(&sc.junction)?;
     let mut next_sample_s = f64::NEG_INFINITY;
     let mut n = 0;

@@ -47,7 +47,8 @@ pub fn track(
         settings.seeds.traffic,
         sc.end_s,
         Some(v.step_length_s),
-    )?;
+    )?
+    .with_unset_colours(settings.sensor.unset_colours, settings.seeds.traffic);
     let scene = sumo.static_scene(&sc.junction)?;
     let mut tracking = Tracking::default();
     let mut instances = 0;

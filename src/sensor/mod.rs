@@ -143,6 +143,8 @@ pub struct SensorSettings {
     pub lighting_spread: f64,
     /// Relative noise on the measured length, width and height.
     pub size_sigma_fraction: f64,
+    /// What a road user whose demand gives no colour looks like.
+    pub unset_colours: crate::traffic::UnsetColours,
 }
 
 crate::label_enum! { "pose-noise level";
@@ -777,6 +779,7 @@ mod tests {
             colour_sigma: 0.06,
             lighting_spread: 0.25,
             size_sigma_fraction: 0.1,
+            unset_colours: crate::traffic::UnsetColours::Drawn,
         }
     }
 

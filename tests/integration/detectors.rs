@@ -214,3 +214,43 @@ fn r34_profiles_by_vehicle_type() {
     let out = fx.run(&cfg, "out");
     assert_refused_unwritten(&out, "detector.by_type: type 'cv'", &fx.path("out"));
 }
+
+/// Demand made with SUMO's own types sets no colour: every road user is
+/// SUMO's yellow, and appearance says nothing. By default each gets a
+/// colour drawn from published shares; `[sensor] unset_colours = "sumo"`
+/// keeps the yellow. Read back from what the connected vehicles'
+/// detectors reported (`coid export`'s nodes).
+#[test]
+fn r34_road_users_without_a_colour_get_one_drawn() {
+    let fx = Fixture::new();
+    let plain = repo().join("sumo_nets/family/test-plain/s000/scenario.sumocfg");
+    let yellow_share = |rule: &str| {
+        let cfg = fx.write(
+            &format!("{rule}.toml"),
+            &format!(
+                "{}end_s = 90.0\n[connected]\npenetration = 0.3\n\
+                 [matching]\nmethods = [\"oracle\"]\n[eval]\ntraffic_seeds = [1]\n\
+                 [sensor]\nunset_colours = \"{rule}\"\n",
+                scenario_toml(&plain, "C")
+            ),
+        );
+        let out = format!("ex-{rule}");
+        let export = fx.cmd("export").quiet().config(&cfg);
+        assert_ok(&export.args(["--splits", "test"]).out(&out).output());
+        let nodes = read_parquet(&fx.path(&format!("{out}/nodes.parquet")));
+        let (r, g, b) = (
+            f64s(&nodes, "colour_r"),
+            f64s(&nodes, "colour_g"),
+            f64s(&nodes, "colour_b"),
+        );
+        assert!(r.len() > 50, "{rule}: only {} nodes", r.len());
+        // Yellow whatever the lighting: red and green high, blue low.
+        let yellow = (0..r.len())
+            .filter(|&k| b[k] < 0.3 && r[k] > 0.55 && g[k] > 0.55)
+            .count();
+        yellow as f64 / r.len() as f64
+    };
+    let (kept, drawn) = (yellow_share("sumo"), yellow_share("drawn"));
+    assert!(kept > 0.85, "SUMO's colours: {kept} of the nodes yellow");
+    assert!(drawn < 0.1, "drawn colours: {drawn} of the nodes yellow");
+}
