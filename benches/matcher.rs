@@ -46,6 +46,7 @@ fn detections(pose: &Pose2, objects: &[(Vec2, ObjectClass)]) -> Vec<Detection> {
                 width_m: 1.8,
                 height_m: 1.5,
             },
+            motion: None,
         })
         .collect()
 }

@@ -63,6 +63,9 @@ pub enum Purpose {
     /// The colour drawn for a road user whose demand gives none, per id
     /// (`[sensor] unset_colours`).
     Colour = 15,
+    /// The errors of the heading and speed one connected vehicle's
+    /// detector reports with its detections at one step.
+    BoxMotion = 16,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.

@@ -147,6 +147,19 @@ fn check_export(
     let runs = io::frames::read_export_runs(&path)
         .map_err(|why| anyhow::anyhow!("cannot read {}: {why}", path.display()))?;
     let mine = settings.instances_digest()?;
+    if let Some(old) = runs
+        .first()
+        .filter(|r| r.schema_version < export::SCHEMA_VERSION)
+    {
+        anyhow::bail!(
+            "{} was written by an older coid (export schema {}; this coid writes schema {}, \
+             whose nodes carry the boxes' heading and speed and whose digest covers how unset \
+             colours look): export again with this coid",
+            path.display(),
+            old.schema_version,
+            export::SCHEMA_VERSION
+        );
+    }
     match runs.first().map(|r| r.config_digest.clone()) {
         None => anyhow::bail!("{} names no run", path.display()),
         Some(None) => anyhow::bail!(

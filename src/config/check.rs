@@ -64,6 +64,27 @@ impl Checker<'_> {
         }
     }
 
+    /// A detector's box errors (`<section>.heading_sigma_deg`,
+    /// `heading_flip_prob`, `speed_sigma_mps`), checked.
+    pub(super) fn box_errors(
+        &self,
+        section: &str,
+        [heading_sigma_deg, heading_flip_prob, speed_sigma_mps]: [f64; 3],
+    ) -> Result<crate::sensor::boxes::BoxErrors, ConfigError> {
+        // An error ends the command: the key's few bytes are leaked once.
+        let key = |name: &str| -> &'static str {
+            Box::leak(format!("{section}.{name}").into_boxed_str())
+        };
+        self.non_negative((key("heading_sigma_deg"), heading_sigma_deg))?;
+        self.fraction((key("heading_flip_prob"), heading_flip_prob))?;
+        self.non_negative((key("speed_sigma_mps"), speed_sigma_mps))?;
+        Ok(crate::sensor::boxes::BoxErrors {
+            heading_sigma_rad: heading_sigma_deg.to_radians(),
+            heading_flip_prob,
+            speed_sigma_mps,
+        })
+    }
+
     pub(super) fn fraction(&self, (key, v): (&'static str, f64)) -> Result<(), ConfigError> {
         if (0.0..=1.0).contains(&v) {
             Ok(())

@@ -50,6 +50,10 @@ pub(super) fn detector(c: &Checker, d: RawDetector) -> Result<DetectorSettings, 
 }
 
 fn profile(c: &Checker, name: &str, r: RawProfile) -> Result<ProfileModel, ConfigError> {
+    let boxes = c.box_errors(
+        &format!("detector.{name}"),
+        [r.heading_sigma_deg, r.heading_flip_prob, r.speed_sigma_mps],
+    )?;
     ProfileModel::new(ProfileParams {
         fov_rad: r.fov_deg.to_radians(),
         range_m: r.range_m,
@@ -72,6 +76,7 @@ fn profile(c: &Checker, name: &str, r: RawProfile) -> Result<ProfileModel, Confi
         ghost_distance_m: r.ghost_distance_m,
         class_confusion: r.class_confusion,
         sees_colour: r.sees_colour,
+        boxes,
     })
     .map_err(|e| {
         // The key names the profile's table; an error ends the command, so

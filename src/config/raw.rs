@@ -67,6 +67,9 @@ pub(super) struct RawProfile {
     pub(super) ghost_distance_m: [f64; 2],
     pub(super) class_confusion: [[f64; 7]; 7],
     pub(super) sees_colour: bool,
+    pub(super) heading_sigma_deg: f64,
+    pub(super) heading_flip_prob: f64,
+    pub(super) speed_sigma_mps: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -183,6 +186,9 @@ pub(super) struct RawSensor {
     pub(super) lighting_spread: f64,
     pub(super) size_sigma_fraction: f64,
     pub(super) unset_colours: crate::traffic::UnsetColours,
+    pub(super) heading_sigma_deg: f64,
+    pub(super) heading_flip_prob: f64,
+    pub(super) speed_sigma_mps: f64,
 }
 
 #[derive(Debug, Deserialize)]

@@ -248,6 +248,10 @@ fn sensor(c: &Checker, s: RawSensor) -> Result<SensorSettings, ConfigError> {
         lighting_spread: s.lighting_spread,
         size_sigma_fraction: s.size_sigma_fraction,
         unset_colours: s.unset_colours,
+        boxes: c.box_errors(
+            "sensor",
+            [s.heading_sigma_deg, s.heading_flip_prob, s.speed_sigma_mps],
+        )?,
     })
 }
 

@@ -165,6 +165,7 @@ impl<'a> Frame<'a> {
                     position_m: placed.position_m,
                     cov_m2: placed.cov_m2,
                     appearance: first.obs.detections[first_d].appearance.clone(),
+                    motion: None,
                 },
                 first.truth.detections[first_d].clone(),
             );

@@ -30,8 +30,8 @@ mod score;
 pub use score::external_matches;
 
 /// The version of the export's columns (`runs.parquet` carries it): 2
-/// added `config_digest`.
-pub const SCHEMA_VERSION: u64 = 2;
+/// added `config_digest`; 3 the nodes' `heading_rad` and `speed_mps`.
+pub const SCHEMA_VERSION: u64 = 3;
 
 /// The schema, written beside the files as `schema.md`.
 pub const SCHEMA: &str = include_str!("../../docs/export-schema.md");

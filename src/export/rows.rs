@@ -125,6 +125,8 @@ impl Rows {
                 length_m: a.length_m,
                 width_m: a.width_m,
                 height_m: a.height_m,
+                heading_rad: d.motion.map_or(f64::NAN, |m| m.heading_rad),
+                speed_mps: d.motion.map_or(f64::NAN, |m| m.speed_mps),
                 sender: truth.sender,
             });
             let p = truth.position_m;

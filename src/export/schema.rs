@@ -115,6 +115,8 @@ file_rows! {
         length_m: f64,
         width_m: f64,
         height_m: f64,
+        heading_rad: f64,
+        speed_mps: f64,
         sender: bool,
     }
 }

@@ -231,6 +231,7 @@ pub fn read_export_runs(path: &Path) -> Result<Vec<ExportRunRow>, String> {
         ))
     };
     let (run, n) = (count("run")?, count("n_instances")?);
+    let version = count("schema_version")?;
     let split = strings("split")?.ok_or("it has no column 'split'")?;
     let digest = strings("config_digest")?;
     Ok((0..df.height())
@@ -239,6 +240,7 @@ pub fn read_export_runs(path: &Path) -> Result<Vec<ExportRunRow>, String> {
             split: split[k].clone(),
             n_instances: n[k],
             config_digest: digest.as_ref().map(|d| d[k].clone()),
+            schema_version: version[k],
         })
         .collect())
 }

@@ -138,6 +138,7 @@ mod tests {
                 width_m: 1.8,
                 height_m: 1.5,
             },
+            motion: None,
         }
     }
 

@@ -61,6 +61,7 @@ pub(crate) fn detection(position_m: Vec2, class: ObjectClass, colour: [f64; 3]) 
             width_m: 1.8,
             height_m: 1.5,
         },
+        motion: None,
     }
 }
 

@@ -208,6 +208,7 @@ mod tests {
             position_m: p,
             cov_m2: Cov2::identity() * 0.04,
             appearance: appearance("a"),
+            motion: None,
         }
     }
 

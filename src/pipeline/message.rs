@@ -106,6 +106,7 @@ mod tests {
             position_m: Vec2::zeros(),
             cov_m2: Cov2::identity(),
             appearance: appearance("cv0"),
+            motion: None,
         };
         let truth = DetectionTruth {
             object_id: Some("cv0".into()),

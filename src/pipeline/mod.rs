@@ -142,6 +142,7 @@ mod tests {
                 position_m: pose.to_body(p),
                 cov_m2: Cov2::identity() * 0.04,
                 appearance: appearance(o),
+                motion: None,
             })
             .collect();
         let truths = seen

@@ -175,6 +175,7 @@ impl PeerState {
                 position_m: peer_reported.to_body(&world),
                 cov_m2: rotate_cov(&cov, turn),
                 appearance: k.label.appearance.clone(),
+                motion: None,
             });
             v.peer_ids.push(id);
             v.peer_truth.push(k.label.truth.clone());

@@ -179,6 +179,7 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide,
             position_m,
             cov_m2,
             appearance: label.appearance.clone(),
+            motion: None,
         });
         truths.push(label.truth_at(ctx));
     }
@@ -194,6 +195,7 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide,
             position_m,
             cov_m2,
             appearance: d.appearance.clone(),
+            motion: None,
         });
         let now = t.object_id.as_deref().and_then(|o| ctx.truth.get(o));
         truths.push(DetectionTruth {
@@ -287,6 +289,7 @@ mod tests {
             position_m: Vec2::zeros(),
             cov_m2: Cov2::identity() * 0.01,
             appearance: appearance("cv1"),
+            motion: None,
         };
         let own_truth = DetectionTruth {
             object_id: Some("cv1".into()),

@@ -157,6 +157,7 @@ mod tests {
             position_m: p,
             cov_m2: Cov2::identity() * 1e-4,
             appearance: appearance("a"),
+            motion: None,
         };
         let views = Views {
             ego: objects

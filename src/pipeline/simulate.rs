@@ -249,7 +249,8 @@ fn sense_one(settings: &Settings, scene: &StaticScene, frame: &TrafficFrame, k: 
     let d = &settings.detector;
     let o = &frame.objects[k];
     let profile = d.profile_of(settings.seeds.sensor, &o.id, &o.type_id);
-    match d.model_of(profile) {
+    let model = d.model_of(profile);
+    let mut sensed = match model {
         None => sensor::observe(frame, scene, k, camera, sensor, &mut stream),
         Some(model) => sensor::profile::observe_profile(
             frame,
@@ -260,7 +261,16 @@ fn sense_one(settings: &Settings, scene: &StaticScene, frame: &TrafficFrame, k: 
             settings.seeds.sensor,
             &mut stream,
         ),
-    }
+    };
+    // The boxes' own stream: their errors move no detection.
+    let mut boxes = rng::stream(
+        settings.seeds.sensor,
+        Purpose::BoxMotion,
+        &[frame.step, id_hash],
+    );
+    let errors = model.map_or(&sensor.boxes, |m| &m.params.boxes);
+    sensor::boxes::add_motion(&mut sensed, frame, k, errors, &mut boxes);
+    sensed
 }
 
 /// Runs the scenario of `settings` from start to end and hands what every

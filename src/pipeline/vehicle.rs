@@ -96,6 +96,7 @@ impl ConnectedVehicle {
                     position_m: body.to_parent(&t.position_m),
                     cov_m2: body.cov_to_parent(cov),
                     appearance: label.appearance.clone(),
+                    motion: None,
                 };
                 Some((t.id, d, label))
             })

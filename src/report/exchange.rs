@@ -24,4 +24,6 @@ pub struct ExportRunRow {
     pub n_instances: u64,
     /// `None` in exports of schema version 1.
     pub config_digest: Option<String>,
+    /// The export's schema version.
+    pub schema_version: u64,
 }

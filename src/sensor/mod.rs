@@ -10,6 +10,7 @@
 //! ego's true pose), so that matchers, which receive observations, cannot
 //! reach the truth by construction.
 
+pub mod boxes;
 pub mod profile;
 
 use rand::Rng;
@@ -145,6 +146,8 @@ pub struct SensorSettings {
     pub size_sigma_fraction: f64,
     /// What a road user whose demand gives no colour looks like.
     pub unset_colours: crate::traffic::UnsetColours,
+    /// The errors of the boxes' heading and speed (the paper's model).
+    pub boxes: boxes::BoxErrors,
 }
 
 crate::label_enum! { "pose-noise level";
@@ -203,6 +206,10 @@ pub struct Detection {
     /// Covariance of `position_m` from the same noise model that drew it.
     pub cov_m2: Cov2,
     pub appearance: Appearance,
+    /// The box's heading (body frame) and speed as the detector reports
+    /// them; `None` where the source reports no box (a V2X track, a map
+    /// view, a test).
+    pub motion: Option<boxes::Motion>,
 }
 
 /// Everything one connected vehicle perceives at one step.
@@ -293,6 +300,10 @@ impl Sensed {
                 width_m: ego.width_m,
                 height_m: ego.height_m,
             },
+            motion: Some(boxes::Motion {
+                heading_rad: 0.0,
+                speed_mps: ego.speed_mps,
+            }),
         });
         self.truth.detections.push(DetectionTruth {
             object_id: Some(ego.id.clone()),
@@ -518,6 +529,7 @@ impl Camera<'_> {
             position_m: self.in_ego.to_parent(p_meas),
             cov_m2: self.in_ego.cov_to_parent(cov_cam),
             appearance,
+            motion: None,
         }
     }
 
@@ -724,7 +736,7 @@ pub fn reported_pose(truth: &Pose2, level: &PoseNoiseLevel, rng: &mut impl Rng) 
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::geometry::Polygon;
     use rand::SeedableRng;
@@ -780,6 +792,11 @@ mod tests {
             lighting_spread: 0.25,
             size_sigma_fraction: 0.1,
             unset_colours: crate::traffic::UnsetColours::Drawn,
+            boxes: boxes::BoxErrors {
+                heading_sigma_rad: 0.19,
+                heading_flip_prob: 0.02,
+                speed_sigma_mps: 0.52,
+            },
         }
     }
 

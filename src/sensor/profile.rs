@@ -198,6 +198,8 @@ pub struct ProfileParams {
     /// Whether the detector sees colour (a lidar does not: its detections
     /// report a neutral grey).
     pub sees_colour: bool,
+    /// The errors of the boxes' heading and speed.
+    pub boxes: super::boxes::BoxErrors,
 }
 
 /// A profile ready to sense: its parameters and the error scale per bin
@@ -561,6 +563,7 @@ impl ProfileSensor<'_> {
                 .in_ego
                 .cov_to_parent(&self.model.nominal_covariance(p_sensor)),
             appearance,
+            motion: None,
         }
     }
 
@@ -793,6 +796,11 @@ mod tests {
             ghost_distance_m: [1.0, 3.0],
             class_confusion: identity,
             sees_colour: true,
+            boxes: crate::sensor::boxes::BoxErrors {
+                heading_sigma_rad: 0.1,
+                heading_flip_prob: 0.02,
+                speed_sigma_mps: 0.5,
+            },
         }
     }
 

@@ -198,3 +198,45 @@ fn a_matches_file_that_does_not_fit_is_refused_in_one_line() {
         assert_refused_unwritten(&o, expect, &fx.path("s"));
     }
 }
+
+/// Schema 3: every exported node carries its box's heading and speed (a
+/// sender's own node its own, heading 0 in its body frame); an export
+/// written by an older coid (schema 2, without them) is refused with the
+/// reason, not scored against instances it does not hold.
+#[test]
+fn r34_exports_carry_boxes_and_an_older_schema_is_refused() {
+    let (fx, config) = small();
+    export(&fx, &config);
+    let nodes = read_parquet(&fx.path("ex/nodes.parquet"));
+    let heading = f64s(&nodes, "heading_rad");
+    let speed = f64s(&nodes, "speed_mps");
+    assert!(heading.iter().all(|h| h.abs() <= std::f64::consts::PI));
+    assert!(speed.iter().all(|s| *s >= 0.0 && s.is_finite()));
+    assert!(speed.iter().any(|s| *s > 1.0), "someone moves");
+    let sender = nodes.column("sender").unwrap().bool().unwrap().clone();
+    for (k, is_sender) in sender.iter().enumerate() {
+        if is_sender == Some(true) {
+            assert_eq!(heading[k], 0.0);
+        }
+    }
+    assert_ok(&score(
+        &fx,
+        &config,
+        "ex/matches-gps-hungarian.parquet",
+        "s1",
+    ));
+    // The same export as schema 2 wrote it.
+    let path = fx.path("ex/runs.parquet");
+    let mut runs = read_parquet(&path);
+    let n = runs.height();
+    runs.with_column(polars::prelude::Column::new(
+        "schema_version".into(),
+        vec![2u64; n],
+    ))
+    .unwrap();
+    polars::prelude::ParquetWriter::new(std::fs::File::create(&path).unwrap())
+        .finish(&mut runs)
+        .unwrap();
+    let o = score(&fx, &config, "ex/matches-gps-hungarian.parquet", "s2");
+    assert_refused_unwritten(&o, "older coid (export schema 2", &fx.path("s2"));
+}
