@@ -22,8 +22,8 @@ use crate::geometry::{Pose2, Vec2};
 use crate::matching::{Correspondence, Method};
 use crate::report::{AggregateRow, Metric, PlotData};
 use crate::sensor::PoseNoiseLabel;
-use crate::sensor::profile::{Mount, sensor_in_body_m};
-use crate::sensor::{CameraSettings, Observation, ObservationTruth};
+use crate::sensor::profile::{RigSensor, sensor_in_body_m};
+use crate::sensor::{Observation, ObservationTruth};
 use crate::traffic::{StaticScene, TrafficFrame};
 
 static FONT: Once = Once::new();
@@ -48,8 +48,8 @@ pub struct SceneView<'a> {
     pub scene: &'a StaticScene,
     pub frame: &'a TrafficFrame,
     /// The sensors each of the two connected vehicles carries (its
-    /// detector profile's), and where they sit on it.
-    pub sensors: [(CameraSettings, Mount); 2],
+    /// detector profile's or its rig's), and where they sit on it.
+    pub sensors: [Vec<RigSensor>; 2],
     /// The two connected vehicles' observations with the truth beside
     /// them (detections are placed in the world with each vehicle's true
     /// pose: what it measured about its surroundings).
@@ -155,10 +155,10 @@ fn draw_frustums<DB: DrawingBackend>(view: &SceneView, area: &Area<DB>) -> DrawR
         let Some(obj) = view.frame.find(vehicle).map(|i| &view.frame.objects[i]) else {
             continue;
         };
-        let (camera, mount) = &view.sensors[k];
-        for &yaw in &camera.yaw_offsets_rad {
-            let at = sensor_in_body_m(*mount, obj.length_m);
-            let cam = obj.pose.compose(&Pose2::new(at, yaw));
+        for s in &view.sensors[k] {
+            let camera = &s.geometry;
+            let at = sensor_in_body_m(s.mount, obj.length_m);
+            let cam = obj.pose.compose(&Pose2::new(at, s.yaw_rad()));
             let mut pts = vec![pt(&cam.position_m())];
             let segments = (camera.fov_rad / 0.1).ceil().max(16.0) as u32;
             for s in 0..=segments {
@@ -645,6 +645,8 @@ pub fn batch_plot(dir: &Path, rows: &[AggregateRow]) -> Result<(), RenderError> 
 mod tests {
     use super::*;
     use crate::geometry::Polygon;
+    use crate::sensor::CameraSettings;
+    use crate::sensor::profile::Mount;
     use crate::traffic::{Lane, ObjectClass, TrafficObject};
 
     #[test]
@@ -738,16 +740,17 @@ mod tests {
             ego_pose: Pose2::identity(),
             detections: vec![],
         };
-        let camera = CameraSettings {
+        let geometry = CameraSettings {
             fov_rad,
             range_m: 70.0,
             height_m: 1.5,
             yaw_offsets_rad: vec![0.0],
         };
+        let rig = vec![RigSensor { geometry, mount }];
         let view = SceneView {
             scene: &scene,
             frame: &frame,
-            sensors: [(camera.clone(), mount), (camera, mount)],
+            sensors: [rig.clone(), rig],
             egos: [(&obs, &truth), (&other, &other_truth)],
             vehicles: ["cv0", "cv1"],
             matches: &[],

@@ -9,7 +9,7 @@ use crate::io::markdown::fmt_num;
 use crate::matching::Method;
 use crate::pipeline::{self, Instance, RunError};
 use crate::render::{self, SceneView};
-use crate::sensor::profile::Mount;
+use crate::sensor::profile::paper_rig;
 use crate::sensor::{PoseNoiseLabel, PoseNoiseLevel};
 
 #[derive(clap::Args)]
@@ -100,15 +100,19 @@ fn draw(
             .frame
             .find(v)
             .map_or("", |i| &inst.frame.objects[i].type_id);
-        let profile = settings
+        match settings
             .detector
-            .profile_of(settings.seeds.sensor, v, type_id);
-        match settings.detector.model_of(profile) {
-            Some(m) => (m.rig().clone(), m.params.mount),
-            None => (settings.camera.clone(), Mount::Front),
+            .model_for(settings.seeds.sensor, v, type_id)
+        {
+            Some(m) => m.sensors().to_vec(),
+            None => paper_rig(&settings.camera),
         }
     });
-    let reach_m = sensors[0].0.range_m.max(sensors[1].0.range_m);
+    let reach_m = sensors
+        .iter()
+        .flatten()
+        .map(|s| s.geometry.range_m)
+        .fold(0.0, f64::max);
     let view = SceneView {
         scene: inst.scene,
         frame: inst.frame,

@@ -4,8 +4,11 @@
 
 use super::ConfigError;
 use super::check::{Checker, num};
-use super::raw::{RawDetector, RawProfile};
-use crate::sensor::profile::{DetectorProfile, DetectorSettings, ProfileModel, ProfileParams};
+use super::raw::{RawDetector, RawProfile, RawRig};
+use crate::sensor::CameraSettings;
+use crate::sensor::profile::{
+    DetectorProfile, DetectorSettings, NamedRig, ProfileModel, ProfileParams, RigSensor,
+};
 
 pub(super) fn detector(c: &Checker, d: RawDetector) -> Result<DetectorSettings, ConfigError> {
     let mut mix = Vec::new();
@@ -40,13 +43,88 @@ pub(super) fn detector(c: &Checker, d: RawDetector) -> Result<DetectorSettings, 
                 .map_err(|e| c.invalid("detector.by_type", format!("type '{t}': {e}")))
         })
         .collect::<Result<_, _>>()?;
+    let camera = profile(c, "camera", d.camera)?;
+    let lidar = profile(c, "lidar", d.lidar)?;
+    let rigs = rigs(c, d.rigs, &camera, &lidar)?;
+    let rig_by_type = d
+        .rig_by_type
+        .iter()
+        .map(
+            |(t, name)| match rigs.iter().position(|r| &r.name == name) {
+                Some(k) => Ok((t.clone(), k)),
+                None => Err(c.invalid(
+                    "detector.rig_by_type",
+                    format!(
+                        "type '{t}': no rig '{name}' in [detector.rigs] (there: {})",
+                        if rigs.is_empty() {
+                            "none".to_owned()
+                        } else {
+                            rigs.iter()
+                                .map(|r| r.name.as_str())
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        }
+                    ),
+                )),
+            },
+        )
+        .collect::<Result<_, _>>()?;
     Ok(DetectorSettings {
         profile: d.profile,
         mix,
         by_type,
-        camera: profile(c, "camera", d.camera)?,
-        lidar: profile(c, "lidar", d.lidar)?,
+        camera,
+        lidar,
+        rigs,
+        rig_by_type,
     })
+}
+
+/// `[detector.rigs]`: each rig's sensors on its profile's error model.
+fn rigs(
+    c: &Checker,
+    raw: std::collections::BTreeMap<String, RawRig>,
+    camera: &ProfileModel,
+    lidar: &ProfileModel,
+) -> Result<Vec<NamedRig>, ConfigError> {
+    let mut rigs = Vec::new();
+    for (name, r) in raw {
+        let base = match r.profile {
+            DetectorProfile::Camera => camera,
+            DetectorProfile::Lidar => lidar,
+            DetectorProfile::Paper => {
+                return Err(c.invalid(
+                    "detector.rigs",
+                    format!(
+                        "rig '{name}': profile must be \"camera\" or \"lidar\" (whose error \
+                         model its sensors have); the paper's cameras are [camera]'s"
+                    ),
+                ));
+            }
+        };
+        let sensors = r
+            .sensors
+            .iter()
+            .map(|s| RigSensor {
+                geometry: CameraSettings {
+                    fov_rad: s.fov_deg.to_radians(),
+                    range_m: s.range_m,
+                    height_m: s.height_m,
+                    yaw_offsets_rad: vec![s.yaw_deg.to_radians()],
+                },
+                mount: s.mount,
+            })
+            .collect();
+        let model = base
+            .with_rig(sensors)
+            .map_err(|e| c.invalid("detector.rigs", format!("rig '{name}': {e}")))?;
+        rigs.push(NamedRig {
+            name,
+            profile: r.profile,
+            model,
+        });
+    }
+    Ok(rigs)
 }
 
 fn profile(c: &Checker, name: &str, r: RawProfile) -> Result<ProfileModel, ConfigError> {

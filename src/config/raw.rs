@@ -41,6 +41,25 @@ pub(super) struct RawDetector {
     pub(super) by_type: std::collections::BTreeMap<String, String>,
     pub(super) camera: RawProfile,
     pub(super) lidar: RawProfile,
+    pub(super) rigs: std::collections::BTreeMap<String, RawRig>,
+    pub(super) rig_by_type: std::collections::BTreeMap<String, String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawRig {
+    pub(super) profile: DetectorProfile,
+    pub(super) sensors: Vec<RawRigSensor>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawRigSensor {
+    pub(super) yaw_deg: f64,
+    pub(super) fov_deg: f64,
+    pub(super) range_m: f64,
+    pub(super) height_m: f64,
+    pub(super) mount: Mount,
 }
 
 #[derive(Debug, Deserialize)]

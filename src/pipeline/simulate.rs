@@ -248,8 +248,7 @@ fn sense_one(settings: &Settings, scene: &StaticScene, frame: &TrafficFrame, k: 
     let (camera, sensor) = (&settings.camera, &settings.sensor);
     let d = &settings.detector;
     let o = &frame.objects[k];
-    let profile = d.profile_of(settings.seeds.sensor, &o.id, &o.type_id);
-    let model = d.model_of(profile);
+    let model = d.model_for(settings.seeds.sensor, &o.id, &o.type_id);
     let mut sensed = match model {
         None => sensor::observe(frame, scene, k, camera, sensor, &mut stream),
         Some(model) => sensor::profile::observe_profile(

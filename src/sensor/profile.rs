@@ -94,6 +94,22 @@ pub struct DetectorSettings {
     pub by_type: Vec<(String, DetectorProfile)>,
     pub camera: ProfileModel,
     pub lidar: ProfileModel,
+    /// Named rigs (`[detector.rigs]`): a profile's error model on sensors
+    /// of their own.
+    pub rigs: Vec<NamedRig>,
+    /// Rigs by SUMO vehicle type id (`[detector] rig_by_type`): a vehicle
+    /// of a listed type carries its rig, over `by_type`, `mix` and
+    /// `profile`. Indices into `rigs`.
+    pub rig_by_type: Vec<(String, usize)>,
+}
+
+/// A rig of `[detector.rigs]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedRig {
+    pub name: String,
+    /// Whose error model its sensors have.
+    pub profile: DetectorProfile,
+    pub model: ProfileModel,
 }
 
 impl DetectorSettings {
@@ -137,9 +153,27 @@ impl DetectorSettings {
         self.mix.last().map_or(self.profile, |m| m.0)
     }
 
+    /// What connected vehicle `vehicle_id` of SUMO type `type_id` senses
+    /// with: its type's rig (`rig_by_type`), else its profile's model
+    /// ([`Self::profile_of`]); `None`: the paper's model.
+    pub fn model_for(
+        &self,
+        sensor_seed: u64,
+        vehicle_id: &str,
+        type_id: &str,
+    ) -> Option<&ProfileModel> {
+        if let Some((_, k)) = self.rig_by_type.iter().find(|(t, _)| t == type_id) {
+            return self.rigs.get(*k).map(|r| &r.model);
+        }
+        self.model_of(self.profile_of(sensor_seed, vehicle_id, type_id))
+    }
+
     /// Whether every vehicle senses with the paper's model.
     pub fn is_paper(&self) -> bool {
-        self.mix.is_empty() && self.by_type.is_empty() && self.profile == DetectorProfile::Paper
+        self.mix.is_empty()
+            && self.by_type.is_empty()
+            && self.rig_by_type.is_empty()
+            && self.profile == DetectorProfile::Paper
     }
 }
 
@@ -210,8 +244,30 @@ pub struct ProfileModel {
     /// Per bin: the random error's scale (metres; the per-axis standard
     /// deviation of an isotropic error).
     scale_m: Vec<f64>,
-    /// The sensors' geometry as the visibility test reads it (made once).
-    rig: CameraSettings,
+    /// The sensors: the profile's own (one per yaw offset), or a rig's
+    /// (`[detector.rigs]`).
+    sensors: Vec<RigSensor>,
+}
+
+/// One sensor of a rig: its field of view, range, height and yaw (the
+/// visibility test's geometry; `yaw_offsets_rad` holds its one yaw) and
+/// where it sits on the vehicle. Each sensor tests occlusion from its own
+/// pose.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RigSensor {
+    pub geometry: CameraSettings,
+    pub mount: Mount,
+}
+
+impl RigSensor {
+    /// The sensor's yaw against the vehicle's heading (radians).
+    pub fn yaw_rad(&self) -> f64 {
+        self.geometry
+            .yaw_offsets_rad
+            .first()
+            .copied()
+            .unwrap_or(0.0)
+    }
 }
 
 /// Why a profile's parameters cannot be used.
@@ -244,16 +300,65 @@ impl ProfileModel {
                     .map_err(|m| invalid("mean_error_m", format!("bin {b}: {m}")))
             })
             .collect::<Result<_, _>>()?;
-        let rig = CameraSettings {
-            fov_rad: params.fov_rad,
-            range_m: params.range_m,
-            height_m: params.height_m,
-            yaw_offsets_rad: params.yaw_offsets_rad.clone(),
-        };
+        let sensors = params
+            .yaw_offsets_rad
+            .iter()
+            .map(|&yaw| RigSensor {
+                geometry: CameraSettings {
+                    fov_rad: params.fov_rad,
+                    range_m: params.range_m,
+                    height_m: params.height_m,
+                    yaw_offsets_rad: vec![yaw],
+                },
+                mount: params.mount,
+            })
+            .collect();
         Ok(ProfileModel {
             params,
             scale_m,
-            rig,
+            sensors,
+        })
+    }
+
+    /// This profile's error model on another rig's sensors. Each sensor's
+    /// range must lie within the profile's range bins (the recall and
+    /// error of farther objects are not known).
+    pub fn with_rig(&self, sensors: Vec<RigSensor>) -> Result<ProfileModel, ProfileError> {
+        if sensors.is_empty() || sensors.len() > MAX_SENSORS {
+            return Err(invalid(
+                "sensors",
+                format!("need 1 to {MAX_SENSORS} sensors"),
+            ));
+        }
+        let reach = self.params.bin_edges_m.last().copied().unwrap_or(0.0);
+        for (k, s) in sensors.iter().enumerate() {
+            let g = &s.geometry;
+            if g.fov_rad <= 0.0 || g.fov_rad.is_nan() || g.fov_rad > std::f64::consts::TAU + 1e-9 {
+                return Err(invalid(
+                    "sensors",
+                    format!("sensor {k}: fov_deg must be in (0, 360]"),
+                ));
+            }
+            if !(g.range_m > 0.0 && g.range_m <= reach + 1e-9) {
+                return Err(invalid(
+                    "sensors",
+                    format!(
+                        "sensor {k}: range_m must be in (0, {reach}] (the profile's range bins \
+                         end there), got {}",
+                        g.range_m
+                    ),
+                ));
+            }
+            if !(0.0..=100.0).contains(&g.height_m) || g.yaw_offsets_rad.len() != 1 {
+                return Err(invalid(
+                    "sensors",
+                    format!("sensor {k}: height_m must be in [0, 100]"),
+                ));
+            }
+        }
+        Ok(ProfileModel {
+            sensors,
+            ..self.clone()
         })
     }
 
@@ -267,9 +372,9 @@ impl ProfileModel {
         self.scale_m[self.bin(d_m)]
     }
 
-    /// The sensors' geometry as the visibility test reads it.
-    pub fn rig(&self) -> &CameraSettings {
-        &self.rig
+    /// The sensors, each with its geometry and mount.
+    pub fn sensors(&self) -> &[RigSensor] {
+        &self.sensors
     }
 
     /// Standard deviations (depth, lateral) of the random error at a
@@ -540,6 +645,21 @@ struct ProfileSensor<'a> {
     sensor: &'a SensorSettings,
 }
 
+/// The paper's model's sensors: `[camera]`'s cameras, in front.
+pub fn paper_rig(camera: &CameraSettings) -> Vec<RigSensor> {
+    camera
+        .yaw_offsets_rad
+        .iter()
+        .map(|&yaw| RigSensor {
+            geometry: CameraSettings {
+                yaw_offsets_rad: vec![yaw],
+                ..camera.clone()
+            },
+            mount: Mount::Front,
+        })
+        .collect()
+}
+
 /// Where a sensor on `mount` sits in the body frame of a vehicle
 /// `length_m` long (metres).
 pub fn sensor_in_body_m(mount: Mount, length_m: f64) -> Vec2 {
@@ -733,16 +853,15 @@ pub fn observe_profile(
     rng: &mut impl Rng,
 ) -> Sensed {
     let ego = &frame.objects[ego_index];
-    let rig = model.rig();
     let mut found: Vec<(Detection, DetectionTruth)> = Vec::new();
     let mut visible: Vec<VisibleObject> = Vec::new();
     let mut seen = vec![false; frame.objects.len()];
-    for &yaw in &rig.yaw_offsets_rad {
-        let pose = sensor_pose(ego, model.params.mount, yaw);
+    for rs in model.sensors() {
+        let pose = sensor_pose(ego, rs.mount, rs.yaw_rad());
         let s = ProfileSensor {
             pose,
             in_ego: ego.pose.relative(&pose),
-            rig,
+            rig: &rs.geometry,
             model,
             sensor,
         };
@@ -1039,6 +1158,8 @@ mod tests {
             by_type: Vec::new(),
             camera: model.clone(),
             lidar: model,
+            rigs: Vec::new(),
+            rig_by_type: Vec::new(),
         };
         let n = 20_000;
         let lidar = (0..n)
@@ -1277,6 +1398,49 @@ mod tests {
             (closer / expected - 1.0).abs() < 0.1,
             "{closer} m closer, expected {expected} m"
         );
+    }
+
+    /// A rig's sensors each look from their own pose: a rear camera sees
+    /// the car behind, which the profile's one front camera cannot; a
+    /// sensor reaching beyond the range bins is refused.
+    #[test]
+    fn a_rig_senses_with_its_own_sensors() {
+        let mut p = params();
+        p.recall = vec![1.0; 3];
+        let front = ProfileModel::new(p).unwrap();
+        let sensor_at = |yaw_deg: f64, range_m: f64| RigSensor {
+            geometry: CameraSettings {
+                fov_rad: 90f64.to_radians(),
+                range_m,
+                height_m: 1.5,
+                yaw_offsets_rad: vec![yaw_deg.to_radians()],
+            },
+            mount: Mount::Roof,
+        };
+        let both = front
+            .with_rig(vec![sensor_at(0.0, 60.0), sensor_at(180.0, 60.0)])
+            .unwrap();
+        let frame = TrafficFrame {
+            step: 0,
+            time_s: 0.0,
+            objects: vec![car("ego", 0.0, 0.0), car("behind", -20.0, 0.0)],
+        };
+        let ids = |m: &ProfileModel| {
+            let mut rng = ChaCha8Rng::seed_from_u64(3);
+            let s = observe_profile(&frame, &scene(), 0, m, &sensor(), 7, &mut rng);
+            s.truth
+                .detections
+                .iter()
+                .filter_map(|t| t.object_id.clone())
+                .collect::<Vec<_>>()
+        };
+        assert!(ids(&front).is_empty());
+        assert_eq!(ids(&both), vec!["behind".to_owned()]);
+        assert_eq!(front.sensors().len(), 1);
+        assert_eq!(both.sensors().len(), 2);
+        let e = front.with_rig(vec![sensor_at(0.0, 61.0)]).unwrap_err();
+        assert_eq!(e.field, "sensors", "{e}");
+        assert!(front.with_rig(Vec::new()).is_err());
     }
 
     #[test]

@@ -254,3 +254,86 @@ fn r34_road_users_without_a_colour_get_one_drawn() {
     assert!(kept > 0.85, "SUMO's colours: {kept} of the nodes yellow");
     assert!(drawn < 0.1, "drawn colours: {drawn} of the nodes yellow");
 }
+
+/// Six cameras around the roof, in the config, for the connected
+/// vehicles' type.
+fn six_cameras(range_m: f64) -> String {
+    let sensors: Vec<String> = (0..6)
+        .map(|k| {
+            format!(
+                "{{ yaw_deg = {}, fov_deg = 70, range_m = {range_m}, height_m = 1.5, mount = \"roof\" }}",
+                60 * k
+            )
+        })
+        .collect();
+    format!(
+        "[detector.rigs.six]\nprofile = \"camera\"\nsensors = [{}]\n",
+        sensors.join(", ")
+    )
+}
+
+/// Rigs per vehicle type: a rig of the camera profile's own front camera
+/// is that profile, byte for byte; six cameras around see more than one
+/// in front; a rig whose sensor reaches beyond the profile's range bins,
+/// or a type that names no rig, is refused by name.
+#[test]
+fn r34_rigs_by_vehicle_type() {
+    let fx = Fixture::new();
+    let methods = "[matching]\nmethods = [\"gps-app-hungarian\", \"oracle\"]\n";
+    let front = "[detector.rigs.front]\nprofile = \"camera\"\nsensors = [{ yaw_deg = 0, fov_deg = 90, \
+                 range_m = 70, height_m = 1.5, mount = \"front\" }]\n";
+    let runs = [
+        ("camera", "[detector]\nprofile = \"camera\"\n".to_owned()),
+        (
+            "front",
+            format!("[detector]\nrig_by_type = {{ cv = \"front\" }}\n{front}"),
+        ),
+        (
+            "six",
+            format!(
+                "[detector]\nrig_by_type = {{ cv = \"six\" }}\n{}",
+                six_cameras(70.0)
+            ),
+        ),
+    ];
+    for (name, detector) in &runs {
+        let cfg = fx.config(
+            &format!("{name}.toml"),
+            65.0,
+            &format!("{methods}{detector}"),
+        );
+        assert_ok(&fx.cmd("run").quiet().config(&cfg).out(name).output());
+    }
+    let summary = |out: &str| fx.read(&format!("{out}/summary.csv"));
+    assert!(
+        summary("front") == summary("camera"),
+        "the camera profile's own sensor as a rig differs from the profile"
+    );
+    let (_, camera_objects) = oracle_single(&fx, "camera");
+    let (_, six_objects) = oracle_single(&fx, "six");
+    assert!(
+        six_objects > camera_objects,
+        "six cameras see {six_objects} objects, one {camera_objects}"
+    );
+    let refused = [
+        (
+            format!(
+                "[detector]\nrig_by_type = {{ cv = \"six\" }}\n{}",
+                six_cameras(90.0)
+            ),
+            "rig 'six': sensors: sensor 0: range_m must be in (0, 70]",
+        ),
+        (
+            format!(
+                "[detector]\nrig_by_type = {{ cv = \"sixx\" }}\n{}",
+                six_cameras(70.0)
+            ),
+            "detector.rig_by_type: type 'cv': no rig 'sixx' in [detector.rigs] (there: six)",
+        ),
+    ];
+    for (k, (detector, expect)) in refused.iter().enumerate() {
+        let cfg = fx.config(&format!("bad{k}.toml"), 60.0, detector);
+        let out = fx.run(&cfg, &format!("bad{k}"));
+        assert_refused_unwritten(&out, expect, &fx.path(&format!("bad{k}")));
+    }
+}
