@@ -548,6 +548,7 @@ fn matchers_cannot_reach_the_ground_truth() {
         &[
             "sensor/mod.rs",
             "sensor/profile.rs",
+            "sensor/boxes.rs",
             "matching/oracle.rs",
             "evaluate/mod.rs",
             "evaluate/counts.rs",
