@@ -36,6 +36,11 @@ pub struct ObjectEstimate {
     pub truth_m: Vec2,
     pub single_m: Vec2,
     pub fused_m: Vec2,
+    /// The fused estimate's NEES: its error against the covariance the
+    /// fusion claims for it (Eq. 16; the ego's own where nothing was
+    /// fused), in the ego's frame. Its mean is 2 (the degrees of freedom)
+    /// when every reported covariance is the truth and the match right.
+    pub fused_nees: f64,
 }
 
 impl ObjectEstimate {
@@ -113,9 +118,13 @@ pub(super) fn fuse_for_ego(
     let mut out = Vec::new();
     for (a, id, truth_m) in real_detections(ego) {
         let own = measured(ego.obs, a);
-        let fused = partner[a]
+        let (fused, fused_cov) = partner[a]
             .and_then(|b| fuse(&[own, moved(&measured(peer.obs, b))]))
-            .map_or(own.position_m, |f| f.position_m);
+            .map_or((own.position_m, own.cov_m2), |f| (f.position_m, f.cov_m2));
+        let error_ego = fused - ego.truth.ego_pose.to_body(&truth_m);
+        let fused_nees = fused_cov.try_inverse().map_or(f64::NAN, |inv| {
+            (error_ego.transpose() * inv * error_ego)[(0, 0)]
+        });
         let matched = partner[a].is_some();
         out.push(ObjectEstimate {
             ego_id: ego.obs.ego_id.clone(),
@@ -128,6 +137,7 @@ pub(super) fn fuse_for_ego(
             truth_m,
             single_m: to_world(&own.position_m),
             fused_m: to_world(&fused),
+            fused_nees,
         });
     }
     out
@@ -346,6 +356,26 @@ mod tests {
             assert_eq!((v.views, v.seen_by), (2, 2));
             assert_eq!(v.fused_error_m, v.pairwise_error_m, "{v:?}");
             assert!(v.fused_error_m < v.single_error_m + 0.3);
+        }
+        // Each pairwise estimate's NEES is its error against the fused
+        // covariance (Eq. 16), whichever frame it is computed in.
+        for x in &two.pairs[0].fused[0].1 {
+            let k = objects
+                .iter()
+                .position(|o| o.0 == Some(x.object_id.as_str()))
+                .unwrap();
+            let (u, w) = if x.ego_id == "a" { (0, 1) } else { (1, 0) };
+            let world: Vec<Measurement> = [u, w]
+                .iter()
+                .map(|&v| measured(&frame.sensed[v].0, k).moved(&poses[v]))
+                .collect();
+            let f = fuse(&world).unwrap();
+            let e = f.position_m - objects[k].1;
+            let nees = (e.transpose() * f.cov_m2.try_inverse().unwrap() * e)[(0, 0)];
+            assert!(
+                (x.fused_nees - nees).abs() < 1e-9 * nees.max(1.0),
+                "{x:?} vs {nees}"
+            );
         }
         // Three vehicles: each ego fuses all three measurements, which is
         // the fusion of the three moved into the world frame.

@@ -505,6 +505,7 @@ mod tests {
                 truth_m,
                 single_m: truth_m + Vec2::new(sx, sy),
                 fused_m: truth_m + Vec2::new(fx, fy),
+                fused_nees: 2.0,
             },
         }
     }

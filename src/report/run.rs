@@ -26,6 +26,8 @@ pub struct ErrorSums {
     pub n: usize,
     pub single_m: f64,
     pub fused_m: f64,
+    /// Sum of the fused estimates' NEES (NaN once one is unknown).
+    pub fused_nees: f64,
 }
 
 impl ErrorSums {
@@ -33,6 +35,13 @@ impl ErrorSums {
         self.n += 1;
         self.single_m += e.single_error_m();
         self.fused_m += e.fused_error_m();
+        self.fused_nees += e.fused_nees;
+    }
+
+    /// Mean NEES of the fused estimates (2 when the claimed covariances
+    /// are honest); NaN for an empty set.
+    pub fn mean_fused_nees(&self) -> f64 {
+        self.mean(self.fused_nees)
     }
 
     /// Mean single-vehicle error; NaN for an empty set.

@@ -102,6 +102,7 @@ impl<'r, R> Columns<'r, R> {
             .stat(Metric::DeFused.column(), |r| &f(r).fused_m)
             .stat(Metric::DeSingleCovisible.column(), |r| &f(r).single_covis_m)
             .stat(Metric::DeFusedCovisible.column(), |r| &f(r).fused_covis_m)
+            .stat("nees_fused", |r| &f(r).fused_nees)
     }
 }
 
@@ -132,6 +133,8 @@ pub(super) struct ErrorStats {
     pub fused_m: Vec<f64>,
     pub single_covis_m: Vec<f64>,
     pub fused_covis_m: Vec<f64>,
+    /// The fused estimates' mean NEES (2 degrees of freedom).
+    pub fused_nees: Vec<f64>,
 }
 
 impl ErrorStats {
@@ -143,6 +146,7 @@ impl ErrorStats {
             fused_m: mean(|e| e.all.mean_fused_m()),
             single_covis_m: mean(|e| e.covisible.mean_single_m()),
             fused_covis_m: mean(|e| e.covisible.mean_fused_m()),
+            fused_nees: mean(|e| e.all.mean_fused_nees()),
         }
     }
 }
