@@ -410,3 +410,16 @@ fn every_key_named_in_messages_exists_in_the_defaults() {
     }
     assert!(named > 20, "only {named} keys found: the scan is broken");
 }
+
+#[test]
+fn every_shipped_config_loads() {
+    let mut n = 0;
+    for entry in std::fs::read_dir(defaults_dir()).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            Settings::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            n += 1;
+        }
+    }
+    assert!(n >= 4, "{n} configs");
+}
