@@ -72,7 +72,7 @@ fn exported_matches_reproduce_the_built_in_rows() {
     export(&fx, &config);
     let runs = read_parquet(&fx.path("ex/runs.parquet"));
     assert_eq!(strs(&runs, "split"), vec!["test", "test"]);
-    assert_eq!(f64s(&runs, "schema_version"), vec![2.0, 2.0]);
+    assert_eq!(f64s(&runs, "schema_version"), vec![3.0, 3.0]);
     let instances: f64 = f64s(&runs, "n_instances").iter().sum();
     assert!(instances > 0.0);
     let levels = read_parquet(&fx.path("ex/instances.parquet")).height() as f64;
@@ -82,7 +82,7 @@ fn exported_matches_reproduce_the_built_in_rows() {
         nodes.height(),
         read_parquet(&fx.path("ex/truth.parquet")).height()
     );
-    assert!(fx.read_text("ex/schema.md").contains("schema version 2"));
+    assert!(fx.read_text("ex/schema.md").contains("schema version 3"));
     assert_ok(&score(
         &fx,
         &config,
