@@ -9,7 +9,10 @@
 use std::collections::BTreeMap;
 
 use super::{MethodEval, PairAtLevel, Side};
-use crate::fusion::{FusionSettings, FusionVariant, Measurement, align, fuse, relative_pose_prior};
+use crate::fusion::{
+    FusionSettings, FusionVariant, Measurement, align, consistency_scale, fuse, hedged_covariance,
+    relative_pose_prior,
+};
 use crate::geometry::Vec2;
 use crate::sensor::{Observation, PoseNoiseLevel};
 
@@ -41,6 +44,12 @@ pub struct ObjectEstimate {
     /// fused), in the ego's frame. Its mean is 2 (the degrees of freedom)
     /// when every reported covariance is the truth and the match right.
     pub fused_nees: f64,
+    /// The same against the claim hedged by the match
+    /// ([`hedged_covariance`]): Eq. 16's scaled where the two measurements
+    /// disagree beyond chi2's 99 % ([`consistency_scale`]), mixed by the
+    /// method's probability that the match is right with what a wrong one
+    /// would leave.
+    pub fused_nees_hedged: f64,
 }
 
 impl ObjectEstimate {
@@ -106,25 +115,38 @@ pub(super) fn fuse_for_ego(
     ego: &Side,
     peer: &Side,
     pairs: &[(usize, usize)],
+    probabilities: &[f64],
     ctx: &FusionContext,
 ) -> Vec<ObjectEstimate> {
     let (refined, peer_pose) = peer_pose(ego, peer, pairs, ctx);
     let moved = |m: &Measurement| peer_pose.move_measurement(m);
     let mut partner: Vec<Option<usize>> = vec![None; ego.obs.detections.len()];
-    for &(a, b) in pairs {
+    let mut probability = vec![1.0; ego.obs.detections.len()];
+    for (&(a, b), &p) in pairs.iter().zip(probabilities) {
         partner[a] = Some(b);
+        probability[a] = p;
     }
     let to_world = |p: &Vec2| ego.truth.ego_pose.to_parent(p);
     let mut out = Vec::new();
     for (a, id, truth_m) in real_detections(ego) {
         let own = measured(ego.obs, a);
-        let (fused, fused_cov) = partner[a]
-            .and_then(|b| fuse(&[own, moved(&measured(peer.obs, b))]))
-            .map_or((own.position_m, own.cov_m2), |f| (f.position_m, f.cov_m2));
+        let (fused, fused_cov, hedged_cov) = partner[a]
+            .and_then(|b| {
+                let ms = [own, moved(&measured(peer.obs, b))];
+                fuse(&ms).map(|f| {
+                    let scale = consistency_scale(&ms, &f);
+                    let hedged = hedged_covariance(&own, &f, scale, probability[a]);
+                    (f.position_m, f.cov_m2, hedged)
+                })
+            })
+            .unwrap_or((own.position_m, own.cov_m2, own.cov_m2));
         let error_ego = fused - ego.truth.ego_pose.to_body(&truth_m);
-        let fused_nees = fused_cov.try_inverse().map_or(f64::NAN, |inv| {
-            (error_ego.transpose() * inv * error_ego)[(0, 0)]
-        });
+        let nees = |cov: &crate::geometry::Cov2| {
+            cov.try_inverse().map_or(f64::NAN, |inv| {
+                (error_ego.transpose() * inv * error_ego)[(0, 0)]
+            })
+        };
+        let fused_nees = nees(&fused_cov);
         let matched = partner[a].is_some();
         out.push(ObjectEstimate {
             ego_id: ego.obs.ego_id.clone(),
@@ -138,6 +160,7 @@ pub(super) fn fuse_for_ego(
             single_m: to_world(&own.position_m),
             fused_m: to_world(&fused),
             fused_nees,
+            fused_nees_hedged: nees(&hedged_cov),
         });
     }
     out
@@ -376,6 +399,10 @@ mod tests {
                 (x.fused_nees - nees).abs() < 1e-9 * nees.max(1.0),
                 "{x:?} vs {nees}"
             );
+            // The oracle's matches are certain: the hedged claim is Eq.
+            // 16's scaled by the pair's consistency.
+            let scale = consistency_scale(&world, &f);
+            assert!((x.fused_nees_hedged - nees / scale).abs() < 1e-9 * nees.max(1.0));
         }
         // Three vehicles: each ego fuses all three measurements, which is
         // the fusion of the three moved into the world frame.

@@ -41,13 +41,20 @@ pub(super) fn score(
     let counts = count_pairs(pair.first.truth, pair.second.truth, matches);
     let ab: Vec<(usize, usize)> = matches.iter().map(|c| (c.a, c.b)).collect();
     let ba: Vec<(usize, usize)> = matches.iter().map(|c| (c.b, c.a)).collect();
+    let probability: Vec<f64> = matches.iter().map(|c| c.probability).collect();
     let fused = fusion
         .variants
         .iter()
         .map(|&variant| {
             let ctx = FusionContext::new(&pair.level, variant, fusion);
-            let mut est = fuse_for_ego(&pair.first, &pair.second, &ab, &ctx);
-            est.extend(fuse_for_ego(&pair.second, &pair.first, &ba, &ctx));
+            let mut est = fuse_for_ego(&pair.first, &pair.second, &ab, &probability, &ctx);
+            est.extend(fuse_for_ego(
+                &pair.second,
+                &pair.first,
+                &ba,
+                &probability,
+                &ctx,
+            ));
             (variant, est)
         })
         .collect();

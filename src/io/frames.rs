@@ -506,6 +506,7 @@ mod tests {
                 single_m: truth_m + Vec2::new(sx, sy),
                 fused_m: truth_m + Vec2::new(fx, fy),
                 fused_nees: 2.0,
+                fused_nees_hedged: 2.0,
             },
         }
     }

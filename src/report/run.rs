@@ -28,6 +28,8 @@ pub struct ErrorSums {
     pub fused_m: f64,
     /// Sum of the fused estimates' NEES (NaN once one is unknown).
     pub fused_nees: f64,
+    /// Sum of their NEES against the claim hedged by the match.
+    pub fused_nees_hedged: f64,
 }
 
 impl ErrorSums {
@@ -36,12 +38,19 @@ impl ErrorSums {
         self.single_m += e.single_error_m();
         self.fused_m += e.fused_error_m();
         self.fused_nees += e.fused_nees;
+        self.fused_nees_hedged += e.fused_nees_hedged;
     }
 
     /// Mean NEES of the fused estimates (2 when the claimed covariances
     /// are honest); NaN for an empty set.
     pub fn mean_fused_nees(&self) -> f64 {
         self.mean(self.fused_nees)
+    }
+
+    /// Mean NEES against the claim hedged by the match
+    /// ([`crate::fusion::hedged_covariance`]); NaN for an empty set.
+    pub fn mean_fused_nees_hedged(&self) -> f64 {
+        self.mean(self.fused_nees_hedged)
     }
 
     /// Mean single-vehicle error; NaN for an empty set.

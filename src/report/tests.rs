@@ -101,6 +101,7 @@ fn summary_pools_counts_and_means_errors_over_objects() {
         single_m: Vec2::new(single, 0.0),
         fused_m: Vec2::new(0.0, fused),
         fused_nees: fused * fused,
+        fused_nees_hedged: fused * fused,
     };
     let mut s = Summary::default();
     let counts = |identified, correct, ground_truth| PairCounts {

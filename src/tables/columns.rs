@@ -103,6 +103,7 @@ impl<'r, R> Columns<'r, R> {
             .stat(Metric::DeSingleCovisible.column(), |r| &f(r).single_covis_m)
             .stat(Metric::DeFusedCovisible.column(), |r| &f(r).fused_covis_m)
             .stat("nees_fused", |r| &f(r).fused_nees)
+            .stat("nees_fused_hedged", |r| &f(r).fused_nees_hedged)
     }
 }
 
@@ -135,6 +136,8 @@ pub(super) struct ErrorStats {
     pub fused_covis_m: Vec<f64>,
     /// The fused estimates' mean NEES (2 degrees of freedom).
     pub fused_nees: Vec<f64>,
+    /// The same against the claim hedged by the match.
+    pub fused_nees_hedged: Vec<f64>,
 }
 
 impl ErrorStats {
@@ -147,6 +150,7 @@ impl ErrorStats {
             single_covis_m: mean(|e| e.covisible.mean_single_m()),
             fused_covis_m: mean(|e| e.covisible.mean_fused_m()),
             fused_nees: mean(|e| e.all.mean_fused_nees()),
+            fused_nees_hedged: mean(|e| e.all.mean_fused_nees_hedged()),
         }
     }
 }

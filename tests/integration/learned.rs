@@ -172,6 +172,20 @@ fn shipped_model_beats_gps_appearance_hungarian_at_gps_noise() {
     ] {
         assert!(fx.path("ev").join(f).is_file(), "{f} missing");
     }
+    // The claim hedged by the match is never tighter than Eq. 16's (the
+    // mixture holds Eq. 16's covariance and wider ones), so its NEES is
+    // never larger; both are measured for every row.
+    let errors = read_csv(&fx.path("ev/errors.csv"));
+    let (eq16, hedged) = (
+        f64s(&errors, "nees_fused"),
+        f64s(&errors, "nees_fused_hedged"),
+    );
+    for (k, name) in strs(&errors, "method").iter().enumerate() {
+        assert!(
+            hedged[k] > 0.0 && hedged[k] <= eq16[k] * (1.0 + 1e-9),
+            "{name}: {hedged:?} {eq16:?}"
+        );
+    }
     let cal = read_csv(&fx.path("ev/calibration.csv"));
     for c in ["method", "pose_noise", "ece", "brier", "auroc"] {
         assert!(cal.column(c).is_ok(), "calibration.csv lacks {c}");
