@@ -2,7 +2,12 @@
 //! MC-dropout inference with T = 20 samples (a pair whose vehicles are new,
 //! and a pair whose vehicles' embeddings are already computed), and one
 //! training step on a batch of 32 pairs of 8-25 nodes, 2 samples each (the
-//! shipped training settings).
+//! shipped training settings). Beside the times, the arithmetic: the
+//! multiply-adds the network's shapes imply (`matching::deep::cost`) and
+//! the machine's single-thread f32 matrix-multiply peak (the `gemm` crate
+//! burn's CPU backend uses: the best of square products of 256 to 1024,
+//! and the rate at the second layer's own shape), with the share of the
+//! peak each part achieves.
 //! `cargo bench --bench matcher` (prints medians over repeated runs).
 
 use std::time::Instant;
@@ -10,6 +15,7 @@ use std::time::Instant;
 use coid_sim::geometry::{Cov2, Pose2, Vec2};
 use coid_sim::graph::SceneGraph;
 use coid_sim::matching::deep::arch::{Architecture, MaskScope, PairLoss};
+use coid_sim::matching::deep::cost::{GraphShape, inference_macs};
 use coid_sim::matching::deep::decision::Decision;
 use coid_sim::matching::deep::train::{Example, Prepared, TrainOptions, Trainer, example};
 use coid_sim::matching::deep::{DeepMatcher, Inference};
@@ -49,6 +55,47 @@ fn detections(pose: &Pose2, objects: &[(Vec2, ObjectClass)]) -> Vec<Detection> {
             motion: None,
         })
         .collect()
+}
+
+/// The best of `reps` single-thread f32 products `[m, k] x [k, n]`
+/// (row-major, gemm), in GFLOP/s (2 m k n per product).
+fn gemm_gflops(m: usize, k: usize, n: usize, reps: usize) -> f64 {
+    let lhs: Vec<f32> = (0..m * k).map(|i| (i % 7) as f32 * 0.1).collect();
+    let rhs: Vec<f32> = (0..k * n).map(|i| (i % 5) as f32 * 0.1).collect();
+    let mut dst = vec![0f32; m * n];
+    let mut best = f64::INFINITY;
+    for _ in 0..reps {
+        let t = Instant::now();
+        // SAFETY: the three buffers hold m x k, k x n and m x n f32s,
+        // row-major (column stride 1, row stride the column count), and
+        // do not overlap.
+        unsafe {
+            gemm::gemm(
+                m,
+                n,
+                k,
+                dst.as_mut_ptr(),
+                1,
+                n as isize,
+                false,
+                lhs.as_ptr(),
+                1,
+                k as isize,
+                rhs.as_ptr(),
+                1,
+                n as isize,
+                0.0,
+                1.0,
+                false,
+                false,
+                false,
+                gemm::Parallelism::None,
+            );
+        }
+        best = best.min(t.elapsed().as_secs_f64());
+        std::hint::black_box(&dst);
+    }
+    2.0 * (m * k * n) as f64 / best / 1e9
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -95,32 +142,68 @@ fn main() {
     let per_pair = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run)
         .without_shared_embeddings();
     let relative = gps_relative_pose(&va, &vb);
-    let median_ms = |m: &DeepMatcher| {
-        let mut times = Vec::new();
-        for k in 0..60 {
+    // Both vehicles already embedded in this frame (another pair of theirs):
+    // only the pair part (consensus, GPS term, Sinkhorn) is computed. The
+    // two are timed in turn, so that a busy machine slows both alike.
+    let shared = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run);
+    let (mut new_times, mut shared_times) = (Vec::new(), Vec::new());
+    for k in 0..60 {
+        for (m, times) in [(&per_pair, &mut new_times), (&shared, &mut shared_times)] {
             let t = Instant::now();
             std::hint::black_box(m.distribution(&va, &vb, &relative));
             if k >= 10 {
                 times.push(t.elapsed().as_secs_f64() * 1e3);
             }
         }
-        median(times)
-    };
-    println!(
-        "inference, T = 20, {} x {} nodes: median {:.2} ms",
-        da.len(),
-        db.len(),
-        median_ms(&per_pair)
-    );
-    // Both vehicles already embedded in this frame (another pair of theirs):
-    // only the pair part (consensus, GPS term, Sinkhorn) is computed.
-    let shared = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run);
-    println!(
-        "inference, T = 20, both embeddings shared: median {:.2} ms",
-        median_ms(&shared)
-    );
+    }
+    let (new_ms, shared_ms) = (median(new_times), median(shared_times));
+    against_the_peak(&va, &vb, new_ms, shared_ms);
 
     training_step(&mut rng, level, (pa, pb));
+}
+
+/// The inference times against the arithmetic they do: the multiply-adds
+/// counted from the network's shapes, and the matrix-multiply peak.
+fn against_the_peak(va: &MatchView, vb: &MatchView, new_ms: f64, shared_ms: f64) {
+    // The peak: the best of large square products (cache sizes differ).
+    let peak = [256, 512, 1024]
+        .into_iter()
+        .map(|n| gemm_gflops(n, n, n, 4_000_000_000 / (n * n * n) + 5))
+        .fold(0.0, f64::max);
+    let (sa, sb) = (GraphShape::of(va), GraphShape::of(vb));
+    let at_shape = gemm_gflops(sa.nodes * 20, 256, sa.cells * 32, 200);
+    println!(
+        "f32 matrix multiply, one thread (gemm): peak {peak:.1} GFLOP/s (best of 256^3 to 1024^3); \
+         {at_shape:.1} GFLOP/s at the second layer's cell product {} x 256 x {}",
+        sa.nodes * 20,
+        sa.cells * 32
+    );
+    let macs = inference_macs(&Architecture::default(), sa, sb, 20);
+    let rate = |macs: u64, ms: f64| {
+        let gflops = 2.0 * macs as f64 / (ms * 1e6);
+        format!(
+            "{:.1} MFLOP counted, {gflops:.1} GFLOP/s, {:.0} % of peak",
+            2.0 * macs as f64 / 1e6,
+            100.0 * gflops / peak
+        )
+    };
+    println!(
+        "inference, T = 20, {} x {} nodes ({} and {} kernel cells): median {new_ms:.2} ms ({})",
+        sa.nodes,
+        sb.nodes,
+        sa.cells,
+        sb.cells,
+        rate(macs.new_pair(), new_ms)
+    );
+    println!(
+        "  of which both embeddings (new pair - shared): {:.2} ms ({})",
+        new_ms - shared_ms,
+        rate(macs.embeddings[0] + macs.embeddings[1], new_ms - shared_ms)
+    );
+    println!(
+        "inference, T = 20, both embeddings shared: median {shared_ms:.2} ms ({})",
+        rate(macs.shared_pair(), shared_ms)
+    );
 }
 
 /// The median time of one training step on 32 pairs of 8-25 nodes.

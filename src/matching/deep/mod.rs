@@ -8,7 +8,8 @@
 //! One job per file. Plain Rust: `arch` (what each deep method is, as
 //! [`arch::DeepMethod`]: architecture, loss terms), `features` (what
 //! the network sees), `decision` (E[Y], uncertainty, decision rules),
-//! `examples` (labelled training pairs). Tensors (burn), and only here:
+//! `examples` (labelled training pairs), `cost` (the multiply-adds of one
+//! inference, counted from the network's shapes). Tensors (burn), and only here:
 //! `init` (seeded weights), `spline` (graphs as tensors, the SplineCNN
 //! layer), `network` (embeddings, pair scores), `masks` (dropout),
 //! `sinkhorn`, `loss`, `weights` (to and from bytes), `train` (fitting)
@@ -21,6 +22,7 @@
 //! (`io`).
 
 pub mod arch;
+pub mod cost;
 pub mod decision;
 mod examples;
 pub mod features;

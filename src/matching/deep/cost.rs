@@ -1,0 +1,162 @@
+//! The arithmetic of one MC-dropout inference, counted from the shapes of
+//! [`super::network::Network`]'s products: multiply-adds (MACs) of the
+//! matrix products (and of Sinkhorn's kernel products), per stage. Element
+//! work (biases, ReLU, masks, softmax) is left out: it is a few per cent.
+//! `cargo bench --bench matcher` holds the measured time against it and
+//! against the machine's matrix-multiply peak.
+//!
+//! Every count follows the products as the network computes them today:
+//! dense neighbour mixing over the `C` kernel cells the graph uses
+//! (`spline.rs`), the first layer once for all samples, the second per
+//! sample, consensus on the first graph's indicators once and on the
+//! second's per sample.
+
+use super::arch::Architecture;
+use super::features::{DUST_FEATURES, KERNEL_2D, PAIR_FEATURES, graph_input};
+use crate::matching::MatchView;
+
+/// One graph as the network sees it: its nodes and the kernel cells its
+/// edges use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GraphShape {
+    pub nodes: usize,
+    pub cells: usize,
+}
+
+impl GraphShape {
+    /// A vehicle's view as the matcher builds its graph: the kernel cells
+    /// of every edge's basis.
+    pub fn of(view: &MatchView) -> Self {
+        let g = graph_input(view.detections, view.graph, &view.pose_reported);
+        let mut used = [false; KERNEL_2D];
+        for &k in &g.basis_index {
+            used[k as usize] = true;
+        }
+        Self {
+            nodes: g.n,
+            cells: used.iter().filter(|&&u| u).count(),
+        }
+    }
+}
+
+/// Multiply-adds of one inference, per stage.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct InferenceMacs {
+    /// The node embeddings of each graph (both spline convolutions).
+    pub embeddings: [u64; 2],
+    /// Pair and "no match" MLPs, similarity, consensus.
+    pub pair: u64,
+    /// Sinkhorn's kernel products, every iteration and sample.
+    pub sinkhorn: u64,
+}
+
+impl InferenceMacs {
+    /// A pair whose vehicles are new: both embeddings and the pair part.
+    pub fn new_pair(&self) -> u64 {
+        self.embeddings[0] + self.embeddings[1] + self.shared_pair()
+    }
+
+    /// A pair whose vehicles are already embedded: the pair part alone.
+    pub fn shared_pair(&self) -> u64 {
+        self.pair + self.sinkhorn
+    }
+}
+
+/// The MACs of `ours`'s network ([`Architecture`]) on graphs `first` and
+/// `second` with `samples` MC-dropout samples.
+pub fn inference_macs(
+    arch: &Architecture,
+    first: GraphShape,
+    second: GraphShape,
+    samples: usize,
+) -> InferenceMacs {
+    let t = samples as u64;
+    let (n1, n2) = (first.nodes as u64, second.nodes as u64);
+    let embed = |g: GraphShape| {
+        spline_conv(1, g, arch.node_features, arch.hidden)
+            + spline_conv(t, g, arch.hidden, arch.out)
+    };
+    let hp = arch.pair_hidden as u64;
+    let mlps =
+        n1 * n2 * (PAIR_FEATURES as u64 * hp + hp) + (n1 + n2) * (DUST_FEATURES as u64 * hp + hp);
+    let similarity = t * n1 * n2 * arch.out as u64;
+    let consensus = if arch.consensus {
+        let r = arch.consensus_dim as u64;
+        t * n2 * n1 * r // soft^T r1
+            + spline_conv(1, first, arch.consensus_dim, arch.consensus_dim)
+            + spline_conv(t, second, arch.consensus_dim, arch.consensus_dim)
+            + t * n1 * n2 * (r * r + r) // phi_in, phi_out
+    } else {
+        0
+    };
+    InferenceMacs {
+        embeddings: [embed(first), embed(second)],
+        pair: mlps + similarity + consensus,
+        sinkhorn: t * arch.sinkhorn_iters as u64 * 2 * (n1 + 1) * (n2 + 1),
+    }
+}
+
+/// One spline convolution on `rows` copies of graph `g` (1: once for all
+/// samples; T: per sample): the root product and, in the order the layer
+/// takes ([`super::spline`]: mix the inputs first when they are narrower
+/// than the outputs), the cell weights and the dense neighbour mixing.
+fn spline_conv(rows: u64, g: GraphShape, d_in: usize, d_out: usize) -> u64 {
+    let (n, c, i, o) = (g.nodes as u64, g.cells as u64, d_in as u64, d_out as u64);
+    let root = n * i * o;
+    let cells = n * c * i * o;
+    let mixing = if d_in < d_out {
+        n * c * n * i
+    } else {
+        n * n * c * o
+    };
+    rows * (root + cells + mixing)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bench's pair (20 and 18 nodes, 23 cells each, T = 20) counted
+    /// by hand from the products' shapes, stage by stage (conv1 root,
+    /// mixing, cells; conv2 root, cells, mixing; MLPs, similarity,
+    /// consensus, Sinkhorn).
+    #[test]
+    fn the_bench_pair_costs_what_its_shapes_say() {
+        let arch = Architecture::default();
+        let a = GraphShape {
+            nodes: 20,
+            cells: 23,
+        };
+        let b = GraphShape {
+            nodes: 18,
+            cells: 23,
+        };
+        let m = inference_macs(&arch, a, b, 20);
+        let conv1 = |n: u64| n * 13 * 256 + n * 23 * n * 13 + n * 23 * 13 * 256;
+        let conv2 = |n: u64| 20 * (n * 256 * 32 + n * 256 * 23 * 32 + n * n * 23 * 32);
+        assert_eq!(m.embeddings, [conv1(20) + conv2(20), conv1(18) + conv2(18)]);
+        assert_eq!(m.embeddings, [86_248_240, 77_082_732]);
+        let cons = |rows: u64, n: u64| rows * (n * 32 * 32 + n * 23 * 32 * 32 + n * n * 23 * 32);
+        let pair = 20 * 18 * (12 * 32 + 32)
+            + 38 * (13 * 32 + 32)
+            + 20 * 20 * 18 * 32
+            + 20 * 18 * 20 * 32
+            + cons(1, 20)
+            + cons(20, 18)
+            + 20 * 20 * 18 * (32 * 32 + 32);
+        assert_eq!(m.pair, pair);
+        assert_eq!(m.sinkhorn, 20 * 20 * 2 * 21 * 19);
+        assert_eq!(m.shared_pair(), 22_952_544);
+        assert_eq!(m.new_pair(), 186_283_516);
+        // Without consensus only the MLPs and the similarity remain.
+        let plain = Architecture {
+            consensus: false,
+            ..arch
+        };
+        let p = inference_macs(&plain, a, b, 20);
+        assert_eq!(
+            p.pair,
+            20 * 18 * (12 * 32 + 32) + 38 * (13 * 32 + 32) + 20 * 20 * 18 * 32
+        );
+    }
+}
