@@ -21,6 +21,8 @@ use crate::matching::MatchView;
 pub struct GraphShape {
     pub nodes: usize,
     pub cells: usize,
+    /// Directed edges.
+    pub edges: usize,
 }
 
 impl GraphShape {
@@ -35,6 +37,7 @@ impl GraphShape {
         Self {
             nodes: g.n,
             cells: used.iter().filter(|&&u| u).count(),
+            edges: g.edge_count(),
         }
     }
 }
@@ -96,6 +99,18 @@ pub fn inference_macs(
     }
 }
 
+/// The expected multiply-adds of graph `g`'s embedding with the second
+/// layer in plain Rust under shared masks ([`super::shared_conv`]): the
+/// first layer as the tensors do it, then per sample only the kept input
+/// units (a share `1 - p` of them) times the kept outputs of the root and
+/// every kernel cell, and the mixing along the edges (4 cells each).
+pub fn plain_embedding_macs(arch: &Architecture, g: GraphShape, samples: usize) -> f64 {
+    let keep = 1.0 - arch.dropout_conv;
+    let (k, o) = (keep * arch.hidden as f64, keep * arch.out as f64);
+    let per_sample = g.nodes as f64 * k * (1 + KERNEL_2D) as f64 * o + 4.0 * g.edges as f64 * o;
+    spline_conv(1, g, arch.node_features, arch.hidden) as f64 + samples as f64 * per_sample
+}
+
 /// One spline convolution on `rows` copies of graph `g` (1: once for all
 /// samples; T: per sample): the root product and, in the order the layer
 /// takes ([`super::spline`]: mix the inputs first when they are narrower
@@ -126,10 +141,12 @@ mod tests {
         let a = GraphShape {
             nodes: 20,
             cells: 23,
+            edges: 98,
         };
         let b = GraphShape {
             nodes: 18,
             cells: 23,
+            edges: 86,
         };
         let m = inference_macs(&arch, a, b, 20);
         let conv1 = |n: u64| n * 13 * 256 + n * 23 * n * 13 + n * 23 * 13 * 256;

@@ -155,6 +155,20 @@ pub(super) fn draw_embedding_masks(
     )
 }
 
+/// The values of [`draw_embedding_masks`]'s shared masks (`[t, hidden]`
+/// and `[t, out]`, drawn in the same order from the same stream): what
+/// the plain second layer ([`super::shared_conv`]) multiplies with.
+pub(super) fn shared_embedding_mask_values(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    t: usize,
+) -> (Vec<f32>, Vec<f32>) {
+    let p = arch.dropout_conv;
+    let m1 = dropout_mask_16(rng, t * arch.hidden, p);
+    let m2 = dropout_mask_16(rng, t * arch.out, p);
+    (m1, m2)
+}
+
 /// The consensus MLP's dropout mask of one pair at inference, `[1, t,
 /// n1, n2, consensus_dim]`: per pair entry and unit, or one per sample and
 /// unit ([`MaskScope::Shared`], from a stream the same for every pair).

@@ -19,8 +19,10 @@ use super::features::{GraphInput, graph_input, pair_input};
 use super::init::Init;
 use super::masks::{
     MaskDraw, PairMasks, draw_embedding_masks, draw_pair_masks, draw_phi_mask, dropout_mask_16,
+    shared_embedding_mask_values,
 };
 use super::network::{Combination, Network, PairTensors};
+use super::shared_conv::SharedMaskConv;
 use super::sinkhorn::sinkhorn_probabilities;
 use super::spline::{CellWeights, GraphBatch};
 use super::weights::{from_bytes, to_bytes};
@@ -103,6 +105,9 @@ pub struct PairSamples {
     pub mean_scores: Vec<Option<f64>>,
 }
 
+/// The plain second layer with the (samples, seed) of its masks.
+type KeptLayer = ((usize, u64), Arc<SharedMaskConv>);
+
 /// A trained deep matcher with MC-dropout inference.
 pub struct DeepMatcher {
     pub method: Method,
@@ -130,6 +135,12 @@ pub struct DeepMatcher {
     /// The network's scalar parameters, read once.
     combination: Combination,
     cache: Mutex<EmbeddingCache>,
+    /// Whether the second layer runs in plain Rust under shared masks
+    /// ([`SharedMaskConv`]); else through the tensors, as in training.
+    plain_second_layer: bool,
+    /// That layer under this matcher's shared masks, built at first use
+    /// for its (samples, seed).
+    second_layer: Mutex<Option<KeptLayer>>,
 }
 
 /// How a deep matcher runs (beyond its weights).
@@ -176,7 +187,37 @@ impl DeepMatcher {
             cache: Mutex::default(),
             cell_weights: Mutex::default(),
             combination,
+            plain_second_layer: true,
+            second_layer: Mutex::default(),
         }
+    }
+
+    /// Runs the second spline layer through the tensors, as training
+    /// does: the reference the plain path is held equal to.
+    pub fn with_tensor_second_layer(mut self) -> Self {
+        self.plain_second_layer = false;
+        self
+    }
+
+    /// The second layer under this matcher's shared masks, when it runs
+    /// in plain Rust: the masks are the same for every graph, so their
+    /// kept weights are gathered once.
+    fn plain_second_layer(&self) -> Option<Arc<SharedMaskConv>> {
+        if !self.plain_second_layer || self.masks != MaskScope::Shared {
+            return None;
+        }
+        let key = (self.samples, self.seed);
+        let mut kept = self.second_layer.lock().ok()?;
+        if let Some((k, layer)) = kept.as_ref()
+            && *k == key
+        {
+            return Some(Arc::clone(layer));
+        }
+        let mut stream = rng::stream(self.seed, Purpose::EmbeddingDropout, &[SHARED_MASKS_KEY]);
+        let (m1, m2) = shared_embedding_mask_values(&mut stream, &self.arch, self.samples);
+        let layer = Arc::new(SharedMaskConv::new(&self.net.second_layer(), &m1, &m2));
+        *kept = Some((key, Arc::clone(&layer)));
+        Some(layer)
     }
 
     /// Computes every pair's embeddings afresh (the per-pair path; results
@@ -193,21 +234,80 @@ impl DeepMatcher {
 
     /// One vehicle's embedding: from the cache, or computed with the
     /// conv dropout masks of its own stream (keyed by its input).
+    #[cfg(test)]
     fn embedding(&self, view: &MatchView) -> Arc<Embedded> {
-        let input = graph_input(view.detections, view.graph, &view.pose_reported);
-        let key = embedding_key(&input, self.samples);
-        if self.share_embeddings
-            && let Ok(mut cache) = self.cache.lock()
-            && let Some(e) = cache.entries.get(&key).cloned()
-        {
-            cache.hits += 1;
-            return e;
+        let [e] = self.embeddings([view]);
+        e
+    }
+
+    /// Each view's embedding, from the cache or computed; with the plain
+    /// second layer, those not cached go through it together, so that
+    /// each sample's weights are read once for all of them.
+    fn embeddings<const K: usize>(&self, views: [&MatchView; K]) -> [Arc<Embedded>; K] {
+        let inputs = views.map(|v| graph_input(v.detections, v.graph, &v.pose_reported));
+        let keys = inputs.each_ref().map(|i| embedding_key(i, self.samples));
+        let mut found = keys.map(|k| self.cached(k));
+        let missing: Vec<usize> = (0..K).filter(|&k| found[k].is_none()).collect();
+        let graphs: Vec<GraphBatch> = missing.iter().map(|&k| self.graph(&inputs[k])).collect();
+        let hs: Vec<Tensor<4>> = if let Some(second) = self.plain_second_layer() {
+            let firsts: Vec<Vec<f32>> = graphs.iter().map(|g| self.net.first_layer(g)).collect();
+            let layers: Vec<(&[f32], &GraphInput)> = firsts
+                .iter()
+                .zip(&missing)
+                .map(|(h, &k)| (h.as_slice(), &inputs[k]))
+                .collect();
+            let out = second.forward_many(&layers);
+            out.into_iter()
+                .zip(&missing)
+                .map(|(h, &k)| {
+                    let shape = [1, self.samples, inputs[k].n, self.arch.out];
+                    Tensor::from_data(TensorData::new(h, shape), &self.device)
+                })
+                .collect()
+        } else {
+            graphs
+                .iter()
+                .zip(&missing)
+                .map(|(g, &k)| self.tensor_embedding(g, &inputs[k], keys[k]))
+                .collect()
+        };
+        for ((graph, h), &k) in graphs.into_iter().zip(hs).zip(&missing) {
+            let e = Arc::new(Embedded { graph, h });
+            if self.share_embeddings
+                && let Ok(mut cache) = self.cache.lock()
+            {
+                if cache.entries.len() >= CACHE_CAPACITY {
+                    cache.entries.clear();
+                }
+                cache.entries.insert(keys[k], Arc::clone(&e));
+            }
+            found[k] = Some(e);
         }
-        let graph = GraphBatch::used_cells(&input, &self.device);
-        let graph = match self.cell_weights(&graph) {
+        found.map(|e| e.expect("every embedding found or computed"))
+    }
+
+    /// The embedding under `key` if it is kept.
+    fn cached(&self, key: u64) -> Option<Arc<Embedded>> {
+        if !self.share_embeddings {
+            return None;
+        }
+        let mut cache = self.cache.lock().ok()?;
+        let e = cache.entries.get(&key).cloned()?;
+        cache.hits += 1;
+        Some(e)
+    }
+
+    /// A graph as tensors with its kept cell weights.
+    fn graph(&self, input: &GraphInput) -> GraphBatch {
+        let graph = GraphBatch::used_cells(input, &self.device);
+        match self.cell_weights(&graph) {
             Some(weights) => graph.with_weights(weights),
             None => graph,
-        };
+        }
+    }
+
+    /// The embedding through the tensors with the masks of its stream.
+    fn tensor_embedding(&self, graph: &GraphBatch, input: &GraphInput, key: u64) -> Tensor<4> {
         // Shared masks: one stream for every graph, so that sample t is
         // one draw of the weights wherever it is used.
         let stream_key = match self.masks {
@@ -222,17 +322,7 @@ impl DeepMatcher {
             self.masks,
             &self.device,
         );
-        let h = self.net.embed(&graph, m1, m2);
-        let e = Arc::new(Embedded { graph, h });
-        if self.share_embeddings
-            && let Ok(mut cache) = self.cache.lock()
-        {
-            if cache.entries.len() >= CACHE_CAPACITY {
-                cache.entries.clear();
-            }
-            cache.entries.insert(key, Arc::clone(&e));
-        }
-        e
+        self.net.embed(graph, m1, m2)
     }
 
     /// The spline layers' weights of `graph`'s kernel cells, kept per cell
@@ -340,7 +430,7 @@ impl DeepMatcher {
             second.detections.len(),
             self.samples,
         );
-        let (e1, e2) = (self.embedding(first), self.embedding(second));
+        let [e1, e2] = self.embeddings([first, second]);
         let input = pair_input(first, second, relative, &self.terms);
         let tensors = PairTensors::new(&[&input], [n1, n2], &self.device);
         let masks = self.pair_masks(first, second);
@@ -566,6 +656,91 @@ mod tests {
         // gcn-gm (as published) is not this network at all.
         let e = DeepMatcher::from_weights(DeepMethod::GcnGm, &m.weights().unwrap(), RUN);
         assert!(e.is_err());
+    }
+
+    /// The plain second layer under shared masks against the tensor path
+    /// (the reference, as training runs it), on graphs of 8, 9, 2 and 1
+    /// nodes (the last has no edge): every sample's embedding within 1e-5
+    /// of the largest of its magnitude and 1, the MC assignments and mean
+    /// scores within 1e-5, and the same correspondences.
+    #[test]
+    fn the_plain_second_layer_equals_the_tensor_one() {
+        let shared = |plain: bool| {
+            let mut m = opened(Architecture::default(), 5);
+            m.masks = MaskScope::Shared;
+            if plain {
+                m
+            } else {
+                m.with_tensor_second_layer()
+            }
+        };
+        let (plain, tensor) = (shared(true), shared(false));
+        let objects = testkit::world_objects();
+        let side = |at, order: &[usize]| Side::of(at, &objects, order, GPS);
+        let scenes = [
+            testkit::moved_copy(),
+            (side(testkit::POSE_A, &[0, 1, 2, 3, 4, 5, 6, 7]), queue()),
+            (side(testkit::POSE_A, &[0, 3]), side(testkit::POSE_B, &[3])),
+        ];
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-5 * a.abs().max(1.0);
+        for (a, b) in &scenes {
+            let (va, vb) = (a.view(), b.view());
+            for v in [&va, &vb] {
+                let h =
+                    |m: &DeepMatcher| m.embedding(v).h.clone().try_into_vec_as::<f32>().unwrap();
+                let (hp, ht) = (h(&plain), h(&tensor));
+                assert_eq!(hp.len(), ht.len());
+                for (x, y) in hp.iter().zip(&ht) {
+                    assert!(close(f64::from(*x), f64::from(*y)), "{x} vs {y}");
+                }
+            }
+            let relative = crate::matching::gps_relative_pose(&va, &vb);
+            let (sp, st) = (
+                plain.samples(&va, &vb, &relative),
+                tensor.samples(&va, &vb, &relative),
+            );
+            for (p, t) in sp
+                .assignments
+                .iter()
+                .flatten()
+                .zip(st.assignments.iter().flatten())
+            {
+                assert!(close(f64::from(*p), f64::from(*t)), "{p} vs {t}");
+            }
+            for (p, t) in sp.mean_scores.iter().zip(&st.mean_scores) {
+                assert_eq!(p.is_some(), t.is_some());
+                if let (Some(p), Some(t)) = (p, t) {
+                    assert!(close(*p, *t), "{p} vs {t}");
+                }
+            }
+            assert_eq!(
+                plain.identify(&va, &vb).matches,
+                tensor.identify(&va, &vb).matches
+            );
+        }
+        // A single node: no edge, the root alone.
+        let one = side(testkit::POSE_A, &[4]);
+        let h = |m: &DeepMatcher| {
+            m.embedding(&one.view())
+                .h
+                .clone()
+                .try_into_vec_as::<f32>()
+                .unwrap()
+        };
+        for (x, y) in h(&plain).iter().zip(&h(&tensor)) {
+            assert!(close(f64::from(*x), f64::from(*y)), "{x} vs {y}");
+        }
+    }
+
+    /// The queue scene seen from the second fixture pose.
+    fn queue() -> Side {
+        let scene = queue_scene();
+        Side::of(
+            testkit::POSE_B,
+            &scene,
+            &(0..scene.len()).collect::<Vec<_>>(),
+            GPS,
+        )
     }
 
     /// A queue of six cars 5.5 m apart (colours differ), a pedestrian, a

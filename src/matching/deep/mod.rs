@@ -13,7 +13,9 @@
 //! `init` (seeded weights), `spline` (graphs as tensors, the SplineCNN
 //! layer), `network` (embeddings, pair scores), `masks` (dropout),
 //! `sinkhorn`, `loss`, `weights` (to and from bytes), `train` (fitting)
-//! and `matcher` ([`DeepMatcher`], inference). `published`: GCN-GM and
+//! and `matcher` ([`DeepMatcher`], inference). `shared_conv`: the second
+//! spline layer at inference under shared masks in plain Rust (the gemm
+//! crate), without the arithmetic the masks drop. `published`: GCN-GM and
 //! DGMC as published (issue 33), on the paper's inputs only (no GPS pose,
 //! no heading, no likelihood prior); they share only the node attributes,
 //! the seeded initialisation, the mask draw and Sinkhorn with the rest. Callers get
@@ -32,6 +34,7 @@ mod masks;
 mod matcher;
 mod network;
 pub mod published;
+mod shared_conv;
 mod sinkhorn;
 mod spline;
 pub mod train;

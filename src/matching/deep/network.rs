@@ -204,6 +204,19 @@ impl Network {
         activation::relu(self.conv2.forward(h, g, w.map(|w| &w.conv2))) * mask2
     }
 
+    /// The first layer's output `relu(conv1(x))` of a single graph, `[n,
+    /// hidden]` row-major: the same for every sample.
+    pub fn first_layer(&self, g: &GraphBatch) -> Vec<f32> {
+        let w = g.weights.as_deref();
+        let h = activation::relu(self.conv1.forward(g.x.clone(), g, w.map(|w| &w.conv1)));
+        h.try_into_vec_as::<f32>().unwrap_or_default()
+    }
+
+    /// The second layer's parameters as plain numbers.
+    pub fn second_layer(&self) -> super::shared_conv::PlainSpline {
+        self.conv2.plain()
+    }
+
     /// Every spline layer's weights of the kernel cells of `g`, for
     /// [`GraphBatch::with_weights`] on graphs with the same cells.
     pub fn cell_weights(&self, g: &GraphBatch) -> CellWeights {

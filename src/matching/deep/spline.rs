@@ -205,6 +205,18 @@ impl SplineConv {
         root + messages + bias
     }
 
+    /// The parameters as plain numbers (inference outside tensors).
+    pub(super) fn plain(&self) -> super::shared_conv::PlainSpline {
+        let read = |t: Tensor<2>| t.try_into_vec_as::<f32>().unwrap_or_default();
+        super::shared_conv::PlainSpline {
+            d_in: self.root.val().dims()[0],
+            d_out: self.d_out,
+            root: read(self.root.val()),
+            weight: read(self.weight.val()),
+            bias: self.bias.val().try_into_vec_as::<f32>().unwrap_or_default(),
+        }
+    }
+
     /// The kernel cells' weight matrices, `[in, KERNEL_2D * out]`.
     #[cfg(test)]
     pub(super) fn weight(&self) -> Tensor<2> {

@@ -1,0 +1,213 @@
+//! The second spline convolution at inference under shared dropout masks
+//! (Eq. 8: one mask per sample over a layer's units, the same for every
+//! node of every graph), in plain Rust: the arithmetic the masks make
+//! unnecessary is not done. [`super::network::Network::embed`] is the
+//! reference it is held equal to (the tests), and what training and
+//! per-node masks use.
+//!
+//! In sample `t` a dropped input unit contributes nothing and a dropped
+//! output unit is zeroed after the ReLU, so only the kept rows and columns
+//! of the root and cell weights are multiplied: `[n, K_t] x [K_t, (1 +
+//! 25) O_t]` (`K_t` about 0.6 of 256 and `O_t` 0.6 of 32), against the
+//! dense `[T n, 256] x [256, C 32]` of the tensor path. The weights of
+//! each sample are gathered once per matcher (the masks are the same for
+//! every graph) and every kernel cell is computed, so a graph's own cell
+//! set needs no other copy. The neighbours are then mixed along the
+//! edges (4 cells per edge) instead of through a dense `n x n C` matrix.
+
+use super::features::{GraphInput, KERNEL_2D};
+
+/// One sample's kept units and weights.
+struct Sample {
+    /// Kept input units (ascending) and the mask's value on them.
+    kept_in: Vec<usize>,
+    in_scale: f32,
+    /// Kept output units (ascending) and the mask's value on them.
+    kept_out: Vec<usize>,
+    out_scale: f32,
+    /// `[K_t, (1 + KERNEL_2D) O_t]`, row-major: per kept input unit, the
+    /// root's kept outputs, then each kernel cell's.
+    weights: Vec<f32>,
+    /// The bias of the kept outputs.
+    bias: Vec<f32>,
+}
+
+/// A spline layer's weights under `T` shared masks (`relu(conv(h m1)) m2`).
+pub(super) struct SharedMaskConv {
+    d_in: usize,
+    d_out: usize,
+    samples: Vec<Sample>,
+}
+
+/// A layer's parameters as plain numbers: `root` `[in, out]`, `weight`
+/// `[in, KERNEL_2D * out]` (cell-major within a row), `bias` `[out]`.
+pub(super) struct PlainSpline {
+    pub d_in: usize,
+    pub d_out: usize,
+    pub root: Vec<f32>,
+    pub weight: Vec<f32>,
+    pub bias: Vec<f32>,
+}
+
+impl SharedMaskConv {
+    /// The layer `p` under the masks `mask_in` (`[T, in]`) and `mask_out`
+    /// (`[T, out]`), each unit's value 0 (dropped) or the sample's scale.
+    pub(super) fn new(p: &PlainSpline, mask_in: &[f32], mask_out: &[f32]) -> Self {
+        let (d_in, d_out) = (p.d_in, p.d_out);
+        let t = mask_in.len() / d_in;
+        let kept = |m: &[f32]| -> (Vec<usize>, f32) {
+            let k: Vec<usize> = (0..m.len()).filter(|&u| m[u] != 0.0).collect();
+            let scale = k.first().map_or(0.0, |&u| m[u]);
+            (k, scale)
+        };
+        let samples = (0..t)
+            .map(|s| {
+                let (kept_in, in_scale) = kept(&mask_in[s * d_in..(s + 1) * d_in]);
+                let (kept_out, out_scale) = kept(&mask_out[s * d_out..(s + 1) * d_out]);
+                let o = kept_out.len();
+                let mut weights = Vec::with_capacity(kept_in.len() * (1 + KERNEL_2D) * o);
+                for &u in &kept_in {
+                    weights.extend(kept_out.iter().map(|&v| p.root[u * d_out + v]));
+                    let row = &p.weight[u * KERNEL_2D * d_out..(u + 1) * KERNEL_2D * d_out];
+                    for cell in 0..KERNEL_2D {
+                        weights.extend(kept_out.iter().map(|&v| row[cell * d_out + v]));
+                    }
+                }
+                let bias = kept_out.iter().map(|&v| p.bias[v]).collect();
+                Sample {
+                    kept_in,
+                    in_scale,
+                    kept_out,
+                    out_scale,
+                    weights,
+                    bias,
+                }
+            })
+            .collect();
+        Self {
+            d_in,
+            d_out,
+            samples,
+        }
+    }
+
+    /// `relu(conv(h m1_t)) m2_t` for every sample `t` of each graph `g`
+    /// whose layer input is `h` (`[n, in]`, the same for every sample):
+    /// `[T, n, out]` per graph, row-major. The graphs' nodes are stacked
+    /// into one product per sample.
+    pub(super) fn forward_many(&self, graphs: &[(&[f32], &GraphInput)]) -> Vec<Vec<f32>> {
+        let d_out = self.d_out;
+        let offsets: Vec<usize> = graphs
+            .iter()
+            .scan(0, |at, (_, g)| {
+                let o = *at;
+                *at += g.n;
+                Some(o)
+            })
+            .collect();
+        let rows: usize = graphs.iter().map(|(_, g)| g.n).sum();
+        let edges: Vec<Edge> = graphs
+            .iter()
+            .zip(&offsets)
+            .flat_map(|((_, g), &o)| edges(g, o))
+            .collect();
+        let mut out: Vec<Vec<f32>> = graphs
+            .iter()
+            .map(|(_, g)| vec![0f32; self.samples.len() * g.n * d_out])
+            .collect();
+        let (mut x, mut y, mut messages) = (Vec::new(), Vec::new(), Vec::new());
+        for (s, sample) in self.samples.iter().enumerate() {
+            let (k, o) = (sample.kept_in.len(), sample.kept_out.len());
+            let width = (1 + KERNEL_2D) * o;
+            x.clear();
+            for (h, g) in graphs {
+                for i in 0..g.n {
+                    let row = &h[i * self.d_in..(i + 1) * self.d_in];
+                    x.extend(sample.kept_in.iter().map(|&u| row[u] * sample.in_scale));
+                }
+            }
+            y.clear();
+            y.resize(rows * width, 0.0);
+            if k > 0 && o > 0 && rows > 0 {
+                matmul(rows, k, width, &x, &sample.weights, &mut y);
+            }
+            // Mix the neighbours' cell outputs into each node's messages.
+            messages.clear();
+            messages.resize(rows * o, 0.0);
+            for (i, j, cells) in &edges {
+                for (cell, w) in cells {
+                    let from = &y[j * width + (1 + cell) * o..j * width + (2 + cell) * o];
+                    for (m, v) in messages[i * o..(i + 1) * o].iter_mut().zip(from) {
+                        *m += w * v;
+                    }
+                }
+            }
+            for ((_, g), (&at, out)) in graphs.iter().zip(offsets.iter().zip(&mut out)) {
+                let block = &mut out[s * g.n * d_out..(s + 1) * g.n * d_out];
+                for i in 0..g.n {
+                    let r = at + i;
+                    let root = &y[r * width..r * width + o];
+                    for (q, &v) in sample.kept_out.iter().enumerate() {
+                        let pre = (root[q] + messages[r * o + q]) + sample.bias[q];
+                        block[i * d_out + v] = pre.max(0.0) * sample.out_scale;
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+/// An edge into node `i` from node `j` (rows of the stacked graphs) with
+/// its four (kernel cell, weight).
+type Edge = (usize, usize, [(usize, f32); 4]);
+
+/// Graph `g`'s edges, its nodes at rows `offset..`: each with the basis
+/// weight of its cells over the destination's degree, as the tensor
+/// path's mixing matrix holds them.
+fn edges(g: &GraphInput, offset: usize) -> Vec<Edge> {
+    let e = g.edge_count();
+    (0..e)
+        .map(|k| {
+            let (i, j) = (g.dst[k] as usize, g.src[k] as usize);
+            let inv_deg = g.aggregate[i * e + k];
+            let cells = std::array::from_fn(|q| {
+                let cell = g.basis_index[4 * k + q] as usize;
+                (cell, g.basis_weight[4 * k + q] * inv_deg)
+            });
+            (offset + i, offset + j, cells)
+        })
+        .collect()
+}
+
+/// `c = a b` for row-major `a` `[m, k]`, `b` `[k, n]`, `c` `[m, n]` (f32,
+/// one thread, the gemm crate).
+fn matmul(m: usize, k: usize, n: usize, a: &[f32], b: &[f32], c: &mut [f32]) {
+    assert!(a.len() >= m * k && b.len() >= k * n && c.len() >= m * n);
+    // SAFETY: the asserts above bound every index gemm reads or writes
+    // (row-major: column stride 1, row stride the column count); `c` does
+    // not overlap `a` or `b` (distinct borrows).
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            c.as_mut_ptr(),
+            1,
+            n as isize,
+            false,
+            a.as_ptr(),
+            1,
+            k as isize,
+            b.as_ptr(),
+            1,
+            n as isize,
+            0.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}
