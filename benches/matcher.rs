@@ -17,6 +17,7 @@ use coid_sim::graph::SceneGraph;
 use coid_sim::matching::deep::arch::{Architecture, MaskScope, PairLoss};
 use coid_sim::matching::deep::cost::{GraphShape, inference_macs, plain_embedding_macs};
 use coid_sim::matching::deep::decision::Decision;
+use coid_sim::matching::deep::dense::matmul;
 use coid_sim::matching::deep::train::{Example, Prepared, TrainOptions, Trainer, example};
 use coid_sim::matching::deep::{DeepMatcher, Inference};
 use coid_sim::matching::{Correspondence, MatchView, Method, gps_relative_pose};
@@ -66,32 +67,7 @@ fn gemm_gflops(m: usize, k: usize, n: usize, reps: usize) -> f64 {
     let mut best = f64::INFINITY;
     for _ in 0..reps {
         let t = Instant::now();
-        // SAFETY: the three buffers hold m x k, k x n and m x n f32s,
-        // row-major (column stride 1, row stride the column count), and
-        // do not overlap.
-        unsafe {
-            gemm::gemm(
-                m,
-                n,
-                k,
-                dst.as_mut_ptr(),
-                1,
-                n as isize,
-                false,
-                lhs.as_ptr(),
-                1,
-                k as isize,
-                rhs.as_ptr(),
-                1,
-                n as isize,
-                0.0,
-                1.0,
-                false,
-                false,
-                false,
-                gemm::Parallelism::None,
-            );
-        }
+        matmul(m, k, n, &lhs, &rhs, &mut dst);
         best = best.min(t.elapsed().as_secs_f64());
         std::hint::black_box(&dst);
     }

@@ -26,6 +26,7 @@
 pub mod arch;
 pub mod cost;
 pub mod decision;
+pub mod dense;
 mod examples;
 pub mod features;
 mod init;

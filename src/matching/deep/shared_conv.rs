@@ -15,6 +15,7 @@
 //! set needs no other copy. The neighbours are then mixed along the
 //! edges (4 cells per edge) instead of through a dense `n x n C` matrix.
 
+use super::dense::matmul;
 use super::features::{GraphInput, KERNEL_2D};
 
 /// One sample's kept units and weights.
@@ -178,36 +179,4 @@ fn edges(g: &GraphInput, offset: usize) -> Vec<Edge> {
             (offset + i, offset + j, cells)
         })
         .collect()
-}
-
-/// `c = a b` for row-major `a` `[m, k]`, `b` `[k, n]`, `c` `[m, n]` (f32,
-/// one thread, the gemm crate).
-fn matmul(m: usize, k: usize, n: usize, a: &[f32], b: &[f32], c: &mut [f32]) {
-    assert!(a.len() >= m * k && b.len() >= k * n && c.len() >= m * n);
-    // SAFETY: the asserts above bound every index gemm reads or writes
-    // (row-major: column stride 1, row stride the column count); `c` does
-    // not overlap `a` or `b` (distinct borrows).
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            c.as_mut_ptr(),
-            1,
-            n as isize,
-            false,
-            a.as_ptr(),
-            1,
-            k as isize,
-            b.as_ptr(),
-            1,
-            n as isize,
-            0.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
-    }
 }
