@@ -8,7 +8,9 @@
 //! burn's CPU backend uses: the best of square products of 256 to 1024,
 //! and the rate at the second layer's own shape), with the share of the
 //! peak each part achieves.
-//! `cargo bench --bench matcher` (prints medians over repeated runs).
+//! `cargo bench --bench matcher` (prints medians over repeated runs);
+//! `COID_BENCH_PROFILE=new` (or `shared`) runs that case alone 3000 times
+//! without output, for `perf record`.
 
 use std::time::Instant;
 
@@ -126,7 +128,19 @@ fn main() {
     // training runs it): the reference the plain path replaces.
     let tensor = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run)
         .without_shared_embeddings()
-        .with_tensor_second_layer();
+        .with_tensor_path();
+    // For a profiler: one case only, 3000 times, nothing printed.
+    if let Ok(which) = std::env::var("COID_BENCH_PROFILE") {
+        let m = if which == "shared" {
+            &shared
+        } else {
+            &per_pair
+        };
+        for _ in 0..3000 {
+            std::hint::black_box(m.distribution(&va, &vb, &relative));
+        }
+        return;
+    }
     let (mut new_times, mut shared_times, mut tensor_times) = (Vec::new(), Vec::new(), Vec::new());
     for k in 0..60 {
         for (m, times) in [

@@ -231,11 +231,17 @@ fn indicators(
     device: &Device,
 ) -> Tensor<4> {
     let r = arch.consensus_dim;
-    let normal = rand_distr::StandardNormal;
-    let v: Vec<f32> = (0..b * n1 * r)
-        .map(|_| rng.sample::<f64, _>(normal) as f32)
-        .collect();
+    let v = indicator_values(rng, b * n1 * r);
     Tensor::from_data(TensorData::new(v, [b, 1, n1, r]), device)
+}
+
+/// `len` standard normals, as [`draw_pair_masks`] draws the consensus
+/// indicators (`[n1, consensus_dim]` of one pair, row-major).
+pub(super) fn indicator_values(rng: &mut ChaCha8Rng, len: usize) -> Vec<f32> {
+    let normal = rand_distr::StandardNormal;
+    (0..len)
+        .map(|_| rng.sample::<f64, _>(normal) as f32)
+        .collect()
 }
 
 #[cfg(test)]

@@ -15,13 +15,14 @@ use burn::prelude::*;
 
 use super::arch::{Architecture, DeepMethod, MaskScope, likelihood_terms};
 use super::decision::{Decision, MatchDistribution, UncertaintyKind};
-use super::features::{GraphInput, graph_input, pair_input};
+use super::features::{GraphInput, PairInput, graph_input, pair_input};
 use super::init::Init;
 use super::masks::{
     MaskDraw, PairMasks, draw_embedding_masks, draw_pair_masks, draw_phi_mask, dropout_mask_16,
-    shared_embedding_mask_values,
+    indicator_values, shared_embedding_mask_values,
 };
 use super::network::{Combination, Network, PairTensors};
+use super::plain_pair::{PairResidual, PlainPair};
 use super::shared_conv::SharedMaskConv;
 use super::sinkhorn::sinkhorn_probabilities;
 use super::spline::{CellWeights, GraphBatch};
@@ -49,11 +50,13 @@ fn embedding_key(input: &GraphInput, samples: usize) -> u64 {
     rng::key(&parts)
 }
 
-/// One vehicle's embedding at inference: its graph tensors and the node
-/// embeddings of every MC-dropout sample, `[1, T, N, out]`.
+/// One vehicle's embedding at inference: its network input, its graph
+/// tensors and the node embeddings of every MC-dropout sample, `[T, N,
+/// out]` row-major.
 struct Embedded {
+    input: GraphInput,
     graph: GraphBatch,
-    h: Tensor<4>,
+    h: Vec<f32>,
 }
 
 /// Embeddings computed for recent views, by [`embedding_key`]: a vehicle
@@ -105,8 +108,15 @@ pub struct PairSamples {
     pub mean_scores: Vec<Option<f64>>,
 }
 
-/// The plain second layer with the (samples, seed) of its masks.
-type KeptLayer = ((usize, u64), Arc<SharedMaskConv>);
+/// The plain inference path under shared masks: the second spline layer
+/// and the pair part.
+struct PlainPath {
+    second_layer: SharedMaskConv,
+    pair: PlainPair,
+}
+
+/// The plain path with the (samples, seed) of its masks.
+type KeptPath = ((usize, u64), Arc<PlainPath>);
 
 /// A trained deep matcher with MC-dropout inference.
 pub struct DeepMatcher {
@@ -135,12 +145,13 @@ pub struct DeepMatcher {
     /// The network's scalar parameters, read once.
     combination: Combination,
     cache: Mutex<EmbeddingCache>,
-    /// Whether the second layer runs in plain Rust under shared masks
-    /// ([`SharedMaskConv`]); else through the tensors, as in training.
-    plain_second_layer: bool,
-    /// That layer under this matcher's shared masks, built at first use
+    /// Whether the second layer and the pair part run in plain Rust
+    /// under shared masks ([`SharedMaskConv`], [`PlainPair`]); else
+    /// through the tensors, as in training.
+    plain: bool,
+    /// Those parts under this matcher's shared masks, built at first use
     /// for its (samples, seed).
-    second_layer: Mutex<Option<KeptLayer>>,
+    plain_path: Mutex<Option<KeptPath>>,
 }
 
 /// How a deep matcher runs (beyond its weights).
@@ -187,37 +198,45 @@ impl DeepMatcher {
             cache: Mutex::default(),
             cell_weights: Mutex::default(),
             combination,
-            plain_second_layer: true,
-            second_layer: Mutex::default(),
+            plain: true,
+            plain_path: Mutex::default(),
         }
     }
 
-    /// Runs the second spline layer through the tensors, as training
-    /// does: the reference the plain path is held equal to.
-    pub fn with_tensor_second_layer(mut self) -> Self {
-        self.plain_second_layer = false;
+    /// Runs the second spline layer and the pair part through the
+    /// tensors, as training does: the reference the plain path is held
+    /// equal to.
+    pub fn with_tensor_path(mut self) -> Self {
+        self.plain = false;
         self
     }
 
-    /// The second layer under this matcher's shared masks, when it runs
-    /// in plain Rust: the masks are the same for every graph, so their
-    /// kept weights are gathered once.
-    fn plain_second_layer(&self) -> Option<Arc<SharedMaskConv>> {
-        if !self.plain_second_layer || self.masks != MaskScope::Shared {
+    /// The plain path under this matcher's shared masks, when it runs:
+    /// the masks are the same for every graph and pair, so the kept
+    /// weights are gathered once.
+    fn plain_path(&self) -> Option<Arc<PlainPath>> {
+        if !self.plain || self.masks != MaskScope::Shared {
             return None;
         }
         let key = (self.samples, self.seed);
-        let mut kept = self.second_layer.lock().ok()?;
-        if let Some((k, layer)) = kept.as_ref()
+        let mut kept = self.plain_path.lock().ok()?;
+        if let Some((k, path)) = kept.as_ref()
             && *k == key
         {
-            return Some(Arc::clone(layer));
+            return Some(Arc::clone(path));
         }
         let mut stream = rng::stream(self.seed, Purpose::EmbeddingDropout, &[SHARED_MASKS_KEY]);
         let (m1, m2) = shared_embedding_mask_values(&mut stream, &self.arch, self.samples);
-        let layer = Arc::new(SharedMaskConv::new(&self.net.second_layer(), &m1, &m2));
-        *kept = Some((key, Arc::clone(&layer)));
-        Some(layer)
+        // The consensus MLP's masks, drawn as `pair_masks` draws them.
+        let mut shared = rng::stream(self.seed, Purpose::Dropout, &[SHARED_MASKS_KEY]);
+        let r = self.arch.consensus_dim;
+        let phi = dropout_mask_16(&mut shared, self.samples * r, self.arch.dropout_phi);
+        let path = Arc::new(PlainPath {
+            second_layer: SharedMaskConv::new(&self.net.second_layer(), &m1, &m2),
+            pair: PlainPair::new(self.net.pair_weights(), self.samples, &phi),
+        });
+        *kept = Some((key, Arc::clone(&path)));
+        Some(path)
     }
 
     /// Computes every pair's embeddings afresh (the per-pair path; results
@@ -249,30 +268,28 @@ impl DeepMatcher {
         let mut found = keys.map(|k| self.cached(k));
         let missing: Vec<usize> = (0..K).filter(|&k| found[k].is_none()).collect();
         let graphs: Vec<GraphBatch> = missing.iter().map(|&k| self.graph(&inputs[k])).collect();
-        let hs: Vec<Tensor<4>> = if let Some(second) = self.plain_second_layer() {
+        let hs: Vec<Vec<f32>> = if let Some(plain) = self.plain_path() {
             let firsts: Vec<Vec<f32>> = graphs.iter().map(|g| self.net.first_layer(g)).collect();
             let layers: Vec<(&[f32], &GraphInput)> = firsts
                 .iter()
                 .zip(&missing)
                 .map(|(h, &k)| (h.as_slice(), &inputs[k]))
                 .collect();
-            let out = second.forward_many(&layers);
-            out.into_iter()
-                .zip(&missing)
-                .map(|(h, &k)| {
-                    let shape = [1, self.samples, inputs[k].n, self.arch.out];
-                    Tensor::from_data(TensorData::new(h, shape), &self.device)
-                })
-                .collect()
+            plain.second_layer.forward_many(&layers)
         } else {
             graphs
                 .iter()
                 .zip(&missing)
-                .map(|(g, &k)| self.tensor_embedding(g, &inputs[k], keys[k]))
+                .map(|(g, &k)| {
+                    let h = self.tensor_embedding(g, &inputs[k], keys[k]);
+                    h.try_into_vec_as::<f32>().unwrap_or_default()
+                })
                 .collect()
         };
+        let mut inputs = inputs.map(Some);
         for ((graph, h), &k) in graphs.into_iter().zip(hs).zip(&missing) {
-            let e = Arc::new(Embedded { graph, h });
+            let input = inputs[k].take().expect("each view computed once");
+            let e = Arc::new(Embedded { input, graph, h });
             if self.share_embeddings
                 && let Ok(mut cache) = self.cache.lock()
             {
@@ -432,13 +449,20 @@ impl DeepMatcher {
         );
         let [e1, e2] = self.embeddings([first, second]);
         let input = pair_input(first, second, relative, &self.terms);
-        let tensors = PairTensors::new(&[&input], [n1, n2], &self.device);
-        let masks = self.pair_masks(first, second);
-        let out = self
-            .net
-            .pair((&e1.h, &e1.graph), (&e2.h, &e2.graph), &tensors, masks);
-        let to_vec = |x: Tensor<4>| x.try_into_vec_as::<f32>().unwrap_or_default();
-        let residual = to_vec(out.residual);
+        let out = match self.plain_path() {
+            Some(plain) => {
+                // The pair's indicators: the first normals of its stream,
+                // as `pair_masks` draws them under shared masks.
+                let key = problem_key(first, second);
+                let mut stream = rng::stream(self.seed, Purpose::Dropout, &[key]);
+                let indicators = indicator_values(&mut stream, n1 * self.arch.consensus_dim);
+                plain
+                    .pair
+                    .forward((&e1.h, &e1.input), (&e2.h, &e2.input), &input, &indicators)
+            }
+            None => self.tensor_pair([&e1, &e2], &input, first, second),
+        };
+        let residual = out.residual;
         let c = self.combination;
         let (scale, gate) = (f64::from(c.scale), f64::from(c.gate));
         let score = |ll: Option<f64>, r: f64| ll.map(|l| scale * l + gate * r);
@@ -461,9 +485,7 @@ impl DeepMatcher {
             })
             .collect();
         let dust = out.dust.map(|d| {
-            d.try_into_vec_as::<f32>()
-                .unwrap_or_default()
-                .iter()
+            d.iter()
                 .map(|&v| f64::from(c.dustbin) + f64::from(c.dust_gate) * f64::from(v))
                 .collect::<Vec<f64>>()
         });
@@ -484,6 +506,34 @@ impl DeepMatcher {
             scores,
             assignments: p.chunks((n1 + 1) * (n2 + 1)).map(<[f32]>::to_vec).collect(),
             mean_scores,
+        }
+    }
+
+    /// The pair part through the tensors (the reference of the plain
+    /// one, and what per-node masks use).
+    fn tensor_pair(
+        &self,
+        [e1, e2]: [&Embedded; 2],
+        input: &PairInput,
+        first: &MatchView,
+        second: &MatchView,
+    ) -> PairResidual {
+        let (n1, n2) = (input.n1, input.n2);
+        let tensors = PairTensors::new(&[input], [n1, n2], &self.device);
+        let masks = self.pair_masks(first, second);
+        let h = |e: &Embedded| {
+            let shape = [1, self.samples, e.input.n, self.arch.out];
+            Tensor::<4>::from_data(TensorData::new(e.h.clone(), shape), &self.device)
+        };
+        let (h1, h2) = (h(e1), h(e2));
+        let out = self
+            .net
+            .pair((&h1, &e1.graph), (&h2, &e2.graph), &tensors, masks);
+        PairResidual {
+            residual: out.residual.try_into_vec_as::<f32>().unwrap_or_default(),
+            dust: out
+                .dust
+                .map(|d| d.try_into_vec_as::<f32>().unwrap_or_default()),
         }
     }
 
@@ -556,6 +606,7 @@ impl Matcher for DeepMatcher {
 mod tests {
     use super::*;
     use crate::geometry::Vec2;
+    use crate::matching::Correspondence;
     use crate::matching::gps_hungarian::GpsHungarian;
     use crate::matching::testkit::{self, GPS, Side};
     use crate::traffic::ObjectClass;
@@ -658,24 +709,21 @@ mod tests {
         assert!(e.is_err());
     }
 
-    /// The plain second layer under shared masks against the tensor path
-    /// (the reference, as training runs it), on graphs of 8, 9, 2 and 1
-    /// nodes (the last has no edge): every sample's embedding within 1e-5
-    /// of the largest of its magnitude and 1, the MC assignments and mean
-    /// scores within 1e-5, and the same correspondences.
+    /// The plain path under shared masks (second layer and pair part)
+    /// against the tensor path (the reference, as training runs it), on
+    /// graphs of 8, 9, 2 and 1 nodes (the last has no edge): every
+    /// sample's embedding, score and assignment and the mean scores within
+    /// 1e-5 of the largest of its magnitude and 1, and the same
+    /// correspondences.
     #[test]
-    fn the_plain_second_layer_equals_the_tensor_one() {
+    fn the_plain_path_equals_the_tensor_one() {
         // The shipped weights: an untrained network's biases are zero and
         // would hide a bias the plain path forgot.
         let shared = |plain: bool| {
             let weights = include_bytes!("../../../models/ours.bpk");
             let mut m = DeepMatcher::from_weights(DeepMethod::Ours, weights, RUN).unwrap();
             m.masks = MaskScope::Shared;
-            if plain {
-                m
-            } else {
-                m.with_tensor_second_layer()
-            }
+            if plain { m } else { m.with_tensor_path() }
         };
         let (plain, tensor) = (shared(true), shared(false));
         let objects = testkit::world_objects();
@@ -689,8 +737,7 @@ mod tests {
         for (a, b) in &scenes {
             let (va, vb) = (a.view(), b.view());
             for v in [&va, &vb] {
-                let h =
-                    |m: &DeepMatcher| m.embedding(v).h.clone().try_into_vec_as::<f32>().unwrap();
+                let h = |m: &DeepMatcher| m.embedding(v).h.clone();
                 let (hp, ht) = (h(&plain), h(&tensor));
                 assert_eq!(hp.len(), ht.len());
                 for (x, y) in hp.iter().zip(&ht) {
@@ -702,6 +749,13 @@ mod tests {
                 plain.samples(&va, &vb, &relative),
                 tensor.samples(&va, &vb, &relative),
             );
+            assert_eq!(sp.scores.len(), st.scores.len());
+            for (p, t) in sp.scores.iter().zip(&st.scores) {
+                assert_eq!(p.is_some(), t.is_some());
+                if let (Some(p), Some(t)) = (p, t) {
+                    assert!(close(*p, *t), "{p} vs {t}");
+                }
+            }
             for (p, t) in sp
                 .assignments
                 .iter()
@@ -716,20 +770,20 @@ mod tests {
                     assert!(close(*p, *t), "{p} vs {t}");
                 }
             }
-            assert_eq!(
+            let (mp, mt) = (
                 plain.identify(&va, &vb).matches,
-                tensor.identify(&va, &vb).matches
+                tensor.identify(&va, &vb).matches,
             );
+            let pairs = |m: &[Correspondence]| m.iter().map(|c| (c.a, c.b)).collect::<Vec<_>>();
+            assert_eq!(pairs(&mp), pairs(&mt));
+            for (p, t) in mp.iter().zip(&mt) {
+                assert!(close(p.probability, t.probability), "{p:?} vs {t:?}");
+                assert!(close(p.uncertainty, t.uncertainty), "{p:?} vs {t:?}");
+            }
         }
         // A single node: no edge, the root alone.
         let one = side(testkit::POSE_A, &[4]);
-        let h = |m: &DeepMatcher| {
-            m.embedding(&one.view())
-                .h
-                .clone()
-                .try_into_vec_as::<f32>()
-                .unwrap()
-        };
+        let h = |m: &DeepMatcher| m.embedding(&one.view()).h.clone();
         for (x, y) in h(&plain).iter().zip(&h(&tensor)) {
             assert!(close(f64::from(*x), f64::from(*y)), "{x} vs {y}");
         }

@@ -34,6 +34,7 @@ mod loss;
 mod masks;
 mod matcher;
 mod network;
+mod plain_pair;
 pub mod published;
 mod shared_conv;
 mod sinkhorn;

@@ -217,6 +217,36 @@ impl Network {
         self.conv2.plain()
     }
 
+    /// The pair part's parameters as plain numbers (inference).
+    pub fn pair_weights(&self) -> super::plain_pair::PairWeights {
+        let linear = |l: &Linear| {
+            let [d_in, d_out] = l.weight.val().dims();
+            super::plain_pair::PlainLinear {
+                d_in,
+                d_out,
+                weight: l.weight.val().try_into_vec_as::<f32>().unwrap_or_default(),
+                bias: l.bias.as_ref().map_or_else(
+                    || vec![0.0; d_out],
+                    |b| b.val().try_into_vec_as::<f32>().unwrap_or_default(),
+                ),
+            }
+        };
+        let consensus = match (&self.consensus_conv, &self.phi_in, &self.phi_out) {
+            (Some(conv), Some(phi_in), Some(phi_out)) => {
+                Some((conv.plain(), linear(phi_in), linear(phi_out)))
+            }
+            _ => None,
+        };
+        super::plain_pair::PairWeights {
+            pair_in: linear(&self.pair_in),
+            pair_out: linear(&self.pair_out),
+            dust_in: linear(&self.dust_in),
+            dust_out: linear(&self.dust_out),
+            consensus,
+            combination: self.combination(),
+        }
+    }
+
     /// Every spline layer's weights of the kernel cells of `g`, for
     /// [`GraphBatch::with_weights`] on graphs with the same cells.
     pub fn cell_weights(&self, g: &GraphBatch) -> CellWeights {

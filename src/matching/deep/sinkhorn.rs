@@ -60,6 +60,30 @@ pub fn log_sinkhorn(
     z + u + v - norm
 }
 
+/// `out[i] = sum_j kernel[i, j] v[j]` for the row-major `kernel` (`out.len()`
+/// rows of `v.len()`), each row summed in order of `j` from 0 (the same
+/// bits as a sequential sum), four rows at a time so that the additions
+/// of different rows overlap.
+fn row_products(kernel: &[f64], v: &[f64], out: &mut [f64]) {
+    let cols = v.len();
+    let mut blocks = out.chunks_mut(4);
+    let mut rows = kernel.chunks_exact(4 * cols);
+    for (block, rows) in (&mut blocks).zip(&mut rows) {
+        let mut acc = [0f64; 4];
+        for (j, vj) in v.iter().enumerate() {
+            for (q, a) in acc.iter_mut().enumerate() {
+                *a += rows[q * cols + j] * vj;
+            }
+        }
+        block.copy_from_slice(&acc);
+    }
+    let done = kernel.len() / (4 * cols) * 4;
+    for (k, o) in out.iter_mut().enumerate().skip(done) {
+        let row = &kernel[k * cols..(k + 1) * cols];
+        *o = row.iter().zip(v).fold(0.0, |a, (x, y)| a + x * y);
+    }
+}
+
 /// [`log_sinkhorn`] for inference, one pair, without tensors or
 /// gradients: the same iterations in the scaling domain, in f64. `scores`
 /// holds T row-major `N1 x N2` blocks (`-inf` where gated); `dust` each
@@ -115,9 +139,9 @@ pub fn sinkhorn_probabilities(
         }
         v.fill(1.0);
         for _ in 0..iters {
+            row_products(&kernel, &v, &mut u);
             for (i, ui) in u.iter_mut().enumerate() {
-                let row = &kernel[i * cols..(i + 1) * cols];
-                *ui = mu(i) / row.iter().zip(&v).map(|(k, vj)| k * vj).sum::<f64>();
+                *ui = mu(i) / *ui;
             }
             column_sums.fill(0.0);
             for (row, ui) in kernel.chunks_exact(cols).zip(&u) {

@@ -1,0 +1,309 @@
+//! The pair part of the network at inference under shared masks
+//! ([`super::arch::MaskScope::Shared`]), in plain Rust: what
+//! [`super::network::Network::pair`] computes through the tensors (the
+//! reference it is held equal to), for one pair and its `T` samples,
+//! without a tensor, an allocation per operation or a padded batch.
+//!
+//! Two identities cut arithmetic exactly (up to float rounding):
+//! - the consensus MLP's first layer is linear before its bias, so
+//!   `(z1_i - z2_j) W = z1_i W - z2_j W`: `n1 + n2` products per sample
+//!   instead of `n1 n2`;
+//! - under shared masks the MLP's dropout mask is one per sample and unit,
+//!   so a dropped hidden unit is skipped for every pair entry.
+//!
+//! The consensus spline convolution runs as the plain second layer does
+//! ([`SharedMaskConv`] with every unit kept): all samples' propagated
+//! indicators in one product, then mixed along the edges.
+
+use super::features::{GraphInput, PairInput};
+use super::network::Combination;
+use super::shared_conv::{PlainSpline, SharedMaskConv};
+use super::sinkhorn::BLOCKED;
+
+/// A linear layer as plain numbers: `y = x W + b`, `W` `[in, out]`
+/// row-major (burn's layout).
+pub(super) struct PlainLinear {
+    pub d_in: usize,
+    pub d_out: usize,
+    pub weight: Vec<f32>,
+    pub bias: Vec<f32>,
+}
+
+impl PlainLinear {
+    /// `x W` of one input row into `out` (before the bias).
+    fn product(&self, x: &[f32], out: &mut [f32]) {
+        out.fill(0.0);
+        for (f, &v) in x.iter().enumerate().take(self.d_in) {
+            let row = &self.weight[f * self.d_out..(f + 1) * self.d_out];
+            for (o, w) in out.iter_mut().zip(row) {
+                *o += v * w;
+            }
+        }
+    }
+
+    /// `relu(x W + b)` of one input row into `out`.
+    fn relu_row(&self, x: &[f32], out: &mut [f32]) {
+        self.product(x, out);
+        for (o, b) in out.iter_mut().zip(&self.bias) {
+            *o = relu(*o + b);
+        }
+    }
+}
+
+/// burn's ReLU (NaN passes through).
+fn relu(x: f32) -> f32 {
+    if x.is_nan() || x > 0.0 { x } else { 0.0 }
+}
+
+/// Lanes of the reductions below: independent partial sums the compiler
+/// keeps in one vector register.
+const LANES: usize = 8;
+
+/// `sum_k f(a_k, b_k, w_k)` over three slices of one length, in
+/// [`LANES`] interleaved partial sums.
+#[inline(always)]
+fn lane_sum(a: &[f32], b: &[f32], w: &[f32], f: impl Fn(f32, f32, f32) -> f32) -> f32 {
+    let mut acc = [0f32; LANES];
+    let (ca, ra) = a.as_chunks::<LANES>();
+    let (cb, rb) = b.as_chunks::<LANES>();
+    let (cw, rw) = w.as_chunks::<LANES>();
+    for ((x, y), z) in ca.iter().zip(cb).zip(cw) {
+        for l in 0..LANES {
+            acc[l] += f(x[l], y[l], z[l]);
+        }
+    }
+    for (l, ((x, y), z)) in ra.iter().zip(rb).zip(rw).enumerate() {
+        acc[l] += f(*x, *y, *z);
+    }
+    acc.iter().sum()
+}
+
+/// `exp(x)`, with the values whose f32 exponential is 0 (below about
+/// -103.97) answered without the library's underflow path: the same bits.
+fn exp_or_zero(x: f32) -> f32 {
+    if x < -104.0 { 0.0 } else { x.exp() }
+}
+
+/// The pair part's parameters (as [`super::network::Network`] holds them).
+pub(super) struct PairWeights {
+    pub pair_in: PlainLinear,
+    pub pair_out: PlainLinear,
+    pub dust_in: PlainLinear,
+    pub dust_out: PlainLinear,
+    /// The consensus conv and MLP, when the network has consensus.
+    pub consensus: Option<(PlainSpline, PlainLinear, PlainLinear)>,
+    pub combination: Combination,
+}
+
+/// The consensus step under one set of shared masks.
+struct Consensus {
+    /// The spline convolution, every unit kept (one "sample").
+    conv: SharedMaskConv,
+    phi_in: PlainLinear,
+    phi_out: PlainLinear,
+    /// Per sample, the kept hidden units of `phi_in` and the mask's value
+    /// on them.
+    kept: Vec<Vec<(usize, f32)>>,
+}
+
+/// The pair part under `T` shared masks.
+pub(super) struct PlainPair {
+    /// The MLPs and scalars (its consensus moved into `consensus`).
+    w: PairWeights,
+    consensus: Option<Consensus>,
+    samples: usize,
+}
+
+/// What the pair part says of one pair: the residual of every pair entry
+/// in every sample, `[T, n1, n2]`, and each node's learned "no match"
+/// score before its gate, per vehicle.
+pub(super) struct PairResidual {
+    pub residual: Vec<f32>,
+    pub dust: [Vec<f32>; 2],
+}
+
+impl PlainPair {
+    /// The pair part with `phi_mask` (`[T, R]`: each sample's consensus
+    /// MLP mask, 0 or the sample's scale; ignored without consensus).
+    pub(super) fn new(mut w: PairWeights, samples: usize, phi_mask: &[f32]) -> Self {
+        let consensus = w.consensus.take().map(|(conv, phi_in, phi_out)| {
+            let r = conv.d_out;
+            let kept = (0..samples)
+                .map(|t| {
+                    let m = &phi_mask[t * r..(t + 1) * r];
+                    (0..r).filter(|&u| m[u] != 0.0).map(|u| (u, m[u])).collect()
+                })
+                .collect();
+            Consensus {
+                conv: SharedMaskConv::new(&conv, &vec![1.0; conv.d_in], &vec![1.0; r]),
+                phi_in,
+                phi_out,
+                kept,
+            }
+        });
+        Self {
+            w,
+            consensus,
+            samples,
+        }
+    }
+
+    /// The residual and raw "no match" scores of one pair: `h1` `[T, n1,
+    /// out]` and `h2` `[T, n2, out]` the two vehicles' embeddings, `g1`
+    /// and `g2` their graphs, `indicators` `[n1, R]` the pair's random
+    /// node indicators (unused without consensus).
+    pub(super) fn forward(
+        &self,
+        (h1, g1): (&[f32], &GraphInput),
+        (h2, g2): (&[f32], &GraphInput),
+        input: &PairInput,
+        indicators: &[f32],
+    ) -> PairResidual {
+        let (n1, n2, t) = (input.n1, input.n2, self.samples);
+        let w = &self.w;
+        // Once per pair: the pair MLP and the "no match" MLP.
+        let mlp = |a: &PlainLinear, b: &PlainLinear, x: &[f32], hidden: &mut Vec<f32>| {
+            hidden.resize(a.d_out, 0.0);
+            a.relu_row(x, hidden);
+            let mut out = [0f32];
+            b.product(hidden, &mut out);
+            out[0] + b.bias[0]
+        };
+        let mut hidden = Vec::new();
+        let fp = w.pair_in.d_in;
+        let pair_term: Vec<f32> = (0..n1 * n2)
+            .map(|k| {
+                let x = &input.pair_features[k * fp..(k + 1) * fp];
+                mlp(&w.pair_in, &w.pair_out, x, &mut hidden)
+            })
+            .collect();
+        let fd = w.dust_in.d_in;
+        let dust = [0, 1].map(|g| {
+            let n = [n1, n2][g];
+            (0..n)
+                .map(|i| {
+                    let x = &input.dust_features[g][i * fd..(i + 1) * fd];
+                    mlp(&w.dust_in, &w.dust_out, x, &mut hidden)
+                })
+                .collect::<Vec<f32>>()
+        });
+        // Per sample: the similarity H1 H2^T plus the pair term.
+        let o = h1.len() / (t * n1).max(1);
+        let mut residual = vec![0f32; t * n1 * n2];
+        for s in 0..t {
+            for i in 0..n1 {
+                let a = &h1[(s * n1 + i) * o..(s * n1 + i + 1) * o];
+                for j in 0..n2 {
+                    let b = &h2[(s * n2 + j) * o..(s * n2 + j + 1) * o];
+                    let dot = lane_sum(a, b, b, |x, y, _| x * y);
+                    residual[(s * n1 + i) * n2 + j] = dot + pair_term[i * n2 + j];
+                }
+            }
+        }
+        if let Some(c) = &self.consensus {
+            self.consensus(c, [g1, g2], input, indicators, &dust[0], &mut residual);
+        }
+        PairResidual { residual, dust }
+    }
+
+    /// Adds DGMC's consensus term (Eq. 3) to `residual` (`[T, n1, n2]`,
+    /// the similarity and pair term so far).
+    fn consensus(
+        &self,
+        c: &Consensus,
+        [g1, g2]: [&GraphInput; 2],
+        input: &PairInput,
+        indicators: &[f32],
+        dust1: &[f32],
+        residual: &mut [f32],
+    ) {
+        let (n1, n2, t) = (input.n1, input.n2, self.samples);
+        let r = c.phi_in.d_in;
+        let k = self.w.combination;
+        // The soft correspondence: each first-graph row's softmax over the
+        // full scores and its "no match" score.
+        let bin: Vec<f32> = dust1.iter().map(|&d| k.dustbin + d * k.dust_gate).collect();
+        let mut soft = vec![0f32; t * n1 * n2];
+        let mut row = vec![0f32; n2 + 1];
+        for s in 0..t {
+            for i in 0..n1 {
+                for (j, x) in row.iter_mut().take(n2).enumerate() {
+                    let at = i * n2 + j;
+                    *x = match input.log_likelihood[at] {
+                        Some(ll) => (ll as f32) * k.scale + residual[s * n1 * n2 + at] * k.gate,
+                        None => BLOCKED,
+                    };
+                }
+                row[n2] = bin[i];
+                let max = row
+                    .iter()
+                    .fold(f32::NEG_INFINITY, |m, &x| if x > m { x } else { m });
+                let mut sum = 0f32;
+                for x in row.iter_mut() {
+                    *x = exp_or_zero(*x - max);
+                    sum += *x;
+                }
+                let inv = 1.0 / sum;
+                let out = &mut soft[(s * n1 + i) * n2..(s * n1 + i + 1) * n2];
+                for (o, x) in out.iter_mut().zip(&row) {
+                    *o = x * inv;
+                }
+            }
+        }
+        // The indicators pushed through it: r2[s] = soft[s]^T r1, [n2, R].
+        let mut r2 = vec![0f32; t * n2 * r];
+        for s in 0..t {
+            for i in 0..n1 {
+                let ind = &indicators[i * r..(i + 1) * r];
+                for j in 0..n2 {
+                    let p = soft[(s * n1 + i) * n2 + j];
+                    let out = &mut r2[(s * n2 + j) * r..(s * n2 + j + 1) * r];
+                    for (o, v) in out.iter_mut().zip(ind) {
+                        *o += p * v;
+                    }
+                }
+            }
+        }
+        // Both sides embedded by the consensus conv: z1 once, z2 per sample
+        // (all samples in one product).
+        let z1 = c.conv.forward_many(&[(indicators, g1)]).remove(0);
+        let per_sample: Vec<(&[f32], &GraphInput)> = r2.chunks(n2 * r).map(|x| (x, g2)).collect();
+        let z2: Vec<Vec<f32>> = c.conv.forward_many(&per_sample);
+        // phi(z1_i - z2_j) = phi_out(relu(z1_i W - z2_j W + b) m).
+        let project = |z: &[f32], n: usize| -> Vec<f32> {
+            let mut out = vec![0f32; n * r];
+            for (x, y) in z.chunks(r).zip(out.chunks_mut(r)) {
+                c.phi_in.product(x, y);
+            }
+            out
+        };
+        let a = project(&z1, n1);
+        // Per sample, the kept hidden units side by side: z1 W + b and z2 W
+        // at them, and the output weight times the mask's value.
+        let (mut a_kept, mut b_kept, mut w_kept) = (Vec::new(), Vec::new(), Vec::new());
+        for (s, z2) in z2.iter().enumerate() {
+            let b = project(z2, n2);
+            let kept = &c.kept[s];
+            let q = kept.len();
+            a_kept.clear();
+            for ai in a.chunks(r) {
+                a_kept.extend(kept.iter().map(|&(u, _)| ai[u] + c.phi_in.bias[u]));
+            }
+            b_kept.clear();
+            for bj in b.chunks(r) {
+                b_kept.extend(kept.iter().map(|&(u, _)| bj[u]));
+            }
+            w_kept.clear();
+            w_kept.extend(kept.iter().map(|&(u, m)| m * c.phi_out.weight[u]));
+            let b_out = c.phi_out.bias[0];
+            for i in 0..n1 {
+                let ai = &a_kept[i * q..(i + 1) * q];
+                for j in 0..n2 {
+                    let bj = &b_kept[j * q..(j + 1) * q];
+                    let sum = lane_sum(ai, bj, &w_kept, |x, y, w| relu(x - y) * w);
+                    residual[(s * n1 + i) * n2 + j] += sum + b_out;
+                }
+            }
+        }
+    }
+}
