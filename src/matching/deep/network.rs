@@ -80,6 +80,20 @@ impl PairTensors {
     }
 }
 
+/// A linear layer's parameters as plain numbers (inference).
+pub(super) fn plain_linear(l: &Linear) -> super::plain_pair::PlainLinear {
+    let [d_in, d_out] = l.weight.val().dims();
+    super::plain_pair::PlainLinear {
+        d_in,
+        d_out,
+        weight: l.weight.val().try_into_vec_as::<f32>().unwrap_or_default(),
+        bias: l.bias.as_ref().map_or_else(
+            || vec![0.0; d_out],
+            |b| b.val().try_into_vec_as::<f32>().unwrap_or_default(),
+        ),
+    }
+}
+
 /// What the pair part of the network says, before its gates: the
 /// residual of every pair in every sample, `[B, T, N1, N2]`, and the
 /// learned "no match" score of every node, `[B, 1, N1]` and `[B, 1, N2]`.
@@ -219,18 +233,7 @@ impl Network {
 
     /// The pair part's parameters as plain numbers (inference).
     pub fn pair_weights(&self) -> super::plain_pair::PairWeights {
-        let linear = |l: &Linear| {
-            let [d_in, d_out] = l.weight.val().dims();
-            super::plain_pair::PlainLinear {
-                d_in,
-                d_out,
-                weight: l.weight.val().try_into_vec_as::<f32>().unwrap_or_default(),
-                bias: l.bias.as_ref().map_or_else(
-                    || vec![0.0; d_out],
-                    |b| b.val().try_into_vec_as::<f32>().unwrap_or_default(),
-                ),
-            }
-        };
+        let linear = plain_linear;
         let consensus = match (&self.consensus_conv, &self.phi_in, &self.phi_out) {
             (Some(conv), Some(phi_in), Some(phi_out)) => {
                 Some((conv.plain(), linear(phi_in), linear(phi_out)))

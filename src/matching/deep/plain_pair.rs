@@ -62,7 +62,7 @@ const LANES: usize = 8;
 /// `sum_k f(a_k, b_k, w_k)` over three slices of one length, in
 /// [`LANES`] interleaved partial sums.
 #[inline(always)]
-fn lane_sum(a: &[f32], b: &[f32], w: &[f32], f: impl Fn(f32, f32, f32) -> f32) -> f32 {
+pub(super) fn lane_sum(a: &[f32], b: &[f32], w: &[f32], f: impl Fn(f32, f32, f32) -> f32) -> f32 {
     let mut acc = [0f32; LANES];
     let (ca, ra) = a.as_chunks::<LANES>();
     let (cb, rb) = b.as_chunks::<LANES>();

@@ -110,6 +110,16 @@ impl SplineConv1d {
         root + messages + self.bias.val().reshape([1, 1, 1, d_out])
     }
 
+    /// The layer as plain numbers (inference).
+    pub(super) fn plain(&self) -> super::plain::Conv1d {
+        let read2 = |t: Tensor<2>| t.try_into_vec_as::<f32>().unwrap_or_default();
+        super::plain::Conv1d::new(
+            &read2(self.root.val()),
+            &read2(self.weight.val()),
+            self.bias.val().try_into_vec_as::<f32>().unwrap_or_default(),
+        )
+    }
+
     /// The knots' weight matrices, `[in, KERNEL * out]`.
     #[cfg(test)]
     pub(super) fn weights(&self) -> [Tensor<2>; 2] {
@@ -143,6 +153,16 @@ impl SplineCnn {
             conv2: SplineConv1d::new(&format!("{name}.conv2"), hidden, out, init, device),
             last: init.linear(&format!("{name}.last"), last_in, out, device),
             cat,
+        }
+    }
+
+    /// The stack as plain numbers (inference).
+    pub(super) fn plain(&self) -> super::plain::PlainCnn {
+        super::plain::PlainCnn {
+            conv1: self.conv1.plain(),
+            conv2: self.conv2.plain(),
+            last: crate::matching::deep::network::plain_linear(&self.last),
+            cat: self.cat,
         }
     }
 

@@ -8,7 +8,7 @@
 //! for bit what computing them again gives.
 
 use std::collections::HashMap;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 use burn::prelude::*;
 
@@ -17,11 +17,13 @@ use super::graph::PaperGraph;
 use super::model::{
     Dropout, PublishedConfig, PublishedMasks, PublishedNet, draw_indicators, draw_psi1_masks,
 };
+use super::plain::PlainPublished;
 use crate::assignment::assign;
 use crate::fusion::PoseEstimate;
 use crate::matching::deep::Inference;
 use crate::matching::deep::arch::MaskScope;
 use crate::matching::deep::decision::MatchDistribution;
+use crate::matching::deep::masks::{dropout_mask_16, indicator_values};
 use crate::matching::{Identification, MatchView, Matcher, Method};
 use crate::rng::{self, Purpose};
 
@@ -37,6 +39,12 @@ pub struct PublishedMatcher {
     run: Inference,
     /// Recent pairs' distributions by [`pair_key`].
     recent: Mutex<HashMap<u64, MatchDistribution>>,
+    /// The network in plain Rust ([`PlainPublished`]); `None`: through
+    /// the tensors, as in training (the reference).
+    plain: Option<PlainPublished>,
+    /// Recent graphs' psi_1 embeddings on the plain path, by
+    /// [`graph_key`]: a vehicle's graph is embedded once for all its pairs.
+    embeddings: Mutex<HashMap<u64, Arc<Vec<f32>>>>,
 }
 
 /// At most this many distributions are kept (a frame's pairs at every
@@ -47,12 +55,23 @@ const RECENT_CAPACITY: usize = 256;
 fn pair_key(graphs: [&PaperGraph; 2]) -> u64 {
     let mut parts = Vec::new();
     for g in graphs {
-        parts.push(g.n as u64);
-        parts.extend(g.node_features.iter().map(|v| u64::from(v.to_bits())));
-        parts.extend(g.length_m.iter().map(|v| u64::from(v.to_bits())));
-        parts.extend(g.src.iter().chain(&g.dst).map(|&v| v as u64));
+        graph_parts(g, &mut parts);
     }
     rng::key(&parts)
+}
+
+/// A key of one graph's input: what its psi_1 embedding depends on.
+fn graph_key(g: &PaperGraph) -> u64 {
+    let mut parts = Vec::new();
+    graph_parts(g, &mut parts);
+    rng::key(&parts)
+}
+
+fn graph_parts(g: &PaperGraph, parts: &mut Vec<u64>) {
+    parts.push(g.n as u64);
+    parts.extend(g.node_features.iter().map(|v| u64::from(v.to_bits())));
+    parts.extend(g.length_m.iter().map(|v| u64::from(v.to_bits())));
+    parts.extend(g.src.iter().chain(&g.dst).map(|&v| v as u64));
 }
 
 impl PublishedMatcher {
@@ -65,13 +84,58 @@ impl PublishedMatcher {
         run: Inference,
     ) -> Result<Self, String> {
         let net = super::from_bytes(&cfg, bytes, &Device::flex())?;
+        // Shared masks are the same for every pair: drawn once, as
+        // `samples` draws them for the tensors.
+        let shared = (run.masks == MaskScope::Shared).then(|| {
+            let mut shared = rng::stream(run.seed, Purpose::Dropout, &[SHARED_MASKS_KEY]);
+            let rate = run.dropout.unwrap_or(cfg.dropout);
+            dropout_mask_16(&mut shared, run.samples * cfg.hidden, rate)
+        });
+        let plain = Some(PlainPublished::new(
+            net.plain(),
+            run.samples,
+            shared.as_deref(),
+            [cfg.consensus_steps(), cfg.sinkhorn_iters],
+            cfg.edge_scale_m,
+        ));
         Ok(Self {
             method,
             cfg,
             net,
             run,
             recent: Mutex::default(),
+            plain,
+            embeddings: Mutex::default(),
         })
+    }
+
+    /// Runs the network through the tensors, as training does: the
+    /// reference the plain path is held equal to.
+    pub fn with_tensor_path(mut self) -> Self {
+        self.plain = None;
+        self
+    }
+
+    /// psi_1's embedding of `g` on the plain path, kept for its other
+    /// pairs.
+    fn embedding(&self, plain: &PlainPublished, g: &PaperGraph) -> Arc<Vec<f32>> {
+        let key = graph_key(g);
+        if let Some(h) = self
+            .embeddings
+            .lock()
+            .ok()
+            .and_then(|e| e.get(&key).cloned())
+        {
+            return h;
+        }
+        let h = Arc::new(plain.embed(g));
+        if let Ok(mut kept) = self.embeddings.lock() {
+            if kept.len() >= RECENT_CAPACITY {
+                kept.clear();
+            }
+            kept.insert(key, Arc::clone(&h));
+        }
+        h
     }
 
     /// E[Y] and the per-pair uncertainties over `samples` MC-dropout
@@ -112,6 +176,29 @@ impl PublishedMatcher {
     fn samples(&self, graphs: [&PaperGraph; 2], key: u64) -> Vec<Vec<f32>> {
         let [g1, g2] = graphs;
         let (n1, n2, t) = (g1.n, g2.n, self.run.samples);
+        if let Some(plain) = &self.plain {
+            // The masks and indicators drawn as `draw_psi1_masks` and
+            // `draw_indicators` draw them: per node from the pair's
+            // stream, then one draw of indicators per consensus step.
+            let mut stream = rng::stream(self.run.seed, Purpose::Dropout, &[key]);
+            let (h1, h2) = match self.run.masks {
+                MaskScope::Shared => (self.embedding(plain, g1), self.embedding(plain, g2)),
+                MaskScope::PerNode => {
+                    let rate = self.run.dropout.unwrap_or(self.cfg.dropout);
+                    let d = self.cfg.hidden;
+                    let [m1, m2] = [n1, n2].map(|n| dropout_mask_16(&mut stream, t * n * d, rate));
+                    (
+                        Arc::new(plain.embed_per_node(g1, &m1)),
+                        Arc::new(plain.embed_per_node(g2, &m2)),
+                    )
+                }
+            };
+            let r = self.cfg.rnd_dim;
+            let indicators: Vec<Vec<f32>> = (0..self.cfg.consensus_steps())
+                .map(|_| indicator_values(&mut stream, t * n1 * r))
+                .collect();
+            return plain.assignments([(&h1, g1), (&h2, g2)], &indicators);
+        }
         let device = Device::flex();
         let scale = self.cfg.edge_scale_m;
         let (t1, t2) = (
@@ -172,6 +259,94 @@ impl Matcher for PublishedMatcher {
         Identification {
             matches: distribution.decide(self.run.threshold),
             distribution: Some(distribution),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::matching::deep::arch::{Backbone, DeepMethod};
+    use crate::matching::deep::decision::Decision;
+    use crate::matching::testkit::{self, GPS, Side};
+
+    const RUN: Inference = Inference {
+        samples: 20,
+        threshold: None,
+        decision: Decision::Assignment,
+        temperature: 1.0,
+        seed: 1,
+        masks: MaskScope::Shared,
+        dropout: None,
+        gate_chi2: 9.21,
+    };
+
+    /// The plain path under shared and per-node masks against the tensor
+    /// path (the reference, as training runs it) with the shipped weights of GCN-GM,
+    /// DGMC and the paper's method (DGMC's network), on graphs of 8, 9, 2
+    /// and 1 nodes: every sample's assignment within 1e-4 (the f32
+    /// log-domain Sinkhorn's own rounding, see `sinkhorn.rs`), the same
+    /// decided pairs, and the plain path's answers the same when a
+    /// graph's embedding comes from another pair.
+    #[test]
+    fn the_plain_published_path_equals_the_tensor_one() {
+        let shipped: [(DeepMethod, &[u8]); 3] = [
+            (
+                DeepMethod::GcnGm,
+                include_bytes!("../../../../models/gcn-gm.bpk"),
+            ),
+            (
+                DeepMethod::Dgmc,
+                include_bytes!("../../../../models/dgmc.bpk"),
+            ),
+            (
+                DeepMethod::Coid,
+                include_bytes!("../../../../models/coid.bpk"),
+            ),
+        ];
+        let objects = testkit::world_objects();
+        let side = |at, order: &[usize]| Side::of(at, &objects, order, GPS);
+        let scenes = [
+            testkit::moved_copy(),
+            (
+                side(testkit::POSE_A, &[0, 1, 2, 3, 4, 5, 6, 7]),
+                side(testkit::POSE_B, &[7, 6, 5, 4, 3, 2, 1, 0]),
+            ),
+            (side(testkit::POSE_A, &[0, 3]), side(testkit::POSE_B, &[3])),
+        ];
+        let runs = [MaskScope::Shared, MaskScope::PerNode].map(|masks| Inference { masks, ..RUN });
+        for ((method, bytes), run) in shipped.into_iter().flat_map(|s| runs.map(|r| (s, r))) {
+            let Backbone::Published(cfg) = method.backbone() else {
+                panic!("{method:?} is a published network");
+            };
+            let open = || PublishedMatcher::from_weights(method.method(), cfg, bytes, run).unwrap();
+            let (plain, tensor) = (open(), open().with_tensor_path());
+            assert!(plain.plain.is_some() && tensor.plain.is_none());
+            for (a, b) in &scenes {
+                let (va, vb) = (a.view(), b.view());
+                let g1 = PaperGraph::new(va.detections, va.graph);
+                let g2 = PaperGraph::new(vb.detections, vb.graph);
+                let key = pair_key([&g1, &g2]);
+                let (sp, st) = (
+                    plain.samples([&g1, &g2], key),
+                    tensor.samples([&g1, &g2], key),
+                );
+                assert_eq!(sp.len(), 20);
+                assert_eq!(sp.len(), st.len());
+                for (p, t) in sp.iter().flatten().zip(st.iter().flatten()) {
+                    assert!((p - t).abs() <= 1e-4, "{method:?} {run:?}: {p} vs {t}");
+                }
+                let pairs = |m: &PublishedMatcher| {
+                    let d = m.distribution(&va, &vb);
+                    d.decide(None)
+                        .iter()
+                        .map(|c| (c.a, c.b))
+                        .collect::<Vec<_>>()
+                };
+                assert_eq!(pairs(&plain), pairs(&tensor), "{method:?}");
+                // Both embeddings now kept: the same answer again.
+                assert_eq!(plain.samples([&g1, &g2], key), sp);
+            }
         }
     }
 }

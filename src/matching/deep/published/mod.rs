@@ -41,6 +41,7 @@ mod conv;
 mod graph;
 mod matcher;
 mod model;
+mod plain;
 mod train;
 
 #[cfg(test)]

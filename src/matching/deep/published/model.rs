@@ -87,6 +87,22 @@ impl PublishedNet {
         }
     }
 
+    /// The parameters as plain numbers (inference).
+    pub(super) fn plain(&self) -> super::plain::PlainWeights {
+        use crate::matching::deep::network::plain_linear;
+        let consensus = match (&self.psi2, &self.mlp_in, &self.mlp_out) {
+            (Some(psi2), Some(mlp_in), Some(mlp_out)) => {
+                Some((psi2.plain(), plain_linear(mlp_in), plain_linear(mlp_out)))
+            }
+            _ => None,
+        };
+        super::plain::PlainWeights {
+            psi1: self.psi1.plain(),
+            consensus,
+            dustbin: self.dustbin.val().into_scalar::<f32>(),
+        }
+    }
+
     /// Log assignments of `B` pairs (`graphs[0]` the first graphs,
     /// `graphs[1]` the second), T samples each as the masks say.
     pub fn forward(
