@@ -124,8 +124,9 @@ fn main() {
     // only the pair part (consensus, GPS term, Sinkhorn) is computed. The
     // two are timed in turn, so that a busy machine slows both alike.
     let shared = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run);
-    // The same new pair with the second layer through the tensors (as
-    // training runs it): the reference the plain path replaces.
+    // The same new pair with the second layer and the pair part through
+    // the tensors (as training runs them): the reference the plain path
+    // replaces.
     let tensor = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run)
         .without_shared_embeddings()
         .with_tensor_path();
@@ -156,7 +157,7 @@ fn main() {
         }
     }
     println!(
-        "inference, T = 20, new pair, second layer through the tensors: median {:.2} ms",
+        "inference, T = 20, new pair, through the tensors (the reference): median {:.2} ms",
         median(tensor_times)
     );
     let (new_ms, shared_ms) = (median(new_times), median(shared_times));
