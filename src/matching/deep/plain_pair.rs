@@ -51,7 +51,7 @@ impl PlainLinear {
 }
 
 /// burn's ReLU (NaN passes through).
-fn relu(x: f32) -> f32 {
+pub(super) fn relu(x: f32) -> f32 {
     if x.is_nan() || x > 0.0 { x } else { 0.0 }
 }
 
@@ -76,6 +76,23 @@ pub(super) fn lane_sum(a: &[f32], b: &[f32], w: &[f32], f: impl Fn(f32, f32, f32
         acc[l] += f(*x, *y, *z);
     }
     acc.iter().sum()
+}
+
+/// Each sample's similarity `H1 H2^T` of two graphs' embeddings `h1`
+/// (`[T, n1, d]`) and `h2` (`[T, n2, d]`): `[T, n1, n2]`.
+pub(super) fn similarity(h1: &[f32], h2: &[f32], [t, n1, n2]: [usize; 3]) -> Vec<f32> {
+    let d = (h1.len() / (t * n1).max(1)).max(1);
+    let mut out = Vec::with_capacity(t * n1 * n2);
+    for (a, b) in h1
+        .chunks((n1 * d).max(1))
+        .zip(h2.chunks((n2 * d).max(1)))
+        .take(t)
+    {
+        for ai in a.chunks(d) {
+            out.extend(b.chunks(d).map(|bj| lane_sum(ai, bj, bj, |x, y, _| x * y)));
+        }
+    }
+    out
 }
 
 /// `exp(x)`, with the values whose f32 exponential is 0 (below about
@@ -188,17 +205,9 @@ impl PlainPair {
                 .collect::<Vec<f32>>()
         });
         // Per sample: the similarity H1 H2^T plus the pair term.
-        let o = h1.len() / (t * n1).max(1);
-        let mut residual = vec![0f32; t * n1 * n2];
-        for s in 0..t {
-            for i in 0..n1 {
-                let a = &h1[(s * n1 + i) * o..(s * n1 + i + 1) * o];
-                for j in 0..n2 {
-                    let b = &h2[(s * n2 + j) * o..(s * n2 + j + 1) * o];
-                    let dot = lane_sum(a, b, b, |x, y, _| x * y);
-                    residual[(s * n1 + i) * n2 + j] = dot + pair_term[i * n2 + j];
-                }
-            }
+        let mut residual = similarity(h1, h2, [t, n1, n2]);
+        for (r, p) in residual.iter_mut().zip(pair_term.iter().cycle()) {
+            *r += p;
         }
         if let Some(c) = &self.consensus {
             self.consensus(c, [g1, g2], input, indicators, &dust[0], &mut residual);

@@ -24,13 +24,8 @@
 use super::graph::{PaperGraph, length_basis};
 use crate::matching::deep::dense::matmul;
 use crate::matching::deep::features::KERNEL;
-use crate::matching::deep::plain_pair::{PlainLinear, lane_sum};
+use crate::matching::deep::plain_pair::{PlainLinear, lane_sum, relu, similarity};
 use crate::matching::deep::sinkhorn::sinkhorn_probabilities;
-
-/// burn's ReLU (NaN passes through).
-fn relu(x: f32) -> f32 {
-    if x.is_nan() || x > 0.0 { x } else { 0.0 }
-}
 
 /// An edge into row `dst` from row `src` of stacked graphs, with its two
 /// knots' basis weights over the destination's in-degree.
@@ -38,7 +33,7 @@ type Edge = (usize, usize, [(usize, f32); 2]);
 
 /// The edges of `g` with its nodes at rows `offset..`, as the tensor
 /// path's mixing matrix weighs them.
-pub(super) fn edges(g: &PaperGraph, scale_m: f64, offset: usize) -> Vec<Edge> {
+fn edges(g: &PaperGraph, scale_m: f64, offset: usize) -> Vec<Edge> {
     let deg = g.in_degrees();
     (0..g.edge_count())
         .map(|e| {
@@ -300,17 +295,7 @@ impl PlainPublished {
         indicators: &[Vec<f32>],
     ) -> Vec<Vec<f32>> {
         let (n1, n2, t) = (g1.n, g2.n, self.samples());
-        let o = self.psi1.last.d_out;
-        let mut s_hat = vec![0f32; t * n1 * n2];
-        for s in 0..t {
-            for i in 0..n1 {
-                let a = &h1[(s * n1 + i) * o..(s * n1 + i + 1) * o];
-                for j in 0..n2 {
-                    let b = &h2[(s * n2 + j) * o..(s * n2 + j + 1) * o];
-                    s_hat[(s * n1 + i) * n2 + j] = lane_sum(a, b, b, |x, y, _| x * y);
-                }
-            }
-        }
+        let mut s_hat = similarity(h1, h2, [t, n1, n2]);
         let mut p = self.normalise(&s_hat, [t, n1, n2]);
         if let Some((psi2, mlp_in, mlp_out)) = &self.consensus {
             let r = mlp_in.d_in;
