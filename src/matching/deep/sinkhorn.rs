@@ -60,28 +60,39 @@ pub fn log_sinkhorn(
     z + u + v - norm
 }
 
-/// `out[i] = sum_j kernel[i, j] v[j]` for the row-major `kernel` (`out.len()`
-/// rows of `v.len()`), each row summed in order of `j` from 0 (the same
-/// bits as a sequential sum), four rows at a time so that the additions
-/// of different rows overlap.
-fn row_products(kernel: &[f64], v: &[f64], out: &mut [f64]) {
-    let cols = v.len();
-    let mut blocks = out.chunks_mut(4);
-    let mut rows = kernel.chunks_exact(4 * cols);
-    for (block, rows) in (&mut blocks).zip(&mut rows) {
-        let mut acc = [0f64; 4];
-        for (j, vj) in v.iter().enumerate() {
-            for (q, a) in acc.iter_mut().enumerate() {
-                *a += rows[q * cols + j] * vj;
-            }
+/// `out[c] = sum_r m[r, c] weights[r]` for the row-major `m` (`weights.len()`
+/// rows of `out.len()`), each sum in order of `r` from 0 (the same bits
+/// as a sequential sum), 16 columns at a time held in registers.
+#[inline(always)]
+fn weighted_rows(m: &[f64], weights: &[f64], out: &mut [f64]) {
+    let width = out.len();
+    let mut base = 0;
+    while base + 16 <= width {
+        columns::<16>(m, weights, base, out);
+        base += 16;
+    }
+    while base + 4 <= width {
+        columns::<4>(m, weights, base, out);
+        base += 4;
+    }
+    while base < width {
+        columns::<1>(m, weights, base, out);
+        base += 1;
+    }
+}
+
+/// [`weighted_rows`] for the `B` columns from `base`.
+#[inline(always)]
+fn columns<const B: usize>(m: &[f64], weights: &[f64], base: usize, out: &mut [f64]) {
+    let width = out.len();
+    let mut acc = [0f64; B];
+    for (r, w) in weights.iter().enumerate() {
+        let row = &m[r * width + base..r * width + base + B];
+        for (a, x) in acc.iter_mut().zip(row) {
+            *a += x * w;
         }
-        block.copy_from_slice(&acc);
     }
-    let done = kernel.len() / (4 * cols) * 4;
-    for (k, o) in out.iter_mut().enumerate().skip(done) {
-        let row = &kernel[k * cols..(k + 1) * cols];
-        *o = row.iter().zip(v).fold(0.0, |a, (x, y)| a + x * y);
-    }
+    out[base..base + B].copy_from_slice(&acc);
 }
 
 /// [`log_sinkhorn`] for inference, one pair, without tensors or
@@ -95,6 +106,7 @@ fn row_products(kernel: &[f64], v: &[f64], out: &mut [f64]) {
 /// log-domain potentials up to the row shift, so `P = u K v / exp(norm)`
 /// is the log-domain result up to rounding, with one `exp` per entry
 /// instead of two per entry and iteration.
+#[multiversion::multiversion(targets("x86_64+avx+avx2"))]
 pub fn sinkhorn_probabilities(
     scores: &[f64],
     [t, n1, n2]: [usize; 3],
@@ -120,7 +132,7 @@ pub fn sinkhorn_probabilities(
         }
     };
     let mut out = Vec::with_capacity(t * rows * cols);
-    let mut kernel = vec![0f64; rows * cols];
+    let (mut kernel, mut kernel_t) = (vec![0f64; rows * cols], vec![0f64; rows * cols]);
     let (mut u, mut v) = (vec![0f64; rows], vec![1f64; cols]);
     let mut column_sums = vec![0f64; cols];
     for sample in 0..t {
@@ -137,18 +149,19 @@ pub fn sinkhorn_probabilities(
                 kernel[i * cols + j] = (z(j) - row_max).exp();
             }
         }
+        for (i, row) in kernel.chunks_exact(cols).enumerate() {
+            for (j, k) in row.iter().enumerate() {
+                kernel_t[j * rows + i] = *k;
+            }
+        }
         v.fill(1.0);
         for _ in 0..iters {
-            row_products(&kernel, &v, &mut u);
+            // u_i = sum_j K_ij v_j, from K's transpose.
+            weighted_rows(&kernel_t, &v, &mut u);
             for (i, ui) in u.iter_mut().enumerate() {
                 *ui = mu(i) / *ui;
             }
-            column_sums.fill(0.0);
-            for (row, ui) in kernel.chunks_exact(cols).zip(&u) {
-                for (sum, k) in column_sums.iter_mut().zip(row) {
-                    *sum += k * ui;
-                }
-            }
+            weighted_rows(&kernel, &u, &mut column_sums);
             for (j, vj) in v.iter_mut().enumerate() {
                 *vj = nu(j) / column_sums[j];
             }

@@ -7,7 +7,7 @@
 //! few pairs' distributions are kept by their inputs' key and reused, bit
 //! for bit what computing them again gives.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::{Arc, Mutex};
 
 use burn::prelude::*;
@@ -46,6 +46,31 @@ pub struct PublishedMatcher {
     /// [`graph_key`]: a vehicle's graph is embedded once for all its pairs.
     embeddings: Mutex<HashMap<u64, Arc<Vec<f32>>>>,
 }
+
+/// One pair's random draws on the plain path: psi_1's masks per node of
+/// both graphs (empty under shared masks) and one draw of indicators per
+/// consensus step.
+struct Draws {
+    masks: [Vec<f32>; 2],
+    indicators: Vec<Vec<f32>>,
+}
+
+impl Draws {
+    fn bytes(&self) -> usize {
+        let values = self.masks.iter().chain(&self.indicators).map(Vec::len);
+        values.sum::<usize>() * size_of::<f32>()
+    }
+}
+
+/// Recent pairs' draws by everything that makes them ([`draws_key`]):
+/// the paper's method, its ablations and DGMC share a network shape and
+/// the run's dropout seed, so they draw the same numbers for a pair, and
+/// the first to ask draws them for all. Kept oldest first, within
+/// [`DRAWS_BYTES`].
+static DRAWS: Mutex<VecDeque<(u64, Arc<Draws>)>> = Mutex::new(VecDeque::new());
+
+/// The most the kept draws hold, in bytes.
+const DRAWS_BYTES: usize = 64 << 20;
 
 /// At most this many distributions are kept (a frame's pairs at every
 /// pose-noise level).
@@ -170,6 +195,67 @@ impl PublishedMatcher {
         d
     }
 
+    /// The pair's draws ([`Draws`]) from the stream of its `key`: per
+    /// node masks as `draw_psi1_masks` draws them, then one draw of
+    /// indicators per consensus step as `draw_indicators` does; kept for
+    /// the other networks that draw the same.
+    fn draws(&self, key: u64, [n1, n2]: [usize; 2]) -> Arc<Draws> {
+        let (t, rate) = (
+            self.run.samples,
+            self.run.dropout.unwrap_or(self.cfg.dropout),
+        );
+        let per_node = self.run.masks == MaskScope::PerNode;
+        let (d, r, steps) = (
+            self.cfg.hidden,
+            self.cfg.rnd_dim,
+            self.cfg.consensus_steps(),
+        );
+        let id = rng::key(&[
+            self.run.seed,
+            key,
+            u64::from(per_node),
+            rate.to_bits(),
+            t as u64,
+            n1 as u64,
+            n2 as u64,
+            d as u64,
+            r as u64,
+            steps as u64,
+        ]);
+        let find = |kept: &VecDeque<(u64, Arc<Draws>)>| {
+            kept.iter()
+                .find(|(k, _)| *k == id)
+                .map(|(_, d)| Arc::clone(d))
+        };
+        if let Some(found) = DRAWS.lock().ok().and_then(|kept| find(&kept)) {
+            return found;
+        }
+        let mut stream = rng::stream(self.run.seed, Purpose::Dropout, &[key]);
+        let masks = if per_node {
+            [n1, n2].map(|n| dropout_mask_16(&mut stream, t * n * d, rate))
+        } else {
+            [Vec::new(), Vec::new()]
+        };
+        let indicators = (0..steps)
+            .map(|_| indicator_values(&mut stream, t * n1 * r))
+            .collect();
+        let drawn = Arc::new(Draws { masks, indicators });
+        if let Ok(mut kept) = DRAWS.lock()
+            && find(&kept).is_none()
+            && drawn.bytes() <= DRAWS_BYTES
+        {
+            let mut total: usize = kept.iter().map(|(_, d)| d.bytes()).sum();
+            while total + drawn.bytes() > DRAWS_BYTES {
+                let Some((_, old)) = kept.pop_front() else {
+                    break;
+                };
+                total -= old.bytes();
+            }
+            kept.push_back((id, Arc::clone(&drawn)));
+        }
+        drawn
+    }
+
     /// The soft assignments of the samples, each `(n1 + 1) x (n2 + 1)`;
     /// indicators (and per-node masks) from the stream of the pair's
     /// `key`, so that a pair's samples depend on nothing matched before.
@@ -177,27 +263,15 @@ impl PublishedMatcher {
         let [g1, g2] = graphs;
         let (n1, n2, t) = (g1.n, g2.n, self.run.samples);
         if let Some(plain) = &self.plain {
-            // The masks and indicators drawn as `draw_psi1_masks` and
-            // `draw_indicators` draw them: per node from the pair's
-            // stream, then one draw of indicators per consensus step.
-            let mut stream = rng::stream(self.run.seed, Purpose::Dropout, &[key]);
+            let drawn = self.draws(key, [n1, n2]);
             let (h1, h2) = match self.run.masks {
                 MaskScope::Shared => (self.embedding(plain, g1), self.embedding(plain, g2)),
-                MaskScope::PerNode => {
-                    let rate = self.run.dropout.unwrap_or(self.cfg.dropout);
-                    let d = self.cfg.hidden;
-                    let [m1, m2] = [n1, n2].map(|n| dropout_mask_16(&mut stream, t * n * d, rate));
-                    (
-                        Arc::new(plain.embed_per_node(g1, &m1)),
-                        Arc::new(plain.embed_per_node(g2, &m2)),
-                    )
-                }
+                MaskScope::PerNode => (
+                    Arc::new(plain.embed_per_node(g1, &drawn.masks[0])),
+                    Arc::new(plain.embed_per_node(g2, &drawn.masks[1])),
+                ),
             };
-            let r = self.cfg.rnd_dim;
-            let indicators: Vec<Vec<f32>> = (0..self.cfg.consensus_steps())
-                .map(|_| indicator_values(&mut stream, t * n1 * r))
-                .collect();
-            return plain.assignments([(&h1, g1), (&h2, g2)], &indicators);
+            return plain.assignments([(&h1, g1), (&h2, g2)], &drawn.indicators);
         }
         let device = Device::flex();
         let scale = self.cfg.edge_scale_m;

@@ -27,33 +27,55 @@ use crate::matching::deep::features::KERNEL;
 use crate::matching::deep::plain_pair::{PlainLinear, lane_sum, relu, similarity};
 use crate::matching::deep::sinkhorn::sinkhorn_probabilities;
 
-/// An edge into row `dst` from row `src` of stacked graphs, with its two
-/// knots' basis weights over the destination's in-degree.
-type Edge = (usize, usize, [(usize, f32); 2]);
-
-/// The edges of `g` with its nodes at rows `offset..`, as the tensor
-/// path's mixing matrix weighs them.
-fn edges(g: &PaperGraph, scale_m: f64, offset: usize) -> Vec<Edge> {
-    let deg = g.in_degrees();
-    (0..g.edge_count())
-        .map(|e| {
-            let (i, j) = (g.dst[e], g.src[e]);
-            let basis = length_basis(f64::from(g.length_m[e]), scale_m);
-            let w = basis.map(|(knot, b)| (knot, (b / deg[i] as f64) as f32));
-            (offset + i, offset + j, w)
-        })
-        .collect()
+/// A graph's edges grouped by destination node, each group in edge
+/// order: the source and its two knots' basis weights over the
+/// destination's in-degree, as the tensor path's mixing matrix weighs
+/// them.
+pub(super) struct Incoming {
+    n: usize,
+    /// Destination `i`'s edges are `from[start[i]..start[i + 1]]`.
+    start: Vec<usize>,
+    from: Vec<(usize, [(usize, f32); 2])>,
 }
 
-/// `edges` repeated for `blocks` stacked copies of a graph of `n` nodes.
-fn repeated(edges: &[Edge], n: usize, blocks: usize) -> Vec<Edge> {
-    (0..blocks)
-        .flat_map(|b| {
-            edges
-                .iter()
-                .map(move |&(i, j, w)| (i + b * n, j + b * n, w))
-        })
-        .collect()
+impl Incoming {
+    fn of(g: &PaperGraph, scale_m: f64) -> Self {
+        let deg = g.in_degrees();
+        let mut start = vec![0; g.n + 1];
+        for (i, d) in deg.iter().enumerate() {
+            start[i + 1] = start[i] + d;
+        }
+        let mut next = start.clone();
+        let mut from = vec![(0, [(0, 0.0); 2]); g.edge_count()];
+        for e in 0..g.edge_count() {
+            let (i, j) = (g.dst[e], g.src[e]);
+            let basis = length_basis(f64::from(g.length_m[e]), scale_m);
+            from[next[i]] = (j, basis.map(|(knot, b)| (knot, (b / deg[i] as f64) as f32)));
+            next[i] += 1;
+        }
+        Self {
+            n: g.n,
+            start,
+            from,
+        }
+    }
+}
+
+/// `buf` holding `len` values, for a product that overwrites them all: a
+/// buffer reused across calls is only zeroed where it grows.
+fn sized(buf: &mut Vec<f32>, len: usize) -> &mut [f32] {
+    buf.truncate(len);
+    buf.resize(len, 0.0);
+    buf
+}
+
+/// Buffers a network's products reuse from one call to the next.
+#[derive(Default)]
+pub(super) struct Buffers {
+    y: Vec<f32>,
+    h1: Vec<f32>,
+    h2: Vec<f32>,
+    joined: Vec<f32>,
 }
 
 /// A 1-D spline convolution as plain numbers: the root's and each knot's
@@ -104,43 +126,76 @@ impl Conv1d {
         }
     }
 
-    /// `relu(root x_i + sum_edges w x_j W_knot + bias)` of the stacked
-    /// rows `x` (`[rows, in]`), into `out` (`[rows, out]`).
-    fn relu_forward(&self, x: &[f32], rows: usize, edges: &[Edge], out: &mut Vec<f32>) {
-        let (d, width) = (self.d_out, (1 + KERNEL) * self.d_out);
-        let mut y = vec![0f32; rows * width];
+    /// `relu(root x_i + sum_edges w x_j W_knot + bias)` of `blocks`
+    /// stacked copies of a graph (`inc`), rows `x` (`[rows, in]`), into
+    /// `out` (`[rows, out]`); `y` a reused buffer.
+    fn relu_forward(
+        &self,
+        x: &[f32],
+        (inc, blocks): (&Incoming, usize),
+        y: &mut Vec<f32>,
+        out: &mut Vec<f32>,
+    ) {
+        let rows = blocks * inc.n;
+        let width = (1 + KERNEL) * self.d_out;
+        let y = sized(y, rows * width);
         if rows > 0 && self.d_in > 0 {
-            matmul(rows, self.d_in, width, x, &self.joined, &mut y);
+            matmul(rows, self.d_in, width, x, &self.joined, y);
+        } else {
+            y.fill(0.0);
         }
-        let mut messages = vec![0f32; rows * d];
-        for &(i, j, cells) in edges {
-            for (knot, w) in cells {
-                let from = &y[j * width + (1 + knot) * d..j * width + (2 + knot) * d];
-                for (m, v) in messages[i * d..(i + 1) * d].iter_mut().zip(from) {
-                    *m += w * v;
-                }
-            }
-        }
-        out.clear();
-        out.extend((0..rows * d).map(|k| {
-            let (r, o) = (k / d, k % d);
-            relu((y[r * width + o] + messages[k]) + self.bias[o])
-        }));
+        let out = sized(out, rows * self.d_out);
+        mix_relu(y, inc, blocks, &self.bias, out);
     }
 }
 
-/// `x W + b` of the stacked rows `x` (`[rows, in]`).
-fn linear_rows(l: &PlainLinear, x: &[f32], rows: usize) -> Vec<f32> {
-    let mut out = vec![0f32; rows * l.d_out];
+/// The spline convolution's neighbourhood sum and ReLU: row `r` of `out`
+/// is `relu((root_r + m_r) + bias)`, `m_r` the sum, from 0 in edge order,
+/// of `w y_j,knot` over the edges into `r` (`y`: `[rows, (1 + KERNEL)
+/// out]`, the root's and each knot's products side by side).
+#[multiversion::multiversion(targets("x86_64+avx+avx2"))]
+fn mix_relu(y: &[f32], inc: &Incoming, blocks: usize, bias: &[f32], out: &mut [f32]) {
+    let d = bias.len();
+    let (n, width) = (inc.n, (1 + KERNEL) * d);
+    let mut m = vec![0f32; d];
+    for block in 0..blocks {
+        for i in 0..n {
+            m.fill(0.0);
+            for &(j, cells) in &inc.from[inc.start[i]..inc.start[i + 1]] {
+                let src = &y[(block * n + j) * width..(block * n + j + 1) * width];
+                for (knot, w) in cells {
+                    for (a, v) in m.iter_mut().zip(&src[(1 + knot) * d..(2 + knot) * d]) {
+                        *a += w * v;
+                    }
+                }
+            }
+            let r = block * n + i;
+            let root = &y[r * width..r * width + d];
+            for (((o, &yv), &mv), &b) in out[r * d..(r + 1) * d]
+                .iter_mut()
+                .zip(root)
+                .zip(&m)
+                .zip(bias)
+            {
+                *o = relu((yv + mv) + b);
+            }
+        }
+    }
+}
+
+/// `x W + b` of the stacked rows `x` (`[rows, in]`), into `out`.
+fn linear_rows(l: &PlainLinear, x: &[f32], rows: usize, out: &mut Vec<f32>) {
+    let out = sized(out, rows * l.d_out);
     if rows > 0 {
-        matmul(rows, l.d_in, l.d_out, x, &l.weight, &mut out);
+        matmul(rows, l.d_in, l.d_out, x, &l.weight, out);
+    } else {
+        out.fill(0.0);
     }
     for row in out.chunks_mut(l.d_out) {
         for (o, b) in row.iter_mut().zip(&l.bias) {
             *o += b;
         }
     }
-    out
 }
 
 /// DGMC's `SplineCNN` as plain numbers (psi_1 without `cat`, psi_2 with).
@@ -152,22 +207,23 @@ pub(super) struct PlainCnn {
 }
 
 impl PlainCnn {
-    /// psi_2 on the stacked rows `x` (`[rows, in]`, no dropout).
-    fn forward(&self, x: &[f32], rows: usize, edges: &[Edge]) -> Vec<f32> {
-        let (mut h1, mut h2) = (Vec::new(), Vec::new());
-        self.conv1.relu_forward(x, rows, edges, &mut h1);
-        self.conv2.relu_forward(&h1, rows, edges, &mut h2);
+    /// psi_2 on `blocks` stacked copies of a graph (`inc`), rows `x`
+    /// (`[rows, in]`, no dropout), into `out`.
+    fn forward(&self, x: &[f32], g: (&Incoming, usize), buf: &mut Buffers, out: &mut Vec<f32>) {
+        let rows = g.0.n * g.1;
+        self.conv1.relu_forward(x, g, &mut buf.y, &mut buf.h1);
+        self.conv2.relu_forward(&buf.h1, g, &mut buf.y, &mut buf.h2);
         if !self.cat {
-            return linear_rows(&self.last, &h2, rows);
+            return linear_rows(&self.last, &buf.h2, rows, out);
         }
         let (a, b, c) = (self.conv1.d_in, self.conv1.d_out, self.conv2.d_out);
-        let mut joined = Vec::with_capacity(rows * (a + b + c));
+        buf.joined.clear();
         for r in 0..rows {
-            joined.extend_from_slice(&x[r * a..(r + 1) * a]);
-            joined.extend_from_slice(&h1[r * b..(r + 1) * b]);
-            joined.extend_from_slice(&h2[r * c..(r + 1) * c]);
+            buf.joined.extend_from_slice(&x[r * a..(r + 1) * a]);
+            buf.joined.extend_from_slice(&buf.h1[r * b..(r + 1) * b]);
+            buf.joined.extend_from_slice(&buf.h2[r * c..(r + 1) * c]);
         }
-        linear_rows(&self.last, &joined, rows)
+        linear_rows(&self.last, &buf.joined, rows, out);
     }
 }
 
@@ -236,52 +292,54 @@ impl PlainPublished {
 
     /// `relu(conv1(x))` of `g`, `[n, hidden]` (the same in every sample),
     /// and `g`'s edges.
-    fn first_layer(&self, g: &PaperGraph) -> (Vec<f32>, Vec<Edge>) {
-        let e = edges(g, self.scale_m, 0);
+    fn first_layer(&self, g: &PaperGraph, buf: &mut Buffers) -> (Vec<f32>, Incoming) {
+        let inc = Incoming::of(g, self.scale_m);
         let mut h1 = Vec::new();
         self.psi1
             .conv1
-            .relu_forward(&g.node_features, g.n, &e, &mut h1);
-        (h1, e)
+            .relu_forward(&g.node_features, (&inc, 1), &mut buf.y, &mut h1);
+        (h1, inc)
     }
 
     /// psi_1's embedding of `g` in every sample under masks per node and
     /// hidden channel (`mask`: `[T, n, hidden]`), `[T, n, out]`: every
     /// sample's rows in one product per layer.
     pub(super) fn embed_per_node(&self, g: &PaperGraph, mask: &[f32]) -> Vec<f32> {
-        let (n, t) = (g.n, self.samples);
-        let (h1, e) = self.first_layer(g);
+        let mut buf = Buffers::default();
+        let (h1, inc) = self.first_layer(g, &mut buf);
         let hidden = self.psi1.conv1.d_out;
-        let x: Vec<f32> = mask
-            .chunks(hidden.max(1))
-            .enumerate()
-            .flat_map(|(row, m)| {
-                let h = &h1[(row % n.max(1)) * hidden..(row % n.max(1) + 1) * hidden];
-                h.iter().zip(m).map(|(v, m)| v * m)
-            })
-            .collect();
+        let mut x = Vec::with_capacity(mask.len());
+        if hidden > 0 && !h1.is_empty() {
+            for (m, h) in mask.chunks(hidden).zip(h1.chunks(hidden).cycle()) {
+                x.extend(h.iter().zip(m).map(|(v, m)| v * m));
+            }
+        }
         let mut h2 = Vec::new();
         self.psi1
             .conv2
-            .relu_forward(&x, t * n, &repeated(&e, n, t), &mut h2);
-        linear_rows(&self.psi1.last, &h2, t * n)
+            .relu_forward(&x, (&inc, self.samples), &mut buf.y, &mut h2);
+        let mut out = Vec::new();
+        linear_rows(&self.psi1.last, &h2, self.samples * g.n, &mut out);
+        out
     }
 
     /// psi_1's embedding of `g` in every sample under the shared masks,
     /// `[T, n, out]`.
     pub(super) fn embed(&self, g: &PaperGraph) -> Vec<f32> {
         let n = g.n;
-        let (h1, e) = self.first_layer(g);
+        let mut buf = Buffers::default();
+        let (h1, inc) = self.first_layer(g, &mut buf);
         let hidden = self.psi1.conv1.d_out;
         let mut out = Vec::with_capacity(self.samples() * n * self.psi1.last.d_out);
-        let (mut x, mut h2) = (Vec::new(), Vec::new());
+        let (mut x, mut h2, mut o) = (Vec::new(), Vec::new(), Vec::new());
         for (kept, layer) in &self.conv2_kept {
             x.clear();
             for row in h1.chunks(hidden) {
                 x.extend(kept.iter().map(|&u| row[u]));
             }
-            layer.relu_forward(&x, n, &e, &mut h2);
-            out.extend(linear_rows(&self.psi1.last, &h2, n));
+            layer.relu_forward(&x, (&inc, 1), &mut buf.y, &mut h2);
+            linear_rows(&self.psi1.last, &h2, n, &mut o);
+            out.extend_from_slice(&o);
         }
         out
     }
@@ -298,55 +356,35 @@ impl PlainPublished {
         let mut s_hat = similarity(h1, h2, [t, n1, n2]);
         let mut p = self.normalise(&s_hat, [t, n1, n2]);
         if let Some((psi2, mlp_in, mlp_out)) = &self.consensus {
-            let r = mlp_in.d_in;
-            let (e1, e2) = (
-                repeated(&edges(g1, self.scale_m, 0), n1, t),
-                repeated(&edges(g2, self.scale_m, 0), n2, t),
+            let (inc1, inc2) = (
+                Incoming::of(g1, self.scale_m),
+                Incoming::of(g2, self.scale_m),
             );
+            let mut buf = Buffers::default();
+            let (mut r_t, mut o_s, mut o_t, mut a, mut b) =
+                (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            let h = mlp_in.d_out;
             for r_s in indicators.iter().take(self.steps) {
                 // r_t = S^T r_s per sample, S the real block of the
                 // current assignment.
-                let mut r_t = vec![0f32; t * n2 * r];
-                for s in 0..t {
-                    for i in 0..n1 {
-                        let ind = &r_s[(s * n1 + i) * r..(s * n1 + i + 1) * r];
-                        for j in 0..n2 {
-                            let w = p[(s * (n1 + 1) + i) * (n2 + 1) + j];
-                            let out = &mut r_t[(s * n2 + j) * r..(s * n2 + j + 1) * r];
-                            for (x, v) in out.iter_mut().zip(ind) {
-                                *x += w * v;
-                            }
-                        }
+                r_t.clear();
+                r_t.resize(t * n2 * mlp_in.d_in, 0.0);
+                transport(&p, r_s, [t, n1, n2], &mut r_t);
+                psi2.forward(r_s, (&inc1, t), &mut buf, &mut o_s);
+                psi2.forward(&r_t, (&inc2, t), &mut buf, &mut o_t);
+                // MLP(o_s,i - o_t,j) = mlp_out(relu(o_s,i W - o_t,j W + b)).
+                for (o, rows, out) in [(&o_s, t * n1, &mut a), (&o_t, t * n2, &mut b)] {
+                    let out = sized(out, rows * h);
+                    if rows > 0 {
+                        matmul(rows, mlp_in.d_in, h, o, &mlp_in.weight, out);
                     }
                 }
-                let o_s = psi2.forward(r_s, t * n1, &e1);
-                let o_t = psi2.forward(&r_t, t * n2, &e2);
-                // MLP(o_s,i - o_t,j) = mlp_out(relu(o_s,i W - o_t,j W + b)).
-                let project = |x: &[f32], rows: usize| {
-                    let mut out = vec![0f32; rows * mlp_in.d_out];
-                    if rows > 0 {
-                        matmul(rows, mlp_in.d_in, mlp_in.d_out, x, &mlp_in.weight, &mut out);
-                    }
-                    out
-                };
-                let (mut a, b) = (project(&o_s, t * n1), project(&o_t, t * n2));
-                let h = mlp_in.d_out;
                 for row in a.chunks_mut(h) {
                     for (x, c) in row.iter_mut().zip(&mlp_in.bias) {
                         *x += c;
                     }
                 }
-                for s in 0..t {
-                    for i in 0..n1 {
-                        let ai = &a[(s * n1 + i) * h..(s * n1 + i + 1) * h];
-                        for j in 0..n2 {
-                            let bj = &b[(s * n2 + j) * h..(s * n2 + j + 1) * h];
-                            let delta =
-                                lane_sum(ai, bj, &mlp_out.weight, |x, y, w| relu(x - y) * w);
-                            s_hat[(s * n1 + i) * n2 + j] += delta + mlp_out.bias[0];
-                        }
-                    }
-                }
+                consensus_update(&a, &b, mlp_out, [t, n1, n2], &mut s_hat);
                 p = self.normalise(&s_hat, [t, n1, n2]);
             }
         }
@@ -362,5 +400,48 @@ impl PlainPublished {
         let bin = f64::from(self.dustbin);
         let (d1, d2) = (vec![bin; n1], vec![bin; n2]);
         sinkhorn_probabilities(&scores, [t, n1, n2], [&d1, &d2], bin, self.iters)
+    }
+}
+
+/// `r_t += S^T r_s` per sample (`r_t` zeroed by the caller), `S` the real
+/// block of each sample's `(n1 + 1) x (n2 + 1)` assignment `p`, summed in
+/// order of `i`.
+#[multiversion::multiversion(targets("x86_64+avx+avx2"))]
+fn transport(p: &[f32], r_s: &[f32], [t, n1, n2]: [usize; 3], r_t: &mut [f32]) {
+    let r = r_s.len() / (t * n1).max(1);
+    for s in 0..t {
+        for i in 0..n1 {
+            let ind = &r_s[(s * n1 + i) * r..(s * n1 + i + 1) * r];
+            for j in 0..n2 {
+                let w = p[(s * (n1 + 1) + i) * (n2 + 1) + j];
+                let out = &mut r_t[(s * n2 + j) * r..(s * n2 + j + 1) * r];
+                for (x, v) in out.iter_mut().zip(ind) {
+                    *x += w * v;
+                }
+            }
+        }
+    }
+}
+
+/// `S_hat_ij += mlp_out(relu(a_i - b_j)) ` per sample: `a` the source
+/// rows' projections with the first layer's bias, `b` the target rows'.
+#[multiversion::multiversion(targets("x86_64+avx+avx2"))]
+fn consensus_update(
+    a: &[f32],
+    b: &[f32],
+    mlp_out: &PlainLinear,
+    [t, n1, n2]: [usize; 3],
+    s_hat: &mut [f32],
+) {
+    let h = mlp_out.d_in;
+    for s in 0..t {
+        for i in 0..n1 {
+            let ai = &a[(s * n1 + i) * h..(s * n1 + i + 1) * h];
+            for j in 0..n2 {
+                let bj = &b[(s * n2 + j) * h..(s * n2 + j + 1) * h];
+                let delta = lane_sum(ai, bj, &mlp_out.weight, |x, y, w| relu(x - y) * w);
+                s_hat[(s * n1 + i) * n2 + j] += delta + mlp_out.bias[0];
+            }
+        }
     }
 }
