@@ -10,16 +10,20 @@
 //! peak each part achieves.
 //! `cargo bench --bench matcher` (prints medians over repeated runs);
 //! `COID_BENCH_PROFILE=new` (or `shared`) runs that case alone 3000 times
-//! without output, for `perf record`.
+//! without output, for `perf record` (`published`: DGMC's network on 1000
+//! pairs).
 
 use std::time::Instant;
 
 use coid_sim::geometry::{Cov2, Pose2, Vec2};
 use coid_sim::graph::SceneGraph;
-use coid_sim::matching::deep::arch::{Architecture, MaskScope, PairLoss};
-use coid_sim::matching::deep::cost::{GraphShape, inference_macs, plain_embedding_macs};
+use coid_sim::matching::deep::arch::{Architecture, Backbone, DeepMethod, MaskScope, PairLoss};
+use coid_sim::matching::deep::cost::{
+    GraphShape, inference_macs, plain_embedding_macs, published_macs,
+};
 use coid_sim::matching::deep::decision::Decision;
 use coid_sim::matching::deep::dense::matmul;
+use coid_sim::matching::deep::published::PublishedMatcher;
 use coid_sim::matching::deep::train::{Example, Prepared, TrainOptions, Trainer, example};
 use coid_sim::matching::deep::{DeepMatcher, Inference};
 use coid_sim::matching::{Correspondence, MatchView, Method, gps_relative_pose};
@@ -132,6 +136,10 @@ fn main() {
         .with_tensor_path();
     // For a profiler: one case only, 3000 times, nothing printed.
     if let Ok(which) = std::env::var("COID_BENCH_PROFILE") {
+        if which == "published" {
+            published_pair(&objects, (pa, pb), level, None);
+            return;
+        }
         let m = if which == "shared" {
             &shared
         } else {
@@ -161,14 +169,16 @@ fn main() {
         median(tensor_times)
     );
     let (new_ms, shared_ms) = (median(new_times), median(shared_times));
-    against_the_peak(&va, &vb, new_ms, shared_ms);
+    let peak = against_the_peak(&va, &vb, new_ms, shared_ms);
+    published_pair(&objects, (pa, pb), level, Some(peak));
 
     training_step(&mut rng, level, (pa, pb));
 }
 
 /// The inference times against the arithmetic they do: the multiply-adds
-/// counted from the network's shapes, and the matrix-multiply peak.
-fn against_the_peak(va: &MatchView, vb: &MatchView, new_ms: f64, shared_ms: f64) {
+/// counted from the network's shapes, and the matrix-multiply peak
+/// (returned, GFLOP/s).
+fn against_the_peak(va: &MatchView, vb: &MatchView, new_ms: f64, shared_ms: f64) -> f64 {
     // The peak: the best of large square products (cache sizes differ).
     let peak = [256, 512, 1024]
         .into_iter()
@@ -212,6 +222,84 @@ fn against_the_peak(va: &MatchView, vb: &MatchView, new_ms: f64, shared_ms: f64)
     println!(
         "inference, T = 20, both embeddings shared: median {shared_ms:.2} ms ({})",
         rate(macs.shared_pair(), shared_ms)
+    );
+    peak
+}
+
+/// DGMC's network with the shipped weights of the paper's method
+/// (`coid`: masks per node, as trained; DGMC, `coid+non` and `coid+unc`
+/// cost the same) on the same pair, T = 20: the plain inference path
+/// against its counted arithmetic. Every call sees a new pair (an
+/// object moved by a tenth of a millimetre more, the same graphs), so
+/// nothing is reused from a call before.
+/// `peak`: `None` for a profiler (1000 pairs, nothing printed).
+fn published_pair(
+    objects: &[(Vec2, ObjectClass)],
+    (pa, pb): (Pose2, Pose2),
+    level: PoseNoiseLevel,
+    peak: Option<f64>,
+) {
+    let Backbone::Published(cfg) = DeepMethod::Coid.backbone() else {
+        unreachable!("coid is DGMC's network");
+    };
+    let run = Inference {
+        samples: 20,
+        threshold: None,
+        decision: Decision::Assignment,
+        temperature: 1.0,
+        seed: 1,
+        masks: MaskScope::PerNode,
+        dropout: None,
+        gate_chi2: 9.21,
+    };
+    let bytes = include_bytes!("../models/coid.bpk");
+    let matcher = PublishedMatcher::from_weights(Method::Coid, cfg, bytes, run).unwrap();
+    let pairs: Vec<_> = (0..if peak.is_some() { 60 } else { 1000 })
+        .map(|k| {
+            let mut moved = objects.to_vec();
+            moved[3].0.x += 1e-4 * (k + 1) as f64;
+            let (da, db) = (detections(&pa, &moved), detections(&pb, &moved[2..]));
+            let graph = |d: &[Detection]| {
+                SceneGraph::delaunay(&d.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap()
+            };
+            let (ga, gb) = (graph(&da), graph(&db));
+            (da, db, ga, gb)
+        })
+        .collect();
+    let mut times = Vec::new();
+    for (k, (da, db, ga, gb)) in pairs.iter().enumerate() {
+        let va = MatchView {
+            detections: da,
+            graph: ga,
+            pose_reported: pa,
+            pose_noise: level,
+        };
+        let vb = MatchView {
+            detections: db,
+            graph: gb,
+            pose_reported: pb,
+            pose_noise: level,
+        };
+        let t = Instant::now();
+        std::hint::black_box(matcher.distribution(&va, &vb));
+        if k >= 10 {
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let Some(peak) = peak else {
+        return;
+    };
+    let ms = median(times);
+    let macs = published_macs(&cfg, [objects.len(), objects.len() - 2], 20, true);
+    let gflops = 2.0 * macs.new_pair() as f64 / (ms * 1e6);
+    println!(
+        "DGMC's network (shipped coid weights, masks per node), T = 20, {} x {} nodes, a new \
+         pair: median {ms:.2} ms ({:.1} MFLOP counted on the plain path's shapes, {gflops:.1} \
+         GFLOP/s, {:.0} % of peak)",
+        objects.len(),
+        objects.len() - 2,
+        2.0 * macs.new_pair() as f64 / 1e6,
+        100.0 * gflops / peak
     );
 }
 

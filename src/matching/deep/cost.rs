@@ -11,8 +11,10 @@
 //! sample, consensus on the first graph's indicators once and on the
 //! second's per sample.
 
-use super::arch::Architecture;
-use super::features::{DUST_FEATURES, KERNEL_2D, PAIR_FEATURES, graph_input};
+use super::arch::{Architecture, PublishedConfig};
+use super::features::{
+    DUST_FEATURES, KERNEL, KERNEL_2D, NODE_FEATURES, PAIR_FEATURES, graph_input,
+};
 use crate::matching::MatchView;
 
 /// One graph as the network sees it: its nodes and the kernel cells its
@@ -99,6 +101,43 @@ pub fn inference_macs(
     }
 }
 
+/// The MACs of a published network (GCN-GM, or DGMC's network: DGMC and
+/// the paper's method) with `samples` MC-dropout samples on graphs of
+/// `nodes` nodes, as its plain inference path
+/// ([`super::published::PublishedMatcher`]) computes it: psi_1's first
+/// layer once per graph, its second per sample (under masks per node
+/// every hidden channel, under shared masks the kept ones, expected), the
+/// root's and every knot's products for every row; per consensus step
+/// `S^T R_s`, psi_2 on both graphs' indicators (two convolutions, the
+/// final layer on their concatenation), the consensus MLP's first layer
+/// per node and its last per node pair; Sinkhorn after `S_0` and every
+/// step. Neighbourhood sums along the edges are element work (left out).
+pub fn published_macs(
+    cfg: &PublishedConfig,
+    [n1, n2]: [usize; 2],
+    samples: usize,
+    per_node: bool,
+) -> InferenceMacs {
+    let t = samples as u64;
+    let (a, b) = (n1 as u64, n2 as u64);
+    let cells = 1 + KERNEL as u64;
+    let (h, o, r) = (cfg.hidden as u64, cfg.out as u64, cfg.rnd_dim as u64);
+    let kept = if per_node {
+        h
+    } else {
+        ((1.0 - cfg.dropout) * h as f64).round() as u64
+    };
+    let embed = |n: u64| n * NODE_FEATURES as u64 * cells * h + t * n * (kept * cells * o + o * o);
+    let psi2 = |n: u64| t * n * (2 * r * cells * r + 3 * r * r + r * r);
+    let steps = cfg.consensus_steps() as u64;
+    let step = t * a * b * r + psi2(a) + psi2(b) + t * a * b * r;
+    InferenceMacs {
+        embeddings: [embed(a), embed(b)],
+        pair: t * a * b * o + steps * step,
+        sinkhorn: (1 + steps) * t * cfg.sinkhorn_iters as u64 * 2 * (a + 1) * (b + 1),
+    }
+}
+
 /// The expected multiply-adds of graph `g`'s embedding with the second
 /// layer in plain Rust under shared masks ([`super::shared_conv`]): the
 /// first layer as the tensors do it, then per sample only the kept input
@@ -175,5 +214,35 @@ mod tests {
             p.pair,
             20 * 18 * (12 * 32 + 32) + 38 * (13 * 32 + 32) + 20 * 20 * 18 * 32
         );
+    }
+
+    /// DGMC's network (the paper's sizes) on the bench's 20 x 18 pair,
+    /// T = 20, counted by hand stage by stage; GCN-GM stops after `S_0`.
+    #[test]
+    fn a_published_pair_costs_what_its_shapes_say() {
+        use crate::matching::deep::arch::PublishedKind;
+        let dgmc = PublishedConfig::new(PublishedKind::Dgmc);
+        let m = published_macs(&dgmc, [20, 18], 20, true);
+        let embed = |n: u64| n * 13 * 6 * 256 + 20 * n * (256 * 6 * 32 + 32 * 32);
+        assert_eq!(m.embeddings, [embed(20), embed(18)]);
+        let psi2 = |n: u64| 20 * n * (32 * 6 * 32 + 32 * 6 * 32 + 96 * 32 + 32 * 32);
+        let step = 20 * 20 * 18 * 32 + psi2(20) + psi2(18) + 20 * 20 * 18 * 32;
+        assert_eq!(m.pair, 20 * 20 * 18 * 32 + 10 * step);
+        assert_eq!(m.sinkhorn, 11 * 20 * 20 * 2 * 21 * 19);
+        assert_eq!(m.new_pair(), 171_760_544);
+        // Shared masks: the second layer on the 154 kept channels of 256.
+        let shared = published_macs(&dgmc, [20, 18], 20, false);
+        assert_eq!(
+            shared.embeddings[0],
+            20 * 13 * 6 * 256 + 20 * 20 * (154 * 6 * 32 + 32 * 32)
+        );
+        let gcn = published_macs(
+            &PublishedConfig::new(PublishedKind::GcnGm),
+            [20, 18],
+            20,
+            true,
+        );
+        assert_eq!(gcn.pair, 20 * 20 * 18 * 32);
+        assert_eq!(gcn.sinkhorn, 20 * 20 * 2 * 21 * 19);
     }
 }
