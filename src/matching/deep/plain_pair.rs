@@ -57,7 +57,7 @@ pub(super) fn relu(x: f32) -> f32 {
 
 /// Lanes of the reductions below: independent partial sums the compiler
 /// keeps in one vector register.
-const LANES: usize = 8;
+pub(super) const LANES: usize = 8;
 
 /// `sum_k f(a_k, b_k, w_k)` over three slices of one length, in
 /// [`LANES`] interleaved partial sums.

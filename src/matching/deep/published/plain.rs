@@ -24,7 +24,7 @@
 use super::graph::{PaperGraph, length_basis};
 use crate::matching::deep::dense::matmul;
 use crate::matching::deep::features::KERNEL;
-use crate::matching::deep::plain_pair::{PlainLinear, lane_sum, relu, similarity};
+use crate::matching::deep::plain_pair::{LANES, PlainLinear, relu, similarity};
 use crate::matching::deep::sinkhorn::sinkhorn_probabilities;
 
 /// A graph's edges grouped by destination node, each group in edge
@@ -76,6 +76,26 @@ pub(super) struct Buffers {
     h1: Vec<f32>,
     h2: Vec<f32>,
     joined: Vec<f32>,
+}
+
+/// Every buffer of an inference: kept per thread from one pair to the
+/// next, so that a pair's products land in memory that is already there
+/// (no allocation, no zeroing, no page faults).
+#[derive(Default)]
+struct Scratch {
+    cnn: Buffers,
+    /// A graph's first-layer output and its masked copy per sample.
+    first: Vec<f32>,
+    masked: Vec<f32>,
+    r_t: Vec<f32>,
+    o_s: Vec<f32>,
+    o_t: Vec<f32>,
+    a: Vec<f32>,
+    b: Vec<f32>,
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::default();
 }
 
 /// A 1-D spline convolution as plain numbers: the root's and each knot's
@@ -156,30 +176,52 @@ impl Conv1d {
 #[multiversion::multiversion(targets("x86_64+avx+avx2"))]
 fn mix_relu(y: &[f32], inc: &Incoming, blocks: usize, bias: &[f32], out: &mut [f32]) {
     let d = bias.len();
-    let (n, width) = (inc.n, (1 + KERNEL) * d);
-    let mut m = vec![0f32; d];
     for block in 0..blocks {
-        for i in 0..n {
-            m.fill(0.0);
-            for &(j, cells) in &inc.from[inc.start[i]..inc.start[i + 1]] {
-                let src = &y[(block * n + j) * width..(block * n + j + 1) * width];
-                for (knot, w) in cells {
-                    for (a, v) in m.iter_mut().zip(&src[(1 + knot) * d..(2 + knot) * d]) {
-                        *a += w * v;
-                    }
-                }
+        for i in 0..inc.n {
+            let mut c = 0;
+            while c + 32 <= d {
+                mix_columns::<32>(y, (inc, block, i), c, bias, out);
+                c += 32;
             }
-            let r = block * n + i;
-            let root = &y[r * width..r * width + d];
-            for (((o, &yv), &mv), &b) in out[r * d..(r + 1) * d]
-                .iter_mut()
-                .zip(root)
-                .zip(&m)
-                .zip(bias)
-            {
-                *o = relu((yv + mv) + b);
+            while c < d {
+                mix_columns::<1>(y, (inc, block, i), c, bias, out);
+                c += 1;
             }
         }
+    }
+}
+
+/// [`mix_relu`] for the `C` columns from `c` of node `i` of copy `block`:
+/// the sum held in registers.
+#[inline(always)]
+fn mix_columns<const C: usize>(
+    y: &[f32],
+    (inc, block, i): (&Incoming, usize, usize),
+    c: usize,
+    bias: &[f32],
+    out: &mut [f32],
+) {
+    let (n, d) = (inc.n, bias.len());
+    let width = (1 + KERNEL) * d;
+    let mut m = [0f32; C];
+    for &(j, cells) in &inc.from[inc.start[i]..inc.start[i + 1]] {
+        let src = (block * n + j) * width + c;
+        for (knot, w) in cells {
+            let at = src + (1 + knot) * d;
+            for (a, v) in m.iter_mut().zip(&y[at..at + C]) {
+                *a += w * v;
+            }
+        }
+    }
+    let r = block * n + i;
+    let root = &y[r * width + c..r * width + c + C];
+    for (((o, &yv), &mv), &b) in out[r * d + c..r * d + c + C]
+        .iter_mut()
+        .zip(root)
+        .zip(&m)
+        .zip(&bias[c..c + C])
+    {
+        *o = relu((yv + mv) + b);
     }
 }
 
@@ -290,58 +332,60 @@ impl PlainPublished {
         self.samples
     }
 
-    /// `relu(conv1(x))` of `g`, `[n, hidden]` (the same in every sample),
-    /// and `g`'s edges.
-    fn first_layer(&self, g: &PaperGraph, buf: &mut Buffers) -> (Vec<f32>, Incoming) {
+    /// `relu(conv1(x))` of `g` into `h1` (`[n, hidden]`, the same in
+    /// every sample), and `g`'s edges.
+    fn first_layer(&self, g: &PaperGraph, buf: &mut Buffers, h1: &mut Vec<f32>) -> Incoming {
         let inc = Incoming::of(g, self.scale_m);
-        let mut h1 = Vec::new();
         self.psi1
             .conv1
-            .relu_forward(&g.node_features, (&inc, 1), &mut buf.y, &mut h1);
-        (h1, inc)
+            .relu_forward(&g.node_features, (&inc, 1), &mut buf.y, h1);
+        inc
     }
 
     /// psi_1's embedding of `g` in every sample under masks per node and
     /// hidden channel (`mask`: `[T, n, hidden]`), `[T, n, out]`: every
     /// sample's rows in one product per layer.
     pub(super) fn embed_per_node(&self, g: &PaperGraph, mask: &[f32]) -> Vec<f32> {
-        let mut buf = Buffers::default();
-        let (h1, inc) = self.first_layer(g, &mut buf);
-        let hidden = self.psi1.conv1.d_out;
-        let mut x = Vec::with_capacity(mask.len());
-        if hidden > 0 && !h1.is_empty() {
-            for (m, h) in mask.chunks(hidden).zip(h1.chunks(hidden).cycle()) {
-                x.extend(h.iter().zip(m).map(|(v, m)| v * m));
+        SCRATCH.with_borrow_mut(|s| {
+            let inc = self.first_layer(g, &mut s.cnn, &mut s.first);
+            let hidden = self.psi1.conv1.d_out;
+            s.masked.clear();
+            if hidden > 0 && !s.first.is_empty() {
+                for (m, h) in mask.chunks(hidden).zip(s.first.chunks(hidden).cycle()) {
+                    s.masked.extend(h.iter().zip(m).map(|(v, m)| v * m));
+                }
             }
-        }
-        let mut h2 = Vec::new();
-        self.psi1
-            .conv2
-            .relu_forward(&x, (&inc, self.samples), &mut buf.y, &mut h2);
-        let mut out = Vec::new();
-        linear_rows(&self.psi1.last, &h2, self.samples * g.n, &mut out);
-        out
+            self.psi1.conv2.relu_forward(
+                &s.masked,
+                (&inc, self.samples),
+                &mut s.cnn.y,
+                &mut s.cnn.h2,
+            );
+            let mut out = Vec::new();
+            linear_rows(&self.psi1.last, &s.cnn.h2, self.samples * g.n, &mut out);
+            out
+        })
     }
 
     /// psi_1's embedding of `g` in every sample under the shared masks,
     /// `[T, n, out]`.
     pub(super) fn embed(&self, g: &PaperGraph) -> Vec<f32> {
         let n = g.n;
-        let mut buf = Buffers::default();
-        let (h1, inc) = self.first_layer(g, &mut buf);
-        let hidden = self.psi1.conv1.d_out;
-        let mut out = Vec::with_capacity(self.samples() * n * self.psi1.last.d_out);
-        let (mut x, mut h2, mut o) = (Vec::new(), Vec::new(), Vec::new());
-        for (kept, layer) in &self.conv2_kept {
-            x.clear();
-            for row in h1.chunks(hidden) {
-                x.extend(kept.iter().map(|&u| row[u]));
+        SCRATCH.with_borrow_mut(|s| {
+            let inc = self.first_layer(g, &mut s.cnn, &mut s.first);
+            let hidden = self.psi1.conv1.d_out;
+            let mut out = Vec::with_capacity(self.samples() * n * self.psi1.last.d_out);
+            for (kept, layer) in &self.conv2_kept {
+                s.masked.clear();
+                for row in s.first.chunks(hidden) {
+                    s.masked.extend(kept.iter().map(|&u| row[u]));
+                }
+                layer.relu_forward(&s.masked, (&inc, 1), &mut s.cnn.y, &mut s.cnn.h2);
+                linear_rows(&self.psi1.last, &s.cnn.h2, n, &mut s.a);
+                out.extend_from_slice(&s.a);
             }
-            layer.relu_forward(&x, (&inc, 1), &mut buf.y, &mut h2);
-            linear_rows(&self.psi1.last, &h2, n, &mut o);
-            out.extend_from_slice(&o);
-        }
-        out
+            out
+        })
     }
 
     /// The soft assignments of the samples, each `(n1 + 1) x (n2 + 1)`:
@@ -360,33 +404,32 @@ impl PlainPublished {
                 Incoming::of(g1, self.scale_m),
                 Incoming::of(g2, self.scale_m),
             );
-            let mut buf = Buffers::default();
-            let (mut r_t, mut o_s, mut o_t, mut a, mut b) =
-                (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-            let h = mlp_in.d_out;
-            for r_s in indicators.iter().take(self.steps) {
-                // r_t = S^T r_s per sample, S the real block of the
-                // current assignment.
-                r_t.clear();
-                r_t.resize(t * n2 * mlp_in.d_in, 0.0);
-                transport(&p, r_s, [t, n1, n2], &mut r_t);
-                psi2.forward(r_s, (&inc1, t), &mut buf, &mut o_s);
-                psi2.forward(&r_t, (&inc2, t), &mut buf, &mut o_t);
-                // MLP(o_s,i - o_t,j) = mlp_out(relu(o_s,i W - o_t,j W + b)).
-                for (o, rows, out) in [(&o_s, t * n1, &mut a), (&o_t, t * n2, &mut b)] {
-                    let out = sized(out, rows * h);
-                    if rows > 0 {
-                        matmul(rows, mlp_in.d_in, h, o, &mlp_in.weight, out);
+            SCRATCH.with_borrow_mut(|s| {
+                let h = mlp_in.d_out;
+                for r_s in indicators.iter().take(self.steps) {
+                    // r_t = S^T r_s per sample, S the real block of the
+                    // current assignment.
+                    s.r_t.clear();
+                    s.r_t.resize(t * n2 * mlp_in.d_in, 0.0);
+                    transport(&p, r_s, [t, n1, n2], &mut s.r_t);
+                    psi2.forward(r_s, (&inc1, t), &mut s.cnn, &mut s.o_s);
+                    psi2.forward(&s.r_t, (&inc2, t), &mut s.cnn, &mut s.o_t);
+                    // MLP(o_s,i - o_t,j) = mlp_out(relu(o_s,i W - o_t,j W + b)).
+                    for (o, rows, out) in [(&s.o_s, t * n1, &mut s.a), (&s.o_t, t * n2, &mut s.b)] {
+                        let out = sized(out, rows * h);
+                        if rows > 0 {
+                            matmul(rows, mlp_in.d_in, h, o, &mlp_in.weight, out);
+                        }
                     }
-                }
-                for row in a.chunks_mut(h) {
-                    for (x, c) in row.iter_mut().zip(&mlp_in.bias) {
-                        *x += c;
+                    for row in s.a.chunks_mut(h) {
+                        for (x, c) in row.iter_mut().zip(&mlp_in.bias) {
+                            *x += c;
+                        }
                     }
+                    consensus_update(&s.a, &s.b, mlp_out, [t, n1, n2], &mut s_hat);
+                    p = self.normalise(&s_hat, [t, n1, n2]);
                 }
-                consensus_update(&a, &b, mlp_out, [t, n1, n2], &mut s_hat);
-                p = self.normalise(&s_hat, [t, n1, n2]);
-            }
+            });
         }
         p.chunks_exact((n1 + 1) * (n2 + 1))
             .map(<[f32]>::to_vec)
@@ -423,8 +466,10 @@ fn transport(p: &[f32], r_s: &[f32], [t, n1, n2]: [usize; 3], r_t: &mut [f32]) {
     }
 }
 
-/// `S_hat_ij += mlp_out(relu(a_i - b_j)) ` per sample: `a` the source
+/// `S_hat_ij += mlp_out(relu(a_i - b_j))` per sample: `a` the source
 /// rows' projections with the first layer's bias, `b` the target rows'.
+/// Each pair's sum is `lane_sum`'s, eight pairs of a row side by side
+/// (the target rows transposed).
 #[multiversion::multiversion(targets("x86_64+avx+avx2"))]
 fn consensus_update(
     a: &[f32],
@@ -434,14 +479,55 @@ fn consensus_update(
     s_hat: &mut [f32],
 ) {
     let h = mlp_out.d_in;
+    // Targets padded to a multiple of 8 with zeros (their sums unused).
+    let padded = n2.div_ceil(8) * 8;
+    let mut b_t = vec![0f32; h * padded];
     for s in 0..t {
+        for j in 0..n2 {
+            for (k, v) in b[(s * n2 + j) * h..(s * n2 + j + 1) * h].iter().enumerate() {
+                b_t[k * padded + j] = *v;
+            }
+        }
         for i in 0..n1 {
             let ai = &a[(s * n1 + i) * h..(s * n1 + i + 1) * h];
-            for j in 0..n2 {
-                let bj = &b[(s * n2 + j) * h..(s * n2 + j + 1) * h];
-                let delta = lane_sum(ai, bj, &mlp_out.weight, |x, y, w| relu(x - y) * w);
-                s_hat[(s * n1 + i) * n2 + j] += delta + mlp_out.bias[0];
+            let row = &mut s_hat[(s * n1 + i) * n2..(s * n1 + i + 1) * n2];
+            for j in (0..n2).step_by(8) {
+                let sums = pair_sums(ai, (&b_t[j..], padded), mlp_out);
+                for (out, delta) in row[j..].iter_mut().zip(sums) {
+                    *out += delta + mlp_out.bias[0];
+                }
             }
         }
     }
+}
+
+/// [`consensus_update`]'s sums for the 8 pairs of `ai` with the targets
+/// whose transposed rows start `b_t` (`stride` apart): `lane_sum(ai, b_j,
+/// w, |x, y, w| relu(x - y) * w)` for each, bit for bit (the same partial
+/// sums in the same order).
+#[inline(always)]
+fn pair_sums(ai: &[f32], (b_t, stride): (&[f32], usize), mlp_out: &PlainLinear) -> [f32; 8] {
+    let (h, w) = (ai.len(), &mlp_out.weight);
+    let mut acc = [[0f32; 8]; LANES];
+    let chunks = h / LANES;
+    // relu(d) as a select: d where !(d <= 0) (positive or NaN), else 0.
+    let term = |x: f32, bk: &[f32], wk: f32, lane: &mut [f32; 8]| {
+        let mut v = *lane;
+        for (a, y) in v.iter_mut().zip(bk) {
+            let d = x - y;
+            *a += if d <= 0.0 { 0.0 } else { d } * wk;
+        }
+        *lane = v;
+    };
+    for c in 0..chunks {
+        for (l, lane) in acc.iter_mut().enumerate() {
+            let k = c * LANES + l;
+            term(ai[k], &b_t[k * stride..k * stride + 8], w[k], lane);
+        }
+    }
+    for (l, lane) in acc.iter_mut().enumerate().take(h - chunks * LANES) {
+        let k = chunks * LANES + l;
+        term(ai[k], &b_t[k * stride..k * stride + 8], w[k], lane);
+    }
+    std::array::from_fn(|q| acc.iter().map(|lane| lane[q]).sum())
 }
