@@ -35,6 +35,18 @@ use rand::{Rng, SeedableRng};
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// MC-dropout inference as the bench runs it: T = 20, shared masks.
+const RUN: Inference = Inference {
+    samples: 20,
+    threshold: None,
+    decision: Decision::Assignment,
+    temperature: 1.0,
+    seed: 1,
+    masks: MaskScope::Shared,
+    dropout: None,
+    gate_chi2: 9.21,
+};
+
 fn scene(n: usize, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<(Vec2, ObjectClass)> {
     (0..n)
         .map(|k| {
@@ -111,16 +123,7 @@ fn main() {
     };
 
     // A new pair every time: both embeddings computed (no sharing).
-    let run = Inference {
-        samples: 20,
-        threshold: None,
-        decision: Decision::Assignment,
-        temperature: 1.0,
-        seed: 1,
-        masks: MaskScope::Shared,
-        dropout: None,
-        gate_chi2: 9.21,
-    };
+    let run = RUN;
     let per_pair = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run)
         .without_shared_embeddings();
     let relative = gps_relative_pose(&va, &vb);
@@ -243,14 +246,8 @@ fn published_pair(
         unreachable!("coid is DGMC's network");
     };
     let run = Inference {
-        samples: 20,
-        threshold: None,
-        decision: Decision::Assignment,
-        temperature: 1.0,
-        seed: 1,
         masks: MaskScope::PerNode,
-        dropout: None,
-        gate_chi2: 9.21,
+        ..RUN
     };
     let bytes = include_bytes!("../models/coid.bpk");
     let matcher = PublishedMatcher::from_weights(Method::Coid, cfg, bytes, run).unwrap();
