@@ -60,17 +60,20 @@ pub fn log_sinkhorn(
     z + u + v - norm
 }
 
-/// `out[c] = sum_r m[r, c] weights[r]` for the row-major `m` (`weights.len()`
-/// rows of `out.len()`), each sum in order of `r` from 0 (the same bits
-/// as a sequential sum), 16 columns at a time held in registers.
+/// Samples normalised side by side, one in each lane of a register.
+const LANES: usize = 4;
+
+/// One value of each of [`LANES`] samples.
+type Lanes = [f64; LANES];
+
+/// `out[c] = sum_r m[r, c] weights[r]`, lane by lane, for the row-major
+/// `m` (`weights.len()` rows of `out.len()`), each sum in order of `r`
+/// from 0 (the same bits as a sequential sum of one sample), 4 columns
+/// at a time held in registers.
 #[inline(always)]
-fn weighted_rows(m: &[f64], weights: &[f64], out: &mut [f64]) {
+fn weighted_rows(m: &[Lanes], weights: &[Lanes], out: &mut [Lanes]) {
     let width = out.len();
     let mut base = 0;
-    while base + 16 <= width {
-        columns::<16>(m, weights, base, out);
-        base += 16;
-    }
     while base + 4 <= width {
         columns::<4>(m, weights, base, out);
         base += 4;
@@ -83,13 +86,15 @@ fn weighted_rows(m: &[f64], weights: &[f64], out: &mut [f64]) {
 
 /// [`weighted_rows`] for the `B` columns from `base`.
 #[inline(always)]
-fn columns<const B: usize>(m: &[f64], weights: &[f64], base: usize, out: &mut [f64]) {
+fn columns<const B: usize>(m: &[Lanes], weights: &[Lanes], base: usize, out: &mut [Lanes]) {
     let width = out.len();
-    let mut acc = [0f64; B];
+    let mut acc = [[0f64; LANES]; B];
     for (r, w) in weights.iter().enumerate() {
         let row = &m[r * width + base..r * width + base + B];
         for (a, x) in acc.iter_mut().zip(row) {
-            *a += x * w;
+            for l in 0..LANES {
+                a[l] += x[l] * w[l];
+            }
         }
     }
     out[base..base + B].copy_from_slice(&acc);
@@ -106,6 +111,10 @@ fn columns<const B: usize>(m: &[f64], weights: &[f64], base: usize, out: &mut [f
 /// log-domain potentials up to the row shift, so `P = u K v / exp(norm)`
 /// is the log-domain result up to rounding, with one `exp` per entry
 /// instead of two per entry and iteration.
+///
+/// Four samples go through the iterations side by side, one per lane
+/// (the last group's spare lanes on a kernel of ones, then dropped): each
+/// sample's arithmetic is its own, in the order one sample alone takes.
 #[multiversion::multiversion(targets("x86_64+avx+avx2"))]
 pub fn sinkhorn_probabilities(
     scores: &[f64],
@@ -132,21 +141,30 @@ pub fn sinkhorn_probabilities(
         }
     };
     let mut out = Vec::with_capacity(t * rows * cols);
-    let (mut kernel, mut kernel_t) = (vec![0f64; rows * cols], vec![0f64; rows * cols]);
-    let (mut u, mut v) = (vec![0f64; rows], vec![1f64; cols]);
-    let mut column_sums = vec![0f64; cols];
-    for sample in 0..t {
-        let block = &scores[sample * n1 * n2..(sample + 1) * n1 * n2];
-        for i in 0..rows {
-            let z = |j: usize| match (i < n1, j < n2) {
-                (true, true) => block[i * n2 + j],
-                (true, false) => dust[0][i],
-                (false, true) => dust[1][j],
-                (false, false) => corner,
-            };
-            let row_max = (0..cols).map(z).fold(f64::NEG_INFINITY, f64::max);
-            for j in 0..cols {
-                kernel[i * cols + j] = (z(j) - row_max).exp();
+    let ones = [1f64; LANES];
+    let (mut kernel, mut kernel_t) = (vec![ones; rows * cols], vec![ones; rows * cols]);
+    let (mut u, mut v) = (vec![[0f64; LANES]; rows], vec![ones; cols]);
+    let mut column_sums = vec![[0f64; LANES]; cols];
+    for first in (0..t).step_by(LANES) {
+        let lanes = LANES.min(t - first);
+        for lane in 0..LANES {
+            if lane >= lanes {
+                kernel.iter_mut().for_each(|k| k[lane] = 1.0);
+                continue;
+            }
+            let sample = first + lane;
+            let block = &scores[sample * n1 * n2..(sample + 1) * n1 * n2];
+            for i in 0..rows {
+                let z = |j: usize| match (i < n1, j < n2) {
+                    (true, true) => block[i * n2 + j],
+                    (true, false) => dust[0][i],
+                    (false, true) => dust[1][j],
+                    (false, false) => corner,
+                };
+                let row_max = (0..cols).map(z).fold(f64::NEG_INFINITY, f64::max);
+                for j in 0..cols {
+                    kernel[i * cols + j][lane] = (z(j) - row_max).exp();
+                }
             }
         }
         for (i, row) in kernel.chunks_exact(cols).enumerate() {
@@ -154,24 +172,30 @@ pub fn sinkhorn_probabilities(
                 kernel_t[j * rows + i] = *k;
             }
         }
-        v.fill(1.0);
+        v.fill(ones);
         for _ in 0..iters {
             // u_i = sum_j K_ij v_j, from K's transpose.
             weighted_rows(&kernel_t, &v, &mut u);
             for (i, ui) in u.iter_mut().enumerate() {
-                *ui = mu(i) / *ui;
+                let m = mu(i);
+                ui.iter_mut().for_each(|x| *x = m / *x);
             }
             weighted_rows(&kernel, &u, &mut column_sums);
-            for (j, vj) in v.iter_mut().enumerate() {
-                *vj = nu(j) / column_sums[j];
+            for (j, (vj, sums)) in v.iter_mut().zip(&column_sums).enumerate() {
+                let m = nu(j);
+                for (x, c) in vj.iter_mut().zip(sums) {
+                    *x = m / c;
+                }
             }
         }
-        for (row, ui) in kernel.chunks_exact(cols).zip(&u) {
-            out.extend(
-                row.iter()
-                    .zip(&v)
-                    .map(|(k, vj)| (ui * k * vj * total) as f32),
-            );
+        for lane in 0..lanes {
+            for (row, ui) in kernel.chunks_exact(cols).zip(&u) {
+                out.extend(
+                    row.iter()
+                        .zip(&v)
+                        .map(|(k, vj)| (ui[lane] * k[lane] * vj[lane] * total) as f32),
+                );
+            }
         }
     }
     out
@@ -202,6 +226,41 @@ mod tests {
                 let col: f32 = (0..5).map(|i| at(i, j)).sum();
                 assert!((col - 1.0).abs() < 1e-3, "col {j}: {col}");
             }
+        }
+    }
+
+    /// Samples normalised side by side (four to a register) give each the
+    /// bits it gets alone, whatever its place and its neighbours: T = 6
+    /// (a full group and a partial one) against each sample on its own.
+    #[test]
+    fn a_sample_normalised_beside_others_gets_the_bits_it_gets_alone() {
+        let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let [t, n1, n2] = [6, 5, 7];
+        let mut scores: Vec<f64> = (0..t * n1 * n2)
+            .map(|_| r.random_range(-20.0..5.0))
+            .collect();
+        scores[3] = f64::NEG_INFINITY;
+        let dust = [n1, n2].map(|n| {
+            (0..n)
+                .map(|_| r.random_range(-1.0..1.0))
+                .collect::<Vec<_>>()
+        });
+        let together = sinkhorn_probabilities(&scores, [t, n1, n2], [&dust[0], &dust[1]], 0.5, 20);
+        let size = (n1 + 1) * (n2 + 1);
+        for s in 0..t {
+            let alone = sinkhorn_probabilities(
+                &scores[s * n1 * n2..(s + 1) * n1 * n2],
+                [1, n1, n2],
+                [&dust[0], &dust[1]],
+                0.5,
+                20,
+            );
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                bits(&together[s * size..(s + 1) * size]),
+                bits(&alone),
+                "sample {s}"
+            );
         }
     }
 
