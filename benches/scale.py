@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
 """City-scale cost of `coid run`: instances, wall time, instances per
-second, real-time factor and peak RSS, for one scenario at several
+second, real-time factor, peak RSS and the networks' arithmetic (GFLOP
+as the run counts it from the products' shapes, and GFLOP/s of wall
+time, to hold against the matcher bench's peak), for one scenario at several
 penetration rates and thread counts (docs/city-scale.md).
 
 By default the scenario is the generated dense town of
@@ -122,8 +124,8 @@ def main() -> None:
     variants = [v.split(":", 1) for v in a.variant] or [["default", ""]]
     print(f"scenario: {config}")
     print("| variant | penetration | end_s | threads | instances | wall s | instances/s | real-time factor"
-          " | peak RSS MB | ours @1.2 m: F1 / object F1 | DE single -> all views |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|")
+          " | peak RSS MB | networks GFLOP | GFLOP/s | ours @1.2 m: F1 / object F1 | DE single -> all views |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|")
     reference: dict = {}
     for name, toml in variants:
         for pen in a.pens:
@@ -139,10 +141,14 @@ def main() -> None:
                         sys.exit(f"error: coid run failed ({cfg}): {m['stderr']}")
                     n = int(re.search(r"(\d+) instances", m["stderr"]).group(1))
                     wall = m["wall_s"]
+                    # The networks' arithmetic as the run counts it (a build
+                    # from before the count prints none).
+                    g = re.search(r"networks ([\d.]+) GFLOP", m["stderr"])
+                    flops = f"{float(g.group(1)):.0f} | {float(g.group(1)) / wall:.1f}" if g else "- | -"
                     o = ours_at_gps(res) if n else {}
                     ref = reference.setdefault((pen, end_s), o)
                     print(f"| {name} | {pen} | {end_s:g} | {threads} | {n} | {wall:.1f} | {n / wall:.0f} | "
-                          f"{end_s / wall:.1f} | {m['peak_rss_mb']:.0f} | {quality(o, ref)}", flush=True)
+                          f"{end_s / wall:.1f} | {m['peak_rss_mb']:.0f} | {flops} | {quality(o, ref)}", flush=True)
 
 
 if __name__ == "__main__":

@@ -65,6 +65,13 @@ fn one_line(results: &RunResults) -> String {
         results.wall_time.as_secs_f64(),
         results.bridge_time.as_secs_f64() * 1e3 / results.n_steps.max(1) as f64,
     );
+    if results.network_macs > 0 {
+        let gflop = 2.0 * results.network_macs as f64 / 1e9;
+        line.push_str(&format!(
+            "; networks {gflop:.1} GFLOP, {:.1} GFLOP/s",
+            gflop / results.wall_time.as_secs_f64().max(1e-9)
+        ));
+    }
     for m in [Method::Ours, Method::GpsHungarian, Method::Oracle] {
         let row = rows.iter().find(|r| {
             r.key.method == m

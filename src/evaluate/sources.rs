@@ -20,6 +20,14 @@ pub enum CorrespondenceSource {
 }
 
 impl CorrespondenceSource {
+    /// Multiply-adds the source's network has done so far (0 without one).
+    pub fn network_macs(&self) -> u64 {
+        match self {
+            CorrespondenceSource::Matcher(m) => m.network_macs(),
+            _ => 0,
+        }
+    }
+
     /// The method whose correspondences these are.
     pub(super) fn method(&self) -> Method {
         match self {

@@ -48,6 +48,10 @@ impl Matcher for Driven {
         self.inner.method()
     }
 
+    fn network_macs(&self) -> u64 {
+        self.inner.network_macs()
+    }
+
     fn uses_positions(&self) -> bool {
         self.inner.uses_positions()
     }

@@ -443,6 +443,13 @@ pub trait Matcher: Send + Sync {
         false
     }
 
+    /// Multiply-adds this matcher's networks have done so far, counted
+    /// from their products' shapes ([`deep::cost`]); 0 for a matcher
+    /// without a network. A run holds its time against them.
+    fn network_macs(&self) -> u64 {
+        0
+    }
+
     /// The correspondences with the relative pose both GPS receivers
     /// report.
     fn identify(&self, first: &MatchView, second: &MatchView) -> Identification {

@@ -47,6 +47,7 @@ pub fn run(
     results.sim_end_s = stats.sim_end_s;
     results.bridge_time = stats.bridge_time;
     results.objects_read = stats.objects_read;
+    results.network_macs = runners.iter().map(|r| r.network_macs()).sum();
     results.wall_time = started.elapsed();
     Ok(results)
 }

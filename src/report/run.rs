@@ -290,6 +290,9 @@ pub struct RunResults {
     pub objects_read: u64,
     /// Wall time of the whole run.
     pub wall_time: Duration,
+    /// Multiply-adds of every method's network over the run
+    /// ([`crate::matching::Matcher::network_macs`]).
+    pub network_macs: u64,
 }
 
 /// A run's `summary.csv` as a table: its one list of columns (the metrics

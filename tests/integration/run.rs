@@ -117,7 +117,16 @@ fn short_real_run_writes_consistent_results() {
     let (fx, cfg) = Fixture::with_config(80.0, "");
     let out = fx.run(&cfg, "results/short");
     assert_ok(&out);
-    assert!(stderr(&out).contains("instances"), "{}", stderr(&out));
+    let line = stderr(&out);
+    assert!(line.contains("instances"), "{line}");
+    // The deep networks' arithmetic, counted from their products' shapes.
+    let gflop: f64 = line
+        .split("; networks ")
+        .nth(1)
+        .and_then(|rest| rest.split(" GFLOP").next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no network arithmetic in: {line}"));
+    assert!(gflop > 0.0, "{line}");
     let dir = fx.path("results/short");
     for f in ["summary.csv", "objects.parquet", "summary.md"] {
         assert!(dir.join(f).is_file(), "{f} missing");

@@ -13,7 +13,7 @@
 
 use super::arch::{Architecture, PublishedConfig};
 use super::features::{
-    DUST_FEATURES, KERNEL, KERNEL_2D, NODE_FEATURES, PAIR_FEATURES, graph_input,
+    DUST_FEATURES, GraphInput, KERNEL, KERNEL_2D, NODE_FEATURES, PAIR_FEATURES, graph_input,
 };
 use crate::matching::MatchView;
 
@@ -31,7 +31,15 @@ impl GraphShape {
     /// A vehicle's view as the matcher builds its graph: the kernel cells
     /// of every edge's basis.
     pub fn of(view: &MatchView) -> Self {
-        let g = graph_input(view.detections, view.graph, &view.pose_reported);
+        Self::of_input(&graph_input(
+            view.detections,
+            view.graph,
+            &view.pose_reported,
+        ))
+    }
+
+    /// The graph the matcher built.
+    pub fn of_input(g: &GraphInput) -> Self {
         let mut used = [false; KERNEL_2D];
         for &k in &g.basis_index {
             used[k as usize] = true;

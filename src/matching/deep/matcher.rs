@@ -9,11 +9,13 @@
 //! [`MatchDistribution`]s, correspondences and weights as bytes.
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use burn::prelude::*;
 
 use super::arch::{Architecture, DeepMethod, MaskScope, likelihood_terms};
+use super::cost::{GraphShape, inference_macs, plain_embedding_macs};
 use super::decision::{Decision, MatchDistribution, UncertaintyKind};
 use super::features::{GraphInput, PairInput, graph_input, pair_input};
 use super::init::Init;
@@ -152,6 +154,8 @@ pub struct DeepMatcher {
     /// Those parts under this matcher's shared masks, built at first use
     /// for its (samples, seed).
     plain_path: Mutex<Option<KeptPath>>,
+    /// Multiply-adds done so far ([`super::cost`]).
+    macs: AtomicU64,
 }
 
 /// How a deep matcher runs (beyond its weights).
@@ -200,6 +204,7 @@ impl DeepMatcher {
             combination,
             plain: true,
             plain_path: Mutex::default(),
+            macs: AtomicU64::new(0),
         }
     }
 
@@ -268,6 +273,15 @@ impl DeepMatcher {
         let mut found = keys.map(|k| self.cached(k));
         let missing: Vec<usize> = (0..K).filter(|&k| found[k].is_none()).collect();
         let graphs: Vec<GraphBatch> = missing.iter().map(|&k| self.graph(&inputs[k])).collect();
+        for &k in &missing {
+            let shape = GraphShape::of_input(&inputs[k]);
+            let macs = if self.plain && self.masks == MaskScope::Shared {
+                plain_embedding_macs(&self.arch, shape, self.samples) as u64
+            } else {
+                inference_macs(&self.arch, shape, shape, self.samples).embeddings[0]
+            };
+            self.macs.fetch_add(macs, Ordering::Relaxed);
+        }
         let hs: Vec<Vec<f32>> = if let Some(plain) = self.plain_path() {
             let firsts: Vec<Vec<f32>> = graphs.iter().map(|g| self.net.first_layer(g)).collect();
             let layers: Vec<(&[f32], &GraphInput)> = firsts
@@ -448,6 +462,9 @@ impl DeepMatcher {
             self.samples,
         );
         let [e1, e2] = self.embeddings([first, second]);
+        let shapes = [&e1, &e2].map(|e| GraphShape::of_input(&e.input));
+        let macs = inference_macs(&self.arch, shapes[0], shapes[1], t).shared_pair();
+        self.macs.fetch_add(macs, Ordering::Relaxed);
         let input = pair_input(first, second, relative, &self.terms);
         let out = match self.plain_path() {
             Some(plain) => {
@@ -582,6 +599,10 @@ pub(crate) fn opened_weights(method: DeepMethod, seed: u64) -> Vec<u8> {
 impl Matcher for DeepMatcher {
     fn method(&self) -> Method {
         self.method
+    }
+
+    fn network_macs(&self) -> u64 {
+        self.macs.load(Ordering::Relaxed)
     }
 
     fn uses_positions(&self) -> bool {
@@ -934,6 +955,16 @@ mod tests {
         assert_eq!(a, b);
         assert_eq!(shared.shared_embeddings(), 3);
         assert_eq!(per_pair.shared_embeddings(), 0);
+        // Each counts what it multiplied: every pair part, and each
+        // vehicle's embedding once (shared) or once per pair.
+        let arch = Architecture::default();
+        let shape = |k: usize| GraphShape::of(&sides[k].view());
+        let macs = |i: usize, j: usize| inference_macs(&arch, shape(i), shape(j), 20);
+        let parts: u64 = pairs.iter().map(|&(i, j)| macs(i, j).shared_pair()).sum();
+        let embedded = |k: usize| macs(k, k).embeddings[0];
+        let once: u64 = (0..3).map(embedded).sum();
+        assert_eq!(shared.network_macs(), parts + once);
+        assert_eq!(per_pair.network_macs(), parts + 2 * once);
         // The MC samples differ from each other (dropout is on).
         assert_ne!(a[0][0], a[0][1]);
     }

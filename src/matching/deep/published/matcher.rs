@@ -8,6 +8,7 @@
 //! for bit what computing them again gives.
 
 use std::collections::{HashMap, VecDeque};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use burn::prelude::*;
@@ -22,6 +23,7 @@ use crate::assignment::assign;
 use crate::fusion::PoseEstimate;
 use crate::matching::deep::Inference;
 use crate::matching::deep::arch::MaskScope;
+use crate::matching::deep::cost::published_macs;
 use crate::matching::deep::decision::MatchDistribution;
 use crate::matching::deep::masks::{dropout_mask_16, indicator_values};
 use crate::matching::{Identification, MatchView, Matcher, Method};
@@ -45,6 +47,8 @@ pub struct PublishedMatcher {
     /// Recent graphs' psi_1 embeddings on the plain path, by
     /// [`graph_key`]: a vehicle's graph is embedded once for all its pairs.
     embeddings: Mutex<HashMap<u64, Arc<Vec<f32>>>>,
+    /// Multiply-adds done so far ([`published_macs`]).
+    macs: AtomicU64,
 }
 
 /// One pair's random draws on the plain path: psi_1's masks per node of
@@ -131,6 +135,7 @@ impl PublishedMatcher {
             recent: Mutex::default(),
             plain,
             embeddings: Mutex::default(),
+            macs: AtomicU64::new(0),
         })
     }
 
@@ -154,6 +159,8 @@ impl PublishedMatcher {
             return h;
         }
         let h = Arc::new(plain.embed(g));
+        let macs = published_macs(&self.cfg, [g.n, g.n], self.run.samples, false);
+        self.macs.fetch_add(macs.embeddings[0], Ordering::Relaxed);
         if let Ok(mut kept) = self.embeddings.lock() {
             if kept.len() >= RECENT_CAPACITY {
                 kept.clear();
@@ -262,6 +269,16 @@ impl PublishedMatcher {
     fn samples(&self, graphs: [&PaperGraph; 2], key: u64) -> Vec<Vec<f32>> {
         let [g1, g2] = graphs;
         let (n1, n2, t) = (g1.n, g2.n, self.run.samples);
+        // Under shared masks a graph's embedding is counted where it is
+        // computed (once for its pairs).
+        let per_node = self.run.masks == MaskScope::PerNode;
+        let macs = published_macs(&self.cfg, [n1, n2], t, per_node);
+        let counted = if per_node || self.plain.is_none() {
+            macs.new_pair()
+        } else {
+            macs.shared_pair()
+        };
+        self.macs.fetch_add(counted, Ordering::Relaxed);
         if let Some(plain) = &self.plain {
             let drawn = self.draws(key, [n1, n2]);
             let (h1, h2) = match self.run.masks {
@@ -321,6 +338,10 @@ fn assignment(d: &MatchDistribution) -> Vec<(usize, usize)> {
 impl Matcher for PublishedMatcher {
     fn method(&self) -> Method {
         self.method
+    }
+
+    fn network_macs(&self) -> u64 {
+        self.macs.load(Ordering::Relaxed)
     }
 
     fn identify_with(
@@ -421,6 +442,44 @@ mod tests {
                 // Both embeddings now kept: the same answer again.
                 assert_eq!(plain.samples([&g1, &g2], key), sp);
             }
+        }
+    }
+
+    /// A matcher counts what its network multiplies: a new pair as
+    /// `published_macs` counts it (masks per node: both embeddings and
+    /// the pair part), the same pair at another pose-noise level (kept)
+    /// nothing more; under shared masks a graph already embedded only
+    /// the pair part.
+    #[test]
+    fn a_matcher_counts_what_its_network_multiplies() {
+        let Backbone::Published(cfg) = DeepMethod::Dgmc.backbone() else {
+            panic!("DGMC is a published network");
+        };
+        let bytes = include_bytes!("../../../../models/dgmc.bpk");
+        let objects = testkit::world_objects();
+        let side = |at, order: &[usize]| Side::of(at, &objects, order, GPS);
+        let (a, b) = (
+            side(testkit::POSE_A, &[0, 1, 2, 3, 4, 5]),
+            side(testkit::POSE_B, &[5, 4, 3, 2, 1]),
+        );
+        let c = side(testkit::POSE_B, &[0, 2, 4, 6]);
+        let (va, vb, vc) = (a.view(), b.view(), c.view());
+        for masks in [MaskScope::PerNode, MaskScope::Shared] {
+            let run = Inference { masks, ..RUN };
+            let m = PublishedMatcher::from_weights(Method::Dgmc, cfg, bytes, run).unwrap();
+            assert_eq!(m.network_macs(), 0);
+            m.distribution(&va, &vb);
+            let ab = published_macs(&cfg, [6, 5], 20, masks == MaskScope::PerNode);
+            assert_eq!(m.network_macs(), ab.new_pair(), "{masks:?}");
+            m.distribution(&va, &vb);
+            assert_eq!(m.network_macs(), ab.new_pair(), "{masks:?}: kept");
+            m.distribution(&va, &vc);
+            let ac = published_macs(&cfg, [6, 4], 20, masks == MaskScope::PerNode);
+            let more = match masks {
+                MaskScope::PerNode => ac.new_pair(),
+                MaskScope::Shared => ac.shared_pair() + ac.embeddings[1],
+            };
+            assert_eq!(m.network_macs(), ab.new_pair() + more, "{masks:?}");
         }
     }
 }
