@@ -21,7 +21,6 @@ use coid_sim::matching::deep::arch::{Architecture, Backbone, DeepMethod, MaskSco
 use coid_sim::matching::deep::cost::{
     GraphShape, inference_macs, plain_embedding_macs, published_macs,
 };
-use coid_sim::matching::deep::decision::Decision;
 use coid_sim::matching::deep::dense::matmul;
 use coid_sim::matching::deep::published::PublishedMatcher;
 use coid_sim::matching::deep::train::{Example, Prepared, TrainOptions, Trainer, example};
@@ -36,16 +35,7 @@ use rand::{Rng, SeedableRng};
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 /// MC-dropout inference as the bench runs it: T = 20, shared masks.
-const RUN: Inference = Inference {
-    samples: 20,
-    threshold: None,
-    decision: Decision::Assignment,
-    temperature: 1.0,
-    seed: 1,
-    masks: MaskScope::Shared,
-    dropout: None,
-    gate_chi2: 9.21,
-};
+const RUN: Inference = Inference::MC_DROPOUT;
 
 fn scene(n: usize, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<(Vec2, ObjectClass)> {
     (0..n)

@@ -3,7 +3,6 @@
 
 use coid_sim::config::Settings;
 use coid_sim::matching::deep::arch::DeepMethod;
-use coid_sim::matching::deep::decision::Decision;
 use coid_sim::matching::deep::{DeepMatcher, Inference};
 use coid_sim::matching::{GpsHungarian, Matcher};
 use coid_sim::pipeline;
@@ -25,16 +24,13 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
     };
     let run = Inference {
         samples: 4,
-        threshold: None,
-        decision: Decision::Assignment,
-        temperature: 1.0,
-        seed: 1,
         masks: settings
             .matching
             .dropout_masks
             .resolve(coid_sim::matching::deep::arch::MaskScope::PerNode),
         dropout: settings.matching.mc_dropout,
         gate_chi2: settings.matching.gate_chi2,
+        ..Inference::MC_DROPOUT
     };
     let deep: Vec<DeepMatcher> = [
         DeepMethod::Ours,

@@ -362,19 +362,9 @@ impl Matcher for PublishedMatcher {
 mod tests {
     use super::*;
     use crate::matching::deep::arch::{Backbone, DeepMethod};
-    use crate::matching::deep::decision::Decision;
     use crate::matching::testkit::{self, GPS, Side};
 
-    const RUN: Inference = Inference {
-        samples: 20,
-        threshold: None,
-        decision: Decision::Assignment,
-        temperature: 1.0,
-        seed: 1,
-        masks: MaskScope::Shared,
-        dropout: None,
-        gate_chi2: 9.21,
-    };
+    const RUN: Inference = Inference::MC_DROPOUT;
 
     /// The plain path under shared and per-node masks against the tensor
     /// path (the reference, as training runs it) with the shipped weights of GCN-GM,
