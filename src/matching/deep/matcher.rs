@@ -54,11 +54,12 @@ fn embedding_key(input: &GraphInput, samples: usize) -> u64 {
 
 /// One vehicle's embedding at inference: its network input, its graph
 /// tensors and the node embeddings of every MC-dropout sample, `[T, N,
-/// out]` row-major.
+/// out]` row-major; its shape for the arithmetic counts.
 struct Embedded {
     input: GraphInput,
     graph: GraphBatch,
     h: Vec<f32>,
+    shape: GraphShape,
 }
 
 /// Embeddings computed for recent views, by [`embedding_key`]: a vehicle
@@ -290,16 +291,18 @@ impl DeepMatcher {
         let mut found = keys.map(|k| self.cached(k));
         let missing: Vec<usize> = (0..K).filter(|&k| found[k].is_none()).collect();
         let graphs: Vec<GraphBatch> = missing.iter().map(|&k| self.graph(&inputs[k])).collect();
-        for &k in &missing {
-            let shape = GraphShape::of_input(&inputs[k]);
-            let macs = if self.plain && self.masks == MaskScope::Shared {
-                plain_embedding_macs(&self.arch, shape, self.samples) as u64
-            } else {
-                inference_macs(&self.arch, shape, shape, self.samples).embeddings[0]
-            };
-            self.macs.fetch_add(macs, Ordering::Relaxed);
-        }
-        let hs: Vec<Vec<f32>> = if let Some(plain) = self.plain_path() {
+        let shapes: Vec<GraphShape> = missing
+            .iter()
+            .map(|&k| GraphShape::of_input(&inputs[k]))
+            .collect();
+        let plain = self.plain_path();
+        let macs = |&s: &GraphShape| match plain {
+            Some(_) => plain_embedding_macs(&self.arch, s, self.samples) as u64,
+            None => inference_macs(&self.arch, s, s, self.samples).embeddings[0],
+        };
+        self.macs
+            .fetch_add(shapes.iter().map(macs).sum(), Ordering::Relaxed);
+        let hs: Vec<Vec<f32>> = if let Some(plain) = plain {
             let firsts: Vec<Vec<f32>> = graphs.iter().map(|g| self.net.first_layer(g)).collect();
             let layers: Vec<(&[f32], &GraphInput)> = firsts
                 .iter()
@@ -318,9 +321,14 @@ impl DeepMatcher {
                 .collect()
         };
         let mut inputs = inputs.map(Some);
-        for ((graph, h), &k) in graphs.into_iter().zip(hs).zip(&missing) {
+        for (((graph, h), shape), &k) in graphs.into_iter().zip(hs).zip(shapes).zip(&missing) {
             let input = inputs[k].take().expect("each view computed once");
-            let e = Arc::new(Embedded { input, graph, h });
+            let e = Arc::new(Embedded {
+                input,
+                graph,
+                h,
+                shape,
+            });
             if self.share_embeddings
                 && let Ok(mut cache) = self.cache.lock()
             {
@@ -479,8 +487,7 @@ impl DeepMatcher {
             self.samples,
         );
         let [e1, e2] = self.embeddings([first, second]);
-        let shapes = [&e1, &e2].map(|e| GraphShape::of_input(&e.input));
-        let macs = inference_macs(&self.arch, shapes[0], shapes[1], t).shared_pair();
+        let macs = inference_macs(&self.arch, e1.shape, e2.shape, t).shared_pair();
         self.macs.fetch_add(macs, Ordering::Relaxed);
         let input = pair_input(first, second, relative, &self.terms);
         let out = match self.plain_path() {
