@@ -116,10 +116,14 @@ pub fn inference_macs(
 /// layer once per graph, its second per sample (under masks per node
 /// every hidden channel, under shared masks the kept ones, expected), the
 /// root's and every knot's products for every row; per consensus step
-/// `S^T R_s`, psi_2 on both graphs' indicators (two convolutions, the
-/// final layer on their concatenation), the consensus MLP's first layer
-/// per node and its last per node pair; Sinkhorn after `S_0` and every
-/// step. Neighbourhood sums along the edges are element work (left out).
+/// psi_2's first product on the source's indicators with the folded
+/// `W_x W_in` columns beside it, the target's as `S^T` times the
+/// source's (or `S^T R_s` times the weights when the source has more
+/// than `rnd_dim` nodes), both graphs' second convolution and the folded
+/// last-and-first layers on `[h1, h2]`, the consensus MLP's last layer
+/// per node pair ([`super::published::plain::PlainConsensus`]); Sinkhorn
+/// after `S_0` and every step. Neighbourhood sums along the edges are
+/// element work (left out).
 pub fn published_macs(
     cfg: &PublishedConfig,
     [n1, n2]: [usize; 2],
@@ -136,9 +140,16 @@ pub fn published_macs(
         ((1.0 - cfg.dropout) * h as f64).round() as u64
     };
     let embed = |n: u64| n * NODE_FEATURES as u64 * cells * h + t * n * (kept * cells * o + o * o);
-    let psi2 = |n: u64| t * n * (2 * r * cells * r + 3 * r * r + r * r);
+    // psi_2's first product: root, knots and the folded `W_x W_in`.
+    let first = cells * r + r;
+    let target_first = if a <= r {
+        t * b * a * first
+    } else {
+        t * a * b * r + t * b * r * first
+    };
+    let rest = |n: u64| t * n * (r * cells * r + 2 * r * r);
     let steps = cfg.consensus_steps() as u64;
-    let step = t * a * b * r + psi2(a) + psi2(b) + t * a * b * r;
+    let step = t * a * r * first + target_first + rest(a) + rest(b) + t * a * b * r;
     InferenceMacs {
         embeddings: [embed(a), embed(b)],
         pair: t * a * b * o + steps * step,
@@ -233,11 +244,25 @@ mod tests {
         let m = published_macs(&dgmc, [20, 18], 20, true);
         let embed = |n: u64| n * 13 * 6 * 256 + 20 * n * (256 * 6 * 32 + 32 * 32);
         assert_eq!(m.embeddings, [embed(20), embed(18)]);
-        let psi2 = |n: u64| 20 * n * (32 * 6 * 32 + 32 * 6 * 32 + 96 * 32 + 32 * 32);
-        let step = 20 * 20 * 18 * 32 + psi2(20) + psi2(18) + 20 * 20 * 18 * 32;
+        // Per step: the source's first product (root, 5 knots, W_x W_in:
+        // 7 x 32 columns), the target's as S^T times it (20 source rows
+        // per value), each graph's second convolution and [h1, h2] W_h
+        // W_in, then the MLP's last layer per node pair.
+        let rest = |n: u64| 20 * n * (32 * 6 * 32 + 64 * 32);
+        let step =
+            20 * 20 * 32 * 224 + 20 * 18 * 20 * 224 + rest(20) + rest(18) + 20 * 20 * 18 * 32;
         assert_eq!(m.pair, 20 * 20 * 18 * 32 + 10 * step);
         assert_eq!(m.sinkhorn, 11 * 20 * 20 * 2 * 21 * 19);
-        assert_eq!(m.new_pair(), 171_760_544);
+        assert_eq!(m.new_pair(), 151_997_344);
+        // A source of 40 nodes (more than rnd_dim): the target's first
+        // product from S^T R_s.
+        let big = published_macs(&dgmc, [40, 18], 20, true);
+        let step = 20 * 40 * 32 * 224
+            + (20 * 40 * 18 * 32 + 20 * 18 * 32 * 224)
+            + rest(40)
+            + rest(18)
+            + 20 * 40 * 18 * 32;
+        assert_eq!(big.pair, 20 * 40 * 18 * 32 + 10 * step);
         // Shared masks: the second layer on the 154 kept channels of 256.
         let shared = published_macs(&dgmc, [20, 18], 20, false);
         assert_eq!(

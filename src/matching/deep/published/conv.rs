@@ -162,7 +162,6 @@ impl SplineCnn {
             conv1: self.conv1.plain(),
             conv2: self.conv2.plain(),
             last: crate::matching::deep::network::plain_linear(&self.last),
-            cat: self.cat,
         }
     }
 

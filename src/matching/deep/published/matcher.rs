@@ -372,7 +372,10 @@ mod tests {
     /// and 1 nodes: every sample's assignment within 1e-4 (the f32
     /// log-domain Sinkhorn's own rounding, see `sinkhorn.rs`), the same
     /// decided pairs, and the plain path's answers the same when a
-    /// graph's embedding comes from another pair.
+    /// graph's embedding comes from another pair. The target's first
+    /// consensus product both ways: carried over from the source's (as
+    /// these graphs take it) and multiplied anew (as sources of more than
+    /// `rnd_dim` nodes take it).
     #[test]
     fn the_plain_published_path_equals_the_tensor_one() {
         let shipped: [(DeepMethod, &[u8]); 3] = [
@@ -405,9 +408,15 @@ mod tests {
                 panic!("{method:?} is a published network");
             };
             let open = || PublishedMatcher::from_weights(method.method(), cfg, bytes, run).unwrap();
-            let (plain, tensor) = (open(), open().with_tensor_path());
-            assert!(plain.plain.is_some() && tensor.plain.is_none());
-            for (a, b) in &scenes {
+            let (tensor, mut direct) = (open().with_tensor_path(), open());
+            if let Some(p) = &mut direct.plain {
+                p.never_carry();
+            }
+            for (plain, (a, b)) in [open(), direct]
+                .iter()
+                .flat_map(|m| scenes.iter().map(move |s| (m, s)))
+            {
+                assert!(plain.plain.is_some() && tensor.plain.is_none());
                 let (va, vb) = (a.view(), b.view());
                 let g1 = PaperGraph::new(va.detections, va.graph);
                 let g2 = PaperGraph::new(vb.detections, vb.graph);
@@ -428,7 +437,7 @@ mod tests {
                         .map(|c| (c.a, c.b))
                         .collect::<Vec<_>>()
                 };
-                assert_eq!(pairs(&plain), pairs(&tensor), "{method:?}");
+                assert_eq!(pairs(plain), pairs(&tensor), "{method:?}");
                 // Both embeddings now kept: the same answer again.
                 assert_eq!(plain.samples([&g1, &g2], key), sp);
             }

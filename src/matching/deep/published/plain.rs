@@ -18,7 +18,9 @@
 //! - DGMC's consensus MLP's first layer is linear before its bias, so
 //!   `(o_s,i - o_t,j) W = o_s,i W - o_t,j W`: `n1 + n2` products per
 //!   sample and step instead of `n1 n2`; psi_2 runs on every sample's
-//!   indicators in one product per layer;
+//!   indicators in one product per layer, its last layer folded into
+//!   that first MLP layer, and the target graph's first product is the
+//!   source's carried over by `S^T` ([`PlainConsensus`]);
 //! - neighbours are mixed along the edges, not through a dense matrix.
 
 use super::graph::{PaperGraph, length_basis};
@@ -88,8 +90,10 @@ struct Scratch {
     first: Vec<f32>,
     masked: Vec<f32>,
     r_t: Vec<f32>,
-    o_s: Vec<f32>,
-    o_t: Vec<f32>,
+    y_s: Vec<f32>,
+    y_t: Vec<f32>,
+    /// The target rows' MLP projections transposed (`consensus_update`).
+    b_t: Vec<f32>,
     a: Vec<f32>,
     b: Vec<f32>,
 }
@@ -165,26 +169,33 @@ impl Conv1d {
             y.fill(0.0);
         }
         let out = sized(out, rows * self.d_out);
-        mix_relu(y, inc, blocks, &self.bias, out);
+        mix_relu(y, width, (inc, blocks), &self.bias, out);
     }
 }
 
 /// The spline convolution's neighbourhood sum and ReLU: row `r` of `out`
 /// is `relu((root_r + m_r) + bias)`, `m_r` the sum, from 0 in edge order,
-/// of `w y_j,knot` over the edges into `r` (`y`: `[rows, (1 + KERNEL)
-/// out]`, the root's and each knot's products side by side).
+/// of `w y_j,knot` over the edges into `r` (`y`: rows of `width >= (1 +
+/// KERNEL) out` values that start with the root's and each knot's
+/// products side by side).
 #[multiversion::multiversion(targets("x86_64+avx+avx2"))]
-fn mix_relu(y: &[f32], inc: &Incoming, blocks: usize, bias: &[f32], out: &mut [f32]) {
+fn mix_relu(
+    y: &[f32],
+    width: usize,
+    (inc, blocks): (&Incoming, usize),
+    bias: &[f32],
+    out: &mut [f32],
+) {
     let d = bias.len();
     for block in 0..blocks {
         for i in 0..inc.n {
             let mut c = 0;
             while c + 32 <= d {
-                mix_columns::<32>(y, (inc, block, i), c, bias, out);
+                mix_columns::<32>(y, width, (inc, block, i), c, bias, out);
                 c += 32;
             }
             while c < d {
-                mix_columns::<1>(y, (inc, block, i), c, bias, out);
+                mix_columns::<1>(y, width, (inc, block, i), c, bias, out);
                 c += 1;
             }
         }
@@ -196,13 +207,13 @@ fn mix_relu(y: &[f32], inc: &Incoming, blocks: usize, bias: &[f32], out: &mut [f
 #[inline(always)]
 fn mix_columns<const C: usize>(
     y: &[f32],
+    width: usize,
     (inc, block, i): (&Incoming, usize, usize),
     c: usize,
     bias: &[f32],
     out: &mut [f32],
 ) {
     let (n, d) = (inc.n, bias.len());
-    let width = (1 + KERNEL) * d;
     let mut m = [0f32; C];
     for &(j, cells) in &inc.from[inc.start[i]..inc.start[i + 1]] {
         let src = (block * n + j) * width + c;
@@ -240,32 +251,144 @@ fn linear_rows(l: &PlainLinear, x: &[f32], rows: usize, out: &mut Vec<f32>) {
     }
 }
 
-/// DGMC's `SplineCNN` as plain numbers (psi_1 without `cat`, psi_2 with).
+/// DGMC's `SplineCNN` as plain numbers: two spline convolutions, then a
+/// linear layer (psi_1: on the second's output; psi_2: on the input and
+/// both outputs side by side).
 pub(super) struct PlainCnn {
     pub conv1: Conv1d,
     pub conv2: Conv1d,
     pub last: PlainLinear,
-    pub cat: bool,
 }
 
-impl PlainCnn {
-    /// psi_2 on `blocks` stacked copies of a graph (`inc`), rows `x`
-    /// (`[rows, in]`, no dropout), into `out`.
-    fn forward(&self, x: &[f32], g: (&Incoming, usize), buf: &mut Buffers, out: &mut Vec<f32>) {
-        let rows = g.0.n * g.1;
-        self.conv1.relu_forward(x, g, &mut buf.y, &mut buf.h1);
-        self.conv2.relu_forward(&buf.h1, g, &mut buf.y, &mut buf.h2);
-        if !self.cat {
-            return linear_rows(&self.last, &buf.h2, rows, out);
+/// `a b` of `a` (`[rows, k]`) and `b.weight` (`[k, b.d_out]`), summed in
+/// f64 and rounded once: a product of two weight matrices, folded once
+/// per matcher.
+fn fold(a: &[f32], rows: usize, b: &PlainLinear) -> Vec<f32> {
+    let (k, n) = (b.d_in, b.d_out);
+    let mut out = Vec::with_capacity(rows * n);
+    for r in 0..rows {
+        let row = &a[r * k..(r + 1) * k];
+        out.extend((0..n).map(|c| {
+            row.iter()
+                .enumerate()
+                .map(|(q, &v)| f64::from(v) * f64::from(b.weight[q * n + c]))
+                .sum::<f64>() as f32
+        }));
+    }
+    out
+}
+
+/// DGMC's consensus step (psi_2 with `cat`, then the MLP `rnd -> rnd -> 1`
+/// on `o_s,i - o_t,j`) as plain numbers, reassociated; the same function
+/// up to float rounding:
+/// - psi_2's last layer and the MLP's first are both linear, so `o W_in =
+///   x (W_x W_in) + [h1, h2] (W_h W_in) + b_last W_in` (`W_x`, `W_h` the
+///   last layer's rows on the input and on the two convolutions), and
+///   `b_last W_in` cancels in `o_s,i W_in - o_t,j W_in`;
+/// - `x (W_x W_in)` rides in psi_2's first product as extra columns,
+///   `x [root | knots | W_x W_in]`;
+/// - the target's input is `S^T r_s`, so its first product is `S^T (r_s
+///   J)`, the source's product carried over: `n1` multiply-adds per value
+///   instead of `rnd`, taken when the source graph has at most `rnd`
+///   nodes.
+pub(super) struct PlainConsensus {
+    /// `[rnd, width]`: per input unit psi_2's first root and knot weights,
+    /// then its row of `W_x W_in`.
+    first: Vec<f32>,
+    width: usize,
+    rnd: usize,
+    /// The most source nodes whose first product the target carries over
+    /// (`rnd`: whichever multiplies less).
+    carry_max: usize,
+    conv1_bias: Vec<f32>,
+    conv2: Conv1d,
+    /// `[h1 + h2, mlp]`: `W_h W_in`.
+    hidden_in: Vec<f32>,
+    /// `b_in`, added to the source rows only.
+    mlp_bias: Vec<f32>,
+    pub mlp_out: PlainLinear,
+}
+
+impl PlainConsensus {
+    /// psi_2 (`cat`) and the MLP's two layers.
+    ///
+    /// # Panics
+    /// When the layers' widths do not chain (a network built wrong, not
+    /// a weights file: those are checked against the shapes on loading).
+    pub(super) fn new(psi2: PlainCnn, mlp_in: &PlainLinear, mlp_out: PlainLinear) -> Self {
+        let (rnd, h1) = (psi2.conv1.d_in, psi2.conv1.d_out);
+        let hh = h1 + psi2.conv2.d_out;
+        assert!(
+            psi2.last.d_in == rnd + hh && psi2.last.d_out == mlp_in.d_in,
+            "psi_2 with cat: its last layer reads [x, h1, h2] and feeds the MLP"
+        );
+        let mlp = mlp_in.d_out;
+        let w_x = fold(&psi2.last.weight[..rnd * psi2.last.d_out], rnd, mlp_in);
+        let hidden_in = fold(&psi2.last.weight[rnd * psi2.last.d_out..], hh, mlp_in);
+        let conv_width = (1 + KERNEL) * h1;
+        let width = conv_width + mlp;
+        let mut first = Vec::with_capacity(rnd * width);
+        for u in 0..rnd {
+            first.extend_from_slice(&psi2.conv1.joined[u * conv_width..(u + 1) * conv_width]);
+            first.extend_from_slice(&w_x[u * mlp..(u + 1) * mlp]);
         }
-        let (a, b, c) = (self.conv1.d_in, self.conv1.d_out, self.conv2.d_out);
+        Self {
+            first,
+            width,
+            rnd,
+            carry_max: rnd,
+            conv1_bias: psi2.conv1.bias,
+            conv2: psi2.conv2,
+            hidden_in,
+            mlp_bias: mlp_in.bias.clone(),
+            mlp_out,
+        }
+    }
+
+    /// Whether the target's first product is carried over from the
+    /// source's (`S^T (r_s J)`) rather than multiplied anew (`(S^T r_s)
+    /// J`): whichever multiplies less.
+    pub(super) fn carries(&self, n1: usize) -> bool {
+        n1 <= self.carry_max
+    }
+
+    /// The MLP's first layer before its ReLU, `o W_in (+ b_in)`, of
+    /// `blocks` stacked copies of a graph (`inc`) from their first
+    /// products `y` (`[rows, width]`), into `out` (`[rows, mlp]`).
+    fn project(
+        &self,
+        y: &[f32],
+        g: (&Incoming, usize),
+        source: bool,
+        buf: &mut Buffers,
+        out: &mut Vec<f32>,
+    ) {
+        let (inc, blocks) = g;
+        let rows = inc.n * blocks;
+        let h1 = self.conv1_bias.len();
+        let h1_out = sized(&mut buf.h1, rows * h1);
+        mix_relu(y, self.width, (inc, blocks), &self.conv1_bias, h1_out);
+        self.conv2.relu_forward(&buf.h1, g, &mut buf.y, &mut buf.h2);
+        let h2 = self.conv2.d_out;
         buf.joined.clear();
         for r in 0..rows {
-            buf.joined.extend_from_slice(&x[r * a..(r + 1) * a]);
-            buf.joined.extend_from_slice(&buf.h1[r * b..(r + 1) * b]);
-            buf.joined.extend_from_slice(&buf.h2[r * c..(r + 1) * c]);
+            buf.joined.extend_from_slice(&buf.h1[r * h1..(r + 1) * h1]);
+            buf.joined.extend_from_slice(&buf.h2[r * h2..(r + 1) * h2]);
         }
-        linear_rows(&self.last, &buf.joined, rows, out);
+        let mlp = self.mlp_bias.len();
+        let out = sized(out, rows * mlp);
+        if rows > 0 {
+            matmul(rows, h1 + h2, mlp, &buf.joined, &self.hidden_in, out);
+        }
+        let skip = self.width - mlp;
+        for (o, yr) in out.chunks_mut(mlp).zip(y.chunks(self.width)) {
+            for ((v, x), b) in o.iter_mut().zip(&yr[skip..]).zip(&self.mlp_bias) {
+                *v += x;
+                if source {
+                    *v += b;
+                }
+            }
+        }
     }
 }
 
@@ -284,7 +407,7 @@ pub(super) struct PlainPublished {
     /// Under shared masks, psi_1's second layer per sample on the kept
     /// hidden channels.
     conv2_kept: Vec<(Vec<usize>, Conv1d)>,
-    consensus: Option<(PlainCnn, PlainLinear, PlainLinear)>,
+    consensus: Option<PlainConsensus>,
     dustbin: f32,
     steps: usize,
     iters: usize,
@@ -319,11 +442,22 @@ impl PlainPublished {
             psi1: w.psi1,
             samples,
             conv2_kept,
-            consensus: w.consensus,
+            consensus: w
+                .consensus
+                .map(|(psi2, mlp_in, mlp_out)| PlainConsensus::new(psi2, &mlp_in, mlp_out)),
             dustbin: w.dustbin,
             steps,
             iters,
             scale_m,
+        }
+    }
+
+    /// The target's first product always multiplied anew, `(S^T r_s) J`
+    /// (tests: the branch large source graphs take).
+    #[cfg(test)]
+    pub(super) fn never_carry(&mut self) {
+        if let Some(c) = &mut self.consensus {
+            c.carry_max = 0;
         }
     }
 
@@ -399,34 +533,34 @@ impl PlainPublished {
         let (n1, n2, t) = (g1.n, g2.n, self.samples());
         let mut s_hat = similarity(h1, h2, [t, n1, n2]);
         let mut p = self.normalise(&s_hat, [t, n1, n2]);
-        if let Some((psi2, mlp_in, mlp_out)) = &self.consensus {
+        if let Some(c) = &self.consensus {
             let (inc1, inc2) = (
                 Incoming::of(g1, self.scale_m),
                 Incoming::of(g2, self.scale_m),
             );
+            let (w, rnd) = (c.width, c.rnd);
             SCRATCH.with_borrow_mut(|s| {
-                let h = mlp_in.d_out;
                 for r_s in indicators.iter().take(self.steps) {
-                    // r_t = S^T r_s per sample, S the real block of the
-                    // current assignment.
-                    s.r_t.clear();
-                    s.r_t.resize(t * n2 * mlp_in.d_in, 0.0);
-                    transport(&p, r_s, [t, n1, n2], &mut s.r_t);
-                    psi2.forward(r_s, (&inc1, t), &mut s.cnn, &mut s.o_s);
-                    psi2.forward(&s.r_t, (&inc2, t), &mut s.cnn, &mut s.o_t);
-                    // MLP(o_s,i - o_t,j) = mlp_out(relu(o_s,i W - o_t,j W + b)).
-                    for (o, rows, out) in [(&s.o_s, t * n1, &mut s.a), (&s.o_t, t * n2, &mut s.b)] {
-                        let out = sized(out, rows * h);
-                        if rows > 0 {
-                            matmul(rows, mlp_in.d_in, h, o, &mlp_in.weight, out);
+                    let y_s = sized(&mut s.y_s, t * n1 * w);
+                    if !y_s.is_empty() {
+                        matmul(t * n1, rnd, w, r_s, &c.first, y_s);
+                    }
+                    // The target's first product from its indicators
+                    // S^T r_s per sample, S the real block of the current
+                    // assignment.
+                    let y_t = sized(&mut s.y_t, t * n2 * w);
+                    if c.carries(n1) {
+                        transport(&p, &s.y_s, [t, n1, n2], y_t);
+                    } else {
+                        let r_t = sized(&mut s.r_t, t * n2 * rnd);
+                        transport(&p, r_s, [t, n1, n2], r_t);
+                        if !y_t.is_empty() {
+                            matmul(t * n2, rnd, w, r_t, &c.first, y_t);
                         }
                     }
-                    for row in s.a.chunks_mut(h) {
-                        for (x, c) in row.iter_mut().zip(&mlp_in.bias) {
-                            *x += c;
-                        }
-                    }
-                    consensus_update(&s.a, &s.b, mlp_out, [t, n1, n2], &mut s_hat);
+                    c.project(&s.y_s, (&inc1, t), true, &mut s.cnn, &mut s.a);
+                    c.project(&s.y_t, (&inc2, t), false, &mut s.cnn, &mut s.b);
+                    consensus_update(&s.a, &s.b, &c.mlp_out, [t, n1, n2], &mut s_hat, &mut s.b_t);
                     p = self.normalise(&s_hat, [t, n1, n2]);
                 }
             });
@@ -446,30 +580,54 @@ impl PlainPublished {
     }
 }
 
-/// `r_t += S^T r_s` per sample (`r_t` zeroed by the caller), `S` the real
-/// block of each sample's `(n1 + 1) x (n2 + 1)` assignment `p`, summed in
-/// order of `i`.
+/// `dst = S^T src` per sample, `S` the real block of each sample's `(n1 +
+/// 1) x (n2 + 1)` assignment `p`, `src` `[T n1, width]` and `dst` `[T n2,
+/// width]`: each value summed from 0 in order of `i`, 32 columns at a
+/// time held in registers.
 #[multiversion::multiversion(targets("x86_64+avx+avx2"))]
-fn transport(p: &[f32], r_s: &[f32], [t, n1, n2]: [usize; 3], r_t: &mut [f32]) {
-    let r = r_s.len() / (t * n1).max(1);
+fn transport(p: &[f32], src: &[f32], [t, n1, n2]: [usize; 3], dst: &mut [f32]) {
+    let width = src.len() / (t * n1).max(1);
     for s in 0..t {
-        for i in 0..n1 {
-            let ind = &r_s[(s * n1 + i) * r..(s * n1 + i + 1) * r];
-            for j in 0..n2 {
-                let w = p[(s * (n1 + 1) + i) * (n2 + 1) + j];
-                let out = &mut r_t[(s * n2 + j) * r..(s * n2 + j + 1) * r];
-                for (x, v) in out.iter_mut().zip(ind) {
-                    *x += w * v;
-                }
+        for j in 0..n2 {
+            let mut c = 0;
+            while c + 32 <= width {
+                transport_columns::<32>(p, src, width, [s, j, n1, n2], c, dst);
+                c += 32;
+            }
+            while c < width {
+                transport_columns::<1>(p, src, width, [s, j, n1, n2], c, dst);
+                c += 1;
             }
         }
     }
 }
 
+/// [`transport`] for the `C` columns from `c` of target `j` in sample `s`.
+#[inline(always)]
+fn transport_columns<const C: usize>(
+    p: &[f32],
+    src: &[f32],
+    width: usize,
+    [s, j, n1, n2]: [usize; 4],
+    c: usize,
+    dst: &mut [f32],
+) {
+    let mut acc = [0f32; C];
+    for i in 0..n1 {
+        let w = p[(s * (n1 + 1) + i) * (n2 + 1) + j];
+        let at = (s * n1 + i) * width + c;
+        for (a, v) in acc.iter_mut().zip(&src[at..at + C]) {
+            *a += w * v;
+        }
+    }
+    let at = (s * n2 + j) * width + c;
+    dst[at..at + C].copy_from_slice(&acc);
+}
+
 /// `S_hat_ij += mlp_out(relu(a_i - b_j))` per sample: `a` the source
 /// rows' projections with the first layer's bias, `b` the target rows'.
 /// Each pair's sum is `lane_sum`'s, eight pairs of a row side by side
-/// (the target rows transposed).
+/// (the target rows transposed into `b_t`, a reused buffer).
 #[multiversion::multiversion(targets("x86_64+avx+avx2"))]
 fn consensus_update(
     a: &[f32],
@@ -477,11 +635,13 @@ fn consensus_update(
     mlp_out: &PlainLinear,
     [t, n1, n2]: [usize; 3],
     s_hat: &mut [f32],
+    b_t: &mut Vec<f32>,
 ) {
     let h = mlp_out.d_in;
-    // Targets padded to a multiple of 8 with zeros (their sums unused).
+    // Targets padded to a multiple of 8 (the padding's sums unused,
+    // whatever it holds).
     let padded = n2.div_ceil(8) * 8;
-    let mut b_t = vec![0f32; h * padded];
+    let b_t = sized(b_t, h * padded);
     for s in 0..t {
         for j in 0..n2 {
             for (k, v) in b[(s * n2 + j) * h..(s * n2 + j + 1) * h].iter().enumerate() {
