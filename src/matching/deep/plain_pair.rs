@@ -78,6 +78,57 @@ pub(super) fn lane_sum(a: &[f32], b: &[f32], w: &[f32], f: impl Fn(f32, f32, f32
     acc.iter().sum()
 }
 
+/// `x W` (before the bias) of every `d_in`-wide row of `x` into the rows
+/// of `out`, each as [`PlainLinear::product`] sums it.
+#[multiversion::multiversion(targets("x86_64+avx+avx2"))]
+fn product_rows(l: &PlainLinear, x: &[f32], out: &mut [f32]) {
+    for (x, y) in x.chunks(l.d_in.max(1)).zip(out.chunks_mut(l.d_out.max(1))) {
+        l.product(x, y);
+    }
+}
+
+/// `r2[s] += soft[s]^T r1` per sample: `soft` `[T, n1, n2]`, the
+/// indicators `r1` `[n1, R]` (one draw for every sample), `r2` `[T, n2,
+/// R]` (zeroed by the caller), summed in order of `i`.
+#[multiversion::multiversion(targets("x86_64+avx+avx2"))]
+fn push_indicators(soft: &[f32], r1: &[f32], [t, n1, n2]: [usize; 3], r2: &mut [f32]) {
+    let r = r1.len() / n1.max(1);
+    for s in 0..t {
+        for i in 0..n1 {
+            let ind = &r1[i * r..(i + 1) * r];
+            for j in 0..n2 {
+                let p = soft[(s * n1 + i) * n2 + j];
+                let out = &mut r2[(s * n2 + j) * r..(s * n2 + j + 1) * r];
+                for (o, v) in out.iter_mut().zip(ind) {
+                    *o += p * v;
+                }
+            }
+        }
+    }
+}
+
+/// One sample's consensus pair terms on its kept hidden units (`q` =
+/// `w.len()` of them, maybe none): `rows[i n2 + j] += lane_sum(a_i, b_j,
+/// w, relu(x - y) w) + b_out`, `a` `[n1, q]` and `b` `[n2, q]`.
+#[multiversion::multiversion(targets("x86_64+avx+avx2"))]
+fn add_pair_terms(
+    a: &[f32],
+    b: &[f32],
+    w: &[f32],
+    [n1, n2]: [usize; 2],
+    b_out: f32,
+    rows: &mut [f32],
+) {
+    let q = w.len();
+    for i in 0..n1 {
+        let ai = &a[i * q..(i + 1) * q];
+        for j in 0..n2 {
+            let bj = &b[j * q..(j + 1) * q];
+            rows[i * n2 + j] += lane_sum(ai, bj, w, |x, y, w| relu(x - y) * w) + b_out;
+        }
+    }
+}
+
 /// Each sample's similarity `H1 H2^T` of two graphs' embeddings `h1`
 /// (`[T, n1, d]`) and `h2` (`[T, n2, d]`): `[T, n1, n2]`.
 pub(super) fn similarity(h1: &[f32], h2: &[f32], [t, n1, n2]: [usize; 3]) -> Vec<f32> {
@@ -261,18 +312,7 @@ impl PlainPair {
         }
         // The indicators pushed through it: r2[s] = soft[s]^T r1, [n2, R].
         let mut r2 = vec![0f32; t * n2 * r];
-        for s in 0..t {
-            for i in 0..n1 {
-                let ind = &indicators[i * r..(i + 1) * r];
-                for j in 0..n2 {
-                    let p = soft[(s * n1 + i) * n2 + j];
-                    let out = &mut r2[(s * n2 + j) * r..(s * n2 + j + 1) * r];
-                    for (o, v) in out.iter_mut().zip(ind) {
-                        *o += p * v;
-                    }
-                }
-            }
-        }
+        push_indicators(&soft, &indicators[..n1 * r], [t, n1, n2], &mut r2);
         // Both sides embedded by the consensus conv: z1 once, z2 per sample
         // (all samples in one product).
         let z1 = c.conv.forward_many(&[(indicators, g1)]).remove(0);
@@ -281,9 +321,7 @@ impl PlainPair {
         // phi(z1_i - z2_j) = phi_out(relu(z1_i W - z2_j W + b) m).
         let project = |z: &[f32], n: usize| -> Vec<f32> {
             let mut out = vec![0f32; n * r];
-            for (x, y) in z.chunks(r).zip(out.chunks_mut(r)) {
-                c.phi_in.product(x, y);
-            }
+            product_rows(&c.phi_in, z, &mut out);
             out
         };
         let a = project(&z1, n1);
@@ -293,7 +331,6 @@ impl PlainPair {
         for (s, z2) in z2.iter().enumerate() {
             let b = project(z2, n2);
             let kept = &c.kept[s];
-            let q = kept.len();
             a_kept.clear();
             for ai in a.chunks(r) {
                 a_kept.extend(kept.iter().map(|&(u, _)| ai[u] + c.phi_in.bias[u]));
@@ -304,15 +341,8 @@ impl PlainPair {
             }
             w_kept.clear();
             w_kept.extend(kept.iter().map(|&(u, m)| m * c.phi_out.weight[u]));
-            let b_out = c.phi_out.bias[0];
-            for i in 0..n1 {
-                let ai = &a_kept[i * q..(i + 1) * q];
-                for j in 0..n2 {
-                    let bj = &b_kept[j * q..(j + 1) * q];
-                    let sum = lane_sum(ai, bj, &w_kept, |x, y, w| relu(x - y) * w);
-                    residual[(s * n1 + i) * n2 + j] += sum + b_out;
-                }
-            }
+            let rows = &mut residual[s * n1 * n2..(s + 1) * n1 * n2];
+            add_pair_terms(&a_kept, &b_kept, &w_kept, [n1, n2], c.phi_out.bias[0], rows);
         }
     }
 }
