@@ -109,7 +109,9 @@ fn push_indicators(soft: &[f32], r1: &[f32], [t, n1, n2]: [usize; 3], r2: &mut [
 
 /// One sample's consensus pair terms on its kept hidden units (`q` =
 /// `w.len()` of them, maybe none): `rows[i n2 + j] += lane_sum(a_i, b_j,
-/// w, relu(x - y) w) + b_out`, `a` `[n1, q]` and `b` `[n2, q]`.
+/// w, relu(x - y) w) + b_out`, `a` `[n1, q]` and `b` `[n2, q]`; eight
+/// targets at a time through [`pair_sums`] (`b` transposed into `b_t`, a
+/// reused buffer).
 #[multiversion::multiversion(targets("x86_64+avx+avx2"))]
 fn add_pair_terms(
     a: &[f32],
@@ -118,15 +120,59 @@ fn add_pair_terms(
     [n1, n2]: [usize; 2],
     b_out: f32,
     rows: &mut [f32],
+    b_t: &mut Vec<f32>,
 ) {
     let q = w.len();
-    for i in 0..n1 {
-        let ai = &a[i * q..(i + 1) * q];
-        for j in 0..n2 {
-            let bj = &b[j * q..(j + 1) * q];
-            rows[i * n2 + j] += lane_sum(ai, bj, w, |x, y, w| relu(x - y) * w) + b_out;
+    // Targets padded to a multiple of 8 (the padding's sums unused).
+    let padded = n2.div_ceil(8) * 8;
+    b_t.clear();
+    b_t.resize(q * padded, 0.0);
+    for j in 0..n2 {
+        for (k, v) in b[j * q..(j + 1) * q].iter().enumerate() {
+            b_t[k * padded + j] = *v;
         }
     }
+    for i in 0..n1 {
+        let ai = &a[i * q..(i + 1) * q];
+        let row = &mut rows[i * n2..(i + 1) * n2];
+        for j in (0..n2).step_by(8) {
+            let sums = pair_sums(ai, &b_t[j..], padded, w);
+            for (out, s) in row[j..].iter_mut().zip(sums) {
+                *out += s + b_out;
+            }
+        }
+    }
+}
+
+/// The consensus sums of `ai` with the 8 targets whose transposed rows
+/// start `b_t` (`stride` apart), `w` the output weights: `lane_sum(ai,
+/// b_j, w, |x, y, w| relu(x - y) * w)` for each, bit for bit (the same
+/// partial sums in the same order).
+#[inline(always)]
+pub(super) fn pair_sums(ai: &[f32], b_t: &[f32], stride: usize, w: &[f32]) -> [f32; 8] {
+    let h = ai.len();
+    let mut acc = [[0f32; 8]; LANES];
+    let chunks = h / LANES;
+    // relu(d) as a select: d where !(d <= 0) (positive or NaN), else 0.
+    let term = |x: f32, bk: &[f32], wk: f32, lane: &mut [f32; 8]| {
+        let mut v = *lane;
+        for (a, y) in v.iter_mut().zip(bk) {
+            let d = x - y;
+            *a += if d <= 0.0 { 0.0 } else { d } * wk;
+        }
+        *lane = v;
+    };
+    for c in 0..chunks {
+        for (l, lane) in acc.iter_mut().enumerate() {
+            let k = c * LANES + l;
+            term(ai[k], &b_t[k * stride..k * stride + 8], w[k], lane);
+        }
+    }
+    for (l, lane) in acc.iter_mut().enumerate().take(h - chunks * LANES) {
+        let k = chunks * LANES + l;
+        term(ai[k], &b_t[k * stride..k * stride + 8], w[k], lane);
+    }
+    std::array::from_fn(|q| acc.iter().map(|lane| lane[q]).sum())
 }
 
 /// Each sample's similarity `H1 H2^T` of two graphs' embeddings `h1`
@@ -327,7 +373,8 @@ impl PlainPair {
         let a = project(&z1, n1);
         // Per sample, the kept hidden units side by side: z1 W + b and z2 W
         // at them, and the output weight times the mask's value.
-        let (mut a_kept, mut b_kept, mut w_kept) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut a_kept, mut b_kept, mut w_kept, mut b_t) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (s, z2) in z2.iter().enumerate() {
             let b = project(z2, n2);
             let kept = &c.kept[s];
@@ -342,7 +389,15 @@ impl PlainPair {
             w_kept.clear();
             w_kept.extend(kept.iter().map(|&(u, m)| m * c.phi_out.weight[u]));
             let rows = &mut residual[s * n1 * n2..(s + 1) * n1 * n2];
-            add_pair_terms(&a_kept, &b_kept, &w_kept, [n1, n2], c.phi_out.bias[0], rows);
+            add_pair_terms(
+                &a_kept,
+                &b_kept,
+                &w_kept,
+                [n1, n2],
+                c.phi_out.bias[0],
+                rows,
+                &mut b_t,
+            );
         }
     }
 }

@@ -26,7 +26,7 @@
 use super::graph::{PaperGraph, length_basis};
 use crate::matching::deep::dense::matmul;
 use crate::matching::deep::features::KERNEL;
-use crate::matching::deep::plain_pair::{LANES, PlainLinear, relu, similarity};
+use crate::matching::deep::plain_pair::{PlainLinear, pair_sums, relu, similarity};
 use crate::matching::deep::sinkhorn::sinkhorn_probabilities;
 
 /// A graph's edges grouped by destination node, each group in edge
@@ -652,42 +652,11 @@ fn consensus_update(
             let ai = &a[(s * n1 + i) * h..(s * n1 + i + 1) * h];
             let row = &mut s_hat[(s * n1 + i) * n2..(s * n1 + i + 1) * n2];
             for j in (0..n2).step_by(8) {
-                let sums = pair_sums(ai, (&b_t[j..], padded), mlp_out);
+                let sums = pair_sums(ai, &b_t[j..], padded, &mlp_out.weight);
                 for (out, delta) in row[j..].iter_mut().zip(sums) {
                     *out += delta + mlp_out.bias[0];
                 }
             }
         }
     }
-}
-
-/// [`consensus_update`]'s sums for the 8 pairs of `ai` with the targets
-/// whose transposed rows start `b_t` (`stride` apart): `lane_sum(ai, b_j,
-/// w, |x, y, w| relu(x - y) * w)` for each, bit for bit (the same partial
-/// sums in the same order).
-#[inline(always)]
-fn pair_sums(ai: &[f32], (b_t, stride): (&[f32], usize), mlp_out: &PlainLinear) -> [f32; 8] {
-    let (h, w) = (ai.len(), &mlp_out.weight);
-    let mut acc = [[0f32; 8]; LANES];
-    let chunks = h / LANES;
-    // relu(d) as a select: d where !(d <= 0) (positive or NaN), else 0.
-    let term = |x: f32, bk: &[f32], wk: f32, lane: &mut [f32; 8]| {
-        let mut v = *lane;
-        for (a, y) in v.iter_mut().zip(bk) {
-            let d = x - y;
-            *a += if d <= 0.0 { 0.0 } else { d } * wk;
-        }
-        *lane = v;
-    };
-    for c in 0..chunks {
-        for (l, lane) in acc.iter_mut().enumerate() {
-            let k = c * LANES + l;
-            term(ai[k], &b_t[k * stride..k * stride + 8], w[k], lane);
-        }
-    }
-    for (l, lane) in acc.iter_mut().enumerate().take(h - chunks * LANES) {
-        let k = chunks * LANES + l;
-        term(ai[k], &b_t[k * stride..k * stride + 8], w[k], lane);
-    }
-    std::array::from_fn(|q| acc.iter().map(|lane| lane[q]).sum())
 }
