@@ -87,24 +87,58 @@ fn product_rows(l: &PlainLinear, x: &[f32], out: &mut [f32]) {
     }
 }
 
-/// `r2[s] += soft[s]^T r1` per sample: `soft` `[T, n1, n2]`, the
-/// indicators `r1` `[n1, R]` (one draw for every sample), `r2` `[T, n2,
-/// R]` (zeroed by the caller), summed in order of `i`.
+/// `dst = S^T src` per sample: `S` the `n1 x n2` block of each sample's
+/// assignment in `p` (samples of `(n1 + bins) x (n2 +
+/// bins)`, a dustbin row and column when `bins` is 1), `src` rows of
+/// `width` values, sample `s`'s `n1` rows from `s * src_sample` (0: one
+/// `src` for every sample), `dst` `[T n2, width]`. Each value summed from
+/// 0 in order of `i`, 32 columns at a time held in registers.
 #[multiversion::multiversion(targets("x86_64+avx+avx2"))]
-fn push_indicators(soft: &[f32], r1: &[f32], [t, n1, n2]: [usize; 3], r2: &mut [f32]) {
-    let r = r1.len() / n1.max(1);
+pub(super) fn transport(
+    p: &[f32],
+    bins: usize,
+    src: &[f32],
+    [width, src_sample]: [usize; 2],
+    [t, n1, n2]: [usize; 3],
+    dst: &mut [f32],
+) {
+    let (rows, cols) = (n1 + bins, n2 + bins);
     for s in 0..t {
-        for i in 0..n1 {
-            let ind = &r1[i * r..(i + 1) * r];
-            for j in 0..n2 {
-                let p = soft[(s * n1 + i) * n2 + j];
-                let out = &mut r2[(s * n2 + j) * r..(s * n2 + j + 1) * r];
-                for (o, v) in out.iter_mut().zip(ind) {
-                    *o += p * v;
-                }
+        let p = &p[s * rows * cols..(s + 1) * rows * cols];
+        let src = &src[s * src_sample..s * src_sample + n1 * width];
+        for j in 0..n2 {
+            let dst = &mut dst[(s * n2 + j) * width..(s * n2 + j + 1) * width];
+            let mut c = 0;
+            while c + 32 <= width {
+                transport_columns::<32>(p, src, [cols, j, width, c], dst);
+                c += 32;
+            }
+            while c < width {
+                transport_columns::<1>(p, src, [cols, j, width, c], dst);
+                c += 1;
             }
         }
     }
+}
+
+/// [`transport`] for columns `c..c + C` of target `j` in one sample: `p`
+/// the sample's assignment (rows of `cols`), `src` its `[n1, width]`
+/// rows, `dst` the target's row.
+#[inline(always)]
+fn transport_columns<const C: usize>(
+    p: &[f32],
+    src: &[f32],
+    [cols, j, width, c]: [usize; 4],
+    dst: &mut [f32],
+) {
+    let mut acc = [0f32; C];
+    for (i, row) in src.chunks_exact(width).enumerate() {
+        let w = p[i * cols + j];
+        for (a, v) in acc.iter_mut().zip(&row[c..c + C]) {
+            *a += w * v;
+        }
+    }
+    dst[c..c + C].copy_from_slice(&acc);
 }
 
 /// One sample's consensus pair terms on its kept hidden units (`q` =
@@ -113,7 +147,7 @@ fn push_indicators(soft: &[f32], r1: &[f32], [t, n1, n2]: [usize; 3], r2: &mut [
 /// targets at a time through [`pair_sums`] (`b` transposed into `b_t`, a
 /// reused buffer).
 #[multiversion::multiversion(targets("x86_64+avx+avx2"))]
-fn add_pair_terms(
+pub(super) fn add_pair_terms(
     a: &[f32],
     b: &[f32],
     w: &[f32],
@@ -149,7 +183,7 @@ fn add_pair_terms(
 /// b_j, w, |x, y, w| relu(x - y) * w)` for each, bit for bit (the same
 /// partial sums in the same order).
 #[inline(always)]
-pub(super) fn pair_sums(ai: &[f32], b_t: &[f32], stride: usize, w: &[f32]) -> [f32; 8] {
+fn pair_sums(ai: &[f32], b_t: &[f32], stride: usize, w: &[f32]) -> [f32; 8] {
     let h = ai.len();
     let mut acc = [[0f32; 8]; LANES];
     let chunks = h / LANES;
@@ -358,7 +392,7 @@ impl PlainPair {
         }
         // The indicators pushed through it: r2[s] = soft[s]^T r1, [n2, R].
         let mut r2 = vec![0f32; t * n2 * r];
-        push_indicators(&soft, &indicators[..n1 * r], [t, n1, n2], &mut r2);
+        transport(&soft, 0, indicators, [r, 0], [t, n1, n2], &mut r2);
         // Both sides embedded by the consensus conv: z1 once, z2 per sample
         // (all samples in one product).
         let z1 = c.conv.forward_many(&[(indicators, g1)]).remove(0);

@@ -26,7 +26,7 @@
 use super::graph::{PaperGraph, length_basis};
 use crate::matching::deep::dense::matmul;
 use crate::matching::deep::features::KERNEL;
-use crate::matching::deep::plain_pair::{PlainLinear, pair_sums, relu, similarity};
+use crate::matching::deep::plain_pair::{PlainLinear, add_pair_terms, relu, similarity, transport};
 use crate::matching::deep::sinkhorn::sinkhorn_probabilities;
 
 /// A graph's edges grouped by destination node, each group in edge
@@ -348,7 +348,7 @@ impl PlainConsensus {
     /// Whether the target's first product is carried over from the
     /// source's (`S^T (r_s J)`) rather than multiplied anew (`(S^T r_s)
     /// J`): whichever multiplies less.
-    pub(super) fn carries(&self, n1: usize) -> bool {
+    fn carries(&self, n1: usize) -> bool {
         n1 <= self.carry_max
     }
 
@@ -550,10 +550,10 @@ impl PlainPublished {
                     // assignment.
                     let y_t = sized(&mut s.y_t, t * n2 * w);
                     if c.carries(n1) {
-                        transport(&p, &s.y_s, [t, n1, n2], y_t);
+                        transport(&p, 1, &s.y_s, [w, n1 * w], [t, n1, n2], y_t);
                     } else {
                         let r_t = sized(&mut s.r_t, t * n2 * rnd);
-                        transport(&p, r_s, [t, n1, n2], r_t);
+                        transport(&p, 1, r_s, [rnd, n1 * rnd], [t, n1, n2], r_t);
                         if !y_t.is_empty() {
                             matmul(t * n2, rnd, w, r_t, &c.first, y_t);
                         }
@@ -580,55 +580,9 @@ impl PlainPublished {
     }
 }
 
-/// `dst = S^T src` per sample, `S` the real block of each sample's `(n1 +
-/// 1) x (n2 + 1)` assignment `p`, `src` `[T n1, width]` and `dst` `[T n2,
-/// width]`: each value summed from 0 in order of `i`, 32 columns at a
-/// time held in registers.
-#[multiversion::multiversion(targets("x86_64+avx+avx2"))]
-fn transport(p: &[f32], src: &[f32], [t, n1, n2]: [usize; 3], dst: &mut [f32]) {
-    let width = src.len() / (t * n1).max(1);
-    for s in 0..t {
-        for j in 0..n2 {
-            let mut c = 0;
-            while c + 32 <= width {
-                transport_columns::<32>(p, src, width, [s, j, n1, n2], c, dst);
-                c += 32;
-            }
-            while c < width {
-                transport_columns::<1>(p, src, width, [s, j, n1, n2], c, dst);
-                c += 1;
-            }
-        }
-    }
-}
-
-/// [`transport`] for the `C` columns from `c` of target `j` in sample `s`.
-#[inline(always)]
-fn transport_columns<const C: usize>(
-    p: &[f32],
-    src: &[f32],
-    width: usize,
-    [s, j, n1, n2]: [usize; 4],
-    c: usize,
-    dst: &mut [f32],
-) {
-    let mut acc = [0f32; C];
-    for i in 0..n1 {
-        let w = p[(s * (n1 + 1) + i) * (n2 + 1) + j];
-        let at = (s * n1 + i) * width + c;
-        for (a, v) in acc.iter_mut().zip(&src[at..at + C]) {
-            *a += w * v;
-        }
-    }
-    let at = (s * n2 + j) * width + c;
-    dst[at..at + C].copy_from_slice(&acc);
-}
-
 /// `S_hat_ij += mlp_out(relu(a_i - b_j))` per sample: `a` the source
-/// rows' projections with the first layer's bias, `b` the target rows'.
-/// Each pair's sum is `lane_sum`'s, eight pairs of a row side by side
-/// (the target rows transposed into `b_t`, a reused buffer).
-#[multiversion::multiversion(targets("x86_64+avx+avx2"))]
+/// rows' projections with the first layer's bias, `b` the target rows'
+/// ([`add_pair_terms`] per sample, `b_t` its reused buffer).
 fn consensus_update(
     a: &[f32],
     b: &[f32],
@@ -638,25 +592,15 @@ fn consensus_update(
     b_t: &mut Vec<f32>,
 ) {
     let h = mlp_out.d_in;
-    // Targets padded to a multiple of 8 (the padding's sums unused,
-    // whatever it holds).
-    let padded = n2.div_ceil(8) * 8;
-    let b_t = sized(b_t, h * padded);
     for s in 0..t {
-        for j in 0..n2 {
-            for (k, v) in b[(s * n2 + j) * h..(s * n2 + j + 1) * h].iter().enumerate() {
-                b_t[k * padded + j] = *v;
-            }
-        }
-        for i in 0..n1 {
-            let ai = &a[(s * n1 + i) * h..(s * n1 + i + 1) * h];
-            let row = &mut s_hat[(s * n1 + i) * n2..(s * n1 + i + 1) * n2];
-            for j in (0..n2).step_by(8) {
-                let sums = pair_sums(ai, &b_t[j..], padded, &mlp_out.weight);
-                for (out, delta) in row[j..].iter_mut().zip(sums) {
-                    *out += delta + mlp_out.bias[0];
-                }
-            }
-        }
+        add_pair_terms(
+            &a[s * n1 * h..(s + 1) * n1 * h],
+            &b[s * n2 * h..(s + 1) * n2 * h],
+            &mlp_out.weight,
+            [n1, n2],
+            mlp_out.bias[0],
+            &mut s_hat[s * n1 * n2..(s + 1) * n1 * n2],
+            b_t,
+        );
     }
 }
