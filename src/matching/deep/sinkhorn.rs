@@ -189,6 +189,7 @@ pub fn sinkhorn_probabilities(
             }
         }
         for lane in 0..lanes {
+            let at = out.len();
             for (row, ui) in kernel.chunks_exact(cols).zip(&u) {
                 out.extend(
                     row.iter()
@@ -196,9 +197,64 @@ pub fn sinkhorn_probabilities(
                         .map(|(k, vj)| (ui[lane] * k[lane] * vj[lane] * total) as f32),
                 );
             }
+            // Scores far apart (hundreds of nats) underflow the kernel to
+            // 0 where the plan needs mass: that sample again in the log
+            // domain, which no spread of scores can break.
+            if out[at..].iter().any(|p| !p.is_finite()) {
+                let sample = first + lane;
+                let block = &scores[sample * n1 * n2..(sample + 1) * n1 * n2];
+                let p = log_domain_probabilities(block, [n1, n2], dust, corner, iters);
+                out.truncate(at);
+                out.extend(p.iter().map(|&x| x as f32));
+            }
         }
     }
     out
+}
+
+/// One sample of [`sinkhorn_probabilities`] in the log domain, as
+/// [`log_sinkhorn`] iterates (in f64, without tensors): the `(N1 + 1) x
+/// (N2 + 1)` assignment, row-major. Every row and column holds its
+/// finite dustbin, so no potential becomes infinite whatever the spread
+/// of the scores.
+fn log_domain_probabilities(
+    block: &[f64],
+    [n1, n2]: [usize; 2],
+    dust: [&[f64]; 2],
+    corner: f64,
+    iters: usize,
+) -> Vec<f64> {
+    let (rows, cols) = (n1 + 1, n2 + 1);
+    let z = |i: usize, j: usize| match (i < n1, j < n2) {
+        (true, true) => block[i * n2 + j],
+        (true, false) => dust[0][i],
+        (false, true) => dust[1][j],
+        (false, false) => corner,
+    };
+    let ln_total = ((n1 + n2) as f64).ln();
+    let log_mu = |i: usize| if i == n1 { (n2 as f64).ln() } else { 0.0 } - ln_total;
+    let log_nu = |j: usize| if j == n2 { (n1 as f64).ln() } else { 0.0 } - ln_total;
+    let lse = |x: &mut dyn Iterator<Item = f64>| {
+        let x: Vec<f64> = x.collect();
+        let m = x.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        if m == f64::NEG_INFINITY {
+            return m;
+        }
+        m + x.iter().map(|v| (v - m).exp()).sum::<f64>().ln()
+    };
+    let (mut u, mut v) = (vec![0.0; rows], vec![0.0; cols]);
+    for _ in 0..iters {
+        for (i, ui) in u.iter_mut().enumerate() {
+            *ui = log_mu(i) - lse(&mut (0..cols).map(|j| z(i, j) + v[j]));
+        }
+        for (j, vj) in v.iter_mut().enumerate() {
+            *vj = log_nu(j) - lse(&mut (0..rows).map(|i| z(i, j) + u[i]));
+        }
+    }
+    (0..rows)
+        .flat_map(|i| (0..cols).map(move |j| (i, j)))
+        .map(|(i, j)| (z(i, j) + u[i] + v[j] + ln_total).exp())
+        .collect()
 }
 
 #[cfg(test)]
@@ -226,6 +282,39 @@ mod tests {
                 let col: f32 = (0..5).map(|i| at(i, j)).sum();
                 assert!((col - 1.0).abs() < 1e-3, "col {j}: {col}");
             }
+        }
+    }
+
+    /// Dustbin scores hundreds of nats apart (every pair gated) underflow
+    /// the scaling domain's kernel; the sample is solved in the log domain
+    /// instead: finite, every real row and column summing to 1 (r49_01).
+    #[test]
+    fn scores_hundreds_of_nats_apart_give_a_finite_plan() {
+        let (n1, n2) = (4, 10);
+        let scores = vec![f64::NEG_INFINITY; n1 * n2];
+        let d1 = [-7.67, -11.6, -14.5, 217.6];
+        let d2 = [
+            338.9, 265.6, -9.68, -11.5, -10.8, -11.0, 141.6, 332.7, 294.0, 708.2,
+        ];
+        let p = sinkhorn_probabilities(&scores, [1, n1, n2], [&d1, &d2], -2.84, 100);
+        assert!(p.iter().all(|x| x.is_finite()), "{p:?}");
+        let at = |i: usize, j: usize| f64::from(p[i * (n2 + 1) + j]);
+        for i in 0..n1 {
+            let row: f64 = (0..=n2).map(|j| at(i, j)).sum();
+            assert!((row - 1.0).abs() < 1e-4, "row {i}: {row}");
+        }
+        for j in 0..n2 {
+            let col: f64 = (0..=n1).map(|i| at(i, j)).sum();
+            assert!((col - 1.0).abs() < 1e-4, "column {j}: {col}");
+        }
+        // Where the scaling domain is fine, the log domain agrees.
+        let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let scores: Vec<f64> = (0..n1 * n2).map(|_| r.random_range(-8.0..4.0)).collect();
+        let (d1, d2) = ([0.5; 4], [0.2; 10]);
+        let scaled = sinkhorn_probabilities(&scores, [1, n1, n2], [&d1, &d2], 0.0, 100);
+        let logged = log_domain_probabilities(&scores, [n1, n2], [&d1, &d2], 0.0, 100);
+        for (a, b) in scaled.iter().zip(&logged) {
+            assert!((f64::from(*a) - b).abs() < 1e-5, "{a} vs {b}");
         }
     }
 
