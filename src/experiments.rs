@@ -115,7 +115,7 @@ pub fn collect_examples(
             |_: Progress| {},
             |inst| {
                 for level in &run.pose_noise {
-                    let pair = inst.at_level(seed, level);
+                    let pair = inst.at_level(seed, level, run.v2x.gnss_heading_speed_sigma_mps);
                     let labels =
                         evaluate::evaluate(&pair, &CorrespondenceSource::Oracle, &no_fusion);
                     let truth = &labels.identification.matches;

@@ -131,3 +131,30 @@ mod tests {
         assert!(e.to_string().contains("unknown colour 'green'"), "{e}");
     }
 }
+
+/// `n` and a noun, plural unless `n` is 1: "1 run", "3 runs", "2
+/// deliveries" (`noun` in the singular, its plural regular).
+pub fn counted(n: impl Into<u64>, noun: &str) -> String {
+    let n = n.into();
+    if n == 1 {
+        return format!("1 {noun}");
+    }
+    match noun.strip_suffix('y') {
+        Some(stem) if !stem.ends_with(['a', 'e', 'o', 'u']) => format!("{n} {stem}ies"),
+        _ => format!("{n} {noun}s"),
+    }
+}
+
+#[cfg(test)]
+mod counted_tests {
+    use super::counted;
+
+    #[test]
+    fn one_is_singular_and_every_other_count_plural() {
+        assert_eq!(counted(1u64, "run"), "1 run");
+        assert_eq!(counted(0u64, "run"), "0 runs");
+        assert_eq!(counted(2u64, "validation run"), "2 validation runs");
+        assert_eq!(counted(2u64, "delivery"), "2 deliveries");
+        assert_eq!(counted(3u64, "day"), "3 days");
+    }
+}

@@ -28,6 +28,8 @@ mod pictures;
 mod protocol;
 #[path = "integration/regression.rs"]
 mod regression;
+#[path = "integration/regression49.rs"]
+mod regression49;
 #[path = "integration/run.rs"]
 mod run;
 #[path = "integration/scenarios.rs"]

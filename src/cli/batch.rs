@@ -8,6 +8,7 @@ use anyhow::Context;
 use super::{ConfigArg, ForceArg, OutArg, QuietArg, ThreadsArg, WorkersArg, progress_bar};
 use crate::batch::{self, Shard};
 use crate::config::Settings;
+use crate::label::counted;
 use crate::{io, pipeline};
 
 #[derive(clap::Args)]
@@ -134,8 +135,8 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
         n => format!(", {n} without any instance"),
     };
     eprintln!(
-        "coid: {} runs done in {:.1} s on {workers} worker{} ({} complete{empty}); aggregate in {}",
-        pending.len() - failures.len(),
+        "coid: {} done in {:.1} s on {workers} worker{} ({} complete{empty}); aggregate in {}",
+        counted((pending.len() - failures.len()) as u64, "run"),
         started.elapsed().as_secs_f64(),
         if workers == 1 { "" } else { "s" },
         done.complete,
@@ -265,6 +266,7 @@ pub fn merge(a: MergeArgs) -> anyhow::Result<()> {
         batch::write_aggregate(dir, &done.rows, &header)?;
         Ok(())
     })?;
-    eprintln!("coid: merged {} runs into {}", runs.len(), out.display());
+    let merged = counted(runs.len() as u64, "run");
+    eprintln!("coid: merged {merged} into {}", out.display());
     Ok(())
 }

@@ -19,13 +19,36 @@ pub struct Args {
     profile: Option<DetectorProfile>,
 }
 
+/// One profile at a time: every connected vehicle carries `d.profile`
+/// here, whatever the fleet's mix, types and rigs say (and it says so).
+fn one_profile(d: &mut crate::sensor::profile::DetectorSettings) {
+    let set_aside: Vec<&str> = [
+        ("mix", !d.mix.is_empty()),
+        ("by_type", !d.by_type.is_empty()),
+        ("rig_by_type", !d.rig_by_type.is_empty()),
+    ]
+    .into_iter()
+    .filter_map(|(key, set)| set.then_some(key))
+    .collect();
+    d.mix.clear();
+    d.by_type.clear();
+    d.rig_by_type.clear();
+    if !set_aside.is_empty() {
+        eprintln!(
+            "coid: measuring the '{}' profile on every connected vehicle: [detector] {} set \
+             aside here (one profile at a time; --profile chooses another)",
+            d.profile.as_str(),
+            set_aside.join(", ")
+        );
+    }
+}
+
 pub fn detector(a: Args) -> anyhow::Result<()> {
     let (mut settings, claim) = a.common.prepare("-detector", io::ResultKind::Detector)?;
     if let Some(p) = a.profile {
         settings.detector.profile = p;
     }
-    // One profile at a time: a mixed fleet's vehicles all carry it here.
-    settings.detector.mix.clear();
+    one_profile(&mut settings.detector);
     let out = claim.out().to_owned();
     let profile = settings.detector.profile;
     // The bins, the configured figures, where the sensors sit.
@@ -76,13 +99,22 @@ pub fn detector(a: Args) -> anyhow::Result<()> {
         pb.inc(1);
     }
     pb.finish_and_clear();
+    if sensings == 0 {
+        anyhow::bail!(
+            "no connected vehicle came near junction '{}' in the {}: nothing to measure (see \
+             [connected], [scenario] radius_m and end_s, and [train] validation_seeds)",
+            settings.scenario.junction,
+            crate::label::counted(runs.len() as u64, "validation run")
+        );
+    }
     let table = stats.table(&recall, &error, clutter);
     claim.fill(|dir| io::write_tracking(dir, &[("detector.csv", &table)], |_| Ok(())))?;
     println!("{}", io::markdown::table(&table));
     eprintln!(
-        "coid: the '{}' detector over {} validation runs ({sensings} sensings); wrote {}",
+        "coid: the '{}' detector over {} ({}); wrote {}",
         profile.as_str(),
-        runs.len(),
+        crate::label::counted(runs.len() as u64, "validation run"),
+        crate::label::counted(sensings, "sensing"),
         out.display()
     );
     Ok(())

@@ -108,10 +108,18 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
         .map(|r| r.instances)
         .sum();
     eprintln!(
-        "coid: evaluated {} methods on {runs} {} runs of {} scenario(s) ({instances} instances); wrote {}",
-        methods.len(),
-        if a.validation { "validation" } else { "test" },
-        scenarios.len(),
+        "coid: evaluated {} on {} of {} ({}); wrote {}",
+        crate::label::counted(methods.len() as u64, "method"),
+        crate::label::counted(
+            runs as u64,
+            if a.validation {
+                "validation run"
+            } else {
+                "test run"
+            }
+        ),
+        crate::label::counted(scenarios.len() as u64, "scenario"),
+        crate::label::counted(instances as u64, "instance"),
         out.display()
     );
     Ok(())
@@ -180,10 +188,10 @@ fn warn_empty(scenarios: &[Scenario]) {
         .filter(|s| s.runs.iter().all(|r| r.instances == 0))
     {
         eprintln!(
-            "coid: warning: {} has no instance in its {} run(s) (no two connected vehicles \
-             near the junction seeing a common object); its tables are empty",
+            "coid: warning: {} has no instance in its {}: {}; its tables are empty",
             s.name,
-            s.runs.len()
+            crate::label::counted(s.runs.len() as u64, "run"),
+            super::run::why_no_instance(&s.settings)
         );
     }
 }

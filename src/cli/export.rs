@@ -80,8 +80,9 @@ pub fn export(a: ExportArgs) -> anyhow::Result<()> {
     folder.finish(&[("schema.md", export::SCHEMA.to_owned())])?;
     let instances: usize = counts.iter().map(|c| c.1).sum();
     eprintln!(
-        "coid: exported {} runs ({instances} instances) of {}; wrote {}",
-        runs.len(),
+        "coid: exported {} ({}) of {}; wrote {}",
+        crate::label::counted(runs.len() as u64, "run"),
+        crate::label::counted(instances as u64, "instance"),
         splits
             .iter()
             .map(|s| s.as_str())
@@ -124,39 +125,41 @@ fn check_export(
     export: Option<&std::path::Path>,
     settings: &crate::config::Settings,
 ) -> anyhow::Result<BTreeMap<u64, u64>> {
-    let dir = match export {
-        Some(d) => d.to_owned(),
-        None => {
-            let beside = matches.parent().unwrap_or(std::path::Path::new("."));
-            let beside = if beside.as_os_str().is_empty() {
-                std::path::Path::new(".")
-            } else {
-                beside
-            };
-            if !beside.join(export::RUNS_FILE).is_file() {
-                anyhow::bail!(
-                    "cannot tell which export {} was made from: pass --export DIR (the folder \
-                     `coid export` wrote; its runs.parquet names the configuration)",
-                    matches.display()
-                );
-            }
-            beside.to_owned()
-        }
-    };
+    let dir = export_dir(matches, export);
+    if export.is_none() && !dir.join(export::RUNS_FILE).is_file() {
+        anyhow::bail!(
+            "cannot tell which export {} was made from: pass --export DIR (the folder `coid \
+             export` wrote; its runs.parquet names the configuration)",
+            matches.display()
+        );
+    }
     let path = dir.join(export::RUNS_FILE);
     let runs = io::frames::read_export_runs(&path)
         .map_err(|why| anyhow::anyhow!("cannot read {}: {why}", path.display()))?;
     let mine = settings.instances_digest()?;
     if let Some(old) = runs
         .first()
-        .filter(|r| r.schema_version < export::SCHEMA_VERSION)
+        .filter(|r| r.schema_version < export::SCORED_SINCE)
     {
         anyhow::bail!(
-            "{} was written by an older coid (export schema {}; this coid writes schema {}, \
-             whose nodes carry the boxes' heading and speed and whose digest covers how unset \
-             colours look): export again with this coid",
+            "{} was written by an older coid (export schema {}; this coid scores schemas {} \
+             to {}, whose nodes carry the boxes' heading and speed and whose digest covers how \
+             unset colours look): export again with this coid",
             path.display(),
             old.schema_version,
+            export::SCORED_SINCE,
+            export::SCHEMA_VERSION
+        );
+    }
+    if let Some(new) = runs
+        .first()
+        .filter(|r| r.schema_version > export::SCHEMA_VERSION)
+    {
+        anyhow::bail!(
+            "{} was written by a newer coid (export schema {}; this coid knows schemas up to \
+             {}): score with that coid, or export again with this one",
+            path.display(),
+            new.schema_version,
             export::SCHEMA_VERSION
         );
     }
@@ -176,6 +179,54 @@ fn check_export(
         Some(Some(_)) => {}
     }
     Ok(runs.iter().map(|r| (r.run, r.n_instances)).collect())
+}
+
+/// Refused unless the export in `export_dir` holds every run of `split`
+/// (its runs: `exported`): matches for runs it does not hold were not made
+/// from it.
+fn check_split_exported(
+    export_dir: &std::path::Path,
+    runs: &[ExportRun],
+    split: Split,
+    exported: &BTreeMap<u64, u64>,
+) -> anyhow::Result<()> {
+    let missing = runs
+        .iter()
+        .filter(|r| r.split == split && !exported.contains_key(&(r.index as u64)))
+        .count();
+    if missing == 0 {
+        return Ok(());
+    }
+    let mut held: Vec<&str> = runs
+        .iter()
+        .filter(|r| exported.contains_key(&(r.index as u64)))
+        .map(|r| r.split.as_str())
+        .collect();
+    held.dedup();
+    anyhow::bail!(
+        "the export in {} does not hold the {} {} runs this configuration scores (it holds {} \
+         runs): export them (`coid export --splits {}`) and match them",
+        export_dir.display(),
+        missing,
+        split.as_str(),
+        if held.is_empty() {
+            "no".to_owned()
+        } else {
+            held.join(" and ")
+        },
+        split.as_str()
+    )
+}
+
+/// The folder of the export `--matches` came from.
+fn export_dir(matches: &std::path::Path, export: Option<&std::path::Path>) -> PathBuf {
+    match export {
+        Some(d) => d.to_owned(),
+        None => match matches.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
+            _ => PathBuf::from("."),
+        },
+    }
 }
 
 /// The scored runs with instances that the matches file names none of
@@ -206,6 +257,19 @@ fn warn_unnamed(path: &std::path::Path, unnamed: &[String]) {
     }
 }
 
+/// Says how many rows of the matches file name runs of other splits than
+/// the scored one (left out).
+fn note_other_splits(path: &std::path::Path, other_splits: usize, rows: usize, split: Split) {
+    if other_splits > 0 {
+        eprintln!(
+            "coid: {other_splits} of {}'s {rows} rows name runs of other splits than {}: left \
+             out (--split chooses the runs scored)",
+            path.display(),
+            split.as_str()
+        );
+    }
+}
+
 pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
     let (settings, claim) = a.common.prepare("-score", io::ResultKind::Eval)?;
     let out = claim.out().to_owned();
@@ -222,10 +286,13 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
     let rows = io::frames::read_matches(path)
         .map_err(|why| anyhow::anyhow!("cannot read {}: {why}", path.display()))?;
     let runs = export::runs(&settings)?;
+    let export_dir = export_dir(path, a.export.as_deref());
+    check_split_exported(&export_dir, &runs, a.split, &exported)?;
     let levels: Vec<_> = settings.pose_noise.iter().map(|l| l.label).collect();
-    let mut external = export::external_matches(&rows, &runs, a.split, &levels).map_err(|why| {
-        anyhow::anyhow!("{} does not fit this configuration: {why}", path.display())
-    })?;
+    let (mut external, other_splits) = export::external_matches(&rows, &runs, a.split, &levels)
+        .map_err(|why| {
+            anyhow::anyhow!("{} does not fit this configuration: {why}", path.display())
+        })?;
     let unnamed = unnamed_runs(&external, &exported);
     let methods = settings.matching.methods.clone();
     let choices = crate::pipeline::choices(&settings, &methods)?;
@@ -272,13 +339,14 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
     }
     claim.fill(|dir| super::eval::write(dir, &header, &evals, &choices, None))?;
     warn_unnamed(path, &unnamed);
+    note_other_splits(path, other_splits, rows.len(), a.split);
     let instances: usize = evals.iter().map(|r| r.instances).sum();
     eprintln!(
-        "coid: scored {} with {} built-in methods on {} {} runs ({instances} instances); wrote {}",
+        "coid: scored {} with {} on {} ({}); wrote {}",
         path.display(),
-        methods.len(),
-        evals.len(),
-        a.split.as_str(),
+        crate::label::counted(methods.len() as u64, "built-in method"),
+        crate::label::counted(evals.len() as u64, &format!("{} run", a.split.as_str())),
+        crate::label::counted(instances as u64, "instance"),
         out.display()
     );
     Ok(())

@@ -85,7 +85,11 @@ fn draw(
     runner: &CorrespondenceSource,
     stem: &std::path::Path,
 ) -> Result<(), RunError> {
-    let pair = inst.at_level(settings.seeds.sensor, level);
+    let pair = inst.at_level(
+        settings.seeds.sensor,
+        level,
+        settings.v2x.gnss_heading_speed_sigma_mps,
+    );
     let no_fusion = FusionSettings {
         variants: vec![],
         align_min_matches: settings.fusion.align_min_matches,

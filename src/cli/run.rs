@@ -44,11 +44,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     bar.finish_and_clear();
     folder.finish(&settings, &results)?;
     if results.n_instances == 0 {
-        eprintln!(
-            "coid: warning: no instance: no two connected vehicles near junction '{}' saw a common \
-             object in {} s (see [connected], [scenario] radius_m and end_s)",
-            settings.scenario.junction, settings.scenario.end_s
-        );
+        eprintln!("coid: warning: no instance: {}", why_no_instance(&settings));
     }
     eprintln!("{}; wrote {}", one_line(&results), out.display());
     Ok(())
@@ -89,4 +85,46 @@ fn one_line(results: &RunResults) -> String {
         }
     }
     line
+}
+
+/// Why a run may have had no instance, naming the settings that decide
+/// it: with `[v2x] mode = "cpm"` an instance is a message that arrived,
+/// so a channel that loses every message, or delivers none before the
+/// run ends, comes first.
+pub(super) fn why_no_instance(settings: &crate::config::Settings) -> String {
+    use crate::v2x::V2xMode;
+    use crate::v2x::channel::LossModel;
+    let sc = &settings.scenario;
+    let plain = format!(
+        "no two connected vehicles near junction '{}' saw a common object in {} s (see \
+         [connected], [scenario] radius_m and end_s)",
+        sc.junction, sc.end_s
+    );
+    if settings.v2x.mode != V2xMode::Cpm {
+        return plain;
+    }
+    let ch = &settings.v2x.channel;
+    let p0 = match ch.loss {
+        LossModel::Independent { probability } => probability,
+        LossModel::Distance {
+            probability_at_0, ..
+        } => probability_at_0,
+    };
+    if p0 >= 1.0 {
+        format!(
+            "the channel loses every message ([v2x.channel] loss_probability = {p0}), so none \
+             arrived"
+        )
+    } else if ch.latency_s >= sc.end_s {
+        format!(
+            "no message arrives within the run: [v2x.channel] latency_s ({} s) is not shorter \
+             than [scenario] end_s ({} s)",
+            ch.latency_s, sc.end_s
+        )
+    } else {
+        format!(
+            "no message that arrived shared an object with its receiver's tracks (see \
+             [v2x.channel] and [v2x.cpm]); or {plain}"
+        )
+    }
 }

@@ -8,6 +8,7 @@ use super::{CommonArgs, progress_bar, show_sim_progress};
 use crate::config::Settings;
 use crate::experiments::settings_for_seed;
 use crate::io::markdown::fmt_num;
+use crate::label::counted;
 use crate::report::{self, OverTimeCounts, Table};
 use crate::v2x::V2xSettings;
 use crate::v2x::channel::LossModel;
@@ -67,15 +68,18 @@ pub fn track(a: Args) -> anyhow::Result<()> {
             fmt_num(o.over_time.f1(), 3)
         )
     };
+    let in_flight = match all.in_flight_at_end {
+        0 => String::new(),
+        n => format!(", {n} still on their way at the end"),
+    };
     eprintln!(
-        "coid: {} connected vehicles tracked, MOTA {}; {} CPMs, {} of {} deliveries lost; \
-         {} receptions: {pairs}; wrote {}",
-        results.vehicles.len(),
+        "coid: {} tracked, MOTA {}; {}, {} of {} lost{in_flight}; {}: {pairs}; wrote {}",
+        counted(results.vehicles.len() as u64, "connected vehicle"),
         fmt_num(all.mot.mota(), 3),
-        all.messages,
+        counted(all.messages, "CPM"),
         all.lost,
-        all.delivered + all.lost,
-        o.receptions,
+        counted(all.delivered + all.lost + all.in_flight_at_end, "delivery"),
+        counted(o.receptions, "reception"),
         out.display()
     );
     Ok(())
@@ -168,10 +172,16 @@ fn sweep(a: &Args) -> anyhow::Result<()> {
         })
     })?;
     eprintln!(
-        "coid: swept {} settings over {} {} runs; wrote {}",
-        variants.len(),
-        seeds.len(),
-        if a.validation { "validation" } else { "test" },
+        "coid: swept {} over {}; wrote {}",
+        counted(variants.len() as u64, "setting"),
+        counted(
+            seeds.len() as u64,
+            if a.validation {
+                "validation run"
+            } else {
+                "test run"
+            }
+        ),
         out.display()
     );
     Ok(())

@@ -268,9 +268,9 @@ fn train_here(seeds: &[SeedRun], methods: &[Method], show: Show) -> anyhow::Resu
     let training = experiments::training_runs(settings)?;
     let examples = collect(&training, "training", show)?;
     show.note(&format!(
-        "coid: {} training pairs from {} runs",
-        examples.len(),
-        training.len()
+        "coid: {} from {}",
+        crate::label::counted(examples.len() as u64, "training pair"),
+        crate::label::counted(training.len() as u64, "run")
     ));
     // The validation runs' pairs, for early stopping only.
     let validation = if settings.train.patience == 0 {

@@ -10,6 +10,10 @@ use super::ConfigError;
 /// The largest traffic seed: SUMO's `--seed` is a signed 32-bit int.
 pub const MAX_TRAFFIC_SEED: u64 = i32::MAX as u64;
 
+/// A speed error's standard deviation at most (m/s): far beyond any
+/// detector's or receiver's, and far from overflowing a speed.
+pub const MAX_SPEED_SIGMA_MPS: f64 = 100.0;
+
 /// A raw field and its key, the key made from the section and the field's
 /// own name (never spelled by hand): `field!("sensor", s.colour_sigma)` is
 /// `("sensor.colour_sigma", s.colour_sigma)`.
@@ -75,14 +79,35 @@ impl Checker<'_> {
         let key = |name: &str| -> &'static str {
             Box::leak(format!("{section}.{name}").into_boxed_str())
         };
-        self.non_negative((key("heading_sigma_deg"), heading_sigma_deg))?;
+        self.within((key("heading_sigma_deg"), heading_sigma_deg), 0.0, 360.0)?;
         self.fraction((key("heading_flip_prob"), heading_flip_prob))?;
-        self.non_negative((key("speed_sigma_mps"), speed_sigma_mps))?;
+        self.within(
+            (key("speed_sigma_mps"), speed_sigma_mps),
+            0.0,
+            MAX_SPEED_SIGMA_MPS,
+        )?;
         Ok(crate::sensor::boxes::BoxErrors {
             heading_sigma_rad: heading_sigma_deg.to_radians(),
             heading_flip_prob,
             speed_sigma_mps,
         })
+    }
+
+    /// `v` in `lo..=hi` (`NaN` never is).
+    pub(super) fn within(
+        &self,
+        (key, v): (&'static str, f64),
+        lo: f64,
+        hi: f64,
+    ) -> Result<(), ConfigError> {
+        if (lo..=hi).contains(&v) {
+            Ok(())
+        } else {
+            Err(self.invalid(
+                key,
+                format!("must be in [{}, {}], got {}", num(lo), num(hi), num(v)),
+            ))
+        }
     }
 
     pub(super) fn fraction(&self, (key, v): (&'static str, f64)) -> Result<(), ConfigError> {

@@ -34,6 +34,17 @@ pub(super) fn detector(c: &Checker, d: RawDetector) -> Result<DetectorSettings, 
             format!("the shares must sum to 1, they sum to {}", num(total)),
         ));
     }
+    for (key, map) in [
+        ("detector.by_type", &d.by_type),
+        ("detector.rig_by_type", &d.rig_by_type),
+    ] {
+        if map.keys().any(|t| t.trim().is_empty()) {
+            return Err(c.invalid(
+                key,
+                "names an empty vehicle type (keys are SUMO vehicle type ids)".into(),
+            ));
+        }
+    }
     let by_type = d
         .by_type
         .iter()

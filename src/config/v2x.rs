@@ -22,8 +22,12 @@ pub(super) fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
             format!("must be in (0, 1] s, got {}", num(v.step_length_s)),
         ));
     }
-    c.non_negative(field!("v2x", v.gnss_correlation_s))?;
-    c.non_negative(field!("v2x", v.gnss_heading_speed_sigma_mps))?;
+    c.within(field!("v2x", v.gnss_correlation_s), 0.0, 1e6)?;
+    c.within(
+        field!("v2x", v.gnss_heading_speed_sigma_mps),
+        0.0,
+        super::check::MAX_SPEED_SIGMA_MPS,
+    )?;
     if matches!(v.matcher, Method::Oracle | Method::External) {
         return Err(c.invalid("v2x.matcher", "must be a matching method".into()));
     }
@@ -41,6 +45,20 @@ pub(super) fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
         ));
     }
     c.fraction(field!("v2x.association", a.pose_smoothing))?;
+    let tracker = tracker(c, v.tracker)?;
+    if tracker.max_coast_s + 1e-9 < v.step_length_s {
+        let (key, other) = c.blame("v2x.tracker.max_coast_s", "v2x.step_length_s");
+        return Err(c.invalid(
+            key,
+            format!(
+                "a track not updated for {} s is dropped, but steps are {} s apart: every \
+                 track would be dropped before its second hit (the coasting gap must be at \
+                 least one step; see {other})",
+                num(tracker.max_coast_s),
+                num(v.step_length_s)
+            ),
+        ));
+    }
     Ok(V2xSettings {
         mode: v.mode,
         step_length_s: v.step_length_s,
@@ -54,7 +72,7 @@ pub(super) fn v2x(c: &Checker, v: RawV2x) -> Result<V2xSettings, ConfigError> {
             threshold: a.threshold,
             pose_smoothing: a.pose_smoothing,
         },
-        tracker: tracker(c, v.tracker)?,
+        tracker,
         cpm: cpm(c, v.cpm)?,
         channel: channel(c, v.channel)?,
     })

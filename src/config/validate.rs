@@ -25,6 +25,9 @@ use crate::traffic::ScenarioSettings;
 /// are nodes of every graph).
 const MAX_CAMERAS: usize = 16;
 
+/// A GNSS position error's standard deviation at most (metres).
+const MAX_POSITION_SIGMA_M: f64 = 1000.0;
+
 /// More MC-dropout samples than this are refused: every sample holds the
 /// network's activations of both graphs (the paper uses T = 20 and sweeps
 /// 10-100).
@@ -267,11 +270,19 @@ fn pose_noise(c: &Checker, p: RawPoseNoise) -> Result<Vec<PoseNoiseLevel>, Confi
                 PoseNoiseLabel::Rtk => (p.rtk.position_sigma_m, p.rtk.heading_sigma_deg),
                 PoseNoiseLabel::Gps => (p.gps.position_sigma_m, p.gps.heading_sigma_deg),
             };
-            let ok = |v: f64| v >= 0.0 && v.is_finite();
-            if !(ok(sigma_m) && ok(sigma_deg)) {
+            // Beyond these a receiver knows nothing of where it is, and
+            // squared sigmas stay far from overflowing.
+            let ok = |v: f64, hi: f64| (0.0..=hi).contains(&v);
+            if !(ok(sigma_m, MAX_POSITION_SIGMA_M) && ok(sigma_deg, 180.0)) {
                 return Err(c.invalid(
                     "pose_noise",
-                    format!("level {}: sigmas must be >= 0", label.as_str()),
+                    format!(
+                        "level {}: position_sigma_m must be in [0, {MAX_POSITION_SIGMA_M}] and \
+                         heading_sigma_deg in [0, 180], got {} m and {} deg",
+                        label.as_str(),
+                        num(sigma_m),
+                        num(sigma_deg)
+                    ),
                 ));
             }
             Ok(PoseNoiseLevel {

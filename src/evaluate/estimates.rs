@@ -14,7 +14,8 @@ use crate::fusion::{
     relative_pose_prior,
 };
 use crate::geometry::Vec2;
-use crate::sensor::{Observation, PoseNoiseLevel};
+use crate::matching::claim;
+use crate::sensor::Observation;
 
 /// One (ego, object) estimate of one instance, all positions in the world
 /// frame: estimates live in the ego's frame and are placed in the world with
@@ -82,21 +83,16 @@ pub struct ViewEstimate {
     pub fused_error_m: f64,
 }
 
-/// How one ego fuses: the pose-noise level, the variant and its setting.
-pub(super) struct FusionContext<'a> {
-    level: &'a PoseNoiseLevel,
+/// How one ego fuses: the variant and its setting (the poses' claims
+/// come with each side's view).
+pub(super) struct FusionContext {
     variant: FusionVariant,
     align_min_matches: usize,
 }
 
-impl<'a> FusionContext<'a> {
-    pub(super) fn new(
-        level: &'a PoseNoiseLevel,
-        variant: FusionVariant,
-        fusion: &FusionSettings,
-    ) -> Self {
+impl FusionContext {
+    pub(super) fn new(variant: FusionVariant, fusion: &FusionSettings) -> Self {
         Self {
-            level,
             variant,
             align_min_matches: fusion.align_min_matches,
         }
@@ -316,8 +312,8 @@ fn peer_pose(
     let prior = relative_pose_prior(
         &ego.view.pose_reported,
         &peer.view.pose_reported,
-        ctx.level.position_sigma_m,
-        ctx.level.heading_sigma_rad,
+        claim(&ego.view.pose_noise),
+        claim(&peer.view.pose_noise),
     );
     match ctx.variant {
         FusionVariant::Paper => (false, PeerPose::Reported(prior.pose)),

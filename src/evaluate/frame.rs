@@ -90,7 +90,7 @@ pub fn evaluate_frame(
         .variants
         .iter()
         .map(|&variant| {
-            let ctx = FusionContext::new(&pairs[0].level, variant, fusion);
+            let ctx = FusionContext::new(variant, fusion);
             (variant, all_views(pairs, &scored, &vehicles.ids, &ctx))
         })
         .collect();

@@ -30,6 +30,7 @@ use super::{CorrespondenceSource, PairAtLevel, Side};
 use crate::fusion::{Measurement, fuse, relative_pose_prior};
 use crate::geometry::Vec2;
 use crate::graph::SceneGraph;
+use crate::matching::claim;
 use crate::matching::likelihood::{LikelihoodTerms, pair_terms};
 use crate::matching::synchronize::PairwiseMatches;
 use crate::matching::{Correspondence, MatchView, gps_relative_pose};
@@ -149,7 +150,9 @@ impl<'a> Frame<'a> {
                 d(a).total_cmp(&d(b)).then(a.cmp(&b))
             })?;
         let anchor_side = self.sides[anchor];
-        let mut view = MapView::new(anchor_side, self.level);
+        // The map is in the anchor's frame: its pose, with the anchor's
+        // claim.
+        let mut view = MapView::new(anchor_side, anchor_side.view.pose_noise);
         for (o, members) in objects.iter().enumerate() {
             if !members.iter().any(|(u, _)| self.peers[v].contains(u)) {
                 continue;
@@ -193,8 +196,8 @@ impl<'a> Frame<'a> {
                 let rel = relative_pose_prior(
                     &a.pose_reported,
                     &side.view.pose_reported,
-                    self.level.position_sigma_m,
-                    self.level.heading_sigma_rad,
+                    claim(&a.pose_noise),
+                    claim(&side.view.pose_noise),
                 );
                 m.moved_uncertain(&rel)
             });

@@ -46,7 +46,7 @@ pub(super) fn score(
         .variants
         .iter()
         .map(|&variant| {
-            let ctx = FusionContext::new(&pair.level, variant, fusion);
+            let ctx = FusionContext::new(variant, fusion);
             let mut est = fuse_for_ego(&pair.first, &pair.second, &ab, &probability, &ctx);
             est.extend(fuse_for_ego(
                 &pair.second,

@@ -30,8 +30,14 @@ mod score;
 pub use score::external_matches;
 
 /// The version of the export's columns (`runs.parquet` carries it): 2
-/// added `config_digest`; 3 the nodes' `heading_rad` and `speed_mps`.
-pub const SCHEMA_VERSION: u64 = 3;
+/// added `config_digest`; 3 the nodes' `heading_rad` and `speed_mps`; 4
+/// each vehicle's claimed heading accuracy (`first_heading_sigma_rad`,
+/// `second_heading_sigma_rad` for `heading_sigma_rad`).
+pub const SCHEMA_VERSION: u64 = 4;
+
+/// The oldest export `coid score` scores: its instances are this coid's
+/// (version 4 changed the instances' columns, not the instances).
+pub const SCORED_SINCE: u64 = 3;
 
 /// The schema, written beside the files as `schema.md`.
 pub const SCHEMA: &str = include_str!("../../docs/export-schema.md");

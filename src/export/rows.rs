@@ -99,7 +99,8 @@ impl Rows {
             second_y_m: second.position_m().y,
             second_heading_rad: second.heading_rad(),
             position_sigma_m: pair.level.position_sigma_m,
-            heading_sigma_rad: pair.level.heading_sigma_rad,
+            first_heading_sigma_rad: pair.first.view.pose_noise.heading_sigma_rad,
+            second_heading_sigma_rad: pair.second.view.pose_noise.heading_sigma_rad,
         });
     }
 

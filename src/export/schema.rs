@@ -92,7 +92,8 @@ file_rows! {
         second_y_m: f64,
         second_heading_rad: f64,
         position_sigma_m: f64,
-        heading_sigma_rad: f64,
+        first_heading_sigma_rad: f64,
+        second_heading_sigma_rad: f64,
     }
 }
 

@@ -12,38 +12,38 @@ use crate::sensor::PoseNoiseLabel;
 
 /// A matches file's rows as each scored run's [`ExternalMatches`], keyed
 /// by run index (every run of `split` has an entry, empty when the file
-/// names none of its instances). Refused, with the reason in one line,
-/// when a row names a run that is not one of `split`, a level that is not
-/// configured, or a node already matched in its instance and level, or
-/// carries a probability outside [0, 1] or an uncertainty that is not a
-/// finite number of bits; or when no row names a run of `split`.
+/// names none of its instances), and how many rows name runs of the other
+/// splits (left out: a matcher may well have matched every exported run).
+/// Refused, with the reason in one line, when a row names a run this
+/// configuration does not have, a level that is not configured, or a node
+/// already matched in its instance and level, or carries a probability
+/// outside [0, 1] or an uncertainty that is not a finite number of bits;
+/// or when no row names a run of `split`.
 pub fn external_matches(
     rows: &[MatchRow],
     runs: &[ExportRun],
     split: Split,
     levels: &[PoseNoiseLabel],
-) -> Result<BTreeMap<usize, ExternalMatches>, String> {
+) -> Result<(BTreeMap<usize, ExternalMatches>, usize), String> {
     let mut out: BTreeMap<usize, ExternalMatches> = runs
         .iter()
         .filter(|r| r.split == split)
         .map(|r| (r.index, ExternalMatches::default()))
         .collect();
+    let mut other_splits = 0;
     let mut used: BTreeSet<MatchedNode> = BTreeSet::new();
     for (k, row) in rows.iter().enumerate() {
         let line = k + 1;
         let run = usize::try_from(row.run).unwrap_or(usize::MAX);
         let Some(matches) = out.get_mut(&run) else {
-            return Err(match runs.get(run) {
-                Some(r) => format!(
-                    "row {line} names run {run}, a {} run; score the {} runs only (--split)",
-                    r.split.as_str(),
-                    split.as_str()
-                ),
-                None => format!(
-                    "row {line} names run {run}, but this configuration has {} runs",
-                    runs.len()
-                ),
-            });
+            if run < runs.len() {
+                other_splits += 1;
+                continue;
+            }
+            return Err(format!(
+                "row {line} names run {run}, but this configuration has {} runs",
+                runs.len()
+            ));
         };
         let at: Vec<PoseNoiseLabel> = match &row.pose_noise {
             None => levels.to_vec(),
@@ -84,15 +84,23 @@ pub fn external_matches(
                 .push(c);
         }
     }
-    if rows.is_empty() {
-        return Err(format!("it names no {} run", split.as_str()));
+    if rows.len() == other_splits {
+        return Err(format!(
+            "it names no {} run{}",
+            split.as_str(),
+            match other_splits {
+                0 => String::new(),
+                1 => " (its one row names a run of another split)".to_owned(),
+                n => format!(" (its {n} rows name runs of other splits)"),
+            }
+        ));
     }
     for m in out.values_mut() {
         for list in m.by_instance.values_mut() {
             list.sort_by_key(|c| c.a);
         }
     }
-    Ok(out)
+    Ok((out, other_splits))
 }
 
 /// A node a matches file has matched: a node of one vehicle (`side` 0:
@@ -168,7 +176,7 @@ mod tests {
         assert_eq!(test.iter().map(|r| r.seed).collect::<Vec<_>>(), [1, 2]);
         let t = test[0].index;
         let levels = [PoseNoiseLabel::None, PoseNoiseLabel::Gps];
-        let m = external_matches(&[row(t, 1, 2, None)], &all, Split::Test, &levels).unwrap();
+        let (m, _) = external_matches(&[row(t, 1, 2, None)], &all, Split::Test, &levels).unwrap();
         assert_eq!(m.len(), 2);
         let at_gps = &m[&t].by_instance[&(3, PoseNoiseLabel::Gps)];
         assert_eq!((at_gps[0].probability, at_gps[0].uncertainty), (1.0, 0.0));
@@ -178,14 +186,19 @@ mod tests {
         let twice = [row(t, 1, 2, Some("gps")), row(t, 0, 2, None)];
         let e = external_matches(&twice, &all, Split::Test, &levels).unwrap_err();
         assert!(e.contains("node 2 of the second vehicle"), "{e}");
+        // Rows of the other splits are left out and counted; a file with
+        // only such rows names no test run.
         let validation = all.iter().find(|r| r.split == Split::Validation).unwrap();
-        let e = external_matches(
-            &[row(validation.index, 0, 0, None)],
+        let other = row(validation.index, 0, 0, None);
+        let (m, left_out) = external_matches(
+            &[other.clone(), row(t, 1, 2, None)],
             &all,
             Split::Test,
             &levels,
         )
-        .unwrap_err();
-        assert!(e.contains("a validation run"), "{e}");
+        .unwrap();
+        assert_eq!((left_out, m[&t].by_instance.len()), (1, 2));
+        let e = external_matches(&[other], &all, Split::Test, &levels).unwrap_err();
+        assert!(e.contains("names no test run"), "{e}");
     }
 }

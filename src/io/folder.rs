@@ -566,13 +566,15 @@ impl Claim {
     }
 }
 
-/// Adds files to the existing folder `dir`: `fill` writes them into a
-/// temporary folder inside `dir`, then each is renamed into place (an
-/// existing file of the same name is replaced).
-pub fn publish_files(
+/// Adds files (or folders) to the existing folder `dir`: `fill` writes
+/// them into a temporary folder inside `dir`, then each is renamed into
+/// place in name order (an existing file or folder of the same name is
+/// replaced: a folder is moved aside first and removed with the temporary
+/// folder). Interrupted before the renames, `dir` is as it was.
+pub fn publish_files<E: From<OutputError>>(
     dir: &Path,
-    fill: impl FnOnce(&Path) -> Result<(), OutputError>,
-) -> Result<(), OutputError> {
+    fill: impl FnOnce(&Path) -> Result<(), E>,
+) -> Result<(), E> {
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let (staged, _registered) = crate::interrupt::make_registered(|| staging_dir(dir, "staging"))?;
     fill(staged.path())?;
@@ -582,30 +584,16 @@ pub fn publish_files(
         .collect::<Result<_, _>>()
         .map_err(io(staged.path()))?;
     names.sort();
+    let aside = staged.path().join(".replaced");
     for name in names {
         let dst = dir.join(&name);
+        if std::fs::symlink_metadata(&dst).is_ok_and(|m| m.is_dir()) {
+            std::fs::create_dir_all(&aside).map_err(io(&aside))?;
+            std::fs::rename(&dst, aside.join(&name)).map_err(io(&dst))?;
+        }
         std::fs::rename(staged.path().join(&name), &dst).map_err(io(&dst))?;
     }
     Ok(())
-}
-
-/// Writes the identity of a folder that grows (a family of scenarios) if
-/// it has none yet.
-pub fn mark_folder(dir: &Path, kind: ResultKind) -> Result<(), OutputError> {
-    if dir.join(IDENTITY).is_file() {
-        return Ok(());
-    }
-    let record = FolderRecord {
-        kind: kind.name().to_owned(),
-        coid_version: env!("CARGO_PKG_VERSION").to_owned(),
-        batch_run: None,
-        files: Vec::new(),
-    };
-    let text = record.to_toml().map_err(OutputError::Batch)?;
-    publish_files(dir, |tmp| {
-        let p = tmp.join(IDENTITY);
-        std::fs::write(&p, &text).map_err(io(&p))
-    })
 }
 
 /// Whether `dir` is run `expected.run` of the batch `expected` names, whole:

@@ -256,6 +256,7 @@ pub fn read_matches(path: &Path) -> Result<Vec<MatchRow>, String> {
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("csv"))
     {
+        check_csv_header(path)?;
         CsvReadOptions::default()
             .with_has_header(true)
             .try_into_reader_with_file_path(Some(path.to_owned()))
@@ -291,6 +292,8 @@ pub fn read_matches(path: &Path) -> Result<Vec<MatchRow>, String> {
             .map(|(k, x)| x.ok_or_else(|| format!("column '{name}' is empty in row {}", k + 1)))
             .collect()
     };
+    // An optional column is all or nothing: an empty cell is refused (it
+    // is not "1" or "the default").
     let number = |name: &str| -> Result<Vec<Option<f64>>, String> {
         let Ok(c) = df.column(name) else {
             return Ok(vec![None; n]);
@@ -299,18 +302,13 @@ pub fn read_matches(path: &Path) -> Result<Vec<MatchRow>, String> {
             return Err(format!("column '{name}' holds {}, not numbers", c.dtype()));
         }
         let c = c.cast(&DataType::Float64).map_err(text)?;
-        Ok(c.f64().map_err(text)?.iter().collect())
+        let v: Vec<Option<f64>> = c.f64().map_err(text)?.iter().collect();
+        match v.iter().position(Option::is_none) {
+            Some(k) => Err(format!("column '{name}' is empty in row {}", k + 1)),
+            None => Ok(v),
+        }
     };
-    let level: Vec<Option<String>> = match df.column("pose_noise") {
-        Err(_) => vec![None; n],
-        Ok(c) if c.dtype() == &DataType::String => c
-            .str()
-            .map_err(text)?
-            .iter()
-            .map(|v| v.map(str::to_owned))
-            .collect(),
-        Ok(c) => return Err(format!("column 'pose_noise' holds {}, not text", c.dtype())),
-    };
+    let level = pose_noise_column(&df)?;
     let (run, instance, a, b) = (index("run")?, index("instance")?, index("a")?, index("b")?);
     let (p, u) = (number("probability")?, number("uncertainty")?);
     Ok((0..n)
@@ -324,6 +322,48 @@ pub fn read_matches(path: &Path) -> Result<Vec<MatchRow>, String> {
             uncertainty: u[k],
         })
         .collect())
+}
+
+/// A matches file's `pose_noise` column: `None` in every row without it;
+/// with it, text in every row.
+fn pose_noise_column(df: &DataFrame) -> Result<Vec<Option<String>>, String> {
+    let Ok(c) = df.column("pose_noise") else {
+        return Ok(vec![None; df.height()]);
+    };
+    let Ok(text) = c.str() else {
+        return Err(format!("column 'pose_noise' holds {}, not text", c.dtype()));
+    };
+    let level: Vec<Option<String>> = text.iter().map(|v| v.map(str::to_owned)).collect();
+    match level.iter().position(Option::is_none) {
+        Some(k) => Err(format!(
+            "column 'pose_noise' is empty in row {} (leave the column out for matches that \
+             hold at every level)",
+            k + 1
+        )),
+        None => Ok(level),
+    }
+}
+
+/// Refuses a CSV file whose header names a column twice (a reader would
+/// take one of the two silently).
+fn check_csv_header(path: &Path) -> Result<(), String> {
+    use std::io::BufRead;
+    let f = File::open(path).map_err(|e| e.to_string())?;
+    let mut header = String::new();
+    std::io::BufReader::new(f)
+        .read_line(&mut header)
+        .map_err(|e| e.to_string())?;
+    let names: Vec<&str> = header
+        .trim_end_matches(['\r', '\n'])
+        .split(',')
+        .map(|n| n.trim().trim_matches('"'))
+        .collect();
+    for (k, name) in names.iter().enumerate() {
+        if names[..k].contains(name) {
+            return Err(format!("its header names column '{name}' twice"));
+        }
+    }
+    Ok(())
 }
 
 /// Whether a Parquet file is whole: `PAR1` at its start and at its end

@@ -52,7 +52,10 @@ pub enum OutputError {
     Batch(String),
     #[error("{0}")]
     Install(String),
-    #[error("--force does not replace {path}: it is not {kind} ({why})")]
+    #[error(
+        "--force does not replace {path}: {why} (it replaces only {kind} that coid wrote, as \
+         coid wrote it)"
+    )]
     NotReplaceable {
         path: PathBuf,
         kind: &'static str,
@@ -96,6 +99,25 @@ pub fn write_texts(dir: &Path, files: &[(&str, String)]) -> Result<(), OutputErr
     files
         .iter()
         .try_for_each(|(name, text)| write_text(&dir.join(name), text))
+}
+
+/// What a family of scenarios in `dir` holds: its README's text (empty
+/// without one), and each folder's name with its `README.md` (one line,
+/// the scenario's description; empty without one), by name.
+pub fn read_family(dir: &Path) -> Result<(String, Vec<(String, String)>), OutputError> {
+    let mut scenarios = Vec::new();
+    for e in std::fs::read_dir(dir).map_err(io(dir))? {
+        let e = e.map_err(io(dir))?;
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name.starts_with('.') || !e.path().is_dir() {
+            continue;
+        }
+        let described = std::fs::read_to_string(e.path().join("README.md")).unwrap_or_default();
+        scenarios.push((name, described.trim_end().to_owned()));
+    }
+    scenarios.sort();
+    let readme = std::fs::read_to_string(dir.join("README.md")).unwrap_or_default();
+    Ok((readme, scenarios))
 }
 
 /// Removes the comment SUMO's tools put at the top of an XML file (the

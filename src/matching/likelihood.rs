@@ -170,7 +170,11 @@ mod tests {
             pose_noise: level,
         };
         let (v1, v2) = (view(&first, &g1), view(&second, &g2));
-        let relative = relative_pose_prior(&Pose2::identity(), &Pose2::identity(), 0.0, 0.0);
+        let exact = crate::fusion::PoseClaim {
+            position_sigma_m: 0.0,
+            heading_sigma_rad: 0.0,
+        };
+        let relative = relative_pose_prior(&Pose2::identity(), &Pose2::identity(), exact, exact);
         let terms = pair_terms(&v1, &v2, &relative, &LikelihoodTerms::full(9.21));
         // By hand: the covariance sum is diag(9 + 1e-6, 0.36 + 1e-6).
         let true_d2 = 9.0 / (9.0 + 1e-6);

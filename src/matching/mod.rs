@@ -23,7 +23,7 @@ use std::path::PathBuf;
 
 use self::deep::arch::{Backbone, DeepMethod, MaskChoice, MaskScope};
 use self::deep::decision::{Decision, KindLambdas, MatchDistribution, UncertaintyKind};
-use crate::fusion::{PoseEstimate, relative_pose_prior};
+use crate::fusion::{PoseClaim, PoseEstimate, relative_pose_prior};
 use crate::geometry::Pose2;
 use crate::graph::SceneGraph;
 use crate::sensor::{Detection, PoseNoiseLevel};
@@ -384,7 +384,9 @@ pub struct MatchView<'a> {
     pub graph: &'a SceneGraph,
     /// The vehicle's pose as its GPS reports it, world frame.
     pub pose_reported: Pose2,
-    /// The accuracy the GPS claims for that pose (the noise level's sigmas).
+    /// The accuracy the GPS claims for that pose: the noise level's
+    /// sigmas, the heading's at the vehicle's speed
+    /// (`[v2x] gnss_heading_speed_sigma_mps`), as its error is drawn.
     pub pose_noise: PoseNoiseLevel,
 }
 
@@ -462,13 +464,20 @@ pub trait Matcher: Send + Sync {
 /// (both position errors, and the heading errors times the lever arm;
 /// [`relative_pose_prior`]).
 pub fn gps_relative_pose(first: &MatchView, second: &MatchView) -> PoseEstimate {
-    let level = &first.pose_noise;
     relative_pose_prior(
         &first.pose_reported,
         &second.pose_reported,
-        level.position_sigma_m,
-        level.heading_sigma_rad,
+        claim(&first.pose_noise),
+        claim(&second.pose_noise),
     )
+}
+
+/// What a receiver at `level` claims of its pose.
+pub fn claim(level: &PoseNoiseLevel) -> PoseClaim {
+    PoseClaim {
+        position_sigma_m: level.position_sigma_m,
+        heading_sigma_rad: level.heading_sigma_rad,
+    }
 }
 
 /// Binary entropy in bits, 0 at p in {0, 1} and 1 at p = 0.5.

@@ -11,6 +11,8 @@ use crate::rng::{self, Purpose};
 /// A message on its way to one receiver.
 pub(super) struct InFlight {
     pub arrival_s: f64,
+    /// The channel's latency (s).
+    pub latency_s: f64,
     pub receiver: String,
     pub message: Sent,
 }
@@ -43,11 +45,19 @@ impl MessagesInFlight {
         if let Some(latency) = delivered {
             self.queue.push(InFlight {
                 arrival_s: ctx.time_s + latency,
+                latency_s: latency,
                 receiver: receiver.source.vehicle().to_owned(),
                 message: message.clone(),
             });
         }
         delivered
+    }
+
+    /// The messages not arrived yet: their senders and latencies.
+    pub(super) fn pending(&self) -> impl Iterator<Item = (&str, f64)> {
+        self.queue
+            .iter()
+            .map(|m| (m.message.sender.as_str(), m.latency_s))
     }
 
     /// The messages that have arrived by `time_s` at receivers `here`
@@ -139,6 +149,7 @@ mod tests {
         ] {
             q.queue.push(InFlight {
                 arrival_s,
+                latency_s: arrival_s - 1.0,
                 receiver: receiver.into(),
                 message: sent(sender, 1.0),
             });
@@ -149,6 +160,9 @@ mod tests {
             .map(|m| (m.arrival_s, m.message.sender.as_str()))
             .collect();
         assert_eq!(got, [(1.2, "cv2"), (1.3, "cv0")]);
+        // What is still on its way, by sender, with its latency.
+        assert_eq!(q.pending().collect::<Vec<_>>(), [("cv3", 0.5)]);
         assert_eq!(q.arrived(2.0, |_| true).len(), 1);
+        assert_eq!(q.pending().count(), 0);
     }
 }

@@ -77,7 +77,13 @@ fn pairs_at<'a>(
 ) -> Vec<PairAtLevel<'a>> {
     instances
         .iter()
-        .map(|i| i.at_level(settings.seeds.sensor, level))
+        .map(|i| {
+            i.at_level(
+                settings.seeds.sensor,
+                level,
+                settings.v2x.gnss_heading_speed_sigma_mps,
+            )
+        })
         .collect()
 }
 

@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use super::context::Context;
 use super::peer::Views;
 use super::vehicle::ConnectedVehicle;
-use crate::fusion::{Fused, Measurement, covariance_intersection, fuse, relative_pose_prior};
+use crate::fusion::{Fused, Measurement, covariance_intersection, fuse};
 use crate::geometry::{Cov2, Vec2};
 use crate::report::OverTimeCounts;
 use crate::sensor::Detection;
@@ -40,12 +40,7 @@ pub(super) fn fuse_pairs(
     views: &Views,
     pairs: &[(u64, u64)],
 ) -> (f64, f64, f64, u64) {
-    let prior = relative_pose_prior(
-        &receiver.reported_poses()[0],
-        &views.peer_reported,
-        ctx.level().position_sigma_m,
-        ctx.level().heading_sigma_rad,
-    );
+    let prior = views.gps_prior(&receiver.reported_poses()[0]);
     let body = receiver.pose().inverse();
     let mut out = (0.0, 0.0, 0.0, 0);
     for &(e, p) in pairs {
@@ -106,12 +101,7 @@ impl RecursiveFusion {
         pairs: &[(u64, u64)],
         c: &mut OverTimeCounts,
     ) {
-        let prior = relative_pose_prior(
-            &receiver.reported_poses()[0],
-            &views.peer_reported,
-            ctx.level().position_sigma_m,
-            ctx.level().heading_sigma_rad,
-        );
+        let prior = views.gps_prior(&receiver.reported_poses()[0]);
         let mut next = BTreeMap::new();
         for &(e, p) in pairs {
             let (Some((track, track_cov)), Some(b)) = (
@@ -243,6 +233,8 @@ mod tests {
             peer_ids: vec![10, 11],
             peer_truth: OBJECTS.iter().map(|(o, _)| Some((*o).to_owned())).collect(),
             peer_reported: s,
+            ego_claim: settings().pose_noise[0],
+            peer_claim: settings().pose_noise[0],
         }
     }
 

@@ -14,6 +14,7 @@ use crate::matching::MatchView;
 use crate::rng::{self, Purpose};
 use crate::sensor::{self, Detection, DetectionTruth, PoseNoiseLabel, PoseNoiseLevel, Sensed};
 use crate::traffic::{StaticScene, TrafficFrame};
+use crate::v2x::gnss;
 
 /// Whose view one side of an instance is. Its text ([`fmt::Display`]) is
 /// the side's id wherever a side is named (the observation's `ego_id`,
@@ -155,15 +156,23 @@ pub struct Instance<'a> {
 
 impl<'a> Instance<'a> {
     /// The instance at a pose-noise level: each vehicle's detections, graph
-    /// and GPS-reported pose, with the truth beside them.
-    pub fn at_level(&self, sensor_seed: u64, level: &PoseNoiseLevel) -> PairAtLevel<'a> {
+    /// and GPS-reported pose with the accuracy its receiver claims (the
+    /// level's, its heading's at the vehicle's speed with `[v2x]
+    /// gnss_heading_speed_sigma_mps`: as the error is drawn), with the
+    /// truth beside them.
+    pub fn at_level(
+        &self,
+        sensor_seed: u64,
+        level: &PoseNoiseLevel,
+        heading_speed_sigma_mps: f64,
+    ) -> PairAtLevel<'a> {
         let step = self.frame.step;
         let side = |e: &'a InstanceSide| Side {
             view: MatchView {
                 detections: &e.sensed.observation.detections,
                 graph: &e.graph,
                 pose_reported: e.reported_pose(sensor_seed, step, level),
-                pose_noise: *level,
+                pose_noise: gnss::at_speed(level, e.speed_mps, heading_speed_sigma_mps),
             },
             obs: &e.sensed.observation,
             truth: &e.sensed.truth,
@@ -312,7 +321,7 @@ mod tests {
             position_sigma_m: 0.2,
             heading_sigma_rad: 0.003,
         };
-        let pair = inst.at_level(7, &level);
+        let pair = inst.at_level(7, &level, 0.0);
         assert_eq!(pair.instance, 5);
         assert_eq!(pair.level, level);
         assert_eq!(pair.first.obs.ego_id, "cv0");

@@ -26,13 +26,9 @@ pub(super) struct Sent {
     /// The sender's own node (its self-report, with `[matching]
     /// sender_as_node`) and its velocity, sender's body frame.
     pub sender_node: Option<(Detection, DetectionTruth, Vec2)>,
-}
-
-impl Sent {
-    /// The sender's speed at generation (0 without its own node).
-    pub fn sender_speed_mps(&self) -> f64 {
-        self.sender_node.as_ref().map_or(0.0, |n| n.2.norm())
-    }
+    /// The sender's speed at generation (m/s; a CPM's originating vehicle
+    /// container carries it, own node or not).
+    pub sender_speed_mps: f64,
 }
 
 /// What a track's last detection looked like, and (evaluation only) what
@@ -66,7 +62,6 @@ mod tests {
     use std::collections::BTreeMap;
 
     use super::*;
-    use crate::geometry::Cov2;
     use crate::pipeline::tests::{appearance, context, settings};
 
     /// A label's truth is its object where it is now; a false positive's
@@ -87,34 +82,5 @@ mod tests {
         assert_eq!((t.visible_fraction, t.sender), (0.6, false));
         let t = label(None).truth_at(&ctx);
         assert_eq!((t.object_id, t.position_m), (None, None));
-    }
-
-    /// A message's sender speed is that of its own node, 0 without one.
-    #[test]
-    fn a_senders_speed_is_its_nodes() {
-        let mut m = Sent {
-            sender: "cv0".into(),
-            generated_s: 0.0,
-            sender_reported: Vec::new(),
-            objects: Vec::new(),
-            labels: Vec::new(),
-            sender_pose: Pose2::identity(),
-            sender_node: None,
-        };
-        assert_eq!(m.sender_speed_mps(), 0.0);
-        let node = Detection {
-            position_m: Vec2::zeros(),
-            cov_m2: Cov2::identity(),
-            appearance: appearance("cv0"),
-            motion: None,
-        };
-        let truth = DetectionTruth {
-            object_id: Some("cv0".into()),
-            position_m: None,
-            visible_fraction: 1.0,
-            sender: true,
-        };
-        m.sender_node = Some((node, truth, Vec2::new(3.0, 4.0)));
-        assert_eq!(m.sender_speed_mps(), 5.0);
     }
 }

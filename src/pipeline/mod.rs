@@ -80,6 +80,20 @@ pub struct Progress {
 }
 
 /// Counters of one simulation.
+/// Prints `coid: warning: <message>` on stderr, once per process and
+/// message: a command that runs the same settings many times (an
+/// evaluation's runs) says it once.
+fn warn_once(message: &str) {
+    static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+    let mut said = SAID
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    if !said.iter().any(|m| m == message) {
+        eprintln!("coid: warning: {message}");
+        said.push(message.to_owned());
+    }
+}
+
 #[derive(Clone, Debug, Default)]
 pub struct SimStats {
     pub n_instances: usize,
@@ -215,6 +229,7 @@ mod tests {
             labels: Vec::new(),
             sender_pose: Pose2::identity(),
             sender_node: None,
+            sender_speed_mps: 0.0,
         }
     }
 

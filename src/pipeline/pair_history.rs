@@ -100,6 +100,8 @@ mod tests {
             peer_ids: vec![10, 20, 30],
             peer_truth: names(peer),
             peer_reported: Pose2::identity(),
+            ego_claim: crate::pipeline::tests::settings().pose_noise[0],
+            peer_claim: crate::pipeline::tests::settings().pose_noise[0],
         }
     }
 

@@ -15,12 +15,14 @@ use super::message::{Sent, TrackLabel};
 use super::pair_history::PairHistory;
 use super::relative_pose::PoseCorrection;
 use super::vehicle::ConnectedVehicle;
+use crate::fusion::{PoseEstimate, relative_pose_prior};
 use crate::geometry::{Pose2, Vec2, rotate_cov};
 use crate::graph::SceneGraph;
-use crate::matching::{MatchView, Matcher};
+use crate::matching::{MatchView, Matcher, claim};
 use crate::report::OverTimeCounts;
-use crate::sensor::Detection;
+use crate::sensor::{Detection, PoseNoiseLevel};
 use crate::v2x::cpm::PerceivedObject;
+use crate::v2x::gnss::at_speed;
 use crate::v2x::receiver::Association;
 
 /// What a receiver knows of one peer.
@@ -56,6 +58,23 @@ pub(super) struct Views {
     pub peer_truth: Vec<Option<String>>,
     /// The peer objects' frame: the newest message's reported sender pose.
     pub peer_reported: Pose2,
+    /// What the receiver's and the sender's GNSS claim of the poses they
+    /// report (the level, the heading's at each one's speed).
+    pub ego_claim: PoseNoiseLevel,
+    pub peer_claim: PoseNoiseLevel,
+}
+
+impl Views {
+    /// The peer's pose in the receiver's frame from the two reported
+    /// poses, with what both receivers claim of them.
+    pub(super) fn gps_prior(&self, receiver_reported: &Pose2) -> PoseEstimate {
+        relative_pose_prior(
+            receiver_reported,
+            &self.peer_reported,
+            claim(&self.ego_claim),
+            claim(&self.peer_claim),
+        )
+    }
 }
 
 impl PeerState {
@@ -74,7 +93,7 @@ impl PeerState {
         matcher: &dyn Matcher,
     ) -> Result<OverTimeCounts, RunError> {
         self.remember(ctx, m);
-        let views = self.views(ctx, receiver, m.sender_reported[0]);
+        let views = self.views(ctx, receiver, m);
         let mut c = OverTimeCounts {
             receptions: 1,
             ..OverTimeCounts::default()
@@ -83,7 +102,7 @@ impl PeerState {
             return Ok(c);
         }
         // Per message: the matcher on this message's poses alone.
-        let matched = identified(ctx, receiver, &views, matcher)?;
+        let matched = identified(receiver, &views, matcher)?;
         // Over time: the relative pose as estimated over earlier messages,
         // then the evidence carried across them.
         let (corrected, corrected_matched) = match self.correction.apply(&views.peer_reported) {
@@ -92,7 +111,7 @@ impl PeerState {
                     peer_reported,
                     ..views.clone()
                 };
-                let m = identified(ctx, receiver, &v, matcher)?;
+                let m = identified(receiver, &v, matcher)?;
                 (v, m)
             }
             None => (views.clone(), matched.clone()),
@@ -149,8 +168,10 @@ impl PeerState {
     }
 
     /// The receiver's reported tracks, and the known peer objects moved
-    /// ahead to now and into the frame of `peer_reported`.
-    fn views(&self, ctx: &Context, receiver: &ConnectedVehicle, peer_reported: Pose2) -> Views {
+    /// ahead to now and into the frame of the sender's pose `m` reports.
+    fn views(&self, ctx: &Context, receiver: &ConnectedVehicle, m: &Sent) -> Views {
+        let peer_reported = m.sender_reported[0];
+        let sigma = ctx.v.gnss_heading_speed_sigma_mps;
         let mut v = Views {
             ego: Vec::new(),
             ego_ids: Vec::new(),
@@ -159,6 +180,8 @@ impl PeerState {
             peer_ids: Vec::new(),
             peer_truth: Vec::new(),
             peer_reported,
+            ego_claim: at_speed(ctx.level(), receiver.speed_mps(), sigma),
+            peer_claim: at_speed(ctx.level(), m.sender_speed_mps, sigma),
         };
         for (id, d, label) in receiver.reported_tracks() {
             v.ego.push(d);
@@ -186,7 +209,6 @@ impl PeerState {
 
 /// The frame matcher on the two views: (ego id, peer id).
 fn identified(
-    ctx: &Context,
     receiver: &ConnectedVehicle,
     views: &Views,
     matcher: &dyn Matcher,
@@ -200,13 +222,13 @@ fn identified(
         detections: &views.ego,
         graph: &ga,
         pose_reported: receiver.reported_poses()[0],
-        pose_noise: *ctx.level(),
+        pose_noise: views.ego_claim,
     };
     let b = MatchView {
         detections: &views.peer,
         graph: &gb,
         pose_reported: views.peer_reported,
-        pose_noise: *ctx.level(),
+        pose_noise: views.peer_claim,
     };
     Ok(matcher
         .identify(&a, &b)
@@ -271,7 +293,9 @@ mod tests {
         let mut state = PeerState::default();
         state.remember(&ctx, &m);
         let frame = Pose2::new(Vec2::new(-5.0, 7.0), 1.0);
-        let v = state.views(&ctx, &receiver, frame);
+        let mut through = m.clone();
+        through.sender_reported[0] = frame;
+        let v = state.views(&ctx, &receiver, &through);
         assert_eq!((v.ego.len(), v.peer.len()), (3, 3));
         for (d, t) in v.peer.iter().zip(&v.peer_truth) {
             let at = centres(&OBJECTS)[t.as_deref().unwrap()];

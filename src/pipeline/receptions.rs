@@ -191,11 +191,13 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide,
             &d.cov_m2,
             &Cov2::zeros(),
         );
+        // Its box: the sender's own heading (0 in its body frame) and
+        // speed at generation, as its self-report carries them.
         detections.push(Detection {
             position_m,
             cov_m2,
             appearance: d.appearance.clone(),
-            motion: None,
+            motion: d.motion,
         });
         let now = t.object_id.as_deref().and_then(|o| ctx.truth.get(o));
         truths.push(DetectionTruth {
@@ -214,7 +216,7 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide,
         unnamed(detections, truths, m.sender_pose),
         ctx.settings.seeds.sensor,
         &keys,
-        m.sender_speed_mps(),
+        m.sender_speed_mps,
         Some(reported),
     )
 }
@@ -238,6 +240,7 @@ mod tests {
     fn arrived(receiver: &str, sender: &str, generated_s: f64, arrival_s: f64) -> InFlight {
         InFlight {
             arrival_s,
+            latency_s: arrival_s - generated_s,
             receiver: receiver.into(),
             message: sent(sender, generated_s),
         }
@@ -289,7 +292,10 @@ mod tests {
             position_m: Vec2::zeros(),
             cov_m2: Cov2::identity() * 0.01,
             appearance: appearance("cv1"),
-            motion: None,
+            motion: Some(crate::sensor::boxes::Motion {
+                heading_rad: 0.0,
+                speed_mps: 10.0,
+            }),
         };
         let own_truth = DetectionTruth {
             object_id: Some("cv1".into()),
@@ -298,6 +304,7 @@ mod tests {
             sender: true,
         };
         m.sender_node = Some((own, own_truth, Vec2::new(10.0, 0.0)));
+        m.sender_speed_mps = 10.0;
         let side = message_side(&ctx, &m, "cv0").unwrap();
         assert_eq!(side.id(), "cv1 -> cv0");
         assert_eq!(side.source.vehicle(), "cv1");
@@ -311,6 +318,8 @@ mod tests {
         );
         let (node, t) = side.own_node().unwrap();
         assert!((node.position_m - Vec2::new(3.0, 0.0)).norm() < 1e-9);
+        // Its box is the sender's self-report (r49_12).
+        assert_eq!(node.motion, m.sender_node.as_ref().unwrap().0.motion);
         assert_eq!(t.position_m, None, "cv1 is not in the frame");
     }
 

@@ -8,7 +8,7 @@
 use super::context::Context;
 use super::fusion_over_time::measurement;
 use super::peer::Views;
-use crate::fusion::{Measurement, align, relative_pose_prior};
+use crate::fusion::{Measurement, align};
 use crate::geometry::{Pose2, wrap_angle};
 
 /// The correction of a peer's reported pose (world frame: translation and
@@ -53,12 +53,7 @@ impl PoseCorrection {
                 Some((measurement(&views.ego[a]), measurement(&views.peer[b])))
             })
             .collect();
-        let prior = relative_pose_prior(
-            receiver_reported,
-            &views.peer_reported,
-            ctx.level().position_sigma_m,
-            ctx.level().heading_sigma_rad,
-        );
+        let prior = views.gps_prior(receiver_reported);
         let aligned = align(&measured, &prior, ctx.settings.fusion.align_min_matches);
         if !aligned.refined {
             return;
@@ -173,6 +168,8 @@ mod tests {
             peer_ids: (10..15).collect(),
             peer_truth: vec![None; 5],
             peer_reported: raw,
+            ego_claim: *ctx.level(),
+            peer_claim: *ctx.level(),
         };
         let pairs: Vec<(u64, u64)> = (0..5).map(|k| (k, k + 10)).collect();
         let mut c = PoseCorrection::default();

@@ -105,6 +105,7 @@ pub fn simulate_steps(
     let mut receptions = cpm.then(receptions::Receptions::default);
     let mut stats = SimStats::default();
     let mut seen_connected: BTreeSet<String> = BTreeSet::new();
+    let mut seen_types: BTreeSet<String> = BTreeSet::new();
     let mut next_sample_s = f64::NEG_INFINITY;
     let eps = 1e-6;
     while sumo.time_s() + eps < sc.end_s {
@@ -114,6 +115,7 @@ pub fn simulate_steps(
         stats.n_steps += 1;
         stats.objects_read += frame.objects.len() as u64;
         note_connected(settings, &frame, &mut seen_connected);
+        note_types(&frame, &mut seen_types);
         let time_s = frame.time_s;
         let sample = time_s + eps >= next_sample_s;
         let instances = match receptions.as_mut() {
@@ -151,7 +153,42 @@ pub fn simulate_steps(
     stats.sim_end_s = sumo.time_s();
     sumo.close()?;
     check_connected_appeared(&settings.connected, &seen_connected)?;
+    warn_unused_types(settings, &seen_types);
     Ok(stats)
+}
+
+/// Adds the types of the road users of `frame` to `seen`.
+pub(super) fn note_types(frame: &TrafficFrame, seen: &mut BTreeSet<String>) {
+    for o in &frame.objects {
+        if !seen.contains(&o.type_id) {
+            seen.insert(o.type_id.clone());
+        }
+    }
+}
+
+/// Says (once per process and message) which vehicle types `[detector]
+/// by_type` and `rig_by_type` name that no road user of the run had
+/// (`seen`): those entries changed nothing.
+pub(super) fn warn_unused_types(settings: &Settings, seen: &BTreeSet<String>) {
+    let unused = settings.detector.unused_types(seen);
+    if unused.is_empty() {
+        return;
+    }
+    let had: Vec<&str> = seen.iter().map(String::as_str).collect();
+    super::warn_once(&format!(
+        "[detector] by_type / rig_by_type name vehicle type(s) {} that no road user of this \
+         run had, so they changed nothing (this run's types: {})",
+        unused
+            .iter()
+            .map(|t| format!("'{t}'"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        if had.is_empty() {
+            "none".to_owned()
+        } else {
+            had.join(", ")
+        }
+    ));
 }
 
 /// The instances of one step: every pair of `sides` (sorted by id) whose

@@ -13,7 +13,9 @@ use super::fleet::Fleet;
 use super::instance::InstanceSide;
 use super::peer::PeerState;
 use super::runners::runner;
-use super::simulate::{check_connected_appeared, note_connected, sense};
+use super::simulate::{
+    check_connected_appeared, note_connected, note_types, sense, warn_unused_types,
+};
 use super::{Progress, RunError};
 use crate::bridge::Sumo;
 use crate::config::Settings;
@@ -53,9 +55,11 @@ pub fn track(
     let mut tracking = Tracking::default();
     let mut instances = 0;
     let mut seen_connected = BTreeSet::new();
+    let mut seen_types = BTreeSet::new();
     while sumo.time_s() + 1e-6 < sc.end_s {
         let frame = sumo.step()?;
         note_connected(settings, &frame, &mut seen_connected);
+        note_types(&frame, &mut seen_types);
         let sides = sense(settings, &scene, &frame)?;
         let truth = true_centres(&frame);
         let ctx = Context {
@@ -76,6 +80,7 @@ pub fn track(
     }
     sumo.close()?;
     check_connected_appeared(&settings.connected, &seen_connected)?;
+    warn_unused_types(settings, &seen_types);
     Ok(tracking.finish())
 }
 
@@ -214,9 +219,11 @@ mod tests {
         let ids: Vec<&str> = r.vehicles.iter().map(|v| v.ego_id.as_str()).collect();
         assert_eq!(ids, ["cv0", "cv1"]);
         assert!(r.vehicles.iter().all(|v| v.steps == steps && v.lost == 0));
-        let sent: u64 = r.vehicles.iter().map(|v| v.delivered).sum();
-        // Each message arrives one step later; the last ones are in flight.
-        assert_eq!(r.over_time.receptions, sent - 2);
+        // Each message arrives one step later: all but the last ones,
+        // which are in flight when the run ends, not delivered.
+        let delivered: u64 = r.vehicles.iter().map(|v| v.delivered).sum();
+        let in_flight: u64 = r.vehicles.iter().map(|v| v.in_flight_at_end).sum();
+        assert_eq!((r.over_time.receptions, in_flight), (delivered, 2));
         assert_eq!(r.over_time.pairs, 6, "three objects, both ways");
         assert_eq!(r.over_time.pairs_found, 6);
         assert_eq!(

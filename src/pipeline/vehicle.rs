@@ -38,6 +38,8 @@ pub(super) struct ConnectedVehicle {
     tracks: Vec<TrackSnapshot>,
     track_covs: Vec<Cov2>,
     self_node: Option<(Detection, DetectionTruth, Vec2)>,
+    /// This step's speed (m/s).
+    speed_mps: f64,
 }
 
 impl ConnectedVehicle {
@@ -57,6 +59,7 @@ impl ConnectedVehicle {
             tracks: Vec::new(),
             track_covs: Vec::new(),
             self_node: None,
+            speed_mps: 0.0,
         }
     }
 
@@ -64,6 +67,11 @@ impl ConnectedVehicle {
     /// measure in).
     pub(super) fn pose(&self) -> Pose2 {
         self.pose
+    }
+
+    /// This step's speed (m/s).
+    pub(super) fn speed_mps(&self) -> f64 {
+        self.speed_mps
     }
 
     /// This step's GNSS-reported poses, one per level of the context.
@@ -107,6 +115,7 @@ impl ConnectedVehicle {
     /// one is due. `side` is what the vehicle sensed at this step.
     pub(super) fn step(&mut self, ctx: &Context, side: &InstanceSide) -> Option<Sent> {
         self.pose = side.sensed.truth.ego_pose;
+        self.speed_mps = side.speed_mps;
         self.step_gnss(ctx, side);
         self.self_node = side
             .own_node()
@@ -223,6 +232,7 @@ impl ConnectedVehicle {
             labels: Vec::new(),
             sender_pose: self.pose,
             sender_node: self.self_node.clone(),
+            sender_speed_mps: self.speed_mps,
         };
         for id in chosen {
             let Some(t) = self.tracker.tracks().iter().find(|t| t.id == *id) else {

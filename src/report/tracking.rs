@@ -16,11 +16,13 @@ pub struct VehicleTracking {
     /// CPMs it generated and the objects in them.
     pub messages: u64,
     pub objects_sent: u64,
-    /// Of those messages, to each peer near the junction: delivered (with
-    /// their latencies summed) and lost.
+    /// Of those messages, to each peer near the junction: delivered by the
+    /// end of the run (with their latencies summed), lost, and still on
+    /// their way when the run ended.
     pub delivered: u64,
     pub lost: u64,
     pub latency_sum_s: f64,
+    pub in_flight_at_end: u64,
 }
 
 impl VehicleTracking {
@@ -35,6 +37,14 @@ impl VehicleTracking {
         }
     }
 
+    /// A message counted delivered (latency `latency_s`) that had not
+    /// arrived when the run ended.
+    pub fn still_in_flight(&mut self, latency_s: f64) {
+        self.delivered -= 1;
+        self.latency_sum_s -= latency_s;
+        self.in_flight_at_end += 1;
+    }
+
     pub fn add(&mut self, o: &VehicleTracking) {
         self.steps += o.steps;
         self.mot.add(o.mot);
@@ -44,6 +54,7 @@ impl VehicleTracking {
         self.delivered += o.delivered;
         self.lost += o.lost;
         self.latency_sum_s += o.latency_sum_s;
+        self.in_flight_at_end += o.in_flight_at_end;
     }
 }
 
@@ -231,6 +242,7 @@ pub fn tracking_table(vehicles: &[VehicleTracking]) -> Table {
     t.count("objects_sent", count(|r| r.objects_sent));
     t.count("delivered", count(|r| r.delivered));
     t.count("lost", count(|r| r.lost));
+    t.count("in_flight_at_end", count(|r| r.in_flight_at_end));
     t.number(
         "mean_latency_s",
         number(|r| {

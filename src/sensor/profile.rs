@@ -26,6 +26,8 @@
 //! Gaussian, white in time, of the error's second moments (what a real
 //! detector would publish). The true error distribution stays here.
 
+use std::collections::BTreeSet;
+
 use rand::Rng;
 use rand_distr::{Distribution, StudentT};
 
@@ -74,6 +76,17 @@ const MAX_SENSORS: usize = 16;
 /// More clutter per sensor and frame than this is refused (each is a node
 /// of every graph).
 const MAX_CLUTTER_PER_FRAME: f64 = 100.0;
+
+/// Farther sensing ranges than this are refused (metres; the longest
+/// automotive lidars reach a few hundred).
+const MAX_RANGE_M: f64 = 10_000.0;
+
+/// The Student-t's degrees of freedom at most (beyond, it is Gaussian to
+/// every digit that matters; `inf` has no sample).
+const MAX_TAIL_DOF: f64 = 1e6;
+
+/// `depth_to_lateral` within this factor of 1 either way.
+const MAX_AXIS_RATIO: f64 = 1000.0;
 
 /// Samples per bin when the error scale is calibrated to the published
 /// mean translation error.
@@ -151,6 +164,16 @@ impl DetectorSettings {
             }
         }
         self.mix.last().map_or(self.profile, |m| m.0)
+    }
+
+    /// The vehicle types `by_type` and `rig_by_type` name that are not
+    /// among `seen` (the types of a run's road users), sorted, each once:
+    /// those entries changed nothing.
+    pub fn unused_types<'a>(&'a self, seen: &BTreeSet<String>) -> Vec<&'a str> {
+        let named = self.by_type.iter().map(|(t, _)| t.as_str());
+        let named = named.chain(self.rig_by_type.iter().map(|(t, _)| t.as_str()));
+        let unused: BTreeSet<&str> = named.filter(|t| !seen.contains(*t)).collect();
+        unused.into_iter().collect()
     }
 
     /// What connected vehicle `vehicle_id` of SUMO type `type_id` senses
@@ -355,6 +378,15 @@ impl ProfileModel {
                     format!("sensor {k}: height_m must be in [0, 100]"),
                 ));
             }
+            if !yaw_is_usable(s.yaw_rad()) {
+                return Err(invalid(
+                    "sensors",
+                    format!(
+                        "sensor {k}: yaw_deg must be in [-360, 360], got {}",
+                        s.yaw_rad().to_degrees()
+                    ),
+                ));
+            }
         }
         Ok(ProfileModel {
             sensors,
@@ -412,8 +444,11 @@ fn check_geometry(p: &ProfileParams) -> Result<(), ProfileError> {
     if p.fov_rad <= 0.0 || p.fov_rad.is_nan() || p.fov_rad > std::f64::consts::TAU + 1e-9 {
         return Err(invalid("fov_deg", "must be in (0, 360]".into()));
     }
-    if p.range_m <= 0.0 || !p.range_m.is_finite() {
-        return Err(invalid("range_m", "must be a positive number".into()));
+    if !(p.range_m > 0.0 && p.range_m <= MAX_RANGE_M) {
+        return Err(invalid(
+            "range_m",
+            format!("must be in (0, {MAX_RANGE_M}], got {}", p.range_m),
+        ));
     }
     in_range("height_m", p.height_m, 0.0, 100.0)?;
     if p.yaw_offsets_rad.is_empty() || p.yaw_offsets_rad.len() > MAX_SENSORS {
@@ -422,7 +457,19 @@ fn check_geometry(p: &ProfileParams) -> Result<(), ProfileError> {
             format!("need 1 to {MAX_SENSORS} sensors"),
         ));
     }
+    if let Some(y) = p.yaw_offsets_rad.iter().find(|y| !yaw_is_usable(**y)) {
+        return Err(invalid(
+            "yaw_offsets_deg",
+            format!("each must be in [-360, 360], got {}", y.to_degrees()),
+        ));
+    }
     Ok(())
+}
+
+/// A sensor's yaw (radians): a number within one turn either way
+/// (`NaN` never is).
+fn yaw_is_usable(yaw_rad: f64) -> bool {
+    yaw_rad.abs() <= std::f64::consts::TAU + 1e-9
 }
 
 /// Range bins, and one recall and mean error per bin.
@@ -441,10 +488,13 @@ fn check_bins(p: &ProfileParams) -> Result<(), ProfileError> {
             ),
         ));
     }
-    if p.bin_edges_m.windows(2).any(|w| w[1] <= w[0]) || p.bin_edges_m[0] <= 0.0 {
+    if p.bin_edges_m.windows(2).any(|w| w[1] <= w[0])
+        || p.bin_edges_m[0] <= 0.0
+        || !p.bin_edges_m[n - 1].is_finite()
+    {
         return Err(invalid(
             "bin_edges_m",
-            "bin edges must be positive and ascending".into(),
+            "bin edges must be positive, finite and ascending".into(),
         ));
     }
     if p.bin_edges_m[n - 1] < p.range_m {
@@ -473,18 +523,23 @@ fn check_bins(p: &ProfileParams) -> Result<(), ProfileError> {
 
 /// The error model, clutter and confusion.
 fn check_errors(p: &ProfileParams) -> Result<(), ProfileError> {
-    if p.tail_dof <= 2.0 || p.tail_dof.is_nan() {
+    if !(p.tail_dof > 2.0 && p.tail_dof <= MAX_TAIL_DOF) {
         return Err(invalid(
             "tail_dof",
-            format!("must be > 2 (finite variance), got {}", p.tail_dof),
+            format!(
+                "must be in (2, {MAX_TAIL_DOF:e}] (> 2: finite variance; the larger, the \
+                 closer to Gaussian), got {}",
+                p.tail_dof
+            ),
         ));
     }
-    if p.depth_to_lateral <= 0.0 || !p.depth_to_lateral.is_finite() {
-        return Err(invalid("depth_to_lateral", "must be > 0".into()));
-    }
-    if !p.depth_bias_per_m.is_finite() {
-        return Err(invalid("depth_bias_per_m", "must be a number".into()));
-    }
+    in_range(
+        "depth_to_lateral",
+        p.depth_to_lateral,
+        1.0 / MAX_AXIS_RATIO,
+        MAX_AXIS_RATIO,
+    )?;
+    in_range("depth_bias_per_m", p.depth_bias_per_m, -1.0, 1.0)?;
     in_range("correlation_time_s", p.correlation_time_s, 0.0, 1e6)?;
     if p.persistent_share > 0.0 && p.correlation_time_s == 0.0 {
         return Err(invalid(
@@ -512,7 +567,7 @@ fn check_errors(p: &ProfileParams) -> Result<(), ProfileError> {
     )?;
     for (k, row) in p.class_confusion.iter().enumerate() {
         let sum: f64 = row.iter().sum();
-        if row.iter().any(|v| *v < 0.0) || (sum - 1.0).abs() > 1e-6 {
+        if row.iter().any(|v| v.is_nan() || *v < 0.0) || sum.is_nan() || (sum - 1.0).abs() > 1e-6 {
             return Err(invalid(
                 "class_confusion",
                 format!(

@@ -153,7 +153,10 @@ fn force_replaces_only_results_of_the_same_kind() {
     assert_refused(&forced("run").out("mine").output(), "coid did not write it");
     assert!(cfg.is_file(), "the config was removed");
     assert_ok(&fx.run(&cfg, "r"));
-    assert_refused(&forced("eval").out("r").output(), "not an evaluation");
+    assert_refused(
+        &forced("eval").out("r").output(),
+        "replaces only an evaluation",
+    );
     let batch = fx.cmd("batch").quiet().config(&cfg).args(["--runs", "1"]);
     assert_refused(&batch.out("r").output(), "not a batch folder");
     let scenarios = fx.cmd("scenarios").quiet().args(["--count", "1"]);

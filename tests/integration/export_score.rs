@@ -72,7 +72,7 @@ fn exported_matches_reproduce_the_built_in_rows() {
     export(&fx, &config);
     let runs = read_parquet(&fx.path("ex/runs.parquet"));
     assert_eq!(strs(&runs, "split"), vec!["test", "test"]);
-    assert_eq!(f64s(&runs, "schema_version"), vec![3.0, 3.0]);
+    assert_eq!(f64s(&runs, "schema_version"), vec![4.0, 4.0]);
     let instances: f64 = f64s(&runs, "n_instances").iter().sum();
     assert!(instances > 0.0);
     let levels = read_parquet(&fx.path("ex/instances.parquet")).height() as f64;
@@ -82,7 +82,7 @@ fn exported_matches_reproduce_the_built_in_rows() {
         nodes.height(),
         read_parquet(&fx.path("ex/truth.parquet")).height()
     );
-    assert!(fx.read_text("ex/schema.md").contains("schema version 3"));
+    assert!(fx.read_text("ex/schema.md").contains("schema version 4"));
     assert_ok(&score(
         &fx,
         &config,
@@ -170,7 +170,10 @@ fn a_matches_file_that_does_not_fit_is_refused_in_one_line() {
             format!("run,instance,a,b\n{run},100000,0,0\n"),
             "matches name instance 100000",
         ),
-        ("run,instance,a,b\n0,0,0,0\n".into(), "a train run"),
+        (
+            "run,instance,a,b\n0,0,0,0\n".into(),
+            "names no test run (its one row names a run of another split)",
+        ),
         (
             "run,instance,a,b\n99999,0,0,0\n".into(),
             "this configuration has",

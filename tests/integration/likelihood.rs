@@ -55,7 +55,8 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
         |_| {},
         |inst| {
             for level in &settings.pose_noise {
-                let pair = inst.at_level(settings.seeds.sensor, level);
+                let speed_sigma = settings.v2x.gnss_heading_speed_sigma_mps;
+                let pair = inst.at_level(settings.seeds.sensor, level, speed_sigma);
                 let expected = pairs(&hungarian, &pair);
                 for m in &deep {
                     assert_eq!(

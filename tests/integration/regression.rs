@@ -318,7 +318,7 @@ fn r31_08_batch_and_merge_take_only_their_own_runs() {
     assert_refused(&fx.coid(&["merge", "b", "-o", "m"]), "missing (1)");
     let again = batch(&fx, &cfg, "2", "b", &[]);
     assert_ok(&again);
-    assert!(stderr(&again).contains("1 runs done"), "{}", stderr(&again));
+    assert!(stderr(&again).contains("1 run done"), "{}", stderr(&again));
     assert_eq!(fx.read("b/summary.csv"), whole);
 }
 
