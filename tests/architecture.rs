@@ -655,3 +655,106 @@ fn the_dependency_reader_sees_groups_inline_paths_and_macros_but_not_tests() {
     let deeper = "use super::super::geometry::Vec2;\n";
     assert_eq!(crate_deps("cli/run.rs", deeper), ["geometry"]);
 }
+
+/// Words of the project's process, not of the product: an issue's
+/// number, a commit, the owner's decisions.
+fn process_words(text: &str) -> Vec<String> {
+    // ASCII lowercase keeps every byte where it was.
+    let lower = text.to_ascii_lowercase();
+    let mut found = Vec::new();
+    for sep in ["issue ", "issue-"] {
+        for (k, _) in lower.match_indices(sep) {
+            let start = k + sep.len();
+            let digits = lower[start..]
+                .bytes()
+                .take_while(u8::is_ascii_digit)
+                .count();
+            if digits > 0 {
+                found.push(text[k..start + digits].to_owned());
+            }
+        }
+    }
+    for word in [
+        "(commit ",
+        "owner's decision",
+        "owner's call",
+        "the owner's",
+        "product's owner",
+    ] {
+        if lower.contains(word) {
+            found.push(word.to_owned());
+        }
+    }
+    found
+}
+
+/// The pages of docs/ that still read as a diary, to be rewritten as the
+/// product's book (their history into CHANGELOG.md). The list only
+/// shrinks: a page that is clean must leave it.
+const PAGES_STILL_TO_REWRITE: &[&str] = &[
+    "city-scale.md",
+    "cooperation.md",
+    "detectors.md",
+    "learned-matcher.md",
+    "networks.md",
+    "performance.md",
+    "results.md",
+    "status.md",
+    "tables.md",
+];
+
+/// README, ARCHITECTURE.md, every page of docs/ not listed above and the
+/// comments of `src/` speak of the product as it is: no issue numbers, no
+/// commits, no owner's decisions (the history is CHANGELOG.md's).
+#[test]
+fn the_docs_and_the_code_speak_of_the_product_not_its_history() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut texts: Vec<(String, String)> = ["README.md", "ARCHITECTURE.md"]
+        .iter()
+        .map(|f| {
+            (
+                f.to_string(),
+                std::fs::read_to_string(root.join(f)).unwrap(),
+            )
+        })
+        .collect();
+    let mut pages: Vec<String> = std::fs::read_dir(root.join("docs"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".md"))
+        .collect();
+    pages.sort();
+    for page in &pages {
+        let text = std::fs::read_to_string(root.join("docs").join(page)).unwrap();
+        let found = process_words(&text);
+        if PAGES_STILL_TO_REWRITE.contains(&page.as_str()) {
+            assert!(
+                !found.is_empty(),
+                "docs/{page} is clean: take it off the list"
+            );
+        } else {
+            texts.push((format!("docs/{page}"), text));
+        }
+    }
+    for (rel, code) in sources() {
+        let comments: String = code
+            .lines()
+            .filter(|l| l.trim_start().starts_with("//"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        texts.push((format!("src/{rel}"), comments));
+    }
+    let bad: Vec<String> = texts
+        .iter()
+        .flat_map(|(f, t)| {
+            process_words(t)
+                .into_iter()
+                .map(move |w| format!("{f}: {w}"))
+        })
+        .collect();
+    assert!(bad.is_empty(), "process words: {bad:?}");
+    assert_eq!(
+        process_words("see issue 49 and Issue-33"),
+        ["issue 49", "Issue-33"]
+    );
+}

@@ -4,7 +4,7 @@
 //! (`batch.toml`) and exports (`runs.parquet`) record it, so its value for
 //! a given configuration must not change without a new version.
 //!
-//! Format versions: 1 until issue 34; 2 since `[sensor] unset_colours`
+//! Format versions: 1 before `[sensor] unset_colours`; 2 since it
 //! (always in the text): a road user whose demand gives no colour was
 //! SUMO's yellow before and is drawn since, so every digest changed once
 //! and batches or exports made before are refused, never mixed.

@@ -158,10 +158,10 @@ impl std::fmt::Debug for Settings {
         if self.v2x != V2xSettings::default() {
             d.field("v2x", &self.v2x);
         }
-        // Since issue 34 the GNSS drifts in `ideal` runs too (it was
-        // white there whatever `gnss_correlation_s` said): such configs'
-        // digests change with their results, so that a batch or export
-        // made before is refused, never mixed.
+        // The GNSS drifts in `ideal` runs too (it once was white there
+        // whatever `gnss_correlation_s` said): such configs' digests
+        // differ from that model's, so that a batch or export it made is
+        // refused, never mixed.
         if self.v2x.mode == V2xMode::Ideal && self.v2x.gnss_correlation_s > 0.0 {
             d.field("ideal_gnss_drift", &true);
         }

@@ -152,7 +152,8 @@ fn the_defaults_are_the_shipped_file_and_valid() {
     changed.v2x.channel.latency_s = 0.3;
     assert!(format!("{changed:?}").contains("v2x"));
     assert_ne!(d.digest().unwrap(), changed.digest().unwrap());
-    // Issue 34's knobs leave the text of configs from before them alone:
+    // The detector and GNSS knobs leave the text of configs without them
+    // alone:
     // the low-speed heading error while off, the detector profiles while
     // every vehicle senses with the paper's model.
     assert!(!format!("{changed:?}").contains("gnss_heading_speed_sigma_mps"));

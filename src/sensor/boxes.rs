@@ -1,5 +1,5 @@
 //! Boxes, not points: the heading and speed a detector reports with each
-//! detection, with their own errors (issue 34). They are drawn after the
+//! detection, with their own errors. They are drawn after the
 //! detections, from a stream of their own, so that switching them on or
 //! off, or changing their errors, leaves every position, miss and false
 //! positive as it was.

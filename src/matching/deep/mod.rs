@@ -16,7 +16,7 @@
 //! and `matcher` ([`DeepMatcher`], inference). `shared_conv`: the second
 //! spline layer at inference under shared masks in plain Rust (the gemm
 //! crate), without the arithmetic the masks drop. `published`: GCN-GM and
-//! DGMC as published (issue 33), on the paper's inputs only (no GPS pose,
+//! DGMC as published, on the paper's inputs only (no GPS pose,
 //! no heading, no likelihood prior); they share only the node attributes,
 //! the seeded initialisation, the mask draw and Sinkhorn with the rest. Callers get
 //! [`decision::MatchDistribution`]s, correspondences, and weights as

@@ -1,4 +1,4 @@
-//! GCN-GM and DGMC as published (Fey et al. 2018, 2020; issue 33), our own
+//! GCN-GM and DGMC as published (Fey et al. 2018, 2020), our own
 //! code after the papers and the structure of DGMC's public code, on the
 //! paper's inputs only: each vehicle's detections in its own body frame,
 //! appearance attributes, Delaunay graphs with edge lengths. No GPS pose, no
