@@ -688,23 +688,8 @@ fn process_words(text: &str) -> Vec<String> {
     found
 }
 
-/// The pages of docs/ that still read as a diary, to be rewritten as the
-/// product's book (their history into CHANGELOG.md). The list only
-/// shrinks: a page that is clean must leave it.
-const PAGES_STILL_TO_REWRITE: &[&str] = &[
-    "city-scale.md",
-    "cooperation.md",
-    "detectors.md",
-    "learned-matcher.md",
-    "networks.md",
-    "performance.md",
-    "results.md",
-    "status.md",
-    "tables.md",
-];
-
-/// README, ARCHITECTURE.md, every page of docs/ not listed above and the
-/// comments of `src/` speak of the product as it is: no issue numbers, no
+/// README, ARCHITECTURE.md, every page of docs/ and the comments of
+/// `src/` speak of the product as it is: no issue numbers, no
 /// commits, no owner's decisions (the history is CHANGELOG.md's).
 #[test]
 fn the_docs_and_the_code_speak_of_the_product_not_its_history() {
@@ -726,15 +711,7 @@ fn the_docs_and_the_code_speak_of_the_product_not_its_history() {
     pages.sort();
     for page in &pages {
         let text = std::fs::read_to_string(root.join("docs").join(page)).unwrap();
-        let found = process_words(&text);
-        if PAGES_STILL_TO_REWRITE.contains(&page.as_str()) {
-            assert!(
-                !found.is_empty(),
-                "docs/{page} is clean: take it off the list"
-            );
-        } else {
-            texts.push((format!("docs/{page}"), text));
-        }
+        texts.push((format!("docs/{page}"), text));
     }
     for (rel, code) in sources() {
         let comments: String = code
