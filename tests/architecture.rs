@@ -547,7 +547,7 @@ fn matchers_cannot_reach_the_ground_truth() {
         &["ObservationTruth", "DetectionTruth", ".truth$"],
         &[
             "sensor/mod.rs",
-            "sensor/profile.rs",
+            "sensor/profile/sense.rs",
             "sensor/boxes.rs",
             "matching/oracle.rs",
             "evaluate/mod.rs",
