@@ -547,6 +547,7 @@ fn matchers_cannot_reach_the_ground_truth() {
         &["ObservationTruth", "DetectionTruth", ".truth$"],
         &[
             "sensor/mod.rs",
+            "sensor/camera.rs",
             "sensor/profile/sense.rs",
             "sensor/boxes.rs",
             "matching/oracle.rs",

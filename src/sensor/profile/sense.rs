@@ -8,10 +8,13 @@ use rand::Rng;
 use super::Mount;
 use super::model::{ProfileModel, RigSensor, line_of_sight, persistent_error, unit_error};
 use crate::geometry::{Pose2, Vec2};
+use crate::sensor::camera::{
+    clutter_count, clutter_look, clutter_point, false_positive, note_visible, observe_appearance,
+    sensed_from, typical_size_m,
+};
 use crate::sensor::{
     Appearance, CameraSettings, Detection, DetectionTruth, Sensed, SensorSettings, VisibleObject,
-    clutter_count, clutter_look, clutter_point, false_positive, note_visible, observe_appearance,
-    sensed_from, typical_size_m, visible_fraction,
+    visible_fraction,
 };
 use crate::traffic::{ObjectClass, StaticScene, TrafficFrame, TrafficObject};
 
