@@ -17,6 +17,7 @@ pub mod assets;
 mod batches;
 pub mod folder;
 pub mod frames;
+mod identity;
 pub mod markdown;
 mod models;
 pub mod records;
@@ -24,7 +25,8 @@ mod results;
 mod staging;
 
 pub use batches::*;
-pub use folder::{Claim, Existing, ResultKind, check_extendable, publish_files};
+pub use folder::{Claim, Existing, check_extendable, publish_files};
+pub use identity::ResultKind;
 pub use models::*;
 pub use records::BaselineEntry;
 pub use results::*;
