@@ -24,19 +24,6 @@ fn batch(fx: &Fixture, cfg: &Path, runs: &str, out: &str, extra: &[&str]) -> Out
     batch.args(extra).output()
 }
 
-/// Names in `dir` (sorted).
-fn names(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .map(|d| {
-            d.flatten()
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .collect()
-        })
-        .unwrap_or_default();
-    v.sort();
-    v
-}
-
 /// Whether a staging folder for `name` is in `dir`.
 fn staging(dir: &Path, name: &str) -> bool {
     let prefix = format!(".{name}.tmp-");

@@ -193,6 +193,18 @@ fn r49_05_score_of_a_default_export_reproduces_the_oracle() {
     }
 }
 
+/// `coid export` into `ex` of the one test run (seed 1) of a 60 s config
+/// of the fast methods and `extra`.
+fn export_one_test_run(fx: &Fixture, extra: &str) {
+    let cfg = config(
+        fx,
+        "c.toml",
+        &format!("{FAST}[eval]\ntraffic_seeds = [1]\n{extra}"),
+    );
+    let export = fx.cmd("export").quiet().config(&cfg);
+    assert_ok(&export.args(["--splits", "test"]).out("ex").output());
+}
+
 /// 6. With `gnss_heading_speed_sigma_mps`, the heading accuracy each
 ///    receiver claims is the one its error is drawn with: the level's and
 ///    the course over ground's at its speed in quadrature, per vehicle
@@ -200,17 +212,7 @@ fn r49_05_score_of_a_default_export_reproduces_the_oracle() {
 #[test]
 fn r49_06_the_claimed_heading_accuracy_is_the_one_drawn() {
     let fx = Fixture::new();
-    let cfg = config(
-        &fx,
-        "c.toml",
-        &format!("{FAST}[v2x]\ngnss_heading_speed_sigma_mps = 1.0\n[eval]\ntraffic_seeds = [1]\n"),
-    );
-    let export = fx
-        .cmd("export")
-        .quiet()
-        .config(&cfg)
-        .args(["--splits", "test"]);
-    assert_ok(&export.out("ex").output());
+    export_one_test_run(&fx, "[v2x]\ngnss_heading_speed_sigma_mps = 1.0\n");
     // Each side's speed: its own node's (the true speed).
     let nodes = read_parquet(&fx.path("ex/nodes.parquet"));
     let sender = nodes.column("sender").unwrap().bool().unwrap().clone();
@@ -250,19 +252,6 @@ fn r49_06_the_claimed_heading_accuracy_is_the_one_drawn() {
         }
     }
     assert!(checked > 0, "no instance");
-}
-
-/// The names in `dir`, sorted (nothing when it does not exist).
-fn names(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .map(|d| {
-            d.flatten()
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .collect()
-        })
-        .unwrap_or_default();
-    v.sort();
-    v
 }
 
 /// 7. SIGINT while a family is written leaves nothing behind, and the
@@ -421,17 +410,7 @@ fn r49_11_messages_in_flight_at_the_end_are_not_delivered() {
 #[test]
 fn r49_12_a_message_sides_sender_node_carries_its_box() {
     let fx = Fixture::new();
-    let cfg = config(
-        &fx,
-        "c.toml",
-        &format!("{FAST}[v2x]\nmode = \"cpm\"\n[eval]\ntraffic_seeds = [1]\n"),
-    );
-    let export = fx
-        .cmd("export")
-        .quiet()
-        .config(&cfg)
-        .args(["--splits", "test"]);
-    assert_ok(&export.out("ex").output());
+    export_one_test_run(&fx, "[v2x]\nmode = \"cpm\"\n");
     let nodes = read_parquet(&fx.path("ex/nodes.parquet"));
     let (heading, speed) = (f64s(&nodes, "heading_rad"), f64s(&nodes, "speed_mps"));
     let sender = nodes.column("sender").unwrap().bool().unwrap().clone();

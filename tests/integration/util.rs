@@ -344,3 +344,16 @@ pub fn csv_differences(got: &str, expected: &str) -> String {
     }
     out.join("\n")
 }
+
+/// The names in `dir`, sorted (nothing when it does not exist).
+pub fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
