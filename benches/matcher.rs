@@ -21,10 +21,8 @@ use coid_sim::matching::deep::arch::{Architecture, Backbone, DeepMethod, MaskSco
 use coid_sim::matching::deep::cost::{
     GraphShape, inference_macs, plain_embedding_macs, published_macs,
 };
-use coid_sim::matching::deep::dense::matmul;
-use coid_sim::matching::deep::published::PublishedMatcher;
 use coid_sim::matching::deep::train::{Example, Prepared, TrainOptions, Trainer, example};
-use coid_sim::matching::deep::{DeepMatcher, Inference};
+use coid_sim::matching::deep::{self, Inference, matmul};
 use coid_sim::matching::{Correspondence, MatchView, Method, gps_relative_pose};
 use coid_sim::sensor::{Appearance, Detection, PoseNoiseLabel, PoseNoiseLevel};
 use coid_sim::traffic::ObjectClass;
@@ -112,55 +110,66 @@ fn main() {
         pose_noise: level,
     };
 
-    // A new pair every time: both embeddings computed (no sharing).
+    // A new pair every time: both embeddings computed (an object moved
+    // by a tenth of a millimetre more in every call, so that nothing is
+    // reused from a call before).
     let run = RUN;
-    let per_pair = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run)
-        .without_shared_embeddings();
+    let matcher = deep::untrained(DeepMethod::Ours, 1, run);
     let relative = gps_relative_pose(&va, &vb);
-    // Both vehicles already embedded in this frame (another pair of theirs):
-    // only the pair part (consensus, GPS term, Sinkhorn) is computed. The
-    // two are timed in turn, so that a busy machine slows both alike.
-    let shared = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run);
-    // The same new pair with the second layer and the pair part through
-    // the tensors (as training runs them): the reference the plain path
-    // replaces.
-    let tensor = DeepMatcher::untrained(Method::Ours, Architecture::default(), 1, run)
-        .without_shared_embeddings()
-        .with_tensor_path();
+    let moved: Vec<_> = (0..60)
+        .map(|k| {
+            let mut moved = objects.to_vec();
+            moved[3].0.x += 1e-4 * (k + 1) as f64;
+            let (da, db) = (detections(&pa, &moved), detections(&pb, &moved[2..]));
+            let graph = |d: &[Detection]| {
+                SceneGraph::delaunay(&d.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap()
+            };
+            let (ga, gb) = (graph(&da), graph(&db));
+            (da, db, ga, gb)
+        })
+        .collect();
     // For a profiler: one case only, 3000 times, nothing printed.
     if let Ok(which) = std::env::var("COID_BENCH_PROFILE") {
         if which == "published" {
             published_pair(&objects, (pa, pb), level, None);
             return;
         }
-        let m = if which == "shared" {
-            &shared
-        } else {
-            &per_pair
-        };
+        // Both vehicles already embedded (another pair of theirs): only
+        // the pair part (consensus, GPS term, Sinkhorn) is computed.
         for _ in 0..3000 {
-            std::hint::black_box(m.distribution(&va, &vb, &relative));
+            std::hint::black_box(matcher.identify_with(&va, &vb, &relative));
         }
         return;
     }
-    let (mut new_times, mut shared_times, mut tensor_times) = (Vec::new(), Vec::new(), Vec::new());
-    for k in 0..60 {
-        for (m, times) in [
-            (&per_pair, &mut new_times),
-            (&shared, &mut shared_times),
-            (&tensor, &mut tensor_times),
-        ] {
-            let t = Instant::now();
-            std::hint::black_box(m.distribution(&va, &vb, &relative));
-            if k >= 10 {
-                times.push(t.elapsed().as_secs_f64() * 1e3);
-            }
+    let (mut new_times, mut shared_times) = (Vec::new(), Vec::new());
+    // The two are timed in turn, so that a busy machine slows both alike.
+    for (k, (da, db, ga, gb)) in moved.iter().enumerate() {
+        let (va_k, vb_k) = (
+            MatchView {
+                detections: da,
+                graph: ga,
+                pose_reported: pa,
+                pose_noise: level,
+            },
+            MatchView {
+                detections: db,
+                graph: gb,
+                pose_reported: pb,
+                pose_noise: level,
+            },
+        );
+        let relative_k = gps_relative_pose(&va_k, &vb_k);
+        let t = Instant::now();
+        std::hint::black_box(matcher.identify_with(&va_k, &vb_k, &relative_k));
+        let new_ms = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        std::hint::black_box(matcher.identify_with(&va, &vb, &relative));
+        let shared_ms = t.elapsed().as_secs_f64() * 1e3;
+        if k >= 10 {
+            new_times.push(new_ms);
+            shared_times.push(shared_ms);
         }
     }
-    println!(
-        "inference, T = 20, new pair, through the tensors (the reference): median {:.2} ms",
-        median(tensor_times)
-    );
     let (new_ms, shared_ms) = (median(new_times), median(shared_times));
     let peak = against_the_peak(&va, &vb, new_ms, shared_ms);
     published_pair(&objects, (pa, pb), level, Some(peak));
@@ -240,7 +249,7 @@ fn published_pair(
         ..RUN
     };
     let bytes = include_bytes!("../models/coid.bpk");
-    let matcher = PublishedMatcher::from_weights(Method::Coid, cfg, bytes, run).unwrap();
+    let matcher = deep::matcher(Method::Coid, DeepMethod::Coid, bytes, run).unwrap();
     let pairs: Vec<_> = (0..if peak.is_some() { 60 } else { 1000 })
         .map(|k| {
             let mut moved = objects.to_vec();
@@ -268,7 +277,7 @@ fn published_pair(
             pose_noise: level,
         };
         let t = Instant::now();
-        std::hint::black_box(matcher.distribution(&va, &vb));
+        std::hint::black_box(matcher.identify(&va, &vb));
         if k >= 10 {
             times.push(t.elapsed().as_secs_f64() * 1e3);
         }

@@ -453,19 +453,19 @@ fn only_io_frames_touches_polars() {
 
 #[test]
 fn only_the_deep_matcher_sees_tensors() {
+    // The models, training and the tensor reference of inference; the
+    // MC shell, the kernels and the plain inference paths see none.
     only_in(
         &["burn::", "Tensor<"],
         &[
-            "matching/deep/init.rs",
-            "matching/deep/spline.rs",
-            "matching/deep/network.rs",
-            "matching/deep/masks.rs",
-            "matching/deep/sinkhorn.rs",
-            "matching/deep/loss.rs",
-            "matching/deep/weights.rs",
-            "matching/deep/train.rs",
-            "matching/deep/matcher.rs",
-            "matching/deep/published/",
+            "matching/deep/backend.rs",
+            "matching/deep/train/",
+            "matching/deep/ours/mod.rs",
+            "matching/deep/ours/model.rs",
+            "matching/deep/ours/spline.rs",
+            "matching/deep/published/mod.rs",
+            "matching/deep/published/conv.rs",
+            "matching/deep/published/model.rs",
         ],
     );
 }

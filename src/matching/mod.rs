@@ -21,7 +21,7 @@ pub use learning_free::{Mogm, Rgm};
 
 use std::path::PathBuf;
 
-use self::deep::arch::{Backbone, DeepMethod, MaskChoice, MaskScope};
+use self::deep::arch::{DeepMethod, MaskChoice, MaskScope};
 use self::deep::decision::{Decision, KindLambdas, MatchDistribution, UncertaintyKind};
 use crate::fusion::{PoseClaim, PoseEstimate, relative_pose_prior};
 use crate::geometry::Pose2;
@@ -580,21 +580,12 @@ pub fn build(
                 dropout,
                 gate_chi2: settings.gate_chi2,
             };
-            let bad = |reason| BuildError::BadWeights {
-                method: method.as_str(),
-                reason,
-            };
-            match deep_method.backbone() {
-                Backbone::Likelihood(_) => Box::new(
-                    deep::DeepMatcher::from_weights(deep_method, bytes, run)
-                        .map_err(bad)?
-                        .labelled(method),
-                ),
-                Backbone::Published(cfg) => Box::new(
-                    deep::published::PublishedMatcher::from_weights(method, cfg, bytes, run)
-                        .map_err(bad)?,
-                ),
-            }
+            deep::matcher(method, deep_method, bytes, run).map_err(|reason| {
+                BuildError::BadWeights {
+                    method: method.as_str(),
+                    reason,
+                }
+            })?
         }
     };
     Ok(Box::new(drive::Driven::new(inner, settings.rematch)))

@@ -3,7 +3,7 @@
 
 use coid_sim::config::Settings;
 use coid_sim::matching::deep::arch::DeepMethod;
-use coid_sim::matching::deep::{DeepMatcher, Inference};
+use coid_sim::matching::deep::{self, Inference};
 use coid_sim::matching::{GpsHungarian, Matcher};
 use coid_sim::pipeline;
 
@@ -32,7 +32,7 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
         gate_chi2: settings.matching.gate_chi2,
         ..Inference::MC_DROPOUT
     };
-    let deep: Vec<DeepMatcher> = [
+    let deep: Vec<Box<dyn Matcher>> = [
         DeepMethod::Ours,
         DeepMethod::CoidNonGps,
         DeepMethod::CoidUncGps,
@@ -41,8 +41,8 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
     ]
     .iter()
     .map(|&m| {
-        let arch = m.architecture().expect("a method with the poses");
-        DeepMatcher::untrained(m.method(), arch, 7, run)
+        assert!(m.architecture().is_some(), "{m:?} sees the poses");
+        deep::untrained(m, 7, run)
     })
     .collect();
     let pairs = |m: &dyn Matcher, pair: &coid_sim::evaluate::PairAtLevel| -> Vec<(usize, usize)> {
@@ -60,10 +60,10 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
                 let expected = pairs(&hungarian, &pair);
                 for m in &deep {
                     assert_eq!(
-                        pairs(m, &pair),
+                        pairs(&**m, &pair),
                         expected,
                         "{:?} at step {}",
-                        m.method,
+                        m.method(),
                         inst.frame.step
                     );
                 }

@@ -112,7 +112,7 @@ pub fn inference_macs(
 /// The MACs of a published network (GCN-GM, or DGMC's network: DGMC and
 /// the paper's method) with `samples` MC-dropout samples on graphs of
 /// `nodes` nodes, as its plain inference path
-/// ([`super::published::PublishedMatcher`]) computes it: psi_1's first
+/// (`published::inference`) computes it: psi_1's first
 /// layer once per graph, its second per sample (under masks per node
 /// every hidden channel, under shared masks the kept ones, expected), the
 /// root's and every knot's products for every row; per consensus step
@@ -158,7 +158,7 @@ pub fn published_macs(
 }
 
 /// The expected multiply-adds of graph `g`'s embedding with the second
-/// layer in plain Rust under shared masks ([`super::shared_conv`]): the
+/// layer in plain Rust under shared masks (`ours::second_layer`): the
 /// first layer as the tensors do it, then per sample only the kept input
 /// units (a share `1 - p` of them) times the kept outputs of the root and
 /// every kernel cell, and the mixing along the edges (4 cells each).

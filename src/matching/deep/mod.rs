@@ -1,47 +1,96 @@
-//! The paper's Bayesian deep graph matcher (Section 3) and its deep
-//! baselines and ablations. Every variant scores pairs with the shared
-//! pair log-likelihood ([`crate::matching::likelihood`]) plus a gated
-//! residual it learns, so that an untrained network decides exactly as
-//! GPS+appearance Hungarian does (`ours-noprior`: as an appearance-only
-//! Hungarian).
+//! The deep matchers: the paper's Bayesian deep graph matcher (Section 3)
+//! on DGMC's network (`coid` and its ablations), GCN-GM and DGMC as
+//! published, and `ours`, the project's network that also sees the
+//! reported poses. Callers get a [`Matcher`] from [`matcher`], describe
+//! methods with [`arch`], read [`decision::MatchDistribution`]s, count
+//! arithmetic with [`cost`] and fit weights with [`train`]; tensors never
+//! leave this module, and reading and writing weight files is the
+//! caller's business (`io`).
 //!
-//! One job per file. Plain Rust: `arch` (what each deep method is, as
-//! [`arch::DeepMethod`]: architecture, loss terms), `features` (what
-//! the network sees), `decision` (E[Y], uncertainty, decision rules),
-//! `examples` (labelled training pairs), `cost` (the multiply-adds of one
-//! inference, counted from the network's shapes). Tensors (burn), and only here:
-//! `init` (seeded weights), `spline` (graphs as tensors, the SplineCNN
-//! layer), `network` (embeddings, pair scores), `masks` (dropout),
-//! `sinkhorn`, `loss`, `weights` (to and from bytes), `train` (fitting)
-//! and `matcher` ([`DeepMatcher`], inference). `shared_conv`: the second
-//! spline layer at inference under shared masks in plain Rust (the gemm
-//! crate), without the arithmetic the masks drop. `published`: GCN-GM and
-//! DGMC as published, on the paper's inputs only (no GPS pose,
-//! no heading, no likelihood prior); they share only the node attributes,
-//! the seeded initialisation, the mask draw and Sinkhorn with the rest. Callers get
-//! [`decision::MatchDistribution`]s, correspondences, and weights as
-//! bytes: reading and writing weight files is the caller's business
-//! (`io`).
+//! Inside, one MC-dropout shell ([`mc`]) runs every network: `ours` and
+//! `published` each bring a model (burn, what training differentiates and
+//! the reference the tests hold inference to) and an inference in plain
+//! Rust over the shared `kernels`. `features` is what the networks see,
+//! `backend` the one place burn's device is chosen.
 
 pub mod arch;
+mod backend;
 pub mod cost;
 pub mod decision;
-pub mod dense;
-mod examples;
-pub mod features;
-mod init;
-mod loss;
-mod masks;
-mod matcher;
-mod network;
-mod plain_pair;
-pub mod published;
-mod shared_conv;
-mod sinkhorn;
-mod spline;
-pub mod train;
-mod weights;
-
+pub(crate) mod features;
+mod kernels;
+mod mc;
+mod ours;
+mod published;
 #[cfg(test)]
-pub(crate) use self::matcher::opened_weights;
-pub use self::matcher::{DeepMatcher, Inference, PairSamples};
+mod tests;
+pub mod train;
+
+pub use self::kernels::matmul;
+pub use self::mc::Inference;
+
+use self::arch::{Backbone, DeepMethod};
+use self::mc::McMatcher;
+use self::ours::Ours;
+use self::published::{Published, PublishedNet};
+use self::train::init::Init;
+use crate::matching::{Matcher, Method};
+
+/// The matcher of `deep` with trained weights (the bytes of its `.bpk`
+/// file), answering as `method` (a single-pass variant answers as
+/// itself); an error says why the bytes do not fit the method's network.
+pub fn matcher(
+    method: Method,
+    deep: DeepMethod,
+    weights: &[u8],
+    run: Inference,
+) -> Result<Box<dyn Matcher>, String> {
+    Ok(match deep.backbone() {
+        Backbone::Likelihood(arch) => Box::new(McMatcher::new(
+            method,
+            Ours::from_weights(arch, weights, run)?,
+            run,
+        )),
+        Backbone::Published(cfg) => Box::new(McMatcher::new(
+            method,
+            Published::from_weights(cfg, weights, run)?,
+            run,
+        )),
+    })
+}
+
+/// The matcher of `deep` with freshly initialised weights (`init_seed`),
+/// as training starts from: for benchmarks and tests.
+pub fn untrained(deep: DeepMethod, init_seed: u64, run: Inference) -> Box<dyn Matcher> {
+    let method = deep.method();
+    match deep.backbone() {
+        Backbone::Likelihood(arch) => Box::new(McMatcher::new(
+            method,
+            Ours::untrained(arch, init_seed, run),
+            run,
+        )),
+        Backbone::Published(cfg) => {
+            let net = PublishedNet::new(&cfg, Init::Seeded(init_seed), &backend::device());
+            let network = Published::new(cfg, net, run).expect("a fresh network's values are f32");
+            Box::new(McMatcher::new(method, network, run))
+        }
+    }
+}
+
+/// The weights of an untrained network of `method` whose gates are open
+/// (as after the first training steps): for tests of everything the
+/// learned parts touch, without training.
+#[cfg(test)]
+pub(crate) fn opened_weights(method: DeepMethod, seed: u64) -> Vec<u8> {
+    let device = backend::device();
+    match method.backbone() {
+        Backbone::Likelihood(arch) => {
+            let net = ours::OursNet::new(&arch, Init::Seeded(seed), &device).with_gates(1.0);
+            train::weights::to_bytes(&net).expect("weights")
+        }
+        Backbone::Published(cfg) => {
+            let net = PublishedNet::new(&cfg, Init::Seeded(seed), &device);
+            published::to_bytes(&net).expect("weights")
+        }
+    }
+}

@@ -13,8 +13,10 @@ use burn::prelude::*;
 use burn::tensor::activation;
 
 use super::graph::{PaperGraph, length_basis};
+use crate::matching::deep::backend::{linear, values};
 use crate::matching::deep::features::{KERNEL, NODE_FEATURES};
-use crate::matching::deep::init::{Init, named_param};
+use crate::matching::deep::mc::TensorRead;
+use crate::matching::deep::train::init::{Init, named_param};
 
 /// Graphs as tensors, padded to a common node count `N`.
 pub struct GraphTensors {
@@ -111,18 +113,17 @@ impl SplineConv1d {
     }
 
     /// The layer as plain numbers (inference).
-    pub(super) fn plain(&self) -> super::plain::Conv1d {
-        let read2 = |t: Tensor<2>| t.try_into_vec_as::<f32>().unwrap_or_default();
-        super::plain::Conv1d::new(
-            &read2(self.root.val()),
-            &read2(self.weight.val()),
-            self.bias.val().try_into_vec_as::<f32>().unwrap_or_default(),
-        )
+    pub(crate) fn plain(&self) -> Result<super::inference::Conv1d, TensorRead> {
+        Ok(super::inference::Conv1d::new(
+            &values(self.root.val())?,
+            &values(self.weight.val())?,
+            values(self.bias.val())?,
+        ))
     }
 
     /// The knots' weight matrices, `[in, KERNEL * out]`.
     #[cfg(test)]
-    pub(super) fn weights(&self) -> [Tensor<2>; 2] {
+    pub(crate) fn weights(&self) -> [Tensor<2>; 2] {
         [self.weight.val(), self.root.val()]
     }
 }
@@ -157,12 +158,12 @@ impl SplineCnn {
     }
 
     /// The stack as plain numbers (inference).
-    pub(super) fn plain(&self) -> super::plain::PlainCnn {
-        super::plain::PlainCnn {
-            conv1: self.conv1.plain(),
-            conv2: self.conv2.plain(),
-            last: crate::matching::deep::network::plain_linear(&self.last),
-        }
+    pub(crate) fn plain(&self) -> Result<super::inference::PlainCnn, TensorRead> {
+        Ok(super::inference::PlainCnn {
+            conv1: self.conv1.plain()?,
+            conv2: self.conv2.plain()?,
+            last: linear(&self.last)?,
+        })
     }
 
     /// `x: [B, T0, N, in] -> [B, T, N, out]`. `mask`: an inverted-dropout
@@ -197,7 +198,7 @@ mod tests {
     /// bias`, padding included (a second, larger graph in the batch).
     #[test]
     fn spline_conv_1d_equals_the_per_edge_sum() {
-        let device = Device::flex();
+        let device = crate::matching::deep::backend::device();
         let pts = [
             (0.0, 0.0),
             (12.0, 3.0),

@@ -21,8 +21,7 @@
 //! with every detection added or dropped, so the scale is fixed here and
 //! longer edges are clipped onto the last knot).
 
-use crate::geometry::Vec2;
-use crate::graph::{GraphError, SceneGraph};
+use crate::graph::SceneGraph;
 use crate::matching::deep::features::{KERNEL, NODE_FEATURES, node_features};
 use crate::sensor::Detection;
 
@@ -49,8 +48,10 @@ impl PaperGraph {
     }
 
     /// The Delaunay graph of `detections` (body frame).
-    pub fn delaunay(detections: &[Detection]) -> Result<Self, GraphError> {
-        let positions: Vec<Vec2> = detections.iter().map(|d| d.position_m).collect();
+    #[cfg(test)]
+    pub fn delaunay(detections: &[Detection]) -> Result<Self, crate::graph::GraphError> {
+        let positions: Vec<crate::geometry::Vec2> =
+            detections.iter().map(|d| d.position_m).collect();
         Ok(Self::new(detections, &SceneGraph::delaunay(&positions)?))
     }
 

@@ -2,11 +2,10 @@
 //! code after the papers and the structure of DGMC's public code, on the
 //! paper's inputs only: each vehicle's detections in its own body frame,
 //! appearance attributes, Delaunay graphs with edge lengths. No GPS pose, no
-//! heading, no likelihood prior: nothing here shares the project's own
-//! network (`network.rs`).
+//! heading, no likelihood prior: nothing here shares `ours`'s network.
 //!
 //! - `graph`: [`PaperGraph`] (plain Rust) and the 1-D B-spline basis over
-//!   edge length ([`length_basis`]).
+//!   edge length.
 //! - `conv`: the graphs as tensors, `SplineConv` over edge length, DGMC's
 //!   `SplineCNN` stack.
 //! - `model`: [`PublishedNet`]. GCN-GM: psi_1 (two SplineConvs, 256 and
@@ -17,10 +16,11 @@
 //!   both graphs (two SplineConvs of `rnd_dim`, input and outputs
 //!   concatenated, a final linear layer, as DGMC's psi_2), `S_hat +=
 //!   MLP(o_s,i - o_t,j)`, renormalised.
-//! - `train`: [`PublishedTrainer`] (Adam, NLL of the true correspondences
-//!   on `S_0` and `S_L`; the paper's method adds its Eq. 12 and 13).
-//! - `matcher`: [`PublishedMatcher`], a trained network as a `Matcher`
-//!   with MC-dropout inference.
+//! - `inference`: the same network in plain Rust, for every mask scope.
+//! - `network`: [`Published`], the network as the MC shell runs it.
+//! - Training (Adam, NLL of the true correspondences on `S_0` and `S_L`;
+//!   the paper's method adds its Eq. 12 and 13) is
+//!   `crate::matching::deep::train::published`.
 //!
 //! The paper's method and its ablations (`coid`, `coid+non`, `coid+unc`)
 //! are DGMC's network trained with the paper's losses: the paper builds
@@ -39,38 +39,37 @@
 
 mod conv;
 mod graph;
-mod matcher;
+mod inference;
 mod model;
-mod plain;
-mod train;
+mod network;
 
 #[cfg(test)]
 mod tests;
 
-pub use self::conv::GraphTensors;
-pub use self::graph::{PaperGraph, length_basis};
-pub use self::matcher::PublishedMatcher;
-pub use self::model::{
-    Assignments, Dropout, PublishedConfig, PublishedKind, PublishedMasks, PublishedNet, Sampling,
-    draw_indicators, draw_masks, draw_psi1_masks, sample_assignments,
-};
-pub use self::train::{PublishedTrainer, TrainPair};
+pub(crate) use self::conv::GraphTensors;
+pub(crate) use self::graph::PaperGraph;
+pub(crate) use self::model::{PublishedNet, draw_training_masks};
+pub(crate) use self::network::Published;
 
 use burn::prelude::*;
 
-use crate::matching::deep::init::Init;
+use crate::matching::deep::arch::PublishedConfig;
+use crate::matching::deep::train::init::Init;
 
 /// The network's weights as bytes (burn's burnpack format).
-pub fn to_bytes(net: &PublishedNet) -> Result<Vec<u8>, String> {
-    super::weights::module_bytes(net)
+pub(crate) fn to_bytes(net: &PublishedNet) -> Result<Vec<u8>, String> {
+    crate::matching::deep::train::weights::module_bytes(net)
 }
 
 /// A network of `cfg` on `device` with the weights of [`to_bytes`];
 /// weights that do not fit or are not finite are refused.
-pub fn from_bytes(
+pub(crate) fn from_bytes(
     cfg: &PublishedConfig,
     bytes: &[u8],
     device: &Device,
 ) -> Result<PublishedNet, String> {
-    super::weights::load_module(PublishedNet::new(cfg, Init::Zeros, device), bytes)
+    crate::matching::deep::train::weights::load_module(
+        PublishedNet::new(cfg, Init::Zeros, device),
+        bytes,
+    )
 }

@@ -12,13 +12,14 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
 use super::conv::{GraphTensors, SplineCnn};
-use super::graph::PaperGraph;
 use crate::matching::deep::arch::MaskScope;
-pub use crate::matching::deep::arch::{PublishedConfig, PublishedKind};
+use crate::matching::deep::arch::{PublishedConfig, PublishedKind};
+use crate::matching::deep::backend::linear;
 use crate::matching::deep::features::NODE_FEATURES;
-use crate::matching::deep::init::{Init, named_param};
-use crate::matching::deep::masks::dropout_mask_16;
-use crate::matching::deep::sinkhorn::{BLOCKED, log_sinkhorn};
+use crate::matching::deep::mc::TensorRead;
+use crate::matching::deep::mc::draws::dropout_mask_16;
+use crate::matching::deep::train::init::{Init, named_param};
+use crate::matching::deep::train::sinkhorn::{BLOCKED, log_sinkhorn};
 
 /// The dustbin score before training.
 const INITIAL_DUSTBIN: f32 = 1.0;
@@ -88,19 +89,18 @@ impl PublishedNet {
     }
 
     /// The parameters as plain numbers (inference).
-    pub(super) fn plain(&self) -> super::plain::PlainWeights {
-        use crate::matching::deep::network::plain_linear;
+    pub(crate) fn plain(&self) -> Result<super::inference::PlainWeights, TensorRead> {
         let consensus = match (&self.psi2, &self.mlp_in, &self.mlp_out) {
             (Some(psi2), Some(mlp_in), Some(mlp_out)) => {
-                Some((psi2.plain(), plain_linear(mlp_in), plain_linear(mlp_out)))
+                Some((psi2.plain()?, linear(mlp_in)?, linear(mlp_out)?))
             }
             _ => None,
         };
-        super::plain::PlainWeights {
-            psi1: self.psi1.plain(),
+        Ok(super::inference::PlainWeights {
+            psi1: self.psi1.plain()?,
             consensus,
             dustbin: self.dustbin.val().into_scalar::<f32>(),
-        }
+        })
     }
 
     /// Log assignments of `B` pairs (`graphs[0]` the first graphs,
@@ -278,43 +278,4 @@ pub fn draw_training_masks(
             PublishedMasks { psi1, indicators }
         }
     }
-}
-
-/// How many samples to draw, and whether with MC dropout.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Sampling {
-    pub samples: usize,
-    pub mc_dropout: bool,
-}
-
-/// The soft assignment of `first` to `second`, one per sample: each a
-/// row-major `(n1 + 1) x (n2 + 1)` matrix of probabilities whose last row
-/// and column are the dustbins, as
-/// [`crate::matching::deep::decision::MatchDistribution::from_samples`]
-/// takes them. Masks and indicators come from `rng`; the network should be
-/// on a device without autodiff (`net.valid()`).
-pub fn sample_assignments(
-    net: &PublishedNet,
-    cfg: &PublishedConfig,
-    [first, second]: [&PaperGraph; 2],
-    sampling: Sampling,
-    rng: &mut ChaCha8Rng,
-) -> Vec<Vec<f32>> {
-    let (n1, n2, t) = (first.n, second.n, sampling.samples);
-    if n1 == 0 || n2 == 0 {
-        // Everything in the dustbins.
-        let mut s = vec![0f32; (n1 + 1) * (n2 + 1)];
-        (0..n1).for_each(|i| s[i * (n2 + 1) + n2] = 1.0);
-        (0..n2).for_each(|j| s[n1 * (n2 + 1) + j] = 1.0);
-        return vec![s; t];
-    }
-    let device = net.dustbin.val().device();
-    let g1 = GraphTensors::new(&[first], cfg.edge_scale_m, &device);
-    let g2 = GraphTensors::new(&[second], cfg.edge_scale_m, &device);
-    let masks = draw_masks(rng, cfg, [1, t, n1, n2], sampling.mc_dropout, &device);
-    let p = net.forward(cfg, [&g1, &g2], masks).last().exp();
-    let v: Vec<f32> = p.try_into_vec_as::<f32>().expect("f32 assignments");
-    v.chunks_exact((n1 + 1) * (n2 + 1))
-        .map(<[f32]>::to_vec)
-        .collect()
 }

@@ -2,19 +2,25 @@
 //! moved copies of themselves (held out from training), and a mirrored
 //! chain that psi_1 alone cannot resolve but consensus can.
 
-use burn::prelude::*;
 use rand::Rng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::PI;
 
-use super::conv::GraphTensors;
+use super::model::draw_masks;
 use super::*;
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::SceneGraph;
+use crate::matching::deep::arch::{Backbone, DeepMethod, MaskScope};
+use crate::matching::deep::arch::{PublishedConfig, PublishedKind};
+use crate::matching::deep::cost::published_macs;
 use crate::matching::deep::decision::MatchDistribution;
-use crate::matching::deep::init::Init;
+use crate::matching::deep::mc::{Inference, McMatcher};
+use crate::matching::deep::train::init::Init;
+use crate::matching::deep::train::published::{PublishedTrainer, TrainPair};
 use crate::matching::testkit::detection;
+use crate::matching::testkit::{self, GPS, Side};
+use crate::matching::{Matcher, Method};
 use crate::rng::{self, Purpose};
 use crate::sensor::Detection;
 use crate::traffic::ObjectClass;
@@ -117,7 +123,11 @@ fn assignments_are_per_sample_doubly_stochastic_with_dustbins() {
     let p = random_pair(&mut rng, 2);
     let (n1, n2) = (p.first.n, p.second.n);
     for cfg in [PublishedConfig::new(PublishedKind::GcnGm), dgmc()] {
-        let net = PublishedNet::new(&cfg, Init::Seeded(1), &Device::flex());
+        let net = PublishedNet::new(
+            &cfg,
+            Init::Seeded(1),
+            &crate::matching::deep::backend::device(),
+        );
         let draw = |mc_dropout: bool| {
             let sampling = Sampling {
                 samples: 3,
@@ -146,9 +156,18 @@ fn assignments_are_per_sample_doubly_stochastic_with_dustbins() {
         }
         assert_ne!(s[0], s[1], "MC dropout samples differ");
         assert_eq!(s, draw(true), "same stream, same samples");
-        let again = PublishedNet::new(&cfg, Init::Seeded(1), &Device::flex());
+        let again = PublishedNet::new(
+            &cfg,
+            Init::Seeded(1),
+            &crate::matching::deep::backend::device(),
+        );
         assert_eq!(to_bytes(&net).unwrap(), to_bytes(&again).unwrap());
-        let loaded = from_bytes(&cfg, &to_bytes(&net).unwrap(), &Device::flex()).unwrap();
+        let loaded = from_bytes(
+            &cfg,
+            &to_bytes(&net).unwrap(),
+            &crate::matching::deep::backend::device(),
+        )
+        .unwrap();
         let sampling = Sampling {
             samples: 2,
             mc_dropout: true,
@@ -335,7 +354,7 @@ fn dgmc_matches_rigidly_moved_copies() {
 
 /// `S_0` of one pair, one sample without dropout, `(n1 + 1) x (n2 + 1)`.
 fn initial_assignment(net: &PublishedNet, cfg: &PublishedConfig, p: &TrainPair) -> Vec<f32> {
-    let device = Device::flex();
+    let device = crate::matching::deep::backend::device();
     let g1 = GraphTensors::new(&[&p.first], cfg.edge_scale_m, &device);
     let g2 = GraphTensors::new(&[&p.second], cfg.edge_scale_m, &device);
     let shape = [1, 1, p.first.n, p.second.n];
@@ -398,4 +417,85 @@ fn dgmc_consensus_resolves_what_gcn_gm_cannot() {
     }
     let (acc, wrong) = accuracy(&d, &p);
     assert_eq!((acc, wrong), (1.0, 0), "DGMC on the whole chain");
+}
+
+/// How many samples to draw, and whether with MC dropout.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Sampling {
+    samples: usize,
+    mc_dropout: bool,
+}
+
+/// The soft assignment of `first` to `second`, one per sample: each a
+/// row-major `(n1 + 1) x (n2 + 1)` matrix of probabilities whose last row
+/// and column are the dustbins, as
+/// [`crate::matching::deep::decision::MatchDistribution::from_samples`]
+/// takes them. Masks and indicators come from `rng`; the network should be
+/// on a device without autodiff (`net.valid()`).
+fn sample_assignments(
+    net: &PublishedNet,
+    cfg: &PublishedConfig,
+    [first, second]: [&PaperGraph; 2],
+    sampling: Sampling,
+    rng: &mut ChaCha8Rng,
+) -> Vec<Vec<f32>> {
+    let (n1, n2, t) = (first.n, second.n, sampling.samples);
+    if n1 == 0 || n2 == 0 {
+        // Everything in the dustbins.
+        let mut s = vec![0f32; (n1 + 1) * (n2 + 1)];
+        (0..n1).for_each(|i| s[i * (n2 + 1) + n2] = 1.0);
+        (0..n2).for_each(|j| s[n1 * (n2 + 1) + j] = 1.0);
+        return vec![s; t];
+    }
+    let device = crate::matching::deep::backend::device();
+    let g1 = GraphTensors::new(&[first], cfg.edge_scale_m, &device);
+    let g2 = GraphTensors::new(&[second], cfg.edge_scale_m, &device);
+    let masks = draw_masks(rng, cfg, [1, t, n1, n2], sampling.mc_dropout, &device);
+    let p = net.forward(cfg, [&g1, &g2], masks).last().exp();
+    let v: Vec<f32> = p.try_into_vec_as::<f32>().expect("f32 assignments");
+    v.chunks_exact((n1 + 1) * (n2 + 1))
+        .map(<[f32]>::to_vec)
+        .collect()
+}
+
+/// A matcher counts what its network multiplies: a new pair as
+/// `published_macs` counts it (masks per node: both embeddings and
+/// the pair part), the same pair at another pose-noise level (kept)
+/// nothing more; under shared masks a graph already embedded only
+/// the pair part.
+#[test]
+fn a_matcher_counts_what_its_network_multiplies() {
+    let Backbone::Published(cfg) = DeepMethod::Dgmc.backbone() else {
+        panic!("DGMC is a published network");
+    };
+    let bytes = include_bytes!("../../../../models/dgmc.bpk");
+    let objects = testkit::world_objects();
+    let side = |at, order: &[usize]| Side::of(at, &objects, order, GPS);
+    let (a, b) = (
+        side(testkit::POSE_A, &[0, 1, 2, 3, 4, 5]),
+        side(testkit::POSE_B, &[5, 4, 3, 2, 1]),
+    );
+    let c = side(testkit::POSE_B, &[0, 2, 4, 6]);
+    let (va, vb, vc) = (a.view(), b.view(), c.view());
+    for masks in [MaskScope::PerNode, MaskScope::Shared] {
+        let run = Inference {
+            masks,
+            ..Inference::MC_DROPOUT
+        };
+        let network = Published::from_weights(cfg, bytes, run).unwrap();
+        let m = McMatcher::new(Method::Dgmc, network, run);
+        assert_eq!(m.network_macs(), 0);
+        m.identify(&va, &vb);
+        let ab = published_macs(&cfg, [6, 5], 20, masks == MaskScope::PerNode);
+        assert_eq!(m.network_macs(), ab.new_pair(), "{masks:?}");
+        m.identify(&va, &vb);
+        assert_eq!(m.network_macs(), ab.new_pair(), "{masks:?}: kept");
+        m.identify(&va, &vc);
+        let ac = published_macs(&cfg, [6, 4], 20, masks == MaskScope::PerNode);
+        let more = match masks {
+            MaskScope::PerNode => ac.new_pair(),
+            MaskScope::Shared => ac.shared_pair() + ac.embeddings[1],
+        };
+        assert_eq!(m.network_macs(), ab.new_pair() + more, "{masks:?}");
+    }
 }

@@ -12,19 +12,27 @@ use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
+pub(crate) mod examples;
+pub(crate) mod init;
+mod loss;
+pub(crate) mod masks;
+pub(crate) mod published;
+pub(crate) mod sinkhorn;
+pub(crate) mod weights;
+
+use self::init::Init;
+use self::loss::{LabelTensors, loss};
+use self::masks::{Masks, draw_masks};
+use self::published::{PublishedTrainer, TrainPair};
+use self::weights::to_bytes;
 use super::arch::{Architecture, Backbone, LossTerms, MaskScope, PairLoss};
+use super::backend::device;
 use super::features::{GraphInput, PairInput};
-use super::init::Init;
-use super::loss::{LabelTensors, loss};
-use super::masks::{Masks, draw_masks};
-use super::network::{Network, PairTensors};
-use super::published::{PublishedTrainer, TrainPair};
-use super::spline::GraphBatch;
-use super::weights::to_bytes;
+use super::ours::{GraphBatch, OursNet, PairTensors};
 use crate::matching::{Method, MethodKind};
 use crate::rng::{self, Purpose};
 
-pub use super::examples::{EdgeStats, Example, OwnedView, Prepared, example};
+pub use self::examples::{EdgeStats, Example, OwnedView, Prepared, example};
 
 /// `[train]`: which runs make the training set and how to fit.
 #[derive(Clone, Debug, PartialEq)]
@@ -215,7 +223,7 @@ pub struct Trainer {
     arch: Architecture,
     terms: LossTerms,
     device: Device,
-    net: Network,
+    net: OursNet,
     optim: ModuleOptimizer,
     /// Shuffling and dropout masks: `(seed, Training, hash(method label))`.
     stream: ChaCha8Rng,
@@ -236,11 +244,11 @@ impl Trainer {
         };
         let mut terms = deep.loss_terms();
         terms.pairs = opts.loss;
-        let device = Device::flex().autodiff();
+        let device = device().autodiff();
         Ok(Self {
             arch,
             terms,
-            net: Network::new(&arch, Init::Seeded(opts.seed), &device),
+            net: OursNet::new(&arch, Init::Seeded(opts.seed), &device),
             device,
             optim: AdamConfig::new().init(),
             stream: rng::stream(
@@ -270,7 +278,7 @@ impl Trainer {
     /// masks from `stream`, on the network `net` and `device`.
     fn loss(
         &self,
-        net: &Network,
+        net: &OursNet,
         device: &Device,
         batch: &[&Prepared],
         samples: usize,
@@ -310,7 +318,7 @@ impl Trainer {
             &[rng::hash_str("validation")],
         );
         let net = self.net.valid();
-        let device = Device::flex();
+        let device = device();
         let sizes: Vec<usize> = prepared.iter().map(padded_size).collect();
         let mut sum = 0.0;
         for batch in batches(&sizes, self.opts.batch_size, None) {

@@ -24,12 +24,14 @@ use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::activation;
 
-use super::arch::Architecture;
-use super::features::{DUST_FEATURES, PAIR_FEATURES, PairInput};
-use super::init::{Init, named_param};
-use super::masks::{Masks, PairMasks};
-use super::sinkhorn::{BLOCKED, log_sinkhorn};
 use super::spline::{CellWeights, GraphBatch, SplineConv};
+use crate::matching::deep::arch::Architecture;
+use crate::matching::deep::backend::values;
+use crate::matching::deep::features::{DUST_FEATURES, PAIR_FEATURES, PairInput};
+use crate::matching::deep::mc::TensorRead;
+use crate::matching::deep::train::init::{Init, named_param};
+use crate::matching::deep::train::masks::{Masks, PairMasks};
+use crate::matching::deep::train::sinkhorn::{BLOCKED, log_sinkhorn};
 
 /// The pair inputs of a batch as tensors (see [`super::features::PairInput`]).
 pub struct PairTensors {
@@ -80,20 +82,6 @@ impl PairTensors {
     }
 }
 
-/// A linear layer's parameters as plain numbers (inference).
-pub(super) fn plain_linear(l: &Linear) -> super::plain_pair::PlainLinear {
-    let [d_in, d_out] = l.weight.val().dims();
-    super::plain_pair::PlainLinear {
-        d_in,
-        d_out,
-        weight: l.weight.val().try_into_vec_as::<f32>().unwrap_or_default(),
-        bias: l.bias.as_ref().map_or_else(
-            || vec![0.0; d_out],
-            |b| b.val().try_into_vec_as::<f32>().unwrap_or_default(),
-        ),
-    }
-}
-
 /// What the pair part of the network says, before its gates: the
 /// residual of every pair in every sample, `[B, T, N1, N2]`, and the
 /// learned "no match" score of every node, `[B, 1, N1]` and `[B, 1, N2]`.
@@ -116,7 +104,7 @@ pub struct Combination {
 }
 
 #[derive(Module, Debug)]
-pub struct Network {
+pub struct OursNet {
     conv1: SplineConv,
     conv2: SplineConv,
     consensus_conv: Option<SplineConv>,
@@ -142,7 +130,7 @@ pub struct Network {
 /// distance of 6 at identical looks).
 const INITIAL_DUSTBIN: f32 = -3.0;
 
-impl Network {
+impl OursNet {
     pub fn new(arch: &Architecture, init: Init, device: &Device) -> Self {
         let r = arch.consensus_dim;
         let (consensus_conv, phi_in, phi_out) = if arch.consensus {
@@ -220,34 +208,37 @@ impl Network {
 
     /// The first layer's output `relu(conv1(x))` of a single graph, `[n,
     /// hidden]` row-major: the same for every sample.
-    pub fn first_layer(&self, g: &GraphBatch) -> Vec<f32> {
+    pub fn first_layer(&self, g: &GraphBatch) -> Result<Vec<f32>, TensorRead> {
         let w = g.weights.as_deref();
-        let h = activation::relu(self.conv1.forward(g.x.clone(), g, w.map(|w| &w.conv1)));
-        h.try_into_vec_as::<f32>().unwrap_or_default()
+        values(activation::relu(self.conv1.forward(
+            g.x.clone(),
+            g,
+            w.map(|w| &w.conv1),
+        )))
     }
 
     /// The second layer's parameters as plain numbers.
-    pub fn second_layer(&self) -> super::shared_conv::PlainSpline {
+    pub fn second_layer(&self) -> Result<super::second_layer::PlainSpline, TensorRead> {
         self.conv2.plain()
     }
 
     /// The pair part's parameters as plain numbers (inference).
-    pub fn pair_weights(&self) -> super::plain_pair::PairWeights {
-        let linear = plain_linear;
+    pub fn pair_weights(&self) -> Result<super::pair::PairWeights, TensorRead> {
+        let linear = crate::matching::deep::backend::linear;
         let consensus = match (&self.consensus_conv, &self.phi_in, &self.phi_out) {
             (Some(conv), Some(phi_in), Some(phi_out)) => {
-                Some((conv.plain(), linear(phi_in), linear(phi_out)))
+                Some((conv.plain()?, linear(phi_in)?, linear(phi_out)?))
             }
             _ => None,
         };
-        super::plain_pair::PairWeights {
-            pair_in: linear(&self.pair_in),
-            pair_out: linear(&self.pair_out),
-            dust_in: linear(&self.dust_in),
-            dust_out: linear(&self.dust_out),
+        Ok(super::pair::PairWeights {
+            pair_in: linear(&self.pair_in)?,
+            pair_out: linear(&self.pair_out)?,
+            dust_in: linear(&self.dust_in)?,
+            dust_out: linear(&self.dust_out)?,
             consensus,
             combination: self.combination(),
-        }
+        })
     }
 
     /// Every spline layer's weights of the kernel cells of `g`, for
@@ -366,7 +357,7 @@ impl Network {
 mod tests {
     use super::*;
     use crate::matching::deep::features::GraphInput;
-    use crate::matching::deep::weights::to_bytes;
+    use crate::matching::deep::train::weights::to_bytes;
     use crate::matching::testkit::graph_input;
     use rand::{Rng, SeedableRng};
     use std::sync::Arc;
@@ -412,13 +403,13 @@ mod tests {
     /// log assignment as it is alone, and the padding carries no mass.
     #[test]
     fn a_padded_batch_equals_its_pairs_alone() {
-        let device = Device::flex();
+        let device = crate::matching::deep::backend::device();
         let arch = Architecture {
             dropout_conv: 0.0,
             dropout_phi: 0.0,
             ..Architecture::default()
         };
-        let mut net = Network::new(&arch, Init::Seeded(2), &device);
+        let mut net = OursNet::new(&arch, Init::Seeded(2), &device);
         // Open the gates so that the residual and the learned "no match"
         // scores count.
         net.gate = named_param(
@@ -498,12 +489,12 @@ mod tests {
     /// their own; weights kept for another cell set are ignored.
     #[test]
     fn kept_cell_weights_change_nothing_and_foreign_ones_are_ignored() {
-        let device = Device::flex();
+        let device = crate::matching::deep::backend::device();
         let graph = |points: &[(f64, f64)]| GraphBatch::used_cells(&graph_input(points), &device);
         let near = [(0.0, 0.0), (12.0, 3.0), (5.0, 20.0), (-9.0, 14.0)];
         let far = [(0.0, 0.0), (45.0, -30.0), (-40.0, 44.0), (10.0, 60.0)];
         let arch = Architecture::default();
-        let net = Network::new(&arch, Init::Seeded(5), &device);
+        let net = OursNet::new(&arch, Init::Seeded(5), &device);
         let (a, b) = (graph(&near), graph(&far));
         assert_ne!(a.cell_mask, b.cell_mask);
         let (kept_a, kept_b) = (
@@ -524,9 +515,9 @@ mod tests {
 
     #[test]
     fn seeded_initialisation_is_named_per_parameter() {
-        let device = Device::flex();
+        let device = crate::matching::deep::backend::device();
         let arch = Architecture::default();
-        let bytes = |init| to_bytes(&Network::new(&arch, init, &device)).unwrap();
+        let bytes = |init| to_bytes(&OursNet::new(&arch, init, &device)).unwrap();
         // Same seed, same weights (and the same bytes: parameter ids are
         // named too); another seed, other weights.
         assert_eq!(bytes(Init::Seeded(4)), bytes(Init::Seeded(4)));
@@ -538,12 +529,12 @@ mod tests {
                 consensus,
                 ..Architecture::default()
             };
-            let net = Network::new(&a, Init::Seeded(4), &device);
+            let net = OursNet::new(&a, Init::Seeded(4), &device);
             net.conv1.weight().try_into_vec_as::<f32>().unwrap()
         };
         assert_eq!(first_layer(true), first_layer(false));
         // The gates start closed and the scale at 1.
-        let c = Network::new(&arch, Init::Seeded(4), &device).combination();
+        let c = OursNet::new(&arch, Init::Seeded(4), &device).combination();
         assert_eq!((c.scale, c.gate, c.dust_gate), (1.0, 0.0, 0.0));
     }
 }

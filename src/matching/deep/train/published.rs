@@ -9,16 +9,15 @@
 
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::prelude::*;
-use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
-use super::conv::GraphTensors;
-use super::graph::PaperGraph;
-use super::model::{PublishedConfig, PublishedNet, draw_training_masks};
-use crate::matching::deep::arch::{LossTerms, MaskScope};
-use crate::matching::deep::examples::Example;
-use crate::matching::deep::init::Init;
-use crate::matching::deep::loss::{non_term, unc_term};
+use super::examples::Example;
+use super::init::Init;
+use super::loss::{non_term, unc_term};
+use crate::matching::deep::arch::{LossTerms, MaskScope, PublishedConfig};
+use crate::matching::deep::published::{
+    GraphTensors, PaperGraph, PublishedNet, draw_training_masks, to_bytes,
+};
 use crate::rng::{self, Purpose};
 
 /// A labelled training pair: two graphs and the true partner in `second`
@@ -138,6 +137,7 @@ pub struct PublishedTrainer {
 impl PublishedTrainer {
     /// A fresh network (initial weights from `seed`) trained on the NLL
     /// alone, one dropout sample per pair (as published).
+    #[cfg(test)]
     pub fn new(cfg: PublishedConfig, seed: u64) -> Self {
         let terms = LossTerms {
             pairs: crate::matching::deep::arch::PairLoss::Likelihood,
@@ -158,7 +158,7 @@ impl PublishedTrainer {
         seed: u64,
         name: &str,
     ) -> Self {
-        let device = Device::flex().autodiff();
+        let device = crate::matching::deep::backend::device().autodiff();
         let kind = format!("{:?}{name}", cfg.kind);
         Self {
             net: PublishedNet::new(&cfg, Init::Seeded(seed), &device),
@@ -237,6 +237,7 @@ impl PublishedTrainer {
 
     /// `epochs` passes over `pairs` in shuffled batches of `batch_size` at
     /// learning rate `lr`; each epoch's mean loss.
+    #[cfg(test)]
     pub fn fit(
         &mut self,
         pairs: &[TrainPair],
@@ -244,6 +245,7 @@ impl PublishedTrainer {
         batch_size: usize,
         lr: f64,
     ) -> Result<Vec<f32>, String> {
+        use rand::seq::SliceRandom;
         let mut losses = Vec::with_capacity(epochs);
         let mut order: Vec<usize> = (0..pairs.len()).collect();
         for _ in 0..epochs {
@@ -270,7 +272,7 @@ impl PublishedTrainer {
     pub fn validation_loss(&self, pairs: &[TrainPair], seed: u64, batch_size: usize) -> f64 {
         let mut stream = rng::stream(seed, Purpose::Training, &[rng::hash_str("validation")]);
         let net = self.net.valid();
-        let device = Device::flex();
+        let device = crate::matching::deep::backend::device();
         let sizes: Vec<usize> = pairs.iter().map(TrainPair::padded_size).collect();
         let mut sum = 0.0;
         for batch in crate::matching::deep::train::batches(&sizes, batch_size, None) {
@@ -283,10 +285,11 @@ impl PublishedTrainer {
 
     /// The weights as bytes (what a `.bpk` file holds).
     pub fn weights(&self) -> Result<Vec<u8>, String> {
-        super::to_bytes(&self.net)
+        to_bytes(&self.net)
     }
 
     /// The trained network for inference (no autodiff).
+    #[cfg(test)]
     pub fn network(&self) -> PublishedNet {
         self.net.valid()
     }
@@ -301,7 +304,7 @@ mod tests {
     /// to 1.
     #[test]
     fn labels_cover_true_pairs_and_both_dustbins() {
-        let device = Device::flex();
+        let device = crate::matching::deep::backend::device();
         let graph = |n: usize| PaperGraph {
             n,
             node_features: vec![0.0; n * crate::matching::deep::features::NODE_FEATURES],

@@ -9,7 +9,7 @@
 //! - psi_1's second layer multiplies only the hidden channels a sample
 //!   keeps (the mask's value folded into the kept rows of its weights,
 //!   gathered once per matcher), and a graph's embedding does not depend
-//!   on its partner, so [`super::PublishedMatcher`] keeps it for the
+//!   on its partner, so the MC shell keeps it for the
 //!   graph's other pairs;
 //! - every normalisation is Sinkhorn in the scaling domain, in f64
 //!   ([`sinkhorn_probabilities`]: one `exp` per entry instead of two per
@@ -24,16 +24,18 @@
 //! - neighbours are mixed along the edges, not through a dense matrix.
 
 use super::graph::{PaperGraph, length_basis};
-use crate::matching::deep::dense::matmul;
 use crate::matching::deep::features::KERNEL;
-use crate::matching::deep::plain_pair::{PlainLinear, add_pair_terms, relu, similarity, transport};
-use crate::matching::deep::sinkhorn::sinkhorn_probabilities;
+use crate::matching::deep::kernels::lanes::{
+    PlainLinear, add_pair_terms, relu, similarity, transport,
+};
+use crate::matching::deep::kernels::matmul;
+use crate::matching::deep::kernels::sinkhorn::sinkhorn_probabilities;
 
 /// A graph's edges grouped by destination node, each group in edge
 /// order: the source and its two knots' basis weights over the
 /// destination's in-degree, as the tensor path's mixing matrix weighs
 /// them.
-pub(super) struct Incoming {
+pub(crate) struct Incoming {
     n: usize,
     /// Destination `i`'s edges are `from[start[i]..start[i + 1]]`.
     start: Vec<usize>,
@@ -73,7 +75,7 @@ fn sized(buf: &mut Vec<f32>, len: usize) -> &mut [f32] {
 
 /// Buffers a network's products reuse from one call to the next.
 #[derive(Default)]
-pub(super) struct Buffers {
+pub(crate) struct Buffers {
     y: Vec<f32>,
     h1: Vec<f32>,
     h2: Vec<f32>,
@@ -104,7 +106,7 @@ thread_local! {
 
 /// A 1-D spline convolution as plain numbers: the root's and each knot's
 /// weights side by side, `[in, (1 + KERNEL) out]`, and the bias.
-pub(super) struct Conv1d {
+pub(crate) struct Conv1d {
     d_in: usize,
     d_out: usize,
     joined: Vec<f32>,
@@ -114,7 +116,7 @@ pub(super) struct Conv1d {
 impl Conv1d {
     /// From the layer's `root` `[in, out]`, `weight` `[in, KERNEL out]`
     /// and `bias` `[out]`.
-    pub(super) fn new(root: &[f32], weight: &[f32], bias: Vec<f32>) -> Self {
+    pub(crate) fn new(root: &[f32], weight: &[f32], bias: Vec<f32>) -> Self {
         let d_out = bias.len();
         let d_in = root.len() / d_out.max(1);
         let mut joined = Vec::with_capacity(d_in * (1 + KERNEL) * d_out);
@@ -254,7 +256,7 @@ fn linear_rows(l: &PlainLinear, x: &[f32], rows: usize, out: &mut Vec<f32>) {
 /// DGMC's `SplineCNN` as plain numbers: two spline convolutions, then a
 /// linear layer (psi_1: on the second's output; psi_2: on the input and
 /// both outputs side by side).
-pub(super) struct PlainCnn {
+pub(crate) struct PlainCnn {
     pub conv1: Conv1d,
     pub conv2: Conv1d,
     pub last: PlainLinear,
@@ -291,7 +293,7 @@ fn fold(a: &[f32], rows: usize, b: &PlainLinear) -> Vec<f32> {
 ///   J)`, the source's product carried over: `n1` multiply-adds per value
 ///   instead of `rnd`, taken when the source graph has at most `rnd`
 ///   nodes.
-pub(super) struct PlainConsensus {
+pub(crate) struct PlainConsensus {
     /// `[rnd, width]`: per input unit psi_2's first root and knot weights,
     /// then its row of `W_x W_in`.
     first: Vec<f32>,
@@ -315,7 +317,7 @@ impl PlainConsensus {
     /// # Panics
     /// When the layers' widths do not chain (a network built wrong, not
     /// a weights file: those are checked against the shapes on loading).
-    pub(super) fn new(psi2: PlainCnn, mlp_in: &PlainLinear, mlp_out: PlainLinear) -> Self {
+    pub(crate) fn new(psi2: PlainCnn, mlp_in: &PlainLinear, mlp_out: PlainLinear) -> Self {
         let (rnd, h1) = (psi2.conv1.d_in, psi2.conv1.d_out);
         let hh = h1 + psi2.conv2.d_out;
         assert!(
@@ -393,7 +395,7 @@ impl PlainConsensus {
 }
 
 /// The network's parameters as plain numbers.
-pub(super) struct PlainWeights {
+pub(crate) struct PlainWeights {
     pub psi1: PlainCnn,
     /// psi_2 and the consensus MLP (DGMC).
     pub consensus: Option<(PlainCnn, PlainLinear, PlainLinear)>,
@@ -401,7 +403,7 @@ pub(super) struct PlainWeights {
 }
 
 /// The network with `T` samples per pair.
-pub(super) struct PlainPublished {
+pub(crate) struct PlainPublished {
     psi1: PlainCnn,
     samples: usize,
     /// Under shared masks, psi_1's second layer per sample on the kept
@@ -420,7 +422,7 @@ impl PlainPublished {
     /// masks per node given with each graph ([`Self::embed_per_node`]),
     /// `steps` consensus steps (0 for GCN-GM), `iters` Sinkhorn
     /// iterations and knots up to `scale_m`.
-    pub(super) fn new(
+    pub(crate) fn new(
         w: PlainWeights,
         samples: usize,
         shared: Option<&[f32]>,
@@ -455,14 +457,14 @@ impl PlainPublished {
     /// The target's first product always multiplied anew, `(S^T r_s) J`
     /// (tests: the branch large source graphs take).
     #[cfg(test)]
-    pub(super) fn never_carry(&mut self) {
+    pub(crate) fn never_carry(&mut self) {
         if let Some(c) = &mut self.consensus {
             c.carry_max = 0;
         }
     }
 
     /// Samples this network draws.
-    pub(super) fn samples(&self) -> usize {
+    pub(crate) fn samples(&self) -> usize {
         self.samples
     }
 
@@ -479,7 +481,7 @@ impl PlainPublished {
     /// psi_1's embedding of `g` in every sample under masks per node and
     /// hidden channel (`mask`: `[T, n, hidden]`), `[T, n, out]`: every
     /// sample's rows in one product per layer.
-    pub(super) fn embed_per_node(&self, g: &PaperGraph, mask: &[f32]) -> Vec<f32> {
+    pub(crate) fn embed_per_node(&self, g: &PaperGraph, mask: &[f32]) -> Vec<f32> {
         SCRATCH.with_borrow_mut(|s| {
             let inc = self.first_layer(g, &mut s.cnn, &mut s.first);
             let hidden = self.psi1.conv1.d_out;
@@ -503,7 +505,7 @@ impl PlainPublished {
 
     /// psi_1's embedding of `g` in every sample under the shared masks,
     /// `[T, n, out]`.
-    pub(super) fn embed(&self, g: &PaperGraph) -> Vec<f32> {
+    pub(crate) fn embed(&self, g: &PaperGraph) -> Vec<f32> {
         let n = g.n;
         SCRATCH.with_borrow_mut(|s| {
             let inc = self.first_layer(g, &mut s.cnn, &mut s.first);
@@ -525,7 +527,7 @@ impl PlainPublished {
     /// The soft assignments of the samples, each `(n1 + 1) x (n2 + 1)`:
     /// `h1` and `h2` the two graphs' embeddings ([`Self::embed`]),
     /// `indicators` one `[T, n1, rnd_dim]` draw per consensus step.
-    pub(super) fn assignments(
+    pub(crate) fn assignments(
         &self,
         [(h1, g1), (h2, g2)]: [(&[f32], &PaperGraph); 2],
         indicators: &[Vec<f32>],

@@ -1,14 +1,14 @@
-//! Dropout masks, drawn by the caller from a seeded stream and applied as
-//! tensors on any device (burn's `Dropout` is a no-op outside autodiff
-//! training, and MC dropout needs masks at inference): inverted dropout
-//! (0 or 1 / (1 - p)) with one draw per unit for training and two units
-//! per draw at inference, and the consensus' random node indicators.
+//! Dropout masks as tensors, from the values the shell's streams draw
+//! ([`crate::matching::deep::mc::draws`]): burn's `Dropout` is a no-op
+//! outside autodiff training, and MC dropout needs masks at inference.
+//! What training and the tensor reference of inference apply.
 
 use burn::prelude::*;
-use rand::{Rng, RngCore};
 use rand_chacha::ChaCha8Rng;
 
-use super::arch::{Architecture, MaskScope};
+use crate::matching::deep::arch::{Architecture, MaskScope};
+pub(crate) use crate::matching::deep::mc::draws::MaskDraw;
+use crate::matching::deep::mc::draws::{dropout_mask, dropout_mask_16, indicator_values};
 
 /// The dropout masks of one training forward pass with T samples (values
 /// 0 or 1 / (1 - p), inverted dropout).
@@ -29,48 +29,6 @@ pub struct PairMasks {
     pub indicators: Tensor<4>,
 }
 
-/// Draws inverted-dropout masks (0 or 1 / (1 - p)) of the given shape.
-fn dropout_mask(rng: &mut ChaCha8Rng, len: usize, p: f64) -> Vec<f32> {
-    if p <= 0.0 {
-        return vec![1.0; len];
-    }
-    let keep = 1.0 - p;
-    let scale = (1.0 / keep) as f32;
-    // Compare raw 32-bit draws with the keep threshold: one draw per unit.
-    let threshold = (keep * 4_294_967_296.0).min(f64::from(u32::MAX)) as u32;
-    let mut out = vec![0f32; len];
-    for v in out.iter_mut() {
-        if rng.next_u32() < threshold {
-            *v = scale;
-        }
-    }
-    out
-}
-
-/// Inference masks: [`dropout_mask`] with two units per 32-bit draw (the
-/// keep probability rounded to 1/65536: 0.8 becomes 0.800003), half the
-/// random numbers of the training masks.
-pub(super) fn dropout_mask_16(rng: &mut ChaCha8Rng, len: usize, p: f64) -> Vec<f32> {
-    if p <= 0.0 {
-        return vec![1.0; len];
-    }
-    let keep = 1.0 - p;
-    let scale = (1.0 / keep) as f32;
-    let threshold = (keep * 65_536.0).round().min(65_536.0) as u32;
-    let mut words = vec![0u32; len.div_ceil(2)];
-    rng.fill(&mut words[..]);
-    let mut out = vec![0f32; 2 * words.len()];
-    for (o, &w) in out.chunks_exact_mut(2).zip(&words) {
-        o[0] = scale * f32::from(u8::from((w & 0xFFFF) < threshold));
-        o[1] = scale * f32::from(u8::from((w >> 16) < threshold));
-    }
-    out.truncate(len);
-    out
-}
-
-/// A mask draw: the training or the inference one.
-pub(super) type MaskDraw = fn(&mut ChaCha8Rng, usize, f64) -> Vec<f32>;
-
 /// A `[B, T, N, D]` mask tensor.
 fn mask4(
     rng: &mut ChaCha8Rng,
@@ -88,7 +46,7 @@ fn mask4(
 /// stream: per node and unit, or (Eq. 8,
 /// [`MaskScope::Shared`]) one mask per pair and sample over each layer's
 /// units, the same for every node of both graphs and every pair entry.
-pub(super) fn draw_masks(
+pub(crate) fn draw_masks(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
     [b, t, n1, n2]: [usize; 4],
@@ -133,7 +91,7 @@ pub(super) fn draw_masks(
 /// ([`MaskScope::PerNode`]), or one per sample and unit repeated over the
 /// nodes ([`MaskScope::Shared`]; with the same stream for every graph,
 /// every graph then sees the same weights in sample t).
-pub(super) fn draw_embedding_masks(
+pub(crate) fn draw_embedding_masks(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
     [t, n]: [usize; 2],
@@ -155,24 +113,10 @@ pub(super) fn draw_embedding_masks(
     )
 }
 
-/// The values of [`draw_embedding_masks`]'s shared masks (`[t, hidden]`
-/// and `[t, out]`, drawn in the same order from the same stream): what
-/// the plain second layer ([`super::shared_conv`]) multiplies with.
-pub(super) fn shared_embedding_mask_values(
-    rng: &mut ChaCha8Rng,
-    arch: &Architecture,
-    t: usize,
-) -> (Vec<f32>, Vec<f32>) {
-    let p = arch.dropout_conv;
-    let m1 = dropout_mask_16(rng, t * arch.hidden, p);
-    let m2 = dropout_mask_16(rng, t * arch.out, p);
-    (m1, m2)
-}
-
 /// The consensus MLP's dropout mask of one pair at inference, `[1, t,
 /// n1, n2, consensus_dim]`: per pair entry and unit, or one per sample and
 /// unit ([`MaskScope::Shared`], from a stream the same for every pair).
-pub(super) fn draw_phi_mask(
+pub(crate) fn draw_phi_mask(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
     [t, n1, n2]: [usize; 3],
@@ -197,7 +141,7 @@ pub(super) fn draw_phi_mask(
 /// The consensus masks of `b` pairs with `t` samples each: the phi
 /// dropout (drawn by `draw`: the training or the inference mask) and the
 /// random node indicators.
-pub(super) fn draw_pair_masks(
+pub(crate) fn draw_pair_masks(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
     [b, t, n1, n2]: [usize; 4],
@@ -235,41 +179,17 @@ fn indicators(
     Tensor::from_data(TensorData::new(v, [b, 1, n1, r]), device)
 }
 
-/// `len` standard normals, as [`draw_pair_masks`] draws the consensus
-/// indicators (`[n1, consensus_dim]` of one pair, row-major).
-pub(super) fn indicator_values(rng: &mut ChaCha8Rng, len: usize) -> Vec<f32> {
-    let normal = rand_distr::StandardNormal;
-    (0..len)
-        .map(|_| rng.sample::<f64, _>(normal) as f32)
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use rand::SeedableRng;
-
-    #[test]
-    fn dropout_masks_have_the_right_rate_and_scale() {
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let m = dropout_mask(&mut rng, 100_000, 0.4);
-        let kept = m.iter().filter(|&&v| v > 0.0).count() as f64 / m.len() as f64;
-        assert!((kept - 0.6).abs() < 0.01, "{kept}");
-        assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.6).abs() < 1e-6));
-        assert!(dropout_mask(&mut rng, 10, 0.0).iter().all(|&v| v == 1.0));
-        let m = dropout_mask_16(&mut rng, 100_001, 0.2);
-        let kept = m.iter().filter(|&&v| v > 0.0).count() as f64 / m.len() as f64;
-        assert!((kept - 0.8).abs() < 0.01, "{kept}");
-        assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.8).abs() < 1e-6));
-        assert!(dropout_mask_16(&mut rng, 7, 0.0).iter().all(|&v| v == 1.0));
-    }
 
     /// Eq. 8's masks: in each sample one mask over a layer's units, the
     /// same for every node; per-node masks differ between nodes.
     #[test]
     fn shared_masks_are_one_draw_per_sample_and_unit() {
         let arch = Architecture::default();
-        let device = Device::flex();
+        let device = crate::matching::deep::backend::device();
         let rows = |scope| {
             let mut rng = ChaCha8Rng::seed_from_u64(3);
             let (m1, _) = draw_embedding_masks(&mut rng, &arch, [4, 5], scope, &device);
@@ -300,7 +220,7 @@ mod tests {
     #[test]
     fn shared_training_masks_are_one_draw_per_pair_and_sample() {
         let arch = Architecture::default();
-        let device = Device::flex();
+        let device = crate::matching::deep::backend::device();
         let (b, t, n1, n2, h) = (2, 3, 4, 5, arch.hidden);
         let draw = |scope| {
             let mut rng = ChaCha8Rng::seed_from_u64(9);

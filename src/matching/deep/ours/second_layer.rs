@@ -15,8 +15,8 @@
 //! set needs no other copy. The neighbours are then mixed along the
 //! edges (4 cells per edge) instead of through a dense `n x n C` matrix.
 
-use super::dense::matmul;
-use super::features::{GraphInput, KERNEL_2D};
+use crate::matching::deep::features::{GraphInput, KERNEL_2D};
+use crate::matching::deep::kernels::matmul;
 
 /// One sample's kept units and weights.
 struct Sample {
@@ -34,7 +34,7 @@ struct Sample {
 }
 
 /// A spline layer's weights under `T` shared masks (`relu(conv(h m1)) m2`).
-pub(super) struct SharedMaskConv {
+pub(crate) struct SharedMaskConv {
     d_in: usize,
     d_out: usize,
     samples: Vec<Sample>,
@@ -42,7 +42,7 @@ pub(super) struct SharedMaskConv {
 
 /// A layer's parameters as plain numbers: `root` `[in, out]`, `weight`
 /// `[in, KERNEL_2D * out]` (cell-major within a row), `bias` `[out]`.
-pub(super) struct PlainSpline {
+pub(crate) struct PlainSpline {
     pub d_in: usize,
     pub d_out: usize,
     pub root: Vec<f32>,
@@ -53,7 +53,7 @@ pub(super) struct PlainSpline {
 impl SharedMaskConv {
     /// The layer `p` under the masks `mask_in` (`[T, in]`) and `mask_out`
     /// (`[T, out]`), each unit's value 0 (dropped) or the sample's scale.
-    pub(super) fn new(p: &PlainSpline, mask_in: &[f32], mask_out: &[f32]) -> Self {
+    pub(crate) fn new(p: &PlainSpline, mask_in: &[f32], mask_out: &[f32]) -> Self {
         let (d_in, d_out) = (p.d_in, p.d_out);
         let t = mask_in.len() / d_in;
         let kept = |m: &[f32]| -> (Vec<usize>, f32) {
@@ -96,7 +96,7 @@ impl SharedMaskConv {
     /// whose layer input is `h` (`[n, in]`, the same for every sample):
     /// `[T, n, out]` per graph, row-major. The graphs' nodes are stacked
     /// into one product per sample.
-    pub(super) fn forward_many(&self, graphs: &[(&[f32], &GraphInput)]) -> Vec<Vec<f32>> {
+    pub(crate) fn forward_many(&self, graphs: &[(&[f32], &GraphInput)]) -> Vec<Vec<f32>> {
         let d_out = self.d_out;
         let offsets: Vec<usize> = graphs
             .iter()

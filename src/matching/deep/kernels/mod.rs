@@ -1,6 +1,10 @@
-//! Dense f32 matrix products on one thread, through the `gemm` crate (the
-//! kernel burn's CPU backend uses): the inference path's products and the
-//! matcher bench's peak are the same call.
+//! The arithmetic the plain inference paths share: dense f32 matrix
+//! products on one thread through the `gemm` crate (the kernel burn's
+//! CPU backend uses; the matcher bench's peak is the same call), the lane
+//! kernels ([`lanes`]) and Sinkhorn without tensors ([`sinkhorn`]).
+
+pub(crate) mod lanes;
+pub(crate) mod sinkhorn;
 
 /// `c = a b` for row-major `a` `[m, k]`, `b` `[k, n]` and `c` `[m, n]`
 /// (`c` overwritten, one thread).

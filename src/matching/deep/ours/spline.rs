@@ -12,8 +12,10 @@ use burn::module::Param;
 use burn::prelude::*;
 use std::sync::Arc;
 
-use super::features::{GraphInput, KERNEL_2D, NODE_FEATURES};
-use super::init::{Init, named_param};
+use crate::matching::deep::backend::values;
+use crate::matching::deep::features::{GraphInput, KERNEL_2D, NODE_FEATURES};
+use crate::matching::deep::mc::TensorRead;
+use crate::matching::deep::train::init::{Init, named_param};
 
 /// Graphs as tensors, padded to a common node count `N` (a batch of
 /// training pairs' graphs, or one graph at inference, `B = 1`).
@@ -40,7 +42,7 @@ pub struct GraphBatch {
     /// Bit k set when kernel cell k is in `cells`.
     pub cell_mask: u32,
     /// The spline layers' weights of exactly these cells, when the caller
-    /// has them ([`super::network::Network::cell_weights`]); else each
+    /// has them ([`super::OursNet::cell_weights`]); else each
     /// layer selects them.
     pub weights: Option<Arc<CellWeights>>,
 }
@@ -50,10 +52,10 @@ pub struct GraphBatch {
 /// caller that sees the same cell set many times (inference).
 pub struct CellWeights {
     /// The cell set, as [`GraphBatch::cell_mask`].
-    pub(super) cell_mask: u32,
-    pub(super) conv1: Tensor<2>,
-    pub(super) conv2: Tensor<2>,
-    pub(super) consensus: Option<Tensor<2>>,
+    pub(crate) cell_mask: u32,
+    pub(crate) conv1: Tensor<2>,
+    pub(crate) conv2: Tensor<2>,
+    pub(crate) consensus: Option<Tensor<2>>,
 }
 
 impl GraphBatch {
@@ -206,20 +208,19 @@ impl SplineConv {
     }
 
     /// The parameters as plain numbers (inference outside tensors).
-    pub(super) fn plain(&self) -> super::shared_conv::PlainSpline {
-        let read = |t: Tensor<2>| t.try_into_vec_as::<f32>().unwrap_or_default();
-        super::shared_conv::PlainSpline {
+    pub(crate) fn plain(&self) -> Result<super::second_layer::PlainSpline, TensorRead> {
+        Ok(super::second_layer::PlainSpline {
             d_in: self.root.val().dims()[0],
             d_out: self.d_out,
-            root: read(self.root.val()),
-            weight: read(self.weight.val()),
-            bias: self.bias.val().try_into_vec_as::<f32>().unwrap_or_default(),
-        }
+            root: values(self.root.val())?,
+            weight: values(self.weight.val())?,
+            bias: values(self.bias.val())?,
+        })
     }
 
     /// The kernel cells' weight matrices, `[in, KERNEL_2D * out]`.
     #[cfg(test)]
-    pub(super) fn weight(&self) -> Tensor<2> {
+    pub(crate) fn weight(&self) -> Tensor<2> {
         self.weight.val()
     }
 
@@ -232,7 +233,7 @@ impl SplineConv {
     /// The weights of the kernel cells `cells` in the layout of
     /// [`Self::forward`]'s order: `[in, C * out]`, or `[C * in, out]`
     /// when it mixes first.
-    pub(super) fn cell_weights(&self, cells: &Tensor<1, Int>) -> Tensor<2> {
+    pub(crate) fn cell_weights(&self, cells: &Tensor<1, Int>) -> Tensor<2> {
         let c = cells.dims()[0];
         let d_in = self.root.val().dims()[0];
         let w = self.weight.val().reshape([d_in, KERNEL_2D, self.d_out]);
@@ -260,7 +261,7 @@ mod tests {
     /// + bias` (kernel cell k_c, basis weight b_c).
     #[test]
     fn spline_conv_equals_the_per_edge_sum() {
-        let device = Device::flex();
+        let device = crate::matching::deep::backend::device();
         let input = graph_input(&[
             (0.0, 0.0),
             (12.0, 3.0),

@@ -44,7 +44,7 @@ impl Init {
     }
 
     /// The parameter `name`, drawn uniformly from `(-bound, bound)`.
-    pub(super) fn param<const D: usize>(
+    pub(crate) fn param<const D: usize>(
         self,
         name: &str,
         shape: [usize; D],
@@ -56,7 +56,7 @@ impl Init {
 
     /// A linear layer `[d_in] -> [d_out]` initialised like burn's default
     /// (weight and bias uniform in `+-1/sqrt(d_in)`).
-    pub(super) fn linear(self, name: &str, d_in: usize, d_out: usize, device: &Device) -> Linear {
+    pub(crate) fn linear(self, name: &str, d_in: usize, d_out: usize, device: &Device) -> Linear {
         let b = 1.0 / (d_in as f64).sqrt();
         Linear {
             weight: self.param(&format!("{name}.weight"), [d_in, d_out], b, device),
@@ -67,7 +67,7 @@ impl Init {
 
 /// A trainable parameter whose id is derived from its name (burn draws
 /// ids at random, which would make saved weights differ from run to run).
-pub(super) fn named_param<const D: usize>(name: &str, value: Tensor<D>) -> Param<Tensor<D>> {
+pub(crate) fn named_param<const D: usize>(name: &str, value: Tensor<D>) -> Param<Tensor<D>> {
     // Through `Parameter`: a tensor without autodiff is left as it is.
     let value = <Tensor<D> as burn::module::Parameter>::set_require_grad(value, true);
     Param::initialized(ParamId::from(rng::hash_str(name)), value)

@@ -6,18 +6,18 @@
 use burn::module::Param;
 use burn::prelude::*;
 
-use super::arch::Architecture;
 use super::init::Init;
-use super::network::Network;
+use crate::matching::deep::arch::Architecture;
+use crate::matching::deep::ours::OursNet;
 
 /// The network's weights as bytes (burn's burnpack format, what a
 /// `<method>.bpk` file holds).
-pub fn to_bytes(net: &Network) -> Result<Vec<u8>, String> {
+pub fn to_bytes(net: &OursNet) -> Result<Vec<u8>, String> {
     module_bytes(net)
 }
 
 /// Any network's weights as bytes (burnpack).
-pub(super) fn module_bytes<M: Module + Clone>(module: &M) -> Result<Vec<u8>, String> {
+pub(crate) fn module_bytes<M: Module + Clone>(module: &M) -> Result<Vec<u8>, String> {
     let bytes = module
         .clone()
         .into_record()
@@ -29,7 +29,7 @@ pub(super) fn module_bytes<M: Module + Clone>(module: &M) -> Result<Vec<u8>, Str
 /// The weights of [`module_bytes`] loaded into `empty` (a network of the
 /// right shape); weights that do not fit or hold a value that is not
 /// finite are refused.
-pub(super) fn load_module<M: Module>(empty: M, bytes: &[u8]) -> Result<M, String> {
+pub(crate) fn load_module<M: Module>(empty: M, bytes: &[u8]) -> Result<M, String> {
     let record =
         burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec()))
             .map_err(|e| format!("{e:?}"))?;
@@ -47,8 +47,8 @@ pub(super) fn load_module<M: Module>(empty: M, bytes: &[u8]) -> Result<M, String
 /// A network of architecture `arch` on `device` with the weights of
 /// [`to_bytes`]; weights whose scalar parameters are not finite are
 /// refused.
-pub fn from_bytes(arch: &Architecture, bytes: &[u8], device: &Device) -> Result<Network, String> {
-    load_module(Network::new(arch, Init::Zeros, device), bytes)
+pub fn from_bytes(arch: &Architecture, bytes: &[u8], device: &Device) -> Result<OursNet, String> {
+    load_module(OursNet::new(arch, Init::Zeros, device), bytes)
 }
 
 /// Whether every float parameter of a module is finite.
@@ -70,19 +70,19 @@ mod tests {
     #[test]
     fn weights_that_are_not_finite_do_not_load() {
         let arch = Architecture::default();
-        let device = Device::flex();
-        let fine = Network::new(&arch, Init::Seeded(3), &device);
+        let device = crate::matching::deep::backend::device();
+        let fine = OursNet::new(&arch, Init::Seeded(3), &device);
         assert!(from_bytes(&arch, &to_bytes(&fine).unwrap(), &device).is_ok());
-        let broken = Network::new(&arch, Init::Seeded(3), &device).with_gates(f32::NAN);
+        let broken = OursNet::new(&arch, Init::Seeded(3), &device).with_gates(f32::NAN);
         let e = from_bytes(&arch, &to_bytes(&broken).unwrap(), &device).unwrap_err();
         assert!(e.contains("not a finite number"), "{e}");
     }
 
     #[test]
     fn weights_survive_bytes_and_bad_bytes_are_refused() {
-        let device = Device::flex();
+        let device = crate::matching::deep::backend::device();
         let arch = Architecture::default();
-        let net = Network::new(&arch, Init::Seeded(9), &device);
+        let net = OursNet::new(&arch, Init::Seeded(9), &device);
         let bytes = to_bytes(&net).unwrap();
         let back = from_bytes(&arch, &bytes, &device).unwrap();
         assert_eq!(to_bytes(&back).unwrap(), bytes);
@@ -92,10 +92,10 @@ mod tests {
             consensus: false,
             ..arch
         };
-        let other_bytes = to_bytes(&Network::new(&other, Init::Seeded(9), &device)).unwrap();
+        let other_bytes = to_bytes(&OursNet::new(&other, Init::Seeded(9), &device)).unwrap();
         assert!(from_bytes(&arch, &other_bytes, &device).is_err());
         // A gate that is not a number is refused.
-        let broken = Network::new(&arch, Init::Seeded(9), &device).with_gate_values(f32::NAN, 0.0);
+        let broken = OursNet::new(&arch, Init::Seeded(9), &device).with_gate_values(f32::NAN, 0.0);
         let e = from_bytes(&arch, &to_bytes(&broken).unwrap(), &device)
             .err()
             .unwrap();

@@ -5,10 +5,10 @@
 //! graphs, the pair input) with its labels; [`EdgeStats`] say how the
 //! examples' edges fill the pseudo-coordinate range.
 
-use super::arch::{Architecture, likelihood_terms};
-use super::features::{self, GraphInput, PairInput, graph_input, pair_input};
 use crate::geometry::Pose2;
 use crate::graph::SceneGraph;
+use crate::matching::deep::arch::{Architecture, likelihood_terms};
+use crate::matching::deep::features::{self, GraphInput, PairInput, graph_input, pair_input};
 use crate::matching::{MatchView, gps_relative_pose};
 use crate::sensor::{Detection, PoseNoiseLevel};
 

@@ -1,0 +1,243 @@
+//! `ours` in the MC shell: dropout really varies the samples, shared
+//! masks repeat by seed, weights survive bytes, an untrained network
+//! decides as GPS+appearance Hungarian, shared embeddings change no bit.
+
+use super::*;
+use crate::geometry::Vec2;
+use crate::matching::deep::arch::DeepMethod;
+use crate::matching::deep::cost::inference_macs;
+use crate::matching::deep::mc::McMatcher;
+use crate::matching::deep::tests::queue_scene;
+use crate::matching::gps_hungarian::GpsHungarian;
+use crate::matching::likelihood::assign;
+use crate::matching::testkit::{self, GPS, Side};
+use crate::matching::{Matcher, Method};
+
+const RUN: Inference = Inference {
+    seed: 3,
+    masks: MaskScope::PerNode,
+    ..Inference::MC_DROPOUT
+};
+
+/// An untrained network whose gates are open (as after the first
+/// training steps), so that the residual and its dropout count.
+fn opened(arch: Architecture, seed: u64) -> McMatcher<Ours> {
+    opened_as(arch, seed, RUN)
+}
+
+fn opened_as(arch: Architecture, seed: u64, run: Inference) -> McMatcher<Ours> {
+    let net = OursNet::new(&arch, Init::Seeded(seed), &device()).with_gates(1.0);
+    McMatcher::new(Method::Ours, Ours::new(net, arch, run).unwrap(), run)
+}
+
+/// The MC samples of the moved-copy scene.
+fn mc_samples(m: &McMatcher<Ours>) -> Vec<Vec<f32>> {
+    let (a, b) = testkit::moved_copy();
+    let (va, vb) = (a.view(), b.view());
+    let relative = crate::matching::gps_relative_pose(&va, &vb);
+    let s = m.samples(&va, &vb, &relative).unwrap();
+    assert_eq!(s.assignments.len(), 20);
+    s.assignments
+}
+
+/// Largest per-entry variance across samples.
+fn max_variance(samples: &[Vec<f32>]) -> f64 {
+    let t = samples.len() as f64;
+    (0..samples[0].len())
+        .map(|k| {
+            let mean = samples.iter().map(|s| f64::from(s[k])).sum::<f64>() / t;
+            samples
+                .iter()
+                .map(|s| (f64::from(s[k]) - mean).powi(2))
+                .sum::<f64>()
+                / t
+        })
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn mc_dropout_samples_really_differ_at_inference() {
+    let v = max_variance(&mc_samples(&opened(Architecture::default(), 3)));
+    assert!(
+        v > 1e-4,
+        "p > 0 must give varying samples (max variance {v})"
+    );
+    let without = Architecture {
+        dropout_conv: 0.0,
+        dropout_phi: 0.0,
+        ..Architecture::default()
+    };
+    let samples = mc_samples(&opened(without, 3));
+    assert!(
+        samples.iter().all(|s| *s == samples[0]),
+        "p = 0 must give identical samples"
+    );
+}
+
+/// Eq. 8's shared masks: the samples still vary, the same seed gives
+/// the same samples, and they are other draws than per-node masks.
+#[test]
+fn shared_dropout_masks_vary_by_sample_and_repeat_by_seed() {
+    let shared = |seed| {
+        let run = Inference {
+            masks: MaskScope::Shared,
+            seed,
+            ..RUN
+        };
+        mc_samples(&opened_as(Architecture::default(), 3, run))
+    };
+    let s = shared(3);
+    assert!(max_variance(&s) > 1e-4);
+    assert_eq!(s, shared(3));
+    assert_ne!(s, shared(4));
+    assert_ne!(s, mc_samples(&opened(Architecture::default(), 3)));
+}
+
+#[test]
+fn weights_as_bytes_give_identical_outputs() {
+    let m = opened(Architecture::default(), 11);
+    let bytes = m.network().weights().unwrap();
+    let ours = Ours::from_weights(Architecture::default(), &bytes, RUN).unwrap();
+    let loaded = McMatcher::new(Method::Ours, ours, RUN);
+    let (a, b) = testkit::moved_copy();
+    let (va, vb) = (a.view(), b.view());
+    let relative = crate::matching::gps_relative_pose(&va, &vb);
+    assert_eq!(
+        m.distribution(&va, &vb, &relative).unwrap(),
+        loaded.distribution(&va, &vb, &relative).unwrap()
+    );
+    // gcn-gm has no consensus: the weights of `ours` do not fit it.
+    let fits = |d: DeepMethod| crate::matching::deep::matcher(d.method(), d, &bytes, RUN).is_ok();
+    assert!(!fits(DeepMethod::GcnGmGps));
+    // gcn-gm (as published) is not this network at all.
+    assert!(!fits(DeepMethod::GcnGm));
+}
+
+/// Untrained, every variant with positions scores each pair by the
+/// shared likelihood alone, so that its assignment is GPS+appearance
+/// Hungarian's, pair for pair, on scenes with GPS error, look-alikes
+/// and objects only one vehicle sees; `ours-noprior` is the
+/// appearance-only Hungarian. With the gates open it is not.
+#[test]
+fn untrained_decides_exactly_as_gps_appearance_hungarian() {
+    let scene = queue_scene();
+    let mut world = testkit::world_objects();
+    world.extend(
+        scene
+            .iter()
+            .map(|&(p, c, col)| (p + Vec2::new(40.0, 40.0), c, col)),
+    );
+    let all: Vec<usize> = (0..world.len()).collect();
+    let a = Side::of(testkit::POSE_A, &world, &all, GPS);
+    let mut b = Side::of(
+        testkit::POSE_B,
+        &world,
+        &[3, 9, 12, 0, 5, 14, 2, 10, 7, 16],
+        GPS,
+    );
+    b.pose = crate::geometry::Pose2::new(b.pose.position_m() + Vec2::new(2.0, -1.0), -2.39);
+    let (va, vb) = (a.view(), b.view());
+    let hungarian = |appearance_only: bool| {
+        let relative = crate::matching::gps_relative_pose(&va, &vb);
+        let terms = LikelihoodTerms {
+            position: !appearance_only,
+            ..LikelihoodTerms::full(9.21)
+        };
+        let s: Vec<Option<f64>> =
+            crate::matching::likelihood::pair_terms(&va, &vb, &relative, &terms)
+                .iter()
+                .map(|p| p.map(|p| p.log_likelihood()))
+                .collect();
+        assign(va.detections.len(), vb.detections.len(), &s)
+    };
+    let pairs = |m: &dyn Matcher| -> Vec<(usize, usize)> {
+        m.identify(&va, &vb)
+            .matches
+            .iter()
+            .map(|c| (c.a, c.b))
+            .collect()
+    };
+    let expected = pairs(&GpsHungarian {
+        gate_chi2: 9.21,
+        appearance: true,
+    });
+    assert_eq!(expected, hungarian(false));
+    assert!(expected.len() >= 6, "{expected:?}");
+    for method in [
+        DeepMethod::Ours,
+        DeepMethod::CoidNonGps,
+        DeepMethod::CoidUncGps,
+        DeepMethod::DgmcGps,
+        DeepMethod::GcnGmGps,
+    ] {
+        let m = crate::matching::deep::untrained(method, 5, RUN);
+        assert_eq!(pairs(&*m), expected, "{method:?}");
+    }
+    // Without the position term: an appearance-only Hungarian.
+    let arch = Architecture {
+        positions: false,
+        ..Architecture::default()
+    };
+    let noprior = McMatcher::new(Method::Ours, Ours::untrained(arch, 5, RUN), RUN);
+    assert_eq!(pairs(&noprior), hungarian(true));
+    assert_ne!(hungarian(true), expected);
+    let arch = Architecture::default();
+    let net = OursNet::new(&arch, Init::Seeded(5), &device()).with_gates(30.0);
+    let loud = McMatcher::new(Method::Ours, Ours::new(net, arch, RUN).unwrap(), RUN);
+    assert_ne!(pairs(&loud), expected);
+}
+
+/// Three vehicles, three pairs: sharing each vehicle's embedding across
+/// its pairs gives the same bits as computing it for every pair, and
+/// it is reused (each vehicle is in two pairs).
+#[test]
+fn shared_embeddings_are_bit_identical_to_the_per_pair_path() {
+    let objects = testkit::world_objects();
+    let all: Vec<usize> = (0..objects.len()).collect();
+    let sides = [
+        Side::of(testkit::POSE_A, &objects, &all, GPS),
+        Side::of(testkit::POSE_B, &objects, &[5, 2, 7, 0, 3, 6, 1, 4], GPS),
+        Side::of((20.0, 40.0, -1.2), &objects, &[1, 3, 4, 6, 7], GPS),
+    ];
+    let pairs = [(0, 1), (0, 2), (1, 2)];
+    let run = |m: &McMatcher<Ours>| -> Vec<Vec<Vec<f32>>> {
+        pairs
+            .iter()
+            .map(|&(i, j)| {
+                let (a, b) = (sides[i].view(), sides[j].view());
+                m.samples(&a, &b, &crate::matching::gps_relative_pose(&a, &b))
+                    .unwrap()
+                    .assignments
+            })
+            .collect()
+    };
+    let shared = opened(Architecture::default(), 4);
+    let per_pair = opened(Architecture::default(), 4).without_shared_embeddings();
+    let (a, b) = (run(&shared), run(&per_pair));
+    assert_eq!(a, b);
+    assert_eq!(shared.shared_embeddings(), 3);
+    assert_eq!(per_pair.shared_embeddings(), 0);
+    // Each counts what it multiplied: every pair part, and each
+    // vehicle's embedding once (shared) or once per pair.
+    let arch = Architecture::default();
+    let shape = |k: usize| GraphShape::of(&sides[k].view());
+    let macs = |i: usize, j: usize| inference_macs(&arch, shape(i), shape(j), 20);
+    let parts: u64 = pairs.iter().map(|&(i, j)| macs(i, j).shared_pair()).sum();
+    let embedded = |k: usize| macs(k, k).embeddings[0];
+    let once: u64 = (0..3).map(embedded).sum();
+    assert_eq!(shared.network_macs(), parts + once);
+    assert_eq!(per_pair.network_macs(), parts + 2 * once);
+    // The MC samples differ from each other (dropout is on).
+    assert_ne!(a[0][0], a[0][1]);
+}
+
+#[test]
+fn empty_sides_send_everything_to_the_dustbin() {
+    let m = opened(Architecture::default(), 1);
+    let (a, b) = testkit::moved_copy();
+    let empty = Side::new(vec![], vec![], b.pose, testkit::EXACT);
+    let id = m.identify(&a.view(), &empty.view());
+    assert!(id.matches.is_empty());
+    let d = id.distribution.unwrap();
+    assert!((0..a.detections.len()).all(|i| d.p(i, 0) == 1.0));
+}
