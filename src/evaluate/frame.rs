@@ -133,7 +133,7 @@ fn decide(
         let identifications = pairs
             .iter()
             .zip(&pairwise)
-            .map(|(p, m)| Identification::plain(vehicles.oriented(p, m)))
+            .map(|(p, m)| Identification::matches_only(vehicles.oriented(p, m)))
             .collect();
         return Decided {
             identifications,
@@ -312,7 +312,7 @@ mod tests {
                 first.pose_reported.position_m().x,
                 second.pose_reported.position_m().x,
             );
-            Identification::plain(if xs == (0.0, 20.0) {
+            Identification::matches_only(if xs == (0.0, 20.0) {
                 vec![c(0, 1, 0.6), c(1, 0, 0.6)]
             } else {
                 vec![c(0, 0, 0.9), c(1, 1, 0.9)]

@@ -41,10 +41,11 @@ impl CorrespondenceSource {
     pub(super) fn identify(&self, pair: &PairAtLevel) -> Identification {
         match self {
             CorrespondenceSource::Matcher(m) => m.identify(&pair.first.view, &pair.second.view),
-            CorrespondenceSource::Oracle => {
-                Identification::plain(oracle::true_pairs(pair.first.truth, pair.second.truth))
-            }
-            CorrespondenceSource::External(e) => Identification::plain(e.for_pair(pair)),
+            CorrespondenceSource::Oracle => Identification::matches_only(oracle::true_pairs(
+                pair.first.truth,
+                pair.second.truth,
+            )),
+            CorrespondenceSource::External(e) => Identification::matches_only(e.for_pair(pair)),
         }
     }
 }

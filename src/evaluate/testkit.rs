@@ -67,7 +67,7 @@ impl Matcher for Fixed {
         _: &MatchView,
         _: &crate::fusion::PoseEstimate,
     ) -> Identification {
-        Identification::plain(self.0.clone())
+        Identification::matches_only(self.0.clone())
     }
 }
 

@@ -65,7 +65,7 @@ impl Matcher for GpsHungarian {
                 }
             })
             .collect();
-        Identification::plain(matches)
+        Identification::matches_only(matches)
     }
 }
 

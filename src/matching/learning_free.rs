@@ -229,7 +229,7 @@ impl Matcher for Mogm {
             });
         }
         out.sort_by_key(|c| c.a);
-        Identification::plain(out)
+        Identification::matches_only(out)
     }
 }
 
@@ -293,7 +293,7 @@ impl Matcher for Rgm {
         let problem = build(first, second, &self.params);
         let k = problem.candidates.len();
         if k == 0 {
-            return Identification::plain(Vec::new());
+            return Identification::matches_only(Vec::new());
         }
         let mm = &problem.affinity;
         let mut x = DVector::from_vec(principal_eigenvector(mm));
@@ -338,6 +338,6 @@ impl Matcher for Rgm {
             })
             .collect();
         out.sort_by_key(|c| c.a);
-        Identification::plain(out)
+        Identification::matches_only(out)
     }
 }

@@ -24,7 +24,7 @@ impl Scenario {
             self.pedestrians_s * 3600.0,
             match self.demand {
                 Demand::Mix => "",
-                Demand::Plain => ", SUMO's default types only",
+                Demand::DefaultTypes => ", SUMO's default types only",
             },
             self.seed,
             self.index,
@@ -109,7 +109,7 @@ impl Scenario {
 
     /// The demand: the layout's vehicle flows (random departures from
     /// SUMO's seed), bicycles and pedestrians, of the shipped types
-    /// ([`Demand::Mix`]) or of SUMO's default ones ([`Demand::Plain`]).
+    /// ([`Demand::Mix`]) or of SUMO's default ones ([`Demand::DefaultTypes`]).
     pub fn routes_xml(&self) -> String {
         // Flow ids stay the same for both demands; the types differ.
         let (types, [vehicle, bicycle, ped]) = match self.demand {
@@ -120,7 +120,7 @@ impl Scenario {
                     .map_or("", |(body, _)| body),
                 ["mix", "bicycle", "ped"],
             ),
-            Demand::Plain => (
+            Demand::DefaultTypes => (
                 "\n",
                 ["DEFAULT_VEHTYPE", "DEFAULT_BIKETYPE", "DEFAULT_PEDTYPE"],
             ),

@@ -65,7 +65,8 @@ crate::label_enum! { "demand";
         /// and SUMO's default colour, bicycles and pedestrians of SUMO's
         /// default types. Appearance then says almost nothing; only
         /// structure and positions can tell the objects apart.
-        Plain,
+        #[strum(serialize = "plain")]
+        DefaultTypes,
     }
 }
 

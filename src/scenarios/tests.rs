@@ -139,9 +139,9 @@ fn demand_names_every_approach_pair_once() {
 #[test]
 fn plain_demand_keeps_the_flows_with_sumos_default_types() {
     let mix = generate(5, 3, &[Kind::Crossing]);
-    let mut plain = mix.clone();
-    plain.demand = Demand::Plain;
-    let (m, p) = (mix.routes_xml(), plain.routes_xml());
+    let mut default_types = mix.clone();
+    default_types.demand = Demand::DefaultTypes;
+    let (m, p) = (mix.routes_xml(), default_types.routes_xml());
     assert!(!p.contains("vType"), "no shipped types");
     assert!(!p.contains("type=\"mix\""));
     assert_eq!(
@@ -159,7 +159,7 @@ fn plain_demand_keeps_the_flows_with_sumos_default_types() {
             .collect()
     };
     assert_eq!(rates(&m), rates(&p));
-    assert_eq!(mix.nodes_xml(), plain.nodes_xml());
-    assert!(plain.describe().contains("default types"));
+    assert_eq!(mix.nodes_xml(), default_types.nodes_xml());
+    assert!(default_types.describe().contains("default types"));
     assert!(!mix.describe().contains("default types"));
 }

@@ -39,7 +39,7 @@ impl GraphShape {
     }
 
     /// The graph the matcher built.
-    pub fn of_input(g: &GraphInput) -> Self {
+    pub(crate) fn of_input(g: &GraphInput) -> Self {
         let mut used = [false; KERNEL_2D];
         for &k in &g.basis_index {
             used[k as usize] = true;

@@ -24,48 +24,48 @@ use crate::sensor::Detection;
 use crate::traffic::ObjectClass;
 
 /// B-spline knots per pseudo-coordinate dimension (paper: 5).
-pub const KERNEL: usize = 5;
+pub(crate) const KERNEL: usize = 5;
 /// Kernel weights per edge: `KERNEL^2` for 2-D pseudo-coordinates.
-pub const KERNEL_2D: usize = KERNEL * KERNEL;
+pub(crate) const KERNEL_2D: usize = KERNEL * KERNEL;
 /// Node attribute length: class one-hot (7), colour (3), size (3).
-pub const NODE_FEATURES: usize = 13;
+pub(crate) const NODE_FEATURES: usize = 13;
 /// The knots per axis, in metres: 0, +-median and +-95th percentile of the
 /// edges' larger world-axis component over the training family (17.7 m
 /// and 48.1 m measured on `sumo_nets/family/train` s000-s007 and the
 /// default intersection).
-pub const KNOTS_M: [f64; KERNEL] = [-48.0, -18.0, 0.0, 18.0, 48.0];
+pub(crate) const KNOTS_M: [f64; KERNEL] = [-48.0, -18.0, 0.0, 18.0, 48.0];
 /// Longer edge components are clipped onto the outer knots.
-pub const MAX_EDGE_M: f64 = KNOTS_M[KERNEL - 1];
+pub(crate) const MAX_EDGE_M: f64 = KNOTS_M[KERNEL - 1];
 
 /// One vehicle's graph, ready for the network. Every undirected edge
 /// appears twice, once per direction; message `e` goes from `src[e]` to
 /// `dst[e]`.
 #[derive(Clone, Debug, PartialEq)]
-pub struct GraphInput {
-    pub n: usize,
+pub(crate) struct GraphInput {
+    pub(crate) n: usize,
     /// `n x NODE_FEATURES`, row-major.
-    pub node_features: Vec<f32>,
-    pub src: Vec<i64>,
-    pub dst: Vec<i64>,
+    pub(crate) node_features: Vec<f32>,
+    pub(crate) src: Vec<i64>,
+    pub(crate) dst: Vec<i64>,
     /// `E x 4`: the kernel indices with non-zero basis weight per edge.
-    pub basis_index: Vec<i64>,
+    pub(crate) basis_index: Vec<i64>,
     /// `E x 4`: those basis weights (they sum to 1 per edge).
-    pub basis_weight: Vec<f32>,
+    pub(crate) basis_weight: Vec<f32>,
     /// `n x E`, row-major: `1 / deg(i)` where `dst[e] == i` (mean
     /// aggregation of incoming messages).
-    pub aggregate: Vec<f32>,
+    pub(crate) aggregate: Vec<f32>,
     /// `E`: each edge vector in world-aligned axes (metres), before
     /// scaling; kept for the edge-length statistics of `coid train`.
-    pub edge_world_m: Vec<[f32; 2]>,
+    pub(crate) edge_world_m: Vec<[f32; 2]>,
 }
 
 impl GraphInput {
-    pub fn edge_count(&self) -> usize {
+    pub(crate) fn edge_count(&self) -> usize {
         self.src.len()
     }
 }
 
-pub fn node_features(d: &Detection) -> [f32; NODE_FEATURES] {
+pub(crate) fn node_features(d: &Detection) -> [f32; NODE_FEATURES] {
     let mut f = [0f32; NODE_FEATURES];
     let class = ObjectClass::ALL
         .iter()
@@ -95,7 +95,7 @@ fn linear_basis(d_m: f64) -> [(usize, f64); 2] {
 
 /// The 4 non-zero (kernel index, weight) pairs of an edge vector given in
 /// world-aligned axes.
-pub fn edge_basis(d_world_m: &Vec2) -> [(usize, f64); 4] {
+pub(crate) fn edge_basis(d_world_m: &Vec2) -> [(usize, f64); 4] {
     let bx = linear_basis(d_world_m.x);
     let by = linear_basis(d_world_m.y);
     [
@@ -106,7 +106,7 @@ pub fn edge_basis(d_world_m: &Vec2) -> [(usize, f64); 4] {
     ]
 }
 
-pub fn graph_input(
+pub(crate) fn graph_input(
     detections: &[Detection],
     graph: &SceneGraph,
     pose_reported: &Pose2,
@@ -151,45 +151,38 @@ pub fn graph_input(
 }
 
 /// Pair features per (i, j): see [`pair_input`].
-pub const PAIR_FEATURES: usize = 12;
+pub(crate) const PAIR_FEATURES: usize = 12;
 /// Per-node features of the learned "no match" score: see [`pair_input`].
-pub const DUST_FEATURES: usize = 13;
+pub(crate) const DUST_FEATURES: usize = 13;
 /// Ranges are given in units of this (the default camera range).
 const RANGE_SCALE_M: f64 = 70.0;
 
 /// What the pair part of the network sees of one pair of vehicles, beside
 /// the two graphs.
 #[derive(Clone, Debug, PartialEq)]
-pub struct PairInput {
-    pub n1: usize,
-    pub n2: usize,
+pub(crate) struct PairInput {
+    pub(crate) n1: usize,
+    pub(crate) n2: usize,
     /// `n1 x n2` row-major: the shared pair log-likelihood
     /// ([`crate::matching::likelihood`]) where the pair passes its gates.
-    pub log_likelihood: Vec<Option<f64>>,
+    pub(crate) log_likelihood: Vec<Option<f64>>,
     /// `n1 x n2 x PAIR_FEATURES`: squared Mahalanobis distance over the
     /// gate (0 without positions), log appearance similarity, same class,
     /// confusable class, absolute colour difference per channel, chroma
     /// difference (colour over its brightness, which lighting scales),
     /// relative length, width and height differences, and the pair's
     /// offset vote ([`offset_votes`]).
-    pub pair_features: Vec<f32>,
+    pub(crate) pair_features: Vec<f32>,
     /// `n x DUST_FEATURES` per vehicle: the node's range and bearing (cos,
     /// sin) from its own vehicle; its range and bearing from the other
     /// vehicle, through the relative pose (zeros without positions); its
     /// class, one-hot. What tells whether the other vehicle can see it.
-    pub dust_features: [Vec<f32>; 2],
-}
-
-impl PairInput {
-    /// Pairs that pass the gates.
-    pub fn candidates(&self) -> usize {
-        self.log_likelihood.iter().flatten().count()
-    }
+    pub(crate) dust_features: [Vec<f32>; 2],
 }
 
 /// The pair input of two views, with `relative` the second vehicle's pose
 /// in the first one's frame and `terms` the likelihood's terms and gates.
-pub fn pair_input(
+pub(crate) fn pair_input(
     first: &MatchView,
     second: &MatchView,
     relative: &PoseEstimate,
@@ -259,7 +252,7 @@ pub fn pair_input(
 /// appearance gate, `w` their appearance similarity and `v` the mean
 /// per-axis variance of their two detections. A shared error cancels in
 /// the differences, which is what no pair's likelihood alone can use.
-pub fn offset_votes(
+pub(crate) fn offset_votes(
     first: &MatchView,
     second: &MatchView,
     relative: &PoseEstimate,

@@ -1,6 +1,6 @@
 //! The path tester: every network's plain inference held to its tensor
 //! reference (burn's forward, as training runs it) on the shipped
-//! weights, for every mask scope the plain path covers, on graphs of 8,
+//! weights, under shared and per-node masks, on graphs of 8,
 //! 9, 2 and 1 nodes: the same samples within the network's rounding, the
 //! same decided pairs with the same probabilities and uncertainties.
 
@@ -118,7 +118,7 @@ fn holds<N: Network>(label: &str, plain: &McMatcher<N>, tensor: &McMatcher<N>, t
     }
 }
 
-/// Every network x mask scope its plain path covers, on the shipped
+/// Every network x mask scope, on the shipped
 /// weights (an untrained network's biases are zero and would hide a bias
 /// the plain path forgot). `ours`'s scores and samples within 1e-5;
 /// the published networks' within 1e-4 (the f32 log-domain Sinkhorn's
@@ -131,14 +131,16 @@ fn the_plain_path_of_every_network_equals_its_tensor_reference() {
         masks,
         ..Inference::MC_DROPOUT
     };
-    let ours_run = run(MaskScope::Shared);
-    let open = || {
-        let bytes = include_bytes!("../../../models/ours.bpk");
-        let ours = Ours::from_weights(super::arch::Architecture::default(), bytes, ours_run);
-        McMatcher::new(crate::matching::Method::Ours, ours.unwrap(), ours_run)
-    };
-    assert!(open().network().runs_plain());
-    holds("ours shared", &open(), &open().with_tensor_path(), 1e-5);
+    for masks in [MaskScope::Shared, MaskScope::PerNode] {
+        let r = run(masks);
+        let open = || {
+            let bytes = include_bytes!("../../../models/ours.bpk");
+            let ours = Ours::from_weights(super::arch::Architecture::default(), bytes, r);
+            McMatcher::new(crate::matching::Method::Ours, ours.unwrap(), r)
+        };
+        let label = format!("ours {masks:?}");
+        holds(&label, &open(), &open().with_tensor_path(), 1e-5);
+    }
     let shipped: [(DeepMethod, &[u8]); 3] = [
         (
             DeepMethod::GcnGm,
@@ -161,16 +163,4 @@ fn the_plain_path_of_every_network_equals_its_tensor_reference() {
             holds(&label, &open(network().never_carry()), &tensor, 1e-4);
         }
     }
-}
-
-/// `ours` under per-node masks runs through the tensors: the plain path
-/// covers shared masks only (Eq. 8, what `ours` is trained with).
-#[test]
-fn ours_under_per_node_masks_runs_through_the_tensors() {
-    let run = Inference {
-        masks: MaskScope::PerNode,
-        ..Inference::MC_DROPOUT
-    };
-    let ours = Ours::untrained(super::arch::Architecture::default(), 1, run);
-    assert!(!ours.runs_plain());
 }

@@ -7,10 +7,10 @@
 /// A linear layer as plain numbers: `y = x W + b`, `W` `[in, out]`
 /// row-major (burn's layout).
 pub(crate) struct PlainLinear {
-    pub d_in: usize,
-    pub d_out: usize,
-    pub weight: Vec<f32>,
-    pub bias: Vec<f32>,
+    pub(crate) d_in: usize,
+    pub(crate) d_out: usize,
+    pub(crate) weight: Vec<f32>,
+    pub(crate) bias: Vec<f32>,
 }
 
 impl PlainLinear {

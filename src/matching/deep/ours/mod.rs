@@ -11,6 +11,7 @@
 //!   masks keep.
 //! - here: [`Ours`], the network as the MC shell ([`super::mc`]) runs it.
 
+mod first_layer;
 mod model;
 mod pair;
 mod second_layer;
@@ -23,9 +24,10 @@ use std::sync::{Arc, Mutex};
 
 use burn::prelude::*;
 
+use self::first_layer::FirstLayer;
 pub(crate) use self::model::{OursNet, PairTensors};
 use self::pair::{PairResidual, PlainPair};
-use self::second_layer::SharedMaskConv;
+use self::second_layer::{PlainSpline, SharedMaskConv};
 use self::spline::CellWeights;
 pub(crate) use self::spline::GraphBatch;
 use super::arch::{Architecture, MaskScope, likelihood_terms};
@@ -67,20 +69,30 @@ fn problem_key(first: &MatchView, second: &MatchView) -> u64 {
     rng::key(&parts)
 }
 
-/// One vehicle's embedding: its graph as tensors (the first layer and the
-/// tensor path read it) and the node embeddings of every MC-dropout
-/// sample, `[T, N, out]` row-major; its shape for the arithmetic counts.
+/// One vehicle's embedding: the node embeddings of every MC-dropout
+/// sample, `[T, N, out]` row-major, its graph as tensors when the tensor
+/// path made it, and its shape for the arithmetic counts.
 pub(crate) struct Embedded {
-    graph: GraphBatch,
+    graph: Option<GraphBatch>,
     pub(crate) h: Vec<f32>,
     shape: GraphShape,
 }
 
-/// The plain path under shared masks: the second spline layer and the
-/// pair part, with the weights the masks keep gathered once.
+/// The plain path: the first spline layer (no mask), the second (under
+/// shared masks with the weights they keep gathered once, else per node)
+/// and the pair part.
 struct PlainPath {
-    second_layer: SharedMaskConv,
+    first_layer: FirstLayer,
+    second_layer: SecondLayer,
     pair: PlainPair,
+}
+
+/// The second spline layer under the run's masks.
+enum SecondLayer {
+    /// One mask per sample for every node (Eq. 8).
+    Shared(SharedMaskConv),
+    /// Masks per node, drawn per graph.
+    PerNode(PlainSpline),
 }
 
 /// `ours`'s network as the MC shell runs it.
@@ -93,8 +105,8 @@ pub(crate) struct Ours {
     terms: LikelihoodTerms,
     /// The network's scalar parameters, read once.
     combination: model::Combination,
-    /// The plain path, when the masks are shared (Eq. 8).
-    plain: Option<PlainPath>,
+    /// The network without tensors, under the run's masks.
+    plain: PlainPath,
     /// The spline layers' weights per set of kernel cells (bit mask).
     cell_weights: Mutex<HashMap<u32, Arc<CellWeights>>>,
 }
@@ -112,10 +124,7 @@ impl Ours {
         }
         let net = net.valid();
         let combination = net.combination();
-        let plain = match run.masks {
-            MaskScope::Shared => Some(plain_path(&net, &arch, &run)?),
-            MaskScope::PerNode => None,
-        };
+        let plain = plain_path(&net, &arch, &run)?;
         Ok(Self {
             terms: likelihood_terms(&arch, run.gate_chi2),
             arch,
@@ -226,10 +235,10 @@ impl Ours {
 
     /// The pair part through the tensors (the reference of the plain
     /// one, and what per-node masks use).
-    fn tensor_pair(
+    fn tensor_pair<'a>(
         &self,
         [s1, s2]: [&Side<'_, Self>; 2],
-        [e1, e2]: [&Embedded; 2],
+        [e1, e2]: [&'a Embedded; 2],
         input: &PairInput,
     ) -> Result<PairResidual, TensorRead> {
         let (n1, n2) = (input.n1, input.n2);
@@ -240,9 +249,10 @@ impl Ours {
             Tensor::<4>::from_data(TensorData::new(e.h.clone(), shape), &self.device)
         };
         let (h1, h2) = (h(e1, s1.input.n), h(e2, s2.input.n));
-        let out = self
-            .net
-            .pair((&h1, &e1.graph), (&h2, &e2.graph), &tensors, masks);
+        // The tensor path made both embeddings, with their graphs.
+        let graph = |e: &'a Embedded| e.graph.as_ref().ok_or("an embedding without its graph");
+        let (g1, g2) = (graph(e1)?, graph(e2)?);
+        let out = self.net.pair((&h1, g1), (&h2, g2), &tensors, masks);
         Ok(PairResidual {
             residual: values(out.residual)?,
             dust: match out.dust {
@@ -258,13 +268,22 @@ impl Ours {
     }
 }
 
-/// The plain path of `net` under `run`'s shared masks: the masks are the
-/// same for every graph and pair, so the kept weights are gathered once.
+/// The plain path of `net` under `run`'s masks: shared masks are the
+/// same for every graph and pair, so the weights they keep are gathered
+/// once.
 fn plain_path(
     net: &OursNet,
     arch: &Architecture,
     run: &Inference,
 ) -> Result<PlainPath, TensorRead> {
+    let first_layer = FirstLayer::new(net.first_layer_weights()?);
+    if run.masks == MaskScope::PerNode {
+        return Ok(PlainPath {
+            first_layer,
+            second_layer: SecondLayer::PerNode(net.second_layer()?),
+            pair: PlainPair::new(net.pair_weights()?, run.samples, None),
+        });
+    }
     let mut stream = rng::stream(run.seed, Purpose::EmbeddingDropout, &[SHARED_MASKS_KEY]);
     let p = arch.dropout_conv;
     let m1 = dropout_mask_16(&mut stream, run.samples * arch.hidden, p);
@@ -274,8 +293,9 @@ fn plain_path(
     let r = arch.consensus_dim;
     let phi = dropout_mask_16(&mut shared, run.samples * r, arch.dropout_phi);
     Ok(PlainPath {
-        second_layer: SharedMaskConv::new(&net.second_layer()?, &m1, &m2),
-        pair: PlainPair::new(net.pair_weights()?, run.samples, &phi),
+        first_layer,
+        second_layer: SecondLayer::Shared(SharedMaskConv::new(&net.second_layer()?, &m1, &m2)),
+        pair: PlainPair::new(net.pair_weights()?, run.samples, Some(&phi)),
     })
 }
 
@@ -313,50 +333,64 @@ impl Network for Ours {
         true
     }
 
-    fn runs_plain(&self) -> bool {
-        self.plain.is_some()
-    }
-
     fn uses_positions(&self) -> bool {
         self.arch.positions
     }
 
-    /// With the plain second layer, the graphs go through it together, so
-    /// that each sample's weights are read once for all of them.
+    /// On the plain path the graphs go through the second layer together,
+    /// so that each sample's weights are read once for all of them.
     fn embed(
         &self,
         inputs: &[(&GraphInput, u64)],
         path: Path,
     ) -> Result<(Vec<Embedded>, u64), TensorRead> {
-        let graphs: Vec<GraphBatch> = inputs.iter().map(|(i, _)| self.graph(i)).collect();
         let shapes: Vec<GraphShape> = inputs
             .iter()
             .map(|(i, _)| GraphShape::of_input(i))
             .collect();
         let t = self.run.samples;
-        let plain = self.plain.as_ref().filter(|_| path == Path::Plain);
-        let macs = |&s: &GraphShape| match plain {
+        let shared = match (path, &self.plain.second_layer) {
+            (Path::Plain, SecondLayer::Shared(layer)) => Some(layer),
+            _ => None,
+        };
+        let macs = |&s: &GraphShape| match shared {
             Some(_) => plain_embedding_macs(&self.arch, s, t) as u64,
             None => inference_macs(&self.arch, s, s, t).embeddings[0],
         };
         let macs = shapes.iter().map(macs).sum();
-        let hs: Vec<Vec<f32>> = if let Some(plain) = plain {
-            let firsts = graphs
+        let (graphs, hs): (Vec<Option<GraphBatch>>, Vec<Vec<f32>>) = if path == Path::Plain {
+            let firsts: Vec<Vec<f32>> = inputs
                 .iter()
-                .map(|g| self.net.first_layer(g))
-                .collect::<Result<Vec<_>, _>>()?;
-            let layers: Vec<(&[f32], &GraphInput)> = firsts
-                .iter()
-                .zip(inputs)
-                .map(|(h, (i, _))| (h.as_slice(), *i))
+                .map(|(i, _)| self.plain.first_layer.forward(i))
                 .collect();
-            plain.second_layer.forward_many(&layers)
+            let hs = match &self.plain.second_layer {
+                SecondLayer::Shared(layer) => {
+                    let layers: Vec<(&[f32], &GraphInput)> = firsts
+                        .iter()
+                        .zip(inputs)
+                        .map(|(h, (i, _))| (h.as_slice(), *i))
+                        .collect();
+                    layer.forward_many(&layers)
+                }
+                SecondLayer::PerNode(layer) => firsts
+                    .iter()
+                    .zip(inputs)
+                    .map(|(h, &(i, key))| {
+                        let [m1, m2] = self.embedding_masks(i.n, key);
+                        layer.forward_per_node(i, h, [&m1, &m2])
+                    })
+                    .collect(),
+            };
+            (hs.iter().map(|_| None).collect(), hs)
         } else {
-            graphs
-                .iter()
-                .zip(inputs)
-                .map(|(g, &(i, key))| values(self.tensor_embedding(g, i, key)))
-                .collect::<Result<_, _>>()?
+            let mut graphs = Vec::with_capacity(inputs.len());
+            let mut hs = Vec::with_capacity(inputs.len());
+            for &(i, key) in inputs {
+                let g = self.graph(i);
+                hs.push(values(self.tensor_embedding(&g, i, key))?);
+                graphs.push(Some(g));
+            }
+            (graphs, hs)
         };
         let made = graphs
             .into_iter()
@@ -385,24 +419,51 @@ impl Network for Ours {
         };
         let macs = inference_macs(&self.arch, e1.shape, e2.shape, t).shared_pair();
         let input = pair_input(s1.view, s2.view, relative, &self.terms);
-        let out = match self.plain.as_ref().filter(|_| path == Path::Plain) {
-            Some(plain) => {
-                // The pair's indicators: the first normals of its stream,
-                // as `pair_masks` draws them under shared masks.
-                let key = problem_key(s1.view, s2.view);
-                let mut stream = rng::stream(self.run.seed, Purpose::Dropout, &[key]);
-                let indicators = indicator_values(&mut stream, n1 * self.arch.consensus_dim);
-                plain
-                    .pair
-                    .forward((&e1.h, s1.input), (&e2.h, s2.input), &input, &indicators)
+        let out = match path {
+            Path::Plain => {
+                let [indicators, phi] = self.pair_draws(s1.view, s2.view);
+                let (h1, h2) = ((&e1.h[..], s1.input), (&e2.h[..], s2.input));
+                self.plain.pair.forward(h1, h2, &input, [&indicators, &phi])
             }
-            None => self.tensor_pair([s1, s2], [e1, e2], &input)?,
+            Path::Tensor => self.tensor_pair([s1, s2], [e1, e2], &input)?,
         };
         Ok((self.combine(&input, &out, [n1, n2]), macs))
     }
 }
 
 impl Ours {
+    /// The conv dropout masks of one vehicle's embedding under masks per
+    /// node (`[T, n, hidden]`, `[T, n, out]`), from the stream of its
+    /// embedding `key`, as the tensor path draws them.
+    fn embedding_masks(&self, n: usize, key: u64) -> [Vec<f32>; 2] {
+        let mut stream = rng::stream(self.run.seed, Purpose::EmbeddingDropout, &[key]);
+        let (t, p) = (self.run.samples, self.arch.dropout_conv);
+        let m1 = dropout_mask_16(&mut stream, t * n * self.arch.hidden, p);
+        let m2 = dropout_mask_16(&mut stream, t * n * self.arch.out, p);
+        [m1, m2]
+    }
+
+    /// A pair's draws from its own stream, as the tensor path draws them:
+    /// under masks per node the consensus MLP's masks (`[T, n1, n2, R]`,
+    /// when the network has consensus), then the random node indicators
+    /// (`[n1, R]`; under shared masks, the first normals of the stream).
+    fn pair_draws(&self, first: &MatchView, second: &MatchView) -> [Vec<f32>; 2] {
+        let key = problem_key(first, second);
+        let mut stream = rng::stream(self.run.seed, Purpose::Dropout, &[key]);
+        let (n1, n2, t) = (
+            first.detections.len(),
+            second.detections.len(),
+            self.run.samples,
+        );
+        let r = self.arch.consensus_dim;
+        let phi = if self.run.masks == MaskScope::PerNode && self.arch.consensus {
+            dropout_mask_16(&mut stream, t * n1 * n2 * r, self.arch.dropout_phi)
+        } else {
+            Vec::new()
+        };
+        [indicator_values(&mut stream, n1 * r), phi]
+    }
+
     /// The samples' scores (the shared likelihood, scaled, plus the gated
     /// residual), their mean, and Sinkhorn's soft assignments with the
     /// nodes' "no match" scores.

@@ -26,7 +26,6 @@ use burn::tensor::activation;
 
 use super::spline::{CellWeights, GraphBatch, SplineConv};
 use crate::matching::deep::arch::Architecture;
-use crate::matching::deep::backend::values;
 use crate::matching::deep::features::{DUST_FEATURES, PAIR_FEATURES, PairInput};
 use crate::matching::deep::mc::TensorRead;
 use crate::matching::deep::train::init::{Init, named_param};
@@ -34,20 +33,20 @@ use crate::matching::deep::train::masks::{Masks, PairMasks};
 use crate::matching::deep::train::sinkhorn::{BLOCKED, log_sinkhorn};
 
 /// The pair inputs of a batch as tensors (see [`super::features::PairInput`]).
-pub struct PairTensors {
+pub(crate) struct PairTensors {
     /// `[B, 1, N1, N2]` the shared log-likelihood (0 where blocked).
-    pub ll: Tensor<4>,
+    pub(crate) ll: Tensor<4>,
     /// `[B, 1, N1, N2]` true where the pair is gated or a node is padding.
-    pub blocked: Tensor<4, Bool>,
+    pub(crate) blocked: Tensor<4, Bool>,
     /// `[B, N1, N2, PAIR_FEATURES]`
-    pub pair_features: Tensor<4>,
+    pub(crate) pair_features: Tensor<4>,
     /// `[B, N1, DUST_FEATURES]` and `[B, N2, DUST_FEATURES]`.
-    pub dust_features: [Tensor<3>; 2],
+    pub(crate) dust_features: [Tensor<3>; 2],
 }
 
 impl PairTensors {
     /// Pair inputs padded to `n1 x n2`.
-    pub fn new(inputs: &[&PairInput], [n1, n2]: [usize; 2], device: &Device) -> Self {
+    pub(crate) fn new(inputs: &[&PairInput], [n1, n2]: [usize; 2], device: &Device) -> Self {
         let b = inputs.len();
         let (fp, fd) = (PAIR_FEATURES, DUST_FEATURES);
         let mut ll = vec![0f32; b * n1 * n2];
@@ -85,9 +84,9 @@ impl PairTensors {
 /// What the pair part of the network says, before its gates: the
 /// residual of every pair in every sample, `[B, T, N1, N2]`, and the
 /// learned "no match" score of every node, `[B, 1, N1]` and `[B, 1, N2]`.
-pub struct PairOutput {
-    pub residual: Tensor<4>,
-    pub dust: [Tensor<3>; 2],
+pub(crate) struct PairOutput {
+    pub(crate) residual: Tensor<4>,
+    pub(crate) dust: [Tensor<3>; 2],
 }
 
 /// The scalar parameters that combine the shared likelihood with what the
@@ -96,15 +95,15 @@ pub struct PairOutput {
 /// initialisation scale is 1 and both gates 0: the scores are the shared
 /// likelihood itself.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Combination {
-    pub scale: f32,
-    pub gate: f32,
-    pub dustbin: f32,
-    pub dust_gate: f32,
+pub(crate) struct Combination {
+    pub(crate) scale: f32,
+    pub(crate) gate: f32,
+    pub(crate) dustbin: f32,
+    pub(crate) dust_gate: f32,
 }
 
 #[derive(Module, Debug)]
-pub struct OursNet {
+pub(crate) struct OursNet {
     conv1: SplineConv,
     conv2: SplineConv,
     consensus_conv: Option<SplineConv>,
@@ -131,7 +130,7 @@ pub struct OursNet {
 const INITIAL_DUSTBIN: f32 = -3.0;
 
 impl OursNet {
-    pub fn new(arch: &Architecture, init: Init, device: &Device) -> Self {
+    pub(crate) fn new(arch: &Architecture, init: Init, device: &Device) -> Self {
         let r = arch.consensus_dim;
         let (consensus_conv, phi_in, phi_out) = if arch.consensus {
             (
@@ -170,14 +169,14 @@ impl OursNet {
     /// per-node "no match" scores): what training does first, for tests
     /// of the gated parts without training.
     #[cfg(test)]
-    pub fn with_gates(self, gate: f32) -> Self {
+    pub(crate) fn with_gates(self, gate: f32) -> Self {
         self.with_gate_values(gate, gate)
     }
 
     /// The same network with the residual's gate at `gate` and the
     /// per-node "no match" score's at `dust_gate`.
     #[cfg(test)]
-    pub fn with_gate_values(mut self, gate: f32, dust_gate: f32) -> Self {
+    pub(crate) fn with_gate_values(mut self, gate: f32, dust_gate: f32) -> Self {
         let device = self.gate.val().device();
         let value = |v: f32| Tensor::from_data(TensorData::new(vec![v], [1]), &device);
         self.gate = named_param("gate", value(gate));
@@ -186,7 +185,7 @@ impl OursNet {
     }
 
     /// The scalar parameters, read once (inference).
-    pub fn combination(&self) -> Combination {
+    pub(crate) fn combination(&self) -> Combination {
         let read = |p: &Param<Tensor<1>>| p.val().into_scalar::<f32>();
         Combination {
             scale: read(&self.log_scale).exp(),
@@ -198,7 +197,7 @@ impl OursNet {
 
     /// Psi: node embeddings `[B, T, N, out]` for T dropout samples of each
     /// graph (`mask1`: `[B, T, N, hidden]`, `mask2`: `[B, T, N, out]`).
-    pub fn embed(&self, g: &GraphBatch, mask1: Tensor<4>, mask2: Tensor<4>) -> Tensor<4> {
+    pub(crate) fn embed(&self, g: &GraphBatch, mask1: Tensor<4>, mask2: Tensor<4>) -> Tensor<4> {
         // The first layer's input is the same for every sample: compute once.
         let w = g.weights.as_deref();
         let h = activation::relu(self.conv1.forward(g.x.clone(), g, w.map(|w| &w.conv1)));
@@ -208,22 +207,30 @@ impl OursNet {
 
     /// The first layer's output `relu(conv1(x))` of a single graph, `[n,
     /// hidden]` row-major: the same for every sample.
-    pub fn first_layer(&self, g: &GraphBatch) -> Result<Vec<f32>, TensorRead> {
+    #[cfg(test)]
+    pub(crate) fn first_layer(&self, g: &GraphBatch) -> Result<Vec<f32>, TensorRead> {
         let w = g.weights.as_deref();
-        values(activation::relu(self.conv1.forward(
+        crate::matching::deep::backend::values(activation::relu(self.conv1.forward(
             g.x.clone(),
             g,
             w.map(|w| &w.conv1),
         )))
     }
 
+    /// The first layer's parameters as plain numbers.
+    pub(crate) fn first_layer_weights(
+        &self,
+    ) -> Result<super::second_layer::PlainSpline, TensorRead> {
+        self.conv1.plain()
+    }
+
     /// The second layer's parameters as plain numbers.
-    pub fn second_layer(&self) -> Result<super::second_layer::PlainSpline, TensorRead> {
+    pub(crate) fn second_layer(&self) -> Result<super::second_layer::PlainSpline, TensorRead> {
         self.conv2.plain()
     }
 
     /// The pair part's parameters as plain numbers (inference).
-    pub fn pair_weights(&self) -> Result<super::pair::PairWeights, TensorRead> {
+    pub(crate) fn pair_weights(&self) -> Result<super::pair::PairWeights, TensorRead> {
         let linear = crate::matching::deep::backend::linear;
         let consensus = match (&self.consensus_conv, &self.phi_in, &self.phi_out) {
             (Some(conv), Some(phi_in), Some(phi_out)) => {
@@ -243,7 +250,7 @@ impl OursNet {
 
     /// Every spline layer's weights of the kernel cells of `g`, for
     /// [`GraphBatch::with_weights`] on graphs with the same cells.
-    pub fn cell_weights(&self, g: &GraphBatch) -> CellWeights {
+    pub(crate) fn cell_weights(&self, g: &GraphBatch) -> CellWeights {
         CellWeights {
             cell_mask: g.cell_mask,
             conv1: self.conv1.cell_weights(&g.cells),
@@ -257,7 +264,7 @@ impl OursNet {
 
     /// The scores Sinkhorn normalises, `[B, T, N1, N2]`: `scale ll + gate
     /// residual`, [`BLOCKED`] where a gate closes or a node is padding.
-    pub fn scores(&self, pair: &PairTensors, residual: Tensor<4>) -> Tensor<4> {
+    pub(crate) fn scores(&self, pair: &PairTensors, residual: Tensor<4>) -> Tensor<4> {
         let scale = self.log_scale.val().exp().reshape([1, 1, 1, 1]);
         let gate = self.gate.val().reshape([1, 1, 1, 1]);
         let s = pair.ll.clone() * scale + residual * gate;
@@ -266,7 +273,7 @@ impl OursNet {
     }
 
     /// Each node's "no match" score after its gate, `[B, 1, N]`.
-    pub fn dust_scores(&self, dust: Tensor<3>) -> Tensor<3> {
+    pub(crate) fn dust_scores(&self, dust: Tensor<3>) -> Tensor<3> {
         let gate = self.dust_gate.val().reshape([1, 1, 1]);
         self.dustbin.val().reshape([1, 1, 1]) + dust * gate
     }
@@ -278,7 +285,7 @@ impl OursNet {
     /// full scores (likelihood and residual so far, with a "no match"
     /// column), so that consensus starts from where the positions put the
     /// objects.
-    pub fn pair(
+    pub(crate) fn pair(
         &self,
         first: (&Tensor<4>, &GraphBatch),
         second: (&Tensor<4>, &GraphBatch),
@@ -328,7 +335,7 @@ impl OursNet {
 
     /// Log of the soft assignment with dustbins, `[B, T, N1 + 1, N2 + 1]`,
     /// for training: embeddings, pair part and Sinkhorn in one pass.
-    pub fn forward(
+    pub(crate) fn forward(
         &self,
         graphs: [&GraphBatch; 2],
         pair: &PairTensors,

@@ -31,27 +31,28 @@ fn exp_or_zero(x: f32) -> f32 {
 
 /// The pair part's parameters (as [`super::OursNet`] holds them).
 pub(crate) struct PairWeights {
-    pub pair_in: PlainLinear,
-    pub pair_out: PlainLinear,
-    pub dust_in: PlainLinear,
-    pub dust_out: PlainLinear,
+    pub(crate) pair_in: PlainLinear,
+    pub(crate) pair_out: PlainLinear,
+    pub(crate) dust_in: PlainLinear,
+    pub(crate) dust_out: PlainLinear,
     /// The consensus conv and MLP, when the network has consensus.
-    pub consensus: Option<(PlainSpline, PlainLinear, PlainLinear)>,
-    pub combination: Combination,
+    pub(crate) consensus: Option<(PlainSpline, PlainLinear, PlainLinear)>,
+    pub(crate) combination: Combination,
 }
 
-/// The consensus step under one set of shared masks.
+/// The consensus step.
 struct Consensus {
     /// The spline convolution, every unit kept (one "sample").
     conv: SharedMaskConv,
     phi_in: PlainLinear,
     phi_out: PlainLinear,
-    /// Per sample, the kept hidden units of `phi_in` and the mask's value
-    /// on them.
-    kept: Vec<Vec<(usize, f32)>>,
+    /// Under shared masks, per sample, the kept hidden units of `phi_in`
+    /// and the mask's value on them; `None`: masks per pair entry, given
+    /// with each pair.
+    kept: Option<Vec<Vec<(usize, f32)>>>,
 }
 
-/// The pair part under `T` shared masks.
+/// The pair part with `T` samples.
 pub(crate) struct PlainPair {
     /// The MLPs and scalars (its consensus moved into `consensus`).
     w: PairWeights,
@@ -63,22 +64,26 @@ pub(crate) struct PlainPair {
 /// in every sample, `[T, n1, n2]`, and each node's learned "no match"
 /// score before its gate, per vehicle.
 pub(crate) struct PairResidual {
-    pub residual: Vec<f32>,
-    pub dust: [Vec<f32>; 2],
+    pub(crate) residual: Vec<f32>,
+    pub(crate) dust: [Vec<f32>; 2],
 }
 
 impl PlainPair {
     /// The pair part with `phi_mask` (`[T, R]`: each sample's consensus
-    /// MLP mask, 0 or the sample's scale; ignored without consensus).
-    pub(crate) fn new(mut w: PairWeights, samples: usize, phi_mask: &[f32]) -> Self {
+    /// MLP mask, 0 or the sample's scale, shared by every pair entry;
+    /// `None`: masks per pair entry, given with each pair; ignored without
+    /// consensus).
+    pub(crate) fn new(mut w: PairWeights, samples: usize, phi_mask: Option<&[f32]>) -> Self {
         let consensus = w.consensus.take().map(|(conv, phi_in, phi_out)| {
             let r = conv.d_out;
-            let kept = (0..samples)
-                .map(|t| {
-                    let m = &phi_mask[t * r..(t + 1) * r];
-                    (0..r).filter(|&u| m[u] != 0.0).map(|u| (u, m[u])).collect()
-                })
-                .collect();
+            let kept = phi_mask.map(|phi_mask| {
+                (0..samples)
+                    .map(|t| {
+                        let m = &phi_mask[t * r..(t + 1) * r];
+                        (0..r).filter(|&u| m[u] != 0.0).map(|u| (u, m[u])).collect()
+                    })
+                    .collect()
+            });
             Consensus {
                 conv: SharedMaskConv::new(&conv, &vec![1.0; conv.d_in], &vec![1.0; r]),
                 phi_in,
@@ -96,13 +101,14 @@ impl PlainPair {
     /// The residual and raw "no match" scores of one pair: `h1` `[T, n1,
     /// out]` and `h2` `[T, n2, out]` the two vehicles' embeddings, `g1`
     /// and `g2` their graphs, `indicators` `[n1, R]` the pair's random
-    /// node indicators (unused without consensus).
+    /// node indicators (unused without consensus), `phi` `[T, n1, n2, R]`
+    /// the consensus MLP's masks per pair entry when they are not shared.
     pub(crate) fn forward(
         &self,
         (h1, g1): (&[f32], &GraphInput),
         (h2, g2): (&[f32], &GraphInput),
         input: &PairInput,
-        indicators: &[f32],
+        [indicators, phi]: [&[f32]; 2],
     ) -> PairResidual {
         let (n1, n2, t) = (input.n1, input.n2, self.samples);
         let w = &self.w;
@@ -138,7 +144,8 @@ impl PlainPair {
             *r += p;
         }
         if let Some(c) = &self.consensus {
-            self.consensus(c, [g1, g2], input, indicators, &dust[0], &mut residual);
+            let draws = [indicators, phi];
+            self.consensus(c, [g1, g2], input, draws, &dust[0], &mut residual);
         }
         PairResidual { residual, dust }
     }
@@ -150,7 +157,7 @@ impl PlainPair {
         c: &Consensus,
         [g1, g2]: [&GraphInput; 2],
         input: &PairInput,
-        indicators: &[f32],
+        [indicators, phi]: [&[f32]; 2],
         dust1: &[f32],
         residual: &mut [f32],
     ) {
@@ -202,13 +209,22 @@ impl PlainPair {
             out
         };
         let a = project(&z1, n1);
+        let Some(kept) = &c.kept else {
+            for (s, z2) in z2.iter().enumerate() {
+                let b = project(z2, n2);
+                let rows = &mut residual[s * n1 * n2..(s + 1) * n1 * n2];
+                let masks = &phi[s * n1 * n2 * r..(s + 1) * n1 * n2 * r];
+                per_entry_terms(c, [&a, &b], masks, [n1, n2], rows);
+            }
+            return;
+        };
         // Per sample, the kept hidden units side by side: z1 W + b and z2 W
         // at them, and the output weight times the mask's value.
         let (mut a_kept, mut b_kept, mut w_kept, mut b_t) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (s, z2) in z2.iter().enumerate() {
             let b = project(z2, n2);
-            let kept = &c.kept[s];
+            let kept = &kept[s];
             a_kept.clear();
             for ai in a.chunks(r) {
                 a_kept.extend(kept.iter().map(|&(u, _)| ai[u] + c.phi_in.bias[u]));
@@ -229,6 +245,34 @@ impl PlainPair {
                 rows,
                 &mut b_t,
             );
+        }
+    }
+}
+
+/// The consensus MLP's term of every pair entry of one sample under masks
+/// per entry and unit: `phi_out(relu(a_i + b_in - b_j) m_ij)`, `a` and
+/// `b` both sides' `phi_in` products (`[n1, R]`, `[n2, R]`, no bias),
+/// `masks` `[n1, n2, R]`.
+fn per_entry_terms(
+    c: &Consensus,
+    [a, b]: [&[f32]; 2],
+    masks: &[f32],
+    [n1, n2]: [usize; 2],
+    rows: &mut [f32],
+) {
+    let r = c.phi_in.d_out;
+    let (bias, w_out) = (&c.phi_in.bias, &c.phi_out.weight);
+    for i in 0..n1 {
+        let ai = &a[i * r..(i + 1) * r];
+        for j in 0..n2 {
+            let bj = &b[j * r..(j + 1) * r];
+            let m = &masks[(i * n2 + j) * r..(i * n2 + j + 1) * r];
+            let mut sum = 0f32;
+            for u in 0..r {
+                let hidden = (ai[u] + bias[u] - bj[u]).max(0.0) * m[u];
+                sum += hidden * w_out[u];
+            }
+            rows[i * n2 + j] += sum + c.phi_out.bias[0];
         }
     }
 }

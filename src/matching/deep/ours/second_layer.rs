@@ -1,9 +1,9 @@
 //! The second spline convolution at inference under shared dropout masks
 //! (Eq. 8: one mask per sample over a layer's units, the same for every
 //! node of every graph), in plain Rust: the arithmetic the masks make
-//! unnecessary is not done. [`super::network::Network::embed`] is the
-//! reference it is held equal to (the tests), and what training and
-//! per-node masks use.
+//! unnecessary is not done; under masks per node, the tensor layer's
+//! products ([`PlainSpline::forward_per_node`]). [`super::OursNet::embed`]
+//! is the reference both are held to (the path tester).
 //!
 //! In sample `t` a dropped input unit contributes nothing and a dropped
 //! output unit is zeroed after the ReLU, so only the kept rows and columns
@@ -43,11 +43,81 @@ pub(crate) struct SharedMaskConv {
 /// A layer's parameters as plain numbers: `root` `[in, out]`, `weight`
 /// `[in, KERNEL_2D * out]` (cell-major within a row), `bias` `[out]`.
 pub(crate) struct PlainSpline {
-    pub d_in: usize,
-    pub d_out: usize,
-    pub root: Vec<f32>,
-    pub weight: Vec<f32>,
-    pub bias: Vec<f32>,
+    pub(crate) d_in: usize,
+    pub(crate) d_out: usize,
+    pub(crate) root: Vec<f32>,
+    pub(crate) weight: Vec<f32>,
+    pub(crate) bias: Vec<f32>,
+}
+
+impl PlainSpline {
+    /// `relu(conv(h m1)) m2` under masks per node and unit, `h` `[n, in]`
+    /// the same in every sample, `m1` `[T, n, in]`, `m2` `[T, n, out]`:
+    /// `[T, n, out]`. The tensor layer's products: every sample's rows at
+    /// once against the root and against the used kernel cells' weights,
+    /// then the neighbours mixed through the dense `[n, n C]` matrix.
+    pub(crate) fn forward_per_node(
+        &self,
+        g: &GraphInput,
+        h: &[f32],
+        [m1, m2]: [&[f32]; 2],
+    ) -> Vec<f32> {
+        let (n, d_in, d_out) = (g.n, self.d_in, self.d_out);
+        let t = m1.len() / (n * d_in).max(1);
+        let x: Vec<f32> = m1
+            .chunks(n * d_in)
+            .flat_map(|m| m.iter().zip(h).map(|(m, h)| h * m))
+            .collect();
+        let mut root = vec![0f32; t * n * d_out];
+        matmul(t * n, d_in, d_out, &x, &self.root, &mut root);
+        let e = g.edge_count();
+        if e > 0 {
+            let mut used = [false; KERNEL_2D];
+            for &k in &g.basis_index {
+                used[k as usize] = true;
+            }
+            let cells: Vec<usize> = (0..KERNEL_2D).filter(|&k| used[k]).collect();
+            let c = cells.len();
+            let mut position = [0usize; KERNEL_2D];
+            for (p, &k) in cells.iter().enumerate() {
+                position[k] = p;
+            }
+            let mut w = vec![0f32; d_in * c * d_out];
+            for u in 0..d_in {
+                for (p, &k) in cells.iter().enumerate() {
+                    let from = u * KERNEL_2D * d_out + k * d_out;
+                    let to = u * c * d_out + p * d_out;
+                    w[to..to + d_out].copy_from_slice(&self.weight[from..from + d_out]);
+                }
+            }
+            let mut mixing = vec![0f32; n * n * c];
+            for edge in 0..e {
+                let (i, j) = (g.dst[edge] as usize, g.src[edge] as usize);
+                let inv_deg = g.aggregate[i * e + edge];
+                for q in 0..4 {
+                    let cell = position[g.basis_index[4 * edge + q] as usize];
+                    mixing[i * c * n + j * c + cell] += g.basis_weight[4 * edge + q] * inv_deg;
+                }
+            }
+            let mut xw = vec![0f32; t * n * c * d_out];
+            matmul(t * n, d_in, c * d_out, &x, &w, &mut xw);
+            let mut messages = vec![0f32; n * d_out];
+            for (s, xw) in xw.chunks(n * c * d_out).enumerate() {
+                matmul(n, n * c, d_out, &mixing, xw, &mut messages);
+                let rows = &mut root[s * n * d_out..(s + 1) * n * d_out];
+                for (r, m) in rows.iter_mut().zip(&messages) {
+                    *r += m;
+                }
+            }
+        }
+        for (row, m) in root.chunks_exact_mut(d_out).zip(m2.chunks_exact(d_out)) {
+            for ((v, b), m) in row.iter_mut().zip(&self.bias).zip(m) {
+                let y = *v + b;
+                *v = if y <= 0.0 { 0.0 } else { y } * m;
+            }
+        }
+        root
+    }
 }
 
 impl SharedMaskConv {

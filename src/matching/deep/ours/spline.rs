@@ -19,38 +19,38 @@ use crate::matching::deep::train::init::{Init, named_param};
 
 /// Graphs as tensors, padded to a common node count `N` (a batch of
 /// training pairs' graphs, or one graph at inference, `B = 1`).
-pub struct GraphBatch {
+pub(crate) struct GraphBatch {
     /// Real nodes of each graph.
-    pub counts: Vec<usize>,
+    pub(crate) counts: Vec<usize>,
     /// `[B, 1, N, F]` node attributes (zeros for padding).
-    pub x: Tensor<4>,
+    pub(crate) x: Tensor<4>,
     /// The kernel cells whose messages are computed (ascending), as
     /// indices `[C]`: all of them, or only those some edge uses.
-    pub cells: Tensor<1, Int>,
+    pub(crate) cells: Tensor<1, Int>,
     /// `[B, 1, N, N * C]`: entry `[b, 0, i, j C + c]` is the basis weight
     /// of cell `cells[c]` of edge j -> i over the degree of i (zero when j
     /// is not a neighbour of i, and for padding). Columns run node-major
     /// so that the messages `x W` need only a reshape.
-    pub mixing: Tensor<4>,
+    pub(crate) mixing: Tensor<4>,
     /// `[B, 1, N * C, N]`: the same weights with rows (i, cell) and
     /// columns j, for layers that mix neighbours before their weights.
-    pub mixing_by_cell: Tensor<4>,
+    pub(crate) mixing_by_cell: Tensor<4>,
     /// `[B, 1, N, 1]`: 1 for a real node, 0 for padding.
-    pub node_mask: Tensor<4>,
+    pub(crate) node_mask: Tensor<4>,
     /// Directed edges over the whole batch (0: no messages at all).
-    pub edges: usize,
+    pub(crate) edges: usize,
     /// Bit k set when kernel cell k is in `cells`.
-    pub cell_mask: u32,
+    pub(crate) cell_mask: u32,
     /// The spline layers' weights of exactly these cells, when the caller
     /// has them ([`super::OursNet::cell_weights`]); else each
     /// layer selects them.
-    pub weights: Option<Arc<CellWeights>>,
+    pub(crate) weights: Option<Arc<CellWeights>>,
 }
 
 /// Every spline layer's weights of one set of kernel cells (`[in, C *
 /// out]` each): what [`SplineConv::forward`] would select, kept by a
 /// caller that sees the same cell set many times (inference).
-pub struct CellWeights {
+pub(crate) struct CellWeights {
     /// The cell set, as [`GraphBatch::cell_mask`].
     pub(crate) cell_mask: u32,
     pub(crate) conv1: Tensor<2>,
@@ -62,12 +62,12 @@ impl GraphBatch {
     /// Graphs padded to the largest, with every kernel cell (training:
     /// the gradient of a cell selection costs more than the messages it
     /// saves).
-    pub fn new(graphs: &[&GraphInput], device: &Device) -> Self {
+    pub(crate) fn new(graphs: &[&GraphInput], device: &Device) -> Self {
         Self::with_cells(graphs, [true; KERNEL_2D], device)
     }
 
     /// One graph with only the kernel cells some edge uses (inference).
-    pub fn used_cells(g: &GraphInput, device: &Device) -> Self {
+    pub(crate) fn used_cells(g: &GraphInput, device: &Device) -> Self {
         let mut used = [false; KERNEL_2D];
         for &k in &g.basis_index {
             used[k as usize] = true;
@@ -124,13 +124,13 @@ impl GraphBatch {
     }
 
     /// Nodes per graph after padding.
-    pub fn n(&self) -> usize {
+    pub(crate) fn n(&self) -> usize {
         self.x.dims()[2]
     }
 
     /// With the spline layers' weights of this batch's cells; weights of
     /// another cell set are ignored (the layers then select their own).
-    pub fn with_weights(mut self, weights: Arc<CellWeights>) -> Self {
+    pub(crate) fn with_weights(mut self, weights: Arc<CellWeights>) -> Self {
         if weights.cell_mask == self.cell_mask {
             self.weights = Some(weights);
         }
@@ -139,7 +139,7 @@ impl GraphBatch {
 }
 
 #[derive(Module, Debug)]
-pub struct SplineConv {
+pub(crate) struct SplineConv {
     /// `[in, KERNEL_2D * out]`: the kernel cells' weight matrices side by
     /// side.
     weight: Param<Tensor<2>>,
@@ -152,7 +152,7 @@ pub struct SplineConv {
 
 impl SplineConv {
     /// A layer named `name` (the parameter names of its streams).
-    pub fn new(name: &str, d_in: usize, d_out: usize, init: Init, device: &Device) -> Self {
+    pub(crate) fn new(name: &str, d_in: usize, d_out: usize, init: Init, device: &Device) -> Self {
         // Uniform(+-1/sqrt(fan_in)) with the fan-in of one kernel cell.
         let b = 1.0 / (d_in as f64).sqrt();
         let weight = [d_in, KERNEL_2D * d_out];
@@ -175,7 +175,12 @@ impl SplineConv {
     ///
     /// `selected`: this layer's weights of the batch's cells in the order's
     /// layout, if the caller keeps them ([`CellWeights`]).
-    pub fn forward(&self, x: Tensor<4>, g: &GraphBatch, selected: Option<&Tensor<2>>) -> Tensor<4> {
+    pub(crate) fn forward(
+        &self,
+        x: Tensor<4>,
+        g: &GraphBatch,
+        selected: Option<&Tensor<2>>,
+    ) -> Tensor<4> {
         let d_out = self.d_out;
         let [b, t, n, d_in] = x.dims();
         // Every node of every graph and sample as one row: one large

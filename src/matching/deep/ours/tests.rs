@@ -241,3 +241,48 @@ fn empty_sides_send_everything_to_the_dustbin() {
     let d = id.distribution.unwrap();
     assert!((0..a.detections.len()).all(|i| d.p(i, 0) == 1.0));
 }
+
+/// The plain first layer gives burn's first layer bit for bit (the same
+/// products through the same kernel in the same order), on the shipped
+/// weights, on graphs of 1 to 20 nodes.
+#[test]
+fn the_plain_first_layer_is_the_tensor_one_bit_for_bit() {
+    let weights = include_bytes!("../../../../models/ours.bpk");
+    let arch = Architecture::default();
+    let net = from_bytes(&arch, weights, &device()).unwrap().valid();
+    let plain = first_layer::FirstLayer::new(net.first_layer_weights().unwrap());
+    let mut scenes: Vec<Side> = vec![testkit::moved_copy().0, testkit::moved_copy().1];
+    let objects = testkit::world_objects();
+    scenes.push(Side::of(testkit::POSE_A, &objects, &[4], GPS));
+    scenes.push(Side::of(testkit::POSE_A, &objects, &[0, 3], GPS));
+    let scene = queue_scene();
+    let all: Vec<usize> = (0..scene.len()).collect();
+    scenes.push(Side::of(testkit::POSE_B, &scene, &all, GPS));
+    let mut big = testkit::world_objects();
+    big.extend(
+        scene
+            .iter()
+            .map(|&(p, c, col)| (p + Vec2::new(40.0, 40.0), c, col)),
+    );
+    big.extend(
+        scene
+            .iter()
+            .map(|&(p, c, col)| (p + Vec2::new(-30.0, 10.0), c, col)),
+    );
+    let all: Vec<usize> = (0..big.len().min(20)).collect();
+    scenes.push(Side::of(testkit::POSE_B, &big, &all, GPS));
+    for side in &scenes {
+        let v = side.view();
+        let input = graph_input(v.detections, v.graph, &v.pose_reported);
+        let tensor = net
+            .first_layer(&GraphBatch::used_cells(&input, &device()))
+            .unwrap();
+        let bits = |h: &[f32]| h.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(
+            bits(&plain.forward(&input)),
+            bits(&tensor),
+            "{} nodes",
+            input.n
+        );
+    }
+}

@@ -19,23 +19,23 @@ use crate::matching::deep::mc::TensorRead;
 use crate::matching::deep::train::init::{Init, named_param};
 
 /// Graphs as tensors, padded to a common node count `N`.
-pub struct GraphTensors {
+pub(crate) struct GraphTensors {
     /// Real nodes of each graph.
-    pub counts: Vec<usize>,
+    pub(crate) counts: Vec<usize>,
     /// `[B, 1, N, NODE_FEATURES]` node attributes (zeros for padding).
-    pub x: Tensor<4>,
+    pub(crate) x: Tensor<4>,
     /// `[B, 1, N, N * KERNEL]`: entry `[b, 0, i, j KERNEL + k]` is the basis
     /// weight of knot k of edge j -> i over the in-degree of i (zero when j
     /// is not a neighbour of i, and for padding).
-    pub mixing: Tensor<4>,
+    pub(crate) mixing: Tensor<4>,
     /// `[B, 1, N, 1]`: 1 for a real node, 0 for padding.
-    pub node_mask: Tensor<4>,
+    pub(crate) node_mask: Tensor<4>,
 }
 
 impl GraphTensors {
     /// `graphs` padded to the largest (at least one node), edge lengths on
     /// knots from 0 to `scale_m`.
-    pub fn new(graphs: &[&PaperGraph], scale_m: f64, device: &Device) -> Self {
+    pub(crate) fn new(graphs: &[&PaperGraph], scale_m: f64, device: &Device) -> Self {
         let b = graphs.len();
         let n = graphs.iter().map(|g| g.n).max().unwrap_or(0).max(1);
         let (f, k) = (NODE_FEATURES, KERNEL);
@@ -63,7 +63,7 @@ impl GraphTensors {
     }
 
     /// Nodes per graph after padding.
-    pub fn n(&self) -> usize {
+    pub(crate) fn n(&self) -> usize {
         self.x.dims()[2]
     }
 }
@@ -71,7 +71,7 @@ impl GraphTensors {
 /// `SplineConv` over 1-D pseudo-coordinates: `x_i' = root x_i + mean_j
 /// sum_k B_k(|e_ij|) W_k x_j + bias`.
 #[derive(Module, Debug)]
-pub struct SplineConv1d {
+pub(crate) struct SplineConv1d {
     /// `[in, KERNEL * out]`: the knots' weight matrices side by side.
     weight: Param<Tensor<2>>,
     /// `[in, out]`
@@ -83,7 +83,7 @@ pub struct SplineConv1d {
 
 impl SplineConv1d {
     /// A layer named `name` (the names of its parameters' streams).
-    pub fn new(name: &str, d_in: usize, d_out: usize, init: Init, device: &Device) -> Self {
+    pub(crate) fn new(name: &str, d_in: usize, d_out: usize, init: Init, device: &Device) -> Self {
         // Uniform(+-1/sqrt(fan in)), as the project's 2-D layer.
         let b = 1.0 / (d_in as f64).sqrt();
         Self {
@@ -96,7 +96,7 @@ impl SplineConv1d {
 
     /// `x: [B, T, N, in] -> [B, T, N, out]` (T samples of each graph; the
     /// graphs' `[B, 1, ...]` mixing is shared by the samples).
-    pub fn forward(&self, x: Tensor<4>, g: &GraphTensors) -> Tensor<4> {
+    pub(crate) fn forward(&self, x: Tensor<4>, g: &GraphTensors) -> Tensor<4> {
         let [b, t, n, d_in] = x.dims();
         let d_out = self.d_out;
         let rows = x.reshape([b * t * n, d_in]);
@@ -132,7 +132,7 @@ impl SplineConv1d {
 /// on the last layer's output (`cat = false`, psi_1) or on the input and
 /// both layers' outputs side by side (`cat = true`, psi_2).
 #[derive(Module, Debug)]
-pub struct SplineCnn {
+pub(crate) struct SplineCnn {
     conv1: SplineConv1d,
     conv2: SplineConv1d,
     last: Linear,
@@ -141,7 +141,7 @@ pub struct SplineCnn {
 
 impl SplineCnn {
     /// `d_in -> hidden -> out`, then the final linear layer to `out`.
-    pub fn new(
+    pub(crate) fn new(
         name: &str,
         [d_in, hidden, out]: [usize; 3],
         cat: bool,
@@ -169,7 +169,12 @@ impl SplineCnn {
     /// `x: [B, T0, N, in] -> [B, T, N, out]`. `mask`: an inverted-dropout
     /// mask after the first ReLU (`[B, T, N, hidden]`), which also gives
     /// the T samples of an input shared by all (`T0 = 1`).
-    pub fn forward(&self, x: Tensor<4>, g: &GraphTensors, mask: Option<Tensor<4>>) -> Tensor<4> {
+    pub(crate) fn forward(
+        &self,
+        x: Tensor<4>,
+        g: &GraphTensors,
+        mask: Option<Tensor<4>>,
+    ) -> Tensor<4> {
         let h1 = activation::relu(self.conv1.forward(x.clone(), g));
         let h1 = match mask {
             Some(m) => h1 * m,

@@ -28,20 +28,20 @@ use crate::sensor::Detection;
 /// One vehicle's graph on the paper's inputs. Every undirected edge appears
 /// twice, once per direction; message `e` goes from `src[e]` to `dst[e]`.
 #[derive(Clone, Debug, PartialEq)]
-pub struct PaperGraph {
-    pub n: usize,
+pub(crate) struct PaperGraph {
+    pub(crate) n: usize,
     /// `n x NODE_FEATURES`, row-major: appearance only.
-    pub node_features: Vec<f32>,
-    pub src: Vec<usize>,
-    pub dst: Vec<usize>,
+    pub(crate) node_features: Vec<f32>,
+    pub(crate) src: Vec<usize>,
+    pub(crate) dst: Vec<usize>,
     /// `E`: each directed edge's length in metres (the paper's `E_ij`).
-    pub length_m: Vec<f32>,
+    pub(crate) length_m: Vec<f32>,
 }
 
 impl PaperGraph {
     /// The graph of `detections` (body frame) on their scene graph
     /// (Delaunay over the same positions, [`SceneGraph::delaunay`]).
-    pub fn new(detections: &[Detection], graph: &SceneGraph) -> Self {
+    pub(crate) fn new(detections: &[Detection], graph: &SceneGraph) -> Self {
         debug_assert_eq!(detections.len(), graph.node_count());
         let features: Vec<f32> = detections.iter().flat_map(node_features).collect();
         Self::with_features(features, graph)
@@ -49,14 +49,14 @@ impl PaperGraph {
 
     /// The Delaunay graph of `detections` (body frame).
     #[cfg(test)]
-    pub fn delaunay(detections: &[Detection]) -> Result<Self, crate::graph::GraphError> {
+    pub(crate) fn delaunay(detections: &[Detection]) -> Result<Self, crate::graph::GraphError> {
         let positions: Vec<crate::geometry::Vec2> =
             detections.iter().map(|d| d.position_m).collect();
         Ok(Self::new(detections, &SceneGraph::delaunay(&positions)?))
     }
 
     /// Node attributes `features` (`n x NODE_FEATURES`) on `graph`.
-    pub fn with_features(features: Vec<f32>, graph: &SceneGraph) -> Self {
+    pub(crate) fn with_features(features: Vec<f32>, graph: &SceneGraph) -> Self {
         let n = graph.node_count();
         assert_eq!(features.len(), n * NODE_FEATURES, "node attributes");
         let (mut src, mut dst, mut length_m) = (Vec::new(), Vec::new(), Vec::new());
@@ -76,12 +76,12 @@ impl PaperGraph {
         }
     }
 
-    pub fn edge_count(&self) -> usize {
+    pub(crate) fn edge_count(&self) -> usize {
         self.src.len()
     }
 
     /// Incoming edges of each node (mean aggregation divides by these).
-    pub fn in_degrees(&self) -> Vec<usize> {
+    pub(crate) fn in_degrees(&self) -> Vec<usize> {
         let mut deg = vec![0; self.n];
         for &i in &self.dst {
             deg[i] += 1;
@@ -94,7 +94,7 @@ impl PaperGraph {
 /// knots evenly spaced from 0 to `scale_m`: the two active knots and their
 /// weights, which sum to 1 (lengths beyond the scale are clipped onto the
 /// last knot).
-pub fn length_basis(length_m: f64, scale_m: f64) -> [(usize, f64); 2] {
+pub(crate) fn length_basis(length_m: f64, scale_m: f64) -> [(usize, f64); 2] {
     let v = (length_m / scale_m).clamp(0.0, 1.0) * (KERNEL - 1) as f64;
     let left = (v.floor() as usize).min(KERNEL - 2);
     let frac = v - left as f64;

@@ -257,9 +257,9 @@ fn linear_rows(l: &PlainLinear, x: &[f32], rows: usize, out: &mut Vec<f32>) {
 /// linear layer (psi_1: on the second's output; psi_2: on the input and
 /// both outputs side by side).
 pub(crate) struct PlainCnn {
-    pub conv1: Conv1d,
-    pub conv2: Conv1d,
-    pub last: PlainLinear,
+    pub(crate) conv1: Conv1d,
+    pub(crate) conv2: Conv1d,
+    pub(crate) last: PlainLinear,
 }
 
 /// `a b` of `a` (`[rows, k]`) and `b.weight` (`[k, b.d_out]`), summed in
@@ -308,7 +308,7 @@ pub(crate) struct PlainConsensus {
     hidden_in: Vec<f32>,
     /// `b_in`, added to the source rows only.
     mlp_bias: Vec<f32>,
-    pub mlp_out: PlainLinear,
+    pub(crate) mlp_out: PlainLinear,
 }
 
 impl PlainConsensus {
@@ -396,10 +396,10 @@ impl PlainConsensus {
 
 /// The network's parameters as plain numbers.
 pub(crate) struct PlainWeights {
-    pub psi1: PlainCnn,
+    pub(crate) psi1: PlainCnn,
     /// psi_2 and the consensus MLP (DGMC).
-    pub consensus: Option<(PlainCnn, PlainLinear, PlainLinear)>,
-    pub dustbin: f32,
+    pub(crate) consensus: Option<(PlainCnn, PlainLinear, PlainLinear)>,
+    pub(crate) dustbin: f32,
 }
 
 /// The network with `T` samples per pair.

@@ -25,7 +25,7 @@ use crate::matching::deep::train::sinkhorn::{BLOCKED, log_sinkhorn};
 const INITIAL_DUSTBIN: f32 = 1.0;
 
 #[derive(Module, Debug)]
-pub struct PublishedNet {
+pub(crate) struct PublishedNet {
     psi1: SplineCnn,
     /// DGMC's second network on the indicator functions (`cat = true`).
     psi2: Option<SplineCnn>,
@@ -38,30 +38,30 @@ pub struct PublishedNet {
 
 /// The dropout masks and indicators of one forward pass over `B` pairs
 /// with `T` samples each (values 0 or 1 / (1 - p)).
-pub struct PublishedMasks {
+pub(crate) struct PublishedMasks {
     /// psi_1's masks of the first and second graphs, `[B, T, N1, hidden]`
     /// and `[B, T, N2, hidden]`.
-    pub psi1: [Tensor<4>; 2],
+    pub(crate) psi1: [Tensor<4>; 2],
     /// One `[B, T, N1, rnd_dim]` standard-normal draw per consensus step.
-    pub indicators: Vec<Tensor<4>>,
+    pub(crate) indicators: Vec<Tensor<4>>,
 }
 
 /// The normalised assignments, log, `[B, T, N1 + 1, N2 + 1]` with a
 /// dustbin row and column: `S_0`, and `S_L` after consensus (DGMC).
-pub struct Assignments {
-    pub initial: Tensor<4>,
-    pub refined: Option<Tensor<4>>,
+pub(crate) struct Assignments {
+    pub(crate) initial: Tensor<4>,
+    pub(crate) refined: Option<Tensor<4>>,
 }
 
 impl Assignments {
     /// The network's answer: `S_L` when there is one, else `S_0`.
-    pub fn last(self) -> Tensor<4> {
+    pub(crate) fn last(self) -> Tensor<4> {
         self.refined.unwrap_or(self.initial)
     }
 }
 
 impl PublishedNet {
-    pub fn new(cfg: &PublishedConfig, init: Init, device: &Device) -> Self {
+    pub(crate) fn new(cfg: &PublishedConfig, init: Init, device: &Device) -> Self {
         let name = match cfg.kind {
             PublishedKind::GcnGm => "gcn_gm",
             PublishedKind::Dgmc => "dgmc",
@@ -105,7 +105,7 @@ impl PublishedNet {
 
     /// Log assignments of `B` pairs (`graphs[0]` the first graphs,
     /// `graphs[1]` the second), T samples each as the masks say.
-    pub fn forward(
+    pub(crate) fn forward(
         &self,
         cfg: &PublishedConfig,
         graphs: [&GraphTensors; 2],
@@ -181,7 +181,7 @@ fn blocked(g1: &GraphTensors, g2: &GraphTensors) -> Tensor<4, Bool> {
 
 /// The dropout of psi_1's hidden channels in one forward pass.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Dropout {
+pub(crate) enum Dropout {
     /// Every mask 1 (one deterministic pass per sample).
     Off,
     /// At this rate, drawn as `scope` says: a mask per node and channel,
@@ -193,7 +193,7 @@ pub enum Dropout {
 /// psi_1's masks of `b` pairs of graphs padded to `n1` and `n2` nodes,
 /// `t` samples each, from `rng`: `[B, T, N1, hidden]` and `[B, T, N2,
 /// hidden]`, values 0 or 1 / (1 - p).
-pub fn draw_psi1_masks(
+pub(crate) fn draw_psi1_masks(
     rng: &mut ChaCha8Rng,
     cfg: &PublishedConfig,
     [b, t, n1, n2]: [usize; 4],
@@ -218,7 +218,7 @@ pub fn draw_psi1_masks(
 
 /// DGMC's random node indicators of the first graphs, one standard-normal
 /// `[B, T, N1, rnd_dim]` draw per consensus step.
-pub fn draw_indicators(
+pub(crate) fn draw_indicators(
     rng: &mut ChaCha8Rng,
     cfg: &PublishedConfig,
     [b, t, n1]: [usize; 3],
@@ -239,7 +239,7 @@ pub fn draw_indicators(
 /// nodes, `t` samples each, all from `rng`; without `dropout` every mask
 /// is 1 (the indicators are random all the same). Masks per node at the
 /// configured rate.
-pub fn draw_masks(
+pub(crate) fn draw_masks(
     rng: &mut ChaCha8Rng,
     cfg: &PublishedConfig,
     [b, t, n1, n2]: [usize; 4],
@@ -260,7 +260,7 @@ pub fn draw_masks(
 /// samples each: psi_1's masks per node and channel, or (Eq. 8,
 /// [`MaskScope::Shared`]) one mask per pair and sample over the channels,
 /// the same for every node of both graphs.
-pub fn draw_training_masks(
+pub(crate) fn draw_training_masks(
     rng: &mut ChaCha8Rng,
     cfg: &PublishedConfig,
     [b, t, n1, n2]: [usize; 4],

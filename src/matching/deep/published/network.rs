@@ -186,10 +186,6 @@ impl Network for Published {
         path == Path::Plain && self.run.masks == MaskScope::Shared
     }
 
-    fn runs_plain(&self) -> bool {
-        true
-    }
-
     fn uses_positions(&self) -> bool {
         false
     }

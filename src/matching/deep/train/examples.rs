@@ -74,9 +74,9 @@ pub fn example(
 /// architecture, and the labels.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Prepared {
-    pub g1: GraphInput,
-    pub g2: GraphInput,
-    pub pair: PairInput,
+    pub(crate) g1: GraphInput,
+    pub(crate) g2: GraphInput,
+    pub(crate) pair: PairInput,
     /// `n1 x n2`: 1 for a true pair that passes the gates.
     pub y: Vec<f32>,
     /// Per node of each side: 1 when it has no true partner.

@@ -12,7 +12,7 @@ use crate::rng::{self, Purpose};
 
 /// Where a new network's weights come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Init {
+pub(crate) enum Init {
     /// Uniform draws from the stream `(seed, WeightInit, hash(parameter
     /// name))`: the same seed gives the same weights, whatever else was
     /// drawn before.

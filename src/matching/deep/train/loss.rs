@@ -9,17 +9,17 @@ use burn::prelude::*;
 use crate::matching::deep::arch::{LossTerms, PairLoss};
 
 /// The labels of a batch as tensors.
-pub struct LabelTensors {
+pub(crate) struct LabelTensors {
     /// `[B, N1, N2]` 1 for a true pair that passes the gates.
-    pub y: Tensor<3>,
+    pub(crate) y: Tensor<3>,
     /// `[B, N1]`, `[B, N2]`: 1 for a real node with no true partner.
-    pub free: [Tensor<2>; 2],
+    pub(crate) free: [Tensor<2>; 2],
     /// `[B, N1, N2]` 1 where row i or column j is a non-covisible object.
-    pub non: Tensor<3>,
+    pub(crate) non: Tensor<3>,
     /// `[B, N1, N2]` 1 for an entry between real nodes.
-    pub real: Tensor<3>,
+    pub(crate) real: Tensor<3>,
     /// `[B]` per pair: true pairs, free nodes, real entries (each >= 1).
-    pub counts: [Tensor<1>; 3],
+    pub(crate) counts: [Tensor<1>; 3],
 }
 
 /// The mean training loss of a batch. `log_assign`: `[B, T, N1 + 1, N2 +
@@ -28,7 +28,7 @@ pub struct LabelTensors {
 /// - `L_non = -log(mean(exp(-P o N)))` over the real entries (Eq. 12);
 /// - `L_unc = -log(mean(exp(-H(P))))` with H the binary entropy in bits
 ///   (Eq. 13), on the mean of the T samples.
-pub fn loss(log_assign: Tensor<4>, labels: &LabelTensors, terms: LossTerms) -> Tensor<1> {
+pub(crate) fn loss(log_assign: Tensor<4>, labels: &LabelTensors, terms: LossTerms) -> Tensor<1> {
     let [b, _, r, c] = log_assign.dims();
     let (n1, n2) = (r - 1, c - 1);
     let p_full = log_assign.exp().mean_dim(1).reshape([b, r, c]); // [B, N1 + 1, N2 + 1]
@@ -65,7 +65,12 @@ pub fn loss(log_assign: Tensor<4>, labels: &LabelTensors, terms: LossTerms) -> T
 /// entries, with P `[B, N1, N2]` the mean assignment's real block, N 1
 /// where row i or column j is a non-covisible object, `n_real` `[B]` the
 /// real entries of each pair.
-pub fn non_term(p: Tensor<3>, non: &Tensor<3>, real: &Tensor<3>, n_real: Tensor<1>) -> Tensor<1> {
+pub(crate) fn non_term(
+    p: Tensor<3>,
+    non: &Tensor<3>,
+    real: &Tensor<3>,
+    n_real: Tensor<1>,
+) -> Tensor<1> {
     let per_pair = |t: Tensor<3>| t.sum_dims_squeeze::<1, usize>(&[1, 2]);
     let kept = per_pair((-(p * non.clone())).exp() * real.clone());
     -(kept / n_real).log()
@@ -74,7 +79,7 @@ pub fn non_term(p: Tensor<3>, non: &Tensor<3>, real: &Tensor<3>, n_real: Tensor<
 /// Eq. 13 per pair of the batch: `-log(mean(exp(-H(P))))` over the real
 /// entries, H the binary entropy in bits of each entry of P `[B, N1,
 /// N2]`.
-pub fn unc_term(p: Tensor<3>, real: &Tensor<3>, n_real: Tensor<1>) -> Tensor<1> {
+pub(crate) fn unc_term(p: Tensor<3>, real: &Tensor<3>, n_real: Tensor<1>) -> Tensor<1> {
     let per_pair = |t: Tensor<3>| t.sum_dims_squeeze::<1, usize>(&[1, 2]);
     let q = p.clamp(1e-6, 1.0 - 1e-6);
     let one_minus = q.clone().neg() + 1.0;

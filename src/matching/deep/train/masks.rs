@@ -12,21 +12,21 @@ use crate::matching::deep::mc::draws::{dropout_mask, dropout_mask_16, indicator_
 
 /// The dropout masks of one training forward pass with T samples (values
 /// 0 or 1 / (1 - p), inverted dropout).
-pub struct Masks {
+pub(crate) struct Masks {
     /// `[B, T, N1, hidden]`, `[B, T, N2, hidden]`.
-    pub conv1: [Tensor<4>; 2],
+    pub(crate) conv1: [Tensor<4>; 2],
     /// `[B, T, N1, out]`, `[B, T, N2, out]`.
-    pub conv2: [Tensor<4>; 2],
-    pub pair: PairMasks,
+    pub(crate) conv2: [Tensor<4>; 2],
+    pub(crate) pair: PairMasks,
 }
 
 /// The masks of the pair part of a forward pass: consensus dropout and
 /// the random node indicators.
-pub struct PairMasks {
+pub(crate) struct PairMasks {
     /// `[B, T, N1, N2, consensus_dim]`.
-    pub phi: Tensor<5>,
+    pub(crate) phi: Tensor<5>,
     /// `[B, 1, N1, consensus_dim]`.
-    pub indicators: Tensor<4>,
+    pub(crate) indicators: Tensor<4>,
 }
 
 /// A `[B, T, N, D]` mask tensor.

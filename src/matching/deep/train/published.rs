@@ -23,17 +23,17 @@ use crate::rng::{self, Purpose};
 /// A labelled training pair: two graphs and the true partner in `second`
 /// of each node of `first` (`None`: not seen by the second vehicle).
 #[derive(Clone, Debug, PartialEq)]
-pub struct TrainPair {
-    pub first: PaperGraph,
-    pub second: PaperGraph,
-    pub partner: Vec<Option<usize>>,
+pub(crate) struct TrainPair {
+    pub(crate) first: PaperGraph,
+    pub(crate) second: PaperGraph,
+    pub(crate) partner: Vec<Option<usize>>,
 }
 
 impl TrainPair {
     /// The paper's inputs of a labelled pair: both vehicles' graphs (body
     /// frames, appearance, edge lengths) and the true partners; the
     /// reported poses are left behind.
-    pub fn of(e: &Example) -> Self {
+    pub(crate) fn of(e: &Example) -> Self {
         let mut partner = vec![None; e.first.detections.len()];
         for &(a, b) in &e.true_pairs {
             partner[a] = Some(b);
@@ -78,7 +78,7 @@ fn covisibility(
 
 impl TrainPair {
     /// The padded cost of the pair, for grouping pairs of similar size.
-    pub fn padded_size(&self) -> usize {
+    pub(crate) fn padded_size(&self) -> usize {
         self.first.n.max(self.second.n)
     }
 }
@@ -118,8 +118,8 @@ fn nll(log_p: Tensor<4>, weights: &Tensor<4>) -> Tensor<1> {
 }
 
 /// A published network being trained, with its optimiser and stream.
-pub struct PublishedTrainer {
-    pub cfg: PublishedConfig,
+pub(crate) struct PublishedTrainer {
+    pub(crate) cfg: PublishedConfig,
     /// Eq. 12 and 13 on top of the NLL (the pair term is the NLL).
     terms: LossTerms,
     /// Dropout samples per training pair.
@@ -138,7 +138,7 @@ impl PublishedTrainer {
     /// A fresh network (initial weights from `seed`) trained on the NLL
     /// alone, one dropout sample per pair (as published).
     #[cfg(test)]
-    pub fn new(cfg: PublishedConfig, seed: u64) -> Self {
+    pub(crate) fn new(cfg: PublishedConfig, seed: u64) -> Self {
         let terms = LossTerms {
             pairs: crate::matching::deep::arch::PairLoss::Likelihood,
             non: false,
@@ -150,7 +150,7 @@ impl PublishedTrainer {
     /// A fresh network trained with `terms` on `samples` dropout samples
     /// per pair, masks drawn as `masks` says; `name` (the method's label)
     /// keys its stream.
-    pub fn with_terms(
+    pub(crate) fn with_terms(
         cfg: PublishedConfig,
         terms: LossTerms,
         samples: usize,
@@ -228,7 +228,7 @@ impl PublishedTrainer {
     }
 
     /// One Adam step on `batch` at learning rate `lr`; the loss before it.
-    pub fn step(&mut self, batch: &[&TrainPair], lr: f64) -> Result<f32, String> {
+    pub(crate) fn step(&mut self, batch: &[&TrainPair], lr: f64) -> Result<f32, String> {
         let mut stream = self.stream.clone();
         let loss = self.loss(&self.net, &self.device, batch, &mut stream);
         self.stream = stream;
@@ -238,7 +238,7 @@ impl PublishedTrainer {
     /// `epochs` passes over `pairs` in shuffled batches of `batch_size` at
     /// learning rate `lr`; each epoch's mean loss.
     #[cfg(test)]
-    pub fn fit(
+    pub(crate) fn fit(
         &mut self,
         pairs: &[TrainPair],
         epochs: usize,
@@ -262,14 +262,14 @@ impl PublishedTrainer {
 
     /// The batches of one training epoch over pairs of these padded sizes
     /// (shuffled, grouped by size as the project's trainer does).
-    pub fn epoch_batches(&mut self, sizes: &[usize], batch_size: usize) -> Vec<Vec<usize>> {
+    pub(crate) fn epoch_batches(&mut self, sizes: &[usize], batch_size: usize) -> Vec<Vec<usize>> {
         crate::matching::deep::train::batches(sizes, batch_size, Some(&mut self.stream))
     }
 
     /// The mean loss over `pairs` without changing the network: masks from
     /// a stream that is the same at every call, so that values of
     /// different epochs compare.
-    pub fn validation_loss(&self, pairs: &[TrainPair], seed: u64, batch_size: usize) -> f64 {
+    pub(crate) fn validation_loss(&self, pairs: &[TrainPair], seed: u64, batch_size: usize) -> f64 {
         let mut stream = rng::stream(seed, Purpose::Training, &[rng::hash_str("validation")]);
         let net = self.net.valid();
         let device = crate::matching::deep::backend::device();
@@ -284,13 +284,13 @@ impl PublishedTrainer {
     }
 
     /// The weights as bytes (what a `.bpk` file holds).
-    pub fn weights(&self) -> Result<Vec<u8>, String> {
+    pub(crate) fn weights(&self) -> Result<Vec<u8>, String> {
         to_bytes(&self.net)
     }
 
     /// The trained network for inference (no autodiff).
     #[cfg(test)]
-    pub fn network(&self) -> PublishedNet {
+    pub(crate) fn network(&self) -> PublishedNet {
         self.net.valid()
     }
 }

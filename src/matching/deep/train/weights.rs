@@ -12,7 +12,7 @@ use crate::matching::deep::ours::OursNet;
 
 /// The network's weights as bytes (burn's burnpack format, what a
 /// `<method>.bpk` file holds).
-pub fn to_bytes(net: &OursNet) -> Result<Vec<u8>, String> {
+pub(crate) fn to_bytes(net: &OursNet) -> Result<Vec<u8>, String> {
     module_bytes(net)
 }
 
@@ -47,7 +47,11 @@ pub(crate) fn load_module<M: Module>(empty: M, bytes: &[u8]) -> Result<M, String
 /// A network of architecture `arch` on `device` with the weights of
 /// [`to_bytes`]; weights whose scalar parameters are not finite are
 /// refused.
-pub fn from_bytes(arch: &Architecture, bytes: &[u8], device: &Device) -> Result<OursNet, String> {
+pub(crate) fn from_bytes(
+    arch: &Architecture,
+    bytes: &[u8],
+    device: &Device,
+) -> Result<OursNet, String> {
     load_module(OursNet::new(arch, Init::Zeros, device), bytes)
 }
 

@@ -1,0 +1,110 @@
+//! Building a method's [`Matcher`] from the settings, its weights and its
+//! validated choice.
+
+use super::deep::arch::MaskScope;
+use super::deep::decision::{Decision, KindLambdas};
+use super::{GpsHungarian, Matcher, MatchingSettings, Method, MethodKind, Mogm, Rgm, deep, drive};
+
+/// Why a method could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    #[error("the oracle reads ground truth; the evaluation runs it, not a Matcher")]
+    Oracle,
+    #[error(
+        "'external' correspondences come from a file: score them with `coid score --matches FILE`"
+    )]
+    External,
+    #[error("'{0}' needs trained weights")]
+    NoWeights(&'static str),
+    #[error("'{method}': the weights do not fit its network ({reason})")]
+    BadWeights {
+        method: &'static str,
+        reason: String,
+    },
+}
+
+/// How a deep method decides: its entropy threshold lambda (when it
+/// thresholds; infinite: no threshold) and its decision rule, each chosen
+/// on validation runs or fixed by the config.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DeepChoice {
+    /// The threshold on the configured uncertainty type.
+    pub lambda: f64,
+    /// The threshold of every uncertainty type (Table 3).
+    pub lambdas: KindLambdas,
+    pub decision: Decision,
+    /// The calibration temperature of the reported probabilities (1: as
+    /// they are).
+    pub temperature: f64,
+    /// The dropout masks the weights were trained with (their record's).
+    pub trained_masks: MaskScope,
+}
+
+/// Each deep method's threshold of every uncertainty type.
+pub type MethodLambdas = std::collections::BTreeMap<Method, KindLambdas>;
+
+/// The thresholds of the deep methods' choices (what the tables and the
+/// lambda grid need of them).
+pub fn method_lambdas(choices: &std::collections::BTreeMap<Method, DeepChoice>) -> MethodLambdas {
+    choices.iter().map(|(&m, c)| (m, c.lambdas)).collect()
+}
+
+/// Builds the matcher of a method, in canonical node order and with the
+/// configured rounds of match-align-rematch. Deep methods need their
+/// trained weights (`weights`, the bytes of `<method>.bpk`) and their
+/// `choice`; MC-dropout masks are drawn from streams seeded with
+/// `dropout_seed`.
+pub fn build(
+    method: Method,
+    settings: &MatchingSettings,
+    choice: DeepChoice,
+    dropout_seed: u64,
+    weights: Option<&[u8]>,
+) -> Result<Box<dyn Matcher>, BuildError> {
+    let value = settings.baseline_value(method);
+    let inner: Box<dyn Matcher> = match method.kind() {
+        MethodKind::LearningFree if method == Method::Mogm => Box::new(Mogm {
+            min_score: value,
+            ..Mogm::default()
+        }),
+        MethodKind::LearningFree => Box::new(Rgm {
+            lambda: value,
+            ..Rgm::default()
+        }),
+        MethodKind::GpsBased => Box::new(GpsHungarian {
+            gate_chi2: value,
+            appearance: method == Method::GpsAppHungarian,
+        }),
+        MethodKind::Oracle => return Err(BuildError::Oracle),
+        MethodKind::External => return Err(BuildError::External),
+        MethodKind::Deep(deep_method) => {
+            let bytes = weights.ok_or(BuildError::NoWeights(method.as_str()))?;
+            let threshold = deep_method
+                .thresholds_by_default()
+                .then_some((settings.uncertainty, choice.lambda));
+            // A single-pass variant: one sample with every dropout off.
+            let (samples, dropout) = if method.single_pass() {
+                (1, Some(0.0))
+            } else {
+                (settings.mc_samples, settings.mc_dropout)
+            };
+            let run = deep::Inference {
+                samples,
+                threshold,
+                decision: choice.decision,
+                temperature: choice.temperature,
+                seed: dropout_seed,
+                masks: settings.dropout_masks.resolve(choice.trained_masks),
+                dropout,
+                gate_chi2: settings.gate_chi2,
+            };
+            deep::matcher(method, deep_method, bytes, run).map_err(|reason| {
+                BuildError::BadWeights {
+                    method: method.as_str(),
+                    reason,
+                }
+            })?
+        }
+    };
+    Ok(Box::new(drive::Driven::new(inner, settings.rematch)))
+}
