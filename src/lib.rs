@@ -8,8 +8,8 @@
 //! - stages: [`bridge`] (SUMO), [`sensor`], [`graph`], [`fusion`],
 //!   [`matching`];
 //! - [`evaluate`]: one instance, one method: match, count, fuse;
-//!   [`v2x`]: cooperation over time (trackers, messages, the channel, the
-//!   receivers' association);
+//! - [`v2x`]: cooperation over time (trackers, messages, the channel, the
+//!   receivers' association and fusion over messages);
 //! - [`config`]: the TOML file into each stage's settings;
 //! - [`report`]: rows, tables and plot data before they are written;
 //! - [`tables`], [`render`], [`io`]: the paper's tables, pictures, files;

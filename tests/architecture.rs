@@ -541,8 +541,9 @@ fn every_random_draw_comes_from_a_named_stream() {
 fn matchers_cannot_reach_the_ground_truth() {
     // The truth types are named only by the sensor (which makes them), the
     // oracle, the evaluation, the tables, the detector report and the
-    // pictures that score and draw
-    // it, and the pipeline and render command that pass it along.
+    // pictures that score and draw it, cooperation over time (which scores
+    // its association and fusion), and the pipeline and render command
+    // that pass it along.
     only_in(
         &["ObservationTruth", "DetectionTruth", ".truth$"],
         &[
@@ -561,14 +562,14 @@ fn matchers_cannot_reach_the_ground_truth() {
             "tables/record.rs",
             "report/detector.rs",
             "render.rs",
-            "pipeline/fleet.rs",
-            "pipeline/fusion_over_time.rs",
             "pipeline/instance.rs",
-            "pipeline/message.rs",
-            "pipeline/peer.rs",
-            "pipeline/receptions.rs",
             "pipeline/simulate.rs",
-            "pipeline/vehicle.rs",
+            "v2x/estimates.rs",
+            "v2x/fleet.rs",
+            "v2x/message.rs",
+            "v2x/peer.rs",
+            "v2x/receptions.rs",
+            "v2x/vehicle.rs",
             "experiments.rs",
             "export/rows.rs",
             "cli/render.rs",

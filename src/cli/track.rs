@@ -9,9 +9,9 @@ use crate::config::Settings;
 use crate::experiments::settings_for_seed;
 use crate::io::markdown::fmt_num;
 use crate::label::counted;
-use crate::report::{self, OverTimeCounts, Table};
-use crate::v2x::V2xSettings;
+use crate::report::{self, Table};
 use crate::v2x::channel::LossModel;
+use crate::v2x::{OverTimeCounts, V2xSettings, VehicleTracking};
 use crate::{io, pipeline, render};
 
 #[derive(clap::Args)]
@@ -41,7 +41,7 @@ pub fn track(a: Args) -> anyhow::Result<()> {
         pipeline::track(&settings, |p| show_sim_progress(&bar, p)).context("run failed")?;
     bar.finish_and_clear();
     let tracking = report::tracking_table(&results.vehicles);
-    let association = results.over_time.table();
+    let association = report::association_table(&results.over_time);
     let tables = [
         ("tracking.csv", &tracking),
         ("association.csv", &association),
@@ -54,7 +54,7 @@ pub fn track(a: Args) -> anyhow::Result<()> {
             settings.scenario.junction, settings.scenario.end_s
         );
     }
-    let mut all = report::VehicleTracking::default();
+    let mut all = VehicleTracking::default();
     for v in &results.vehicles {
         all.add(v);
     }

@@ -7,8 +7,8 @@ use std::collections::BTreeSet;
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::instance::{Instance, InstanceSide, ViewSource};
-use super::{Progress, RunError, SimStats, receptions};
+use super::instance::{Instance, InstanceSide};
+use super::{Progress, RunError, SimStats};
 use crate::bridge::Sumo;
 use crate::config::Settings;
 use crate::evaluate;
@@ -16,7 +16,7 @@ use crate::geometry::{Pose2, Vec2};
 use crate::rng::{self, Purpose};
 use crate::sensor::{self, ConnectedSelection, LinkSettings, PoseNoiseLabel, Sensed};
 use crate::traffic::{StaticScene, TrafficFrame, TrafficObject};
-use crate::v2x::{V2xMode, gnss};
+use crate::v2x::{Receptions, Setup, V2xMode, ViewSource, gnss, true_centres};
 
 /// Runs the scenario of `settings` from start to end and hands every
 /// instance to `on_instance`, in a fixed order (by step, then by vehicle
@@ -102,7 +102,7 @@ pub fn simulate_steps(
     let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, step_length_s)?
         .with_unset_colours(settings.sensor.unset_colours, settings.seeds.traffic);
     let scene = Arc::new(sumo.static_scene(&sc.junction)?);
-    let mut receptions = cpm.then(receptions::Receptions::default);
+    let mut receptions = cpm.then(Receptions::default);
     let mut stats = SimStats::default();
     let mut seen_connected: BTreeSet<String> = BTreeSet::new();
     let mut seen_types: BTreeSet<String> = BTreeSet::new();
@@ -121,7 +121,7 @@ pub fn simulate_steps(
         let instances = match receptions.as_mut() {
             Some(r) => {
                 let vehicles = sense(settings, &scene, &frame)?;
-                Some(r.step(settings, &frame, &vehicles, sample)?)
+                Some(receptions_of(settings, r, &frame, &vehicles, sample)?)
             }
             None if sample => {
                 let vehicles = sense(settings, &scene, &frame)?;
@@ -155,6 +155,38 @@ pub fn simulate_steps(
     check_connected_appeared(&settings.connected, &seen_connected)?;
     warn_unused_types(settings, &seen_types);
     Ok(stats)
+}
+
+/// A sampled step's sides, and its instances as pairs of indices into them
+/// (each pair ordered by id).
+type Sides = (Vec<InstanceSide>, Vec<(usize, usize)>);
+
+/// With `[v2x] mode = "cpm"`: one step of the fleet (`vehicles`: what every
+/// connected vehicle near the junction sensed), and, when `sample`, the
+/// messages that have arrived as instances' sides with their pairs.
+fn receptions_of(
+    settings: &Settings,
+    receptions: &mut Receptions,
+    frame: &TrafficFrame,
+    vehicles: &[InstanceSide],
+    sample: bool,
+) -> Result<Sides, RunError> {
+    let setup = Setup {
+        v: &settings.v2x,
+        link: &settings.link,
+        sensor_seed: settings.seeds.sensor,
+        align_min_matches: settings.fusion.align_min_matches,
+        levels: &settings.pose_noise,
+    };
+    let truth = true_centres(frame);
+    let ctx = setup.at(frame.step, frame.time_s, &truth);
+    let sensings: Vec<_> = vehicles.iter().map(InstanceSide::sensing).collect();
+    let (sides, pairs) = receptions.step(&ctx, &sensings, sample);
+    let sides = sides
+        .into_iter()
+        .map(|r| InstanceSide::reception(r, settings.seeds.sensor))
+        .collect::<Result<_, _>>()?;
+    Ok((sides, pairs))
 }
 
 /// Adds the types of the road users of `frame` to `seen`.
@@ -449,7 +481,7 @@ mod tests {
         let sides = sense(&s, &scene, &frame).unwrap();
         let ids: Vec<&str> = sides.iter().map(InstanceSide::id).collect();
         assert_eq!(ids, ["cv0", "cv1"]);
-        assert!(sides.iter().all(|e| e.own_node().is_some()));
+        assert!(sides.iter().all(|e| e.sensed.own_node().is_some()));
         let mut none = s.clone();
         none.scenario.radius_m = 1.0;
         assert!(sense(&none, &scene, &frame).unwrap().is_empty());

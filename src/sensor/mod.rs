@@ -250,6 +250,16 @@ impl Sensed {
             sender: true,
         });
     }
+
+    /// Its own node, when it has one ([`Sensed::add_sender`]): the
+    /// detection and its truth.
+    pub fn own_node(&self) -> Option<(Detection, DetectionTruth)> {
+        let k = self.truth.detections.iter().position(|d| d.sender)?;
+        Some((
+            self.observation.detections[k].clone(),
+            self.truth.detections[k].clone(),
+        ))
+    }
 }
 
 impl Sensed {

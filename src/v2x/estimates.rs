@@ -7,20 +7,10 @@
 use std::collections::BTreeMap;
 
 use super::context::Context;
-use super::peer::Views;
+use super::counts::OverTimeCounts;
 use super::vehicle::ConnectedVehicle;
+use super::views::{Views, measurement};
 use crate::fusion::{Measurement, Recursive, covariance_intersection, fuse, nees};
-use crate::report::OverTimeCounts;
-use crate::sensor::Detection;
-
-/// A detection as a measurement to fuse: its position and covariance.
-pub(super) fn measurement(d: &Detection) -> Measurement {
-    Measurement {
-        position_m: d.position_m,
-        cov_m2: d.cov_m2,
-    }
-}
-
 /// Ego tracks fused with the peer objects `pairs` associates them with:
 /// the summed errors single, by Eq. 14-16 and by covariance intersection,
 /// against the object's true centre in the receiver's body frame, and
@@ -136,7 +126,8 @@ impl RecursiveFusion {
 mod tests {
     use super::*;
     use crate::geometry::{Cov2, Pose2, Vec2};
-    use crate::pipeline::tests::{appearance, centres, context, settings, vehicle_side};
+    use crate::sensor::Detection;
+    use crate::v2x::testkit::{appearance, centres, context, settings, vehicle_side};
 
     const OBJECTS: [(&str, Vec2); 2] = [("a", Vec2::new(12.0, 3.0)), ("b", Vec2::new(18.0, -4.0))];
 
@@ -165,7 +156,8 @@ mod tests {
         let mut v = ConnectedVehicle::new("cv0", &s.v2x);
         for step in 0..n {
             let ctx = context(&s, &truth, step, step as f64 * 0.1);
-            v.step(&ctx, &vehicle_side("cv0", receiver_pose(), &OBJECTS, step));
+            let side = vehicle_side("cv0", receiver_pose(), &OBJECTS, step);
+            v.step(&ctx, &side.sensing());
         }
         v
     }
