@@ -561,7 +561,7 @@ fn matchers_cannot_reach_the_ground_truth() {
             "evaluate/estimates.rs",
             "tables/record.rs",
             "report/detector.rs",
-            "render.rs",
+            "render/scene.rs",
             "pipeline/instance.rs",
             "pipeline/simulate.rs",
             "v2x/estimates.rs",
