@@ -15,7 +15,8 @@
 //! - [`tables`], [`render`], [`io`]: the paper's tables, pictures, files;
 //! - [`pipeline`]: one run; [`experiments`], [`batch`]: many runs;
 //!   [`export`]: instances out for matchers written elsewhere, their
-//!   matches back in;
+//!   matches back in; [`training`]: `coid train`'s seeds and child
+//!   processes;
 //! - [`cli`]: the `coid` commands.
 
 mod assignment;
@@ -42,4 +43,5 @@ mod scenarios;
 pub mod sensor;
 mod tables;
 pub mod traffic;
+mod training;
 mod v2x;
