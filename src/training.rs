@@ -16,7 +16,7 @@ use crate::experiments::{self, Chosen, TunedBaseline};
 use crate::io::{self, OutputError, TrainingRecord};
 use crate::matching::Method;
 use crate::matching::deep::train::{Example, TrainProgress};
-use crate::pipeline::RunError;
+use crate::pipeline::{RunError, Warnings};
 
 #[derive(Debug, thiserror::Error)]
 pub enum TrainingError {
@@ -199,6 +199,7 @@ pub struct Trained {
 pub fn train_seeds(
     seeds: &[SeedRun],
     methods: &[Method],
+    warnings: &Warnings,
     report: &mut impl Report,
 ) -> Result<(), TrainingError> {
     let Some(first) = seeds.first() else {
@@ -206,14 +207,14 @@ pub fn train_seeds(
     };
     let settings = &first.settings;
     let training = experiments::training_runs(settings)?;
-    let examples = collect(&training, "training", report)?;
+    let examples = collect(&training, "training", warnings, report)?;
     report.training_data(examples.len(), training.len());
     // The validation runs' pairs, for early stopping only.
     let validation = if settings.train.patience == 0 {
         Vec::new()
     } else {
         let runs = experiments::validation_loss_runs(settings)?;
-        collect(&runs, "validation", report)?
+        collect(&runs, "validation", warnings, report)?
     };
     for s in seeds {
         for &method in methods {
@@ -234,10 +235,11 @@ pub fn train_seeds(
 fn collect(
     runs: &[Settings],
     what: &'static str,
+    warnings: &Warnings,
     report: &mut impl Report,
 ) -> Result<Vec<Example>, TrainingError> {
     report.collecting(what, runs.len());
-    let examples = experiments::collect_examples(runs, |k, n_runs, n| {
+    let examples = experiments::collect_examples(runs, warnings, |k, n_runs, n| {
         report.collected(k, n_runs, n);
     })
     .map_err(|source| TrainingError::Collect { what, source })?;
@@ -388,12 +390,12 @@ pub fn validate(
     settings: &Settings,
     models_dir: &Path,
     methods: &[Method],
-    threads: usize,
+    (threads, warnings): (usize, &Warnings),
     progress: impl FnMut(usize, usize),
 ) -> Result<Vec<(Method, Chosen)>, TrainingError> {
     let mut on_models = settings.clone();
     on_models.matching.models_dir = models_dir.to_owned();
-    let chosen = experiments::validate(&on_models, methods, threads, progress)
+    let chosen = experiments::validate(&on_models, methods, threads, warnings, progress)
         .map_err(TrainingError::Validation)?;
     let mut out = Vec::with_capacity(methods.len());
     for &method in methods {
@@ -420,13 +422,13 @@ pub fn tune_baselines(
     settings: &Settings,
     models_dir: &Path,
     baselines: &[Method],
-    threads: usize,
+    (threads, warnings): (usize, &Warnings),
     progress: impl FnMut(usize, usize),
 ) -> Result<Vec<TunedBaseline>, TrainingError> {
     let mut only = settings.clone();
     only.matching.methods = baselines.to_vec();
-    let tuned =
-        experiments::tune_baselines(&only, threads, progress).map_err(TrainingError::Validation)?;
+    let tuned = experiments::tune_baselines(&only, threads, warnings, progress)
+        .map_err(TrainingError::Validation)?;
     let entries: Vec<io::BaselineEntry> = tuned
         .iter()
         .map(|t| io::BaselineEntry {

@@ -37,8 +37,10 @@ pub fn track(a: Args) -> anyhow::Result<()> {
     let (settings, claim) = a.common.prepare("-track", io::ResultKind::Track)?;
     let out = claim.out().to_owned();
     let bar = a.common.sim_bar(settings.scenario.end_s);
-    let results =
-        pipeline::track(&settings, |p| show_sim_progress(&bar, p)).context("run failed")?;
+    let results = pipeline::track(&settings, &pipeline::Warnings::default(), |p| {
+        show_sim_progress(&bar, p)
+    })
+    .context("run failed")?;
     bar.finish_and_clear();
     let tracking = report::tracking_table(&results.vehicles);
     let association = report::association_table(&results.over_time);
@@ -145,13 +147,14 @@ fn sweep(a: &Args) -> anyhow::Result<()> {
         "{spinner} sweeping: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
     );
     let mut runs: Vec<Vec<OverTimeCounts>> = Vec::new();
+    let warnings = pipeline::Warnings::default();
     for v in &variants {
         let mut s: Settings = settings.clone();
         (v.apply)(&mut s.v2x);
         let mut per_seed = Vec::new();
         for &seed in &seeds {
             pb.set_message(format!("{} = {} seed {seed}", v.factor, v.value));
-            let r = pipeline::track(&settings_for_seed(&s, seed), |_| {})
+            let r = pipeline::track(&settings_for_seed(&s, seed), &warnings, |_| {})
                 .with_context(|| format!("{} = {}, seed {seed} failed", v.factor, v.value))?;
             per_seed.push(r.over_time);
             pb.inc(1);

@@ -14,6 +14,7 @@ use super::{ConfigArg, ForceArg, OutArg, QuietArg, WorkersArg, label_arg, progre
 use crate::config::Settings;
 use crate::experiments;
 use crate::matching::{Method, MethodKind};
+use crate::pipeline::Warnings;
 use crate::training::{self, ChildMessage, SeedRun, Trained};
 
 #[derive(clap::Args)]
@@ -154,7 +155,8 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     let jobs = methods.len() * seeds.len();
     let workers = a.workers.get().clamp(1, jobs.max(1));
     let started = std::time::Instant::now();
-    let bars = show == Show::Bars;
+    let warnings = Warnings::default();
+    let bars = (show == Show::Bars, &warnings);
     let baselines: &[Method] = if tunes_baselines { &baselines } else { &[] };
     if a.validate_only {
         for s in &seeds {
@@ -165,7 +167,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     if workers > 1 {
         train_in_children(&a, &models_dir, &methods, workers)?;
     } else {
-        training::train_seeds(&seeds, &methods, &mut Shown::new(show))?;
+        training::train_seeds(&seeds, &methods, &warnings, &mut Shown::new(show))?;
     }
     if !a.skip_validation {
         for s in &seeds {
@@ -286,12 +288,13 @@ impl ChildBars {
 }
 
 /// Chooses each method's lambda on the validation runs and records it
-/// beside its weights ([`training::validate`]).
+/// beside its weights ([`training::validate`]); `bars`: whether to show
+/// progress bars, and what the runs' warnings are said to.
 fn validate(
     settings: &Settings,
     models_dir: &Path,
     methods: &[Method],
-    bars: bool,
+    (bars, warnings): (bool, &Warnings),
 ) -> anyhow::Result<()> {
     if methods.is_empty() {
         return Ok(());
@@ -301,9 +304,8 @@ fn validate(
         experiments::validation_runs(settings)?.len() as u64,
         "{spinner} choosing temperature, decision and lambda on the validation runs: run {pos}/{len} [{bar:30}] eta {eta}",
     );
-    let chosen = training::validate(settings, models_dir, methods, super::cores(), |_, _| {
-        pb.inc(1)
-    })?;
+    let run = (super::cores(), warnings);
+    let chosen = training::validate(settings, models_dir, methods, run, |_, _| pb.inc(1))?;
     pb.finish_and_clear();
     let text = |l: f64| {
         if l.is_finite() {
@@ -332,12 +334,12 @@ fn validate(
 
 /// Chooses the thresholds of `baselines` on the validation runs and
 /// records them in the models folder's `baselines.toml`
-/// ([`training::tune_baselines`]).
+/// ([`training::tune_baselines`]); `bars` as [`validate`] takes them.
 fn tune_baselines(
     settings: &Settings,
     models_dir: &Path,
     baselines: &[Method],
-    bars: bool,
+    (bars, warnings): (bool, &Warnings),
 ) -> anyhow::Result<()> {
     if baselines.is_empty() {
         return Ok(());
@@ -347,12 +349,11 @@ fn tune_baselines(
         0,
         "{spinner} choosing the baselines' thresholds on the validation runs: value {pos}/{len} [{bar:30}] eta {eta}",
     );
-    let cores = super::cores();
-    let tuned =
-        training::tune_baselines(settings, models_dir, baselines, cores, |pass, passes| {
-            pb.set_length(passes as u64);
-            pb.set_position(pass as u64);
-        })?;
+    let run = (super::cores(), warnings);
+    let tuned = training::tune_baselines(settings, models_dir, baselines, run, |pass, passes| {
+        pb.set_length(passes as u64);
+        pb.set_position(pass as u64);
+    })?;
     pb.finish_and_clear();
     for t in &tuned {
         eprintln!(

@@ -6,7 +6,7 @@
 //!
 //! This file names the parts, one job each, and holds what they share: the
 //! error, the progress and the counters of a simulation. A run: `instance`,
-//! `simulate`, `runners`, `frames` (and `parallel`), `run`; `coid track`:
+//! `simulate`, `runners`, `evaluation`, `frames` (and `parallel`), `run`; `coid track`:
 //! `track`. Cooperation over time itself (trackers, messages, the channel,
 //! the receivers) is [`crate::v2x`]'s; this module runs it.
 
@@ -17,6 +17,7 @@ use crate::graph::GraphError;
 use crate::io::{OutputError, WeightsError};
 use crate::matching::BuildError;
 
+mod evaluation;
 mod frames;
 mod instance;
 mod parallel;
@@ -26,7 +27,8 @@ mod simulate;
 mod track;
 
 pub use crate::v2x::{TrackResults, ViewSource};
-pub use frames::{OnEval, evaluate_frames};
+pub use evaluation::OnEval;
+pub use frames::evaluate_frames;
 pub use instance::{Instance, InstanceSide};
 pub use run::run;
 pub use runners::{choice_for, choices, runner, runners};
@@ -68,21 +70,30 @@ pub struct Progress {
     pub instances: usize,
 }
 
-/// Counters of one simulation.
-/// Prints `coid: warning: <message>` on stderr, once per process and
-/// message: a command that runs the same settings many times (an
-/// evaluation's runs) says it once.
-fn warn_once(message: &str) {
-    static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
-    let mut said = SAID
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
-    if !said.iter().any(|m| m == message) {
-        eprintln!("coid: warning: {message}");
-        said.push(message.to_owned());
+/// What the runs of one command have to say beside their results, each
+/// message once (`coid: warning: <message>` on stderr): the command owns
+/// it and hands it to every run it starts, so that the same settings run
+/// many times (an evaluation's runs) say it once.
+#[derive(Debug, Default)]
+pub struct Warnings {
+    said: std::sync::Mutex<Vec<String>>,
+}
+
+impl Warnings {
+    /// Prints `message` as a warning unless it was said before.
+    pub fn say(&self, message: &str) {
+        let mut said = self
+            .said
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if !said.iter().any(|m| m == message) {
+            eprintln!("coid: warning: {message}");
+            said.push(message.to_owned());
+        }
     }
 }
 
+/// Counters of one simulation.
 #[derive(Clone, Debug, Default)]
 pub struct SimStats {
     pub n_instances: usize,

@@ -9,24 +9,27 @@ use std::collections::BTreeSet;
 use super::instance::InstanceSide;
 use super::runners::runner;
 use super::simulate::{
-    check_connected_appeared, note_connected, note_types, sense, warn_unused_types,
+    Rig, check_connected_appeared, cooperation, note_connected, note_types, sense,
+    warn_unused_types,
 };
-use super::{Progress, RunError};
+use super::{Progress, RunError, Warnings};
 use crate::bridge::Sumo;
 use crate::config::Settings;
 use crate::evaluate::CorrespondenceSource;
 use crate::matching::Matcher;
 use crate::sensor::PoseNoiseLevel;
-use crate::v2x::{Setup, TrackResults, Tracking, true_centres};
+use crate::v2x::{TrackResults, Tracking, true_centres};
 
 /// `coid track`: SUMO at `[v2x] step_length_s`; at every step each
 /// connected vehicle near the junction tracks its detections (scored by
 /// CLEAR-MOT against what its cameras could see), generates a CPM when
 /// one is due and sends it to its linked peers over the channel (a
 /// `Purpose::Channel` stream per message and receiver); messages that
-/// have arrived are matched and associated by their receivers.
+/// have arrived are matched and associated by their receivers. What the
+/// run has to say beside its results goes to `warnings`.
 pub fn track(
     settings: &Settings,
+    warnings: &Warnings,
     mut progress: impl FnMut(Progress),
 ) -> Result<TrackResults, RunError> {
     let (sc, v) = (&settings.scenario, &settings.v2x);
@@ -40,22 +43,17 @@ pub fn track(
     )?
     .with_unset_colours(settings.sensor.unset_colours, settings.seeds.traffic);
     let scene = sumo.static_scene(&sc.junction)?;
-    let setup = Setup {
-        v,
-        link: &settings.link,
-        sensor_seed: settings.seeds.sensor,
-        align_min_matches: settings.fusion.align_min_matches,
-        levels: std::slice::from_ref(&level),
-    };
+    let rig = Rig::of(settings);
+    let setup = cooperation(settings, std::slice::from_ref(&level));
     let mut tracking = Tracking::default();
     let mut instances = 0;
     let mut seen_connected = BTreeSet::new();
     let mut seen_types = BTreeSet::new();
     while sumo.time_s() + 1e-6 < sc.end_s {
         let frame = sumo.step()?;
-        note_connected(settings, &frame, &mut seen_connected);
+        note_connected(&rig, &frame, &mut seen_connected);
         note_types(&frame, &mut seen_types);
-        let sides = sense(settings, &scene, &frame)?;
+        let sides = sense(&rig, &scene, &frame)?;
         let sensings: Vec<_> = sides.iter().map(InstanceSide::sensing).collect();
         let truth = true_centres(&frame);
         let ctx = setup.at(frame.step, frame.time_s, &truth);
@@ -69,7 +67,7 @@ pub fn track(
     }
     sumo.close()?;
     check_connected_appeared(&settings.connected, &seen_connected)?;
-    warn_unused_types(settings, &seen_types);
+    warn_unused_types(&settings.detector, &seen_types, warnings);
     Ok(tracking.finish())
 }
 
