@@ -67,7 +67,9 @@ fn sources() -> Vec<(String, String)> {
         .filter(|p| !tests.contains(p))
         .map(|p| {
             let text = std::fs::read_to_string(&p).unwrap();
-            let code = match text.find("#[cfg(test)]\nmod tests") {
+            // Up to the inline test module: a `#[cfg(test)] mod tests;`
+            // declaration may stand before the file's code.
+            let code = match text.find("#[cfg(test)]\nmod tests {") {
                 Some(k) => text[..k].to_owned(),
                 None => text,
             };
