@@ -15,7 +15,7 @@ use crate::matching::deep::decision::{
 };
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainProgress, TrainReport};
 use crate::matching::{DecisionChoice, LambdaChoice, Method, MethodKind, MethodLambdas};
-use crate::pipeline::{self, Progress, RunError};
+use crate::pipeline::{self, Progress, RunError, Warnings};
 use crate::sensor::PoseNoiseLabel;
 use crate::tables::{DecidedPair, MethodLevel, RuleKey, RunEval, lambda_grid};
 
@@ -100,6 +100,7 @@ pub fn test_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
 /// so far)`.
 pub fn collect_examples(
     runs: &[Settings],
+    warnings: &Warnings,
     mut progress: impl FnMut(usize, usize, usize),
 ) -> Result<Vec<Example>, RunError> {
     let mut examples = Vec::new();
@@ -112,6 +113,7 @@ pub fn collect_examples(
         let seed = run.seeds.sensor;
         pipeline::simulate(
             run,
+            warnings,
             |_: Progress| {},
             |inst| {
                 for level in &run.pose_noise {
@@ -167,9 +169,12 @@ pub fn eval_run(
     methods: &[Method],
     lambdas: &MethodLambdas,
     threads: usize,
+    warnings: &Warnings,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
-    eval_run_with(settings, methods, None, lambdas, threads, progress)
+    eval_run_with(
+        settings, methods, None, lambdas, threads, warnings, progress,
+    )
 }
 
 /// [`eval_run`] with, when given, one more method: correspondences made
@@ -181,16 +186,18 @@ pub fn eval_run_with(
     external: Option<ExternalMatches>,
     lambdas: &MethodLambdas,
     threads: usize,
+    warnings: &Warnings,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
     let mut runners = pipeline::runners(settings, methods)?;
     runners.extend(external.map(CorrespondenceSource::External));
+    let into = RunEval::default();
     eval_run_into(
-        RunEval::default(),
+        into,
         settings,
         &runners,
-        lambdas,
-        threads,
+        (lambdas, threads),
+        warnings,
         progress,
     )
 }
@@ -200,8 +207,8 @@ fn eval_run_into(
     mut out: RunEval,
     settings: &Settings,
     runners: &[CorrespondenceSource],
-    lambdas: &MethodLambdas,
-    threads: usize,
+    (lambdas, threads): (&MethodLambdas, usize),
+    warnings: &Warnings,
     progress: impl FnMut(Progress),
 ) -> Result<RunEval, RunError> {
     let grid = lambda_grid(lambdas.values());
@@ -213,6 +220,7 @@ fn eval_run_into(
         settings,
         runners,
         threads,
+        warnings,
         progress,
         |_, pairs, level, f| {
             if let (Some(e), Method::External) = (external, f.method) {
@@ -296,6 +304,7 @@ pub fn validate(
     settings: &Settings,
     methods: &[Method],
     threads: usize,
+    warnings: &Warnings,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<BTreeMap<Method, Chosen>, RunError> {
     // The default decision is not used: every rule and threshold is counted.
@@ -311,8 +320,8 @@ pub fn validate(
             kept,
             run,
             &pipeline::runners(run, methods)?,
-            &no_lambdas,
-            threads,
+            (&no_lambdas, threads),
+            warnings,
             |_| {},
         )?);
         progress(k + 1, validation.len());
@@ -467,6 +476,7 @@ fn a_priori_value(settings: &Settings, m: Method) -> f64 {
 pub fn tune_baselines(
     settings: &Settings,
     threads: usize,
+    warnings: &Warnings,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<Vec<TunedBaseline>, RunError> {
     let knobs: Vec<(Method, crate::matching::BaselineKnob)> = settings
@@ -516,8 +526,8 @@ pub fn tune_baselines(
                 RunEval::default(),
                 &s,
                 &runners,
-                &no_lambdas,
-                threads,
+                (&no_lambdas, threads),
+                warnings,
                 |_| {},
             )?);
         }

@@ -8,14 +8,15 @@
 //! - stages: [`bridge`] (SUMO), [`sensor`], [`graph`], [`fusion`],
 //!   [`matching`];
 //! - [`evaluate`]: one instance, one method: match, count, fuse;
-//!   [`v2x`]: cooperation over time (trackers, messages, the channel, the
-//!   receivers' association);
+//! - [`v2x`]: cooperation over time (trackers, messages, the channel, the
+//!   receivers' association and fusion over messages);
 //! - [`config`]: the TOML file into each stage's settings;
 //! - [`report`]: rows, tables and plot data before they are written;
 //! - [`tables`], [`render`], [`io`]: the paper's tables, pictures, files;
 //! - [`pipeline`]: one run; [`experiments`], [`batch`]: many runs;
 //!   [`export`]: instances out for matchers written elsewhere, their
-//!   matches back in;
+//!   matches back in; [`training`]: `coid train`'s seeds and child
+//!   processes;
 //! - [`cli`]: the `coid` commands.
 
 mod assignment;
@@ -42,4 +43,5 @@ mod scenarios;
 pub mod sensor;
 mod tables;
 pub mod traffic;
+mod training;
 mod v2x;

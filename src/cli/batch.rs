@@ -178,6 +178,7 @@ pub fn run_one(a: RunArgs) -> anyhow::Result<()> {
     let results = pipeline::run(
         &settings,
         a.threads.get(),
+        &pipeline::Warnings::default(),
         |_| {},
         |rows| folder.objects(rows),
     )

@@ -74,9 +74,10 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
     );
     let choices = pipeline::choices(&scenarios[0].settings, methods)?;
     let lambdas = matching::method_lambdas(&choices);
+    let run = (a.threads.get(), &pipeline::Warnings::default());
     for s in &mut scenarios {
-        s.runs = evaluate(s, methods, &lambdas, a.threads.get(), &pb)?;
-        evaluate_seeds(s, &passes, a.threads.get(), &pb)?;
+        s.runs = evaluate(s, methods, &lambdas, run, &pb)?;
+        evaluate_seeds(s, &passes, run, &pb)?;
     }
     pb.finish_and_clear();
     warn_empty(&scenarios);
@@ -273,19 +274,20 @@ fn compatible(first: &Settings, other: &Settings) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Every run of one scenario.
+/// Every run of one scenario, each on `threads` threads, its warnings
+/// said to `warnings`.
 fn evaluate(
     s: &Scenario,
     methods: &[Method],
     lambdas: &MethodLambdas,
-    threads: usize,
+    (threads, warnings): (usize, &pipeline::Warnings),
     pb: &ProgressBar,
 ) -> anyhow::Result<Vec<RunEval>> {
     let mut runs = Vec::new();
     for &seed in &s.settings.eval.traffic_seeds {
         let run = experiments::settings_for_seed(&s.settings, seed);
         pb.set_message(format!("{} seed {seed}", s.name));
-        let r = experiments::eval_run(&run, methods, lambdas, threads, |_| {})
+        let r = experiments::eval_run(&run, methods, lambdas, threads, warnings, |_| {})
             .with_context(|| format!("{}: run with seed {seed} failed", s.name))?;
         runs.push(r);
         pb.inc(1);
@@ -420,7 +422,7 @@ fn check_seed_folder(
 fn evaluate_seeds(
     s: &mut Scenario,
     passes: &[SeedPass],
-    threads: usize,
+    run: (usize, &pipeline::Warnings),
     pb: &ProgressBar,
 ) -> anyhow::Result<()> {
     if passes.is_empty() {
@@ -449,7 +451,7 @@ fn evaluate_seeds(
             settings,
             runs: Vec::new(),
         };
-        let runs = evaluate(&seeded, &pass.methods, &lambdas, threads, pb)?;
+        let runs = evaluate(&seeded, &pass.methods, &lambdas, run, pb)?;
         for (into, from) in s.runs.iter_mut().zip(runs) {
             for (k, c) in from.table1 {
                 into.by_seed.insert((k, pass.seed), c);

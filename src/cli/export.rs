@@ -63,6 +63,7 @@ pub fn export(a: ExportArgs) -> anyhow::Result<()> {
         "{spinner} exporting: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
     );
     let mut counts = Vec::new();
+    let warnings = crate::pipeline::Warnings::default();
     for r in &runs {
         pb.set_message(format!(
             "{} {} seed {}",
@@ -70,7 +71,8 @@ pub fn export(a: ExportArgs) -> anyhow::Result<()> {
             r.scenario,
             r.seed
         ));
-        let n = export::export_run(r, &a.with_matches, a.threads.get(), |_| {}, &mut folder)
+        let threads = a.threads.get();
+        let n = export::export_run(r, &a.with_matches, threads, &warnings, |_| {}, &mut folder)
             .with_context(|| format!("run {} ({} seed {}) failed", r.index, r.scenario, r.seed))?;
         counts.push((r, n));
         pb.inc(1);
@@ -304,6 +306,7 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
         "{spinner} scoring: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
     );
     let mut evals: Vec<RunEval> = Vec::new();
+    let warnings = crate::pipeline::Warnings::default();
     for r in &scored {
         pb.set_message(format!("{} seed {}", r.scenario, r.seed));
         let matches = external.remove(&r.index).unwrap_or_default();
@@ -313,6 +316,7 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
             Some(matches),
             &lambdas,
             a.threads.get(),
+            &warnings,
             |_| {},
         )
         .map_err(|e| match e {

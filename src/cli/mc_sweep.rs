@@ -89,6 +89,7 @@ pub(super) fn mc_sweep(
     );
     let levels: Vec<PoseNoiseLabel> = settings.pose_noise.iter().map(|l| l.label).collect();
     let mut rows = Vec::new();
+    let warnings = crate::pipeline::Warnings::default();
     for setting in &sweep {
         for (split, runs) in &splits {
             pb.set_message(format!("{} {} ({split})", setting.factor, setting.value));
@@ -98,8 +99,10 @@ pub(super) fn mc_sweep(
                 s.matching.methods.clone_from(&methods);
                 s.matching.mc_samples = setting.samples;
                 s.matching.mc_dropout = setting.rate;
-                let e = experiments::eval_run(&s, &methods, &lambdas, threads, |_| {})
-                    .with_context(|| format!("{split} run (seed {}) failed", s.seeds.traffic))?;
+                let e = experiments::eval_run(&s, &methods, &lambdas, threads, &warnings, |_| {})
+                    .with_context(|| {
+                    format!("{split} run (seed {}) failed", s.seeds.traffic)
+                })?;
                 evals.push(e);
                 pb.inc(1);
             }

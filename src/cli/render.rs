@@ -46,6 +46,7 @@ pub fn render(a: Args) -> anyhow::Result<()> {
     claim.fill(|tmp| -> anyhow::Result<()> {
         pipeline::simulate(
             &settings,
+            &pipeline::Warnings::default(),
             |p| show_sim_progress(&bar, p),
             |inst| {
                 if !a.instances.contains(&inst.index) {

@@ -37,6 +37,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let results = pipeline::run(
         &settings,
         a.threads.get(),
+        &pipeline::Warnings::default(),
         |p| show_sim_progress(&bar, p),
         |rows| folder.objects(rows),
     )

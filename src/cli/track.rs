@@ -9,9 +9,9 @@ use crate::config::Settings;
 use crate::experiments::settings_for_seed;
 use crate::io::markdown::fmt_num;
 use crate::label::counted;
-use crate::report::{self, OverTimeCounts, Table};
-use crate::v2x::V2xSettings;
+use crate::report::{self, Table};
 use crate::v2x::channel::LossModel;
+use crate::v2x::{OverTimeCounts, V2xSettings, VehicleTracking};
 use crate::{io, pipeline, render};
 
 #[derive(clap::Args)]
@@ -37,11 +37,13 @@ pub fn track(a: Args) -> anyhow::Result<()> {
     let (settings, claim) = a.common.prepare("-track", io::ResultKind::Track)?;
     let out = claim.out().to_owned();
     let bar = a.common.sim_bar(settings.scenario.end_s);
-    let results =
-        pipeline::track(&settings, |p| show_sim_progress(&bar, p)).context("run failed")?;
+    let results = pipeline::track(&settings, &pipeline::Warnings::default(), |p| {
+        show_sim_progress(&bar, p)
+    })
+    .context("run failed")?;
     bar.finish_and_clear();
     let tracking = report::tracking_table(&results.vehicles);
-    let association = results.over_time.table();
+    let association = report::association_table(&results.over_time);
     let tables = [
         ("tracking.csv", &tracking),
         ("association.csv", &association),
@@ -54,7 +56,7 @@ pub fn track(a: Args) -> anyhow::Result<()> {
             settings.scenario.junction, settings.scenario.end_s
         );
     }
-    let mut all = report::VehicleTracking::default();
+    let mut all = VehicleTracking::default();
     for v in &results.vehicles {
         all.add(v);
     }
@@ -145,13 +147,14 @@ fn sweep(a: &Args) -> anyhow::Result<()> {
         "{spinner} sweeping: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
     );
     let mut runs: Vec<Vec<OverTimeCounts>> = Vec::new();
+    let warnings = pipeline::Warnings::default();
     for v in &variants {
         let mut s: Settings = settings.clone();
         (v.apply)(&mut s.v2x);
         let mut per_seed = Vec::new();
         for &seed in &seeds {
             pb.set_message(format!("{} = {} seed {seed}", v.factor, v.value));
-            let r = pipeline::track(&settings_for_seed(&s, seed), |_| {})
+            let r = pipeline::track(&settings_for_seed(&s, seed), &warnings, |_| {})
                 .with_context(|| format!("{} = {}, seed {seed} failed", v.factor, v.value))?;
             per_seed.push(r.over_time);
             pb.inc(1);

@@ -10,8 +10,8 @@ use std::collections::BTreeMap;
 
 use super::{MethodEval, PairAtLevel, Side};
 use crate::fusion::{
-    FusionSettings, FusionVariant, Measurement, align, consistency_scale, fuse, hedged_covariance,
-    relative_pose_prior,
+    FusionSettings, FusionVariant, Measurement, PeerPose, consistency_scale, fuse,
+    hedged_covariance, nees, relative_pose_prior,
 };
 use crate::geometry::Vec2;
 use crate::matching::claim;
@@ -137,12 +137,7 @@ pub(super) fn fuse_for_ego(
             })
             .unwrap_or((own.position_m, own.cov_m2, own.cov_m2));
         let error_ego = fused - ego.truth.ego_pose.to_body(&truth_m);
-        let nees = |cov: &crate::geometry::Cov2| {
-            cov.try_inverse().map_or(f64::NAN, |inv| {
-                (error_ego.transpose() * inv * error_ego)[(0, 0)]
-            })
-        };
-        let fused_nees = nees(&fused_cov);
+        let fused_nees = nees(error_ego, &fused_cov);
         let matched = partner[a].is_some();
         out.push(ObjectEstimate {
             ego_id: ego.obs.ego_id.clone(),
@@ -156,7 +151,7 @@ pub(super) fn fuse_for_ego(
             single_m: to_world(&own.position_m),
             fused_m: to_world(&fused),
             fused_nees,
-            fused_nees_hedged: nees(&hedged_cov),
+            fused_nees_hedged: nees(error_ego, &hedged_cov),
         });
     }
     out
@@ -262,14 +257,6 @@ fn fuse_all_views(
     out
 }
 
-/// Where the peer sits in the ego's frame, as a fusion variant sees it.
-enum PeerPose {
-    /// From both GPS poses, its uncertainty ignored (the paper).
-    Reported(crate::geometry::Pose2),
-    /// Refined from the matches, with its covariance.
-    Aligned(crate::fusion::PoseEstimate),
-}
-
 /// The ego's detections of real objects (false positives have no truth;
 /// the ego's own node is not a detection): index, object id, true
 /// position (world frame).
@@ -290,16 +277,6 @@ pub(super) fn measured(obs: &Observation, k: usize) -> Measurement {
     }
 }
 
-impl PeerPose {
-    /// A peer's measurement moved into the ego's frame.
-    fn move_measurement(&self, m: &Measurement) -> Measurement {
-        match self {
-            PeerPose::Reported(pose) => m.moved(pose),
-            PeerPose::Aligned(estimate) => m.moved_uncertain(estimate),
-        }
-    }
-}
-
 /// Where `peer` sits in `ego`'s frame for the variant of `ctx` (`pairs`:
 /// the matched (ego detection, peer detection)), and whether it was
 /// refined from the matches.
@@ -315,17 +292,13 @@ fn peer_pose(
         claim(&ego.view.pose_noise),
         claim(&peer.view.pose_noise),
     );
-    match ctx.variant {
-        FusionVariant::Paper => (false, PeerPose::Reported(prior.pose)),
-        FusionVariant::Aligned => {
-            let matched: Vec<(Measurement, Measurement)> = pairs
-                .iter()
-                .map(|&(a, b)| (measured(ego.obs, a), measured(peer.obs, b)))
-                .collect();
-            let al = align(&matched, &prior, ctx.align_min_matches);
-            (al.refined, PeerPose::Aligned(al.estimate))
-        }
-    }
+    let matched = || {
+        pairs
+            .iter()
+            .map(|&(a, b)| (measured(ego.obs, a), measured(peer.obs, b)))
+            .collect()
+    };
+    PeerPose::of(ctx.variant, &prior, matched, ctx.align_min_matches)
 }
 
 #[cfg(test)]

@@ -20,7 +20,7 @@ use crate::evaluate::{FrameEval, PairAtLevel};
 use crate::experiments;
 use crate::io::TablesFolder;
 use crate::matching::Method;
-use crate::pipeline::{self, Instance, Progress, RunError};
+use crate::pipeline::{self, Instance, Progress, RunError, Warnings};
 use crate::report::Table;
 
 mod rows;
@@ -138,6 +138,7 @@ pub fn export_run(
     run: &ExportRun,
     methods: &[Method],
     threads: usize,
+    warnings: &Warnings,
     progress: impl FnMut(Progress),
     out: &mut TablesFolder,
 ) -> Result<usize, RunError> {
@@ -168,7 +169,7 @@ pub fn export_run(
         }
         Ok(())
     };
-    let stats = pipeline::evaluate_frames(s, &runners, threads, progress, on_eval)?;
+    let stats = pipeline::evaluate_frames(s, &runners, threads, warnings, progress, on_eval)?;
     rows.write(out)?;
     for (method, m) in matches {
         out.write(&matches_file(method), &schema::Match::table(m))?;

@@ -1,10 +1,8 @@
 //! An instance and its two sides: [`InstanceSide`], one side (a connected
 //! vehicle's sensing, or with `[v2x] mode = "cpm"` a receiver's reported
 //! tracks or a message it received) with its graph and GNSS-reported
-//! poses, [`ViewSource`], whose view a side is, and [`Instance`], two sides
+//! poses (whose view it is: a [`ViewSource`]), and [`Instance`], two sides
 //! of a step, handed out at a pose-noise level.
-
-use std::fmt;
 
 use super::RunError;
 use crate::evaluate::{PairAtLevel, Side};
@@ -12,43 +10,9 @@ use crate::geometry::{Pose2, Vec2};
 use crate::graph::SceneGraph;
 use crate::matching::MatchView;
 use crate::rng::{self, Purpose};
-use crate::sensor::{self, Detection, DetectionTruth, PoseNoiseLabel, PoseNoiseLevel, Sensed};
+use crate::sensor::{self, PoseNoiseLabel, PoseNoiseLevel, Sensed};
 use crate::traffic::{StaticScene, TrafficFrame};
-use crate::v2x::gnss;
-
-/// Whose view one side of an instance is. Its text ([`fmt::Display`]) is
-/// the side's id wherever a side is named (the observation's `ego_id`,
-/// hence the exports' and tables' ids): the vehicle's id, or `<sender> ->
-/// <receiver>` for a message.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum ViewSource {
-    /// A connected vehicle's own view: what it sensed at the step, or with
-    /// `[v2x] mode = "cpm"` its reported tracks.
-    Vehicle(String),
-    /// A message `sender` sent and `receiver` received (`[v2x] mode =
-    /// "cpm"`).
-    Message { sender: String, receiver: String },
-}
-
-impl ViewSource {
-    /// The vehicle whose view this is: the vehicle, or the message's
-    /// sender.
-    pub fn vehicle(&self) -> &str {
-        match self {
-            ViewSource::Vehicle(id) => id,
-            ViewSource::Message { sender, .. } => sender,
-        }
-    }
-}
-
-impl fmt::Display for ViewSource {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            ViewSource::Vehicle(id) => f.write_str(id),
-            ViewSource::Message { sender, receiver } => write!(f, "{sender} -> {receiver}"),
-        }
-    }
-}
+use crate::v2x::{ReceptionSide, Sensing, ViewSource, gnss};
 
 /// One side of an instance: a connected vehicle near the junction at one
 /// step, with what it sees; or, with `[v2x] mode = "cpm"`, one side of a
@@ -106,14 +70,27 @@ impl InstanceSide {
         })
     }
 
-    /// The side's own node, when it has one (the sender's self-report,
-    /// `[matching] sender_as_node`): its detection and truth.
-    pub(super) fn own_node(&self) -> Option<(Detection, DetectionTruth)> {
-        let k = self.sensed.truth.detections.iter().position(|d| d.sender)?;
-        Some((
-            self.sensed.observation.detections[k].clone(),
-            self.sensed.truth.detections[k].clone(),
-        ))
+    /// A side of a reception (`[v2x] mode = "cpm"`), named and ordered as
+    /// [`InstanceSide::new`] does.
+    pub(super) fn reception(r: ReceptionSide, sensor_seed: u64) -> Result<InstanceSide, RunError> {
+        InstanceSide::new(
+            r.source,
+            r.sensed,
+            sensor_seed,
+            &r.order_keys,
+            r.speed_mps,
+            Some(r.reported),
+        )
+    }
+
+    /// What a vehicle's side brings to a step of cooperation over time.
+    pub(super) fn sensing(&self) -> Sensing<'_> {
+        Sensing {
+            id: self.source.vehicle(),
+            id_hash: self.id_hash,
+            sensed: &self.sensed,
+            speed_mps: self.speed_mps,
+        }
     }
 
     /// The side's id: its source's text.
@@ -204,21 +181,6 @@ mod tests {
         ]
     }
 
-    /// A vehicle's side is named by the vehicle, a message's by `<sender>
-    /// -> <receiver>` (what exports and tables write), and the vehicle
-    /// behind a message is its sender.
-    #[test]
-    fn a_source_reads_as_the_vehicle_or_sender_to_receiver() {
-        let v = ViewSource::Vehicle("cv1".into());
-        let m = ViewSource::Message {
-            sender: "cv0".into(),
-            receiver: "cv1".into(),
-        };
-        assert_eq!(v.to_string(), "cv1");
-        assert_eq!(m.to_string(), "cv0 -> cv1");
-        assert_eq!((v.vehicle(), m.vehicle()), ("cv1", "cv0"));
-    }
-
     /// A new side takes its source's text as its id, shuffles its nodes
     /// with their truths in step (each still where its object is), and
     /// has one graph node per detection.
@@ -242,7 +204,7 @@ mod tests {
             let world = pose().to_parent(&d.position_m);
             assert!((world - t.position_m.unwrap()).norm() < 1e-9);
         }
-        assert!(side.own_node().is_none());
+        assert!(side.sensed.own_node().is_none());
     }
 
     /// A side's own node (the sender's self-report) is found among its
@@ -253,7 +215,7 @@ mod tests {
         side.sensed.add_sender(&car("cv0", pose()));
         side.sensed
             .shuffle(&mut rng::stream(1, Purpose::NodeOrder, &[9]));
-        let (d, t) = side.own_node().unwrap();
+        let (d, t) = side.sensed.own_node().unwrap();
         assert!(t.sender && t.object_id.as_deref() == Some("cv0"));
         assert_eq!(d.position_m, Vec2::zeros());
     }

@@ -1,4 +1,4 @@
-//! The threaded form of [`super::frames::evaluate_frames`]: SUMO and
+//! The threaded form of [`super::evaluate_frames`]: SUMO and
 //! sensing go on in the calling thread while a scoped pool evaluates
 //! (step, runner) tasks; a reorder buffer hands the results on in step
 //! order, with at most 2 x threads steps in flight.
@@ -8,9 +8,9 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Mutex};
 
-use super::frames::{OnEval, evaluate_step, hand_on};
+use super::evaluation::{Evaluation, OnEval};
 use super::simulate::{Step, simulate_steps};
-use super::{Progress, RunError, SimStats};
+use super::{Progress, RunError, SimStats, Warnings};
 use crate::config::Settings;
 use crate::evaluate::{CorrespondenceSource, FrameEval};
 
@@ -102,7 +102,7 @@ impl<S, E> InFlight<S, E> {
 }
 
 fn worker(
-    settings: &Settings,
+    eval: &Evaluation,
     runners: &[CorrespondenceSource],
     tasks: &Mutex<Receiver<Task>>,
     done: Sender<Done>,
@@ -113,10 +113,7 @@ fn worker(
             Err(_) => return,
         };
         let Ok(t) = task else { return };
-        let evals = catch_unwind(AssertUnwindSafe(|| {
-            evaluate_step(settings, &t.step, &runners[t.runner])
-        }))
-        .ok();
+        let evals = catch_unwind(AssertUnwindSafe(|| eval.step(&t.step, &runners[t.runner]))).ok();
         let d = Done {
             seq: t.seq,
             runner: t.runner,
@@ -128,11 +125,12 @@ fn worker(
     }
 }
 
-/// [`super::frames::evaluate_frames`] on `threads` threads.
+/// [`super::evaluate_frames`] on `threads` threads.
 pub(super) fn evaluate_frames(
     settings: &Settings,
     runners: &[CorrespondenceSource],
     threads: usize,
+    warnings: &Warnings,
     progress: impl FnMut(Progress),
     on_eval: &mut OnEval,
 ) -> Result<SimStats, RunError> {
@@ -143,8 +141,9 @@ pub(super) fn evaluate_frames(
     let (done_tx, done_rx) = mpsc::channel::<Done>();
     let task_rx = Mutex::new(task_rx);
     let mut flight = InFlight::new(runners.len());
+    let eval = Evaluation::of(settings);
     let mut ready = |flight: &mut Flight| {
-        flight.hand_on_ready(|step, evals| hand_on(settings, &step, evals, on_eval))
+        flight.hand_on_ready(|step, evals| eval.hand_on(&step, evals, on_eval))
     };
     std::thread::scope(|scope| {
         for k in 0..threads {
@@ -152,7 +151,7 @@ pub(super) fn evaluate_frames(
             let tasks = &task_rx;
             let started = std::thread::Builder::new()
                 .name(format!("coid-eval-{k}"))
-                .spawn_scoped(scope, move || worker(settings, runners, tasks, done));
+                .spawn_scoped(scope, move || worker(&eval, runners, tasks, done));
             if let Err(e) = started {
                 // The threads already started end once the queue closes.
                 drop(task_tx);
@@ -163,7 +162,7 @@ pub(super) fn evaluate_frames(
             }
         }
         drop(done_tx);
-        let result = simulate_steps(settings, progress, |step| {
+        let result = simulate_steps(settings, warnings, progress, |step| {
             let step = Arc::new(step);
             let seq = flight.take(Arc::clone(&step));
             for runner in 0..runners.len() {

@@ -7,7 +7,7 @@ use std::time::Instant;
 use super::frames::evaluate_frames;
 use super::instance::Instance;
 use super::runners::runners;
-use super::{Progress, RunError};
+use super::{Progress, RunError, Warnings};
 use crate::config::Settings;
 use crate::evaluate;
 use crate::io::OutputError;
@@ -20,10 +20,12 @@ use crate::sensor::PoseNoiseLabel;
 /// `threads` threads. The summary is accumulated as the frames come;
 /// every per-object row goes to `on_objects` in a fixed order (by step,
 /// pose-noise level, method, instance), whatever the number of threads, and
-/// is not kept.
+/// is not kept. What the run has to say beside its results goes to
+/// `warnings`.
 pub fn run(
     settings: &Settings,
     threads: usize,
+    warnings: &Warnings,
     progress: impl FnMut(Progress),
     mut on_objects: impl FnMut(&[ObjectRow]) -> Result<(), OutputError>,
 ) -> Result<RunResults, RunError> {
@@ -35,6 +37,7 @@ pub fn run(
         settings,
         &runners,
         threads,
+        warnings,
         progress,
         |instances, _, level, f| {
             rows.clear();
@@ -115,7 +118,7 @@ fn record_frame(
 mod tests {
     use super::*;
     use crate::evaluate::CorrespondenceSource;
-    use crate::pipeline::frames::evaluate_step;
+    use crate::pipeline::evaluation::Evaluation;
     use crate::pipeline::tests::{settings, two_vehicle_step};
 
     /// Before any instance, the summary has a row per method, level and
@@ -136,7 +139,9 @@ mod tests {
         let s = settings();
         let step = two_vehicle_step(9);
         let level = &s.pose_noise[0];
-        let f = evaluate_step(&s, &step, &CorrespondenceSource::Oracle).remove(0);
+        let f = Evaluation::of(&s)
+            .step(&step, &CorrespondenceSource::Oracle)
+            .remove(0);
         let mut results = empty_results(&s);
         let mut rows = Vec::new();
         record_frame(&mut results, &mut rows, &step.instances(), level.label, f);

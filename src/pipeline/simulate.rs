@@ -7,26 +7,70 @@ use std::collections::BTreeSet;
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::instance::{Instance, InstanceSide, ViewSource};
-use super::{Progress, RunError, SimStats, receptions};
+use super::instance::{Instance, InstanceSide};
+use super::{Progress, RunError, SimStats, Warnings};
 use crate::bridge::Sumo;
 use crate::config::Settings;
 use crate::evaluate;
 use crate::geometry::{Pose2, Vec2};
 use crate::rng::{self, Purpose};
-use crate::sensor::{self, ConnectedSelection, LinkSettings, PoseNoiseLabel, Sensed};
+use crate::sensor::profile::DetectorSettings;
+use crate::sensor::{
+    self, CameraSettings, ConnectedSelection, LinkSettings, PoseNoiseLabel, PoseNoiseLevel, Sensed,
+    SensorSettings,
+};
 use crate::traffic::{StaticScene, TrafficFrame, TrafficObject};
-use crate::v2x::{V2xMode, gnss};
+use crate::v2x::{Receptions, Setup, V2xMode, V2xSettings, ViewSource, gnss, true_centres};
+
+/// What sensing reads of the settings: which vehicles carry the rig and
+/// within which radius of the junction they sense, what they sense with
+/// (`[camera]`, `[sensor]`, `[detector]`, and their own node with
+/// `[matching] sender_as_node`), the sensor seed, and how their GNSS
+/// reports in `ideal` runs (`[v2x]` at every `[pose_noise]` level).
+#[derive(Clone, Copy)]
+pub(super) struct Rig<'a> {
+    seed: u64,
+    connected: &'a ConnectedSelection,
+    radius_m: f64,
+    sender_as_node: bool,
+    camera: &'a CameraSettings,
+    sensor: &'a SensorSettings,
+    detector: &'a DetectorSettings,
+    pose_noise: &'a [PoseNoiseLevel],
+    v2x: &'a V2xSettings,
+}
+
+impl<'a> Rig<'a> {
+    pub(super) fn of(settings: &'a Settings) -> Self {
+        Self {
+            seed: settings.seeds.sensor,
+            connected: &settings.connected,
+            radius_m: settings.scenario.radius_m,
+            sender_as_node: settings.matching.sender_as_node,
+            camera: &settings.camera,
+            sensor: &settings.sensor,
+            detector: &settings.detector,
+            pose_noise: &settings.pose_noise,
+            v2x: &settings.v2x,
+        }
+    }
+
+    /// Whether `o` carries the rig.
+    fn carries(&self, o: &TrafficObject) -> bool {
+        self.connected.carries_rig(self.seed, o)
+    }
+}
 
 /// Runs the scenario of `settings` from start to end and hands every
 /// instance to `on_instance`, in a fixed order (by step, then by vehicle
 /// ids).
 pub fn simulate(
     settings: &Settings,
+    warnings: &Warnings,
     progress: impl FnMut(Progress),
     mut on_instance: impl FnMut(&Instance) -> Result<(), RunError>,
 ) -> Result<SimStats, RunError> {
-    simulate_frames(settings, progress, |instances| {
+    simulate_frames(settings, warnings, progress, |instances| {
         instances.iter().try_for_each(&mut on_instance)
     })
 }
@@ -36,10 +80,13 @@ pub fn simulate(
 /// list), in a fixed order (by step, then by vehicle ids).
 pub fn simulate_frames(
     settings: &Settings,
+    warnings: &Warnings,
     progress: impl FnMut(Progress),
     mut on_frame: impl FnMut(&[Instance]) -> Result<(), RunError>,
 ) -> Result<SimStats, RunError> {
-    simulate_steps(settings, progress, |step| on_frame(&step.instances()))
+    simulate_steps(settings, warnings, progress, |step| {
+        on_frame(&step.instances())
+    })
 }
 
 /// A sampled step with at least one instance, owning what its instances
@@ -90,19 +137,23 @@ impl Step {
 }
 
 /// Runs the scenario of `settings` from start to end and hands every
-/// sampled step that has an instance to `on_step`, in order.
+/// sampled step that has an instance to `on_step`, in order; what the run
+/// has to say beside its results goes to `warnings`.
 pub fn simulate_steps(
     settings: &Settings,
+    warnings: &Warnings,
     mut progress: impl FnMut(Progress),
     mut on_step: impl FnMut(Step) -> Result<(), RunError>,
 ) -> Result<SimStats, RunError> {
     let sc = &settings.scenario;
+    let rig = Rig::of(settings);
     let cpm = settings.v2x.mode == V2xMode::Cpm;
     let step_length_s = cpm.then_some(settings.v2x.step_length_s);
     let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, step_length_s)?
         .with_unset_colours(settings.sensor.unset_colours, settings.seeds.traffic);
     let scene = Arc::new(sumo.static_scene(&sc.junction)?);
-    let mut receptions = cpm.then(receptions::Receptions::default);
+    let setup = cooperation(settings, &settings.pose_noise);
+    let mut receptions = cpm.then(Receptions::default);
     let mut stats = SimStats::default();
     let mut seen_connected: BTreeSet<String> = BTreeSet::new();
     let mut seen_types: BTreeSet<String> = BTreeSet::new();
@@ -114,17 +165,17 @@ pub fn simulate_steps(
         stats.bridge_time += t0.elapsed();
         stats.n_steps += 1;
         stats.objects_read += frame.objects.len() as u64;
-        note_connected(settings, &frame, &mut seen_connected);
+        note_connected(&rig, &frame, &mut seen_connected);
         note_types(&frame, &mut seen_types);
         let time_s = frame.time_s;
         let sample = time_s + eps >= next_sample_s;
         let instances = match receptions.as_mut() {
             Some(r) => {
-                let vehicles = sense(settings, &scene, &frame)?;
-                Some(r.step(settings, &frame, &vehicles, sample)?)
+                let vehicles = sense(&rig, &scene, &frame)?;
+                Some(receptions_of(setup, r, &frame, &vehicles, sample)?)
             }
             None if sample => {
-                let vehicles = sense(settings, &scene, &frame)?;
+                let vehicles = sense(&rig, &scene, &frame)?;
                 let pairs = instance_pairs(&vehicles, &settings.link);
                 Some((vehicles, pairs))
             }
@@ -153,8 +204,45 @@ pub fn simulate_steps(
     stats.sim_end_s = sumo.time_s();
     sumo.close()?;
     check_connected_appeared(&settings.connected, &seen_connected)?;
-    warn_unused_types(settings, &seen_types);
+    warn_unused_types(&settings.detector, &seen_types, warnings);
     Ok(stats)
+}
+
+/// What cooperation over time reads of `settings`, with its vehicles'
+/// GNSS errors drawn at `levels`.
+pub(super) fn cooperation<'a>(settings: &'a Settings, levels: &'a [PoseNoiseLevel]) -> Setup<'a> {
+    Setup {
+        v: &settings.v2x,
+        link: &settings.link,
+        sensor_seed: settings.seeds.sensor,
+        align_min_matches: settings.fusion.align_min_matches,
+        levels,
+    }
+}
+
+/// A sampled step's sides, and its instances as pairs of indices into them
+/// (each pair ordered by id).
+type Sides = (Vec<InstanceSide>, Vec<(usize, usize)>);
+
+/// With `[v2x] mode = "cpm"`: one step of the fleet (`vehicles`: what every
+/// connected vehicle near the junction sensed), and, when `sample`, the
+/// messages that have arrived as instances' sides with their pairs.
+fn receptions_of(
+    setup: Setup,
+    receptions: &mut Receptions,
+    frame: &TrafficFrame,
+    vehicles: &[InstanceSide],
+    sample: bool,
+) -> Result<Sides, RunError> {
+    let truth = true_centres(frame);
+    let ctx = setup.at(frame.step, frame.time_s, &truth);
+    let sensings: Vec<_> = vehicles.iter().map(InstanceSide::sensing).collect();
+    let (sides, pairs) = receptions.step(&ctx, &sensings, sample);
+    let sides = sides
+        .into_iter()
+        .map(|r| InstanceSide::reception(r, setup.sensor_seed))
+        .collect::<Result<_, _>>()?;
+    Ok((sides, pairs))
 }
 
 /// Adds the types of the road users of `frame` to `seen`.
@@ -166,16 +254,20 @@ pub(super) fn note_types(frame: &TrafficFrame, seen: &mut BTreeSet<String>) {
     }
 }
 
-/// Says (once per process and message) which vehicle types `[detector]
-/// by_type` and `rig_by_type` name that no road user of the run had
-/// (`seen`): those entries changed nothing.
-pub(super) fn warn_unused_types(settings: &Settings, seen: &BTreeSet<String>) {
-    let unused = settings.detector.unused_types(seen);
+/// Tells `warnings` which vehicle types `[detector] by_type` and
+/// `rig_by_type` name that no road user of the run had (`seen`): those
+/// entries changed nothing.
+pub(super) fn warn_unused_types(
+    detector: &DetectorSettings,
+    seen: &BTreeSet<String>,
+    warnings: &Warnings,
+) {
+    let unused = detector.unused_types(seen);
     if unused.is_empty() {
         return;
     }
     let had: Vec<&str> = seen.iter().map(String::as_str).collect();
-    super::warn_once(&format!(
+    warnings.say(&format!(
         "[detector] by_type / rig_by_type name vehicle type(s) {} that no road user of this \
          run had, so they changed nothing (this run's types: {})",
         unused
@@ -213,13 +305,9 @@ fn instance_pairs(sides: &[InstanceSide], link: &LinkSettings) -> Vec<(usize, us
 }
 
 /// Adds the connected vehicles of `frame` to `seen`.
-pub(super) fn note_connected(
-    settings: &Settings,
-    frame: &TrafficFrame,
-    seen: &mut BTreeSet<String>,
-) {
+pub(super) fn note_connected(rig: &Rig, frame: &TrafficFrame, seen: &mut BTreeSet<String>) {
     for o in &frame.objects {
-        if settings.connected.carries_rig(settings.seeds.sensor, o) {
+        if rig.carries(o) {
             seen.insert(o.id.clone());
         }
     }
@@ -242,28 +330,28 @@ pub(super) fn check_connected_appeared(
 /// Observations and graphs of the connected vehicles near the junction,
 /// sorted by vehicle id.
 pub(super) fn sense(
-    settings: &Settings,
+    rig: &Rig,
     scene: &StaticScene,
     frame: &TrafficFrame,
 ) -> Result<Vec<InstanceSide>, RunError> {
     let mut sides: Vec<InstanceSide> = Vec::new();
     for (k, o) in frame.objects.iter().enumerate() {
-        if !settings.connected.carries_rig(settings.seeds.sensor, o)
-            || (o.pose.position_m() - scene.junction_position_m).norm() > settings.scenario.radius_m
+        if !rig.carries(o)
+            || (o.pose.position_m() - scene.junction_position_m).norm() > rig.radius_m
         {
             continue;
         }
         let id_hash = rng::hash_str(&o.id);
-        let mut sensed = sense_one(settings, scene, frame, k);
-        if settings.matching.sender_as_node {
+        let mut sensed = sense_one(rig, scene, frame, k);
+        if rig.sender_as_node {
             sensed.add_sender(o);
         }
         let keys = [frame.step, id_hash];
-        let reported = ideal_gnss(settings, frame, o, id_hash);
+        let reported = ideal_gnss(rig, frame, o, id_hash);
         sides.push(InstanceSide::new(
             ViewSource::Vehicle(o.id.clone()),
             sensed,
-            settings.seeds.sensor,
+            rig.seed,
             &keys,
             o.speed_mps,
             reported,
@@ -275,35 +363,20 @@ pub(super) fn sense(
 
 /// What connected vehicle `frame.objects[k]` senses at this step, under
 /// the configured detector profile (its own stream per step and vehicle).
-fn sense_one(settings: &Settings, scene: &StaticScene, frame: &TrafficFrame, k: usize) -> Sensed {
+fn sense_one(rig: &Rig, scene: &StaticScene, frame: &TrafficFrame, k: usize) -> Sensed {
     let id_hash = rng::hash_str(&frame.objects[k].id);
-    let mut stream = rng::stream(
-        settings.seeds.sensor,
-        Purpose::Detections,
-        &[frame.step, id_hash],
-    );
-    let (camera, sensor) = (&settings.camera, &settings.sensor);
-    let d = &settings.detector;
+    let mut stream = rng::stream(rig.seed, Purpose::Detections, &[frame.step, id_hash]);
+    let (camera, sensor) = (rig.camera, rig.sensor);
     let o = &frame.objects[k];
-    let model = d.model_for(settings.seeds.sensor, &o.id, &o.type_id);
+    let model = rig.detector.model_for(rig.seed, &o.id, &o.type_id);
     let mut sensed = match model {
         None => sensor::observe(frame, scene, k, camera, sensor, &mut stream),
-        Some(model) => sensor::profile::observe_profile(
-            frame,
-            scene,
-            k,
-            model,
-            sensor,
-            settings.seeds.sensor,
-            &mut stream,
-        ),
+        Some(model) => {
+            sensor::profile::observe_profile(frame, scene, k, model, sensor, rig.seed, &mut stream)
+        }
     };
     // The boxes' own stream: their errors move no detection.
-    let mut boxes = rng::stream(
-        settings.seeds.sensor,
-        Purpose::BoxMotion,
-        &[frame.step, id_hash],
-    );
+    let mut boxes = rng::stream(rig.seed, Purpose::BoxMotion, &[frame.step, id_hash]);
     let errors = model.map_or(&sensor.boxes, |m| &m.params.boxes);
     sensor::boxes::add_motion(&mut sensed, frame, k, errors, &mut boxes);
     sensed
@@ -319,6 +392,7 @@ pub fn sense_steps(
     mut on_sensed: impl FnMut(&TrafficFrame, &Sensed),
 ) -> Result<u64, RunError> {
     let sc = &settings.scenario;
+    let rig = Rig::of(settings);
     let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, None)?
         .with_unset_colours(settings.sensor.unset_colours, settings.seeds.traffic);
     let scene = sumo.static_scene(&sc.junction)?;
@@ -332,10 +406,10 @@ pub fn sense_steps(
         }
         next_sample_s = frame.time_s + sc.sample_every_s;
         for (k, o) in frame.objects.iter().enumerate() {
-            if settings.connected.carries_rig(settings.seeds.sensor, o)
+            if rig.carries(o)
                 && (o.pose.position_m() - scene.junction_position_m).norm() <= sc.radius_m
             {
-                on_sensed(&frame, &sense_one(settings, &scene, &frame, k));
+                on_sensed(&frame, &sense_one(&rig, &scene, &frame, k));
                 n += 1;
             }
         }
@@ -349,18 +423,18 @@ pub fn sense_steps(
 /// here, carried by its side); `None` with the white model, whose poses
 /// the side draws from its own stream when asked (the shipped results).
 fn ideal_gnss(
-    settings: &Settings,
+    rig: &Rig,
     frame: &TrafficFrame,
     o: &TrafficObject,
     id_hash: u64,
 ) -> Option<Vec<(PoseNoiseLabel, Pose2)>> {
-    let v = &settings.v2x;
+    let v = rig.v2x;
     let (tau_s, speed_sigma) = (v.gnss_correlation_s, v.gnss_heading_speed_sigma_mps);
     if v.mode != V2xMode::Ideal || (tau_s == 0.0 && speed_sigma == 0.0) {
         return None;
     }
-    let seed = settings.seeds.sensor;
-    let poses = settings.pose_noise.iter().map(|level| {
+    let seed = rig.seed;
+    let poses = rig.pose_noise.iter().map(|level| {
         let level = gnss::at_speed(level, o.speed_mps, speed_sigma);
         let pose = if tau_s > 0.0 {
             gnss::drift_error(seed, id_hash, &level, frame.time_s, tau_s).apply(&o.pose)
@@ -416,7 +490,7 @@ mod tests {
             time_s: 0.0,
             objects: vec![car("cv0", 0.0, 0.0), car("other", 5.0, 0.0)],
         };
-        note_connected(&s, &frame, &mut seen);
+        note_connected(&Rig::of(&s), &frame, &mut seen);
         assert_eq!(seen.iter().collect::<Vec<_>>(), ["cv0"]);
         let ids = ConnectedSelection::Ids(vec!["cv0".into(), "cv1".into()]);
         match check_connected_appeared(&ids, &seen) {
@@ -446,12 +520,12 @@ mod tests {
                 car("y", far, 0.0),
             ],
         };
-        let sides = sense(&s, &scene, &frame).unwrap();
+        let sides = sense(&Rig::of(&s), &scene, &frame).unwrap();
         let ids: Vec<&str> = sides.iter().map(InstanceSide::id).collect();
         assert_eq!(ids, ["cv0", "cv1"]);
-        assert!(sides.iter().all(|e| e.own_node().is_some()));
+        assert!(sides.iter().all(|e| e.sensed.own_node().is_some()));
         let mut none = s.clone();
         none.scenario.radius_m = 1.0;
-        assert!(sense(&none, &scene, &frame).unwrap().is_empty());
+        assert!(sense(&Rig::of(&none), &scene, &frame).unwrap().is_empty());
     }
 }

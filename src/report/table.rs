@@ -29,10 +29,6 @@ impl Table {
         self.columns.push((name.into(), TableColumn::Count(v)));
     }
 
-    pub fn flag(&mut self, name: &str, v: Vec<bool>) {
-        self.columns.push((name.into(), TableColumn::Flag(v)));
-    }
-
     /// Adds `name` and `name_ci95`: per row, the mean of its per-run
     /// samples and the half-width of the 95% interval. Undefined (NaN)
     /// samples are left out.

@@ -18,21 +18,21 @@ use crate::traffic::TrafficFrame;
 /// by pi) and its speed over ground (m/s, never negative).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Motion {
-    pub heading_rad: f64,
-    pub speed_mps: f64,
+    pub(crate) heading_rad: f64,
+    pub(crate) speed_mps: f64,
 }
 
 /// The errors of a detector's heading and speed.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct BoxErrors {
+pub(crate) struct BoxErrors {
     /// Standard deviation of the heading error (Gaussian).
-    pub heading_sigma_rad: f64,
+    pub(crate) heading_sigma_rad: f64,
     /// Probability that a box's heading is reported the wrong way round
     /// (off by pi).
-    pub heading_flip_prob: f64,
+    pub(crate) heading_flip_prob: f64,
     /// Standard deviation of the speed error (Gaussian; the reported
     /// speed is clipped at 0).
-    pub speed_sigma_mps: f64,
+    pub(crate) speed_sigma_mps: f64,
 }
 
 /// Gives every detection of `sensed` (made by `frame.objects[ego_index]`)
@@ -41,7 +41,7 @@ pub struct BoxErrors {
 /// heading uniform over the circle and a speed of |N(0, sigma)|. Draws come
 /// from `rng`, two or three per detection in detection order. Detections
 /// that already carry a box (a sender's own node) keep it.
-pub fn add_motion(
+pub(crate) fn add_motion(
     sensed: &mut Sensed,
     frame: &TrafficFrame,
     ego_index: usize,

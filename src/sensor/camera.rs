@@ -46,7 +46,7 @@ fn in_frustum(cam: &Pose2, p_world: &Vec2, camera: &CameraSettings) -> bool {
 /// frustum, and the sight line from the camera (at `camera.height_m`) to the
 /// sample (at `aim_height_fraction` of the target's height) passes above or
 /// beside every other road user and misses every building.
-pub fn visible_fraction(
+pub(crate) fn visible_fraction(
     cam: &Pose2,
     ego_index: usize,
     target_index: usize,
@@ -123,7 +123,12 @@ pub(super) fn polar_sigmas(d_m: f64, s: &SensorSettings) -> (f64, f64) {
 
 /// Covariance of a point at range `r_m`, bearing `bearing_rad` (camera frame)
 /// with independent range and bearing errors: `J diag(sr^2, sb^2) J^T`.
-pub fn polar_covariance(r_m: f64, bearing_rad: f64, sigma_r_m: f64, sigma_b_rad: f64) -> Cov2 {
+pub(super) fn polar_covariance(
+    r_m: f64,
+    bearing_rad: f64,
+    sigma_r_m: f64,
+    sigma_b_rad: f64,
+) -> Cov2 {
     let (s, c) = bearing_rad.sin_cos();
     let j = nalgebra::Matrix2::new(c, -r_m * s, s, r_m * c);
     j * Cov2::new(sigma_r_m * sigma_r_m, 0.0, 0.0, sigma_b_rad * sigma_b_rad) * j.transpose()
@@ -328,7 +333,7 @@ pub(super) fn false_positive() -> DetectionTruth {
 /// beside it. All draws come from `rng`, in a fixed order (per camera:
 /// objects in frame order, then false positives), so the same stream gives
 /// the same observation.
-pub fn observe(
+pub(crate) fn observe(
     frame: &TrafficFrame,
     scene: &StaticScene,
     ego_index: usize,

@@ -18,7 +18,7 @@ pub enum ConnectedSelection {
 impl ConnectedSelection {
     /// Whether `obj` carries the rig (penetration draws are named by the
     /// vehicle id, so they do not depend on the order vehicles appear in).
-    pub fn carries_rig(&self, sensor_seed: u64, obj: &TrafficObject) -> bool {
+    pub(crate) fn carries_rig(&self, sensor_seed: u64, obj: &TrafficObject) -> bool {
         match self {
             ConnectedSelection::Ids(ids) => ids.contains(&obj.id),
             ConnectedSelection::Penetration(p) => {
@@ -35,16 +35,16 @@ impl ConnectedSelection {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LinkSettings {
     /// Vehicles farther apart than this do not exchange (metres).
-    pub comm_range_m: Option<f64>,
+    pub(crate) comm_range_m: Option<f64>,
     /// Each vehicle exchanges with at most this many peers, nearest first
     /// (ties by position in the list): a pair is linked when each is among
     /// the other's nearest peers in range.
-    pub max_peers: Option<usize>,
+    pub(crate) max_peers: Option<usize>,
 }
 
 impl LinkSettings {
     /// The links among vehicles at `positions_m` (one frame's).
-    pub fn links(&self, positions_m: &[Vec2]) -> Links {
+    pub(crate) fn links(&self, positions_m: &[Vec2]) -> Links {
         let n = positions_m.len();
         let dist = |i: usize, j: usize| (positions_m[i] - positions_m[j]).norm();
         let in_range = |i: usize, j: usize| self.comm_range_m.is_none_or(|r| dist(i, j) <= r);
@@ -65,7 +65,7 @@ impl LinkSettings {
 
 /// Which vehicles of a frame exchange detections ([`LinkSettings::links`]).
 #[derive(Clone, Debug)]
-pub struct Links {
+pub(crate) struct Links {
     n: usize,
     /// Row i: the peers i selected.
     linked: Vec<bool>,
@@ -73,7 +73,7 @@ pub struct Links {
 
 impl Links {
     /// Whether `i` and `j` exchange detections (each selected the other).
-    pub fn linked(&self, i: usize, j: usize) -> bool {
+    pub(crate) fn linked(&self, i: usize, j: usize) -> bool {
         self.linked[i * self.n + j] && self.linked[j * self.n + i]
     }
 }

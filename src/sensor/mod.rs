@@ -17,10 +17,10 @@
 //! detection's reported heading and speed. This file: what a detection
 //! and an observation are, and the GPS pose a vehicle reports.
 
-pub mod boxes;
+pub(crate) mod boxes;
 mod camera;
 mod fleet;
-pub mod profile;
+pub(crate) mod profile;
 
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
@@ -28,22 +28,22 @@ use rand_distr::{Distribution, Normal};
 use crate::geometry::{Cov2, Pose2, Vec2};
 use crate::traffic::{ObjectClass, TrafficObject};
 
-pub use camera::{observe, polar_covariance, visible_fraction};
-pub use fleet::{ConnectedSelection, LinkSettings, Links};
+pub(crate) use camera::{observe, visible_fraction};
+pub(crate) use fleet::{ConnectedSelection, LinkSettings};
 
 /// `[camera]`: the camera rig every connected vehicle carries.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CameraSettings {
     /// Horizontal field of view of each camera (OpenCDA uses 100 deg, DMGM
     /// 120, Artery 60).
-    pub fov_rad: f64,
+    pub(crate) fov_rad: f64,
     /// Detection range (OpenCDA 50 m, Artery 80 m).
-    pub range_m: f64,
+    pub(crate) range_m: f64,
     /// Height of the camera above the ground (a roof-line camera on a car).
-    pub height_m: f64,
+    pub(crate) height_m: f64,
     /// One camera per entry, yawed from the vehicle's heading; the cameras
     /// sit at the front bumper.
-    pub yaw_offsets_rad: Vec<f64>,
+    pub(crate) yaw_offsets_rad: Vec<f64>,
 }
 
 /// `[sensor]`: the detector stand-in. The defaults (`configs/default.toml`)
@@ -54,38 +54,38 @@ pub struct CameraSettings {
 pub struct SensorSettings {
     /// An object is detected only when at least this share of its footprint
     /// samples (centre, corners, edge midpoints) is in view and unblocked.
-    pub min_visible_fraction: f64,
+    pub(crate) min_visible_fraction: f64,
     /// Sight lines aim at this fraction of the object's height: a car hides a
     /// car or a person behind it, not the upper half of a truck.
-    pub aim_height_fraction: f64,
+    pub(crate) aim_height_fraction: f64,
     /// Range noise standard deviation: `base + per_m * distance`.
-    pub range_sigma_base_m: f64,
-    pub range_sigma_per_m: f64,
+    pub(crate) range_sigma_base_m: f64,
+    pub(crate) range_sigma_per_m: f64,
     /// Bearing noise standard deviation: `base + per_m * distance`.
-    pub bearing_sigma_base_rad: f64,
-    pub bearing_sigma_per_m_rad: f64,
+    pub(crate) bearing_sigma_base_rad: f64,
+    pub(crate) bearing_sigma_per_m_rad: f64,
     /// Miss probability: base, plus a share growing linearly to
     /// `miss_prob_at_max_range` at the camera's range, plus
     /// `miss_prob_occlusion * (1 - visible fraction)`.
-    pub miss_prob_base: f64,
-    pub miss_prob_at_max_range: f64,
-    pub miss_prob_occlusion: f64,
+    pub(crate) miss_prob_base: f64,
+    pub(crate) miss_prob_at_max_range: f64,
+    pub(crate) miss_prob_occlusion: f64,
     /// Mean number of false positives per camera and frame (Poisson).
-    pub false_positives_per_frame: f64,
+    pub(crate) false_positives_per_frame: f64,
     /// Probability that the detector reports the confusable class.
-    pub class_confusion_prob: f64,
+    pub(crate) class_confusion_prob: f64,
     /// Colour noise per channel (RGB in [0, 1]) at zero distance; doubles at
     /// the camera's range.
-    pub colour_sigma: f64,
+    pub(crate) colour_sigma: f64,
     /// View-dependent brightness: colours scale by a factor drawn uniformly
     /// from `1 +- lighting_spread`.
-    pub lighting_spread: f64,
+    pub(crate) lighting_spread: f64,
     /// Relative noise on the measured length, width and height.
-    pub size_sigma_fraction: f64,
+    pub(crate) size_sigma_fraction: f64,
     /// What a road user whose demand gives no colour looks like.
-    pub unset_colours: crate::traffic::UnsetColours,
+    pub(crate) unset_colours: crate::traffic::UnsetColours,
     /// The errors of the boxes' heading and speed (the paper's model).
-    pub boxes: boxes::BoxErrors,
+    pub(crate) boxes: boxes::BoxErrors,
 }
 
 crate::label_enum! { "pose-noise level";
@@ -104,7 +104,7 @@ crate::label_enum! { "pose-noise level";
 impl PoseNoiseLabel {
     /// The level's part of a pose-noise stream name (frozen: changing it
     /// changes every result).
-    pub fn stream_code(self) -> u64 {
+    pub(crate) fn stream_code(self) -> u64 {
         match self {
             PoseNoiseLabel::None => 0,
             PoseNoiseLabel::Rtk => 1,
@@ -153,23 +153,23 @@ pub struct Detection {
 /// Everything one connected vehicle perceives at one step.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Observation {
-    pub ego_id: String,
-    pub detections: Vec<Detection>,
+    pub(crate) ego_id: String,
+    pub(crate) detections: Vec<Detection>,
 }
 
 /// Evaluation only: what lies behind one detection.
 #[derive(Clone, Debug, PartialEq)]
-pub struct DetectionTruth {
+pub(crate) struct DetectionTruth {
     /// SUMO id of the detected object; `None` for a false positive.
-    pub object_id: Option<String>,
+    pub(crate) object_id: Option<String>,
     /// The object's true centre, world frame; `None` for a false positive.
-    pub position_m: Option<Vec2>,
+    pub(crate) position_m: Option<Vec2>,
     /// The share of footprint samples that were visible (0 for a false
     /// positive, 1 for a sender's own node).
-    pub visible_fraction: f64,
+    pub(crate) visible_fraction: f64,
     /// Whether this is the sender's own node (its self-report), not a
     /// camera detection.
-    pub sender: bool,
+    pub(crate) sender: bool,
 }
 
 /// Evaluation only: the truth beside an [`Observation`], one entry per
@@ -177,18 +177,18 @@ pub struct DetectionTruth {
 #[derive(Clone, Debug, PartialEq)]
 pub struct ObservationTruth {
     /// The ego's true centre pose, world frame.
-    pub ego_pose: Pose2,
-    pub detections: Vec<DetectionTruth>,
+    pub(crate) ego_pose: Pose2,
+    pub(crate) detections: Vec<DetectionTruth>,
 }
 
 impl ObservationTruth {
     /// The true object id behind detection `k` (`None`: false positive).
-    pub fn object_id(&self, k: usize) -> Option<&str> {
+    pub(crate) fn object_id(&self, k: usize) -> Option<&str> {
         self.detections[k].object_id.as_deref()
     }
 
     /// The index of the detection of object `id`, if this vehicle detected it.
-    pub fn find(&self, id: &str) -> Option<usize> {
+    pub(crate) fn find(&self, id: &str) -> Option<usize> {
         self.detections
             .iter()
             .position(|d| d.object_id.as_deref() == Some(id))
@@ -198,36 +198,36 @@ impl ObservationTruth {
 /// One vehicle's sensing at one step: what it knows, and the truth beside it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Sensed {
-    pub observation: Observation,
-    pub truth: ObservationTruth,
+    pub(crate) observation: Observation,
+    pub(crate) truth: ObservationTruth,
     /// Evaluation only: every object the cameras could see at this step
     /// (in view, visible enough), detected or missed: the ground truth a
     /// tracker is scored against.
-    pub visible: Vec<VisibleObject>,
+    pub(crate) visible: Vec<VisibleObject>,
 }
 
 /// Evaluation only: an object a camera could see.
 #[derive(Clone, Debug, PartialEq)]
-pub struct VisibleObject {
-    pub object_id: String,
+pub(crate) struct VisibleObject {
+    pub(crate) object_id: String,
     /// True centre, world frame.
-    pub position_m: Vec2,
+    pub(crate) position_m: Vec2,
     /// The share of its footprint samples the camera saw.
-    pub visible_fraction: f64,
+    pub(crate) visible_fraction: f64,
 }
 
 /// How well a sender knows its own centre in its own body frame: its
 /// self-report is exact up to the body's size estimate, so a small
 /// position sigma (its world pose error is the GPS's, which the receiver
 /// of the message accounts for).
-pub const SENDER_SIGMA_M: f64 = 0.1;
+const SENDER_SIGMA_M: f64 = 0.1;
 
 impl Sensed {
     /// Appends the sender's own node: what a V2X message (CAM/CPM) carries
     /// about the sender itself, its centre (the origin of its body frame),
     /// class, colour and size, as one more node of its graph. A peer's
     /// camera detection of the sender then has a true partner.
-    pub fn add_sender(&mut self, ego: &TrafficObject) {
+    pub(crate) fn add_sender(&mut self, ego: &TrafficObject) {
         self.observation.detections.push(Detection {
             position_m: Vec2::zeros(),
             cov_m2: Cov2::identity() * SENDER_SIGMA_M.powi(2),
@@ -250,6 +250,16 @@ impl Sensed {
             sender: true,
         });
     }
+
+    /// Its own node, when it has one ([`Sensed::add_sender`]): the
+    /// detection and its truth.
+    pub(crate) fn own_node(&self) -> Option<(Detection, DetectionTruth)> {
+        let k = self.truth.detections.iter().position(|d| d.sender)?;
+        Some((
+            self.observation.detections[k].clone(),
+            self.truth.detections[k].clone(),
+        ))
+    }
 }
 
 impl Sensed {
@@ -258,7 +268,7 @@ impl Sensed {
     /// false positives after them and the sender's own node last, and two
     /// vehicles would list their shared objects in the same order. No
     /// matcher may learn from that; after this, no order carries labels.
-    pub fn shuffle(&mut self, rng: &mut impl Rng) {
+    pub(crate) fn shuffle(&mut self, rng: &mut impl Rng) {
         let mut order: Vec<usize> = (0..self.observation.detections.len()).collect();
         rand::seq::SliceRandom::shuffle(&mut order[..], rng);
         self.observation.detections = order
@@ -274,7 +284,7 @@ impl Sensed {
 
 /// The pose a vehicle's GPS reports: the true pose plus independent Gaussian
 /// errors on x, y and heading at the given level.
-pub fn reported_pose(truth: &Pose2, level: &PoseNoiseLevel, rng: &mut impl Rng) -> Pose2 {
+pub(crate) fn reported_pose(truth: &Pose2, level: &PoseNoiseLevel, rng: &mut impl Rng) -> Pose2 {
     let n = |sigma: f64, rng: &mut _| {
         if sigma > 0.0 {
             Normal::new(0.0, sigma)

@@ -1,15 +1,47 @@
-//! Cooperation over time, as V2X delivers it: each connected vehicle's
-//! own tracker (`tracker`), Collective Perception Messages generated from
-//! its tracks (`cpm`), a channel that delays and loses them (`channel`),
-//! and GNSS error correlated in time (`gnss`). `[v2x] mode = "ideal"`
-//! (the default) uses none of it: a peer's detections arrive at once, at
-//! every step, with independent GNSS errors.
+//! Cooperation over time, as V2X delivers it (`[v2x]`). Its devices: each
+//! connected vehicle's own tracker (`tracker`), Collective Perception
+//! Messages generated from its tracks (`cpm`), a channel that delays and
+//! loses them (`channel`), GNSS error correlated in time (`gnss`), and the
+//! receivers' association of track ids over messages (`receiver`). Its
+//! simulation, step by step ([`Context`], `context`): each vehicle tracks,
+//! steps its GNSS and sends (`vehicle`, `message`), the messages go over
+//! the channel (`delivery`, `fleet`); a receiver keeps what it knows of each
+//! peer (`peer`): both sides' views (`views`), the relative pose over time
+//! (`relative_pose`), the association scored against the truth
+//! (`pair_history`) and the fusion of what it associated (`estimates`).
+//! `coid track`'s state over a run is `tracking`, with its counts
+//! (`counts`); `[v2x] mode = "cpm"` runs make the messages that arrived
+//! their instances' sides (`receptions`). `[v2x] mode = "ideal"` (the
+//! default) uses only `gnss`: a peer's detections arrive at once, at every
+//! step.
 
 pub mod channel;
+mod context;
+mod counts;
 pub mod cpm;
+mod delivery;
+mod estimates;
+mod fleet;
 pub mod gnss;
+mod message;
+mod pair_history;
+mod peer;
 pub mod receiver;
+mod receptions;
+mod relative_pose;
+#[cfg(test)]
+pub(crate) mod testkit;
 pub mod tracker;
+mod tracking;
+mod vehicle;
+mod views;
+
+pub(crate) use context::{Sensing, Setup, true_centres};
+pub use counts::{OverTimeCounts, VehicleTracking};
+pub use message::ViewSource;
+pub(crate) use receptions::{ReceptionSide, Receptions};
+pub use tracking::TrackResults;
+pub(crate) use tracking::Tracking;
 
 use nalgebra::{Matrix4, Vector4};
 

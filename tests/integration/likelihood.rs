@@ -52,6 +52,7 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
     let mut compared = 0;
     pipeline::simulate(
         &settings,
+        &pipeline::Warnings::default(),
         |_| {},
         |inst| {
             for level in &settings.pose_noise {

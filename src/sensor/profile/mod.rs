@@ -38,17 +38,14 @@ use crate::rng::{self, Purpose};
 mod model;
 mod sense;
 
-pub use model::{
-    PERSISTENT_TICK_S, ProfileError, ProfileModel, ProfileParams, RigSensor, persistent_error,
-    range_bin,
-};
-pub use sense::{observe_profile, paper_rig, sensor_in_body_m};
+pub(crate) use model::{ProfileModel, ProfileParams, RigSensor, range_bin};
+pub(crate) use sense::{observe_profile, paper_rig, sensor_in_body_m};
 
 crate::label_enum! { "detector profile";
     /// `[detector] profile`: how the connected vehicles' detectors make
     /// detections.
     #[strum(serialize_all = "lowercase")]
-    pub enum DetectorProfile {
+    pub(crate) enum DetectorProfile {
         /// The paper's model (`[camera]`, `[sensor]`): Gaussian range and
         /// bearing errors, fresh every frame, reported with exactly the
         /// covariance they were drawn from.
@@ -63,7 +60,7 @@ crate::label_enum! { "detector profile";
 crate::label_enum! { "sensor mount";
     /// Where a profile's sensors sit on the vehicle.
     #[strum(serialize_all = "lowercase")]
-    pub enum Mount {
+    pub(crate) enum Mount {
         /// At the middle of the front bumper (a camera).
         Front,
         /// At the centre of the roof (a rotating lidar).
@@ -75,43 +72,43 @@ crate::label_enum! { "sensor mount";
 /// and the parameters of the two that are not the paper's.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DetectorSettings {
-    pub profile: DetectorProfile,
+    pub(crate) profile: DetectorProfile,
     /// A mixed fleet: each profile's share of the connected vehicles
     /// (summing to 1, in label order), drawn per vehicle id; empty: every
     /// vehicle carries `profile`.
-    pub mix: Vec<(DetectorProfile, f64)>,
+    pub(crate) mix: Vec<(DetectorProfile, f64)>,
     /// Profiles by SUMO vehicle type id (`[detector] by_type`): a vehicle
     /// of a listed type carries its profile, whatever `mix` and `profile`
     /// say.
-    pub by_type: Vec<(String, DetectorProfile)>,
-    pub camera: ProfileModel,
-    pub lidar: ProfileModel,
+    pub(crate) by_type: Vec<(String, DetectorProfile)>,
+    pub(crate) camera: ProfileModel,
+    pub(crate) lidar: ProfileModel,
     /// Named rigs (`[detector.rigs]`): a profile's error model on sensors
     /// of their own.
-    pub rigs: Vec<NamedRig>,
+    pub(crate) rigs: Vec<NamedRig>,
     /// Rigs by SUMO vehicle type id (`[detector] rig_by_type`): a vehicle
     /// of a listed type carries its rig, over `by_type`, `mix` and
     /// `profile`. Indices into `rigs`.
-    pub rig_by_type: Vec<(String, usize)>,
+    pub(crate) rig_by_type: Vec<(String, usize)>,
 }
 
 /// A rig of `[detector.rigs]`.
 #[derive(Clone, Debug, PartialEq)]
-pub struct NamedRig {
-    pub name: String,
+pub(crate) struct NamedRig {
+    pub(crate) name: String,
     /// Whose error model its sensors have.
-    pub profile: DetectorProfile,
-    pub model: ProfileModel,
+    pub(crate) profile: DetectorProfile,
+    pub(crate) model: ProfileModel,
 }
 
 impl DetectorSettings {
     /// The chosen profile's model (`None`: the paper's).
-    pub fn model(&self) -> Option<&ProfileModel> {
+    pub(crate) fn model(&self) -> Option<&ProfileModel> {
         self.model_of(self.profile)
     }
 
     /// A profile's model (`None`: the paper's).
-    pub fn model_of(&self, profile: DetectorProfile) -> Option<&ProfileModel> {
+    pub(super) fn model_of(&self, profile: DetectorProfile) -> Option<&ProfileModel> {
         match profile {
             DetectorProfile::Paper => None,
             DetectorProfile::Camera => Some(&self.camera),
@@ -123,7 +120,12 @@ impl DetectorSettings {
     /// carries: its type's (`by_type`), else in a mixed fleet one drawn by
     /// the vehicle's id (the same vehicle carries the same profile at
     /// every step), else `profile`.
-    pub fn profile_of(&self, sensor_seed: u64, vehicle_id: &str, type_id: &str) -> DetectorProfile {
+    pub(super) fn profile_of(
+        &self,
+        sensor_seed: u64,
+        vehicle_id: &str,
+        type_id: &str,
+    ) -> DetectorProfile {
         if let Some((_, p)) = self.by_type.iter().find(|(t, _)| t == type_id) {
             return *p;
         }
@@ -148,7 +150,7 @@ impl DetectorSettings {
     /// The vehicle types `by_type` and `rig_by_type` name that are not
     /// among `seen` (the types of a run's road users), sorted, each once:
     /// those entries changed nothing.
-    pub fn unused_types<'a>(&'a self, seen: &BTreeSet<String>) -> Vec<&'a str> {
+    pub(crate) fn unused_types<'a>(&'a self, seen: &BTreeSet<String>) -> Vec<&'a str> {
         let named = self.by_type.iter().map(|(t, _)| t.as_str());
         let named = named.chain(self.rig_by_type.iter().map(|(t, _)| t.as_str()));
         let unused: BTreeSet<&str> = named.filter(|t| !seen.contains(*t)).collect();
@@ -158,7 +160,7 @@ impl DetectorSettings {
     /// What connected vehicle `vehicle_id` of SUMO type `type_id` senses
     /// with: its type's rig (`rig_by_type`), else its profile's model
     /// ([`Self::profile_of`]); `None`: the paper's model.
-    pub fn model_for(
+    pub(crate) fn model_for(
         &self,
         sensor_seed: u64,
         vehicle_id: &str,
@@ -171,7 +173,7 @@ impl DetectorSettings {
     }
 
     /// Whether every vehicle senses with the paper's model.
-    pub fn is_paper(&self) -> bool {
+    pub(crate) fn is_paper(&self) -> bool {
         self.mix.is_empty()
             && self.by_type.is_empty()
             && self.rig_by_type.is_empty()

@@ -12,7 +12,7 @@ use crate::sensor::CameraSettings;
 use crate::traffic::ObjectClass;
 
 /// The grid the persistent error is sampled on (seconds).
-pub const PERSISTENT_TICK_S: f64 = 0.1;
+pub(super) const PERSISTENT_TICK_S: f64 = 0.1;
 
 /// More sensors per vehicle than this are refused.
 const MAX_SENSORS: usize = 16;
@@ -39,67 +39,67 @@ const CALIBRATION_SAMPLES: usize = 20_000;
 /// The parameters of one profile (`[detector.camera]`, `[detector.lidar]`),
 /// as published; see the config for each figure's source.
 #[derive(Clone, Debug, PartialEq)]
-pub struct ProfileParams {
+pub(crate) struct ProfileParams {
     /// Horizontal field of view of each sensor (a full turn: a rotating
     /// lidar).
-    pub fov_rad: f64,
+    pub(crate) fov_rad: f64,
     /// Nothing farther is detected (metres).
-    pub range_m: f64,
+    pub(crate) range_m: f64,
     /// Height of the sensor above the ground (metres).
-    pub height_m: f64,
-    pub mount: Mount,
+    pub(crate) height_m: f64,
+    pub(crate) mount: Mount,
     /// One sensor per entry, yawed from the vehicle's heading.
-    pub yaw_offsets_rad: Vec<f64>,
+    pub(crate) yaw_offsets_rad: Vec<f64>,
     /// Upper edges of the range bins (metres, ascending; the last is at
     /// least `range_m`).
-    pub bin_edges_m: Vec<f64>,
+    pub(crate) bin_edges_m: Vec<f64>,
     /// Recall of a fully visible object per bin.
-    pub recall: Vec<f64>,
+    pub(crate) recall: Vec<f64>,
     /// Mean translation error (the distance between the detected and the
     /// true centre, as nuScenes' ATE) per bin, of fully visible objects.
-    pub mean_error_m: Vec<f64>,
+    pub(crate) mean_error_m: Vec<f64>,
     /// The error's standard deviation along the line of sight over that
     /// across it.
-    pub depth_to_lateral: f64,
+    pub(crate) depth_to_lateral: f64,
     /// Depth bias as a share of the range (positive: too far).
-    pub depth_bias_per_m: f64,
+    pub(crate) depth_bias_per_m: f64,
     /// Degrees of freedom of the per-frame error's Student-t (> 2; the
     /// smaller, the heavier the tails).
-    pub tail_dof: f64,
+    pub(crate) tail_dof: f64,
     /// Share of the random error's variance that persists over time.
-    pub persistent_share: f64,
+    pub(crate) persistent_share: f64,
     /// Correlation time of the persistent part (seconds).
-    pub correlation_time_s: f64,
+    pub(crate) correlation_time_s: f64,
     /// A partly hidden object's centre moves towards the sensor by this
     /// share of the hidden part of its extent along the line of sight.
-    pub partial_shift: f64,
+    pub(crate) partial_shift: f64,
     /// Recall falls by this share of the hidden part of the footprint.
-    pub occlusion_recall_loss: f64,
+    pub(crate) occlusion_recall_loss: f64,
     /// Mean number of clutter detections per sensor and frame (Poisson).
-    pub false_positives_per_frame: f64,
+    pub(crate) false_positives_per_frame: f64,
     /// Probability that a detection comes with a duplicate (a second box
     /// on the same object, its own per-frame error).
-    pub duplicate_prob: f64,
+    pub(crate) duplicate_prob: f64,
     /// Probability that a detection comes with a ghost beside the object.
-    pub ghost_prob: f64,
+    pub(crate) ghost_prob: f64,
     /// A ghost's distance from the object's centre (metres): uniform in
     /// this range, in a uniform direction.
-    pub ghost_distance_m: [f64; 2],
+    pub(crate) ghost_distance_m: [f64; 2],
     /// Row: the true class; column: the reported class (both in
     /// [`ObjectClass::ALL`]'s order); rows sum to 1.
-    pub class_confusion: [[f64; 7]; 7],
+    pub(crate) class_confusion: [[f64; 7]; 7],
     /// Whether the detector sees colour (a lidar does not: its detections
     /// report a neutral grey).
-    pub sees_colour: bool,
+    pub(crate) sees_colour: bool,
     /// The errors of the boxes' heading and speed.
-    pub boxes: crate::sensor::boxes::BoxErrors,
+    pub(crate) boxes: crate::sensor::boxes::BoxErrors,
 }
 
 /// A profile ready to sense: its parameters and the error scale per bin
 /// that makes the simulated mean translation error the published one.
 #[derive(Clone, Debug, PartialEq)]
-pub struct ProfileModel {
-    pub params: ProfileParams,
+pub(crate) struct ProfileModel {
+    pub(crate) params: ProfileParams,
     /// Per bin: the random error's scale (metres; the per-axis standard
     /// deviation of an isotropic error).
     scale_m: Vec<f64>,
@@ -113,14 +113,14 @@ pub struct ProfileModel {
 /// where it sits on the vehicle. Each sensor tests occlusion from its own
 /// pose.
 #[derive(Clone, Debug, PartialEq)]
-pub struct RigSensor {
-    pub geometry: CameraSettings,
-    pub mount: Mount,
+pub(crate) struct RigSensor {
+    pub(crate) geometry: CameraSettings,
+    pub(crate) mount: Mount,
 }
 
 impl RigSensor {
     /// The sensor's yaw against the vehicle's heading (radians).
-    pub fn yaw_rad(&self) -> f64 {
+    pub(crate) fn yaw_rad(&self) -> f64 {
         self.geometry
             .yaw_offsets_rad
             .first()
@@ -132,9 +132,9 @@ impl RigSensor {
 /// Why a profile's parameters cannot be used.
 #[derive(Debug, thiserror::Error, PartialEq)]
 #[error("{field}: {message}")]
-pub struct ProfileError {
-    pub field: &'static str,
-    pub message: String,
+pub(crate) struct ProfileError {
+    pub(crate) field: &'static str,
+    pub(crate) message: String,
 }
 
 fn invalid(field: &'static str, message: String) -> ProfileError {
@@ -146,7 +146,7 @@ impl ProfileModel {
     /// so that the mean translation error of a fully visible object in the
     /// bin's middle is the published one (seeded Monte Carlo: the same
     /// parameters always give the same scale).
-    pub fn new(params: ProfileParams) -> Result<ProfileModel, ProfileError> {
+    pub(crate) fn new(params: ProfileParams) -> Result<ProfileModel, ProfileError> {
         check_geometry(&params)?;
         check_bins(&params)?;
         check_errors(&params)?;
@@ -182,7 +182,7 @@ impl ProfileModel {
     /// This profile's error model on another rig's sensors. Each sensor's
     /// range must lie within the profile's range bins (the recall and
     /// error of farther objects are not known).
-    pub fn with_rig(&self, sensors: Vec<RigSensor>) -> Result<ProfileModel, ProfileError> {
+    pub(crate) fn with_rig(&self, sensors: Vec<RigSensor>) -> Result<ProfileModel, ProfileError> {
         if sensors.is_empty() || sensors.len() > MAX_SENSORS {
             return Err(invalid(
                 "sensors",
@@ -236,12 +236,12 @@ impl ProfileModel {
     }
 
     /// The random error's per-axis scale at distance `d_m` (metres).
-    pub fn scale_at(&self, d_m: f64) -> f64 {
+    pub(super) fn scale_at(&self, d_m: f64) -> f64 {
         self.scale_m[self.bin(d_m)]
     }
 
     /// The sensors, each with its geometry and mount.
-    pub fn sensors(&self) -> &[RigSensor] {
+    pub(crate) fn sensors(&self) -> &[RigSensor] {
         &self.sensors
     }
 
@@ -258,7 +258,7 @@ impl ProfileModel {
     /// `p_sensor_m` (sensor frame): zero-mean Gaussian, the random error's
     /// second moments along and across the measured line of sight. It
     /// knows nothing of the bias, the tails or the persistence.
-    pub fn nominal_covariance(&self, p_sensor_m: &Vec2) -> Cov2 {
+    pub(super) fn nominal_covariance(&self, p_sensor_m: &Vec2) -> Cov2 {
         let d = p_sensor_m.norm();
         let (sd, sl) = self.axis_sigmas(d);
         let rot = line_of_sight(p_sensor_m);
@@ -419,7 +419,7 @@ fn check_errors(p: &ProfileParams) -> Result<(), ProfileError> {
 /// The range bin of distance `d_m` among bins with upper `edges_m`
 /// (ascending, at least one): the first that reaches it, the last for
 /// anything beyond.
-pub fn range_bin(edges_m: &[f64], d_m: f64) -> usize {
+pub(crate) fn range_bin(edges_m: &[f64], d_m: f64) -> usize {
     edges_m
         .iter()
         .position(|e| d_m <= *e)
@@ -509,7 +509,7 @@ fn calibrate_scale(p: &ProfileParams, d_m: f64, target_m: f64) -> Result<f64, St
 /// `tau_s` on the [`PERSISTENT_TICK_S`] grid ([`rng::gauss_markov_at`],
 /// each axis named by seed, observer, object and axis), so that it is the
 /// same whichever frames were sensed before.
-pub fn persistent_error(
+pub(super) fn persistent_error(
     seed: u64,
     observer: &str,
     object: &str,

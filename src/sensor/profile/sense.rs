@@ -32,7 +32,7 @@ struct ProfileSensor<'a> {
 }
 
 /// The paper's model's sensors: `[camera]`'s cameras, in front.
-pub fn paper_rig(camera: &CameraSettings) -> Vec<RigSensor> {
+pub(crate) fn paper_rig(camera: &CameraSettings) -> Vec<RigSensor> {
     camera
         .yaw_offsets_rad
         .iter()
@@ -48,7 +48,7 @@ pub fn paper_rig(camera: &CameraSettings) -> Vec<RigSensor> {
 
 /// Where a sensor on `mount` sits in the body frame of a vehicle
 /// `length_m` long (metres).
-pub fn sensor_in_body_m(mount: Mount, length_m: f64) -> Vec2 {
+pub(crate) fn sensor_in_body_m(mount: Mount, length_m: f64) -> Vec2 {
     match mount {
         Mount::Front => Vec2::new(length_m / 2.0, 0.0),
         Mount::Roof => Vec2::zeros(),
@@ -229,7 +229,7 @@ fn class_index(class: ObjectClass) -> usize {
 /// sensors and errors. Per-frame draws come from `rng` in a fixed order
 /// (per sensor: objects in frame order, then clutter); the persistent
 /// error is named by `seed`, the ego, the object and the time.
-pub fn observe_profile(
+pub(crate) fn observe_profile(
     frame: &TrafficFrame,
     scene: &StaticScene,
     ego_index: usize,

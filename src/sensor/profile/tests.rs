@@ -5,6 +5,7 @@
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use super::model::persistent_error;
 use super::*;
 use crate::geometry::{Pose2, Vec2};
 use crate::sensor::tests::sensor;

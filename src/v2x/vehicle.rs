@@ -5,17 +5,16 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::context::Context;
-use super::instance::InstanceSide;
+use super::V2xSettings;
+use super::context::{Context, Sensing};
+use super::counts::VehicleTracking;
+use super::cpm::{CpmGenerator, PerceivedObject, TrackSnapshot};
+use super::gnss::{GnssError, at_speed, next_error};
 use super::message::{Sent, TrackLabel};
+use super::tracker::{MotCounter, TrackMeasurement, Tracker};
 use crate::geometry::{Cov2, Pose2, Vec2};
-use crate::report::VehicleTracking;
 use crate::rng::{self, Purpose};
 use crate::sensor::{Detection, DetectionTruth};
-use crate::v2x::V2xSettings;
-use crate::v2x::cpm::{CpmGenerator, PerceivedObject, TrackSnapshot};
-use crate::v2x::gnss::{GnssError, at_speed, next_error};
-use crate::v2x::tracker::{MotCounter, TrackMeasurement, Tracker};
 
 /// A track within this distance of an object counts as tracking it
 /// (CLEAR-MOT's threshold; m).
@@ -113,11 +112,12 @@ impl ConnectedVehicle {
     /// Tracks this step's camera detections in the tracking frame, scores
     /// the reported tracks, steps the GNSS error, and generates a CPM when
     /// one is due. `side` is what the vehicle sensed at this step.
-    pub(super) fn step(&mut self, ctx: &Context, side: &InstanceSide) -> Option<Sent> {
+    pub(super) fn step(&mut self, ctx: &Context, side: &Sensing) -> Option<Sent> {
         self.pose = side.sensed.truth.ego_pose;
         self.speed_mps = side.speed_mps;
         self.step_gnss(ctx, side);
         self.self_node = side
+            .sensed
             .own_node()
             .map(|(d, t)| (d, t, Vec2::new(side.speed_mps, 0.0)));
         self.track_detections(ctx, side);
@@ -129,7 +129,7 @@ impl ConnectedVehicle {
         let chosen = self.generator.select(&ctx.v.cpm, ctx.time_s, &self.tracks);
         self.row.messages += 1;
         self.row.objects_sent += chosen.len() as u64;
-        Some(self.message(ctx, &chosen, side.source.vehicle()))
+        Some(self.message(ctx, &chosen, side.id))
     }
 
     /// One message to one receiver: delivered after `latency_s`, or lost.
@@ -140,7 +140,7 @@ impl ConnectedVehicle {
     /// The tracker on this step's camera detections (the world frame of
     /// the true pose), each track labelled by its last detection, and the
     /// reported tracks.
-    fn track_detections(&mut self, ctx: &Context, side: &InstanceSide) {
+    fn track_detections(&mut self, ctx: &Context, side: &Sensing) {
         let (observed, truth) = (&side.sensed.observation, &side.sensed.truth);
         let camera: Vec<usize> = (0..truth.detections.len())
             .filter(|&k| !truth.detections[k].sender)
@@ -185,12 +185,12 @@ impl ConnectedVehicle {
 
     /// Steps the GNSS error at every level (a stream per step, vehicle
     /// and level).
-    fn step_gnss(&mut self, ctx: &Context, side: &InstanceSide) {
+    fn step_gnss(&mut self, ctx: &Context, side: &Sensing) {
         let previous = std::mem::take(&mut self.gnss);
         self.reported.clear();
         for (k, level) in ctx.levels.iter().enumerate() {
             let mut stream = rng::stream(
-                ctx.settings.seeds.sensor,
+                ctx.sensor_seed,
                 Purpose::PoseNoise,
                 &[ctx.step, side.id_hash, level.label.stream_code()],
             );
@@ -209,7 +209,7 @@ impl ConnectedVehicle {
     }
 
     /// CLEAR-MOT on this step's reported tracks.
-    fn score(&mut self, side: &InstanceSide) {
+    fn score(&mut self, side: &Sensing) {
         let truth: Vec<(String, Vec2)> = side
             .sensed
             .visible
@@ -266,7 +266,7 @@ impl ConnectedVehicle {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pipeline::tests::{centres, context, settings, vehicle_side};
+    use crate::v2x::testkit::{centres, context, settings, vehicle_side};
 
     fn pose() -> Pose2 {
         Pose2::new(Vec2::new(10.0, 5.0), 0.5)
@@ -286,7 +286,7 @@ mod tests {
         for step in 0..n {
             let ctx = context(&s, &truth, step, step as f64 * 0.1);
             let side = vehicle_side("cv0", pose(), &seen(), step);
-            sent.extend(v.step(&ctx, &side));
+            sent.extend(v.step(&ctx, &side.sensing()));
         }
         (v, sent)
     }

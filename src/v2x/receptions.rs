@@ -6,80 +6,80 @@
 //! moved ahead to the receiver's time with their velocity
 //! (`[v2x] compensate_latency`), each in its vehicle's body frame, with
 //! the GNSS poses (correlated over `[v2x] gnss_correlation_s`) at every
-//! `[pose_noise]` level. Every method is then evaluated on these instances
-//! exactly as on the ideal ones.
+//! `[pose_noise]` level. The run makes these sides instances, and every
+//! method is evaluated on them exactly as on the ideal ones.
 
 use std::collections::BTreeMap;
 
-use super::RunError;
-use super::context::{Context, true_centres};
+use super::context::{Context, Sensing};
 use super::delivery::InFlight;
 use super::fleet::Fleet;
-use super::instance::{InstanceSide, ViewSource};
-use super::message::Sent;
+use super::message::{Sent, ViewSource};
 use super::vehicle::ConnectedVehicle;
-use crate::config::Settings;
 use crate::evaluate;
 use crate::geometry::{Cov2, Pose2};
 use crate::rng;
 use crate::sensor::{
     Detection, DetectionTruth, Observation, ObservationTruth, PoseNoiseLabel, Sensed,
 };
-use crate::traffic::TrafficFrame;
 
 /// The vehicles' trackers, generators and the messages in flight.
 #[derive(Default)]
-pub(super) struct Receptions {
+pub(crate) struct Receptions {
     fleet: Fleet,
+}
+
+/// One side of a reception, before the run makes it an instance's side:
+/// whose view it is, what it holds (in the body frame of its vehicle's true
+/// pose), the keys of its node order's stream, its vehicle's speed (m/s)
+/// and the pose its GNSS reports at every level.
+pub(crate) struct ReceptionSide {
+    pub source: ViewSource,
+    pub sensed: Sensed,
+    pub order_keys: [u64; 3],
+    pub speed_mps: f64,
+    pub reported: Vec<(PoseNoiseLabel, Pose2)>,
+}
+
+impl ReceptionSide {
+    /// Its id: the source's text.
+    fn id(&self) -> String {
+        self.source.to_string()
+    }
 }
 
 /// The sides of a sampled step's instances, and the instances as pairs of
 /// indices into them (each pair ordered by id).
-pub(super) type Sides = (Vec<InstanceSide>, Vec<(usize, usize)>);
+pub(crate) type Sides = (Vec<ReceptionSide>, Vec<(usize, usize)>);
 
 impl Receptions {
     /// One simulation step: `vehicles` (every connected vehicle near the
     /// junction, sensed at this step) track and send; the messages due
     /// arrive. When `sample`, the newest message from each sender at each
     /// receiver becomes an instance if both sides hold a common object
-    /// (listed by receiver, then sender; each pair ordered by id, as
-    /// [`super::Instance`]); otherwise what arrived is only consumed.
-    pub(super) fn step(
-        &mut self,
-        settings: &Settings,
-        frame: &TrafficFrame,
-        vehicles: &[InstanceSide],
-        sample: bool,
-    ) -> Result<Sides, RunError> {
-        let truth = true_centres(frame);
-        let ctx = Context {
-            settings,
-            v: &settings.v2x,
-            levels: &settings.pose_noise,
-            step: frame.step,
-            time_s: frame.time_s,
-            truth: &truth,
-        };
-        self.fleet.send(&ctx, vehicles);
-        let arrived = self.fleet.arrivals(&ctx, vehicles);
+    /// (listed by receiver, then sender; each pair ordered by id, as an
+    /// instance's sides are); otherwise what arrived is only consumed.
+    pub(crate) fn step(&mut self, ctx: &Context, vehicles: &[Sensing], sample: bool) -> Sides {
+        self.fleet.send(ctx, vehicles);
+        let arrived = self.fleet.arrivals(ctx, vehicles);
         let mut sides = Vec::new();
         let mut pairs = Vec::new();
         if !sample {
-            return Ok((sides, pairs));
+            return (sides, pairs);
         }
         let mut receiver_at: BTreeMap<String, usize> = BTreeMap::new();
         for ((receiver, _), m) in newest_per_link(arrived) {
             let (Some(vehicle), Some(sensed)) = (
                 self.fleet.vehicle(&receiver),
-                vehicles.iter().find(|e| e.source.vehicle() == receiver),
+                vehicles.iter().find(|e| e.id == receiver),
             ) else {
                 continue;
             };
-            let message = message_side(&ctx, &m, &receiver)?;
+            let message = message_side(ctx, &m, &receiver);
             let r = match receiver_at.get(&receiver) {
                 Some(&r) => r,
                 None => {
-                    sides.push(receiver_side(&ctx, vehicle, sensed)?);
+                    sides.push(receiver_side(ctx, vehicle, sensed));
                     receiver_at.insert(receiver.clone(), sides.len() - 1);
                     sides.len() - 1
                 }
@@ -92,7 +92,7 @@ impl Receptions {
                 pairs.push(if id(r) < id(m) { (r, m) } else { (m, r) });
             }
         }
-        Ok((sides, pairs))
+        (sides, pairs)
     }
 }
 
@@ -141,36 +141,31 @@ fn unnamed(detections: Vec<Detection>, truths: Vec<DetectionTruth>, ego_pose: Po
 /// body frame of its true pose; the truth is each track's last detected
 /// object at this step's true position. `sensed`: what it sensed at this
 /// step.
-fn receiver_side(
-    ctx: &Context,
-    vehicle: &ConnectedVehicle,
-    sensed: &InstanceSide,
-) -> Result<InstanceSide, RunError> {
+fn receiver_side(ctx: &Context, vehicle: &ConnectedVehicle, sensed: &Sensing) -> ReceptionSide {
     let (mut detections, mut truths): (Vec<Detection>, Vec<DetectionTruth>) = vehicle
         .reported_tracks()
         .map(|(_, d, label)| (d, label.truth_at(ctx)))
         .unzip();
-    if let Some((d, t)) = sensed.own_node() {
+    if let Some((d, t)) = sensed.sensed.own_node() {
         detections.push(d);
         truths.push(t);
     }
     let keys = [ctx.step, sensed.id_hash, sensed.id_hash];
     let reported = per_level(ctx, vehicle.reported_poses());
-    InstanceSide::new(
-        sensed.source.clone(),
-        unnamed(detections, truths, sensed.sensed.truth.ego_pose),
-        ctx.settings.seeds.sensor,
-        &keys,
-        sensed.speed_mps,
-        Some(reported),
-    )
+    ReceptionSide {
+        source: ViewSource::Vehicle(sensed.id.to_owned()),
+        sensed: unnamed(detections, truths, sensed.sensed.truth.ego_pose),
+        order_keys: keys,
+        speed_mps: sensed.speed_mps,
+        reported,
+    }
 }
 
 /// The message's side: the objects it carries (and its sender's own
 /// node), moved ahead to the receiver's time, in the body frame of the
 /// sender's true pose at generation, with the poses it reported then. Its
 /// source is the message ([`ViewSource::Message`]).
-fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide, RunError> {
+fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> ReceptionSide {
     let mut detections = Vec::new();
     let mut truths = Vec::new();
     for (o, label) in m.objects.iter().zip(&m.labels) {
@@ -211,25 +206,24 @@ fn message_side(ctx: &Context, m: &Sent, receiver: &str) -> Result<InstanceSide,
         sender: m.sender.clone(),
         receiver: receiver.to_owned(),
     };
-    InstanceSide::new(
+    ReceptionSide {
         source,
-        unnamed(detections, truths, m.sender_pose),
-        ctx.settings.seeds.sensor,
-        &keys,
-        m.sender_speed_mps,
-        Some(reported),
-    )
+        sensed: unnamed(detections, truths, m.sender_pose),
+        order_keys: keys,
+        speed_mps: m.sender_speed_mps,
+        reported,
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::geometry::Vec2;
-    use crate::pipeline::tests::{
-        appearance, centres, context, frame, sent, settings, vehicle_side,
-    };
     use crate::v2x::channel::LossModel;
     use crate::v2x::cpm::PerceivedObject;
+    use crate::v2x::testkit::{
+        appearance, centres, context, sensings, sent, settings, vehicle_side,
+    };
 
     const OBJECTS: [(&str, Vec2); 3] = [
         ("a", Vec2::new(12.0, 3.0)),
@@ -305,7 +299,7 @@ mod tests {
         };
         m.sender_node = Some((own, own_truth, Vec2::new(10.0, 0.0)));
         m.sender_speed_mps = 10.0;
-        let side = message_side(&ctx, &m, "cv0").unwrap();
+        let side = message_side(&ctx, &m, "cv0");
         assert_eq!(side.id(), "cv1 -> cv0");
         assert_eq!(side.source.vehicle(), "cv1");
         assert_eq!(side.speed_mps, 10.0);
@@ -316,7 +310,7 @@ mod tests {
             side.sensed.truth.detections[k].position_m,
             Some(OBJECTS[1].1)
         );
-        let (node, t) = side.own_node().unwrap();
+        let (node, t) = side.sensed.own_node().unwrap();
         assert!((node.position_m - Vec2::new(3.0, 0.0)).norm() < 1e-9);
         // Its box is the sender's self-report (r49_12).
         assert_eq!(node.motion, m.sender_node.as_ref().unwrap().0.motion);
@@ -335,6 +329,7 @@ mod tests {
             Pose2::new(Vec2::new(0.0, 1.0), 0.3),
             Pose2::new(Vec2::new(40.0, 2.0), 3.0),
         ];
+        let truth = centres(&OBJECTS);
         let mut r = Receptions::default();
         let hits = u64::from(s.v2x.tracker.confirm_hits);
         let mut last = None;
@@ -346,16 +341,15 @@ mod tests {
                 vehicle_side("cv1", poses[1], &OBJECTS, step),
             ];
             let sample = step == hits;
-            let (sides, pairs) = r
-                .step(&s, &frame(&OBJECTS, step), &vehicles, sample)
-                .unwrap();
+            let ctx = context(&s, &truth, step, step as f64 * 0.1);
+            let (sides, pairs) = r.step(&ctx, &sensings(&vehicles), sample);
             if !sample {
                 assert!(sides.is_empty() && pairs.is_empty());
             }
             last = Some((sides, pairs));
         }
         let (sides, pairs) = last.unwrap();
-        let ids: Vec<&str> = sides.iter().map(InstanceSide::id).collect();
+        let ids: Vec<String> = sides.iter().map(ReceptionSide::id).collect();
         assert_eq!(ids, ["cv0", "cv1 -> cv0", "cv1", "cv0 -> cv1"]);
         assert_eq!(pairs, [(0, 1), (3, 2)]);
         for (a, b) in pairs {

@@ -3,8 +3,7 @@
 //! step, sender and receiver: delivered after a latency, or lost) and is
 //! handed out once it has arrived.
 
-use super::context::Context;
-use super::instance::InstanceSide;
+use super::context::{Context, Sensing};
 use super::message::Sent;
 use crate::rng::{self, Purpose};
 
@@ -31,13 +30,13 @@ impl MessagesInFlight {
     pub(super) fn send(
         &mut self,
         ctx: &Context,
-        sender: &InstanceSide,
-        receiver: &InstanceSide,
+        sender: &Sensing,
+        receiver: &Sensing,
         distance_m: f64,
         message: &Sent,
     ) -> Option<f64> {
         let mut stream = rng::stream(
-            ctx.settings.seeds.sensor,
+            ctx.sensor_seed,
             Purpose::Channel,
             &[ctx.step, sender.id_hash, receiver.id_hash],
         );
@@ -46,7 +45,7 @@ impl MessagesInFlight {
             self.queue.push(InFlight {
                 arrival_s: ctx.time_s + latency,
                 latency_s: latency,
-                receiver: receiver.source.vehicle().to_owned(),
+                receiver: receiver.id.to_owned(),
                 message: message.clone(),
             });
         }
@@ -81,8 +80,8 @@ mod tests {
     use super::*;
     use crate::config::Settings;
     use crate::geometry::{Pose2, Vec2};
-    use crate::pipeline::tests::{context, sent, settings, vehicle_side};
     use crate::v2x::channel::LossModel;
+    use crate::v2x::testkit::{Side, context, sent, settings, vehicle_side};
 
     fn with_loss(probability: f64) -> Settings {
         let mut s = settings();
@@ -90,7 +89,7 @@ mod tests {
         s
     }
 
-    fn sides() -> [InstanceSide; 2] {
+    fn sides() -> [Side; 2] {
         let seen = [("a", Vec2::new(5.0, 5.0))];
         [
             vehicle_side("cv0", Pose2::identity(), &seen, 0),
@@ -108,8 +107,8 @@ mod tests {
         let mut q = MessagesInFlight::default();
         let latency = q.send(
             &context(&s, &truth, 10, 1.0),
-            &a,
-            &b,
+            &a.sensing(),
+            &b.sensing(),
             20.0,
             &sent("cv0", 1.0),
         );
@@ -132,7 +131,10 @@ mod tests {
         let [a, b] = sides();
         let mut q = MessagesInFlight::default();
         let ctx = context(&s, &truth, 10, 1.0);
-        assert_eq!(q.send(&ctx, &a, &b, 20.0, &sent("cv0", 1.0)), None);
+        assert_eq!(
+            q.send(&ctx, &a.sensing(), &b.sensing(), 20.0, &sent("cv0", 1.0)),
+            None
+        );
         assert!(q.arrived(9.0, |_| true).is_empty());
     }
 

@@ -1,29 +1,28 @@
 //! What a receiver knows of one peer over time ([`PeerState`]) and what it
 //! does with each message from it: the peer's objects kept (forgotten
 //! 1.5 x `max_interval_s` after their last message) and moved ahead to the
-//! receiver's time, both sides' [`Views`], the frame matcher on them
+//! receiver's time, both sides' views, the frame matcher on them
 //! through the reported poses and through the relative pose estimated over
 //! time, the association carried across messages (`v2x::receiver`), then
 //! the counts and the fusion of what it associated.
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::RunError;
 use super::context::Context;
-use super::fusion_over_time::{RecursiveFusion, fuse_pairs};
+use super::counts::OverTimeCounts;
+use super::cpm::PerceivedObject;
+use super::estimates::{RecursiveFusion, fuse_pairs};
+use super::gnss::at_speed;
 use super::message::{Sent, TrackLabel};
 use super::pair_history::PairHistory;
+use super::receiver::Association;
 use super::relative_pose::PoseCorrection;
 use super::vehicle::ConnectedVehicle;
-use crate::fusion::{PoseEstimate, relative_pose_prior};
+use super::views::Views;
 use crate::geometry::{Pose2, Vec2, rotate_cov};
-use crate::graph::SceneGraph;
-use crate::matching::{MatchView, Matcher, claim};
-use crate::report::OverTimeCounts;
-use crate::sensor::{Detection, PoseNoiseLevel};
-use crate::v2x::cpm::PerceivedObject;
-use crate::v2x::gnss::at_speed;
-use crate::v2x::receiver::Association;
+use crate::graph::{GraphError, SceneGraph};
+use crate::matching::{MatchView, Matcher};
+use crate::sensor::Detection;
 
 /// What a receiver knows of one peer.
 #[derive(Default)]
@@ -45,38 +44,6 @@ struct Known {
     label: TrackLabel,
 }
 
-/// The pair-level views of one reception: the receiver's reported tracks
-/// (`ego`, its body frame) and the peer's known objects (`peer`, in the
-/// frame of `peer_reported`), each with its ids and true objects.
-#[derive(Clone)]
-pub(super) struct Views {
-    pub ego: Vec<Detection>,
-    pub ego_ids: Vec<u64>,
-    pub ego_truth: Vec<Option<String>>,
-    pub peer: Vec<Detection>,
-    pub peer_ids: Vec<u64>,
-    pub peer_truth: Vec<Option<String>>,
-    /// The peer objects' frame: the newest message's reported sender pose.
-    pub peer_reported: Pose2,
-    /// What the receiver's and the sender's GNSS claim of the poses they
-    /// report (the level, the heading's at each one's speed).
-    pub ego_claim: PoseNoiseLevel,
-    pub peer_claim: PoseNoiseLevel,
-}
-
-impl Views {
-    /// The peer's pose in the receiver's frame from the two reported
-    /// poses, with what both receivers claim of them.
-    pub(super) fn gps_prior(&self, receiver_reported: &Pose2) -> PoseEstimate {
-        relative_pose_prior(
-            receiver_reported,
-            &self.peer_reported,
-            claim(&self.ego_claim),
-            claim(&self.peer_claim),
-        )
-    }
-}
-
 impl PeerState {
     /// True pairs (ego track, peer id) ever in view.
     pub(super) fn pairs_seen(&self) -> u64 {
@@ -91,7 +58,7 @@ impl PeerState {
         receiver: &ConnectedVehicle,
         m: &Sent,
         matcher: &dyn Matcher,
-    ) -> Result<OverTimeCounts, RunError> {
+    ) -> Result<OverTimeCounts, GraphError> {
         self.remember(ctx, m);
         let views = self.views(ctx, receiver, m);
         let mut c = OverTimeCounts {
@@ -212,7 +179,7 @@ fn identified(
     receiver: &ConnectedVehicle,
     views: &Views,
     matcher: &dyn Matcher,
-) -> Result<Vec<(u64, u64)>, RunError> {
+) -> Result<Vec<(u64, u64)>, GraphError> {
     let graph = |d: &[Detection]| {
         let p: Vec<Vec2> = d.iter().map(|x| x.position_m).collect();
         SceneGraph::delaunay(&p)
@@ -243,8 +210,8 @@ mod tests {
     use super::*;
     use crate::evaluate::CorrespondenceSource;
     use crate::matching::Method;
-    use crate::pipeline::runners::runner;
-    use crate::pipeline::tests::{centres, context, settings, vehicle_side};
+    use crate::pipeline::runner;
+    use crate::v2x::testkit::{centres, context, settings, vehicle_side};
 
     const OBJECTS: [(&str, Vec2); 3] = [
         ("a", Vec2::new(12.0, 3.0)),
@@ -267,8 +234,12 @@ mod tests {
         let mut message = None;
         for step in 0..u64::from(s.v2x.tracker.confirm_hits) {
             let ctx = context(&s, &truth, step, step as f64 * 0.1);
-            v[0].step(&ctx, &vehicle_side("cv0", poses[0], &OBJECTS, step));
-            let sent = v[1].step(&ctx, &vehicle_side("cv1", poses[1], &OBJECTS, step));
+            v[0].step(
+                &ctx,
+                &vehicle_side("cv0", poses[0], &OBJECTS, step).sensing(),
+            );
+            let side = vehicle_side("cv1", poses[1], &OBJECTS, step);
+            let sent = v[1].step(&ctx, &side.sensing());
             message = sent.filter(|m| !m.objects.is_empty()).or(message);
         }
         let [receiver, _] = v;

@@ -2,34 +2,15 @@
 //! truth: once per reception ([`fuse_pairs`]: single, Eq. 14-16,
 //! covariance intersection) and recursively into a running estimate per
 //! ego track ([`RecursiveFusion`], where the independent form counts the
-//! same information again: [`nees`] shows it).
+//! same information again: the NEES shows it).
 
 use std::collections::BTreeMap;
 
 use super::context::Context;
-use super::peer::Views;
+use super::counts::OverTimeCounts;
 use super::vehicle::ConnectedVehicle;
-use crate::fusion::{Fused, Measurement, covariance_intersection, fuse};
-use crate::geometry::{Cov2, Vec2};
-use crate::report::OverTimeCounts;
-use crate::sensor::Detection;
-
-/// A detection as a measurement to fuse: its position and covariance.
-pub(super) fn measurement(d: &Detection) -> Measurement {
-    Measurement {
-        position_m: d.position_m,
-        cov_m2: d.cov_m2,
-    }
-}
-
-/// A fused estimate as a measurement to fuse again.
-fn estimate(f: &Fused) -> Measurement {
-    Measurement {
-        position_m: f.position_m,
-        cov_m2: f.cov_m2,
-    }
-}
-
+use super::views::{Views, measurement};
+use crate::fusion::{Measurement, Recursive, covariance_intersection, fuse, nees};
 /// Ego tracks fused with the peer objects `pairs` associates them with:
 /// the summed errors single, by Eq. 14-16 and by covariance intersection,
 /// against the object's true centre in the receiver's body frame, and
@@ -71,22 +52,12 @@ pub(super) fn fuse_pairs(
     out
 }
 
-/// A recursively fused estimate of one ego track with one peer object, in
-/// the receiver's tracking frame, by Eq. 14-16 and by covariance
-/// intersection.
-#[derive(Clone, Copy)]
-struct Recursive {
-    peer: u64,
-    time_s: f64,
-    independent: Measurement,
-    ci: Measurement,
-}
-
-/// Per ego track associated with one peer: its recursively fused
-/// estimate.
+/// Per ego track associated with one peer: the peer's object it is fused
+/// with and its recursively fused estimate (the receiver's tracking
+/// frame).
 #[derive(Default)]
 pub(super) struct RecursiveFusion {
-    fused: BTreeMap<u64, Recursive>,
+    fused: BTreeMap<u64, (u64, Recursive)>,
 }
 
 impl RecursiveFusion {
@@ -116,50 +87,34 @@ impl RecursiveFusion {
             };
             let body = measurement(&views.peer[b]).moved_uncertain(&prior);
             let peer = body.moved(&receiver.pose());
-            let grow = |m: Measurement, dt: f64| Measurement {
-                position_m: m.position_m + track.velocity_mps * dt,
-                cov_m2: m.cov_m2
-                    + Cov2::identity() * (ctx.v.tracker.accel_sigma_mps2 * dt * dt / 2.0).powi(2),
-            };
-            let previous = self.fused.get(&e).filter(|r| r.peer == p);
-            let (ind, ci) = match previous {
-                Some(r) => {
-                    let dt = ctx.time_s - r.time_s;
-                    (
-                        fuse(&[grow(r.independent, dt), ego, peer]),
-                        covariance_intersection(&[grow(r.ci, dt), ego, peer]),
-                    )
-                }
-                None => (fuse(&[ego, peer]), covariance_intersection(&[ego, peer])),
-            };
-            let (Some(ind), Some(ci), Some(once), Some(once_ci)) = (
-                ind,
-                ci,
-                fuse(&[ego, peer]),
-                covariance_intersection(&[ego, peer]),
-            ) else {
+            let previous = self.fused.get(&e).filter(|(q, _)| *q == p);
+            let r = Recursive::update(
+                previous.map(|(_, r)| r),
+                ctx.time_s,
+                track.velocity_mps,
+                ctx.v.tracker.accel_sigma_mps2,
+                &[ego, peer],
+            );
+            let (Some(r), Some(once), Some(once_ci)) =
+                (r, fuse(&[ego, peer]), covariance_intersection(&[ego, peer]))
+            else {
                 continue;
             };
-            next.insert(
-                e,
-                Recursive {
-                    peer: p,
-                    time_s: ctx.time_s,
-                    independent: estimate(&ind),
-                    ci: estimate(&ci),
-                },
-            );
+            next.insert(e, (p, r));
             let truth = receiver
                 .label(e)
                 .and_then(|l| l.truth.as_deref())
                 .and_then(|o| ctx.truth.get(o));
             if let Some(&truth) = truth {
-                c.recursive_fused_sum_m += (ind.position_m - truth).norm();
-                c.recursive_ci_sum_m += (ci.position_m - truth).norm();
-                c.recursive_nees_fused_sum += nees(&estimate(&ind), truth);
-                c.recursive_nees_ci_sum += nees(&estimate(&ci), truth);
-                c.once_nees_fused_sum += nees(&estimate(&once), truth);
-                c.once_nees_ci_sum += nees(&estimate(&once_ci), truth);
+                let error = |m: &Measurement| m.position_m - truth;
+                let nees_of = |m: &Measurement| nees(error(m), &m.cov_m2);
+                let (ind, ci) = (&r.independent, &r.ci);
+                c.recursive_fused_sum_m += error(ind).norm();
+                c.recursive_ci_sum_m += error(ci).norm();
+                c.recursive_nees_fused_sum += nees_of(ind);
+                c.recursive_nees_ci_sum += nees_of(ci);
+                c.once_nees_fused_sum += nees_of(&once.measurement());
+                c.once_nees_ci_sum += nees_of(&once_ci.measurement());
                 c.recursive_n += 1;
             }
         }
@@ -167,21 +122,12 @@ impl RecursiveFusion {
     }
 }
 
-/// The normalised estimation error squared of `m` against `truth`:
-/// `e^T P^-1 e`, 2 on average (two dimensions) when the claimed
-/// covariance is honest.
-pub(super) fn nees(m: &Measurement, truth: Vec2) -> f64 {
-    let e = m.position_m - truth;
-    m.cov_m2
-        .try_inverse()
-        .map_or(f64::NAN, |inv| (e.transpose() * inv * e)[0])
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::Pose2;
-    use crate::pipeline::tests::{appearance, centres, context, settings, vehicle_side};
+    use crate::geometry::{Cov2, Pose2, Vec2};
+    use crate::sensor::Detection;
+    use crate::v2x::testkit::{appearance, centres, context, settings, vehicle_side};
 
     const OBJECTS: [(&str, Vec2); 2] = [("a", Vec2::new(12.0, 3.0)), ("b", Vec2::new(18.0, -4.0))];
 
@@ -210,7 +156,8 @@ mod tests {
         let mut v = ConnectedVehicle::new("cv0", &s.v2x);
         for step in 0..n {
             let ctx = context(&s, &truth, step, step as f64 * 0.1);
-            v.step(&ctx, &vehicle_side("cv0", receiver_pose(), &OBJECTS, step));
+            let side = vehicle_side("cv0", receiver_pose(), &OBJECTS, step);
+            v.step(&ctx, &side.sensing());
         }
         v
     }
@@ -239,17 +186,7 @@ mod tests {
     }
 
     #[test]
-    fn nees_is_two_for_an_honest_unit_error_and_nan_when_singular() {
-        let m = Measurement {
-            position_m: Vec2::new(1.0, 1.0),
-            cov_m2: Cov2::identity(),
-        };
-        assert!((nees(&m, Vec2::zeros()) - 2.0).abs() < 1e-12);
-        let flat = Measurement {
-            cov_m2: Cov2::zeros(),
-            ..m
-        };
-        assert!(nees(&flat, Vec2::zeros()).is_nan());
+    fn a_detection_is_measured_where_it_is_with_its_covariance() {
         let d = detection(Vec2::new(3.0, 4.0));
         assert_eq!(measurement(&d).position_m, d.position_m);
         assert_eq!(measurement(&d).cov_m2, d.cov_m2);
@@ -295,14 +232,14 @@ mod tests {
         let v = views(vec![ea, eb], Vec2::zeros());
         let mut rf = RecursiveFusion::default();
         let mut c = OverTimeCounts::default();
-        let trace = |rf: &RecursiveFusion| rf.fused[&ea].independent.cov_m2.trace();
+        let trace = |rf: &RecursiveFusion| rf.fused[&ea].1.independent.cov_m2.trace();
         rf.update(&context(&s, &truth, 5, 0.5), &rx, &v, &[(ea, 10)], &mut c);
         let once = trace(&rf);
         rf.update(&context(&s, &truth, 6, 0.6), &rx, &v, &[(ea, 10)], &mut c);
         assert!(trace(&rf) < once, "{} !< {once}", trace(&rf));
         rf.update(&context(&s, &truth, 7, 0.7), &rx, &v, &[(ea, 11)], &mut c);
         assert!((trace(&rf) - once).abs() < 1e-12, "started again");
-        assert_eq!(rf.fused[&ea].peer, 11);
+        assert_eq!(rf.fused[&ea].0, 11);
         assert_eq!(c.recursive_n, 3);
         assert!(c.recursive_fused_sum_m.is_finite() && c.once_nees_ci_sum.is_finite());
         rf.update(&context(&s, &truth, 8, 0.8), &rx, &v, &[], &mut c);

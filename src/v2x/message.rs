@@ -1,12 +1,49 @@
 //! A CPM as the simulation sends it ([`Sent`]): the objects in the
 //! sender's body frame with the poses its GNSS reported, its own node, and
 //! beside them what only the evaluation knows (the sender's true pose,
-//! each object's [`TrackLabel`]).
+//! each object's [`TrackLabel`]); and whose view a side of an instance is
+//! ([`ViewSource`]: a vehicle's own, or a message's).
+
+use std::fmt;
 
 use super::context::Context;
+use super::cpm::PerceivedObject;
 use crate::geometry::{Pose2, Vec2};
 use crate::sensor::{Appearance, Detection, DetectionTruth};
-use crate::v2x::cpm::PerceivedObject;
+
+/// Whose view one side of an instance is. Its text ([`fmt::Display`]) is
+/// the side's id wherever a side is named (the observation's `ego_id`,
+/// hence the exports' and tables' ids): the vehicle's id, or `<sender> ->
+/// <receiver>` for a message.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ViewSource {
+    /// A connected vehicle's own view: what it sensed at the step, or with
+    /// `[v2x] mode = "cpm"` its reported tracks.
+    Vehicle(String),
+    /// A message `sender` sent and `receiver` received (`[v2x] mode =
+    /// "cpm"`).
+    Message { sender: String, receiver: String },
+}
+
+impl ViewSource {
+    /// The vehicle whose view this is: the vehicle, or the message's
+    /// sender.
+    pub fn vehicle(&self) -> &str {
+        match self {
+            ViewSource::Vehicle(id) => id,
+            ViewSource::Message { sender, .. } => sender,
+        }
+    }
+}
+
+impl fmt::Display for ViewSource {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ViewSource::Vehicle(id) => f.write_str(id),
+            ViewSource::Message { sender, receiver } => write!(f, "{sender} -> {receiver}"),
+        }
+    }
+}
 
 /// A generated message with what the evaluation knows beside it.
 #[derive(Clone)]
@@ -62,7 +99,22 @@ mod tests {
     use std::collections::BTreeMap;
 
     use super::*;
-    use crate::pipeline::tests::{appearance, context, settings};
+    use crate::v2x::testkit::{appearance, context, settings};
+
+    /// A vehicle's side is named by the vehicle, a message's by `<sender>
+    /// -> <receiver>` (what exports and tables write), and the vehicle
+    /// behind a message is its sender.
+    #[test]
+    fn a_source_reads_as_the_vehicle_or_sender_to_receiver() {
+        let v = ViewSource::Vehicle("cv1".into());
+        let m = ViewSource::Message {
+            sender: "cv0".into(),
+            receiver: "cv1".into(),
+        };
+        assert_eq!(v.to_string(), "cv1");
+        assert_eq!(m.to_string(), "cv0 -> cv1");
+        assert_eq!((v.vehicle(), m.vehicle()), ("cv1", "cv0"));
+    }
 
     /// A label's truth is its object where it is now; a false positive's
     /// has no object and no position.

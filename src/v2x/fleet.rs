@@ -6,12 +6,11 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::context::Context;
+use super::context::{Context, Sensing};
+use super::counts::VehicleTracking;
 use super::delivery::{InFlight, MessagesInFlight};
-use super::instance::InstanceSide;
 use super::vehicle::ConnectedVehicle;
 use crate::geometry::Vec2;
-use crate::report::VehicleTracking;
 
 /// Every connected vehicle that has been near the junction, by id, and the
 /// messages in flight between them.
@@ -25,14 +24,14 @@ impl Fleet {
     /// Every vehicle near the junction (`sides`: what each sensed at this
     /// step) tracks, and sends its CPM when one is due to its linked peers
     /// over the channel.
-    pub(super) fn send(&mut self, ctx: &Context, sides: &[InstanceSide]) {
+    pub(super) fn send(&mut self, ctx: &Context, sides: &[Sensing]) {
         let positions: Vec<Vec2> = sides
             .iter()
             .map(|e| e.sensed.truth.ego_pose.position_m())
             .collect();
-        let links = ctx.settings.link.links(&positions);
+        let links = ctx.link.links(&positions);
         for (i, side) in sides.iter().enumerate() {
-            let id = side.source.vehicle();
+            let id = side.id;
             let vehicle = self
                 .vehicles
                 .entry(id.to_owned())
@@ -58,8 +57,8 @@ impl Fleet {
 
     /// The messages that have arrived by now at receivers still near the
     /// junction (`sides`; the others are dropped), in arrival order.
-    pub(super) fn arrivals(&mut self, ctx: &Context, sides: &[InstanceSide]) -> Vec<InFlight> {
-        let here: BTreeSet<&str> = sides.iter().map(|e| e.source.vehicle()).collect();
+    pub(super) fn arrivals(&mut self, ctx: &Context, sides: &[Sensing]) -> Vec<InFlight> {
+        let here: BTreeSet<&str> = sides.iter().map(|e| e.id).collect();
         let vehicles = &self.vehicles;
         self.in_flight.arrived(ctx.time_s, |receiver| {
             here.contains(receiver) && vehicles.contains_key(receiver)
@@ -89,8 +88,8 @@ mod tests {
     use super::*;
     use crate::config::Settings;
     use crate::geometry::Pose2;
-    use crate::pipeline::tests::{centres, context, settings, vehicle_side};
     use crate::v2x::channel::LossModel;
+    use crate::v2x::testkit::{Side, centres, context, sensings, settings, vehicle_side};
 
     fn lossless() -> Settings {
         let mut s = settings();
@@ -99,7 +98,7 @@ mod tests {
     }
 
     /// Two vehicles `gap_m` apart that see one road user, at `step`.
-    fn pair(gap_m: f64, step: u64) -> Vec<InstanceSide> {
+    fn pair(gap_m: f64, step: u64) -> Vec<Side> {
         let seen = [("a", Vec2::new(5.0, 5.0))];
         vec![
             vehicle_side("cv0", Pose2::identity(), &seen, step),
@@ -116,13 +115,13 @@ mod tests {
         let truth = centres(&[("a", Vec2::new(5.0, 5.0))]);
         let mut fleet = Fleet::default();
         let ctx = context(&s, &truth, 0, 0.0);
-        fleet.send(&ctx, &pair(20.0, 0));
-        assert!(fleet.arrivals(&ctx, &pair(20.0, 0)).is_empty());
+        fleet.send(&ctx, &sensings(&pair(20.0, 0)));
+        assert!(fleet.arrivals(&ctx, &sensings(&pair(20.0, 0))).is_empty());
         assert!(fleet.vehicle("cv1").is_some() && fleet.vehicle("cv2").is_none());
         let ctx = context(&s, &truth, 1, 0.1);
-        fleet.send(&ctx, &pair(20.0, 1));
+        fleet.send(&ctx, &sensings(&pair(20.0, 1)));
         let got: Vec<(String, String)> = fleet
-            .arrivals(&ctx, &pair(20.0, 1))
+            .arrivals(&ctx, &sensings(&pair(20.0, 1)))
             .into_iter()
             .map(|m| (m.message.sender, m.receiver))
             .collect();
@@ -146,18 +145,19 @@ mod tests {
         s.link.comm_range_m = Some(10.0);
         let truth = centres(&[("a", Vec2::new(5.0, 5.0))]);
         let mut fleet = Fleet::default();
-        fleet.send(&context(&s, &truth, 0, 0.0), &pair(20.0, 0));
+        fleet.send(&context(&s, &truth, 0, 0.0), &sensings(&pair(20.0, 0)));
         let ctx = context(&s, &truth, 1, 0.1);
-        assert!(fleet.arrivals(&ctx, &pair(20.0, 1)).is_empty());
+        assert!(fleet.arrivals(&ctx, &sensings(&pair(20.0, 1))).is_empty());
         s.link.comm_range_m = None;
-        fleet.send(&context(&s, &truth, 2, 0.2), &pair(20.0, 2));
-        let only_cv0 = &pair(20.0, 3)[..1];
+        fleet.send(&context(&s, &truth, 2, 0.2), &sensings(&pair(20.0, 2)));
+        let three = pair(20.0, 3);
+        let only_cv0 = &sensings(&three[..1]);
         let ctx = context(&s, &truth, 3, 0.3);
         let got = fleet.arrivals(&ctx, only_cv0);
         assert_eq!(got.len(), 1);
         assert_eq!(got[0].receiver, "cv0");
         let ctx = context(&s, &truth, 4, 0.4);
-        assert!(fleet.arrivals(&ctx, &pair(20.0, 4)).is_empty());
+        assert!(fleet.arrivals(&ctx, &sensings(&pair(20.0, 4))).is_empty());
         let rows = fleet.finish();
         assert!(rows.iter().all(|r| (r.delivered, r.lost) == (1, 0)));
     }

@@ -1,18 +1,18 @@
-//! What one step of cooperation over time shares ([`Context`]): the
-//! settings, the GNSS levels, the time and every road user's true centre;
-//! and latency compensation, what was received moved ahead to that time.
+//! What one step of cooperation over time shares ([`Context`]): the slices
+//! of the settings it reads ([`Setup`]), the time and every road user's
+//! true centre; what each vehicle brings to it ([`Sensing`]); and latency
+//! compensation, what was received moved ahead to that time.
 
 use std::collections::BTreeMap;
 
-use crate::config::Settings;
+use super::V2xSettings;
+use super::cpm::PerceivedObject;
 use crate::geometry::{Cov2, Vec2};
-use crate::sensor::PoseNoiseLevel;
+use crate::sensor::{LinkSettings, PoseNoiseLevel, Sensed};
 use crate::traffic::TrafficFrame;
-use crate::v2x::cpm::PerceivedObject;
-use crate::v2x::{self, V2xSettings};
 
 /// Every road user's true centre at `frame`, world frame, by id.
-pub(super) fn true_centres(frame: &TrafficFrame) -> BTreeMap<&str, Vec2> {
+pub(crate) fn true_centres(frame: &TrafficFrame) -> BTreeMap<&str, Vec2> {
     frame
         .objects
         .iter()
@@ -20,18 +20,69 @@ pub(super) fn true_centres(frame: &TrafficFrame) -> BTreeMap<&str, Vec2> {
         .collect()
 }
 
-/// What one step shares.
-pub(super) struct Context<'a> {
-    pub settings: &'a Settings,
+/// What cooperation over time reads of the settings, the same at every
+/// step of a run.
+#[derive(Clone, Copy)]
+pub(crate) struct Setup<'a> {
+    /// `[v2x]`.
     pub v: &'a V2xSettings,
+    /// Which connected vehicles exchange (`[connected]`).
+    pub link: &'a LinkSettings,
+    /// The sensor seed, which keys the channel's and the GNSS's streams.
+    pub sensor_seed: u64,
+    /// `[fusion] align_min_matches`, for the relative pose over time.
+    pub align_min_matches: usize,
     /// The GNSS accuracies each vehicle's error is drawn at: `[v2x]
     /// pose_noise` alone for `coid track` (its receivers use the first),
     /// every `[pose_noise]` level in a run.
+    pub levels: &'a [PoseNoiseLevel],
+}
+
+impl<'a> Setup<'a> {
+    /// The context of step `step` at `time_s`, where the road users are
+    /// `truth`.
+    pub(crate) fn at(
+        self,
+        step: u64,
+        time_s: f64,
+        truth: &'a BTreeMap<&'a str, Vec2>,
+    ) -> Context<'a> {
+        Context {
+            v: self.v,
+            link: self.link,
+            sensor_seed: self.sensor_seed,
+            align_min_matches: self.align_min_matches,
+            levels: self.levels,
+            step,
+            time_s,
+            truth,
+        }
+    }
+}
+
+/// What one step shares.
+pub(crate) struct Context<'a> {
+    pub v: &'a V2xSettings,
+    pub link: &'a LinkSettings,
+    pub sensor_seed: u64,
+    pub align_min_matches: usize,
+    /// The GNSS accuracies of [`Setup::levels`].
     pub levels: &'a [PoseNoiseLevel],
     pub step: u64,
     pub time_s: f64,
     /// Every road user's true centre, world frame.
     pub truth: &'a BTreeMap<&'a str, Vec2>,
+}
+
+/// What one connected vehicle near the junction brings to a step: its id,
+/// the hash of its id (a key of its streams), what it sensed (its true
+/// pose, its detections, what its cameras could see) and its speed (m/s).
+#[derive(Clone, Copy)]
+pub(crate) struct Sensing<'a> {
+    pub id: &'a str,
+    pub id_hash: u64,
+    pub sensed: &'a Sensed,
+    pub speed_mps: f64,
 }
 
 impl Context<'_> {
@@ -43,7 +94,7 @@ impl Context<'_> {
     /// Latency compensation: a point a sender generated at `generated_s`
     /// (position and velocity with their covariances, in the sender's
     /// frame) moved ahead to this step with its velocity when `[v2x]
-    /// compensate_latency` ([`v2x::extrapolate`], the trackers' motion
+    /// compensate_latency` ([`super::extrapolate`], the trackers' motion
     /// model), or left where it was.
     pub(super) fn moved_ahead(
         &self,
@@ -58,7 +109,7 @@ impl Context<'_> {
         } else {
             0.0
         };
-        v2x::extrapolate(
+        super::extrapolate(
             position_m,
             velocity_mps,
             position_cov_m2,
@@ -84,7 +135,7 @@ impl Context<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pipeline::tests::{context, frame, settings};
+    use crate::v2x::testkit::{context, frame, settings};
 
     #[test]
     fn the_true_centres_are_every_road_users_position_by_id() {

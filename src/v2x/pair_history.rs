@@ -6,9 +6,9 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::peer::Views;
+use super::counts::OverTimeCounts;
+use super::views::Views;
 use crate::evaluate::PairCounts;
-use crate::report::OverTimeCounts;
 
 /// What the counts remember of one (receiver, peer)'s pairs (ego track id,
 /// peer object id).
@@ -100,8 +100,8 @@ mod tests {
             peer_ids: vec![10, 20, 30],
             peer_truth: names(peer),
             peer_reported: Pose2::identity(),
-            ego_claim: crate::pipeline::tests::settings().pose_noise[0],
-            peer_claim: crate::pipeline::tests::settings().pose_noise[0],
+            ego_claim: crate::v2x::testkit::settings().pose_noise[0],
+            peer_claim: crate::v2x::testkit::settings().pose_noise[0],
         }
     }
 

@@ -6,8 +6,7 @@
 //! poses alone).
 
 use super::context::Context;
-use super::fusion_over_time::measurement;
-use super::peer::Views;
+use super::views::{Views, measurement};
 use crate::fusion::{Measurement, align};
 use crate::geometry::{Pose2, wrap_angle};
 
@@ -54,7 +53,7 @@ impl PoseCorrection {
             })
             .collect();
         let prior = views.gps_prior(receiver_reported);
-        let aligned = align(&measured, &prior, ctx.settings.fusion.align_min_matches);
+        let aligned = align(&measured, &prior, ctx.align_min_matches);
         if !aligned.refined {
             return;
         }
@@ -86,8 +85,8 @@ mod tests {
 
     use super::*;
     use crate::geometry::{Cov2, Vec2};
-    use crate::pipeline::tests::{appearance, settings};
     use crate::sensor::{Detection, PoseNoiseLabel, PoseNoiseLevel};
+    use crate::v2x::testkit::{appearance, context, settings};
 
     /// No correction before the first estimate; a full step lands on the
     /// target, half a step halfway, turning the shorter way.
@@ -132,12 +131,8 @@ mod tests {
         still.v2x.association.pose_smoothing = 0.0;
         let truth = BTreeMap::new();
         let ctx = Context {
-            settings: &s,
-            v: &s.v2x,
             levels: std::slice::from_ref(&gps),
-            step: 0,
-            time_s: 0.0,
-            truth: &truth,
+            ..context(&s, &truth, 0, 0.0)
         };
         let sender = Pose2::new(Vec2::new(30.0, 5.0), 2.9);
         let raw = Pose2::new(Vec2::new(31.0, 4.2), 2.92);
@@ -186,7 +181,6 @@ mod tests {
         );
         assert!(dp < 0.01 && dh < 1e-3, "{dp} m, {dh} rad");
         let ctx = Context {
-            settings: &still,
             v: &still.v2x,
             ..ctx
         };
