@@ -118,16 +118,7 @@ mod tests {
             multi_vehicle: MultiVehicle::Pairwise,
             rematch: 2,
         };
-        let choice = crate::matching::DeepChoice {
-            lambda: 0.7,
-            lambdas: crate::matching::deep::decision::KindLambdas::all(0.7),
-            decision: crate::matching::deep::decision::Decision::Assignment,
-            temperature: 1.0,
-            trained_masks: crate::matching::deep::arch::MaskScope::PerNode,
-        };
-        CorrespondenceSource::Matcher(
-            crate::matching::build(method, &settings, choice, 1, None).unwrap(),
-        )
+        CorrespondenceSource::Matcher(crate::matching::build(method, &settings, None, 1).unwrap())
     }
 
     /// Permuting one vehicle's detections (with its truth and graph)

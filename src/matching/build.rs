@@ -49,17 +49,24 @@ pub fn method_lambdas(choices: &std::collections::BTreeMap<Method, DeepChoice>) 
     choices.iter().map(|(&m, c)| (m, c.lambdas)).collect()
 }
 
+/// What a deep method runs with: its trained weights (the bytes of
+/// `<method>.bpk`) and its choice of lambda, decision rule and
+/// temperature.
+#[derive(Clone, Copy, Debug)]
+pub struct Trained<'a> {
+    pub weights: &'a [u8],
+    pub choice: DeepChoice,
+}
+
 /// Builds the matcher of a method, in canonical node order and with the
-/// configured rounds of match-align-rematch. Deep methods need their
-/// trained weights (`weights`, the bytes of `<method>.bpk`) and their
-/// `choice`; MC-dropout masks are drawn from streams seeded with
-/// `dropout_seed`.
+/// configured rounds of match-align-rematch. Deep methods need what they
+/// were trained to (`trained`; the other methods read nothing of it);
+/// MC-dropout masks are drawn from streams seeded with `dropout_seed`.
 pub fn build(
     method: Method,
     settings: &MatchingSettings,
-    choice: DeepChoice,
+    trained: Option<Trained<'_>>,
     dropout_seed: u64,
-    weights: Option<&[u8]>,
 ) -> Result<Box<dyn Matcher>, BuildError> {
     let value = settings.baseline_value(method);
     let inner: Box<dyn Matcher> = match method.kind() {
@@ -78,7 +85,10 @@ pub fn build(
         MethodKind::Oracle => return Err(BuildError::Oracle),
         MethodKind::External => return Err(BuildError::External),
         MethodKind::Deep(deep_method) => {
-            let bytes = weights.ok_or(BuildError::NoWeights(method.as_str()))?;
+            let Trained {
+                weights: bytes,
+                choice,
+            } = trained.ok_or(BuildError::NoWeights(method.as_str()))?;
             let threshold = deep_method
                 .thresholds_by_default()
                 .then_some((settings.uncertainty, choice.lambda));

@@ -21,7 +21,7 @@ mod tests;
 mod build;
 mod method;
 
-pub use build::{BuildError, DeepChoice, MethodLambdas, build, method_lambdas};
+pub use build::{BuildError, DeepChoice, MethodLambdas, Trained, build, method_lambdas};
 pub use gps_hungarian::GpsHungarian;
 pub use learning_free::{Mogm, Rgm};
 pub use method::{BaselineKnob, Inputs, Method, MethodKind};

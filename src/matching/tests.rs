@@ -7,6 +7,11 @@ use super::*;
 use crate::geometry::Vec2;
 use crate::traffic::ObjectClass;
 
+/// A deep method's weights with `choice` (none for the other methods).
+fn trained(weights: Option<&[u8]>, choice: DeepChoice) -> Option<Trained<'_>> {
+    weights.map(|weights| Trained { weights, choice })
+}
+
 fn settings() -> MatchingSettings {
     MatchingSettings {
         methods: vec![],
@@ -35,7 +40,7 @@ const CHOICE: DeepChoice = DeepChoice {
 };
 
 fn built(method: Method) -> Box<dyn Matcher> {
-    build(method, &settings(), CHOICE, 1, None).unwrap()
+    build(method, &settings(), None, 1).unwrap()
 }
 
 #[test]
@@ -107,7 +112,7 @@ fn permuting_detections_permutes_every_methods_matches_and_nothing_else() {
                 lambdas: KindLambdas::all(f64::INFINITY),
                 ..CHOICE
             };
-            let m = build(method, &s, all_pairs, 1, weights.as_deref()).unwrap();
+            let m = build(method, &s, trained(weights.as_deref(), all_pairs), 1).unwrap();
             let before = m.identify(&a.view(), &b.view());
             let (pa, pb) = (permuted(&a, &order_a), permuted(&b, &order_b));
             let after = m.identify(&pa.view(), &pb.view());
@@ -181,19 +186,16 @@ fn graph_matchers_find_nothing_in_unrelated_scenes() {
 #[test]
 fn the_oracle_is_not_a_matcher_and_deep_methods_need_weights() {
     assert!(matches!(
-        build(Method::Oracle, &settings(), CHOICE, 1, None),
+        build(Method::Oracle, &settings(), None, 1),
         Err(BuildError::Oracle)
     ));
-    let e = build(Method::Ours, &settings(), CHOICE, 1, None)
-        .err()
-        .unwrap();
+    let e = build(Method::Ours, &settings(), None, 1).err().unwrap();
     assert_eq!(e.to_string(), "'ours' needs trained weights");
     let e = build(
         Method::Ours,
         &settings(),
-        CHOICE,
+        trained(Some(b"not a burnpack"), CHOICE),
         1,
-        Some(b"not a burnpack"),
     )
     .err()
     .unwrap();
@@ -256,7 +258,7 @@ fn single_pass_variants_are_one_pass_without_epistemic_uncertainty() {
         };
         let weights = deep::opened_weights(d, 3);
         let dist = |m: Method, s: &MatchingSettings| {
-            let matcher = build(m, s, CHOICE, 1, Some(&weights)).unwrap();
+            let matcher = build(m, s, trained(Some(&weights), CHOICE), 1).unwrap();
             assert_eq!(matcher.method(), m);
             matcher
                 .identify(&a.view(), &b.view())
@@ -310,7 +312,7 @@ fn the_methods_on_the_papers_inputs_never_read_a_pose() {
             MethodKind::Deep(d) => Some(deep::opened_weights(d, 3)),
             _ => None,
         };
-        let m = build(method, &s, all_pairs, 1, weights.as_deref()).unwrap();
+        let m = build(method, &s, trained(weights.as_deref(), all_pairs), 1).unwrap();
         let before = m.identify(&a.view(), &b.view());
         let moved = m.identify(&a2.view(), &b2.view());
         if method.inputs() == Inputs::Paper {

@@ -10,9 +10,10 @@ use crate::config::Settings;
 use crate::evaluate::CorrespondenceSource;
 use crate::io::{self, WeightsError};
 use crate::matching::deep::arch::MaskScope;
-use crate::matching::deep::decision::{Decision, KindLambdas};
+use crate::matching::deep::decision::KindLambdas;
 use crate::matching::{
     self, BaselineChoice, BuildError, DecisionChoice, DeepChoice, LambdaChoice, Method, MethodKind,
+    Trained,
 };
 
 /// How a deep method decides: its entropy threshold and decision rule as
@@ -91,16 +92,20 @@ pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSourc
         m.baseline_values = io::read_baselines(&m.models_dir, &[method])?;
     }
     let m = &m;
-    let (weights, choice) = if let MethodKind::Deep(_) = method.kind() {
-        (
-            Some(io::read_weights(&m.models_dir, method)?),
+    let deep = if let MethodKind::Deep(_) = method.kind() {
+        Some((
+            io::read_weights(&m.models_dir, method)?,
             choice_for(settings, method)?,
-        )
+        ))
     } else {
-        (None, NO_CHOICE)
+        None
     };
-    let matcher = matching::build(method, m, choice, settings.seeds.sensor, weights.as_deref())
-        .map_err(|e| match e {
+    let trained = deep.as_ref().map(|(weights, choice)| Trained {
+        weights,
+        choice: *choice,
+    });
+    let matcher =
+        matching::build(method, m, trained, settings.seeds.sensor).map_err(|e| match e {
             BuildError::BadWeights {
                 method: label,
                 reason,
@@ -114,15 +119,6 @@ pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSourc
     Ok(CorrespondenceSource::Matcher(matcher))
 }
 
-/// What a method that is not deep is built with (it reads neither).
-const NO_CHOICE: DeepChoice = DeepChoice {
-    lambda: f64::NAN,
-    lambdas: KindLambdas::all(f64::NAN),
-    decision: Decision::Assignment,
-    temperature: 1.0,
-    trained_masks: MaskScope::PerNode,
-};
-
 /// The runners of `methods`, in order.
 pub fn runners(
     settings: &Settings,
@@ -134,6 +130,7 @@ pub fn runners(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::matching::deep::decision::Decision;
     use crate::pipeline::tests::settings;
 
     /// Settings whose models folder holds nothing.
