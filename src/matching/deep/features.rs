@@ -60,6 +60,21 @@ pub(crate) struct GraphInput {
 }
 
 impl GraphInput {
+    /// The kernel cells some edge uses (ascending), and each cell's place
+    /// among them.
+    pub(crate) fn used_cells(&self) -> (Vec<usize>, [usize; KERNEL_2D]) {
+        let mut used = [false; KERNEL_2D];
+        for &k in &self.basis_index {
+            used[k as usize] = true;
+        }
+        let cells: Vec<usize> = (0..KERNEL_2D).filter(|&k| used[k]).collect();
+        let mut position = [0usize; KERNEL_2D];
+        for (p, &k) in cells.iter().enumerate() {
+            position[k] = p;
+        }
+        (cells, position)
+    }
+
     pub(crate) fn edge_count(&self) -> usize {
         self.src.len()
     }

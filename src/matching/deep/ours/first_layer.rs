@@ -51,16 +51,8 @@ impl FirstLayer {
     /// cells' weights stacked.
     fn messages(&self, g: &GraphInput, x: &[f32], n: usize) -> Vec<f32> {
         let (d_in, d_out) = (self.layer.d_in, self.layer.d_out);
-        let mut used = [false; KERNEL_2D];
-        for &k in &g.basis_index {
-            used[k as usize] = true;
-        }
-        let cells: Vec<usize> = (0..KERNEL_2D).filter(|&k| used[k]).collect();
+        let (cells, position) = g.used_cells();
         let c = cells.len();
-        let mut position = [0usize; KERNEL_2D];
-        for (p, &k) in cells.iter().enumerate() {
-            position[k] = p;
-        }
         let e = g.edge_count();
         let mut by_cell = vec![0f32; n * c * n];
         for edge in 0..e {

@@ -72,16 +72,8 @@ impl PlainSpline {
         matmul(t * n, d_in, d_out, &x, &self.root, &mut root);
         let e = g.edge_count();
         if e > 0 {
-            let mut used = [false; KERNEL_2D];
-            for &k in &g.basis_index {
-                used[k as usize] = true;
-            }
-            let cells: Vec<usize> = (0..KERNEL_2D).filter(|&k| used[k]).collect();
+            let (cells, position) = g.used_cells();
             let c = cells.len();
-            let mut position = [0usize; KERNEL_2D];
-            for (p, &k) in cells.iter().enumerate() {
-                position[k] = p;
-            }
             let mut w = vec![0f32; d_in * c * d_out];
             for u in 0..d_in {
                 for (p, &k) in cells.iter().enumerate() {
