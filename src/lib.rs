@@ -13,6 +13,8 @@
 //! - [`config`]: the TOML file into each stage's settings;
 //! - [`report`]: rows, tables and plot data before they are written;
 //! - [`tables`], [`render`], [`io`]: the paper's tables, pictures, files;
+//! - [`dataset`]: instances as files in one schema, coid's or converted
+//!   from elsewhere, and read back;
 //! - [`pipeline`]: one run; [`experiments`], [`batch`]: many runs;
 //!   [`export`]: instances out for matchers written elsewhere, their
 //!   matches back in; [`training`]: `coid train`'s seeds and child
@@ -24,6 +26,7 @@ mod batch;
 mod bridge;
 pub mod cli;
 pub mod config;
+mod dataset;
 pub mod evaluate;
 mod experiments;
 mod export;

@@ -12,6 +12,8 @@ mod util;
 mod bad_input;
 #[path = "integration/batch.rs"]
 mod batch;
+#[path = "integration/dataset.rs"]
+mod dataset;
 #[path = "integration/detectors.rs"]
 mod detectors;
 #[path = "integration/export_score.rs"]
@@ -26,6 +28,8 @@ mod likelihood;
 mod pictures;
 #[path = "integration/protocol.rs"]
 mod protocol;
+#[path = "integration/pt_writer.rs"]
+mod pt_writer;
 #[path = "integration/regression.rs"]
 mod regression;
 #[path = "integration/regression49.rs"]

@@ -4,6 +4,7 @@
 //! summary; `main` maps errors to one line and an exit code.
 
 mod batch;
+mod dataset;
 mod detector;
 mod eval;
 mod export;
@@ -93,6 +94,12 @@ enum Command {
     /// calibration.csv, consistency.csv, views.csv, the deep methods'
     /// tables, summary.md and pictures.
     Score(export::ScoreArgs),
+    /// Convert correspondence data recorded elsewhere into a coid dataset
+    /// (PyTorch Geometric pairs as DMGM distributes them: `convert pyg`).
+    Convert(dataset::ConvertArgs),
+    /// Check a dataset folder (coid export or convert) and say what it
+    /// holds: runs and instances per split, nodes, true pairs, appearance.
+    Dataset(dataset::DatasetArgs),
     /// Track over one run, as V2X delivers it ([v2x]): every connected
     /// vehicle near the junction tracks its own detections at every SUMO
     /// step ([v2x] step_length_s; constant-velocity Kalman filter) and
@@ -159,6 +166,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => eval::eval(a),
         Command::Export(a) => export::export(a),
         Command::Score(a) => export::score(a),
+        Command::Convert(a) => dataset::convert(a),
+        Command::Dataset(a) => dataset::dataset(a),
         Command::Track(a) => track::track(a),
         Command::Detector(a) => detector::detector(a),
         Command::Train(a) => train::train(a),

@@ -8,10 +8,10 @@
 //! validation, then test runs), whatever is exported, so that a matches
 //! file names the same run in every export of the same configuration.
 //!
-//! One job per file: `schema` (each file's columns, declared once as a
-//! row struct), `rows` (an instance's rows), `score` (a matches file's
-//! rows checked and turned into each run's external matches); this file
-//! numbers the runs and exports one.
+//! One job per file: `rows` (an instance's rows, in the dataset schema of
+//! `crate::dataset::schema`), `score` (a matches file's rows checked and
+//! turned into each run's external matches); this file numbers the runs
+//! and exports one.
 
 use std::collections::BTreeMap;
 
@@ -24,23 +24,16 @@ use crate::pipeline::{self, Instance, Progress, RunError, Warnings};
 use crate::report::Table;
 
 mod rows;
-mod schema;
 mod score;
+
+use crate::dataset::schema;
+pub use crate::dataset::{SCHEMA, SCHEMA_VERSION};
 
 pub use score::external_matches;
 
-/// The version of the export's columns (`runs.parquet` carries it): 2
-/// added `config_digest`; 3 the nodes' `heading_rad` and `speed_mps`; 4
-/// each vehicle's claimed heading accuracy (`first_heading_sigma_rad`,
-/// `second_heading_sigma_rad` for `heading_sigma_rad`).
-pub const SCHEMA_VERSION: u64 = 4;
-
 /// The oldest export `coid score` scores: its instances are this coid's
-/// (version 4 changed the instances' columns, not the instances).
+/// (versions 4 and 5 changed the instances' columns, not the instances).
 pub const SCORED_SINCE: u64 = 3;
-
-/// The schema, written beside the files as `schema.md`.
-pub const SCHEMA: &str = include_str!("../../docs/export-schema.md");
 
 /// The file of the runs (`runs.parquet`), written last.
 pub const RUNS_FILE: &str = schema::Run::FILE;

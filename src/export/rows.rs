@@ -1,7 +1,7 @@
 //! What an instance becomes in the export: its rows of every instance file
 //! ([`Rows`], held until written as row groups) and a method's matches.
 
-use super::schema::{Edge, Instance, Match, Node, TruePair, Truth};
+use crate::dataset::schema::{Edge, Instance, Match, Node, TruePair, Truth};
 use crate::evaluate::{FrameEval, PairAtLevel, Side};
 use crate::io::{OutputError, TablesFolder};
 use crate::matching::oracle;
@@ -82,25 +82,32 @@ impl Rows {
     fn add_instance(&mut self, at: At, inst: &pipeline::Instance, pair: &PairAtLevel) {
         let first = pair.first.view.pose_reported;
         let second = pair.second.view.pose_reported;
+        let (first_true, second_true) = (pair.first.truth.ego_pose, pair.second.truth.ego_pose);
         self.instances.push(Instance {
             run: at.run,
             instance: at.instance,
             pose_noise: pair.level.label.as_str().to_owned(),
             step: inst.frame.step,
-            time_s: inst.frame.time_s,
+            time_s: Some(inst.frame.time_s),
             first_id: pair.first.obs.ego_id.clone(),
             second_id: pair.second.obs.ego_id.clone(),
             n_first: pair.first.obs.detections.len() as u64,
             n_second: pair.second.obs.detections.len() as u64,
-            first_x_m: first.position_m().x,
-            first_y_m: first.position_m().y,
-            first_heading_rad: first.heading_rad(),
-            second_x_m: second.position_m().x,
-            second_y_m: second.position_m().y,
-            second_heading_rad: second.heading_rad(),
+            first_x_m: Some(first.position_m().x),
+            first_y_m: Some(first.position_m().y),
+            first_heading_rad: Some(first.heading_rad()),
+            second_x_m: Some(second.position_m().x),
+            second_y_m: Some(second.position_m().y),
+            second_heading_rad: Some(second.heading_rad()),
             position_sigma_m: pair.level.position_sigma_m,
             first_heading_sigma_rad: pair.first.view.pose_noise.heading_sigma_rad,
             second_heading_sigma_rad: pair.second.view.pose_noise.heading_sigma_rad,
+            first_true_x_m: Some(first_true.position_m().x),
+            first_true_y_m: Some(first_true.position_m().y),
+            first_true_heading_rad: Some(first_true.heading_rad()),
+            second_true_x_m: Some(second_true.position_m().x),
+            second_true_y_m: Some(second_true.position_m().y),
+            second_true_heading_rad: Some(second_true.heading_rad()),
         });
     }
 
@@ -116,19 +123,22 @@ impl Rows {
                 node: k as u64,
                 x_m: d.position_m.x,
                 y_m: d.position_m.y,
-                cov_xx_m2: d.cov_m2[(0, 0)],
-                cov_xy_m2: d.cov_m2[(0, 1)],
-                cov_yy_m2: d.cov_m2[(1, 1)],
+                cov_xx_m2: Some(d.cov_m2[(0, 0)]),
+                cov_xy_m2: Some(d.cov_m2[(0, 1)]),
+                cov_yy_m2: Some(d.cov_m2[(1, 1)]),
                 class: a.class.as_str().to_owned(),
-                colour_r,
-                colour_g,
-                colour_b,
-                length_m: a.length_m,
-                width_m: a.width_m,
-                height_m: a.height_m,
-                heading_rad: d.motion.map_or(f64::NAN, |m| m.heading_rad),
-                speed_mps: d.motion.map_or(f64::NAN, |m| m.speed_mps),
-                sender: truth.sender,
+                colour_r: Some(colour_r),
+                colour_g: Some(colour_g),
+                colour_b: Some(colour_b),
+                length_m: Some(a.length_m),
+                width_m: Some(a.width_m),
+                height_m: Some(a.height_m),
+                heading_rad: Some(d.motion.map_or(f64::NAN, |m| m.heading_rad)),
+                speed_mps: Some(d.motion.map_or(f64::NAN, |m| m.speed_mps)),
+                sender: Some(truth.sender),
+                world_x_m: None,
+                world_y_m: None,
+                appearance: None,
             });
             let p = truth.position_m;
             self.truth.push(Truth {
@@ -137,9 +147,9 @@ impl Rows {
                 side,
                 node: k as u64,
                 object_id: truth.object_id.clone().unwrap_or_default(),
-                true_x_m: p.map_or(f64::NAN, |p| p.x),
-                true_y_m: p.map_or(f64::NAN, |p| p.y),
-                visible_fraction: truth.visible_fraction,
+                true_x_m: Some(p.map_or(f64::NAN, |p| p.x)),
+                true_y_m: Some(p.map_or(f64::NAN, |p| p.y)),
+                visible_fraction: Some(truth.visible_fraction),
             });
         }
         for e in &s.view.graph.edges {

@@ -56,6 +56,13 @@ fn table_frame(t: &Table) -> PolarsResult<DataFrame> {
             TableColumn::Number(v) => Column::new(name.as_str().into(), v),
             TableColumn::Count(v) => Column::new(name.as_str().into(), v),
             TableColumn::Flag(v) => Column::new(name.as_str().into(), v),
+            TableColumn::Vectors(v) => {
+                let lists: ListChunked = v
+                    .iter()
+                    .map(|x| Series::new(PlSmallStr::EMPTY, x.as_slice()))
+                    .collect();
+                lists.with_name(name.as_str().into()).into_column()
+            }
         })
         .collect();
     DataFrame::new_infer_height(columns)
@@ -166,21 +173,24 @@ impl ObjectsWriter {
 }
 
 /// A Parquet file of [`Table`]s with the same columns, one row group per
-/// table written (`coid export`'s files).
+/// table written (a dataset's files). The first table written decides the
+/// columns (a dataset's optional columns are there or not); a file nothing
+/// was written to has the template's.
 pub struct TableWriter {
     path: PathBuf,
-    file: File,
-    writer: BatchedWriter<File>,
+    template: Table,
+    open: Option<(File, BatchedWriter<File>)>,
 }
 
 impl TableWriter {
-    /// A file with the columns (names and types) of `template`.
+    /// A file with the columns (names and types) of `template` unless
+    /// the first table written has others.
     pub fn create(path: &Path, template: &Table) -> Result<Self, OutputError> {
-        let (file, writer) = batched_parquet(path, table_frame(template))?;
+        File::create(path).map_err(io(path))?;
         Ok(Self {
             path: path.to_owned(),
-            file,
-            writer,
+            template: template.clone(),
+            open: None,
         })
     }
 
@@ -190,13 +200,21 @@ impl TableWriter {
             return Ok(());
         }
         let df = table_frame(table).map_err(polars_err(&self.path))?;
-        self.writer.write_batch(&df).map_err(polars_err(&self.path))
+        if self.open.is_none() {
+            self.open = Some(batched_parquet(&self.path, Ok(df.clear()))?);
+        }
+        let (_, writer) = self.open.as_mut().expect("opened above");
+        writer.write_batch(&df).map_err(polars_err(&self.path))
     }
 
     /// Writes the footer, flushed to disk.
     pub fn finish(self) -> Result<(), OutputError> {
-        self.writer.finish().map_err(polars_err(&self.path))?;
-        self.file.sync_all().map_err(io(&self.path))
+        let (file, writer) = match self.open {
+            Some(open) => open,
+            None => batched_parquet(&self.path, table_frame(&self.template))?,
+        };
+        writer.finish().map_err(polars_err(&self.path))?;
+        file.sync_all().map_err(io(&self.path))
     }
 }
 
@@ -448,6 +466,99 @@ pub fn read_run_summary(path: &Path) -> Result<Vec<RunRow>, OutputError> {
             })
         })
         .collect()
+}
+
+/// Reads a dataset's Parquet file into a table of the declared `columns`
+/// (name and type: `u64`, `f64`, `String`, `bool`, `Vec<f32>`, each
+/// optionally `Option<..>`), in their order; an optional column the file
+/// lacks is left out. The reason it cannot be, in one line naming the
+/// column and, for an empty or bad value, the row (1-based).
+pub fn read_dataset_table(path: &Path, columns: &[(&str, &str)]) -> Result<Table, String> {
+    let text = |e: PolarsError| e.to_string().lines().next().unwrap_or("").to_owned();
+    let f = File::open(path).map_err(|e| e.to_string())?;
+    let df = ParquetReader::new(f).finish().map_err(text)?;
+    let mut out = Table::default();
+    for &(name, ty) in columns {
+        let ty = ty.replace(' ', "");
+        let (optional, ty) = match ty.strip_prefix("Option<") {
+            Some(inner) => (true, inner.strip_suffix('>').unwrap_or(inner).to_owned()),
+            None => (false, ty),
+        };
+        let Ok(c) = df.column(name) else {
+            if optional {
+                continue;
+            }
+            return Err(format!("it has no column '{name}'"));
+        };
+        let empty = |k: usize| format!("column '{name}' is empty in row {}", k + 1);
+        let col = match ty.as_str() {
+            "u64" => {
+                if !c.dtype().is_integer() {
+                    return Err(format!("column '{name}' holds {}, not integers", c.dtype()));
+                }
+                let c = c
+                    .strict_cast(&DataType::UInt64)
+                    .map_err(|_| format!("column '{name}' holds a negative value"))?;
+                let v: Vec<Option<u64>> = c.u64().map_err(text)?.iter().collect();
+                TableColumn::Count(all(v, empty)?)
+            }
+            "f64" => {
+                if !c.dtype().is_primitive_numeric() {
+                    return Err(format!("column '{name}' holds {}, not numbers", c.dtype()));
+                }
+                let c = c.cast(&DataType::Float64).map_err(text)?;
+                let v: Vec<Option<f64>> = c.f64().map_err(text)?.iter().collect();
+                TableColumn::Number(all(v, empty)?)
+            }
+            "bool" => {
+                let v: Vec<Option<bool>> = c
+                    .bool()
+                    .map_err(|_| format!("column '{name}' holds {}, not true/false", c.dtype()))?
+                    .iter()
+                    .collect();
+                TableColumn::Flag(all(v, empty)?)
+            }
+            "String" => {
+                let v: Vec<Option<String>> = c
+                    .str()
+                    .map_err(|_| format!("column '{name}' holds {}, not text", c.dtype()))?
+                    .iter()
+                    .map(|s| s.map(str::to_owned))
+                    .collect();
+                TableColumn::Text(all(v, empty)?)
+            }
+            "Vec<f32>" => {
+                let lists = c
+                    .list()
+                    .map_err(|_| format!("column '{name}' holds {}, not lists", c.dtype()))?;
+                let mut v = Vec::with_capacity(lists.len());
+                for (k, s) in lists.amortized_iter().enumerate() {
+                    let s = s.map(|s| s.as_ref().clone());
+                    let s = s.ok_or_else(|| empty(k))?;
+                    let s = s.cast(&DataType::Float32).map_err(text)?;
+                    let x: Option<Vec<f32>> = s.f32().map_err(text)?.iter().collect();
+                    v.push(x.ok_or_else(|| {
+                        format!("column '{name}' has an empty value in row {}", k + 1)
+                    })?);
+                }
+                TableColumn::Vectors(v)
+            }
+            other => {
+                return Err(format!(
+                    "column '{name}' has a type coid cannot read ({other})"
+                ));
+            }
+        };
+        out.columns.push((name.to_owned(), col));
+    }
+    Ok(out)
+}
+
+fn all<T>(v: Vec<Option<T>>, empty: impl Fn(usize) -> String) -> Result<Vec<T>, String> {
+    if let Some(k) = v.iter().position(Option::is_none) {
+        return Err(empty(k));
+    }
+    Ok(v.into_iter().flatten().collect())
 }
 
 #[cfg(test)]

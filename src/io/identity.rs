@@ -29,7 +29,7 @@ pub enum ResultKind {
     Family,
     /// Trained models: `<method>.bpk`, `.toml`, `_loss.csv`.
     Models,
-    /// An export of instances (`coid export`): Parquet files, `schema.md`.
+    /// A dataset (`coid export`, `coid convert`): Parquet files, `schema.md`.
     Export,
     /// Trackers and messages over a run (`coid track`): `tracking.csv`,
     /// `association.csv`; or a sweep: `sweep.csv`, `sweep_latency.*`.
@@ -63,7 +63,7 @@ impl ResultKind {
             ResultKind::Scenario => "a generated scenario (coid scenarios)",
             ResultKind::Family => "a family of generated scenarios (coid scenarios)",
             ResultKind::Models => "a models folder (coid train)",
-            ResultKind::Export => "an export (coid export)",
+            ResultKind::Export => "a dataset (coid export or convert)",
             ResultKind::Track => "tracking results (coid track)",
             ResultKind::Detector => "a detector report (coid detector)",
         }

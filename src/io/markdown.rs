@@ -249,6 +249,7 @@ pub fn table(t: &Table) -> String {
             TableColumn::Text(v) => v[r].clone(),
             TableColumn::Count(v) => v[r].to_string(),
             TableColumn::Flag(v) => v[r].to_string(),
+            TableColumn::Vectors(v) => format!("[{} values]", v[r].len()),
             TableColumn::Number(v) if names[k] == "lambda" => lambda_text(v[r]),
             TableColumn::Number(v) => match t.column(&format!("{}_ci95", names[k])) {
                 Some(TableColumn::Number(c)) => with_ci(v[r], c[r]),

@@ -23,6 +23,7 @@ mod models;
 pub mod records;
 mod results;
 mod staging;
+pub mod torch;
 
 pub use batches::*;
 pub use folder::{Claim, Existing, check_extendable, publish_files};

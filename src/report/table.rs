@@ -14,6 +14,8 @@ pub enum TableColumn {
     Number(Vec<f64>),
     Count(Vec<u64>),
     Flag(Vec<bool>),
+    /// A vector of numbers per row (a node's appearance).
+    Vectors(Vec<Vec<f32>>),
 }
 
 impl Table {
@@ -58,6 +60,7 @@ impl Table {
             Some((_, TableColumn::Number(v))) => v.len(),
             Some((_, TableColumn::Count(v))) => v.len(),
             Some((_, TableColumn::Flag(v))) => v.len(),
+            Some((_, TableColumn::Vectors(v))) => v.len(),
             None => 0,
         }
     }

@@ -72,7 +72,7 @@ fn exported_matches_reproduce_the_built_in_rows() {
     export(&fx, &config);
     let runs = read_parquet(&fx.path("ex/runs.parquet"));
     assert_eq!(strs(&runs, "split"), vec!["test", "test"]);
-    assert_eq!(f64s(&runs, "schema_version"), vec![4.0, 4.0]);
+    assert_eq!(f64s(&runs, "schema_version"), vec![5.0, 5.0]);
     let instances: f64 = f64s(&runs, "n_instances").iter().sum();
     assert!(instances > 0.0);
     let levels = read_parquet(&fx.path("ex/instances.parquet")).height() as f64;
@@ -82,7 +82,15 @@ fn exported_matches_reproduce_the_built_in_rows() {
         nodes.height(),
         read_parquet(&fx.path("ex/truth.parquet")).height()
     );
-    assert!(fx.read_text("ex/schema.md").contains("schema version 4"));
+    assert!(fx.read_text("ex/schema.md").contains("schema version 5"));
+    // The export is a dataset coid reads back.
+    let o = fx.coid(&["dataset", fx.path("ex").to_str().unwrap()]);
+    assert_ok(&o);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        said.contains(&format!("test: 2 runs, {instances} instances")),
+        "{said}"
+    );
     assert_ok(&score(
         &fx,
         &config,

@@ -1,0 +1,201 @@
+//! `coid convert pyg`: PyTorch Geometric pairs recorded elsewhere (DMGM's
+//! layout) into a dataset; `coid dataset`: a dataset checked and
+//! summarised.
+
+use std::ops::RangeInclusive;
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+
+use super::{ForceArg, QuietArg, progress_bar};
+use crate::dataset::{self, SCHEMA, SCHEMA_VERSION, convert};
+use crate::io;
+
+#[derive(clap::Args)]
+pub struct ConvertArgs {
+    #[command(subcommand)]
+    what: ConvertWhat,
+}
+
+#[derive(clap::Subcommand)]
+enum ConvertWhat {
+    /// PyTorch Geometric pair data as DMGM distributes it: one folder per
+    /// view (`--views`), `<view>/<k>/data.pt` per pair index k, each a
+    /// `Data` with `pos` (camera frame), `y` (object ids) and, where
+    /// given, `x` (appearance), `pos_world`, `label` and `name`. The .pt
+    /// files are read without torch and nothing in them is run.
+    Pyg(PygArgs),
+}
+
+#[derive(clap::Args)]
+struct PygArgs {
+    /// The folder holding the views' folders (DMGM: data/testdata).
+    source: PathBuf,
+    /// The dataset folder to write.
+    #[arg(long, short)]
+    out: PathBuf,
+    /// Each split's pair indices, as `<split>=<first>..<last>` (train,
+    /// validation or test), e.g. `validation=60260..64006
+    /// test=64007..69468`.
+    #[arg(long, num_args = 1.., required = true, value_parser = split_range)]
+    splits: Vec<(String, RangeInclusive<u64>)>,
+    /// The views' folder names: the first and the second vehicle.
+    #[arg(long, num_args = 2, default_values = ["proc_s", "proc_t"])]
+    views: Vec<String>,
+    /// The source's name: runs are `<name>/<recording>`.
+    #[arg(long, default_value = "dmgm")]
+    name: String,
+    /// The position noise (per axis, m) of the GPS poses the source's
+    /// world positions went through (DMGM: 1.2).
+    #[arg(long, default_value_t = 1.2)]
+    gps_sigma_m: f64,
+    /// Their heading noise, degrees (DMGM: 0.2).
+    #[arg(long, default_value_t = 0.2)]
+    gps_heading_sigma_deg: f64,
+    #[command(flatten)]
+    force: ForceArg,
+    #[command(flatten)]
+    quiet: QuietArg,
+}
+
+fn split_range(s: &str) -> Result<(String, RangeInclusive<u64>), String> {
+    let (split, range) = s
+        .split_once('=')
+        .ok_or("expected <split>=<first>..<last>")?;
+    if !["train", "validation", "test"].contains(&split) {
+        return Err(format!(
+            "'{split}' is not a split (train, validation, test)"
+        ));
+    }
+    let (a, b) = range
+        .split_once("..")
+        .ok_or("expected <split>=<first>..<last>")?;
+    let num = |x: &str| {
+        x.trim()
+            .parse::<u64>()
+            .map_err(|_| format!("'{x}' is not a pair index"))
+    };
+    let (a, b) = (num(a)?, num(b)?);
+    if a > b {
+        return Err(format!("the range {a}..{b} is empty"));
+    }
+    Ok((split.to_owned(), a..=b))
+}
+
+pub fn convert(a: ConvertArgs) -> anyhow::Result<()> {
+    let ConvertWhat::Pyg(a) = a.what;
+    for (name, v) in [
+        ("--gps-sigma-m", a.gps_sigma_m),
+        ("--gps-heading-sigma-deg", a.gps_heading_sigma_deg),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            bail!("{name} must be a number >= 0, not {v}");
+        }
+    }
+    for v in &a.views {
+        if !a.source.join(v).is_dir() {
+            bail!(
+                "{} has no folder {v} (the views' folders, --views)",
+                a.source.display()
+            );
+        }
+    }
+    let source = convert::PygSource {
+        dir: a.source.clone(),
+        views: [a.views[0].clone(), a.views[1].clone()],
+        splits: a.splits.clone(),
+        name: a.name.clone(),
+        position_sigma_m: a.gps_sigma_m,
+        heading_sigma_rad: a.gps_heading_sigma_deg.to_radians(),
+    };
+    let pairs = source.pairs().map_err(anyhow::Error::msg)?;
+    let claim = io::Claim::new(
+        &a.out,
+        io::ResultKind::Export,
+        io::Existing::when(a.force.force),
+    )?;
+    let templates: Vec<(&str, crate::report::Table)> =
+        std::iter::once((dataset::schema::Run::FILE, crate::report::Table::default()))
+            .chain(convert::PairRows::default().tables())
+            .collect();
+    let mut folder = io::TablesFolder::create(claim, &templates)?;
+    let pb = progress_bar(
+        a.quiet.quiet,
+        pairs.len() as u64,
+        "{spinner} converting: pair {pos}/{len} [{bar:30}] eta {eta}",
+    );
+    let mut conv = convert::Converter::default();
+    let mut write = |conv: &mut convert::Converter| -> anyhow::Result<()> {
+        for (file, table) in conv.take().tables() {
+            folder.write(file, &table)?;
+        }
+        Ok(())
+    };
+    for (k, split) in pairs {
+        let views = source.read_pair(k).map_err(anyhow::Error::msg)?;
+        conv.add(&source, k, split, views)
+            .map_err(anyhow::Error::msg)?;
+        if conv.held() >= 16_384 {
+            write(&mut conv)?;
+        }
+        pb.inc(1);
+    }
+    write(&mut conv)?;
+    pb.finish_and_clear();
+    folder.write(dataset::schema::Run::FILE, &conv.run_table(SCHEMA_VERSION))?;
+    let n_instances: u64 = conv.runs.iter().map(|r| r.n_instances).sum();
+    folder.finish(&[("schema.md", SCHEMA.to_owned())])?;
+    println!(
+        "converted {n_instances} pairs into {} runs: {}",
+        conv.runs.len(),
+        a.out.display()
+    );
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct DatasetArgs {
+    /// A dataset folder (coid export or coid convert).
+    dir: PathBuf,
+}
+
+/// Checks a dataset and says what it holds, split by split.
+pub fn dataset(a: DatasetArgs) -> anyhow::Result<()> {
+    let d = dataset::read(&a.dir)
+        .with_context(|| format!("{} is not a usable dataset", a.dir.display()))?;
+    println!("dataset {}: {} runs", a.dir.display(), d.runs.len());
+    for split in ["train", "validation", "test"] {
+        let runs: Vec<&dataset::DatasetRun> = d.runs.iter().filter(|r| r.split == split).collect();
+        if runs.is_empty() {
+            continue;
+        }
+        let insts: Vec<&dataset::read::DatasetInstance> =
+            runs.iter().flat_map(|r| &r.instances).collect();
+        let n = insts.len().max(1) as f64;
+        let nodes: usize = insts
+            .iter()
+            .map(|i| i.sides[0].nodes.len() + i.sides[1].nodes.len())
+            .sum();
+        let shared: usize = insts.iter().map(|i| i.true_pairs.len()).sum();
+        println!(
+            "  {split}: {} runs, {} instances, {:.1} nodes per vehicle, {:.1} true pairs per instance",
+            runs.len(),
+            insts.len(),
+            nodes as f64 / (2.0 * n),
+            shared as f64 / n
+        );
+    }
+    match d.appearance_width {
+        Some(w) => println!("  appearance vectors: {w} values per node"),
+        None => println!("  appearance vectors: none"),
+    }
+    println!(
+        "  optional columns: {}",
+        if d.optional_columns.is_empty() {
+            "none".to_owned()
+        } else {
+            d.optional_columns.join(", ")
+        }
+    );
+    Ok(())
+}

@@ -1,0 +1,231 @@
+//! `coid convert pyg` and `coid dataset`: PyTorch Geometric pairs written
+//! by the test in DMGM's layout become a dataset coid reads back; a pickle
+//! that would run code, a missing column and a node matched twice are
+//! refused with their reasons.
+
+use std::path::Path;
+
+use polars::prelude::*;
+
+use crate::pt_writer::{PtField, PtTensor, pyg_data};
+use crate::util::*;
+
+/// One view: objects `ids` at camera-frame (x right, z forward) `xz`,
+/// seen from a vehicle at world (`at`, heading `h` rad, CARLA's
+/// left-handed frame), with 4-value appearance vectors.
+fn view(name: &str, ids: &[u32], xz: &[(f64, f64)], at: (f64, f64), h: f64) -> Vec<u8> {
+    let n = ids.len();
+    let pos: Vec<f64> = xz.iter().flat_map(|&(x, z)| [x, 1.5, z]).collect();
+    // Camera (x right, z forward) -> CARLA (forward, right) -> world.
+    let world: Vec<f64> = xz
+        .iter()
+        .flat_map(|&(x, z)| {
+            let (f, r) = (z, x);
+            [
+                at.0 + f * h.cos() - r * h.sin(),
+                at.1 + f * h.sin() + r * h.cos(),
+                0.5,
+            ]
+        })
+        .collect();
+    let x: Vec<f64> = (0..n * 4).map(|k| (k % 7) as f64 * 0.1).collect();
+    let y: Vec<f64> = ids.iter().map(|&i| f64::from(i)).collect();
+    pyg_data(&[
+        (
+            "x",
+            PtField::Tensor(PtTensor::float(x, &[n, 4]).transposed()),
+        ),
+        ("y", PtField::Tensor(PtTensor::float(y, &[n]))),
+        ("pos", PtField::Tensor(PtTensor::float(pos, &[n, 3]))),
+        ("name", PtField::Text(name.to_owned())),
+        (
+            "pos_world",
+            PtField::Tensor(PtTensor::float(world, &[n, 3])),
+        ),
+        ("label", PtField::Tensor(PtTensor::int(vec![2.0; n], &[n]))),
+    ])
+}
+
+/// Three pairs of one recording (frames 5, 6, 7) in DMGM's layout under
+/// `dir`: `proc_s/<k>/data.pt`, `proc_t/<k>/data.pt`, k = 10, 11, 12.
+fn write_pairs(dir: &Path) {
+    for (j, k) in [10u32, 11, 12].into_iter().enumerate() {
+        let name = format!("data/proc_s/{k}/r1_{:04}", 5 + j);
+        let s = view(
+            &name,
+            &[101, 102, 103, 104],
+            &[(-3.0, 20.0), (2.0, 25.0), (0.5, 12.0), (6.0, 30.0)],
+            (0.0, 0.0),
+            0.3,
+        );
+        let t = view(
+            &name,
+            &[103, 101, 105],
+            &[(1.0, 15.0), (-4.0, 22.0), (3.0, 9.0)],
+            (5.0, -8.0),
+            1.2,
+        );
+        for (v, bytes) in [("proc_s", s), ("proc_t", t)] {
+            let d = dir.join(v).join(k.to_string());
+            std::fs::create_dir_all(&d).unwrap();
+            std::fs::write(d.join("data.pt"), bytes).unwrap();
+        }
+    }
+}
+
+fn convert(fx: &Fixture, out: &str) -> std::process::Output {
+    fx.coid(&[
+        "convert",
+        "pyg",
+        fx.path("src").to_str().unwrap(),
+        "-q",
+        "-o",
+        fx.path(out).to_str().unwrap(),
+        "--splits",
+        "validation=10..10",
+        "test=11..12",
+    ])
+}
+
+/// The converted pairs: runs by split, nodes in the body frame (x forward
+/// = the camera's z, y left = minus its x), world positions right-handed,
+/// appearance vectors read through their strides, true pairs from equal
+/// ids; `coid dataset` reads it back and says so.
+#[test]
+fn converted_pyg_pairs_read_back_as_a_dataset() {
+    let fx = Fixture::new();
+    write_pairs(&fx.path("src"));
+    assert_ok(&convert(&fx, "ds"));
+    let runs = read_parquet(&fx.path("ds/runs.parquet"));
+    let splits: Vec<String> = runs
+        .column("split")
+        .unwrap()
+        .str()
+        .unwrap()
+        .iter()
+        .map(|v| v.unwrap().to_owned())
+        .collect();
+    assert_eq!(splits, ["validation", "test"]);
+    let nodes = read_parquet(&fx.path("ds/nodes.parquet"));
+    let col = |n: &str| -> Vec<f64> {
+        nodes
+            .column(n)
+            .unwrap()
+            .f64()
+            .unwrap()
+            .into_no_null_iter()
+            .collect()
+    };
+    let (x, y, wy) = (col("x_m"), col("y_m"), col("world_y_m"));
+    assert_eq!((x[0], y[0]), (20.0, 3.0));
+    let expected_wy = -(20.0 * 0.3f64.sin() + (-3.0) * 0.3f64.cos());
+    assert!(
+        (wy[0] - expected_wy).abs() < 1e-4,
+        "{} vs {expected_wy}",
+        wy[0]
+    );
+    assert!(
+        nodes.column("cov_xx_m2").is_err(),
+        "no covariance in the source, none written"
+    );
+    let pairs = read_parquet(&fx.path("ds/true_pairs.parquet"));
+    let a: Vec<u64> = pairs
+        .column("a")
+        .unwrap()
+        .u64()
+        .unwrap()
+        .into_no_null_iter()
+        .take(2)
+        .collect();
+    let b: Vec<u64> = pairs
+        .column("b")
+        .unwrap()
+        .u64()
+        .unwrap()
+        .into_no_null_iter()
+        .take(2)
+        .collect();
+    assert_eq!((a, b), (vec![0, 2], vec![1, 0]));
+    let o = fx.coid(&["dataset", fx.path("ds").to_str().unwrap()]);
+    assert_ok(&o);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        said.contains("validation: 1 runs, 1 instances, 3.5 nodes per vehicle, 2.0 true pairs"),
+        "{said}"
+    );
+    assert!(said.contains("test: 1 runs, 2 instances"), "{said}");
+    assert!(
+        said.contains("appearance vectors: 4 values per node"),
+        "{said}"
+    );
+}
+
+/// A pair whose pickle would run code when torch loads it is refused by
+/// the global it names; nothing is written, nothing is run.
+#[test]
+fn a_pt_file_whose_pickle_would_run_code_is_refused() {
+    let fx = Fixture::new();
+    write_pairs(&fx.path("src"));
+    let mut p = crate::pt_writer::Pickle::default();
+    p.op(0x80).op(2).global("os", "system");
+    p.text(&format!("touch {}", fx.path("pwned").display()))
+        .op(0x85)
+        .op(b'R')
+        .op(b'.');
+    let evil = crate::pt_writer::archive(&p.0, &[]);
+    std::fs::write(fx.path("src/proc_t/11/data.pt"), evil).unwrap();
+    let o = convert(&fx, "ds");
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("names the global os.system"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!fx.path("pwned").exists());
+    assert!(!fx.path("ds").exists());
+}
+
+fn rewrite(path: &Path, edit: impl FnOnce(DataFrame) -> DataFrame) {
+    let mut df = edit(read_parquet(path));
+    ParquetWriter::new(std::fs::File::create(path).unwrap())
+        .finish(&mut df)
+        .unwrap();
+}
+
+/// A dataset missing a required column, or whose true pairs match a node
+/// twice, is refused with one line naming the file, row and column.
+#[test]
+fn a_dataset_with_a_missing_column_or_a_node_matched_twice_is_refused() {
+    let fx = Fixture::new();
+    write_pairs(&fx.path("src"));
+    assert_ok(&convert(&fx, "ds"));
+    std::fs::create_dir_all(fx.path("ds2")).unwrap();
+    for f in std::fs::read_dir(fx.path("ds")).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, fx.path("ds2").join(f.file_name().unwrap())).unwrap();
+    }
+    rewrite(&fx.path("ds/nodes.parquet"), |df| df.drop("x_m").unwrap());
+    let o = fx.coid(&["dataset", fx.path("ds").to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("nodes.parquet: it has no column 'x_m'"),
+        "{}",
+        stderr(&o)
+    );
+    rewrite(&fx.path("ds2/true_pairs.parquet"), |df| {
+        let first = df.slice(0, 1);
+        let mut twice = first.clone();
+        twice
+            .with_column(Column::new("b".into(), vec![2u64]))
+            .unwrap();
+        first
+            .vstack(&twice)
+            .unwrap()
+            .vstack(&df.slice(1, df.height() - 1))
+            .unwrap()
+    });
+    let o = fx.coid(&["dataset", fx.path("ds2").to_str().unwrap()]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("true_pairs.parquet: row 2: node 0 of the first vehicle of run 0, instance 0 is matched a second time"), "{e}");
+}
