@@ -58,6 +58,7 @@ fn detections(pose: &Pose2, objects: &[(Vec2, ObjectClass)]) -> Vec<Detection> {
                 length_m: 4.6,
                 width_m: 1.8,
                 height_m: 1.5,
+                descriptor: None,
             },
             motion: None,
         })

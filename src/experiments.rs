@@ -5,8 +5,10 @@
 //! pairs. No file IO here beyond what `pipeline` reads.
 
 use std::collections::BTreeMap;
+use std::path::Path;
 
-use crate::config::Settings;
+use crate::config::{DatasetSource, Settings};
+use crate::dataset::Dataset;
 use crate::evaluate::PairCounts;
 use crate::evaluate::{self, CorrespondenceSource, ExternalMatches};
 use crate::fusion::FusionSettings;
@@ -27,11 +29,72 @@ pub fn settings_for_seed(settings: &Settings, seed: u64) -> Settings {
     s
 }
 
+/// `settings` reading their instances from the dataset in `dir` instead
+/// of simulating them: its pose-noise levels replace the config's (each
+/// with the accuracy of its first row), its splits make the runs.
+pub fn with_dataset(settings: &Settings, dir: &Path) -> Result<Settings, RunError> {
+    let d = Dataset::open(dir).map_err(|e| RunError::Dataset {
+        dir: dir.display().to_string(),
+        why: e.to_string(),
+    })?;
+    let mut s = settings.clone();
+    // The records and reports name the runs by their seeds.
+    let seeds = |split: &str| -> Vec<u64> {
+        d.runs
+            .iter()
+            .filter(|r| r.split == split)
+            .map(|r| r.seed)
+            .collect()
+    };
+    s.train.traffic_seeds = seeds("train");
+    s.train.validation_seeds = seeds("validation");
+    s.eval.traffic_seeds = seeds("test");
+    s.pose_noise = d.levels;
+    s.dataset = Some(DatasetSource {
+        dir: dir.to_owned(),
+        split: None,
+        run: None,
+    });
+    Ok(s)
+}
+
+/// With a dataset ([`with_dataset`]), its runs of `split` (each with its
+/// seed as the traffic and sensor seed: the seed of its deep methods'
+/// dropout masks); `None` without one.
+fn dataset_runs(settings: &Settings, split: &str) -> Result<Option<Vec<Settings>>, RunError> {
+    let Some(source) = &settings.dataset else {
+        return Ok(None);
+    };
+    let d = Dataset::open(&source.dir).map_err(|e| RunError::Dataset {
+        dir: source.dir.display().to_string(),
+        why: e.to_string(),
+    })?;
+    let runs = d
+        .runs
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.split == split)
+        .map(|(k, r)| {
+            let mut s = settings_for_seed(settings, r.seed);
+            s.dataset = Some(DatasetSource {
+                dir: source.dir.clone(),
+                split: Some(split.to_owned()),
+                run: Some(k),
+            });
+            s
+        })
+        .collect();
+    Ok(Some(runs))
+}
+
 /// The training runs: every training seed of the config's own scenario,
 /// then the first `runs_per_scenario` training seeds of each scenario of
 /// `[train] scenarios`.
 /// Instances at most every `[train] sample_every_s`.
 pub fn training_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
+    if let Some(runs) = dataset_runs(settings, "train")? {
+        return Ok(runs);
+    }
     let t = &settings.train;
     Ok(sampled_for_training(runs_of(
         settings,
@@ -57,6 +120,9 @@ fn sampled_for_training(mut runs: Vec<Settings>) -> Vec<Settings> {
 /// scenario, then the first `runs_per_scenario` validation seeds of each
 /// scenario of `[train] validation_scenarios`.
 pub fn validation_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
+    if let Some(runs) = dataset_runs(settings, "validation")? {
+        return Ok(runs);
+    }
     let t = &settings.train;
     runs_of(settings, &t.validation_seeds, &t.validation_scenarios)
 }
@@ -82,6 +148,9 @@ fn runs_of(
 /// config's own scenario, then the same seeds of each scenario of `[eval]
 /// scenarios`.
 pub fn test_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
+    if let Some(runs) = dataset_runs(settings, "test")? {
+        return Ok(runs);
+    }
     let seeds = &settings.eval.traffic_seeds;
     let mut runs: Vec<Settings> = seeds
         .iter()

@@ -101,6 +101,33 @@ pub fn wrap_angle(angle_rad: f64) -> f64 {
     }
 }
 
+/// The rigid pose that best maps points given in a body frame onto the
+/// same points in the parent frame (`pairs`: (body, parent)), in the least
+/// squares sense (2-D Kabsch): the heading from the centred points' summed
+/// cross and dot products, the position from the centroids. `None` without
+/// points; with one point, or all at one place, the heading is 0.
+pub fn fit_rigid(pairs: &[(Vec2, Vec2)]) -> Option<Pose2> {
+    if pairs.is_empty() {
+        return None;
+    }
+    let n = pairs.len() as f64;
+    let body = pairs.iter().map(|p| p.0).sum::<Vec2>() / n;
+    let parent = pairs.iter().map(|p| p.1).sum::<Vec2>() / n;
+    let (mut cross, mut dot) = (0.0, 0.0);
+    for (b, p) in pairs {
+        let (b, p) = (b - body, p - parent);
+        cross += b.x * p.y - b.y * p.x;
+        dot += b.dot(&p);
+    }
+    let heading = if cross == 0.0 && dot == 0.0 {
+        0.0
+    } else {
+        cross.atan2(dot)
+    };
+    let rotated = Rotation2::new(heading) * body;
+    Some(Pose2::new(parent - rotated, heading))
+}
+
 /// An oriented rectangle (a vehicle's or person's footprint).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OrientedBox {
@@ -352,5 +379,25 @@ mod tests {
         let b = Vec2::new(10.0, 0.0);
         assert!((point_segment_distance(&Vec2::new(5.0, 3.0), &a, &b) - 3.0).abs() < 1e-12);
         assert!((point_segment_distance(&Vec2::new(-4.0, 3.0), &a, &b) - 5.0).abs() < 1e-12);
+    }
+
+    /// A rigid fit recovers the pose that moved the points, exactly
+    /// without noise; one point gives heading 0 and maps it exactly.
+    #[test]
+    fn a_rigid_fit_recovers_the_pose_that_moved_the_points() {
+        let pose = Pose2::new(Vec2::new(12.0, -3.0), 2.5);
+        let body = [
+            Vec2::new(5.0, 1.0),
+            Vec2::new(20.0, -4.0),
+            Vec2::new(9.0, 7.0),
+        ];
+        let pairs: Vec<(Vec2, Vec2)> = body.iter().map(|b| (*b, pose.to_parent(b))).collect();
+        let fit = fit_rigid(&pairs).unwrap();
+        assert!((fit.position_m() - pose.position_m()).norm() < 1e-9);
+        assert!(wrap_angle(fit.heading_rad() - pose.heading_rad()).abs() < 1e-12);
+        let one = fit_rigid(&pairs[..1]).unwrap();
+        assert_eq!(one.heading_rad(), 0.0);
+        assert!((one.to_parent(&body[0]) - pairs[0].1).norm() < 1e-9);
+        assert!(fit_rigid(&[]).is_none());
     }
 }

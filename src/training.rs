@@ -114,7 +114,7 @@ pub fn check_models_folder(
 /// `[train] seed`'s the models folder `models_dir`, every other's its
 /// `seed-<N>/` folder; each folder checked ([`check_models_folder`]).
 pub fn seed_runs(
-    config: &Path,
+    (config, dataset): (&Path, Option<&Path>),
     settings: &Settings,
     seeds: &[u64],
     models_dir: &Path,
@@ -138,10 +138,12 @@ pub fn seed_runs(
             train_seed: Some(seed),
             ..Default::default()
         };
-        runs.push(SeedRun {
-            settings: Settings::load_with(config, &overrides)?,
-            dir,
-        });
+        let mut settings = Settings::load_with(config, &overrides)?;
+        if let Some(d) = dataset {
+            settings =
+                experiments::with_dataset(&settings, d).map_err(TrainingError::Validation)?;
+        }
+        runs.push(SeedRun { settings, dir });
     }
     Ok(runs)
 }
@@ -328,8 +330,15 @@ fn seed_list(seeds: &[u64], sep: &str) -> String {
 
 /// The arguments of the child `coid train` of `config` that trains
 /// `group` into `models_dir`, reporting [`ChildMessage`]s.
-fn child_args(config: &Path, models_dir: &Path, group: &ChildGroup) -> Vec<OsString> {
+fn child_args(
+    (config, dataset): (&Path, Option<&Path>),
+    models_dir: &Path,
+    group: &ChildGroup,
+) -> Vec<OsString> {
     let mut args: Vec<OsString> = vec!["train".into(), "--config".into(), config.into()];
+    if let Some(d) = dataset {
+        args.extend(["--dataset".into(), d.into()]);
+    }
     args.extend(["--out".into(), models_dir.into()]);
     args.extend(["--methods".into(), labels(&group.methods).join(",").into()]);
     if !group.seeds.is_empty() {
@@ -352,7 +361,7 @@ fn child_args(config: &Path, models_dir: &Path, group: &ChildGroup) -> Vec<OsStr
 /// ends. The first group that failed is the error.
 pub fn train_in_children(
     exe: &Path,
-    (config, models_dir): (&Path, &Path),
+    (config, dataset, models_dir): (&Path, Option<&Path>, &Path),
     groups: &[ChildGroup],
     workers: usize,
     on_line: impl FnMut(usize, &str),
@@ -360,7 +369,7 @@ pub fn train_in_children(
 ) -> Result<(), TrainingError> {
     let jobs: Vec<Vec<OsString>> = groups
         .iter()
-        .map(|g| child_args(config, models_dir, g))
+        .map(|g| child_args((config, dataset), models_dir, g))
         .collect();
     let failures = batch::run_children(exe, &jobs, workers, on_line, |child, ok| {
         on_end(child);
@@ -508,7 +517,7 @@ mod tests {
             (&[7, 9][..], &[8][..])
         );
         assert!(g.iter().all(|g| g.methods == [Method::Ours]));
-        let args = child_args(Path::new("c.toml"), Path::new("m"), &g[1]);
+        let args = child_args((Path::new("c.toml"), None), Path::new("m"), &g[1]);
         let args: Vec<&str> = args.iter().map(|a| a.to_str().unwrap()).collect();
         assert_eq!(
             args,

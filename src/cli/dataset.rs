@@ -2,6 +2,7 @@
 //! layout) into a dataset; `coid dataset`: a dataset checked and
 //! summarised.
 
+use std::collections::BTreeMap;
 use std::ops::RangeInclusive;
 use std::path::PathBuf;
 
@@ -159,32 +160,49 @@ pub struct DatasetArgs {
     dir: PathBuf,
 }
 
-/// Checks a dataset and says what it holds, split by split.
+/// Checks a dataset and says what it holds, split by split (read one run
+/// at a time).
 pub fn dataset(a: DatasetArgs) -> anyhow::Result<()> {
-    let d = dataset::read(&a.dir)
-        .with_context(|| format!("{} is not a usable dataset", a.dir.display()))?;
+    let unusable = || format!("{} is not a usable dataset", a.dir.display());
+    let d = dataset::Dataset::open(&a.dir).with_context(unusable)?;
     println!("dataset {}: {} runs", a.dir.display(), d.runs.len());
-    for split in ["train", "validation", "test"] {
-        let runs: Vec<&dataset::DatasetRun> = d.runs.iter().filter(|r| r.split == split).collect();
-        if runs.is_empty() {
-            continue;
+    // Per split: runs, instances, nodes, true pairs.
+    let mut counts: BTreeMap<&str, [usize; 4]> = BTreeMap::new();
+    for k in 0..d.runs.len() {
+        let run = d.run(k).with_context(unusable)?;
+        let c = counts
+            .entry(
+                ["train", "validation", "test"]
+                    .into_iter()
+                    .find(|s| *s == run.info.split)
+                    .unwrap_or("test"),
+            )
+            .or_default();
+        c[0] += 1;
+        for i in &run.instances {
+            c[1] += 1;
+            c[2] += i.sides[0].nodes.len() + i.sides[1].nodes.len();
+            c[3] += i.true_pairs.len();
         }
-        let insts: Vec<&dataset::read::DatasetInstance> =
-            runs.iter().flat_map(|r| &r.instances).collect();
-        let n = insts.len().max(1) as f64;
-        let nodes: usize = insts
-            .iter()
-            .map(|i| i.sides[0].nodes.len() + i.sides[1].nodes.len())
-            .sum();
-        let shared: usize = insts.iter().map(|i| i.true_pairs.len()).sum();
+    }
+    for split in ["train", "validation", "test"] {
+        let Some(&[runs, insts, nodes, shared]) = counts.get(split) else {
+            continue;
+        };
+        let n = insts.max(1) as f64;
         println!(
-            "  {split}: {} runs, {} instances, {:.1} nodes per vehicle, {:.1} true pairs per instance",
-            runs.len(),
-            insts.len(),
+            "  {split}: {runs} runs, {insts} instances, {:.1} nodes per vehicle, {:.1} true pairs \
+             per instance",
             nodes as f64 / (2.0 * n),
             shared as f64 / n
         );
     }
+    let levels: Vec<String> = d
+        .levels
+        .iter()
+        .map(|l| format!("{} ({} m)", l.label.as_str(), l.position_sigma_m))
+        .collect();
+    println!("  pose-noise levels: {}", levels.join(", "));
     match d.appearance_width {
         Some(w) => println!("  appearance vectors: {w} values per node"),
         None => println!("  appearance vectors: none"),

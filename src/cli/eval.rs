@@ -41,12 +41,23 @@ pub struct Args {
     /// results/<config file stem>-mc-sweep
     #[arg(long, conflicts_with_all = ["validation", "suite"])]
     mc_sweep: bool,
+    /// Evaluate on a dataset's runs instead of simulating (a folder that
+    /// `coid export` or `coid convert` wrote): its test runs (validation
+    /// runs with --validation), its pose-noise levels; the config gives
+    /// the methods and their settings. Results go to
+    /// results/<dataset folder>-eval by default.
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["suite", "mc_sweep"])]
+    dataset: Option<PathBuf>,
 }
 
 /// One scenario of the evaluation: its name, settings and evaluated runs.
 struct Scenario {
     name: String,
     settings: Settings,
+    /// The runs it evaluates, each named for the progress bar and errors:
+    /// its seeds' ([eval] traffic_seeds), or a dataset's test or
+    /// validation runs.
+    to_run: Vec<(String, Settings)>,
     runs: Vec<RunEval>,
 }
 
@@ -56,16 +67,21 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
         return super::mc_sweep::mc_sweep(&settings, claim, a.common.quiet.quiet, a.threads.get());
     }
     let suffix = if a.validation { "-validation" } else { "-eval" };
-    let (settings, claim) = a.common.prepare(suffix, io::ResultKind::Eval)?;
+    let (settings, claim) =
+        a.common
+            .prepare_dataset(suffix, io::ResultKind::Eval, a.dataset.as_deref())?;
     let out = claim.out().to_owned();
-    let mut scenarios = gather(&a, settings)?;
+    let mut scenarios = match &a.dataset {
+        Some(dir) => vec![dataset_scenario(dir, settings, a.validation)?],
+        None => gather(&a, settings)?,
+    };
     // The configured methods (by default every method of the paper's
     // Table 1 plus the practical ones).
     let methods = &scenarios[0].settings.matching.methods.clone();
     let passes = seed_passes(&scenarios[0].settings, methods)?;
     let total: usize = scenarios
         .iter()
-        .map(|s| s.settings.eval.traffic_seeds.len() * (1 + passes.len()))
+        .map(|s| s.to_run.len() * (1 + passes.len()))
         .sum();
     let pb = progress_bar(
         a.common.quiet.quiet,
@@ -197,6 +213,34 @@ fn warn_empty(scenarios: &[Scenario]) {
     }
 }
 
+/// A dataset's test (or validation) runs as the one scenario, named by
+/// its folder.
+fn dataset_scenario(
+    dir: &Path,
+    mut settings: Settings,
+    validation: bool,
+) -> anyhow::Result<Scenario> {
+    if let Some(d) = &mut settings.dataset {
+        d.split = Some(if validation { "validation" } else { "test" }.to_owned());
+    }
+    let runs = if validation {
+        experiments::validation_runs(&settings)?
+    } else {
+        experiments::test_runs(&settings)?
+    };
+    let to_run = runs
+        .into_iter()
+        .enumerate()
+        .map(|(k, s)| (format!("run {}", k + 1), s))
+        .collect();
+    Ok(Scenario {
+        name: folder_of(&dir.join("runs.parquet")).unwrap_or_else(|| "dataset".into()),
+        settings,
+        to_run,
+        runs: Vec::new(),
+    })
+}
+
 /// A scenario to evaluate on its test (or validation) runs, named by its
 /// config's file stem (by its folder for a `coid.toml`).
 fn scenario(path: &Path, mut settings: Settings, validation: bool) -> Scenario {
@@ -204,6 +248,17 @@ fn scenario(path: &Path, mut settings: Settings, validation: bool) -> Scenario {
         // The tables' header names the runs evaluated.
         settings.eval.traffic_seeds = settings.train.validation_seeds.clone();
     }
+    let to_run = settings
+        .eval
+        .traffic_seeds
+        .iter()
+        .map(|&seed| {
+            (
+                format!("seed {seed}"),
+                experiments::settings_for_seed(&settings, seed),
+            )
+        })
+        .collect();
     let stem = path
         .file_stem()
         .map_or_else(|| "scenario".into(), |s| s.to_string_lossy().into_owned());
@@ -215,6 +270,7 @@ fn scenario(path: &Path, mut settings: Settings, validation: bool) -> Scenario {
     Scenario {
         name,
         settings,
+        to_run,
         runs: Vec::new(),
     }
 }
@@ -284,11 +340,10 @@ fn evaluate(
     pb: &ProgressBar,
 ) -> anyhow::Result<Vec<RunEval>> {
     let mut runs = Vec::new();
-    for &seed in &s.settings.eval.traffic_seeds {
-        let run = experiments::settings_for_seed(&s.settings, seed);
-        pb.set_message(format!("{} seed {seed}", s.name));
-        let r = experiments::eval_run(&run, methods, lambdas, threads, warnings, |_| {})
-            .with_context(|| format!("{}: run with seed {seed} failed", s.name))?;
+    for (name, run) in &s.to_run {
+        pb.set_message(format!("{} {name}", s.name));
+        let r = experiments::eval_run(run, methods, lambdas, threads, warnings, |_| {})
+            .with_context(|| format!("{}: {name} failed", s.name))?;
         runs.push(r);
         pb.inc(1);
     }
@@ -446,9 +501,19 @@ fn evaluate_seeds(
         settings.matching.models_dir = pass.models_dir.clone();
         let choices = pipeline::choices(&settings, &pass.methods)?;
         let lambdas = matching::method_lambdas(&choices);
+        let to_run = s
+            .to_run
+            .iter()
+            .map(|(name, run)| {
+                let mut run = run.clone();
+                run.matching.models_dir = pass.models_dir.clone();
+                (name.clone(), run)
+            })
+            .collect();
         let seeded = Scenario {
             name: format!("{} (training seed {})", s.name, pass.seed),
             settings,
+            to_run,
             runs: Vec::new(),
         };
         let runs = evaluate(&seeded, &pass.methods, &lambdas, run, pb)?;

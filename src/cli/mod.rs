@@ -322,6 +322,27 @@ impl CommonArgs {
         self.prepare_with(suffix, kind, &crate::config::Overrides::default())
     }
 
+    /// [`CommonArgs::prepare`] for a command that may read its instances
+    /// from a dataset folder (`--dataset`): the settings read it (its
+    /// splits make the runs, its pose-noise levels the config's), and the
+    /// results folder is named after it (`results/<dataset folder><suffix>`).
+    fn prepare_dataset(
+        &self,
+        suffix: &str,
+        kind: crate::io::ResultKind,
+        dataset: Option<&Path>,
+    ) -> anyhow::Result<(crate::config::Settings, crate::io::Claim)> {
+        let Some(dir) = dataset else {
+            return self.prepare(suffix, kind);
+        };
+        let config = self.config.path();
+        let settings = crate::config::Settings::load(&config)?;
+        let settings = crate::experiments::with_dataset(&settings, dir)?;
+        let out = dataset_out_dir(self.out.out.clone(), dir, suffix);
+        let claim = crate::io::Claim::new(&out, kind, crate::io::Existing::when(self.force.force))?;
+        Ok((settings, claim))
+    }
+
     /// [`CommonArgs::prepare`] with command-line `overrides` set over the
     /// config before it is validated.
     fn prepare_with(
@@ -370,6 +391,19 @@ fn out_dir(out: Option<PathBuf>, config: &Path, suffix: &str) -> PathBuf {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "run".into());
         PathBuf::from("results").join(format!("{stem}{suffix}"))
+    })
+}
+
+/// The results folder of a command on a dataset: `--out`, else
+/// `results/<dataset folder name><suffix>`.
+fn dataset_out_dir(out: Option<PathBuf>, dataset: &Path, suffix: &str) -> PathBuf {
+    out.unwrap_or_else(|| {
+        let name = dataset
+            .canonicalize()
+            .ok()
+            .and_then(|d| d.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .unwrap_or_else(|| "dataset".to_owned());
+        PathBuf::from("results").join(format!("{name}{suffix}"))
     })
 }
 

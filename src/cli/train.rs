@@ -48,6 +48,13 @@ pub struct Args {
     /// training_seeds): `--seed 7,8,9 --out models`.
     #[arg(long, value_delimiter = ',')]
     seed: Vec<u64>,
+    /// Train and validate on a dataset's runs instead of simulating (a
+    /// folder that `coid export` or `coid convert` wrote): its train runs
+    /// train, its validation runs choose; the config gives the methods and
+    /// the training recipe. Models go to results/<dataset folder>-models
+    /// by default.
+    #[arg(long, value_name = "DIR")]
+    dataset: Option<std::path::PathBuf>,
     /// Report progress as lines on stdout (for a parent `coid train`).
     #[arg(long, hide = true)]
     progress_lines: bool,
@@ -91,8 +98,13 @@ fn seed_runs(a: &Args, settings: &Settings, models_dir: &Path) -> anyhow::Result
     }
     let checks = (a.validate_only, a.force.force);
     let config = a.config.path();
+    let dataset = a.dataset.as_deref();
     Ok(training::seed_runs(
-        &config, settings, &a.seed, models_dir, checks,
+        (&config, dataset),
+        settings,
+        &a.seed,
+        models_dir,
+        checks,
     )?)
 }
 
@@ -140,8 +152,14 @@ fn methods_of(a: &Args, settings: &Settings) -> anyhow::Result<(Vec<Method>, Vec
 
 pub fn train(a: Args) -> anyhow::Result<()> {
     let config = a.config.path();
-    let settings = Settings::load(&config)?;
-    let models_dir = super::out_dir(a.out.out.clone(), &config, "-models");
+    let mut settings = Settings::load(&config)?;
+    let models_dir = match &a.dataset {
+        Some(d) => {
+            settings = experiments::with_dataset(&settings, d)?;
+            super::dataset_out_dir(a.out.out.clone(), d, "-models")
+        }
+        None => super::out_dir(a.out.out.clone(), &config, "-models"),
+    };
     training::check_models_folder(&models_dir, a.validate_only, a.force.force)?;
     let seeds = seed_runs(&a, &settings, &models_dir)?;
     // The baselines have no training seed: tuned with [train] seed's run.
@@ -200,7 +218,7 @@ fn train_in_children(
     let config = a.config.path();
     training::train_in_children(
         &exe,
-        (&config, models_dir),
+        (&config, a.dataset.as_deref(), models_dir),
         &groups,
         workers,
         |child, line| bars.show(child, line),

@@ -134,6 +134,20 @@ pub struct Settings {
     pub v2x: V2xSettings,
     /// `[detector]`: the detector profile (the paper's by default).
     pub detector: DetectorSettings,
+    /// Instances read from a dataset folder instead of simulated (`coid
+    /// eval --dataset`, ...): the folder, and the run of it these settings
+    /// run (`None`: the whole dataset, before it is split into runs).
+    pub dataset: Option<DatasetSource>,
+}
+
+/// A dataset's run as a run's source of instances.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatasetSource {
+    pub dir: PathBuf,
+    /// The split whose runs are evaluated (for the report), once chosen.
+    pub split: Option<String>,
+    /// The index of the run in the dataset's `runs.parquet` order.
+    pub run: Option<usize>,
 }
 
 /// As derived, but `v2x` is shown only when it is not the default (and
@@ -169,6 +183,9 @@ impl std::fmt::Debug for Settings {
         // senses: shown only when another profile does.
         if !self.detector.is_paper() {
             d.field("detector", &self.detector);
+        }
+        if let Some(dataset) = &self.dataset {
+            d.field("dataset", dataset);
         }
         d.finish()
     }

@@ -63,6 +63,7 @@ pub(super) fn validate(
         eval,
         v2x: super::v2x::v2x(&c, raw.v2x)?,
         detector: super::detector::detector(&c, raw.detector)?,
+        dataset: None,
     })
 }
 

@@ -321,7 +321,10 @@ impl Converter {
                     run: k as u64,
                     split: r.split.clone(),
                     scenario: r.scenario.clone(),
-                    seed: 0,
+                    // Nothing was drawn: the run's number keys the
+                    // streams coid draws for it (the deep methods'
+                    // dropout masks).
+                    seed: k as u64,
                     n_instances: r.n_instances,
                     config_digest: String::new(),
                 })

@@ -9,7 +9,7 @@ pub mod convert;
 pub mod read;
 pub mod schema;
 
-pub use read::{DatasetRun, read};
+pub use read::Dataset;
 
 /// The version of the dataset schema (`runs.parquet` carries it): 2 added
 /// `config_digest`; 3 the nodes' `heading_rad` and `speed_mps`; 4 each

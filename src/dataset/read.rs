@@ -1,85 +1,116 @@
-//! A dataset folder read back and checked: every file's declared columns
-//! (optional ones where present), every row's instance known, each
-//! vehicle's nodes numbered 0..n as its instance says, one truth per node
-//! with an object id at most once per vehicle, and true pairs that match
-//! each node at most once and agree with the object ids. A folder that
-//! does not fit is refused with one line naming the file and row.
+//! A dataset folder read back and checked, run by run: [`Dataset::open`]
+//! reads the runs, the instances (one row per instance and level) and where
+//! each run's rows are in the other files; [`Dataset::run`] reads one run's
+//! nodes, truth and true pairs, so that memory holds one run at a time.
+//! Checked: every file's declared columns (optional ones where present),
+//! every row's run and instance known, a run's rows together in each file,
+//! every instance at every level of the dataset, each vehicle's nodes
+//! numbered 0..n as its instance says, an object id at most once per
+//! vehicle, true pairs that match each node at most once and pair one
+//! object, and a pose for every vehicle (reported, or fitted to its nodes'
+//! world positions). A folder that does not fit is refused with one line
+//! naming the file and row.
 
 use std::collections::BTreeMap;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use super::SCHEMA_VERSION;
 use super::schema::{Edge, Instance, Node, Run, TruePair, Truth};
-use crate::geometry::Vec2;
-use crate::io::frames::read_dataset_table;
-use crate::report::{Table, TableColumn};
+use crate::geometry::{Cov2, Pose2, Vec2, fit_rigid};
+use crate::io::frames::{read_dataset_counts, read_dataset_table};
+use crate::sensor::{PoseNoiseLabel, PoseNoiseLevel};
 
-/// A dataset, read and checked.
+/// A dataset: its runs and instances, ready to read run by run.
 #[derive(Debug)]
-#[allow(
-    dead_code,
-    reason = "the evaluation of datasets reads every field; `coid dataset` some"
-)]
 pub struct Dataset {
     pub dir: PathBuf,
-    pub runs: Vec<DatasetRun>,
+    pub runs: Vec<RunInfo>,
+    /// The pose-noise levels every instance has a row at, in the order
+    /// they first appear, each with the accuracy of its first row (the
+    /// first vehicle's heading accuracy).
+    pub levels: Vec<PoseNoiseLevel>,
     /// The length of every node's appearance vector, if the nodes have one.
     pub appearance_width: Option<usize>,
     /// The optional columns present, as `file: column`.
     pub optional_columns: Vec<String>,
+    /// Each run's instance rows (grouped by instance, levels in order).
+    instances: Vec<Vec<Instance>>,
+    /// Each run's rows in the node, truth and true-pair files.
+    rows: Vec<[Range<usize>; 3]>,
 }
 
-#[derive(Debug)]
-#[allow(
-    dead_code,
-    reason = "the evaluation of datasets reads every field; `coid dataset` some"
-)]
-pub struct DatasetRun {
+/// A run as `runs.parquet` names it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunInfo {
     pub run: u64,
     pub split: String,
     pub scenario: String,
+    pub seed: u64,
+    pub n_instances: u64,
+}
+
+/// One run's instances, read.
+#[derive(Debug)]
+pub struct DatasetRun {
+    pub info: RunInfo,
     pub instances: Vec<DatasetInstance>,
 }
 
 #[derive(Debug)]
-#[allow(
-    dead_code,
-    reason = "the evaluation of datasets reads every field; `coid dataset` some"
-)]
 pub struct DatasetInstance {
     pub instance: u64,
     pub step: u64,
-    /// The pose-noise levels it has a row at.
-    pub levels: Vec<String>,
+    pub time_s: Option<f64>,
+    /// The instance at each level of the dataset, in its order.
+    pub levels: Vec<InstanceLevel>,
+    /// Each vehicle's true pose (world frame), where the source knows it.
+    pub true_poses: [Option<Pose2>; 2],
     pub sides: [DatasetSide; 2],
     /// Node `a` of the first vehicle is node `b` of the second.
     pub true_pairs: Vec<(usize, usize)>,
 }
 
+/// An instance at one pose-noise level: each vehicle's reported pose (as
+/// given, or fitted to its nodes' world positions) and claimed accuracy.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InstanceLevel {
+    pub label: PoseNoiseLabel,
+    pub position_sigma_m: f64,
+    pub heading_sigma_rad: [f64; 2],
+    pub reported: [Pose2; 2],
+}
+
 #[derive(Debug, Default)]
-#[allow(
-    dead_code,
-    reason = "the evaluation of datasets reads every field; `coid dataset` some"
-)]
 pub struct DatasetSide {
     pub id: String,
     pub nodes: Vec<DatasetNode>,
 }
 
-#[derive(Debug, Clone)]
-#[allow(
-    dead_code,
-    reason = "the evaluation of datasets reads every field; `coid dataset` some"
-)]
+/// One node, as plain values: what the vehicle measured, then the truth.
+#[derive(Debug, Clone, PartialEq)]
 pub struct DatasetNode {
     /// Measured centre, the vehicle's body frame.
     pub position_m: Vec2,
+    pub cov_m2: Option<Cov2>,
     pub class: String,
-    /// Empty for a false positive.
-    pub object_id: String,
+    /// RGB in [0, 1].
+    pub colour_rgb: Option<[f64; 3]>,
+    /// Length, width, height.
+    pub size_m: Option<[f64; 3]>,
+    /// The box's heading (body frame) and speed, where reported.
+    pub motion: Option<(f64, f64)>,
+    /// The sender's own node (its self-report), not a camera detection.
+    pub sender: bool,
     /// Its world position as the vehicle's GPS pose puts it.
     pub world_m: Option<Vec2>,
-    pub appearance: Option<Vec<f32>>,
+    pub appearance: Option<Arc<[f32]>>,
+    /// Empty for a false positive (or a node without a truth row).
+    pub object_id: String,
+    /// The object's true centre, world frame.
+    pub true_m: Option<Vec2>,
+    pub visible_fraction: Option<f64>,
 }
 
 /// Why a dataset was refused: one line naming the file (and row).
@@ -97,404 +128,557 @@ fn refuse(file: &str, why: impl Into<String>) -> DatasetError {
     }
 }
 
-/// A table's columns by name, read as their declared types.
-struct Columns<'t> {
+const SIDES: [&str; 2] = ["first", "second"];
+
+/// Reads `file` of `dir` (the `rows` of it, or all) as rows of `R`.
+fn rows<R>(
+    dir: &Path,
     file: &'static str,
-    table: &'t Table,
-}
-
-impl<'t> Columns<'t> {
-    fn count(&self, name: &str) -> &'t [u64] {
-        match self.table.column(name) {
-            Some(TableColumn::Count(v)) => v,
-            _ => &[],
-        }
-    }
-
-    fn number(&self, name: &str) -> Option<&'t [f64]> {
-        match self.table.column(name) {
-            Some(TableColumn::Number(v)) => Some(v),
-            _ => None,
-        }
-    }
-
-    fn text(&self, name: &str) -> &'t [String] {
-        match self.table.column(name) {
-            Some(TableColumn::Text(v)) => v,
-            _ => &[],
-        }
-    }
-
-    fn vectors(&self, name: &str) -> Option<&'t [Vec<f32>]> {
-        match self.table.column(name) {
-            Some(TableColumn::Vectors(v)) => Some(v),
-            _ => None,
-        }
-    }
-}
-
-fn table(dir: &Path, file: &'static str, columns: &[(&str, &str)]) -> Result<Table, DatasetError> {
+    columns: &[(&str, &str)],
+    range: Option<Range<usize>>,
+    parse: impl FnOnce(crate::report::Table) -> Result<Vec<R>, String>,
+) -> Result<Vec<R>, DatasetError> {
     let path = dir.join(file);
     if !path.exists() {
         return Err(refuse(file, "missing (not a coid dataset folder?)"));
     }
-    read_dataset_table(&path, columns).map_err(|why| refuse(file, why))
+    let slice = range.map(|r| (r.start, r.len()));
+    read_dataset_table(&path, columns, slice)
+        .and_then(parse)
+        .map_err(|why| refuse(file, why))
 }
 
-/// Reads and checks the dataset in `dir`.
-pub fn read(dir: &Path) -> Result<Dataset, DatasetError> {
-    let runs_t = table(dir, Run::FILE, Run::COLUMNS)?;
-    let runs = Columns {
-        file: Run::FILE,
-        table: &runs_t,
-    };
-    let mut out = Dataset {
-        dir: dir.to_owned(),
-        runs: Vec::new(),
-        appearance_width: None,
-        optional_columns: Vec::new(),
-    };
-    let mut run_at: BTreeMap<u64, usize> = BTreeMap::new();
-    for (k, &run) in runs.count("run").iter().enumerate() {
-        let version = runs.count("schema_version")[k];
-        if !(3..=SCHEMA_VERSION).contains(&version) {
-            return Err(refuse(
-                runs.file,
-                format!(
-                    "row {}: schema version {version}; this coid reads versions 3 to {SCHEMA_VERSION}",
-                    k + 1
-                ),
-            ));
-        }
-        let split = runs.text("split")[k].clone();
-        if !["train", "validation", "test"].contains(&split.as_str()) {
-            return Err(refuse(
-                runs.file,
-                format!(
-                    "row {}, column 'split': '{split}' is not train, validation or test",
-                    k + 1
-                ),
-            ));
-        }
-        if run_at.insert(run, out.runs.len()).is_some() {
-            return Err(refuse(runs.file, format!("row {}: run {run} twice", k + 1)));
-        }
-        out.runs.push(DatasetRun {
-            run,
-            split,
-            scenario: runs.text("scenario")[k].clone(),
-            instances: Vec::new(),
-        });
-    }
-    let instances_t = table(dir, Instance::FILE, Instance::COLUMNS)?;
-    let nodes_t = table(dir, Node::FILE, Node::COLUMNS)?;
-    let truth_t = table(dir, Truth::FILE, Truth::COLUMNS)?;
-    let pairs_t = table(dir, TruePair::FILE, TruePair::COLUMNS)?;
-    table(dir, Edge::FILE, Edge::COLUMNS)?;
-    for (file, t, columns) in [
-        (Instance::FILE, &instances_t, Instance::COLUMNS),
-        (Node::FILE, &nodes_t, Node::COLUMNS),
-        (Truth::FILE, &truth_t, Truth::COLUMNS),
-    ] {
-        for (name, ty) in columns {
-            if ty.starts_with("Option") && t.column(name).is_some() {
-                out.optional_columns.push(format!("{file}: {name}"));
+impl Dataset {
+    /// Opens the dataset in `dir`: reads and checks its runs and instances,
+    /// and finds each run's rows in the other files.
+    pub fn open(dir: &Path) -> Result<Dataset, DatasetError> {
+        let runs = read_runs(dir)?;
+        let run_at: BTreeMap<u64, usize> =
+            runs.iter().enumerate().map(|(k, r)| (r.run, k)).collect();
+        let all = rows(dir, Instance::FILE, Instance::COLUMNS, None, Instance::rows)?;
+        let (instances, levels) = group_instances(all, &run_at)?;
+        let mut optional_columns = Vec::new();
+        let mut appearance_width = None;
+        for (file, columns) in [
+            (Instance::FILE, Instance::COLUMNS),
+            (Node::FILE, Node::COLUMNS),
+            (Edge::FILE, Edge::COLUMNS),
+            (Truth::FILE, Truth::COLUMNS),
+            (TruePair::FILE, TruePair::COLUMNS),
+        ] {
+            // The first row (or none): which columns there are.
+            let first = rows(dir, file, columns, Some(0..1), |t| Ok(vec![t]))?;
+            for (name, ty) in columns {
+                if ty.starts_with("Option") && first[0].column(name).is_some() {
+                    optional_columns.push(format!("{file}: {name}"));
+                }
+            }
+            if let Some(crate::report::TableColumn::Vectors(v)) = first[0].column("appearance") {
+                appearance_width = v.first().map(Vec::len);
             }
         }
+        let ranges = [Node::FILE, Truth::FILE, TruePair::FILE]
+            .map(|file| run_ranges(dir, file, &run_at))
+            .into_iter()
+            .collect::<Result<Vec<_>, _>>()?;
+        let rows = (0..runs.len())
+            .map(|k| std::array::from_fn(|f| ranges[f][k].clone()))
+            .collect();
+        Ok(Dataset {
+            dir: dir.to_owned(),
+            runs,
+            levels,
+            appearance_width,
+            optional_columns,
+            instances,
+            rows,
+        })
     }
-    let mut index: BTreeMap<(u64, u64), (usize, usize)> = BTreeMap::new();
-    let declared = read_instances(&instances_t, &run_at, &mut out, &mut index)?;
-    read_nodes(&nodes_t, &index, declared, &mut out)?;
-    read_truth(&truth_t, &index, &mut out)?;
-    read_true_pairs(&pairs_t, &index, &mut out)?;
+
+    /// Reads and checks run `k` (of [`Dataset::runs`]).
+    pub fn run(&self, k: usize) -> Result<DatasetRun, DatasetError> {
+        let info = self.runs[k].clone();
+        let [nodes, truth, pairs] = self.rows[k].clone();
+        let mut instances = Vec::new();
+        let mut index: BTreeMap<u64, usize> = BTreeMap::new();
+        let rows = &self.instances[k];
+        for group in rows.chunk_by(|a, b| a.instance == b.instance) {
+            index.insert(group[0].instance, instances.len());
+            instances.push(instance_of(group));
+        }
+        let locate = |file: &str, row: usize, instance: u64| {
+            index.get(&instance).copied().ok_or_else(|| {
+                refuse(
+                    file,
+                    format!(
+                        "row {}: run {}, instance {instance} is not in instances.parquet",
+                        row + 1,
+                        info.run
+                    ),
+                )
+            })
+        };
+        let first = nodes.start;
+        let node_rows = rows_in(&self.dir, Node::FILE, Node::COLUMNS, nodes, Node::rows)?;
+        for (k, n) in node_rows.into_iter().enumerate() {
+            let i = locate(Node::FILE, first + k, n.instance)?;
+            self.add_node(&mut instances[i], n, first + k)?;
+        }
+        for (inst, group) in instances
+            .iter()
+            .zip(rows.chunk_by(|a, b| a.instance == b.instance))
+        {
+            check_node_counts(inst, &group[0], info.run)?;
+        }
+        let first = truth.start;
+        let truth_rows = rows_in(&self.dir, Truth::FILE, Truth::COLUMNS, truth, Truth::rows)?;
+        for (k, t) in truth_rows.into_iter().enumerate() {
+            let i = locate(Truth::FILE, first + k, t.instance)?;
+            add_truth(&mut instances[i], t, first + k)?;
+        }
+        for inst in &instances {
+            check_unique_objects(inst, info.run)?;
+        }
+        let first = pairs.start;
+        let pair_rows = rows_in(&self.dir, TruePair::FILE, TruePair::COLUMNS, pairs, |t| {
+            TruePair::rows(t)
+        })?;
+        for (k, p) in pair_rows.into_iter().enumerate() {
+            let i = locate(TruePair::FILE, first + k, p.instance)?;
+            add_true_pair(&mut instances[i], &p, first + k)?;
+        }
+        for (inst, group) in instances
+            .iter_mut()
+            .zip(rows.chunk_by(|a, b| a.instance == b.instance))
+        {
+            set_poses(inst, group, info.run)?;
+        }
+        Ok(DatasetRun { info, instances })
+    }
+
+    fn add_node(
+        &self,
+        inst: &mut DatasetInstance,
+        n: Node,
+        row: usize,
+    ) -> Result<(), DatasetError> {
+        let Some(side) = inst.sides.get_mut(n.side as usize) else {
+            return Err(refuse(
+                Node::FILE,
+                format!("row {}, column 'side': {}, not 0 or 1", row + 1, n.side),
+            ));
+        };
+        if n.node != side.nodes.len() as u64 {
+            return Err(refuse(
+                Node::FILE,
+                format!(
+                    "row {}, column 'node': node {} where node {} comes next (each vehicle's \
+                     nodes are numbered 0, 1, ... in order)",
+                    row + 1,
+                    n.node,
+                    side.nodes.len()
+                ),
+            ));
+        }
+        if let (Some(a), Some(w)) = (&n.appearance, self.appearance_width)
+            && a.len() != w
+        {
+            return Err(refuse(
+                Node::FILE,
+                format!(
+                    "row {}, column 'appearance': {} values, the first row {w}",
+                    row + 1,
+                    a.len()
+                ),
+            ));
+        }
+        side.nodes.push(node_of(n));
+        Ok(())
+    }
+}
+
+/// Reads the `range` rows of `file` (none when the run has none there).
+fn rows_in<R>(
+    dir: &Path,
+    file: &'static str,
+    columns: &[(&str, &str)],
+    range: Range<usize>,
+    parse: impl FnOnce(crate::report::Table) -> Result<Vec<R>, String>,
+) -> Result<Vec<R>, DatasetError> {
+    if range.is_empty() {
+        return Ok(Vec::new());
+    }
+    rows(dir, file, columns, Some(range), parse)
+}
+
+fn read_runs(dir: &Path) -> Result<Vec<RunInfo>, DatasetError> {
+    let runs = rows(dir, Run::FILE, Run::COLUMNS, None, Run::rows)?;
+    let mut out: Vec<RunInfo> = Vec::new();
+    for (k, r) in runs.into_iter().enumerate() {
+        let at = |why: String| refuse(Run::FILE, format!("row {}{why}", k + 1));
+        if !(3..=SCHEMA_VERSION).contains(&r.schema_version) {
+            return Err(at(format!(
+                ": schema version {}; this coid reads versions 3 to {SCHEMA_VERSION}",
+                r.schema_version
+            )));
+        }
+        if !["train", "validation", "test"].contains(&r.split.as_str()) {
+            return Err(at(format!(
+                ", column 'split': '{}' is not train, validation or test",
+                r.split
+            )));
+        }
+        if out.iter().any(|o| o.run == r.run) {
+            return Err(at(format!(": run {} twice", r.run)));
+        }
+        out.push(RunInfo {
+            run: r.run,
+            split: r.split,
+            scenario: r.scenario,
+            seed: r.seed,
+            n_instances: r.n_instances,
+        });
+    }
     Ok(out)
 }
 
-/// Where `(run, instance)` is in `out`, or the reason in one line.
-fn locate(
-    file: &str,
-    row: usize,
-    index: &BTreeMap<(u64, u64), (usize, usize)>,
-    run: u64,
-    instance: u64,
-) -> Result<(usize, usize), DatasetError> {
-    index.get(&(run, instance)).copied().ok_or_else(|| {
-        refuse(
-            file,
-            format!(
-                "row {}: run {run}, instance {instance} is not in instances.parquet",
-                row + 1
-            ),
-        )
-    })
-}
-
-fn read_instances(
-    t: &Table,
+/// Each run's instance rows, grouped by instance (levels in the dataset's
+/// order), and the dataset's levels; refused when a row names an unknown
+/// run or level, a level twice, or an instance lacks a level.
+#[allow(clippy::type_complexity, reason = "a private pair of results")]
+fn group_instances(
+    all: Vec<Instance>,
     run_at: &BTreeMap<u64, usize>,
-    out: &mut Dataset,
-    index: &mut BTreeMap<(u64, u64), (usize, usize)>,
-) -> Result<Declared, DatasetError> {
-    let mut declared = Declared::new();
-    let c = Columns {
-        file: Instance::FILE,
-        table: t,
-    };
-    let (runs, instances) = (c.count("run"), c.count("instance"));
-    for k in 0..runs.len() {
-        let (run, instance) = (runs[k], instances[k]);
-        let &r = run_at.get(&run).ok_or_else(|| {
-            refuse(
-                c.file,
-                format!("row {}: run {run} is not in runs.parquet", k + 1),
-            )
-        })?;
-        let level = c.text("pose_noise")[k].clone();
-        if let Some(&(r, i)) = index.get(&(run, instance)) {
-            let inst = &mut out.runs[r].instances[i];
-            if inst.levels.contains(&level) {
+) -> Result<(Vec<Vec<Instance>>, Vec<PoseNoiseLevel>), DatasetError> {
+    let file = Instance::FILE;
+    let mut levels: Vec<PoseNoiseLevel> = Vec::new();
+    let mut by_run: Vec<BTreeMap<u64, Vec<(usize, Instance)>>> =
+        vec![BTreeMap::new(); run_at.len()];
+    for (k, row) in all.into_iter().enumerate() {
+        let at = |why: String| refuse(file, format!("row {}{why}", k + 1));
+        let &r = run_at
+            .get(&row.run)
+            .ok_or_else(|| at(format!(": run {} is not in runs.parquet", row.run)))?;
+        let label: PoseNoiseLabel = crate::label::parse("pose-noise level", &row.pose_noise)
+            .map_err(|why| at(format!(", column 'pose_noise': {why}")))?;
+        let level = match levels.iter().position(|l| l.label == label) {
+            Some(p) => p,
+            None => {
+                levels.push(PoseNoiseLevel {
+                    label,
+                    position_sigma_m: row.position_sigma_m,
+                    heading_sigma_rad: row.first_heading_sigma_rad,
+                });
+                levels.len() - 1
+            }
+        };
+        let rows = by_run[r].entry(row.instance).or_default();
+        if rows.iter().any(|(l, _)| *l == level) {
+            return Err(at(format!(
+                ": run {}, instance {} at level '{}' twice",
+                row.run, row.instance, row.pose_noise
+            )));
+        }
+        rows.push((level, row));
+    }
+    let mut out = Vec::with_capacity(by_run.len());
+    for run in by_run {
+        let mut rows = Vec::new();
+        for (_, mut group) in run {
+            if group.len() < levels.len() {
+                let row = &group[0].1;
+                let missing = levels
+                    .iter()
+                    .enumerate()
+                    .find(|(l, _)| !group.iter().any(|(g, _)| g == l))
+                    .map(|(_, l)| l.label.as_str())
+                    .unwrap_or_default();
                 return Err(refuse(
-                    c.file,
+                    file,
                     format!(
-                        "row {}: run {run}, instance {instance} at level '{level}' twice",
-                        k + 1
+                        "run {}, instance {} has no row at level '{missing}' (every instance \
+                         has one at every level of the dataset)",
+                        row.run, row.instance
                     ),
                 ));
             }
-            inst.levels.push(level);
-            continue;
+            group.sort_by_key(|(l, _)| *l);
+            rows.extend(group.into_iter().map(|(_, r)| r));
         }
-        let n = [c.count("n_first")[k], c.count("n_second")[k]];
-        let ids = [
-            c.text("first_id")[k].clone(),
-            c.text("second_id")[k].clone(),
-        ];
-        let sides = [0, 1].map(|s| DatasetSide {
-            id: ids[s].clone(),
-            nodes: Vec::with_capacity(n[s] as usize),
-        });
-        let run_rows = &mut out.runs[r].instances;
-        index.insert((run, instance), (r, run_rows.len()));
-        run_rows.push(DatasetInstance {
-            instance,
-            step: c.count("step")[k],
-            levels: vec![level],
-            sides,
-            true_pairs: Vec::new(),
-        });
-        declared.insert((run, instance), n);
+        out.push(rows);
     }
-    Ok(declared)
+    Ok((out, levels))
 }
 
-/// Each instance's node counts as `instances.parquet` declares them.
-type Declared = BTreeMap<(u64, u64), [u64; 2]>;
-
-fn read_nodes(
-    t: &Table,
-    index: &BTreeMap<(u64, u64), (usize, usize)>,
-    declared: Declared,
-    out: &mut Dataset,
-) -> Result<(), DatasetError> {
-    let c = Columns {
-        file: Node::FILE,
-        table: t,
-    };
-    let (runs, instances, sides, nodes) = (
-        c.count("run"),
-        c.count("instance"),
-        c.count("side"),
-        c.count("node"),
-    );
-    let (x, y) = (
-        c.number("x_m").unwrap_or(&[]),
-        c.number("y_m").unwrap_or(&[]),
-    );
-    let world = c.number("world_x_m").zip(c.number("world_y_m"));
-    let appearance = c.vectors("appearance");
-    for k in 0..runs.len() {
-        let (r, i) = locate(c.file, k, index, runs[k], instances[k])?;
-        let side = sides[k];
-        if side > 1 {
+/// Where each run's rows are in `file` (by its `run` column): refused when
+/// a run's rows are not together or a row names an unknown run.
+fn run_ranges(
+    dir: &Path,
+    file: &'static str,
+    run_at: &BTreeMap<u64, usize>,
+) -> Result<Vec<Range<usize>>, DatasetError> {
+    let path = dir.join(file);
+    if !path.exists() {
+        return Err(refuse(file, "missing (not a coid dataset folder?)"));
+    }
+    let runs = read_dataset_counts(&path, "run").map_err(|why| refuse(file, why))?;
+    let mut out: Vec<Option<Range<usize>>> = vec![None; run_at.len()];
+    let mut start = 0;
+    for (k, group) in runs.chunk_by(|a, b| a == b).map(|g| (g[0], g.len())) {
+        let end = start + group;
+        let &r = run_at.get(&k).ok_or_else(|| {
+            refuse(
+                file,
+                format!("row {}: run {k} is not in runs.parquet", start + 1),
+            )
+        })?;
+        if out[r].is_some() {
             return Err(refuse(
-                c.file,
-                format!("row {}, column 'side': {side}, not 0 or 1", k + 1),
-            ));
-        }
-        let list = &mut out.runs[r].instances[i].sides[side as usize].nodes;
-        if nodes[k] != list.len() as u64 {
-            return Err(refuse(
-                c.file,
+                file,
                 format!(
-                    "row {}, column 'node': node {} where node {} comes next (each vehicle's nodes are numbered 0, 1, ... in order)",
-                    k + 1,
-                    nodes[k],
-                    list.len()
+                    "row {}: the rows of run {k} are not together (coid reads a dataset run by \
+                     run: write each run's rows one after another)",
+                    start + 1
                 ),
             ));
         }
-        let a = appearance.map(|a| a[k].clone());
-        if let Some(a) = &a {
-            match out.appearance_width {
-                Some(w) if w != a.len() => {
-                    return Err(refuse(
-                        c.file,
-                        format!(
-                            "row {}, column 'appearance': {} values, earlier rows {w}",
-                            k + 1,
-                            a.len()
-                        ),
-                    ));
-                }
-                _ => out.appearance_width = Some(a.len()),
-            }
-        }
-        list.push(DatasetNode {
-            position_m: Vec2::new(x[k], y[k]),
-            class: c.text("class")[k].clone(),
-            object_id: String::new(),
-            world_m: world.map(|(wx, wy)| Vec2::new(wx[k], wy[k])),
-            appearance: a,
-        });
+        out[r] = Some(start..end);
+        start = end;
     }
-    for ((run, instance), n) in declared {
-        let (r, i) = index[&(run, instance)];
-        for (s, side) in out.runs[r].instances[i].sides.iter().enumerate() {
-            if side.nodes.len() as u64 != n[s] {
-                return Err(refuse(
-                    c.file,
-                    format!(
-                        "run {run}, instance {instance}: {} nodes of the {} vehicle, instances.parquet says {}",
-                        side.nodes.len(),
-                        ["first", "second"][s],
-                        n[s]
-                    ),
-                ));
-            }
+    Ok(out.into_iter().map(|r| r.unwrap_or(0..0)).collect())
+}
+
+/// An instance from its rows (one per level), before its nodes: poses are
+/// set once the nodes are read ([`set_poses`]).
+fn instance_of(rows: &[Instance]) -> DatasetInstance {
+    let r = &rows[0];
+    let pose = |x: Option<f64>, y: Option<f64>, h: Option<f64>| {
+        Some(Pose2::new(Vec2::new(x?, y?), h?)).filter(|p| p.position_m().x.is_finite())
+    };
+    DatasetInstance {
+        instance: r.instance,
+        step: r.step,
+        time_s: r.time_s,
+        levels: Vec::new(),
+        true_poses: [
+            pose(r.first_true_x_m, r.first_true_y_m, r.first_true_heading_rad),
+            pose(
+                r.second_true_x_m,
+                r.second_true_y_m,
+                r.second_true_heading_rad,
+            ),
+        ],
+        sides: [
+            DatasetSide {
+                id: r.first_id.clone(),
+                nodes: Vec::with_capacity(r.n_first as usize),
+            },
+            DatasetSide {
+                id: r.second_id.clone(),
+                nodes: Vec::with_capacity(r.n_second as usize),
+            },
+        ],
+        true_pairs: Vec::new(),
+    }
+}
+
+/// A node row as plain values (a NaN heading or speed: none reported).
+fn node_of(n: Node) -> DatasetNode {
+    let three = |a: Option<f64>, b: Option<f64>, c: Option<f64>| Some([a?, b?, c?]);
+    let cov =
+        three(n.cov_xx_m2, n.cov_xy_m2, n.cov_yy_m2).map(|[xx, xy, yy]| Cov2::new(xx, xy, xy, yy));
+    let motion = n
+        .heading_rad
+        .zip(n.speed_mps)
+        .filter(|(h, s)| h.is_finite() && s.is_finite());
+    DatasetNode {
+        position_m: Vec2::new(n.x_m, n.y_m),
+        cov_m2: cov,
+        class: n.class,
+        colour_rgb: three(n.colour_r, n.colour_g, n.colour_b),
+        size_m: three(n.length_m, n.width_m, n.height_m),
+        motion,
+        sender: n.sender.unwrap_or(false),
+        world_m: n.world_x_m.zip(n.world_y_m).map(|(x, y)| Vec2::new(x, y)),
+        appearance: n.appearance.map(Arc::from),
+        object_id: String::new(),
+        true_m: None,
+        visible_fraction: None,
+    }
+}
+
+/// Each vehicle has as many nodes as its instance rows say.
+fn check_node_counts(inst: &DatasetInstance, r: &Instance, run: u64) -> Result<(), DatasetError> {
+    for (s, declared) in [r.n_first, r.n_second].into_iter().enumerate() {
+        let n = inst.sides[s].nodes.len() as u64;
+        if n != declared {
+            return Err(refuse(
+                Node::FILE,
+                format!(
+                    "run {run}, instance {}: {n} nodes of the {} vehicle, instances.parquet says \
+                     {declared}",
+                    inst.instance, SIDES[s]
+                ),
+            ));
         }
     }
     Ok(())
 }
 
-fn read_truth(
-    t: &Table,
-    index: &BTreeMap<(u64, u64), (usize, usize)>,
-    out: &mut Dataset,
-) -> Result<(), DatasetError> {
-    let c = Columns {
-        file: Truth::FILE,
-        table: t,
+fn add_truth(inst: &mut DatasetInstance, t: Truth, row: usize) -> Result<(), DatasetError> {
+    let Some(side) = inst.sides.get_mut(t.side as usize) else {
+        return Err(refuse(
+            Truth::FILE,
+            format!("row {}, column 'side': {}, not 0 or 1", row + 1, t.side),
+        ));
     };
-    let (runs, instances, sides, nodes) = (
-        c.count("run"),
-        c.count("instance"),
-        c.count("side"),
-        c.count("node"),
-    );
-    let ids = c.text("object_id");
-    let mut seen = vec![];
-    for k in 0..runs.len() {
-        let (r, i) = locate(c.file, k, index, runs[k], instances[k])?;
-        let side = sides[k].min(2) as usize;
-        let Some(list) = out.runs[r].instances[i].sides.get_mut(side) else {
+    let Some(node) = side.nodes.get_mut(t.node as usize) else {
+        return Err(refuse(
+            Truth::FILE,
+            format!(
+                "row {}, column 'node': node {} is not in nodes.parquet",
+                row + 1,
+                t.node
+            ),
+        ));
+    };
+    node.object_id = t.object_id;
+    node.true_m = t
+        .true_x_m
+        .zip(t.true_y_m)
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .map(|(x, y)| Vec2::new(x, y));
+    node.visible_fraction = t.visible_fraction;
+    Ok(())
+}
+
+/// No object is behind two nodes of one vehicle.
+fn check_unique_objects(inst: &DatasetInstance, run: u64) -> Result<(), DatasetError> {
+    for (s, side) in inst.sides.iter().enumerate() {
+        let mut ids: Vec<&str> = side
+            .nodes
+            .iter()
+            .map(|n| n.object_id.as_str())
+            .filter(|id| !id.is_empty())
+            .collect();
+        ids.sort_unstable();
+        if let Some(w) = ids.windows(2).find(|w| w[0] == w[1]) {
             return Err(refuse(
-                c.file,
-                format!("row {}, column 'side': not 0 or 1", k + 1),
-            ));
-        };
-        let Some(node) = list.nodes.get_mut(nodes[k] as usize) else {
-            return Err(refuse(
-                c.file,
+                Truth::FILE,
                 format!(
-                    "row {}, column 'node': node {} is not in nodes.parquet",
-                    k + 1,
-                    nodes[k]
+                    "object '{}' behind two nodes of the {} vehicle of run {run}, instance {}",
+                    w[0], SIDES[s], inst.instance
                 ),
             ));
-        };
-        let id = &ids[k];
-        if !id.is_empty() {
-            let key = (runs[k], instances[k], side, id.clone());
-            seen.push((key, k));
         }
-        node.object_id.clone_from(id);
     }
-    seen.sort();
-    if let Some(w) = seen.windows(2).find(|w| w[0].0 == w[1].0) {
-        let (run, instance, side, id) = &w[1].0;
+    Ok(())
+}
+
+fn add_true_pair(inst: &mut DatasetInstance, p: &TruePair, row: usize) -> Result<(), DatasetError> {
+    let (a, b) = (p.a as usize, p.b as usize);
+    for (s, node) in [(0, a), (1, b)] {
+        if node >= inst.sides[s].nodes.len() {
+            return Err(refuse(
+                TruePair::FILE,
+                format!(
+                    "row {}: node {node} of the {} vehicle is not in nodes.parquet",
+                    row + 1,
+                    SIDES[s]
+                ),
+            ));
+        }
+        let again = inst
+            .true_pairs
+            .iter()
+            .any(|&(x, y)| if s == 0 { x == node } else { y == node });
+        if again {
+            return Err(refuse(
+                TruePair::FILE,
+                format!(
+                    "row {}: node {node} of the {} vehicle of run {}, instance {} is matched a \
+                     second time",
+                    row + 1,
+                    SIDES[s],
+                    p.run,
+                    p.instance
+                ),
+            ));
+        }
+    }
+    let (ia, ib) = (
+        &inst.sides[0].nodes[a].object_id,
+        &inst.sides[1].nodes[b].object_id,
+    );
+    if ia.is_empty() || ia != ib {
         return Err(refuse(
-            c.file,
+            TruePair::FILE,
             format!(
-                "row {}: object '{id}' behind two nodes of the {} vehicle of run {run}, instance {instance}",
-                w[1].1 + 1,
-                ["first", "second"][*side]
+                "row {}: pairs node {a} (object '{ia}') with node {b} (object '{ib}'), not one \
+                 object",
+                row + 1
             ),
         ));
     }
+    inst.true_pairs.push((a, b));
     Ok(())
 }
 
-fn read_true_pairs(
-    t: &Table,
-    index: &BTreeMap<(u64, u64), (usize, usize)>,
-    out: &mut Dataset,
-) -> Result<(), DatasetError> {
-    let c = Columns {
-        file: TruePair::FILE,
-        table: t,
+/// Each level's reported poses (as given; else fitted to the vehicle's
+/// nodes' world positions, the same at every level) and claimed accuracy;
+/// refused when a vehicle has neither, or has true node positions but no
+/// true pose.
+fn set_poses(inst: &mut DatasetInstance, rows: &[Instance], run: u64) -> Result<(), DatasetError> {
+    let fitted: [Option<Pose2>; 2] = std::array::from_fn(|s| {
+        let nodes = &inst.sides[s].nodes;
+        let pairs: Option<Vec<(Vec2, Vec2)>> = nodes
+            .iter()
+            .map(|n| n.world_m.map(|w| (n.position_m, w)))
+            .collect();
+        pairs.and_then(|p| fit_rigid(&p))
+    });
+    let no_pose = |s: usize, why: &str| {
+        refuse(
+            Instance::FILE,
+            format!(
+                "run {run}, instance {}: the {} vehicle {why}",
+                inst.instance, SIDES[s]
+            ),
+        )
     };
-    let (runs, instances, a, b) = (
-        c.count("run"),
-        c.count("instance"),
-        c.count("a"),
-        c.count("b"),
-    );
-    for k in 0..runs.len() {
-        let (r, i) = locate(c.file, k, index, runs[k], instances[k])?;
-        let inst = &mut out.runs[r].instances[i];
-        let (a, b) = (a[k] as usize, b[k] as usize);
-        for (s, node) in [(0, a), (1, b)] {
-            if node >= inst.sides[s].nodes.len() {
-                return Err(refuse(
-                    c.file,
-                    format!(
-                        "row {}: node {node} of the {} vehicle is not in nodes.parquet",
-                        k + 1,
-                        ["first", "second"][s]
-                    ),
-                ));
-            }
-            let again = inst
-                .true_pairs
-                .iter()
-                .any(|&(x, y)| if s == 0 { x == node } else { y == node });
-            if again {
-                return Err(refuse(
-                    c.file,
-                    format!(
-                        "row {}: node {node} of the {} vehicle of run {}, instance {} is matched a second time",
-                        k + 1,
-                        ["first", "second"][s],
-                        runs[k],
-                        instances[k]
-                    ),
-                ));
-            }
+    for r in rows {
+        let given = [
+            (r.first_x_m, r.first_y_m, r.first_heading_rad),
+            (r.second_x_m, r.second_y_m, r.second_heading_rad),
+        ]
+        .map(|(x, y, h)| Some(Pose2::new(Vec2::new(x?, y?), h?)));
+        let mut reported = [Pose2::identity(); 2];
+        for s in 0..2 {
+            reported[s] = given[s].or(fitted[s]).ok_or_else(|| {
+                no_pose(
+                    s,
+                    "has no reported pose (first_x_m, ...) and its nodes no world positions \
+                     (world_x_m, world_y_m) to fit one to",
+                )
+            })?;
         }
-        let (ia, ib) = (
-            &inst.sides[0].nodes[a].object_id,
-            &inst.sides[1].nodes[b].object_id,
-        );
-        if ia.is_empty() || ia != ib {
-            return Err(refuse(
-                c.file,
-                format!(
-                    "row {}: pairs node {a} (object '{ia}') with node {b} (object '{ib}'), not one object",
-                    k + 1
-                ),
+        inst.levels.push(InstanceLevel {
+            label: crate::label::parse("pose-noise level", &r.pose_noise)
+                .expect("checked when opened"),
+            position_sigma_m: r.position_sigma_m,
+            heading_sigma_rad: [r.first_heading_sigma_rad, r.second_heading_sigma_rad],
+            reported,
+        });
+    }
+    for s in 0..2 {
+        let knows_truth = inst.sides[s].nodes.iter().any(|n| n.true_m.is_some());
+        if knows_truth && inst.true_poses[s].is_none() {
+            return Err(no_pose(
+                s,
+                "has nodes with true positions but no true pose (first_true_x_m, ...) to \
+                 score them in its frame",
             ));
         }
-        inst.true_pairs.push((a, b));
     }
     Ok(())
 }

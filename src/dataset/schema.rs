@@ -12,6 +12,11 @@ use crate::report::{Table, TableColumn};
 /// optional column that is not written (a row without a value).
 pub(crate) trait ColumnValue: Sized {
     fn column(values: Vec<Self>) -> Option<TableColumn>;
+
+    /// The values of a column read back (`None`: the table has no such
+    /// column) for `rows` rows; `None` when a required column is missing
+    /// or the column holds another type.
+    fn values(column: Option<TableColumn>, rows: usize) -> Option<Vec<Self>>;
 }
 
 /// Each column type and the table column that holds it; an optional
@@ -22,12 +27,27 @@ macro_rules! column_values {
             fn column(values: Vec<Self>) -> Option<TableColumn> {
                 Some(TableColumn::$column(values))
             }
+
+            fn values(column: Option<TableColumn>, _rows: usize) -> Option<Vec<Self>> {
+                match column {
+                    Some(TableColumn::$column(v)) => Some(v),
+                    _ => None,
+                }
+            }
         }
 
         impl ColumnValue for Option<$ty> {
             fn column(values: Vec<Self>) -> Option<TableColumn> {
                 let all: Option<Vec<$ty>> = values.into_iter().collect();
                 all.map(TableColumn::$column)
+            }
+
+            fn values(column: Option<TableColumn>, rows: usize) -> Option<Vec<Self>> {
+                match column {
+                    None => Some(vec![None; rows]),
+                    Some(TableColumn::$column(v)) => Some(v.into_iter().map(Some).collect()),
+                    Some(_) => None,
+                }
             }
         })+
     };
@@ -72,6 +92,30 @@ macro_rules! file_rows {
                     table.columns.push((stringify!($column).to_owned(), c));
                 })+
                 table
+            }
+
+            /// The rows of a table read back with [`Self::COLUMNS`]
+            /// (optional columns it lacks are `None` in every row).
+            #[allow(dead_code, reason = "the matches file is read by its own reader")]
+            pub(crate) fn rows(table: Table) -> Result<Vec<Self>, String> {
+                let n = table.height();
+                let mut columns: std::collections::BTreeMap<String, TableColumn> =
+                    table.columns.into_iter().collect();
+                $(let mut $column = <$ty as ColumnValue>::values(
+                    columns.remove(stringify!($column)),
+                    n,
+                )
+                .ok_or_else(|| format!(
+                    "column '{}' is missing or not {}",
+                    stringify!($column),
+                    stringify!($ty)
+                ))?
+                .into_iter();)+
+                Ok((0..n)
+                    .map(|_| Self {
+                        $($column: $column.next().expect("a value per row"),)+
+                    })
+                    .collect())
             }
         }
     };

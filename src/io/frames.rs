@@ -220,7 +220,7 @@ impl TableWriter {
 
 /// Reads an export's `runs.parquet`; the reason it cannot be, in one line.
 pub fn read_export_runs(path: &Path) -> Result<Vec<ExportRunRow>, String> {
-    let text = |e: PolarsError| e.to_string().lines().next().unwrap_or("").to_owned();
+    let text = first_line;
     let f = File::open(path).map_err(|e| e.to_string())?;
     let df = ParquetReader::new(f).finish().map_err(text)?;
     let count = |name: &str| -> Result<Vec<u64>, String> {
@@ -269,7 +269,7 @@ pub fn read_export_runs(path: &Path) -> Result<Vec<ExportRunRow>, String> {
 /// `pose_noise` (text), `probability` and `uncertainty` (numbers); other
 /// columns are ignored. The reason it cannot be read, in one line.
 pub fn read_matches(path: &Path) -> Result<Vec<MatchRow>, String> {
-    let text = |e: PolarsError| e.to_string().lines().next().unwrap_or("").to_owned();
+    let text = first_line;
     let df = if path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("csv"))
@@ -468,15 +468,49 @@ pub fn read_run_summary(path: &Path) -> Result<Vec<RunRow>, OutputError> {
         .collect()
 }
 
-/// Reads a dataset's Parquet file into a table of the declared `columns`
-/// (name and type: `u64`, `f64`, `String`, `bool`, `Vec<f32>`, each
-/// optionally `Option<..>`), in their order; an optional column the file
-/// lacks is left out. The reason it cannot be, in one line naming the
-/// column and, for an empty or bad value, the row (1-based).
-pub fn read_dataset_table(path: &Path, columns: &[(&str, &str)]) -> Result<Table, String> {
-    let text = |e: PolarsError| e.to_string().lines().next().unwrap_or("").to_owned();
+/// The first line of a polars error.
+fn first_line(e: PolarsError) -> String {
+    e.to_string().lines().next().unwrap_or("").to_owned()
+}
+
+/// The rows of a dataset's Parquet file: how many there are, and one
+/// integer column of all of them (a dataset is read run by run: the `run`
+/// column says where each run's rows are). The reason it cannot be, in one
+/// line naming the column.
+pub fn read_dataset_counts(path: &Path, name: &str) -> Result<Vec<u64>, String> {
+    let t = read_dataset_table(path, &[(name, "u64")], None)?;
+    match t.columns.into_iter().next() {
+        Some((_, TableColumn::Count(v))) => Ok(v),
+        _ => Err(format!("it has no column '{name}'")),
+    }
+}
+
+/// Reads a dataset's Parquet file (all of it, or the `rows` `(first,
+/// count)`) into a table of the declared `columns` (name and type: `u64`,
+/// `f64`, `String`, `bool`, `Vec<f32>`, each optionally `Option<..>`), in
+/// their order; only those columns are read, and an optional column the
+/// file lacks is left out. The reason it cannot be, in one line naming the
+/// column and, for an empty or bad value, the row of the file (1-based).
+pub fn read_dataset_table(
+    path: &Path,
+    columns: &[(&str, &str)],
+    rows: Option<(usize, usize)>,
+) -> Result<Table, String> {
+    let text = first_line;
     let f = File::open(path).map_err(|e| e.to_string())?;
-    let df = ParquetReader::new(f).finish().map_err(text)?;
+    let mut reader = ParquetReader::new(f);
+    let present = reader.schema().map_err(text)?;
+    let wanted: Vec<String> = columns
+        .iter()
+        .map(|(name, _)| (*name).to_owned())
+        .filter(|name| present.contains(name.as_str()))
+        .collect();
+    let df = reader
+        .with_columns(Some(wanted))
+        .with_slice(rows)
+        .finish()
+        .map_err(text)?;
+    let first_row = rows.map_or(0, |r| r.0);
     let mut out = Table::default();
     for &(name, ty) in columns {
         let ty = ty.replace(' ', "");
@@ -490,68 +524,84 @@ pub fn read_dataset_table(path: &Path, columns: &[(&str, &str)]) -> Result<Table
             }
             return Err(format!("it has no column '{name}'"));
         };
-        let empty = |k: usize| format!("column '{name}' is empty in row {}", k + 1);
-        let col = match ty.as_str() {
-            "u64" => {
-                if !c.dtype().is_integer() {
-                    return Err(format!("column '{name}' holds {}, not integers", c.dtype()));
-                }
-                let c = c
-                    .strict_cast(&DataType::UInt64)
-                    .map_err(|_| format!("column '{name}' holds a negative value"))?;
-                let v: Vec<Option<u64>> = c.u64().map_err(text)?.iter().collect();
-                TableColumn::Count(all(v, empty)?)
-            }
-            "f64" => {
-                if !c.dtype().is_primitive_numeric() {
-                    return Err(format!("column '{name}' holds {}, not numbers", c.dtype()));
-                }
-                let c = c.cast(&DataType::Float64).map_err(text)?;
-                let v: Vec<Option<f64>> = c.f64().map_err(text)?.iter().collect();
-                TableColumn::Number(all(v, empty)?)
-            }
-            "bool" => {
-                let v: Vec<Option<bool>> = c
-                    .bool()
-                    .map_err(|_| format!("column '{name}' holds {}, not true/false", c.dtype()))?
-                    .iter()
-                    .collect();
-                TableColumn::Flag(all(v, empty)?)
-            }
-            "String" => {
-                let v: Vec<Option<String>> = c
-                    .str()
-                    .map_err(|_| format!("column '{name}' holds {}, not text", c.dtype()))?
-                    .iter()
-                    .map(|s| s.map(str::to_owned))
-                    .collect();
-                TableColumn::Text(all(v, empty)?)
-            }
-            "Vec<f32>" => {
-                let lists = c
-                    .list()
-                    .map_err(|_| format!("column '{name}' holds {}, not lists", c.dtype()))?;
-                let mut v = Vec::with_capacity(lists.len());
-                for (k, s) in lists.amortized_iter().enumerate() {
-                    let s = s.map(|s| s.as_ref().clone());
-                    let s = s.ok_or_else(|| empty(k))?;
-                    let s = s.cast(&DataType::Float32).map_err(text)?;
-                    let x: Option<Vec<f32>> = s.f32().map_err(text)?.iter().collect();
-                    v.push(x.ok_or_else(|| {
-                        format!("column '{name}' has an empty value in row {}", k + 1)
-                    })?);
-                }
-                TableColumn::Vectors(v)
-            }
-            other => {
-                return Err(format!(
-                    "column '{name}' has a type coid cannot read ({other})"
-                ));
-            }
-        };
+        let col = dataset_column(c, name, &ty, first_row)?;
         out.columns.push((name.to_owned(), col));
     }
     Ok(out)
+}
+
+/// A dataset file's column `c` (`name`, declared type `ty`, its first row
+/// being row `first_row` of the file) as a table's column.
+fn dataset_column(
+    c: &Column,
+    name: &str,
+    ty: &str,
+    first_row: usize,
+) -> Result<TableColumn, String> {
+    let text = first_line;
+    let empty = |k: usize| format!("column '{name}' is empty in row {}", first_row + k + 1);
+    let col = match ty {
+        "u64" => {
+            if !c.dtype().is_integer() {
+                return Err(format!("column '{name}' holds {}, not integers", c.dtype()));
+            }
+            let c = c
+                .strict_cast(&DataType::UInt64)
+                .map_err(|_| format!("column '{name}' holds a negative value"))?;
+            let v: Vec<Option<u64>> = c.u64().map_err(text)?.iter().collect();
+            TableColumn::Count(all(v, empty)?)
+        }
+        "f64" => {
+            if !c.dtype().is_primitive_numeric() {
+                return Err(format!("column '{name}' holds {}, not numbers", c.dtype()));
+            }
+            let c = c.cast(&DataType::Float64).map_err(text)?;
+            let v: Vec<Option<f64>> = c.f64().map_err(text)?.iter().collect();
+            TableColumn::Number(all(v, empty)?)
+        }
+        "bool" => {
+            let v: Vec<Option<bool>> = c
+                .bool()
+                .map_err(|_| format!("column '{name}' holds {}, not true/false", c.dtype()))?
+                .iter()
+                .collect();
+            TableColumn::Flag(all(v, empty)?)
+        }
+        "String" => {
+            let v: Vec<Option<String>> = c
+                .str()
+                .map_err(|_| format!("column '{name}' holds {}, not text", c.dtype()))?
+                .iter()
+                .map(|s| s.map(str::to_owned))
+                .collect();
+            TableColumn::Text(all(v, empty)?)
+        }
+        "Vec<f32>" => {
+            let lists = c
+                .list()
+                .map_err(|_| format!("column '{name}' holds {}, not lists", c.dtype()))?;
+            let mut v = Vec::with_capacity(lists.len());
+            for (k, s) in lists.amortized_iter().enumerate() {
+                let s = s.map(|s| s.as_ref().clone());
+                let s = s.ok_or_else(|| empty(k))?;
+                let s = s.cast(&DataType::Float32).map_err(text)?;
+                let x: Option<Vec<f32>> = s.f32().map_err(text)?.iter().collect();
+                v.push(x.ok_or_else(|| {
+                    format!(
+                        "column '{name}' has an empty value in row {}",
+                        first_row + k + 1
+                    )
+                })?);
+            }
+            TableColumn::Vectors(v)
+        }
+        other => {
+            return Err(format!(
+                "column '{name}' has a type coid cannot read ({other})"
+            ));
+        }
+    };
+    Ok(col)
 }
 
 fn all<T>(v: Vec<Option<T>>, empty: impl Fn(usize) -> String) -> Result<Vec<T>, String> {

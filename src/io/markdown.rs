@@ -185,6 +185,20 @@ pub fn eval(
             settings.train.validation_seeds,
             settings.source.display()
         );
+    } else if let Some(d) = &settings.dataset {
+        let _ = writeln!(
+            md,
+            "- config: `{}` (methods and their settings)",
+            settings.source.display()
+        );
+        let _ = writeln!(
+            md,
+            "- evaluated runs: the {} runs of the dataset `{}`, read as it gives them (not \
+             simulated); the deep methods' weights: `{}`",
+            d.split.as_deref().unwrap_or("test"),
+            d.dir.display(),
+            settings.matching.models_dir.display()
+        );
     } else {
         let _ = writeln!(md, "- config: `{}`", settings.source.display());
         let _ = writeln!(

@@ -218,6 +218,11 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
         architecture: deep.backbone(),
         weights_fnv64: records::fnv64_hex(weights),
         config: record.settings.source.display().to_string(),
+        dataset: record
+            .settings
+            .dataset
+            .as_ref()
+            .map(|d| d.dir.display().to_string()),
         train_traffic_seeds: t.traffic_seeds.clone(),
         train_scenarios: paths(&t.scenarios),
         runs_per_scenario: (!t.scenarios.is_empty()).then_some(t.runs_per_scenario),

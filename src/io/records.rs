@@ -19,6 +19,10 @@ pub struct ModelRecord {
     /// FNV-1a 64 of the `.bpk` bytes (hex); loading refuses other bytes.
     pub weights_fnv64: String,
     pub config: String,
+    /// The dataset folder the weights were trained on (`coid train
+    /// --dataset`), instead of simulated runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dataset: Option<String>,
     pub train_traffic_seeds: Vec<u64>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub train_scenarios: Vec<String>,
@@ -220,6 +224,7 @@ impl ModelRecord {
     pub fn recipe_differences(&self, other: &Self) -> Vec<&'static str> {
         let fields = [
             ("method", self.method == other.method),
+            ("dataset", self.dataset == other.dataset),
             ("architecture", self.architecture == other.architecture),
             (
                 "train_traffic_seeds",
@@ -390,6 +395,7 @@ mod tests {
             architecture: Backbone::Likelihood(Architecture::default()),
             weights_fnv64: fnv64_hex(b"weights"),
             config: "c.toml".into(),
+            dataset: None,
             train_traffic_seeds: vec![1, 2],
             train_scenarios: Vec::new(),
             runs_per_scenario: None,

@@ -60,6 +60,7 @@ pub(crate) fn detection(position_m: Vec2, class: ObjectClass, colour: [f64; 3]) 
             length_m: 4.6,
             width_m: 1.8,
             height_m: 1.5,
+            descriptor: None,
         },
         motion: None,
     }

@@ -29,8 +29,12 @@ pub struct InstanceSide {
     /// The vehicle's speed (m/s), forward.
     pub(super) speed_mps: f64,
     /// The GNSS-reported pose at every level, when it is carried over time
-    /// (`[v2x] mode = "cpm"`) instead of drawn afresh at each step.
+    /// (`[v2x] mode = "cpm"`) or read from a dataset instead of drawn
+    /// afresh at each step.
     reported: Option<Vec<(PoseNoiseLabel, Pose2)>>,
+    /// The accuracy the receiver claims at every level, when a dataset
+    /// gives it (else it is the level's, at the vehicle's speed).
+    claimed: Option<Vec<PoseNoiseLevel>>,
 }
 
 impl InstanceSide {
@@ -67,7 +71,43 @@ impl InstanceSide {
             id_hash,
             speed_mps,
             reported,
+            claimed: None,
         })
+    }
+
+    /// A side read from a dataset: its nodes in the dataset's order (no
+    /// shuffle: a node's number is the dataset's), with the pose it
+    /// reports and the accuracy it claims at every level.
+    pub(super) fn read(
+        sensed: Sensed,
+        at_levels: Vec<(PoseNoiseLevel, Pose2)>,
+    ) -> Result<InstanceSide, RunError> {
+        let positions: Vec<Vec2> = sensed
+            .observation
+            .detections
+            .iter()
+            .map(|d| d.position_m)
+            .collect();
+        let graph = SceneGraph::delaunay(&positions)?;
+        let id = sensed.observation.ego_id.clone();
+        Ok(InstanceSide {
+            id_hash: rng::hash_str(&id),
+            source: ViewSource::Vehicle(id),
+            sensed,
+            graph,
+            speed_mps: 0.0,
+            reported: Some(at_levels.iter().map(|(l, p)| (l.label, *p)).collect()),
+            claimed: Some(at_levels.into_iter().map(|(l, _)| l).collect()),
+        })
+    }
+
+    /// The accuracy the receiver claims at `level`: the dataset's, else
+    /// the level's at the vehicle's speed (as the error is drawn).
+    fn claimed(&self, level: &PoseNoiseLevel, heading_speed_sigma_mps: f64) -> PoseNoiseLevel {
+        self.claimed
+            .as_ref()
+            .and_then(|c| c.iter().find(|l| l.label == level.label).copied())
+            .unwrap_or_else(|| gnss::at_speed(level, self.speed_mps, heading_speed_sigma_mps))
     }
 
     /// A side of a reception (`[v2x] mode = "cpm"`), named and ordered as
@@ -149,7 +189,7 @@ impl<'a> Instance<'a> {
                 detections: &e.sensed.observation.detections,
                 graph: &e.graph,
                 pose_reported: e.reported_pose(sensor_seed, step, level),
-                pose_noise: gnss::at_speed(level, e.speed_mps, heading_speed_sigma_mps),
+                pose_noise: e.claimed(level, heading_speed_sigma_mps),
             },
             obs: &e.sensed.observation,
             truth: &e.sensed.truth,

@@ -21,6 +21,7 @@ mod evaluation;
 mod frames;
 mod instance;
 mod parallel;
+mod replay;
 mod run;
 mod runners;
 mod simulate;
@@ -60,6 +61,9 @@ pub enum RunError {
     /// Correspondences made elsewhere that do not fit the run.
     #[error("{0}")]
     Matches(String),
+    /// A dataset that does not fit, or cannot stand in for a run.
+    #[error("dataset {dir}: {why}")]
+    Dataset { dir: String, why: String },
 }
 
 /// Progress reported once per simulation step.

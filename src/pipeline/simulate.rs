@@ -97,8 +97,8 @@ pub struct Step {
     sides: Vec<InstanceSide>,
     /// The instances' sides, as indices into `sides` (ordered by id).
     pairs: Vec<(usize, usize)>,
-    /// The running index of the step's first instance.
-    first_index: usize,
+    /// Each instance's number (a running index within the run).
+    numbers: Vec<usize>,
 }
 
 impl Step {
@@ -111,12 +111,24 @@ impl Step {
         pairs: Vec<(usize, usize)>,
         first_index: usize,
     ) -> Step {
+        let numbers = (first_index..first_index + pairs.len()).collect();
+        Step::numbered(scene, frame, sides, pairs, numbers)
+    }
+
+    /// [`Step::new`] with each instance's number given (a dataset's).
+    pub(super) fn numbered(
+        scene: Arc<StaticScene>,
+        frame: TrafficFrame,
+        sides: Vec<InstanceSide>,
+        pairs: Vec<(usize, usize)>,
+        numbers: Vec<usize>,
+    ) -> Step {
         Step {
             scene,
             frame,
             sides,
             pairs,
-            first_index,
+            numbers,
         }
     }
 
@@ -124,9 +136,9 @@ impl Step {
     pub fn instances(&self) -> Vec<Instance<'_>> {
         self.pairs
             .iter()
-            .enumerate()
-            .map(|(k, &(a, b))| Instance {
-                index: self.first_index + k,
+            .zip(&self.numbers)
+            .map(|(&(a, b), &index)| Instance {
+                index,
                 scene: &self.scene,
                 frame: &self.frame,
                 a: &self.sides[a],
@@ -145,6 +157,9 @@ pub fn simulate_steps(
     mut progress: impl FnMut(Progress),
     mut on_step: impl FnMut(Step) -> Result<(), RunError>,
 ) -> Result<SimStats, RunError> {
+    if let Some(source) = &settings.dataset {
+        return super::replay::dataset_steps(settings, source, warnings, progress, on_step);
+    }
     let sc = &settings.scenario;
     let rig = Rig::of(settings);
     let cpm = settings.v2x.mode == V2xMode::Cpm;

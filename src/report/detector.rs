@@ -181,6 +181,7 @@ mod tests {
                 length_m: 4.6,
                 width_m: 1.8,
                 height_m: 1.5,
+                descriptor: None,
             },
             motion: None,
         }

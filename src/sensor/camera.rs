@@ -180,6 +180,7 @@ pub(super) fn observe_appearance(
         length_m: size[0],
         width_m: size[1],
         height_m: size[2],
+        descriptor: None,
     }
 }
 

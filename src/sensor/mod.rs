@@ -134,6 +134,10 @@ pub struct Appearance {
     pub length_m: f64,
     pub width_m: f64,
     pub height_m: f64,
+    /// A learned appearance descriptor (a re-identification network's
+    /// features), where the source gives one: a dataset read from
+    /// elsewhere; coid's sensor model makes none.
+    pub descriptor: Option<std::sync::Arc<[f32]>>,
 }
 
 /// One detection in one vehicle's body frame: what the vehicle knows.
@@ -237,6 +241,7 @@ impl Sensed {
                 length_m: ego.length_m,
                 width_m: ego.width_m,
                 height_m: ego.height_m,
+                descriptor: None,
             },
             motion: Some(boxes::Motion {
                 heading_rad: 0.0,

@@ -29,6 +29,7 @@ pub(crate) fn appearance(id: &str) -> Appearance {
         length_m: 4.5,
         width_m: 1.8,
         height_m: 1.5,
+        descriptor: None,
     }
 }
 

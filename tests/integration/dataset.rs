@@ -73,6 +73,44 @@ fn write_pairs(dir: &Path) {
     }
 }
 
+/// Like [`write_pairs`], but the two views see one world: objects 101-105
+/// at fixed CARLA-frame places, each view's camera coordinates computed
+/// from its vehicle's pose (pair k: both vehicles moved by k metres).
+fn write_consistent_pairs(dir: &Path) {
+    let world = [
+        (101, (18.0, 4.0)),
+        (102, (25.0, -6.0)),
+        (103, (12.0, 9.0)),
+        (104, (30.0, 2.0)),
+        (105, (20.0, 15.0)),
+    ];
+    let seen = |at: (f64, f64), h: f64, ids: &[u32]| -> Vec<(f64, f64)> {
+        ids.iter()
+            .map(|id| {
+                let (_, (wx, wy)) = world.iter().find(|(i, _)| i == id).unwrap();
+                let (dx, dy) = (wx - at.0, wy - at.1);
+                let f = dx * h.cos() + dy * h.sin();
+                let r = -dx * h.sin() + dy * h.cos();
+                (r, f)
+            })
+            .collect()
+    };
+    for (j, k) in [10u32, 11, 12].into_iter().enumerate() {
+        let name = format!("data/proc_s/{k}/r1_{:04}", 5 + j);
+        let shift = f64::from(k - 10);
+        let (a, b) = ((shift - 2.0, -1.0), (shift + 1.0, 20.0));
+        let ids_s = [101, 102, 103, 104];
+        let ids_t = [103, 105, 101, 104];
+        let s = view(&name, &ids_s, &seen(a, 0.1, &ids_s), a, 0.1);
+        let t = view(&name, &ids_t, &seen(b, -0.6, &ids_t), b, -0.6);
+        for (v, bytes) in [("proc_s", s), ("proc_t", t)] {
+            let d = dir.join(v).join(k.to_string());
+            std::fs::create_dir_all(&d).unwrap();
+            std::fs::write(d.join("data.pt"), bytes).unwrap();
+        }
+    }
+}
+
 fn convert(fx: &Fixture, out: &str) -> std::process::Output {
     fx.coid(&[
         "convert",
@@ -228,4 +266,117 @@ fn a_dataset_with_a_missing_column_or_a_node_matched_twice_is_refused() {
     assert!(!o.status.success());
     let e = stderr(&o);
     assert!(e.contains("true_pairs.parquet: row 2: node 0 of the first vehicle of run 0, instance 0 is matched a second time"), "{e}");
+}
+
+/// A dataset whose rows of one run are not one after another is refused
+/// (coid reads a dataset run by run), naming the file and row.
+#[test]
+fn a_dataset_whose_run_rows_are_apart_is_refused() {
+    let fx = Fixture::new();
+    write_pairs(&fx.path("src"));
+    assert_ok(&convert(&fx, "ds"));
+    rewrite(&fx.path("ds/truth.parquet"), |df| {
+        let n = df.height();
+        // The last row (run 1) first: run 1 comes before and after run 0.
+        df.slice(n as i64 - 1, 1)
+            .vstack(&df.slice(0, n - 1))
+            .unwrap()
+    });
+    let o = fx.coid(&["dataset", fx.path("ds").to_str().unwrap()]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("truth.parquet: row 9: the rows of run 1 are not together"),
+        "{e}"
+    );
+}
+
+/// The converted pairs evaluate as a dataset: every vehicle's pose is
+/// fitted to its nodes' world positions (exact here, so GPS-Hungarian
+/// finds every true pair and nothing else), the oracle finds the true
+/// pairs, and the report names the dataset, not simulated runs.
+#[test]
+fn converted_pairs_evaluate_with_poses_fitted_to_their_world_positions() {
+    let fx = Fixture::new();
+    write_consistent_pairs(&fx.path("src"));
+    assert_ok(&convert(&fx, "ds"));
+    let config = fx.write(
+        "c.toml",
+        "[matching]\nmethods = [\"gps-hungarian\", \"mogm\", \"oracle\"]\n",
+    );
+    let o = fx
+        .cmd("eval")
+        .quiet()
+        .config(&config)
+        .args(["--dataset", fx.path("ds").to_str().unwrap()])
+        .out("ev")
+        .output();
+    assert_ok(&o);
+    assert!(
+        stderr(&o).contains("on 2 test runs") || stderr(&o).contains("on 1 test run"),
+        "{}",
+        stderr(&o)
+    );
+    let table = fx.read_text("ev/table1b.csv");
+    let row = |method: &str| -> Vec<String> {
+        table
+            .lines()
+            .find(|l| l.starts_with(&format!("{method},gps,")))
+            .unwrap_or_else(|| panic!("{method} in {table}"))
+            .split(',')
+            .map(str::to_owned)
+            .collect()
+    };
+    let header: Vec<&str> = table.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|c| *c == name).unwrap();
+    for method in ["gps-hungarian", "oracle"] {
+        let r = row(method);
+        for metric in ["precision", "recall", "f1"] {
+            let v: f64 = r[col(metric)].parse().unwrap();
+            assert!((v - 1.0).abs() < 1e-9, "{method} {metric} {v}");
+        }
+    }
+    let summary = fx.read_text("ev/summary.md");
+    assert!(
+        summary.contains("the test runs of the dataset"),
+        "{summary}"
+    );
+    assert!(
+        stderr(&o).contains("has no position covariances"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+/// A run exported and read back as a dataset evaluates exactly as the
+/// run itself: every table of `coid eval` (deep methods with their
+/// dropout samples, fusion errors, calibration) byte for byte.
+#[test]
+fn a_run_exported_and_read_back_evaluates_as_the_run_itself() {
+    let (fx, config) = Fixture::with_config(
+        60.0,
+        "[matching]\nmethods = [\"gps-app-hungarian\", \"mogm\", \"ours\", \"oracle\"]\n\
+         [eval]\ntraffic_seeds = [1, 2]\n",
+    );
+    let export = fx.cmd("export").quiet().config(&config);
+    assert_ok(&export.args(["--splits", "test"]).out("ex").output());
+    assert_ok(&fx.cmd("eval").quiet().config(&config).out("sim").output());
+    let read = fx.cmd("eval").quiet().config(&config);
+    let read = read.args(["--dataset", fx.path("ex").to_str().unwrap()]);
+    assert_ok(&read.out("read").output());
+    let mut compared = 0;
+    for f in std::fs::read_dir(fx.path("sim")).unwrap() {
+        let name = f.unwrap().file_name().to_string_lossy().into_owned();
+        if name.ends_with(".csv") {
+            assert_eq!(
+                fx.read_text(&format!("read/{name}")),
+                fx.read_text(&format!("sim/{name}")),
+                "{name}"
+            );
+            compared += 1;
+        }
+    }
+    assert!(compared >= 6, "{compared} tables");
+    let instances = fx.read_text("sim/table1b.csv");
+    assert!(instances.lines().count() > 3, "{instances}");
 }
