@@ -16,7 +16,10 @@ use crate::matching::deep::decision::{
     Decision, KindLambdas, UncertaintyKind, calibrated, pair_uncertainty,
 };
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainProgress, TrainReport};
-use crate::matching::{DecisionChoice, LambdaChoice, Method, MethodKind, MethodLambdas};
+use crate::matching::{
+    BaselineValue, DESCRIPTOR_WEIGHTS, DecisionChoice, LambdaChoice, Method, MethodKind,
+    MethodLambdas,
+};
 use crate::pipeline::{self, Progress, RunError, Warnings};
 use crate::sensor::PoseNoiseLabel;
 use crate::tables::{DecidedPair, MethodLevel, RuleKey, RunEval, lambda_grid};
@@ -49,13 +52,50 @@ pub fn with_dataset(settings: &Settings, dir: &Path) -> Result<Settings, RunErro
     s.train.traffic_seeds = seeds("train");
     s.train.validation_seeds = seeds("validation");
     s.eval.traffic_seeds = seeds("test");
+    let descriptor_law = descriptor_law(&d).map_err(|e| RunError::Dataset {
+        dir: dir.display().to_string(),
+        why: e.to_string(),
+    })?;
     s.pose_noise = d.levels;
     s.dataset = Some(DatasetSource {
         dir: dir.to_owned(),
         split: None,
         run: None,
+        descriptor_law,
     });
     Ok(s)
+}
+
+/// What the dataset's appearance vectors say
+/// ([`crate::matching::descriptor::fit_law`]), fitted on every pair of
+/// nodes of the two vehicles of its validation runs' instances (never its
+/// test runs); `None` without vectors or validation runs.
+fn descriptor_law(
+    d: &Dataset,
+) -> Result<Option<crate::sensor::DescriptorLaw>, crate::dataset::read::DatasetError> {
+    if d.appearance_width.is_none() {
+        return Ok(None);
+    }
+    let mut pairs = Vec::new();
+    for (k, _) in d
+        .runs
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.split == "validation")
+    {
+        for inst in d.run(k)?.instances {
+            let [a, b] = &inst.sides;
+            for x in &a.nodes {
+                for y in &b.nodes {
+                    if let (Some(u), Some(v)) = (&x.appearance, &y.appearance) {
+                        let same = !x.object_id.is_empty() && x.object_id == y.object_id;
+                        pairs.push((crate::sensor::cosine(u, v), same));
+                    }
+                }
+            }
+        }
+    }
+    Ok(crate::matching::descriptor::fit_law(&pairs))
 }
 
 /// With a dataset ([`with_dataset`]), its runs of `split` (each with its
@@ -77,9 +117,9 @@ fn dataset_runs(settings: &Settings, split: &str) -> Result<Option<Vec<Settings>
         .map(|(k, r)| {
             let mut s = settings_for_seed(settings, r.seed);
             s.dataset = Some(DatasetSource {
-                dir: source.dir.clone(),
                 split: Some(split.to_owned()),
                 run: Some(k),
+                ..source.clone()
             });
             s
         })
@@ -502,6 +542,9 @@ pub struct TunedBaseline {
     /// What the value is ([`crate::matching::BaselineKnob::name`]).
     pub parameter: &'static str,
     pub value: f64,
+    /// The power of learned descriptors' likelihood ratio chosen with it
+    /// (MOGM and RGM on a dataset with descriptors).
+    pub descriptor_weight: Option<f64>,
     /// Its mean F1 over the validation runs (of the mean over the levels).
     pub f1: f64,
     /// The value fixed before any data was seen, and its mean F1.
@@ -540,13 +583,17 @@ fn a_priori_value(settings: &Settings, m: Method) -> f64 {
 /// validation run, and the value with the best mean F1 (over the runs,
 /// of the mean over the pose-noise levels) wins, the a-priori value on
 /// ties, else the earlier one of the grid. Values that shape the
-/// optimisation (RGM's price, the gates) are run, not re-decided.
-/// `progress(pass, passes)` after each pass over the runs.
+/// optimisation (RGM's price, the gates) are run, not re-decided. On a
+/// dataset with learned descriptors, MOGM's and RGM's descriptor weight
+/// ([`crate::matching::DESCRIPTOR_WEIGHTS`]) is chosen first, the same
+/// way at the a-priori threshold (1, the ratio as fitted, on ties), and
+/// the threshold then with it. `progress(pass, passes)` after each pass
+/// over the runs.
 pub fn tune_baselines(
     settings: &Settings,
     threads: usize,
     warnings: &Warnings,
-    mut progress: impl FnMut(usize, usize),
+    progress: impl FnMut(usize, usize),
 ) -> Result<Vec<TunedBaseline>, RunError> {
     let knobs: Vec<(Method, crate::matching::BaselineKnob)> = settings
         .matching
@@ -557,78 +604,186 @@ pub fn tune_baselines(
     if knobs.is_empty() {
         return Ok(Vec::new());
     }
-    let validation = validation_runs(settings)?;
-    let levels: Vec<_> = settings.pose_noise.iter().map(|l| l.label).collect();
+    let weighs = settings
+        .dataset
+        .as_ref()
+        .is_some_and(|d| d.descriptor_law.is_some());
+    let weighed: Vec<Method> = knobs
+        .iter()
+        .map(|(m, _)| *m)
+        .filter(|m| weighs && m.weighs_descriptors())
+        .collect();
+    let grid_passes = 1 + knobs.iter().map(|(_, k)| k.grid.len()).max().unwrap_or(0);
+    let weight_passes = if weighed.is_empty() {
+        0
+    } else {
+        DESCRIPTOR_WEIGHTS.len()
+    };
+    let mut passes = Passes {
+        validation: validation_runs(settings)?,
+        settings,
+        run: (threads, warnings),
+        done: 0,
+        total: weight_passes + grid_passes,
+        progress,
+    };
+    let weights = descriptor_weights(&mut passes, &weighed)?;
+    let at = |m: Method, value: f64| BaselineValue {
+        value,
+        descriptor_weight: weights.get(&m).copied().unwrap_or(1.0),
+    };
     // Pass 0 runs the a-priori values that are not in their grid; pass k
     // the k-th value of each grid.
     let off_grid = |m: Method, k: &crate::matching::BaselineKnob| {
         !k.grid.contains(&a_priori_value(settings, m))
     };
-    let passes = 1 + knobs.iter().map(|(_, k)| k.grid.len()).max().unwrap_or(0);
     let mut f1: BTreeMap<(Method, usize), f64> = BTreeMap::new();
-    for pass in 0..passes {
+    for pass in 0..grid_passes {
         let mut values = BTreeMap::new();
         for (m, k) in &knobs {
             match pass.checked_sub(1) {
                 None if off_grid(*m, k) => {
-                    values.insert(*m, a_priori_value(settings, *m));
+                    values.insert(*m, at(*m, a_priori_value(settings, *m)));
                 }
                 Some(i) if i < k.grid.len() => {
-                    values.insert(*m, k.grid[i]);
+                    values.insert(*m, at(*m, k.grid[i]));
                 }
                 _ => {}
             }
         }
-        let methods: Vec<Method> = values.keys().copied().collect();
-        if methods.is_empty() {
-            progress(pass + 1, passes);
-            continue;
+        for (m, f) in passes.run(&values)? {
+            f1.insert((m, pass), f);
         }
-        let mut evals = Vec::with_capacity(validation.len());
-        for run in &validation {
-            let mut s = run.clone();
-            s.matching.baselines = crate::matching::BaselineChoice::APriori;
-            s.matching.baseline_values = values.clone();
-            let runners = pipeline::runners(&s, &methods)?;
-            let no_lambdas = BTreeMap::new();
-            evals.push(eval_run_into(
-                RunEval::default(),
-                &s,
-                &runners,
-                (&no_lambdas, threads),
-                warnings,
-                |_| {},
-            )?);
-        }
-        for &m in &methods {
-            f1.insert((m, pass), mean_f1(&evals, &levels, m));
-        }
-        progress(pass + 1, passes);
     }
     Ok(knobs
         .into_iter()
         .map(|(m, k)| {
-            let a_priori = a_priori_value(settings, m);
-            let f1_a_priori = match k.grid.iter().position(|&v| v == a_priori) {
-                Some(i) => f1[&(m, i + 1)],
-                None => f1[&(m, 0)],
-            };
-            let (mut value, mut best) = (a_priori, f1_a_priori);
-            for (i, &v) in k.grid.iter().enumerate() {
-                let f = f1[&(m, i + 1)];
-                if f > best {
-                    (value, best) = (v, f);
-                }
-            }
-            TunedBaseline {
-                method: m,
-                parameter: k.name,
-                value,
-                f1: best,
-                a_priori,
-                f1_a_priori,
-            }
+            let mut t = best_of_grid(settings, m, &k, &f1);
+            t.descriptor_weight = weights.get(&m).copied();
+            t
         })
+        .collect())
+}
+
+/// The validation runs, and how many passes over them are done of all.
+struct Passes<'a, P> {
+    validation: Vec<Settings>,
+    settings: &'a Settings,
+    run: (usize, &'a Warnings),
+    done: usize,
+    total: usize,
+    progress: P,
+}
+
+impl<P: FnMut(usize, usize)> Passes<'_, P> {
+    /// One pass: every validation run with the baselines at `values`.
+    fn run(
+        &mut self,
+        values: &BTreeMap<Method, BaselineValue>,
+    ) -> Result<BTreeMap<Method, f64>, RunError> {
+        let f1 = validation_f1s(&self.validation, values, self.run, self.settings)?;
+        self.done += 1;
+        (self.progress)(self.done, self.total);
+        Ok(f1)
+    }
+}
+
+/// The descriptor weight of each of `weighed` with the best mean F1 on the
+/// validation runs at its a-priori threshold, the larger weight on ties.
+fn descriptor_weights<P: FnMut(usize, usize)>(
+    passes: &mut Passes<'_, P>,
+    weighed: &[Method],
+) -> Result<BTreeMap<Method, f64>, RunError> {
+    let mut weights: BTreeMap<Method, (f64, f64)> = BTreeMap::new();
+    if weighed.is_empty() {
+        return Ok(BTreeMap::new());
+    }
+    for w in DESCRIPTOR_WEIGHTS {
+        let values = weighed
+            .iter()
+            .map(|&m| {
+                let value = a_priori_value(passes.settings, m);
+                let v = BaselineValue {
+                    value,
+                    descriptor_weight: w,
+                };
+                (m, v)
+            })
+            .collect();
+        for (m, f) in passes.run(&values)? {
+            let best = weights.entry(m).or_insert((w, f));
+            if f >= best.1 {
+                *best = (w, f);
+            }
+        }
+    }
+    Ok(weights.into_iter().map(|(m, (w, _))| (m, w)).collect())
+}
+
+/// Baseline `m`'s best value of its grid (`f1` by method and pass: pass 0
+/// the a-priori value when it is off the grid, pass `i + 1` the grid's
+/// `i`-th), the a-priori value on ties.
+fn best_of_grid(
+    settings: &Settings,
+    m: Method,
+    k: &crate::matching::BaselineKnob,
+    f1: &BTreeMap<(Method, usize), f64>,
+) -> TunedBaseline {
+    let a_priori = a_priori_value(settings, m);
+    let f1_a_priori = match k.grid.iter().position(|&v| v == a_priori) {
+        Some(i) => f1[&(m, i + 1)],
+        None => f1[&(m, 0)],
+    };
+    let (mut value, mut best) = (a_priori, f1_a_priori);
+    for (i, &v) in k.grid.iter().enumerate() {
+        let f = f1[&(m, i + 1)];
+        if f > best {
+            (value, best) = (v, f);
+        }
+    }
+    TunedBaseline {
+        method: m,
+        parameter: k.name,
+        value,
+        descriptor_weight: None,
+        f1: best,
+        a_priori,
+        f1_a_priori,
+    }
+}
+
+/// Every validation run with the baselines at `values`: each method's
+/// mean F1 ([`mean_f1`]); none without values.
+fn validation_f1s(
+    validation: &[Settings],
+    values: &BTreeMap<Method, BaselineValue>,
+    (threads, warnings): (usize, &Warnings),
+    settings: &Settings,
+) -> Result<BTreeMap<Method, f64>, RunError> {
+    let methods: Vec<Method> = values.keys().copied().collect();
+    if methods.is_empty() {
+        return Ok(BTreeMap::new());
+    }
+    let levels: Vec<_> = settings.pose_noise.iter().map(|l| l.label).collect();
+    let mut evals = Vec::with_capacity(validation.len());
+    for run in validation {
+        let mut s = run.clone();
+        s.matching.baselines = crate::matching::BaselineChoice::APriori;
+        s.matching.baseline_values = values.clone();
+        let runners = pipeline::runners(&s, &methods)?;
+        let no_lambdas = BTreeMap::new();
+        evals.push(eval_run_into(
+            RunEval::default(),
+            &s,
+            &runners,
+            (&no_lambdas, threads),
+            warnings,
+            |_| {},
+        )?);
+    }
+    Ok(methods
+        .iter()
+        .map(|&m| (m, mean_f1(&evals, &levels, m)))
         .collect())
 }
 

@@ -444,6 +444,7 @@ pub fn tune_baselines(
             method: t.method,
             parameter: t.parameter.to_owned(),
             value: t.value,
+            descriptor_weight: t.descriptor_weight,
             f1: t.f1,
             a_priori: t.a_priori,
             f1_a_priori: t.f1_a_priori,

@@ -374,8 +374,12 @@ fn tune_baselines(
     })?;
     pb.finish_and_clear();
     for t in &tuned {
+        let weight = t
+            .descriptor_weight
+            .map(|w| format!(", descriptor weight {w}"))
+            .unwrap_or_default();
         eprintln!(
-            "coid: {}: {} {} (mean F1 {:.3} on the validation runs; a priori {}: {:.3})",
+            "coid: {}: {} {}{weight} (mean F1 {:.3} on the validation runs; a priori {}: {:.3})",
             t.method.as_str(),
             t.parameter,
             t.value,

@@ -148,6 +148,10 @@ pub struct DatasetSource {
     pub split: Option<String>,
     /// The index of the run in the dataset's `runs.parquet` order.
     pub run: Option<usize>,
+    /// What the nodes' appearance vectors say, fitted on the dataset's
+    /// validation runs (`None`: no vectors, no validation runs, or they
+    /// tell nothing apart there).
+    pub descriptor_law: Option<crate::sensor::DescriptorLaw>,
 }
 
 /// As derived, but `v2x` is shown only when it is not the default (and

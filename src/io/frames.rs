@@ -294,36 +294,24 @@ pub fn read_matches(path: &Path) -> Result<Vec<MatchRow>, String> {
     if n == 0 {
         return Ok(Vec::new());
     }
+    // The columns as a dataset's are read: an optional column is all or
+    // nothing (an empty cell is refused, not read as "1" or "the default").
     let index = |name: &str| -> Result<Vec<u64>, String> {
         let c = df
             .column(name)
             .map_err(|_| format!("it has no column '{name}'"))?;
-        if !c.dtype().is_integer() {
-            return Err(format!("column '{name}' holds {}, not integers", c.dtype()));
+        match dataset_column(c, name, "u64", 0)? {
+            TableColumn::Count(v) => Ok(v),
+            _ => Err(format!("column '{name}' holds {}, not integers", c.dtype())),
         }
-        let c = c
-            .strict_cast(&DataType::UInt64)
-            .map_err(|_| format!("column '{name}' holds a negative value"))?;
-        let v: Vec<Option<u64>> = c.u64().map_err(text)?.iter().collect();
-        v.into_iter()
-            .enumerate()
-            .map(|(k, x)| x.ok_or_else(|| format!("column '{name}' is empty in row {}", k + 1)))
-            .collect()
     };
-    // An optional column is all or nothing: an empty cell is refused (it
-    // is not "1" or "the default").
     let number = |name: &str| -> Result<Vec<Option<f64>>, String> {
         let Ok(c) = df.column(name) else {
             return Ok(vec![None; n]);
         };
-        if !c.dtype().is_primitive_numeric() {
-            return Err(format!("column '{name}' holds {}, not numbers", c.dtype()));
-        }
-        let c = c.cast(&DataType::Float64).map_err(text)?;
-        let v: Vec<Option<f64>> = c.f64().map_err(text)?.iter().collect();
-        match v.iter().position(Option::is_none) {
-            Some(k) => Err(format!("column '{name}' is empty in row {}", k + 1)),
-            None => Ok(v),
+        match dataset_column(c, name, "f64", 0)? {
+            TableColumn::Number(v) => Ok(v.into_iter().map(Some).collect()),
+            _ => Err(format!("column '{name}' holds {}, not numbers", c.dtype())),
         }
     };
     let level = pose_noise_column(&df)?;

@@ -199,6 +199,16 @@ pub fn eval(
             d.dir.display(),
             settings.matching.models_dir.display()
         );
+        if let Some(law) = d.descriptor_law {
+            let _ = writeln!(
+                md,
+                "- appearance vectors: the appearance similarity (MOGM, RGM, GPS+appearance \
+                 Hungarian, and `ours`'s pair features) multiplies by the likelihood ratio \
+                 exp({:.2} (cos - {:.3})) of their cosine similarity, fitted on the dataset's \
+                 validation runs; the published networks' node features do not read them",
+                law.slope, law.neutral
+            );
+        }
     } else {
         let _ = writeln!(md, "- config: `{}`", settings.source.display());
         let _ = writeln!(

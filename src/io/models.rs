@@ -14,7 +14,7 @@ use crate::config::Settings;
 use crate::matching::deep::arch::MaskScope;
 use crate::matching::deep::decision::{Decision, KindLambdas, UncertaintyKind};
 use crate::matching::deep::train::TrainReport;
-use crate::matching::{BASELINES_FILE, Method, MethodKind};
+use crate::matching::{BASELINES_FILE, BaselineValue, Method, MethodKind};
 
 /// The weights file of a method in a models folder (a single-pass
 /// variant's are those of the method it is one pass of).
@@ -113,7 +113,7 @@ pub struct BaselinesError {
 pub fn read_baselines(
     models_dir: &Path,
     methods: &[Method],
-) -> Result<std::collections::BTreeMap<Method, f64>, BaselinesError> {
+) -> Result<std::collections::BTreeMap<Method, BaselineValue>, BaselinesError> {
     let path = models_dir.join(BASELINES_FILE);
     let fail = |reason: String| BaselinesError {
         path: path.clone(),
@@ -127,14 +127,20 @@ pub fn read_baselines(
         })
     })?;
     let record = BaselinesRecord::from_toml(&text).map_err(fail)?;
-    let values: std::collections::BTreeMap<Method, f64> = record
+    let values: std::collections::BTreeMap<Method, BaselineValue> = record
         .baselines
         .iter()
-        .map(|b| (b.method, b.value))
+        .map(|b| {
+            let value = BaselineValue {
+                value: b.value,
+                descriptor_weight: b.descriptor_weight.unwrap_or(1.0),
+            };
+            (b.method, value)
+        })
         .collect();
     for m in methods.iter().filter(|m| m.baseline_knob().is_some()) {
-        match values.get(m) {
-            Some(v) if v.is_finite() && *v >= 0.0 => {}
+        match values.get(m).map(|v| v.value) {
+            Some(v) if v.is_finite() && v >= 0.0 => {}
             Some(v) => return Err(fail(format!("'{}' has value {v}", m.as_str()))),
             None => return Err(fail(format!("'{}' is not in it", m.as_str()))),
         }
@@ -162,6 +168,10 @@ pub fn record_baselines(
     let t = &settings.train;
     let record = BaselinesRecord {
         config: settings.source.display().to_string(),
+        dataset: settings
+            .dataset
+            .as_ref()
+            .map(|d| d.dir.display().to_string()),
         validation_seeds: t.validation_seeds.clone(),
         validation_scenarios: t
             .validation_scenarios

@@ -73,6 +73,9 @@ fn per_node() -> MaskScope {
 #[serde(deny_unknown_fields)]
 pub struct BaselinesRecord {
     pub config: String,
+    /// The dataset whose validation runs chose (`coid train --dataset`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dataset: Option<String>,
     pub validation_seeds: Vec<u64>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub validation_scenarios: Vec<String>,
@@ -88,6 +91,11 @@ pub struct BaselineEntry {
     /// What the value is (`min_score`, `price_per_match`, `gate_chi2`).
     pub parameter: String,
     pub value: f64,
+    /// The power of learned descriptors' likelihood ratio in its
+    /// appearance term, chosen with it (MOGM and RGM on a dataset with
+    /// descriptors; 1 without).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub descriptor_weight: Option<f64>,
     /// Its mean F1 on the validation runs.
     pub f1: f64,
     /// The a-priori value, and its mean F1 on the same runs.

@@ -70,14 +70,22 @@ pub fn build(
 ) -> Result<Box<dyn Matcher>, BuildError> {
     let value = settings.baseline_value(method);
     let inner: Box<dyn Matcher> = match method.kind() {
-        MethodKind::LearningFree if method == Method::Mogm => Box::new(Mogm {
-            min_score: value,
-            ..Mogm::default()
-        }),
-        MethodKind::LearningFree => Box::new(Rgm {
-            lambda: value,
-            ..Rgm::default()
-        }),
+        MethodKind::LearningFree if method == Method::Mogm => {
+            let mut m = Mogm {
+                min_score: value,
+                ..Mogm::default()
+            };
+            m.params.descriptor_weight = settings.descriptor_weight(method);
+            Box::new(m)
+        }
+        MethodKind::LearningFree => {
+            let mut m = Rgm {
+                lambda: value,
+                ..Rgm::default()
+            };
+            m.params.descriptor_weight = settings.descriptor_weight(method);
+            Box::new(m)
+        }
         MethodKind::GpsBased => Box::new(GpsHungarian {
             gate_chi2: value,
             appearance: method == Method::GpsAppHungarian,

@@ -55,8 +55,16 @@ impl Matcher for GpsHungarian {
             .into_iter()
             .map(|(a, b)| {
                 // Likelihood ratio against a perfect pair: 1 at zero
-                // distance and identical looks, about 0 at the gate.
-                let probability = scores[a * m + b].map_or(0.0, f64::exp);
+                // distance and identical looks (and descriptors), about 0
+                // at the gate.
+                let perfect = match (
+                    &first.detections[a].appearance.descriptor,
+                    &second.detections[b].appearance.descriptor,
+                ) {
+                    (Some(d), Some(_)) if self.appearance => d.most_alike_ratio(),
+                    _ => 1.0,
+                };
+                let probability = scores[a * m + b].map_or(0.0, |s| (s.exp() / perfect).min(1.0));
                 Correspondence {
                     a,
                     b,
@@ -137,5 +145,49 @@ mod tests {
         };
         assert_eq!(right(true), (2, 2));
         assert_eq!(right(false), (0, 2));
+    }
+
+    /// Regression (probabilities above 1 with appearance vectors): with
+    /// descriptors whose likelihood ratio exceeds 1, GPS+appearance
+    /// Hungarian's probability is still a ratio against a perfect pair:
+    /// in [0, 1], and 1 for an exact pair with identical descriptors.
+    #[test]
+    fn gps_app_hungarian_probabilities_stay_in_0_1_with_descriptors() {
+        use crate::sensor::{Descriptor, DescriptorLaw};
+        let white = [0.9; 3];
+        let world = vec![
+            (Vec2::new(10.0, 5.0), ObjectClass::Car, white),
+            (Vec2::new(20.0, -3.0), ObjectClass::Car, white),
+            (Vec2::new(15.0, 12.0), ObjectClass::Car, white),
+        ];
+        let law = DescriptorLaw {
+            slope: 10.0,
+            neutral: 0.6,
+        };
+        let describe = |side: &mut Side| {
+            for (d, &k) in side.detections.iter_mut().zip(&side.objects) {
+                let mut values = vec![0.2f32; 3];
+                values[k] = 1.0;
+                d.appearance.descriptor = Some(Descriptor {
+                    values: values.into(),
+                    law,
+                });
+            }
+        };
+        let mut a = Side::of((0.0, 0.0, 0.0), &world, &[0, 1, 2], testkit::EXACT);
+        let mut b = Side::of((30.0, 4.0, 2.5), &world, &[2, 0], testkit::EXACT);
+        describe(&mut a);
+        describe(&mut b);
+        let m = GpsHungarian {
+            gate_chi2: 9.21,
+            appearance: true,
+        }
+        .identify(&a.view(), &b.view())
+        .matches;
+        assert_eq!(testkit::correct(&a, &b, &m), 2);
+        for c in &m {
+            assert!((c.probability - 1.0).abs() < 1e-9, "{c:?}");
+            assert!(c.uncertainty.is_finite());
+        }
     }
 }

@@ -40,6 +40,10 @@ pub struct AffinityParams {
     /// Edges longer than this are ignored (far pairs carry little
     /// structure and much noise).
     pub max_edge_m: f64,
+    /// The power of the learned descriptors' likelihood ratio in the
+    /// appearance similarity (1: the ratio as fitted; 0: descriptors
+    /// unused), chosen on validation runs with the threshold.
+    pub descriptor_weight: f64,
 }
 
 impl Default for AffinityParams {
@@ -47,13 +51,33 @@ impl Default for AffinityParams {
         Self {
             min_appearance: 0.05,
             max_edge_m: 60.0,
+            descriptor_weight: 1.0,
         }
     }
 }
 
-/// Appearance similarity in [0, 1]: class agreement (confusable classes
-/// count a little), colour and size closeness.
+/// Appearance similarity: class agreement (confusable classes count a
+/// little), colour and size closeness, in [0, 1]; where both carry a
+/// learned descriptor, times its calibrated likelihood ratio
+/// ([`crate::sensor::Descriptor::likelihood_ratio`], which may exceed 1).
 pub fn appearance_similarity(x: &Appearance, y: &Appearance) -> f64 {
+    weighted_similarity(x, y, 1.0)
+}
+
+/// [`appearance_similarity`] with the descriptors' likelihood ratio raised
+/// to `descriptor_weight`.
+pub fn weighted_similarity(x: &Appearance, y: &Appearance, descriptor_weight: f64) -> f64 {
+    let learned = match (&x.descriptor, &y.descriptor) {
+        (Some(a), Some(b)) if descriptor_weight != 0.0 => {
+            a.likelihood_ratio(b).powf(descriptor_weight)
+        }
+        _ => 1.0,
+    };
+    learned * look_similarity(x, y)
+}
+
+/// The class, colour and size part of [`appearance_similarity`].
+fn look_similarity(x: &Appearance, y: &Appearance) -> f64 {
     let class = if x.class == y.class {
         1.0
     } else if x.class.confusable() == y.class || y.class.confusable() == x.class {
@@ -107,7 +131,7 @@ pub fn build(first: &MatchView, second: &MatchView, params: &AffinityParams) -> 
     let mut unary = Vec::new();
     for (i, di) in first.detections.iter().enumerate() {
         for (a, da) in second.detections.iter().enumerate() {
-            let s = appearance_similarity(&di.appearance, &da.appearance);
+            let s = weighted_similarity(&di.appearance, &da.appearance, params.descriptor_weight);
             if s >= params.min_appearance {
                 candidates.push((i, a));
                 unary.push(s);

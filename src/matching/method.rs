@@ -205,7 +205,19 @@ pub struct BaselineKnob {
     pub grid: Vec<f64>,
 }
 
+/// The powers of the learned descriptors' likelihood ratio that
+/// validation tries for the learning-free matchers (0: descriptors
+/// unused; 1: the ratio as fitted).
+pub const DESCRIPTOR_WEIGHTS: [f64; 5] = [0.0, 0.25, 0.5, 0.75, 1.0];
+
 impl Method {
+    /// Whether validation chooses the weight of learned descriptors in
+    /// this baseline's appearance term (MOGM and RGM, whose appearance is
+    /// a unary affinity beside the graph's).
+    pub fn weighs_descriptors(self) -> bool {
+        matches!(self, Method::Mogm | Method::Rgm)
+    }
+
     /// The baseline's threshold that validation chooses, if it has one:
     /// MOGM's minimum share of the largest eigenvector entry (applied after
     /// the spectral solution), RGM's price per match (it shapes the

@@ -7,6 +7,7 @@
 //! ground truth ([`oracle::true_pairs`]) and only the evaluation calls it.
 
 pub mod deep;
+pub mod descriptor;
 mod drive;
 mod gps_hungarian;
 pub mod learning_free;
@@ -24,7 +25,7 @@ mod method;
 pub use build::{BuildError, DeepChoice, MethodLambdas, Trained, build, method_lambdas};
 pub use gps_hungarian::GpsHungarian;
 pub use learning_free::{Mogm, Rgm};
-pub use method::{BaselineKnob, Inputs, Method, MethodKind};
+pub use method::{BaselineKnob, DESCRIPTOR_WEIGHTS, Inputs, Method, MethodKind};
 
 use std::path::PathBuf;
 
@@ -85,7 +86,7 @@ pub struct MatchingSettings {
     /// grid point during validation); a baseline not listed runs at its
     /// a-priori value. Filled when the runners are built, never by the
     /// config.
-    pub baseline_values: std::collections::BTreeMap<Method, f64>,
+    pub baseline_values: std::collections::BTreeMap<Method, BaselineValue>,
     /// GPS-Hungarian gate on the squared Mahalanobis distance (9.21 is the
     /// 99% point of chi-square with 2 degrees of freedom).
     pub gate_chi2: f64,
@@ -129,8 +130,36 @@ impl MatchingSettings {
         };
         self.baseline_values
             .get(&method)
-            .copied()
-            .unwrap_or(a_priori)
+            .map_or(a_priori, |v| v.value)
+    }
+
+    /// The power of the learned descriptors' likelihood ratio in baseline
+    /// `method`'s appearance similarity: its entry of `baseline_values`,
+    /// else 1 (the ratio as fitted).
+    pub fn descriptor_weight(&self, method: Method) -> f64 {
+        self.baseline_values
+            .get(&method)
+            .map_or(1.0, |v| v.descriptor_weight)
+    }
+}
+
+/// What a baseline runs with beside its method: its threshold
+/// ([`Method::baseline_knob`]) and, for the learning-free matchers on
+/// data with learned descriptors, the power of their likelihood ratio
+/// (1 elsewhere).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BaselineValue {
+    pub value: f64,
+    pub descriptor_weight: f64,
+}
+
+impl BaselineValue {
+    /// `value` with the descriptors' ratio as fitted.
+    pub fn at(value: f64) -> Self {
+        Self {
+            value,
+            descriptor_weight: 1.0,
+        }
     }
 }
 

@@ -17,7 +17,8 @@ use crate::dataset::read::{Dataset, DatasetInstance, DatasetSide};
 use crate::geometry::{Cov2, Pose2, Vec2};
 use crate::sensor::boxes::Motion;
 use crate::sensor::{
-    Appearance, Detection, DetectionTruth, Observation, ObservationTruth, PoseNoiseLevel, Sensed,
+    Appearance, Descriptor, DescriptorLaw, Detection, DetectionTruth, Observation,
+    ObservationTruth, PoseNoiseLevel, Sensed,
 };
 use crate::traffic::{ObjectClass, StaticScene, TrafficFrame};
 
@@ -55,7 +56,7 @@ pub(super) fn dataset_steps(
         .run
         .ok_or_else(|| dataset_error(dir, "no run of it was chosen"))?;
     check_levels(&dataset, &settings.pose_noise).map_err(|e| dataset_error(dir, e))?;
-    warn_missing(&dataset, warnings);
+    warn_missing(&dataset, source, warnings);
     let run = dataset.run(k).map_err(|e| dataset_error(dir, e))?;
     let scene = Arc::new(StaticScene {
         junction_id: run.info.scenario.clone(),
@@ -71,7 +72,9 @@ pub(super) fn dataset_steps(
             stats.n_steps += 1;
             frame.hand_on(&scene, &mut on_step)?;
         }
-        frame.add(inst).map_err(|e| dataset_error(dir, e))?;
+        frame
+            .add(inst, source.descriptor_law)
+            .map_err(|e| dataset_error(dir, e))?;
         stats.n_instances += 1;
         progress(Progress {
             time_s: stats.n_instances as f64,
@@ -105,7 +108,7 @@ fn check_levels(dataset: &Dataset, config: &[PoseNoiseLevel]) -> Result<(), Stri
 }
 
 /// Says once what the dataset lacks and what stands in for it.
-fn warn_missing(dataset: &Dataset, warnings: &Warnings) {
+fn warn_missing(dataset: &Dataset, source: &DatasetSource, warnings: &Warnings) {
     let has = |column: &str| {
         dataset
             .optional_columns
@@ -123,6 +126,13 @@ fn warn_missing(dataset: &Dataset, warnings: &Warnings) {
     }
     if !has("length_m") {
         lacks.push("sizes (one size for all: size tells nothing)".to_owned());
+    }
+    if dataset.appearance_width.is_some() && source.descriptor_law.is_none() {
+        lacks.push(
+            "calibrated appearance vectors (no validation runs to fit them on, or they do not \
+             tell objects apart there: unused)"
+                .to_owned(),
+        );
     }
     if !lacks.is_empty() {
         warnings.say(&format!(
@@ -170,7 +180,7 @@ impl Frame {
             })
     }
 
-    fn add(&mut self, inst: &DatasetInstance) -> Result<(), String> {
+    fn add(&mut self, inst: &DatasetInstance, law: Option<DescriptorLaw>) -> Result<(), String> {
         if self.numbers.is_empty() {
             self.step = inst.step;
             self.time_s = inst.time_s.unwrap_or(f64::NAN);
@@ -181,7 +191,7 @@ impl Frame {
                 Some(k) => k,
                 None => {
                     let at = at_levels(inst, s);
-                    let sensed = sensed(inst, s)?;
+                    let sensed = sensed(inst, s, law)?;
                     self.sides
                         .push(InstanceSide::read(sensed, at.clone()).map_err(|e| e.to_string())?);
                     let copy = DatasetSide {
@@ -240,8 +250,10 @@ fn at_levels(inst: &DatasetInstance, s: usize) -> Vec<(PoseNoiseLevel, Pose2)> {
         .collect()
 }
 
-/// What vehicle `s` of `inst` holds, and the truth beside it.
-fn sensed(inst: &DatasetInstance, s: usize) -> Result<Sensed, String> {
+/// What vehicle `s` of `inst` holds, and the truth beside it; its nodes'
+/// appearance vectors as descriptors of the fitted `law` (none without
+/// one).
+fn sensed(inst: &DatasetInstance, s: usize, law: Option<DescriptorLaw>) -> Result<Sensed, String> {
     let side = &inst.sides[s];
     let mut detections = Vec::with_capacity(side.nodes.len());
     let mut truths = Vec::with_capacity(side.nodes.len());
@@ -265,7 +277,11 @@ fn sensed(inst: &DatasetInstance, s: usize) -> Result<Sensed, String> {
                 length_m: size[0],
                 width_m: size[1],
                 height_m: size[2],
-                descriptor: n.appearance.clone(),
+                descriptor: n
+                    .appearance
+                    .clone()
+                    .zip(law)
+                    .map(|(values, law)| Descriptor { values, law }),
             },
             motion: n.motion.map(|(heading_rad, speed_mps)| Motion {
                 heading_rad,

@@ -137,7 +137,63 @@ pub struct Appearance {
     /// A learned appearance descriptor (a re-identification network's
     /// features), where the source gives one: a dataset read from
     /// elsewhere; coid's sensor model makes none.
-    pub descriptor: Option<std::sync::Arc<[f32]>>,
+    pub descriptor: Option<Descriptor>,
+}
+
+/// A learned appearance descriptor and what its cosine similarity says
+/// ([`DescriptorLaw`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Descriptor {
+    pub values: std::sync::Arc<[f32]>,
+    pub law: DescriptorLaw,
+}
+
+/// What the cosine similarity of two descriptors says about whether they
+/// show one object, fitted on validation data: the log-likelihood ratio
+/// `slope (cos - neutral)` (same object against two different ones), 0 at
+/// the `neutral` similarity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DescriptorLaw {
+    pub slope: f64,
+    pub neutral: f64,
+}
+
+impl Descriptor {
+    /// The cosine similarity of two descriptors (0 when either is zero).
+    pub fn cosine(&self, other: &Descriptor) -> f64 {
+        cosine(&self.values, &other.values)
+    }
+
+    /// The likelihood ratio of one object against two, from their cosine
+    /// similarity: `exp(slope (cos - neutral))` (above 1 for pairs more
+    /// alike than the neutral similarity).
+    pub fn likelihood_ratio(&self, other: &Descriptor) -> f64 {
+        let law = self.law;
+        (law.slope.max(0.0) * (self.cosine(other) - law.neutral)).exp()
+    }
+
+    /// The likelihood ratio of two identical descriptors: the most any
+    /// pair gets.
+    pub fn most_alike_ratio(&self) -> f64 {
+        let law = self.law;
+        (law.slope.max(0.0) * (1.0 - law.neutral)).exp()
+    }
+}
+
+/// The cosine similarity of two vectors (0 when either is zero).
+pub fn cosine(a: &[f32], b: &[f32]) -> f64 {
+    let (mut ab, mut aa, mut bb) = (0.0f64, 0.0f64, 0.0f64);
+    for (x, y) in a.iter().zip(b) {
+        let (x, y) = (f64::from(*x), f64::from(*y));
+        ab += x * y;
+        aa += x * x;
+        bb += y * y;
+    }
+    if aa == 0.0 || bb == 0.0 {
+        0.0
+    } else {
+        ab / (aa.sqrt() * bb.sqrt())
+    }
 }
 
 /// One detection in one vehicle's body frame: what the vehicle knows.

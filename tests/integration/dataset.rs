@@ -28,7 +28,18 @@ fn view(name: &str, ids: &[u32], xz: &[(f64, f64)], at: (f64, f64), h: f64) -> V
             ]
         })
         .collect();
-    let x: Vec<f64> = (0..n * 4).map(|k| (k % 7) as f64 * 0.1).collect();
+    // Each object's own appearance: its id's bits and a constant.
+    let x: Vec<f64> = ids
+        .iter()
+        .flat_map(|&i| {
+            [
+                f64::from(i & 1),
+                f64::from((i >> 1) & 1),
+                f64::from((i >> 2) & 1),
+                0.5,
+            ]
+        })
+        .collect();
     let y: Vec<f64> = ids.iter().map(|&i| f64::from(i)).collect();
     pyg_data(&[
         (
@@ -302,7 +313,7 @@ fn converted_pairs_evaluate_with_poses_fitted_to_their_world_positions() {
     assert_ok(&convert(&fx, "ds"));
     let config = fx.write(
         "c.toml",
-        "[matching]\nmethods = [\"gps-hungarian\", \"mogm\", \"oracle\"]\n",
+        "[matching]\nmethods = [\"gps-hungarian\", \"gps-app-hungarian\", \"mogm\", \"oracle\"]\n",
     );
     let o = fx
         .cmd("eval")
@@ -341,6 +352,29 @@ fn converted_pairs_evaluate_with_poses_fitted_to_their_world_positions() {
         summary.contains("the test runs of the dataset"),
         "{summary}"
     );
+    // The appearance vectors tell the validation run's objects apart: a
+    // positive slope, fitted there, reported.
+    let slope: f64 = summary
+        .split("likelihood ratio exp(")
+        .nth(1)
+        .and_then(|t| t.split(' ').next())
+        .unwrap_or_else(|| panic!("{summary}"))
+        .parse()
+        .unwrap();
+    assert!(slope > 1.0, "{slope}");
+    // Regression: GPS+appearance Hungarian's probabilities stay
+    // probabilities with appearance vectors (their Brier score was 9.6).
+    let calibration = fx.read_text("ev/calibration.csv");
+    let header: Vec<&str> = calibration.lines().next().unwrap().split(',').collect();
+    let brier = header.iter().position(|c| *c == "brier").unwrap();
+    let row: Vec<&str> = calibration
+        .lines()
+        .find(|l| l.starts_with("gps-app-hungarian,"))
+        .unwrap_or_else(|| panic!("{calibration}"))
+        .split(',')
+        .collect();
+    let b: f64 = row[brier].parse().unwrap();
+    assert!((0.0..=1.0).contains(&b), "{calibration}");
     assert!(
         stderr(&o).contains("has no position covariances"),
         "{}",
@@ -379,4 +413,37 @@ fn a_run_exported_and_read_back_evaluates_as_the_run_itself() {
     assert!(compared >= 6, "{compared} tables");
     let instances = fx.read_text("sim/table1b.csv");
     assert!(instances.lines().count() > 3, "{instances}");
+}
+
+/// On a dataset with appearance vectors, validation chooses MOGM's
+/// descriptor weight with its threshold, and the record names the
+/// dataset.
+#[test]
+fn validation_chooses_the_descriptor_weight_of_the_learning_free_matchers() {
+    let fx = Fixture::new();
+    write_consistent_pairs(&fx.path("src"));
+    assert_ok(&convert(&fx, "ds"));
+    std::fs::create_dir_all(fx.path("models")).unwrap();
+    let o = fx.coid(&[
+        "train",
+        "-q",
+        "--dataset",
+        fx.path("ds").to_str().unwrap(),
+        "--validate-only",
+        "--methods",
+        "mogm",
+        "--out",
+        fx.path("models").to_str().unwrap(),
+    ]);
+    assert_ok(&o);
+    assert!(stderr(&o).contains("descriptor weight"), "{}", stderr(&o));
+    let record = fx.read_text("models/baselines.toml");
+    assert!(record.contains("dataset = "), "{record}");
+    let weight: f64 = record
+        .lines()
+        .find_map(|l| l.strip_prefix("descriptor_weight = "))
+        .unwrap_or_else(|| panic!("{record}"))
+        .parse()
+        .unwrap();
+    assert!([0.0, 0.25, 0.5, 0.75, 1.0].contains(&weight), "{weight}");
 }
