@@ -9,6 +9,7 @@ use std::path::Path;
 
 use crate::config::{DatasetSource, Settings};
 use crate::dataset::Dataset;
+use crate::dataset::read::RunInfo;
 use crate::evaluate::PairCounts;
 use crate::evaluate::{self, CorrespondenceSource, ExternalMatches};
 use crate::fusion::FusionSettings;
@@ -98,10 +99,10 @@ fn descriptor_law(
     Ok(crate::matching::descriptor::fit_law(&pairs))
 }
 
-/// With a dataset ([`with_dataset`]), its runs of `split` (each with its
-/// seed as the traffic and sensor seed: the seed of its deep methods'
-/// dropout masks); `None` without one.
-fn dataset_runs(settings: &Settings, split: &str) -> Result<Option<Vec<Settings>>, RunError> {
+/// With a dataset ([`with_dataset`]), each of its runs as `runs.parquet`
+/// names it, with its settings (its seed as the traffic and sensor seed:
+/// the seed of its deep methods' dropout masks); `None` without one.
+pub fn dataset_runs(settings: &Settings) -> Result<Option<Vec<(RunInfo, Settings)>>, RunError> {
     let Some(source) = &settings.dataset else {
         return Ok(None);
     };
@@ -111,20 +112,29 @@ fn dataset_runs(settings: &Settings, split: &str) -> Result<Option<Vec<Settings>
     })?;
     let runs = d
         .runs
-        .iter()
+        .into_iter()
         .enumerate()
-        .filter(|(_, r)| r.split == split)
         .map(|(k, r)| {
             let mut s = settings_for_seed(settings, r.seed);
             s.dataset = Some(DatasetSource {
-                split: Some(split.to_owned()),
+                split: Some(r.split.clone()),
                 run: Some(k),
                 ..source.clone()
             });
-            s
+            (r, s)
         })
         .collect();
     Ok(Some(runs))
+}
+
+/// [`dataset_runs`] of one split.
+fn dataset_split(settings: &Settings, split: &str) -> Result<Option<Vec<Settings>>, RunError> {
+    Ok(dataset_runs(settings)?.map(|runs| {
+        runs.into_iter()
+            .filter(|(r, _)| r.split == split)
+            .map(|(_, s)| s)
+            .collect()
+    }))
 }
 
 /// The training runs: every training seed of the config's own scenario,
@@ -132,7 +142,7 @@ fn dataset_runs(settings: &Settings, split: &str) -> Result<Option<Vec<Settings>
 /// `[train] scenarios`.
 /// Instances at most every `[train] sample_every_s`.
 pub fn training_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
-    if let Some(runs) = dataset_runs(settings, "train")? {
+    if let Some(runs) = dataset_split(settings, "train")? {
         return Ok(runs);
     }
     let t = &settings.train;
@@ -160,7 +170,7 @@ fn sampled_for_training(mut runs: Vec<Settings>) -> Vec<Settings> {
 /// scenario, then the first `runs_per_scenario` validation seeds of each
 /// scenario of `[train] validation_scenarios`.
 pub fn validation_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
-    if let Some(runs) = dataset_runs(settings, "validation")? {
+    if let Some(runs) = dataset_split(settings, "validation")? {
         return Ok(runs);
     }
     let t = &settings.train;
@@ -188,7 +198,7 @@ fn runs_of(
 /// config's own scenario, then the same seeds of each scenario of `[eval]
 /// scenarios`.
 pub fn test_runs(settings: &Settings) -> Result<Vec<Settings>, RunError> {
-    if let Some(runs) = dataset_runs(settings, "test")? {
+    if let Some(runs) = dataset_split(settings, "test")? {
         return Ok(runs);
     }
     let seeds = &settings.eval.traffic_seeds;

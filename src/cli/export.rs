@@ -112,6 +112,12 @@ pub struct ScoreArgs {
     /// that made the instances [default: the folder holding --matches].
     #[arg(long, value_name = "DIR")]
     export: Option<PathBuf>,
+    /// The dataset the matches were made from (any dataset folder, `coid
+    /// convert`'s too): its runs are scored as they are, the built-in
+    /// methods beside (the config gives their settings). Results go to
+    /// results/<dataset folder>-score by default.
+    #[arg(long, value_name = "DIR", conflicts_with = "export")]
+    dataset: Option<PathBuf>,
     /// The runs to score: test, or validation (to choose a threshold
     /// there first).
     #[arg(long, default_value = "test", value_parser = label_arg::<Split>("split"))]
@@ -181,6 +187,36 @@ fn check_export(
         Some(Some(_)) => {}
     }
     Ok(runs.iter().map(|r| (r.run, r.n_instances)).collect())
+}
+
+/// The settings the report's header names the scored runs by.
+fn report_header(settings: &crate::config::Settings, split: Split) -> crate::config::Settings {
+    let mut header = settings.clone();
+    if split == Split::Validation {
+        header.eval.traffic_seeds = settings.train.validation_seeds.clone();
+    }
+    if let Some(d) = &mut header.dataset {
+        d.split = Some(split.as_str().to_owned());
+    }
+    header
+}
+
+/// The instance count of every run the matches were made from: the
+/// dataset's (`--dataset`), else the export's, checked to be this
+/// configuration's ([`check_export`]).
+fn made_from(
+    a: &ScoreArgs,
+    settings: &crate::config::Settings,
+) -> anyhow::Result<BTreeMap<u64, u64>> {
+    match &a.dataset {
+        Some(dir) => Ok(crate::dataset::Dataset::open(dir)
+            .map_err(|e| anyhow::anyhow!("{} is not a usable dataset: {e}", dir.display()))?
+            .runs
+            .iter()
+            .map(|r| (r.run, r.n_instances))
+            .collect()),
+        None => check_export(&a.matches, a.export.as_deref(), settings),
+    }
 }
 
 /// Refused unless the export in `export_dir` holds every run of `split`
@@ -273,7 +309,9 @@ fn note_other_splits(path: &std::path::Path, other_splits: usize, rows: usize, s
 }
 
 pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
-    let (settings, claim) = a.common.prepare("-score", io::ResultKind::Eval)?;
+    let (settings, claim) =
+        a.common
+            .prepare_dataset("-score", io::ResultKind::Eval, a.dataset.as_deref())?;
     let out = claim.out().to_owned();
     if settings.matching.multi_vehicle != MultiVehicle::Pairwise {
         anyhow::bail!(
@@ -284,11 +322,11 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
         anyhow::bail!("coid score scores the test or validation runs (--split), not training runs");
     }
     let path = &a.matches;
-    let exported = check_export(path, a.export.as_deref(), &settings)?;
+    let exported = made_from(&a, &settings)?;
     let rows = io::frames::read_matches(path)
         .map_err(|why| anyhow::anyhow!("cannot read {}: {why}", path.display()))?;
     let runs = export::runs(&settings)?;
-    let export_dir = export_dir(path, a.export.as_deref());
+    let export_dir = export_dir(path, a.export.as_deref().or(a.dataset.as_deref()));
     check_split_exported(&export_dir, &runs, a.split, &exported)?;
     let levels: Vec<_> = settings.pose_noise.iter().map(|l| l.label).collect();
     let (mut external, other_splits) = export::external_matches(&rows, &runs, a.split, &levels)
@@ -336,11 +374,7 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
         pb.inc(1);
     }
     pb.finish_and_clear();
-    // The report's header names the runs scored.
-    let mut header = settings.clone();
-    if a.split == Split::Validation {
-        header.eval.traffic_seeds = settings.train.validation_seeds.clone();
-    }
+    let header = report_header(&settings, a.split);
     claim.fill(|dir| super::eval::write(dir, &header, &evals, &choices, None))?;
     warn_unnamed(path, &unnamed);
     note_other_splits(path, other_splits, rows.len(), a.split);

@@ -62,8 +62,22 @@ pub struct ExportRun {
 
 /// Every run of `settings`: the training runs (instances sampled as
 /// training samples them), the validation runs, the test runs (as `coid
-/// eval` runs them), numbered in that order.
+/// eval` runs them), numbered in that order; with a dataset, its runs,
+/// numbered as it numbers them.
 pub fn runs(settings: &Settings) -> Result<Vec<ExportRun>, RunError> {
+    if let Some(runs) = experiments::dataset_runs(settings)? {
+        // A dataset's runs, numbered as it numbers them.
+        return Ok(runs
+            .into_iter()
+            .map(|(r, s)| ExportRun {
+                index: r.run as usize,
+                split: crate::label::parse("split", &r.split).unwrap_or(Split::Test),
+                scenario: r.scenario,
+                seed: r.seed,
+                settings: s,
+            })
+            .collect());
+    }
     let splits = [
         (Split::Train, experiments::training_runs(settings)?),
         (Split::Validation, experiments::validation_runs(settings)?),

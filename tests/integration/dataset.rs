@@ -447,3 +447,43 @@ fn validation_chooses_the_descriptor_weight_of_the_learning_free_matchers() {
         .unwrap();
     assert!([0.0, 0.25, 0.5, 0.75, 1.0].contains(&weight), "{weight}");
 }
+
+/// `coid score --dataset`: matches made from any dataset (here its own
+/// true pairs) are scored on its test runs beside the built-in methods:
+/// the true pairs score as the oracle.
+#[test]
+fn matches_made_from_a_converted_dataset_are_scored_on_it() {
+    let fx = Fixture::new();
+    write_consistent_pairs(&fx.path("src"));
+    assert_ok(&convert(&fx, "ds"));
+    let config = fx.write("c.toml", "[matching]\nmethods = [\"mogm\", \"oracle\"]\n");
+    let ds = fx.path("ds");
+    let matches = ds.join("true_pairs.parquet");
+    let o = fx
+        .cmd("score")
+        .quiet()
+        .config(&config)
+        .args(["--dataset", ds.to_str().unwrap()])
+        .args(["--matches", matches.to_str().unwrap()])
+        .out("sc")
+        .output();
+    assert_ok(&o);
+    let table = fx.read_text("sc/table1b.csv");
+    let f1 = |method: &str| -> String {
+        let header: Vec<&str> = table.lines().next().unwrap().split(',').collect();
+        let col = header.iter().position(|c| *c == "f1").unwrap();
+        table
+            .lines()
+            .find(|l| l.starts_with(&format!("{method},")))
+            .unwrap_or_else(|| panic!("{method}: {table}"))
+            .split(',')
+            .nth(col)
+            .unwrap()
+            .to_owned()
+    };
+    assert_eq!(f1("external"), f1("oracle"), "{table}");
+    assert!(
+        fx.read_text("sc/summary.md")
+            .contains("the test runs of the dataset"),
+    );
+}
