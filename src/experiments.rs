@@ -594,7 +594,8 @@ fn a_priori_value(settings: &Settings, m: Method) -> f64 {
 /// of the mean over the pose-noise levels) wins, the a-priori value on
 /// ties, else the earlier one of the grid. Values that shape the
 /// optimisation (RGM's price, the gates) are run, not re-decided. On a
-/// dataset with learned descriptors, MOGM's and RGM's descriptor weight
+/// dataset with learned descriptors, the descriptor weight of MOGM, RGM
+/// and GPS+appearance Hungarian
 /// ([`crate::matching::DESCRIPTOR_WEIGHTS`]) is chosen first, the same
 /// way at the a-priori threshold (1, the ratio as fitted, on ties), and
 /// the threshold then with it. `progress(pass, passes)` after each pass

@@ -202,10 +202,11 @@ pub fn eval(
         if let Some(law) = d.descriptor_law {
             let _ = writeln!(
                 md,
-                "- appearance vectors: the appearance similarity (MOGM, RGM, GPS+appearance \
-                 Hungarian, and `ours`'s pair features) multiplies by the likelihood ratio \
-                 exp({:.2} (cos - {:.3})) of their cosine similarity, fitted on the dataset's \
-                 validation runs; the published networks' node features do not read them",
+                "- appearance vectors: the likelihood ratio exp({:.2} (cos - {:.3})) of their \
+                 cosine similarity, fitted on the dataset's validation runs, multiplies `ours`'s \
+                 appearance similarity, and MOGM's, RGM's and GPS+appearance Hungarian's raised \
+                 to the weight validation chose (`baselines.toml`); the published networks' \
+                 node features do not read them",
                 law.slope, law.neutral
             );
         }

@@ -89,6 +89,7 @@ pub fn build(
         MethodKind::GpsBased => Box::new(GpsHungarian {
             gate_chi2: value,
             appearance: method == Method::GpsAppHungarian,
+            descriptor_weight: settings.descriptor_weight(method),
         }),
         MethodKind::Oracle => return Err(BuildError::Oracle),
         MethodKind::External => return Err(BuildError::External),

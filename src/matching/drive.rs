@@ -286,6 +286,7 @@ mod tests {
             Box::new(GpsHungarian {
                 gate_chi2: 9.21,
                 appearance: true,
+                descriptor_weight: 1.0,
             })
         };
         let right = |rematch: usize| {

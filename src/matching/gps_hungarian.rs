@@ -20,6 +20,9 @@ pub struct GpsHungarian {
     pub gate_chi2: f64,
     /// Whether appearance enters the cost (`gps-app-hungarian`).
     pub appearance: bool,
+    /// The power of learned descriptors' likelihood ratio in its
+    /// appearance term (1: as fitted; 0: unused).
+    pub descriptor_weight: f64,
 }
 
 impl Matcher for GpsHungarian {
@@ -43,6 +46,7 @@ impl Matcher for GpsHungarian {
     ) -> Identification {
         let terms = LikelihoodTerms {
             appearance: self.appearance,
+            descriptor_weight: self.descriptor_weight,
             ..LikelihoodTerms::full(self.gate_chi2)
         };
         let pairs = pair_terms(first, second, relative, &terms);
@@ -61,7 +65,9 @@ impl Matcher for GpsHungarian {
                     &first.detections[a].appearance.descriptor,
                     &second.detections[b].appearance.descriptor,
                 ) {
-                    (Some(d), Some(_)) if self.appearance => d.most_alike_ratio(),
+                    (Some(d), Some(_)) if self.appearance => {
+                        d.most_alike_ratio().powf(self.descriptor_weight)
+                    }
                     _ => 1.0,
                 };
                 let probability = scores[a * m + b].map_or(0.0, |s| (s.exp() / perfect).min(1.0));
@@ -100,6 +106,7 @@ mod tests {
         let m = GpsHungarian {
             gate_chi2: 9.21,
             appearance: false,
+            descriptor_weight: 1.0,
         }
         .identify(&a.view(), &b.view())
         .matches;
@@ -113,6 +120,7 @@ mod tests {
         let none = GpsHungarian {
             gate_chi2: 9.21,
             appearance: true,
+            descriptor_weight: 1.0,
         }
         .identify(&a.view(), &empty.view());
         assert!(none.matches.is_empty());
@@ -138,6 +146,7 @@ mod tests {
             let m = GpsHungarian {
                 gate_chi2: 9.21,
                 appearance,
+                descriptor_weight: 1.0,
             }
             .identify(&a.view(), &b.view())
             .matches;
@@ -181,6 +190,7 @@ mod tests {
         let m = GpsHungarian {
             gate_chi2: 9.21,
             appearance: true,
+            descriptor_weight: 1.0,
         }
         .identify(&a.view(), &b.view())
         .matches;

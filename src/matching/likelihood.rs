@@ -19,7 +19,7 @@
 //! appearance is incompatible, are gated: never matched.
 
 use super::MatchView;
-use super::learning_free::{AffinityParams, appearance_similarity};
+use super::learning_free::{AffinityParams, weighted_similarity};
 use crate::fusion::{Measurement, PoseEstimate};
 
 /// Which terms enter the likelihood, and the gates.
@@ -34,6 +34,9 @@ pub struct LikelihoodTerms {
     pub gate_chi2: f64,
     /// Gate on the appearance similarity.
     pub min_appearance: f64,
+    /// The power of learned descriptors' likelihood ratio in the
+    /// appearance similarity (1: as fitted; 0: unused).
+    pub descriptor_weight: f64,
 }
 
 impl LikelihoodTerms {
@@ -45,6 +48,7 @@ impl LikelihoodTerms {
             appearance: true,
             gate_chi2,
             min_appearance: AffinityParams::default().min_appearance,
+            descriptor_weight: 1.0,
         }
     }
 }
@@ -96,7 +100,7 @@ pub fn pair_terms(
                 Some(0.0)
             };
             let appearance = if terms.appearance {
-                appearance_similarity(&da.appearance, &db.appearance)
+                weighted_similarity(&da.appearance, &db.appearance, terms.descriptor_weight)
             } else {
                 1.0
             };
@@ -200,7 +204,10 @@ mod tests {
             &LikelihoodTerms::full(9.21),
         )[0]
         .unwrap();
-        let s = appearance_similarity(&first[0].appearance, &other[0].appearance);
+        let s = crate::matching::learning_free::appearance_similarity(
+            &first[0].appearance,
+            &other[0].appearance,
+        );
         assert!(s < 1.0);
         assert!((t3.log_likelihood() - (-0.5 * true_d2 + s.ln())).abs() < 1e-12);
     }

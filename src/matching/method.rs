@@ -212,10 +212,10 @@ pub const DESCRIPTOR_WEIGHTS: [f64; 5] = [0.0, 0.25, 0.5, 0.75, 1.0];
 
 impl Method {
     /// Whether validation chooses the weight of learned descriptors in
-    /// this baseline's appearance term (MOGM and RGM, whose appearance is
-    /// a unary affinity beside the graph's).
+    /// this baseline's appearance term (MOGM, RGM, GPS+appearance
+    /// Hungarian).
     pub fn weighs_descriptors(self) -> bool {
-        matches!(self, Method::Mogm | Method::Rgm)
+        matches!(self, Method::Mogm | Method::Rgm | Method::GpsAppHungarian)
     }
 
     /// The baseline's threshold that validation chooses, if it has one:

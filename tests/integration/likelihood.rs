@@ -21,6 +21,7 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
     let hungarian = GpsHungarian {
         gate_chi2: settings.matching.gate_chi2,
         appearance: true,
+        descriptor_weight: 1.0,
     };
     let run = Inference {
         samples: 4,

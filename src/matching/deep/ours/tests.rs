@@ -160,6 +160,7 @@ fn untrained_decides_exactly_as_gps_appearance_hungarian() {
     let expected = pairs(&GpsHungarian {
         gate_chi2: 9.21,
         appearance: true,
+        descriptor_weight: 1.0,
     });
     assert_eq!(expected, hungarian(false));
     assert!(expected.len() >= 6, "{expected:?}");
