@@ -56,13 +56,7 @@ impl InstanceSide {
             Purpose::NodeOrder,
             order_keys,
         ));
-        let positions: Vec<Vec2> = sensed
-            .observation
-            .detections
-            .iter()
-            .map(|d| d.position_m)
-            .collect();
-        let graph = SceneGraph::delaunay(&positions)?;
+        let graph = delaunay_of(&sensed)?;
         let id_hash = rng::hash_str(&sensed.observation.ego_id);
         Ok(InstanceSide {
             source,
@@ -82,13 +76,7 @@ impl InstanceSide {
         sensed: Sensed,
         at_levels: Vec<(PoseNoiseLevel, Pose2)>,
     ) -> Result<InstanceSide, RunError> {
-        let positions: Vec<Vec2> = sensed
-            .observation
-            .detections
-            .iter()
-            .map(|d| d.position_m)
-            .collect();
-        let graph = SceneGraph::delaunay(&positions)?;
+        let graph = delaunay_of(&sensed)?;
         let id = sensed.observation.ego_id.clone();
         Ok(InstanceSide {
             id_hash: rng::hash_str(&id),
@@ -156,6 +144,17 @@ impl InstanceSide {
         );
         sensor::reported_pose(&self.sensed.truth.ego_pose, level, &mut s)
     }
+}
+
+/// The Delaunay graph over a side's detections, in their order.
+fn delaunay_of(sensed: &Sensed) -> Result<SceneGraph, RunError> {
+    let positions: Vec<Vec2> = sensed
+        .observation
+        .detections
+        .iter()
+        .map(|d| d.position_m)
+        .collect();
+    Ok(SceneGraph::delaunay(&positions)?)
 }
 
 /// One evaluation instance: a step and a pair of sides (connected vehicles
