@@ -250,7 +250,7 @@ fn published_pair(
         ..RUN
     };
     let bytes = include_bytes!("../models/coid.bpk");
-    let matcher = deep::matcher(Method::Coid, DeepMethod::Coid, bytes, run).unwrap();
+    let matcher = deep::matcher(Method::Coid, DeepMethod::Coid, 0, bytes, run).unwrap();
     let pairs: Vec<_> = (0..if peak.is_some() { 60 } else { 1000 })
         .map(|k| {
             let mut moved = objects.to_vec();
@@ -346,6 +346,8 @@ fn training_step(
         masks: MaskScope::PerNode,
         batch_size: 32,
         gate_chi2: 9.21,
+        appearance_width: 0,
+        no_match: coid_sim::matching::deep::arch::NoMatchWeights::Entries,
     };
     let mut trainer = Trainer::new(Method::Ours, &opts).unwrap();
     let prepared = trainer.prepare(&examples);

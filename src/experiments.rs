@@ -63,6 +63,7 @@ pub fn with_dataset(settings: &Settings, dir: &Path) -> Result<Settings, RunErro
         split: None,
         run: None,
         descriptor_law,
+        appearance_width: d.appearance_width,
     });
     Ok(s)
 }
@@ -274,6 +275,8 @@ pub fn train_method(
         masks: deep.training_masks(t.dropout_masks, t.paper_dropout_masks),
         batch_size: t.batch_size,
         gate_chi2: settings.matching.gate_chi2,
+        appearance_width: settings.appearance_width(),
+        no_match: t.no_match,
     };
     train::train(method, examples, validation, &opts, progress)
 }
@@ -376,8 +379,16 @@ pub struct Chosen {
     /// Each uncertainty type's, with the same decision rule.
     pub lambdas: KindLambdas,
     pub decision: Decision,
+    /// The operating point chosen with the rule: the least E[Y] of a
+    /// decided pair.
+    pub min_probability: f64,
     pub f1: f64,
 }
+
+/// The operating points validation tries for a deep method's rule (the
+/// least E[Y] of a decided pair): the grid of MOGM's `min_score`, 0 (every
+/// pair the rule chooses) first.
+pub const MIN_PROBABILITIES: [f64; 10] = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9];
 
 /// The temperatures validation tries: 1/4 to 4, evenly in the log.
 fn temperature_grid() -> Vec<f64> {
@@ -410,15 +421,19 @@ fn fit_temperature<'a>(pairs: impl Iterator<Item = &'a DecidedPair> + Clone) -> 
         .0
 }
 
-/// Chooses each deep method's calibration temperature, decision rule and
-/// lambda on the validation runs (`[train] validation_seeds` and
-/// scenarios), never on the test runs: the rule and threshold (the grid
-/// 0..1 by 0.05 and no threshold, on the configured uncertainty type) with
-/// the best mean F1, ties going to the assignment rule, then to the
-/// smaller lambda; then with that rule each uncertainty type's own
-/// threshold, the same way; and the temperature with the lowest log loss
-/// of the rule's decided pairs (it calibrates the reported probabilities
-/// and changes no decision). `progress(run, runs)` after each run.
+/// Chooses each deep method's calibration temperature, decision rule,
+/// operating point and lambda on the validation runs (`[train]
+/// validation_seeds` and scenarios, or a dataset's validation runs),
+/// never on the test runs: the rule (assignment, mutual best with the
+/// dustbins, mutual best of the real nodes), the least E[Y] of a decided
+/// pair ([`MIN_PROBABILITIES`]) and the threshold (the grid 0..1 by 0.05
+/// and no threshold, on the configured uncertainty type) with the best
+/// mean F1, ties going to the rule listed first, then to the smaller
+/// operating point and lambda; then with that rule and operating point
+/// each uncertainty type's own threshold, the same way; and the
+/// temperature with the lowest log loss of the decided pairs (it
+/// calibrates the reported probabilities and changes no decision).
+/// `progress(run, runs)` after each run.
 pub fn validate(
     settings: &Settings,
     methods: &[Method],
@@ -470,9 +485,10 @@ fn validation_f1(
     runs: &[RunEval],
     levels: &[PoseNoiseLabel],
     m: Method,
-    decision: Decision,
+    (decision, min_probability): (Decision, f64),
     (kind, lambda): (UncertaintyKind, f64),
 ) -> f64 {
+    let min_p = min_probability as f32;
     let f1_of_run = |r: &RunEval| {
         let f: Vec<f64> = levels
             .iter()
@@ -481,7 +497,7 @@ fn validation_f1(
                 let truth = r.unthresholded.get(&rule)?.ground_truth;
                 let kept = decided(r, rule).iter().filter(|d| {
                     let (p, a) = (f64::from(d.p), f64::from(d.aleatoric));
-                    pair_uncertainty(p, a, kind) < lambda
+                    d.p >= min_p && pair_uncertainty(p, a, kind) < lambda
                 });
                 let counts = PairCounts {
                     identified: kept.clone().count(),
@@ -510,37 +526,47 @@ fn best_lambda(f1_at: impl Fn(f64) -> f64) -> (f64, f64) {
     best
 }
 
-/// The temperature, rule and lambda of [`validate`] for one method: the
-/// rule and lambda on the configured uncertainty `kind`, then, with that
-/// rule, each uncertainty type's own lambda.
+/// The temperature, rule, operating point and lambda of [`validate`] for
+/// one method: the rule, operating point and lambda on the configured
+/// uncertainty `kind`, then, with that rule and operating point, each
+/// uncertainty type's own lambda.
 fn choose(runs: &[RunEval], levels: &[PoseNoiseLabel], kind: UncertaintyKind, m: Method) -> Chosen {
     let mut best = Chosen {
         temperature: 1.0,
         lambda: f64::INFINITY,
         lambdas: KindLambdas::all(f64::INFINITY),
         decision: Decision::Assignment,
+        min_probability: 0.0,
         f1: f64::NEG_INFINITY,
     };
-    for decision in [Decision::Assignment, Decision::Mutual] {
-        let (lambda, f1) =
-            best_lambda(|lambda| validation_f1(runs, levels, m, decision, (kind, lambda)));
-        if f1 > best.f1 {
-            let all = runs.iter().flat_map(|r| {
-                levels
-                    .iter()
-                    .flat_map(move |&l| decided(r, MethodLevel::new(m, l).rule(decision)))
-            });
-            best = Chosen {
-                temperature: fit_temperature(all),
-                lambda,
-                lambdas: best.lambdas,
-                decision,
-                f1,
-            };
+    for decision in [Decision::Assignment, Decision::Mutual, Decision::MutualReal] {
+        for min_probability in MIN_PROBABILITIES {
+            let rule = (decision, min_probability);
+            let (lambda, f1) =
+                best_lambda(|lambda| validation_f1(runs, levels, m, rule, (kind, lambda)));
+            if f1 > best.f1 {
+                best = Chosen {
+                    lambda,
+                    decision,
+                    min_probability,
+                    f1,
+                    ..best
+                };
+            }
         }
     }
+    let min_p = best.min_probability as f32;
+    let all = runs.iter().flat_map(|r| {
+        levels.iter().flat_map(move |&l| {
+            decided(r, MethodLevel::new(m, l).rule(best.decision))
+                .iter()
+                .filter(move |d| d.p >= min_p)
+        })
+    });
+    best.temperature = fit_temperature(all);
+    let rule = (best.decision, best.min_probability);
     best.lambdas = KindLambdas::from_fn(|k| {
-        best_lambda(|lambda| validation_f1(runs, levels, m, best.decision, (k, lambda))).0
+        best_lambda(|lambda| validation_f1(runs, levels, m, rule, (k, lambda))).0
     });
     best
 }
@@ -826,5 +852,43 @@ mod tests {
         assert!((hot - 2.0).abs() < 0.05, "{hot}");
         assert!((calibrated(0.9, hot) - 0.75).abs() < 0.01);
         assert!(fit(99, 1) < 0.7);
+    }
+
+    /// Validation chooses the operating point with the rule: when the
+    /// dustbins keep a method from deciding pairs that are mostly right
+    /// (E[Y] 0.3 here) and the real block's mutual best holds them with
+    /// wrong ones at lower E[Y] (0.15), the mutual best of the real nodes
+    /// with the least operating point that drops the wrong ones wins; no
+    /// entropy threshold can (both lie on the same side of 1/2).
+    #[test]
+    fn validation_chooses_the_operating_point_with_the_rule() {
+        let at = MethodLevel::new(Method::Coid, PoseNoiseLabel::Gps);
+        let mut run = RunEval::keeping_pairs();
+        let confident = pairs(0.8, 10, 0);
+        let mut real = confident.clone();
+        real.extend(pairs(0.3, 5, 0));
+        real.extend(pairs(0.15, 0, 10));
+        let decided = run.decided.as_mut().unwrap();
+        for (rule, kept) in [
+            (Decision::Assignment, &confident),
+            (Decision::Mutual, &confident),
+            (Decision::MutualReal, &real),
+        ] {
+            decided.insert(at.rule(rule), kept.clone());
+            let truth = PairCounts {
+                ground_truth: 20,
+                ..PairCounts::default()
+            };
+            run.unthresholded.insert(at.rule(rule), truth);
+        }
+        let c = choose(
+            &[run],
+            &[PoseNoiseLabel::Gps],
+            UncertaintyKind::Total,
+            Method::Coid,
+        );
+        assert_eq!(c.decision, Decision::MutualReal);
+        assert_eq!(c.min_probability, 0.2);
+        assert!((c.f1 - 2.0 * 0.75 / 1.75).abs() < 1e-9, "{}", c.f1);
     }
 }

@@ -412,6 +412,7 @@ pub fn validate(
         let validation = io::Validation {
             lambda: c.lambda,
             decision: c.decision,
+            min_probability: c.min_probability,
             temperature: c.temperature,
             f1: c.f1,
             seeds: settings.train.validation_seeds.clone(),

@@ -72,7 +72,8 @@ enum Command {
     /// run), table2.csv (F1 before/after uncertainty thresholding),
     /// table3.csv (uncertainty types), lambda_sweep.csv, case_study.csv
     /// (displacement errors), errors.csv (every method's displacement
-    /// errors), calibration.csv, consistency.csv, views.csv,
+    /// errors), calibration.csv, precision_recall.csv (average precision
+    /// of every method), pr_curve.csv, consistency.csv, views.csv,
     /// summary.md, and pictures (f1_per_method, lambda_sweep, error_cdf,
     /// reliability_<method>; PNG and SVG). With [eval] scenarios or
     /// --suite: one such folder per scenario, and pooled/.
@@ -91,8 +92,9 @@ enum Command {
     /// method `external`, on the test (or validation) runs. Writes into
     /// --out what `coid eval` writes: table1.csv, table1b.csv, errors.csv (displacement
     /// errors of every method, both fusion variants, common object set),
-    /// calibration.csv, consistency.csv, views.csv, the deep methods'
-    /// tables, summary.md and pictures.
+    /// calibration.csv, precision_recall.csv, pr_curve.csv,
+    /// consistency.csv, views.csv, the deep methods' tables, summary.md and
+    /// pictures.
     Score(export::ScoreArgs),
     /// Convert correspondence data recorded elsewhere into a coid dataset
     /// (PyTorch Geometric pairs as DMGM distributes them: `convert pyg`).

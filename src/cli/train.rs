@@ -335,11 +335,12 @@ fn validate(
     for (method, c) in chosen {
         let [total, epistemic, aleatoric] = c.lambdas.values();
         eprintln!(
-            "coid: {}: temperature {:.2}, decision {}, lambda {} (mean F1 {:.3} on the \
-             validation runs; entropy {}, epistemic {}, aleatoric {})",
+            "coid: {}: temperature {:.2}, decision {} at E[Y] >= {:.1}, lambda {} (mean F1 \
+             {:.3} on the validation runs; entropy {}, epistemic {}, aleatoric {})",
             method.as_str(),
             c.temperature,
             c.decision.as_str(),
+            c.min_probability,
             text(c.lambda),
             c.f1,
             text(total),

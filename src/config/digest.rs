@@ -120,6 +120,8 @@ impl Settings {
         t.loss = PairLoss::Likelihood;
         t.dropout_masks = MaskScope::PerNode;
         t.paper_dropout_masks = MaskScope::PerNode;
+        t.no_match = crate::matching::deep::arch::NoMatchWeights::Entries;
+        t.appearance_vectors = true;
         s.digest()
     }
 }

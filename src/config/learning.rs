@@ -66,6 +66,8 @@ pub(super) fn train_and_eval(
         paper_dropout_masks: t.paper_dropout_masks,
         batch_size: t.batch_size,
         sample_every_s: t.sample_every_s,
+        no_match: t.no_match,
+        appearance_vectors: t.appearance_vectors,
     };
     Ok((
         train,

@@ -152,6 +152,32 @@ pub struct DatasetSource {
     /// validation runs (`None`: no vectors, no validation runs, or they
     /// tell nothing apart there).
     pub descriptor_law: Option<crate::sensor::DescriptorLaw>,
+    /// The width of the nodes' appearance vectors (`None`: the dataset has
+    /// none).
+    pub appearance_width: Option<usize>,
+}
+
+impl Settings {
+    /// The width of the appearance vectors the deep networks train on: a
+    /// dataset's usable vectors ([`DatasetSource::usable_appearance_width`]),
+    /// or 0.
+    pub fn appearance_width(&self) -> usize {
+        if !self.train.appearance_vectors {
+            return 0;
+        }
+        self.dataset
+            .as_ref()
+            .and_then(DatasetSource::usable_appearance_width)
+            .unwrap_or(0)
+    }
+}
+
+impl DatasetSource {
+    /// The width of the appearance vectors the methods may use: the
+    /// dataset's, when its validation runs fitted what they say.
+    pub fn usable_appearance_width(&self) -> Option<usize> {
+        self.descriptor_law.and(self.appearance_width)
+    }
 }
 
 /// As derived, but `v2x` is shown only when it is not the default (and

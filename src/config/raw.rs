@@ -8,7 +8,7 @@ use serde::Deserialize;
 
 use crate::fusion::FusionVariant;
 use crate::matching::MultiVehicle;
-use crate::matching::deep::arch::{MaskChoice, MaskScope, PairLoss};
+use crate::matching::deep::arch::{MaskChoice, MaskScope, NoMatchWeights, PairLoss};
 use crate::matching::deep::decision::UncertaintyKind;
 use crate::matching::{BaselineChoice, Method};
 use crate::sensor::PoseNoiseLabel;
@@ -278,6 +278,8 @@ pub(super) struct RawTrain {
     pub(super) paper_dropout_masks: MaskScope,
     pub(super) batch_size: usize,
     pub(super) sample_every_s: f64,
+    pub(super) no_match: NoMatchWeights,
+    pub(super) appearance_vectors: bool,
 }
 
 #[derive(Debug, Deserialize)]

@@ -205,8 +205,9 @@ pub fn eval(
                 "- appearance vectors: the likelihood ratio exp({:.2} (cos - {:.3})) of their \
                  cosine similarity, fitted on the dataset's validation runs, multiplies `ours`'s \
                  appearance similarity, and MOGM's, RGM's and GPS+appearance Hungarian's raised \
-                 to the weight validation chose (`baselines.toml`); the published networks' \
-                 node features do not read them",
+                 to the weight validation chose (`baselines.toml`); a deep network reads them \
+                 as node features when it was trained on them (`appearance_width` or \
+                 `node_features` in its record)",
                 law.slope, law.neutral
             );
         }
@@ -220,20 +221,7 @@ pub fn eval(
             settings.train.validation_seeds
         );
     }
-    let chosen: Vec<String> = choices
-        .iter()
-        .map(|(m, c)| {
-            format!(
-                "{} {} (epistemic {}, aleatoric {}; decision {}, temperature {:.2})",
-                m.as_str(),
-                lambda_text(c.lambdas.get(UncertaintyKind::Total)),
-                lambda_text(c.lambdas.get(UncertaintyKind::Epistemic)),
-                lambda_text(c.lambdas.get(UncertaintyKind::Aleatoric)),
-                c.decision.as_str(),
-                c.temperature
-            )
-        })
-        .collect();
+    let chosen: Vec<String> = choices.iter().map(|(m, c)| choice_text(*m, c)).collect();
     let source = match settings.matching.lambda {
         LambdaChoice::Validated => "each chosen on the validation runs by `coid train`",
         LambdaChoice::Fixed(_) => "as configured",
@@ -247,10 +235,25 @@ pub fn eval(
         md,
         "- every number is the mean over test runs, `±` the half-width of its 95% confidence interval (Student t)\n"
     );
-    for (name, t) in tables {
+    // The curves are plot data (101 rows per method): their file has them.
+    for (name, t) in tables.iter().filter(|(name, _)| *name != "pr_curve.csv") {
         let _ = writeln!(md, "## {name}\n\n{}\n", table(t));
     }
     md
+}
+
+/// A deep method's validated choice as the summary states it.
+fn choice_text(m: Method, c: &DeepChoice) -> String {
+    format!(
+        "{} {} (epistemic {}, aleatoric {}; decision {} at E[Y] >= {:.1}, temperature {:.2})",
+        m.as_str(),
+        lambda_text(c.lambdas.get(UncertaintyKind::Total)),
+        lambda_text(c.lambdas.get(UncertaintyKind::Epistemic)),
+        lambda_text(c.lambdas.get(UncertaintyKind::Aleatoric)),
+        c.decision.as_str(),
+        c.min_probability,
+        c.temperature
+    )
 }
 
 /// A threshold lambda as a person reads it: "none" when infinite.

@@ -11,7 +11,7 @@ use super::records::{
 };
 use super::{OutputError, io, publish_files, write_text};
 use crate::config::Settings;
-use crate::matching::deep::arch::MaskScope;
+use crate::matching::deep::arch::{Backbone, MaskScope};
 use crate::matching::deep::decision::{Decision, KindLambdas, UncertaintyKind};
 use crate::matching::deep::train::TrainReport;
 use crate::matching::{BASELINES_FILE, BaselineValue, Method, MethodKind};
@@ -32,10 +32,18 @@ pub struct WeightsError {
     pub reason: String,
 }
 
+/// A method's weights as read: the bytes and the width of the appearance
+/// vectors its network reads (0: none).
+#[derive(Clone, Debug)]
+pub struct Weights {
+    pub bytes: Vec<u8>,
+    pub appearance_width: usize,
+}
+
 /// The bytes of a method's weights file, checked against the record
 /// beside it (`<method>.toml`: the method, its architecture and the
 /// weights' checksum), so that stale or foreign weights never load.
-pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, WeightsError> {
+pub fn read_weights(models_dir: &Path, method: Method) -> Result<Weights, WeightsError> {
     let method = method.weights_owner();
     let path = weights_path(models_dir, method);
     let bytes = read_model_file(method, &path, "no such file", |p| std::fs::read(p))?;
@@ -44,10 +52,13 @@ pub fn read_weights(models_dir: &Path, method: Method) -> Result<Vec<u8>, Weight
     let MethodKind::Deep(deep) = method.kind() else {
         return Err(fail("not a deep method".into()));
     };
-    record
-        .check(method, &deep.backbone(), &bytes)
-        .map_err(fail)?;
-    Ok(bytes)
+    let appearance_width = record.architecture.appearance_width();
+    let backbone = deep.backbone().with_appearance(appearance_width);
+    record.check(method, &backbone, &bytes).map_err(fail)?;
+    Ok(Weights {
+        bytes,
+        appearance_width,
+    })
 }
 
 /// Where the weights trained with another training seed live: a models
@@ -201,6 +212,9 @@ pub struct Validation {
     pub lambda: f64,
     /// The decision rule chosen with it.
     pub decision: Decision,
+    /// The operating point chosen with the rule: the least E[Y] of a
+    /// decided pair.
+    pub min_probability: f64,
     /// The calibration temperature fitted before both.
     pub temperature: f64,
     /// That mean F1.
@@ -225,7 +239,9 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
     let r = record.report;
     Ok(ModelRecord {
         method: record.method.as_str().to_owned(),
-        architecture: deep.backbone(),
+        architecture: deep
+            .backbone()
+            .with_appearance(record.settings.appearance_width()),
         weights_fnv64: records::fnv64_hex(weights),
         config: record.settings.source.display().to_string(),
         dataset: record
@@ -252,6 +268,7 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
         mc_samples: t.mc_samples,
         dropout_masks: deep.training_masks(t.dropout_masks, t.paper_dropout_masks),
         batch_size: t.batch_size,
+        no_match: matches!(deep.backbone(), Backbone::Published(_)).then_some(t.no_match),
         patience: r.best_epoch.map(|_| t.patience),
         best_epoch: r.best_epoch,
         validation: None,
@@ -268,6 +285,7 @@ pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(
         uncertainty: v.uncertainty.to_owned(),
         lambda: Lambda::from_f64(v.lambda),
         decision: v.decision,
+        min_probability: v.min_probability,
         temperature: v.temperature,
         f1: v.f1,
         lambdas: Some(LambdaByKind {
@@ -288,6 +306,9 @@ pub struct Validated {
     /// The threshold of each uncertainty type (infinite: no threshold).
     pub lambdas: Option<KindLambdas>,
     pub decision: Option<Decision>,
+    /// The operating point chosen with the rule (0 in records from before
+    /// it was chosen).
+    pub min_probability: f64,
     /// The calibration temperature of the reported probabilities.
     pub temperature: Option<f64>,
     /// The dropout masks the weights were trained with.
@@ -304,6 +325,7 @@ pub fn read_validated(models_dir: &Path, method: Method) -> Result<Validated, We
         return Ok(Validated {
             lambdas: None,
             decision: None,
+            min_probability: 0.0,
             temperature: None,
             trained_masks: record.dropout_masks,
         });
@@ -333,9 +355,13 @@ pub fn read_validated(models_dir: &Path, method: Method) -> Result<Validated, We
     if !(v.temperature.is_finite() && v.temperature > 0.0) {
         return Err(fail("validation.temperature is not a positive number"));
     }
+    if !(0.0..1.0).contains(&v.min_probability) {
+        return Err(fail("validation.min_probability is not in [0, 1)"));
+    }
     Ok(Validated {
         lambdas,
         decision: Some(v.decision),
+        min_probability: v.min_probability,
         temperature: Some(v.temperature),
         trained_masks: record.dropout_masks,
     })

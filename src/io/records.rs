@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::matching::Method;
-use crate::matching::deep::arch::{Backbone, MaskScope};
+use crate::matching::deep::arch::{Backbone, MaskScope, NoMatchWeights};
 use crate::matching::deep::decision::Decision;
 
 /// `<method>.toml` beside `<method>.bpk`: how the weights were made, what
@@ -51,6 +51,11 @@ pub struct ModelRecord {
     #[serde(default = "per_node")]
     pub dropout_masks: MaskScope,
     pub batch_size: usize,
+    /// How a published network's NLL weighed "no match" against true
+    /// pairs (absent: every entry alike, as before it was a choice; and
+    /// for the project's network, whose `loss` says).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub no_match: Option<NoMatchWeights>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub patience: Option<usize>,
     /// The epoch kept: lowest loss on the validation runs.
@@ -125,6 +130,11 @@ pub struct ValidationRecord {
     /// The entropy threshold; `"none"`: no threshold.
     pub lambda: Lambda,
     pub decision: Decision,
+    /// The operating point chosen with the rule: the least E[Y] of a
+    /// decided pair (0, as in records from before it was chosen: every
+    /// pair the rule chooses).
+    #[serde(default)]
+    pub min_probability: f64,
     pub temperature: f64,
     pub f1: f64,
     /// The threshold chosen for each uncertainty type (Table 3), with the
@@ -259,6 +269,11 @@ impl ModelRecord {
             ("mc_samples", self.mc_samples == other.mc_samples),
             ("dropout_masks", self.dropout_masks == other.dropout_masks),
             ("batch_size", self.batch_size == other.batch_size),
+            (
+                "no_match",
+                self.no_match.unwrap_or(NoMatchWeights::Entries)
+                    == other.no_match.unwrap_or(NoMatchWeights::Entries),
+            ),
             ("patience", self.patience == other.patience),
         ];
         fields
@@ -423,6 +438,7 @@ mod tests {
             mc_samples: 2,
             dropout_masks: MaskScope::Shared,
             batch_size: 32,
+            no_match: None,
             patience: Some(3),
             best_epoch: Some(1),
             validation: Some(ValidationRecord {
@@ -430,6 +446,7 @@ mod tests {
                 uncertainty: "entropy".into(),
                 lambda: Lambda::from_f64(f64::INFINITY),
                 decision: Decision::Mutual,
+                min_probability: 0.25,
                 temperature: 1.5,
                 f1: 0.9,
                 lambdas: Some(LambdaByKind {

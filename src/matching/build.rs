@@ -33,6 +33,9 @@ pub struct DeepChoice {
     /// The threshold of every uncertainty type (Table 3).
     pub lambdas: KindLambdas,
     pub decision: Decision,
+    /// The operating point: the least E[Y] of a decided pair (0: every
+    /// pair the rule chooses).
+    pub min_probability: f64,
     /// The calibration temperature of the reported probabilities (1: as
     /// they are).
     pub temperature: f64,
@@ -56,6 +59,8 @@ pub fn method_lambdas(choices: &std::collections::BTreeMap<Method, DeepChoice>) 
 pub struct Trained<'a> {
     pub weights: &'a [u8],
     pub choice: DeepChoice,
+    /// The width of the appearance vectors the network reads (0: none).
+    pub appearance_width: usize,
 }
 
 /// Builds the matcher of a method, in canonical node order and with the
@@ -97,6 +102,7 @@ pub fn build(
             let Trained {
                 weights: bytes,
                 choice,
+                appearance_width,
             } = trained.ok_or(BuildError::NoWeights(method.as_str()))?;
             let threshold = deep_method
                 .thresholds_by_default()
@@ -111,13 +117,14 @@ pub fn build(
                 samples,
                 threshold,
                 decision: choice.decision,
+                min_probability: choice.min_probability as f32,
                 temperature: choice.temperature,
                 seed: dropout_seed,
                 masks: settings.dropout_masks.resolve(choice.trained_masks),
                 dropout,
                 gate_chi2: settings.gate_chi2,
             };
-            deep::matcher(method, deep_method, bytes, run).map_err(|reason| {
+            deep::matcher(method, deep_method, appearance_width, bytes, run).map_err(|reason| {
                 BuildError::BadWeights {
                     method: method.as_str(),
                     reason,

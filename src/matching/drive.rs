@@ -226,6 +226,7 @@ impl MatchDistribution {
             assigned,
             decision: self.decision,
             temperature: self.temperature,
+            min_probability: self.min_probability,
         }
     }
 }

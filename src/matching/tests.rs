@@ -9,7 +9,11 @@ use crate::traffic::ObjectClass;
 
 /// A deep method's weights with `choice` (none for the other methods).
 fn trained(weights: Option<&[u8]>, choice: DeepChoice) -> Option<Trained<'_>> {
-    weights.map(|weights| Trained { weights, choice })
+    weights.map(|weights| Trained {
+        weights,
+        choice,
+        appearance_width: 0,
+    })
 }
 
 fn settings() -> MatchingSettings {
@@ -35,6 +39,7 @@ const CHOICE: DeepChoice = DeepChoice {
     lambda: 0.7,
     lambdas: KindLambdas::all(0.7),
     decision: Decision::Assignment,
+    min_probability: 0.0,
     temperature: 1.0,
     trained_masks: MaskScope::PerNode,
 };

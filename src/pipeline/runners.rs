@@ -56,10 +56,17 @@ pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, Run
         .as_ref()
         .and_then(|v| v.temperature)
         .unwrap_or(1.0);
+    // The operating point goes with the validated rule; a configured rule
+    // decides every pair it chooses.
+    let min_probability = match m.decision {
+        DecisionChoice::Fixed(_) => 0.0,
+        DecisionChoice::Validated => validated.as_ref().map_or(0.0, |v| v.min_probability),
+    };
     Ok(DeepChoice {
         lambda,
         lambdas,
         decision,
+        min_probability,
         temperature,
         trained_masks: validated.map_or(MaskScope::PerNode, |v| v.trained_masks),
     })
@@ -100,9 +107,23 @@ pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSourc
     } else {
         None
     };
-    let trained = deep.as_ref().map(|(weights, choice)| Trained {
-        weights,
+    if let Some((w, _)) = &deep {
+        let data = settings
+            .dataset
+            .as_ref()
+            .and_then(crate::config::DatasetSource::usable_appearance_width);
+        if let Some(reason) = matching::deep::check_appearance(w.appearance_width, data) {
+            return Err(RunError::Weights(WeightsError {
+                method: method.as_str(),
+                path: io::weights_path(&m.models_dir, method),
+                reason,
+            }));
+        }
+    }
+    let trained = deep.as_ref().map(|(w, choice)| Trained {
+        weights: &w.bytes,
         choice: *choice,
+        appearance_width: w.appearance_width,
     });
     let matcher =
         matching::build(method, m, trained, settings.seeds.sensor).map_err(|e| match e {

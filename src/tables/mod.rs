@@ -13,7 +13,8 @@
 //! `grid` (the lambda grid), `columns` (a table from typed rows, each
 //! column named once), `paper` (Tables 1-3, the sweep, the case study),
 //! `paired` (differences against the strongest baseline),
-//! `calibration` (calibration and consistency), `errors` (displacement
+//! `calibration` (calibration and consistency), `precision_recall`
+//! (average precision and the precision-recall curves), `errors` (displacement
 //! errors, fusion from every view), `plots` (the plots' data). This file:
 //! what every table is made from ([`Inputs`]) and the tables together.
 
@@ -33,6 +34,7 @@ mod grid;
 mod paired;
 mod paper;
 mod plots;
+mod precision_recall;
 mod record;
 mod seeds;
 
@@ -56,6 +58,11 @@ pub struct EvalTables {
     /// Every method's displacement errors on the common object set.
     pub errors: Table,
     pub calibration: Table,
+    /// Every method's average precision (its pairs ranked by the
+    /// probability it reports, down to its operating point).
+    pub precision_recall: Table,
+    /// Every method's precision-recall curve at 101 recall levels.
+    pub pr_curve: Table,
     pub consistency: Table,
     pub views: Table,
 }
@@ -73,6 +80,8 @@ impl EvalTables {
             ("case_study.csv", &self.case_study),
             ("errors.csv", &self.errors),
             ("calibration.csv", &self.calibration),
+            ("precision_recall.csv", &self.precision_recall),
+            ("pr_curve.csv", &self.pr_curve),
             ("consistency.csv", &self.consistency),
             ("views.csv", &self.views),
         ];
@@ -117,6 +126,8 @@ pub fn eval_tables(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambda
         case_study: if_ours(paper::case_study),
         errors: errors::errors(&inp),
         calibration: calibration::calibration(&inp),
+        precision_recall: precision_recall::precision_recall(&inp),
+        pr_curve: precision_recall::pr_curve(&inp),
         consistency: calibration::consistency(&inp),
         views: errors::views(&inp),
     }

@@ -299,7 +299,7 @@ impl RunEval {
         let at = MethodLevel::new(e.method, level);
         if let Some(dist) = &e.identification.distribution {
             self.decisions.insert(e.method, dist.decision);
-            for decision in [Decision::Assignment, Decision::Mutual] {
+            for decision in [Decision::Assignment, Decision::Mutual, Decision::MutualReal] {
                 self.record_thresholds(at.rule(decision), truths, dist, grid);
             }
         }

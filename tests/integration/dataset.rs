@@ -487,3 +487,71 @@ fn matches_made_from_a_converted_dataset_are_scored_on_it() {
             .contains("the test runs of the dataset"),
     );
 }
+
+/// Deep networks trained on a dataset with appearance vectors read them:
+/// their first layer is as wide as class, colour and size (13) plus the
+/// vector (4 here), the record says so, they evaluate on the dataset, and
+/// data without such vectors (a simulated scene) is refused with the
+/// reason instead of being read without them.
+#[test]
+fn deep_networks_trained_on_a_dataset_read_its_appearance_vectors() {
+    let fx = Fixture::new();
+    write_consistent_pairs(&fx.path("src"));
+    let o = fx.coid(&[
+        "convert",
+        "pyg",
+        fx.path("src").to_str().unwrap(),
+        "-q",
+        "-o",
+        fx.path("ds").to_str().unwrap(),
+        "--splits",
+        "train=10..10",
+        "validation=11..11",
+        "test=12..12",
+    ]);
+    assert_ok(&o);
+    let config = fx.write(
+        "c.toml",
+        &format!(
+            "[train]\nepochs = 1\nno_match = \"halves\"\n[matching]\n\
+             methods = [\"coid\", \"ours\", \"oracle\"]\nmodels_dir = {:?}\n",
+            fx.path("models")
+        ),
+    );
+    let ds = fx.path("ds");
+    let train = fx.cmd("train").quiet().config(&config);
+    let train = train.args(["--dataset", ds.to_str().unwrap(), "--methods", "coid,ours"]);
+    assert_ok(&train.out("models").output());
+    let coid = fx.read_text("models/coid.toml");
+    assert!(coid.contains("appearance_width = 4"), "{coid}");
+    let ours = fx.read_text("models/ours.toml");
+    assert!(ours.contains("node_features = 17"), "{ours}");
+    // The published network's NLL weighed "no match" as configured; the
+    // validation runs chose each method's operating point with its rule.
+    assert!(coid.contains("no_match = \"halves\""), "{coid}");
+    assert!(!ours.contains("no_match"), "{ours}");
+    for record in [&coid, &ours] {
+        let validation = record.split("[validation]").nth(1).unwrap_or_default();
+        assert!(validation.contains("min_probability = "), "{record}");
+    }
+    let eval = fx.cmd("eval").quiet().config(&config);
+    let eval = eval.args(["--dataset", ds.to_str().unwrap()]);
+    assert_ok(&eval.out("ev").output());
+    assert!(fx.read_text("ev/table1.csv").contains("coid,"));
+    assert!(fx.read_text("ev/summary.md").contains("at E[Y] >= "));
+    let ap = fx.read_text("ev/precision_recall.csv");
+    assert!(ap.lines().any(|l| l.starts_with("coid,")), "{ap}");
+    let simulated = fx.method_config("sim.toml", "coid", "models");
+    let o = fx
+        .cmd("eval")
+        .quiet()
+        .config(&simulated)
+        .out("sim")
+        .output();
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("reads appearance vectors 4 wide; this data has none"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -102,6 +102,8 @@ fn exported_matches_reproduce_the_built_in_rows() {
         "table1b.csv",
         "errors.csv",
         "calibration.csv",
+        "precision_recall.csv",
+        "pr_curve.csv",
         "consistency.csv",
         "views.csv",
     ] {

@@ -39,6 +39,29 @@ pub enum Backbone {
     Likelihood(Architecture),
 }
 
+impl Backbone {
+    /// The width of the appearance vectors its nodes read beside class,
+    /// colour and size (0: none).
+    pub fn appearance_width(&self) -> usize {
+        match self {
+            Backbone::Published(c) => c.appearance_width,
+            Backbone::Likelihood(a) => a.appearance_width(),
+        }
+    }
+
+    /// The same network reading appearance vectors `width` wide (0: none):
+    /// its first layer as wide as class, colour, size and the vector.
+    pub fn with_appearance(self, width: usize) -> Self {
+        match self {
+            Backbone::Published(c) => Backbone::Published(PublishedConfig {
+                appearance_width: width,
+                ..c
+            }),
+            Backbone::Likelihood(a) => Backbone::Likelihood(a.with_appearance(width)),
+        }
+    }
+}
+
 impl DeepMethod {
     /// The method this is.
     pub fn method(self) -> Method {
@@ -163,6 +186,21 @@ pub struct PublishedConfig {
     pub sinkhorn_iters: usize,
     /// The last B-spline knot (edge lengths beyond are clipped), metres.
     pub edge_scale_m: f64,
+    /// The width of the appearance vectors psi_1 reads beside class,
+    /// colour and size (a dataset's learned features; 0: none).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub appearance_width: usize,
+}
+
+fn is_zero(v: &usize) -> bool {
+    *v == 0
+}
+
+impl PublishedConfig {
+    /// psi_1's input width: class, colour, size and the appearance vector.
+    pub fn node_features(&self) -> usize {
+        NODE_FEATURES + self.appearance_width
+    }
 }
 
 impl PublishedConfig {
@@ -181,6 +219,7 @@ impl PublishedConfig {
             },
             sinkhorn_iters: 20,
             edge_scale_m: 60.0,
+            appearance_width: 0,
         }
     }
 
@@ -230,6 +269,21 @@ impl Default for Architecture {
             positions: true,
             pair_hidden: 32,
         }
+    }
+}
+
+impl Architecture {
+    /// The same network reading appearance vectors `width` wide (0: none).
+    pub fn with_appearance(self, width: usize) -> Self {
+        Self {
+            node_features: NODE_FEATURES + width,
+            ..self
+        }
+    }
+
+    /// The width of the appearance vectors it reads (0: none).
+    pub fn appearance_width(&self) -> usize {
+        self.node_features - NODE_FEATURES
     }
 }
 
@@ -299,6 +353,22 @@ crate::label_enum! { "pair loss";
         Likelihood,
         /// The paper's Eq. 11: `-log(sum(P o Y*) / n_true)`.
         Paper,
+    }
+}
+
+crate::label_enum! { "no-match weights";
+    /// How the published networks' negative log-likelihood weighs the
+    /// "no match" labels (the dustbin entry of every node without a
+    /// partner) against the true pairs.
+    #[strum(serialize_all = "lowercase")]
+    pub enum NoMatchWeights {
+        /// Every labelled entry alike (DGMC's NLL with dustbins): where two
+        /// views share few objects, "no match" dominates.
+        Entries,
+        /// True pairs and "no match" labels each a half, each a mean of its
+        /// own (as `loss = "likelihood"` weighs them for the project's
+        /// network).
+        Halves,
     }
 }
 

@@ -35,6 +35,7 @@ impl GraphShape {
             view.detections,
             view.graph,
             &view.pose_reported,
+            0,
         ))
     }
 

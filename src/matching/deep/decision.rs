@@ -89,6 +89,12 @@ crate::label_enum! { "decision";
         /// i and j are paired when each is the other's most likely partner
         /// in E[Y], dustbins included.
         Mutual,
+        /// i and j are paired when each is the other's most likely partner
+        /// among the real nodes of E[Y], the dustbins left out: SuperGlue's
+        /// rule (Sarlin et al. 2020), whose minimum probability (the
+        /// operating point validation chooses) decides what is "no match".
+        #[strum(serialize = "mutual-real")]
+        MutualReal,
     }
 }
 
@@ -111,6 +117,9 @@ pub struct MatchDistribution {
     /// The calibration temperature of the reported probabilities (1: as
     /// they are).
     pub temperature: f64,
+    /// The operating point: every rule decides only pairs whose E[Y] is at
+    /// least this (0: every pair the rule chooses).
+    pub min_probability: f32,
 }
 
 /// The uncertainty of `kind` of a pair with mean probability `p` (E[Y])
@@ -163,6 +172,7 @@ impl MatchDistribution {
             assigned: Vec::new(),
             decision: Decision::Mutual,
             temperature: 1.0,
+            min_probability: 0.0,
         }
     }
 
@@ -183,6 +193,7 @@ impl MatchDistribution {
             assigned: Vec::new(),
             decision: Decision::Assignment,
             temperature: 1.0,
+            min_probability: 0.0,
         }
     }
 
@@ -211,17 +222,19 @@ impl MatchDistribution {
         )
     }
 
-    /// The mutual-best pairs of E[Y] (dustbins included): each is the
-    /// other's most likely partner.
-    pub fn mutual_best(&self) -> Vec<(usize, usize)> {
+    /// The mutual-best pairs of E[Y]: each is the other's most likely
+    /// partner, among the dustbins too (`dustbins`) or among the real
+    /// nodes only.
+    pub fn mutual_best(&self, dustbins: bool) -> Vec<(usize, usize)> {
         let (n1, n2) = (self.n1, self.n2);
+        let (rows, cols) = if dustbins { (n2 + 1, n1 + 1) } else { (n2, n1) };
         let best_in_row = |i: usize| {
-            (0..=n2)
+            (0..rows)
                 .max_by(|&a, &b| self.p(i, a).total_cmp(&self.p(i, b)).then(b.cmp(&a)))
                 .unwrap_or(n2)
         };
         let best_in_col = |j: usize| {
-            (0..=n1)
+            (0..cols)
                 .max_by(|&a, &b| self.p(a, j).total_cmp(&self.p(b, j)).then(b.cmp(&a)))
                 .unwrap_or(n1)
         };
@@ -233,12 +246,18 @@ impl MatchDistribution {
             .collect()
     }
 
-    /// The pairs `decision` chooses, before any threshold.
+    /// The pairs `decision` chooses at the operating point
+    /// (`min_probability`), before any uncertainty threshold.
     pub fn decided(&self, decision: Decision) -> Vec<(usize, usize)> {
-        match decision {
+        let mut pairs = match decision {
             Decision::Assignment => self.assigned.clone(),
-            Decision::Mutual => self.mutual_best(),
+            Decision::Mutual => self.mutual_best(true),
+            Decision::MutualReal => self.mutual_best(false),
+        };
+        if self.min_probability > 0.0 {
+            pairs.retain(|&(i, j)| self.p(i, j) >= self.min_probability);
         }
+        pairs
     }
 
     /// The pairs of this distribution's own decision rule whose
@@ -289,6 +308,33 @@ mod tests {
         let m = d.decide(None);
         assert_eq!(m.len(), 1);
         assert_eq!((m[0].a, m[0].b), (0, 1));
+    }
+
+    /// The real block's mutual best leaves the dustbins out: node 1,
+    /// whose dustbin outweighs column 0, is paired with it; the operating
+    /// point then keeps only the pairs at or above it, under any rule.
+    #[test]
+    fn mutual_real_leaves_the_dustbins_out_and_the_operating_point_cuts() {
+        let s = vec![
+            0.05, 0.9, 0.05, //
+            0.3, 0.2, 0.5, //
+            0.65, 0.1, 0.25,
+        ];
+        let mut d = dist(&[s]);
+        let pairs = |d: &MatchDistribution, rule| -> Vec<(usize, usize)> {
+            d.decide_with(rule, None)
+                .iter()
+                .map(|c| (c.a, c.b))
+                .collect()
+        };
+        assert_eq!(pairs(&d, Decision::Mutual), [(0, 1)]);
+        assert_eq!(pairs(&d, Decision::MutualReal), [(0, 1), (1, 0)]);
+        d.min_probability = 0.3;
+        assert_eq!(pairs(&d, Decision::MutualReal), [(0, 1), (1, 0)]);
+        d.min_probability = 0.31;
+        assert_eq!(pairs(&d, Decision::MutualReal), [(0, 1)]);
+        d.min_probability = 0.95;
+        assert!(pairs(&d, Decision::Mutual).is_empty());
     }
 
     /// A temperature above 1 pulls probabilities towards 1/2 and lowers

@@ -27,7 +27,9 @@ use crate::traffic::ObjectClass;
 pub(crate) const KERNEL: usize = 5;
 /// Kernel weights per edge: `KERNEL^2` for 2-D pseudo-coordinates.
 pub(crate) const KERNEL_2D: usize = KERNEL * KERNEL;
-/// Node attribute length: class one-hot (7), colour (3), size (3).
+/// Node attribute length without appearance vectors: class one-hot (7),
+/// colour (3), size (3). A network that reads a dataset's appearance
+/// vectors (`appearance_width` wide) has these first, then the vector.
 pub(crate) const NODE_FEATURES: usize = 13;
 /// The knots per axis, in metres: 0, +-median and +-95th percentile of the
 /// edges' larger world-axis component over the training family (17.7 m
@@ -43,8 +45,11 @@ pub(crate) const MAX_EDGE_M: f64 = KNOTS_M[KERNEL - 1];
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct GraphInput {
     pub(crate) n: usize,
-    /// `n x NODE_FEATURES`, row-major.
+    /// `n x node_width`, row-major ([`push_node_features`]).
     pub(crate) node_features: Vec<f32>,
+    /// Attributes per node: `NODE_FEATURES` plus the appearance vector's
+    /// width where the network reads one.
+    pub(crate) node_width: usize,
     pub(crate) src: Vec<i64>,
     pub(crate) dst: Vec<i64>,
     /// `E x 4`: the kernel indices with non-zero basis weight per edge.
@@ -80,7 +85,12 @@ impl GraphInput {
     }
 }
 
-pub(crate) fn node_features(d: &Detection) -> [f32; NODE_FEATURES] {
+/// Appends `d`'s node attributes: class one-hot, colour and size, then,
+/// for a network that reads appearance vectors `appearance_width` wide
+/// (0: none), the detection's vector. Callers check that the data carries
+/// vectors of that width before a network reads it
+/// ([`check_appearance`]).
+pub(crate) fn push_node_features(d: &Detection, appearance_width: usize, out: &mut Vec<f32>) {
     let mut f = [0f32; NODE_FEATURES];
     let class = ObjectClass::ALL
         .iter()
@@ -93,7 +103,46 @@ pub(crate) fn node_features(d: &Detection) -> [f32; NODE_FEATURES] {
     f[10] = (d.appearance.length_m / 10.0) as f32;
     f[11] = (d.appearance.width_m / 3.0) as f32;
     f[12] = (d.appearance.height_m / 4.0) as f32;
-    f
+    out.extend_from_slice(&f);
+    if appearance_width > 0 {
+        let values = d
+            .appearance
+            .descriptor
+            .as_ref()
+            .map(|v| &v.values[..])
+            .filter(|v| v.len() == appearance_width)
+            .expect("appearance vectors of the network's width (checked before it runs)");
+        out.extend_from_slice(values);
+    }
+}
+
+/// Node attributes of `detections`, `n x (NODE_FEATURES +
+/// appearance_width)` row-major ([`push_node_features`]).
+pub(crate) fn node_attributes(detections: &[Detection], appearance_width: usize) -> Vec<f32> {
+    let mut out = Vec::with_capacity(detections.len() * (NODE_FEATURES + appearance_width));
+    for d in detections {
+        push_node_features(d, appearance_width, &mut out);
+    }
+    out
+}
+
+/// Why a network that reads appearance vectors `network_width` wide (0:
+/// none) cannot read data whose vectors are `data_width` wide (`None`:
+/// the data has none a method may use); `None` when it can. A network
+/// without vectors reads any data (and leaves its vectors alone).
+pub fn check_appearance(network_width: usize, data_width: Option<usize>) -> Option<String> {
+    match (network_width, data_width) {
+        (0, _) => None,
+        (w, Some(d)) if w == d => None,
+        (w, Some(d)) => Some(format!(
+            "the network reads appearance vectors {w} wide; this data's are {d} wide"
+        )),
+        (w, None) => Some(format!(
+            "the network reads appearance vectors {w} wide; this data has none (a dataset's \
+             vectors are used when they tell same and different objects apart on its \
+             validation runs)"
+        )),
+    }
 }
 
 /// Degree-1 B-spline weights of an edge component (metres) on the knots
@@ -121,16 +170,16 @@ pub(crate) fn edge_basis(d_world_m: &Vec2) -> [(usize, f64); 4] {
     ]
 }
 
+/// `detections`' graph for the project's network, which reads appearance
+/// vectors `appearance_width` wide (0: none).
 pub(crate) fn graph_input(
     detections: &[Detection],
     graph: &SceneGraph,
     pose_reported: &Pose2,
+    appearance_width: usize,
 ) -> GraphInput {
     let n = detections.len();
-    let mut node_feat = Vec::with_capacity(n * NODE_FEATURES);
-    for d in detections {
-        node_feat.extend_from_slice(&node_features(d));
-    }
+    let node_feat = node_attributes(detections, appearance_width);
     let neighbours = graph.neighbours();
     let heading = Pose2::new(Vec2::zeros(), pose_reported.heading_rad());
     let (mut src, mut dst, mut basis_index, mut basis_weight, mut edge_world_m) =
@@ -156,6 +205,7 @@ pub(crate) fn graph_input(
     GraphInput {
         n,
         node_features: node_feat,
+        node_width: NODE_FEATURES + appearance_width,
         src,
         dst,
         basis_index,
@@ -481,7 +531,7 @@ mod tests {
         let objects = testkit::world_objects();
         let dets = testkit::Side::of(testkit::POSE_A, &objects[..3], &[0, 1, 2], testkit::EXACT)
             .detections;
-        let input = graph_input(&dets, &g, &Pose2::new(Vec2::new(5.0, 5.0), 0.7));
+        let input = graph_input(&dets, &g, &Pose2::new(Vec2::new(5.0, 5.0), 0.7), 0);
         let e = input.edge_count();
         assert_eq!(e, 2 * g.edges.len());
         for i in 0..3 {
@@ -492,5 +542,41 @@ mod tests {
             assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-5);
         }
         assert_eq!(input.node_features.len(), 3 * NODE_FEATURES);
+    }
+
+    /// A network that reads appearance vectors gets each node's vector
+    /// after class, colour and size; one that does not reads none of it.
+    #[test]
+    fn node_attributes_carry_the_appearance_vector_after_class_colour_and_size() {
+        use crate::matching::testkit;
+        let objects = testkit::world_objects();
+        let mut dets =
+            testkit::Side::of(testkit::POSE_A, &objects[..2], &[0, 1], testkit::EXACT).detections;
+        let law = crate::sensor::DescriptorLaw {
+            slope: 1.0,
+            neutral: 0.5,
+        };
+        for (k, d) in dets.iter_mut().enumerate() {
+            d.appearance.descriptor = Some(crate::sensor::Descriptor {
+                values: vec![k as f32, 2.0, 3.0].into(),
+                law,
+            });
+        }
+        let without = node_attributes(&dets, 0);
+        assert_eq!(without.len(), 2 * NODE_FEATURES);
+        let with = node_attributes(&dets, 3);
+        assert_eq!(with.len(), 2 * (NODE_FEATURES + 3));
+        for k in 0..2 {
+            let row = &with[k * (NODE_FEATURES + 3)..(k + 1) * (NODE_FEATURES + 3)];
+            assert_eq!(
+                row[..NODE_FEATURES],
+                without[k * NODE_FEATURES..(k + 1) * NODE_FEATURES]
+            );
+            assert_eq!(row[NODE_FEATURES..], [k as f32, 2.0, 3.0]);
+        }
+        assert_eq!(check_appearance(0, None), None);
+        assert_eq!(check_appearance(3, Some(3)), None);
+        assert!(check_appearance(3, Some(4)).unwrap().contains("4 wide"));
+        assert!(check_appearance(3, None).unwrap().contains("has none"));
     }
 }

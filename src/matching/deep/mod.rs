@@ -26,6 +26,7 @@ mod published;
 mod tests;
 pub mod train;
 
+pub use self::features::check_appearance;
 pub use self::kernels::matmul;
 pub use self::mc::Inference;
 
@@ -37,15 +38,17 @@ use self::train::init::Init;
 use crate::matching::{Matcher, Method};
 
 /// The matcher of `deep` with trained weights (the bytes of its `.bpk`
-/// file), answering as `method` (a single-pass variant answers as
+/// file) whose network reads appearance vectors `appearance_width` wide
+/// (0: none), answering as `method` (a single-pass variant answers as
 /// itself); an error says why the bytes do not fit the method's network.
 pub fn matcher(
     method: Method,
     deep: DeepMethod,
+    appearance_width: usize,
     weights: &[u8],
     run: Inference,
 ) -> Result<Box<dyn Matcher>, String> {
-    Ok(match deep.backbone() {
+    Ok(match deep.backbone().with_appearance(appearance_width) {
         Backbone::Likelihood(arch) => Box::new(McMatcher::new(
             method,
             Ours::from_weights(arch, weights, run)?,

@@ -30,6 +30,8 @@ pub struct Inference {
     pub decision: Decision,
     /// The calibration temperature of the reported probabilities.
     pub temperature: f64,
+    /// The operating point: the least E[Y] of a decided pair (0: none).
+    pub min_probability: f32,
     /// Seed of the dropout-mask streams.
     pub seed: u64,
     /// How the MC-dropout masks are drawn (Eq. 8: shared).
@@ -50,6 +52,7 @@ impl Inference {
         threshold: None,
         decision: Decision::Assignment,
         temperature: 1.0,
+        min_probability: 0.0,
         seed: 1,
         masks: MaskScope::Shared,
         dropout: None,
@@ -353,6 +356,7 @@ impl<N: Network> McMatcher<N> {
         };
         d.decision = self.run.decision;
         d.temperature = self.run.temperature;
+        d.min_probability = self.run.min_probability;
         Ok(d)
     }
 }

@@ -8,7 +8,7 @@
 //! then `(root + messages) + bias`.
 
 use super::second_layer::PlainSpline;
-use crate::matching::deep::features::{GraphInput, KERNEL_2D, NODE_FEATURES};
+use crate::matching::deep::features::{GraphInput, KERNEL_2D};
 use crate::matching::deep::kernels::matmul;
 
 /// The first layer's weights as plain numbers.
@@ -18,13 +18,13 @@ pub(crate) struct FirstLayer {
 
 impl FirstLayer {
     pub(crate) fn new(layer: PlainSpline) -> Self {
-        debug_assert_eq!(layer.d_in, NODE_FEATURES);
         Self { layer }
     }
 
     /// `relu(conv1(x))` of `g`, `[n, out]` row-major.
     pub(crate) fn forward(&self, g: &GraphInput) -> Vec<f32> {
         let (n, d_in, d_out) = (g.n.max(1), self.layer.d_in, self.layer.d_out);
+        debug_assert_eq!(g.node_width, d_in, "node attributes as wide as the layer");
         let mut x = vec![0f32; n * d_in];
         x[..g.node_features.len()].copy_from_slice(&g.node_features);
         let mut root = vec![0f32; n * d_out];

@@ -304,7 +304,12 @@ impl Network for Ours {
     type Embedding = Embedded;
 
     fn input(&self, view: &MatchView) -> GraphInput {
-        graph_input(view.detections, view.graph, &view.pose_reported)
+        graph_input(
+            view.detections,
+            view.graph,
+            &view.pose_reported,
+            self.arch.appearance_width(),
+        )
     }
 
     /// Everything one vehicle's embedding depends on: its network input

@@ -78,7 +78,8 @@ impl GraphBatch {
     fn with_cells(graphs: &[&GraphInput], used: [bool; KERNEL_2D], device: &Device) -> Self {
         let b = graphs.len();
         let n = graphs.iter().map(|g| g.n).max().unwrap_or(0).max(1);
-        let f = NODE_FEATURES;
+        let f = graphs.first().map_or(NODE_FEATURES, |g| g.node_width);
+        debug_assert!(graphs.iter().all(|g| g.node_width == f));
         let cells: Vec<i64> = (0..KERNEL_2D as i64)
             .filter(|&k| used[k as usize])
             .collect();

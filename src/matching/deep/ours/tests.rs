@@ -107,7 +107,8 @@ fn weights_as_bytes_give_identical_outputs() {
         loaded.distribution(&va, &vb, &relative).unwrap()
     );
     // gcn-gm has no consensus: the weights of `ours` do not fit it.
-    let fits = |d: DeepMethod| crate::matching::deep::matcher(d.method(), d, &bytes, RUN).is_ok();
+    let fits =
+        |d: DeepMethod| crate::matching::deep::matcher(d.method(), d, 0, &bytes, RUN).is_ok();
     assert!(!fits(DeepMethod::GcnGmGps));
     // gcn-gm (as published) is not this network at all.
     assert!(!fits(DeepMethod::GcnGm));
@@ -274,7 +275,7 @@ fn the_plain_first_layer_is_the_tensor_one_bit_for_bit() {
     scenes.push(Side::of(testkit::POSE_B, &big, &all, GPS));
     for side in &scenes {
         let v = side.view();
-        let input = graph_input(v.detections, v.graph, &v.pose_reported);
+        let input = graph_input(v.detections, v.graph, &v.pose_reported, 0);
         let tensor = net
             .first_layer(&GraphBatch::used_cells(&input, &device()))
             .unwrap();

@@ -22,7 +22,8 @@ use crate::matching::deep::train::init::{Init, named_param};
 pub(crate) struct GraphTensors {
     /// Real nodes of each graph.
     pub(crate) counts: Vec<usize>,
-    /// `[B, 1, N, NODE_FEATURES]` node attributes (zeros for padding).
+    /// `[B, 1, N, F]` node attributes (zeros for padding), `F` the graphs'
+    /// node width.
     pub(crate) x: Tensor<4>,
     /// `[B, 1, N, N * KERNEL]`: entry `[b, 0, i, j KERNEL + k]` is the basis
     /// weight of knot k of edge j -> i over the in-degree of i (zero when j
@@ -38,7 +39,9 @@ impl GraphTensors {
     pub(crate) fn new(graphs: &[&PaperGraph], scale_m: f64, device: &Device) -> Self {
         let b = graphs.len();
         let n = graphs.iter().map(|g| g.n).max().unwrap_or(0).max(1);
-        let (f, k) = (NODE_FEATURES, KERNEL);
+        let f = graphs.first().map_or(NODE_FEATURES, |g| g.node_width);
+        debug_assert!(graphs.iter().all(|g| g.node_width == f));
+        let k = KERNEL;
         let mut x = vec![0f32; b * n * f];
         let mut mixing = vec![0f32; b * n * n * k];
         let mut node_mask = vec![0f32; b * n];
@@ -216,7 +219,7 @@ mod tests {
             let f: Vec<f32> = (0..k * NODE_FEATURES)
                 .map(|v| (v as f32 * 0.37).sin())
                 .collect();
-            PaperGraph::with_features(f, &SceneGraph::delaunay(&p).unwrap())
+            PaperGraph::with_features(f, NODE_FEATURES, &SceneGraph::delaunay(&p).unwrap())
         };
         let (small, large) = (graph(4), graph(5));
         let scale = 25.0;

@@ -22,7 +22,7 @@
 //! longer edges are clipped onto the last knot).
 
 use crate::graph::SceneGraph;
-use crate::matching::deep::features::{KERNEL, NODE_FEATURES, node_features};
+use crate::matching::deep::features::{KERNEL, NODE_FEATURES, node_attributes};
 use crate::sensor::Detection;
 
 /// One vehicle's graph on the paper's inputs. Every undirected edge appears
@@ -30,8 +30,11 @@ use crate::sensor::Detection;
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct PaperGraph {
     pub(crate) n: usize,
-    /// `n x NODE_FEATURES`, row-major: appearance only.
+    /// `n x node_width`, row-major: appearance only.
     pub(crate) node_features: Vec<f32>,
+    /// Attributes per node (`NODE_FEATURES` and the appearance vector's
+    /// width, if psi_1 reads one).
+    pub(crate) node_width: usize,
     pub(crate) src: Vec<usize>,
     pub(crate) dst: Vec<usize>,
     /// `E`: each directed edge's length in metres (the paper's `E_ij`).
@@ -40,11 +43,17 @@ pub(crate) struct PaperGraph {
 
 impl PaperGraph {
     /// The graph of `detections` (body frame) on their scene graph
-    /// (Delaunay over the same positions, [`SceneGraph::delaunay`]).
-    pub(crate) fn new(detections: &[Detection], graph: &SceneGraph) -> Self {
+    /// (Delaunay over the same positions, [`SceneGraph::delaunay`]), for
+    /// a psi_1 that reads appearance vectors `appearance_width` wide (0:
+    /// none).
+    pub(crate) fn new(
+        detections: &[Detection],
+        graph: &SceneGraph,
+        appearance_width: usize,
+    ) -> Self {
         debug_assert_eq!(detections.len(), graph.node_count());
-        let features: Vec<f32> = detections.iter().flat_map(node_features).collect();
-        Self::with_features(features, graph)
+        let features = node_attributes(detections, appearance_width);
+        Self::with_features(features, NODE_FEATURES + appearance_width, graph)
     }
 
     /// The Delaunay graph of `detections` (body frame).
@@ -52,13 +61,13 @@ impl PaperGraph {
     pub(crate) fn delaunay(detections: &[Detection]) -> Result<Self, crate::graph::GraphError> {
         let positions: Vec<crate::geometry::Vec2> =
             detections.iter().map(|d| d.position_m).collect();
-        Ok(Self::new(detections, &SceneGraph::delaunay(&positions)?))
+        Ok(Self::new(detections, &SceneGraph::delaunay(&positions)?, 0))
     }
 
-    /// Node attributes `features` (`n x NODE_FEATURES`) on `graph`.
-    pub(crate) fn with_features(features: Vec<f32>, graph: &SceneGraph) -> Self {
+    /// Node attributes `features` (`n x node_width`) on `graph`.
+    pub(crate) fn with_features(features: Vec<f32>, node_width: usize, graph: &SceneGraph) -> Self {
         let n = graph.node_count();
-        assert_eq!(features.len(), n * NODE_FEATURES, "node attributes");
+        assert_eq!(features.len(), n * node_width, "node attributes");
         let (mut src, mut dst, mut length_m) = (Vec::new(), Vec::new(), Vec::new());
         for e in &graph.edges {
             for (from, to) in [(e.a, e.b), (e.b, e.a)] {
@@ -70,6 +79,7 @@ impl PaperGraph {
         Self {
             n,
             node_features: features,
+            node_width,
             src,
             dst,
             length_m,

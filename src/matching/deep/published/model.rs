@@ -15,7 +15,6 @@ use super::conv::{GraphTensors, SplineCnn};
 use crate::matching::deep::arch::MaskScope;
 use crate::matching::deep::arch::{PublishedConfig, PublishedKind};
 use crate::matching::deep::backend::linear;
-use crate::matching::deep::features::NODE_FEATURES;
 use crate::matching::deep::mc::TensorRead;
 use crate::matching::deep::mc::draws::dropout_mask_16;
 use crate::matching::deep::train::init::{Init, named_param};
@@ -68,7 +67,7 @@ impl PublishedNet {
         };
         let psi1 = SplineCnn::new(
             &format!("{name}.psi1"),
-            [NODE_FEATURES, cfg.hidden, cfg.out],
+            [cfg.node_features(), cfg.hidden, cfg.out],
             false,
             init,
             device,

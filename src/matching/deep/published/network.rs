@@ -171,7 +171,7 @@ impl Network for Published {
     type Embedding = Vec<f32>;
 
     fn input(&self, view: &MatchView) -> PaperGraph {
-        PaperGraph::new(view.detections, view.graph)
+        PaperGraph::new(view.detections, view.graph, self.cfg.appearance_width)
     }
 
     fn embedding_key(&self, g: &PaperGraph) -> u64 {

@@ -115,8 +115,18 @@ impl Example {
         }
         let flag = |b: bool| if b { 0.0 } else { 1.0 };
         Prepared {
-            g1: graph_input(a.detections, a.graph, &a.pose_reported),
-            g2: graph_input(b.detections, b.graph, &b.pose_reported),
+            g1: graph_input(
+                a.detections,
+                a.graph,
+                &a.pose_reported,
+                arch.appearance_width(),
+            ),
+            g2: graph_input(
+                b.detections,
+                b.graph,
+                &b.pose_reported,
+                arch.appearance_width(),
+            ),
             pair,
             y,
             free: [
@@ -144,7 +154,7 @@ impl EdgeStats {
         let mut m: Vec<f64> = Vec::new();
         for e in examples {
             for side in [&e.first, &e.second] {
-                let g = graph_input(&side.detections, &side.graph, &side.pose_reported);
+                let g = graph_input(&side.detections, &side.graph, &side.pose_reported, 0);
                 m.extend(
                     g.edge_world_m
                         .iter()

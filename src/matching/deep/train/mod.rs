@@ -25,7 +25,7 @@ use self::loss::{LabelTensors, loss};
 use self::masks::{Masks, draw_masks};
 use self::published::{PublishedTrainer, TrainPair};
 use self::weights::to_bytes;
-use super::arch::{Architecture, Backbone, LossTerms, MaskScope, PairLoss};
+use super::arch::{Architecture, Backbone, LossTerms, MaskScope, NoMatchWeights, PairLoss};
 use super::backend::device;
 use super::features::{GraphInput, PairInput};
 use super::ours::{GraphBatch, OursNet, PairTensors};
@@ -35,7 +35,7 @@ use crate::rng::{self, Purpose};
 pub use self::examples::{EdgeStats, Example, OwnedView, Prepared, example};
 
 /// `[train]`: which runs make the training set and how to fit.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, PartialEq)]
 pub struct TrainSettings {
     /// SUMO seeds of the training runs (the sensor seed of run k is the
     /// same number). Must not overlap the evaluation's test seeds: train
@@ -78,6 +78,43 @@ pub struct TrainSettings {
     /// longer): consecutive instances differ little, so long runs of busy
     /// scenarios give more variety per training step this way.
     pub sample_every_s: f64,
+    /// How the published networks weigh "no match" against true pairs.
+    pub no_match: NoMatchWeights,
+    /// Whether the deep networks read a dataset's appearance vectors (when
+    /// it has vectors that its validation runs found telling).
+    pub appearance_vectors: bool,
+}
+
+/// As derived, but `no_match` and `appearance_vectors` are shown only when
+/// they are not the defaults: a config's digest hashes this text, and
+/// configs from before they existed keep their digest.
+impl std::fmt::Debug for TrainSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("TrainSettings");
+        d.field("traffic_seeds", &self.traffic_seeds)
+            .field("validation_seeds", &self.validation_seeds)
+            .field("methods", &self.methods)
+            .field("epochs", &self.epochs)
+            .field("learning_rate", &self.learning_rate)
+            .field("seed", &self.seed)
+            .field("scenarios", &self.scenarios)
+            .field("validation_scenarios", &self.validation_scenarios)
+            .field("runs_per_scenario", &self.runs_per_scenario)
+            .field("patience", &self.patience)
+            .field("loss", &self.loss)
+            .field("mc_samples", &self.mc_samples)
+            .field("dropout_masks", &self.dropout_masks)
+            .field("paper_dropout_masks", &self.paper_dropout_masks)
+            .field("batch_size", &self.batch_size)
+            .field("sample_every_s", &self.sample_every_s);
+        if self.no_match != NoMatchWeights::Entries {
+            d.field("no_match", &self.no_match);
+        }
+        if !self.appearance_vectors {
+            d.field("appearance_vectors", &self.appearance_vectors);
+        }
+        d.finish()
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -101,6 +138,11 @@ pub struct TrainOptions {
     pub batch_size: usize,
     /// The likelihood's gate on the squared Mahalanobis distance.
     pub gate_chi2: f64,
+    /// The width of the appearance vectors the network reads (a dataset's
+    /// learned features; 0: none).
+    pub appearance_width: usize,
+    /// How the published networks weigh "no match" against true pairs.
+    pub no_match: NoMatchWeights,
 }
 
 /// MC-dropout samples of the validation loss.
@@ -236,7 +278,10 @@ impl Trainer {
         let MethodKind::Deep(deep) = method.kind() else {
             return Err(format!("{} is not a deep method", method.as_str()));
         };
-        let Some(arch) = deep.architecture() else {
+        let Some(arch) = deep
+            .architecture()
+            .map(|a| a.with_appearance(opts.appearance_width))
+        else {
             return Err(format!(
                 "{} is a published network (see published::PublishedTrainer)",
                 method.as_str()
@@ -455,7 +500,7 @@ pub fn train(
         edges: EdgeStats::of(examples),
         ..TrainReport::default()
     };
-    match deep.backbone() {
+    match deep.backbone().with_appearance(opts.appearance_width) {
         Backbone::Likelihood(_) => {
             let trainer = Trainer::new(method, opts)?;
             let fit = LikelihoodFit {
@@ -467,7 +512,7 @@ pub fn train(
         }
         Backbone::Published(cfg) => {
             let label = method.as_str();
-            let trainer = PublishedTrainer::with_terms(
+            let mut trainer = PublishedTrainer::with_terms(
                 cfg,
                 deep.loss_terms(),
                 opts.samples,
@@ -475,11 +520,13 @@ pub fn train(
                 opts.seed,
                 label,
             );
-            let train: Vec<TrainPair> = examples.iter().map(TrainPair::of).collect();
+            trainer.no_match = opts.no_match;
+            let width = cfg.appearance_width;
+            let train: Vec<TrainPair> = examples.iter().map(|e| TrainPair::of(e, width)).collect();
             let fit = PublishedFit {
                 sizes: train.iter().map(TrainPair::padded_size).collect(),
                 train,
-                validation: validation.iter().map(TrainPair::of).collect(),
+                validation: validation.iter().map(|e| TrainPair::of(e, width)).collect(),
                 trainer,
                 opts: *opts,
             };

@@ -14,7 +14,7 @@ use rand_chacha::ChaCha8Rng;
 use super::examples::Example;
 use super::init::Init;
 use super::loss::{non_term, unc_term};
-use crate::matching::deep::arch::{LossTerms, MaskScope, PublishedConfig};
+use crate::matching::deep::arch::{LossTerms, MaskScope, NoMatchWeights, PublishedConfig};
 use crate::matching::deep::published::{
     GraphTensors, PaperGraph, PublishedNet, draw_training_masks, to_bytes,
 };
@@ -33,14 +33,14 @@ impl TrainPair {
     /// The paper's inputs of a labelled pair: both vehicles' graphs (body
     /// frames, appearance, edge lengths) and the true partners; the
     /// reported poses are left behind.
-    pub(crate) fn of(e: &Example) -> Self {
+    pub(crate) fn of(e: &Example, appearance_width: usize) -> Self {
         let mut partner = vec![None; e.first.detections.len()];
         for &(a, b) in &e.true_pairs {
             partner[a] = Some(b);
         }
         Self {
-            first: PaperGraph::new(&e.first.detections, &e.first.graph),
-            second: PaperGraph::new(&e.second.detections, &e.second.graph),
+            first: PaperGraph::new(&e.first.detections, &e.first.graph, appearance_width),
+            second: PaperGraph::new(&e.second.detections, &e.second.graph, appearance_width),
             partner,
         }
     }
@@ -85,8 +85,15 @@ impl TrainPair {
 
 /// `[B, 1, N1 + 1, N2 + 1]` weights of the labelled entries (true pairs,
 /// and the dustbin entry of every real node without a partner), each
-/// pair's weights summing to 1.
-fn label_weights(batch: &[&TrainPair], [n1, n2]: [usize; 2], device: &Device) -> Tensor<4> {
+/// pair's weights summing to 1: every entry alike, or the true pairs and
+/// the dustbins each a half (a half without entries is left out, as
+/// `ours`'s loss leaves it at 0).
+fn label_weights(
+    batch: &[&TrainPair],
+    [n1, n2]: [usize; 2],
+    no_match: NoMatchWeights,
+    device: &Device,
+) -> Tensor<4> {
     let (rows, cols) = (n1 + 1, n2 + 1);
     let mut w = vec![0f32; batch.len() * rows * cols];
     for (k, p) in batch.iter().enumerate() {
@@ -104,8 +111,26 @@ fn label_weights(batch: &[&TrainPair], [n1, n2]: [usize; 2], device: &Device) ->
         for (j, _) in taken.iter().enumerate().filter(|(_, t)| !**t) {
             block[n1 * cols + j] = 1.0;
         }
-        let total: f32 = block.iter().sum();
-        block.iter_mut().for_each(|v| *v /= total.max(1.0));
+        match no_match {
+            NoMatchWeights::Entries => {
+                let total: f32 = block.iter().sum();
+                block.iter_mut().for_each(|v| *v /= total.max(1.0));
+            }
+            NoMatchWeights::Halves => {
+                let dustbin = |at: usize| at / cols == n1 || at % cols == n2;
+                let count = |bin: bool| {
+                    let labelled = block
+                        .iter()
+                        .enumerate()
+                        .filter(|&(at, v)| *v > 0.0 && dustbin(at) == bin);
+                    labelled.count().max(1) as f32
+                };
+                let (pairs, bins) = (count(false), count(true));
+                for (at, v) in block.iter_mut().enumerate() {
+                    *v *= 0.5 / if dustbin(at) { bins } else { pairs };
+                }
+            }
+        }
     }
     Tensor::from_data(TensorData::new(w, [batch.len(), 1, rows, cols]), device)
 }
@@ -124,6 +149,8 @@ pub(crate) struct PublishedTrainer {
     terms: LossTerms,
     /// Dropout samples per training pair.
     samples: usize,
+    /// How the NLL weighs "no match" against true pairs.
+    pub(crate) no_match: NoMatchWeights,
     /// How the dropout masks are drawn.
     masks: MaskScope,
     net: PublishedNet,
@@ -165,6 +192,7 @@ impl PublishedTrainer {
             cfg,
             terms,
             samples: samples.max(1),
+            no_match: NoMatchWeights::Entries,
             masks,
             optim: AdamConfig::new().init(),
             device,
@@ -200,7 +228,7 @@ impl PublishedTrainer {
             self.masks,
             device,
         );
-        let weights = label_weights(batch, [n1, n2], device);
+        let weights = label_weights(batch, [n1, n2], self.no_match, device);
         let out = net.forward(&self.cfg, [&g1, &g2], masks);
         let mut loss = nll(out.initial.clone(), &weights);
         let last = match out.refined {
@@ -308,6 +336,7 @@ mod tests {
         let graph = |n: usize| PaperGraph {
             n,
             node_features: vec![0.0; n * crate::matching::deep::features::NODE_FEATURES],
+            node_width: crate::matching::deep::features::NODE_FEATURES,
             src: vec![],
             dst: vec![],
             length_m: vec![],
@@ -317,7 +346,7 @@ mod tests {
             second: graph(2),
             partner: vec![Some(1), None],
         };
-        let w: Vec<f32> = label_weights(&[&pair], [3, 2], &device)
+        let w: Vec<f32> = label_weights(&[&pair], [3, 2], NoMatchWeights::Entries, &device)
             .try_into_vec_as::<f32>()
             .unwrap();
         // 4 x 3: rows 0, 1 real, 2 padding, 3 dustbin; 3 labels.
@@ -328,6 +357,16 @@ mod tests {
         assert_eq!(w.len(), 12);
         for (k, (g, e)) in w.iter().zip(&expected).enumerate() {
             assert!((g - e).abs() < 1e-7, "entry {k}: {g} vs {e}");
+        }
+        // Halves: the one true pair a half, the two dustbins a quarter each.
+        let w: Vec<f32> = label_weights(&[&pair], [3, 2], NoMatchWeights::Halves, &device)
+            .try_into_vec_as::<f32>()
+            .unwrap();
+        expected[1] = 0.5;
+        expected[3 + 2] = 0.25;
+        expected[9] = 0.25;
+        for (k, (g, e)) in w.iter().zip(&expected).enumerate() {
+            assert!((g - e).abs() < 1e-7, "halves, entry {k}: {g} vs {e}");
         }
     }
 }
