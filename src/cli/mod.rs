@@ -75,7 +75,7 @@ enum Command {
     /// errors), calibration.csv, precision_recall.csv (average precision
     /// of every method), pr_curve.csv, consistency.csv, views.csv,
     /// summary.md, and pictures (f1_per_method, lambda_sweep, error_cdf,
-    /// reliability_<method>; PNG and SVG). With [eval] scenarios or
+    /// pr_curve, reliability_<method>; PNG and SVG). With [eval] scenarios or
     /// --suite: one such folder per scenario, and pooled/.
     Eval(eval::Args),
     /// Write every instance of the configuration as Parquet for a matcher

@@ -9,8 +9,9 @@ use crate::matching::Method;
 use crate::report::{AggregateRow, Metric, PlotData};
 use crate::sensor::PoseNoiseLabel;
 
-/// `coid eval`'s plots into `dir`: `lambda_sweep`, `error_cdf` and
-/// `f1_per_method`, each as PNG and SVG.
+/// `coid eval`'s plots into `dir`: `lambda_sweep`, `error_cdf`,
+/// `f1_per_method`, `pr_curve` and each deep method's reliability, each
+/// as PNG and SVG.
 pub fn eval_plots(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
     let sweep: Vec<Panel> = d
         .lambda_sweep
@@ -59,6 +60,7 @@ pub fn eval_plots(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
         &d.methods,
         &d.f1,
     )?;
+    pr_curves(dir, d)?;
     for (method, per_level) in &d.reliability {
         let mut series: Vec<(String, Vec<(f64, f64)>)> =
             vec![("perfect".into(), vec![(0.0, 0.0), (1.0, 1.0)])];
@@ -76,6 +78,27 @@ pub fn eval_plots(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
             series,
         };
         line_panels(&dir.join(format!("reliability_{method}")), &[panel])?;
+    }
+    Ok(())
+}
+
+/// `pr_curve`: one panel per pose-noise level, a curve per method.
+fn pr_curves(dir: &Path, d: &PlotData) -> Result<(), RenderError> {
+    let pr: Vec<Panel> = d
+        .pr_curves
+        .iter()
+        .map(|(level, curves)| Panel {
+            bands: Vec::new(),
+            title: format!("precision-recall, pose noise {level}"),
+            x_label: "recall (pairs ranked by reported probability)".into(),
+            y_label: "precision".into(),
+            x_range: (0.0, 1.0),
+            y_range: (0.0, 1.05),
+            series: curves.clone(),
+        })
+        .collect();
+    if !pr.is_empty() {
+        line_panels(&dir.join("pr_curve"), &pr)?;
     }
     Ok(())
 }

@@ -26,7 +26,7 @@ pub use batch::{AggregateRow, KEY_COLUMNS, Metric, RunRow, aggregate, aggregate_
 pub use calibration::*;
 pub use detector::DetectorStats;
 pub use exchange::{ExportRunRow, MatchRow};
-pub use plots::{PlotData, SweepPoint};
+pub use plots::{LevelCurves, PlotData, SweepPoint};
 pub use run::*;
 pub use stats::{PairedDifference, mean_ci95, paired_bootstrap};
 pub use table::{Table, TableColumn};

@@ -8,6 +8,10 @@ pub type LevelReliability = (String, Vec<ReliabilityBin>);
 /// One point of the lambda sweep: (lambda, precision, recall, F1).
 pub type SweepPoint = (f64, f64, f64, f64);
 
+/// One level's precision-recall curves: the level, and per method its
+/// (recall, precision) points.
+pub type LevelCurves = (String, Vec<(String, Vec<(f64, f64)>)>);
+
 /// The data behind `coid eval`'s plots.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PlotData {
@@ -21,4 +25,7 @@ pub struct PlotData {
     pub errors: Vec<(String, Vec<f64>, Vec<f64>)>,
     /// Per deep method: per level, its reliability diagram.
     pub reliability: Vec<(String, Vec<LevelReliability>)>,
+    /// Per level: each method's precision-recall curve (recall,
+    /// precision), its pairs pooled over the runs.
+    pub pr_curves: Vec<LevelCurves>,
 }

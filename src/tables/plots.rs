@@ -6,11 +6,12 @@
 use super::Inputs;
 use super::calibration::pooled;
 use super::paper::sweep_rows;
+use super::precision_recall::curve;
 use super::record::{LevelFusion, MethodLevel, RunEval};
 use crate::config::Settings;
 use crate::fusion::FusionVariant;
 use crate::matching::MethodLambdas;
-use crate::report::{PlotData, SweepPoint, mean_ci95, reliability};
+use crate::report::{LevelCurves, PlotData, SweepPoint, mean_ci95, reliability};
 
 /// The data of `coid eval`'s plots.
 pub fn plot_data(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambdas) -> PlotData {
@@ -83,7 +84,33 @@ pub fn plot_data(settings: &Settings, runs: &[RunEval], lambdas: &MethodLambdas)
         f1,
         errors: error_samples(&inp),
         reliability,
+        pr_curves: pr_curves(&inp),
     }
+}
+
+/// Per level: every method's pooled precision-recall curve (the oracle
+/// left out: one point at (1, 1)).
+fn pr_curves(inp: &Inputs) -> Vec<LevelCurves> {
+    inp.levels
+        .iter()
+        .map(|&l| {
+            let curves = inp
+                .methods
+                .iter()
+                .filter(|m| m.kind() != crate::matching::MethodKind::Oracle)
+                .map(|&m| {
+                    let key = MethodLevel::new(m, l);
+                    let truth = inp
+                        .runs
+                        .iter()
+                        .filter_map(|r| r.table1.get(&key).map(|c| c.ground_truth))
+                        .sum();
+                    (m.as_str().to_owned(), curve(&pooled(inp, key), truth))
+                })
+                .collect();
+            (l.as_str().to_owned(), curves)
+        })
+        .collect()
 }
 
 /// Per level: the pooled single and fused errors of `ours` (aligned fusion

@@ -138,6 +138,30 @@ fn missing_weights_are_a_clear_error() {
     assert!(stderr(&out).contains("ours"), "{}", stderr(&out));
 }
 
+/// Average precision in `precision_recall.csv`: at most the recall the
+/// curve ends at (pairs a method never decides are never retrieved); the
+/// oracle's is 1.
+fn ap_is_at_most_the_recall_it_reaches(path: &std::path::Path) {
+    // Average precision: at most the recall the curve ends at (pairs a
+    // method never decides are never retrieved); the oracle's is 1.
+    let pr = read_csv(path);
+    let (ap, end) = (
+        f64s(&pr, "ap_pooled"),
+        f64s(&pr, "recall_at_operating_point"),
+    );
+    for (k, name) in strs(&pr, "method").iter().enumerate() {
+        assert!(
+            ap[k] >= 0.0 && ap[k] <= end[k] + 1e-12,
+            "{name}: AP {} recall {}",
+            ap[k],
+            end[k]
+        );
+        if name == "oracle" {
+            assert!((ap[k] - 1.0).abs() < 1e-12, "{name}: {}", ap[k]);
+        }
+    }
+}
+
 /// The shipped default weights on a small fixed test set (two test runs,
 /// never used in training or validation) at 1.2 m pose noise: the full
 /// method must beat the strongest baseline, GPS+appearance Hungarian,
@@ -168,7 +192,10 @@ fn shipped_model_beats_gps_appearance_hungarian_at_gps_noise() {
         "lambda_sweep.svg",
         "error_cdf.svg",
         "f1_per_method.svg",
+        "pr_curve.svg",
         "reliability_ours.svg",
+        "precision_recall.csv",
+        "pr_curve.csv",
     ] {
         assert!(fx.path("ev").join(f).is_file(), "{f} missing");
     }
@@ -202,10 +229,12 @@ fn shipped_model_beats_gps_appearance_hungarian_at_gps_noise() {
         // The oracle is never wrong, so the AUROC is undefined for it.
         assert_eq!(auroc[k].is_nan(), name == "oracle", "{name}: {}", auroc[k]);
     }
+    ap_is_at_most_the_recall_it_reaches(&fx.path("ev/precision_recall.csv"));
     for (plot, w, h) in [
         ("lambda_sweep", 420, 380),
         ("error_cdf", 420, 380),
         ("reliability_ours", 420, 380),
+        ("pr_curve", 420, 380),
         ("f1_per_method", 90, 420), // 90 px per method
     ] {
         let img = image::open(fx.path("ev").join(format!("{plot}.png")))

@@ -357,8 +357,10 @@ fn ctrl_c_exits_130_and_leaves_no_results_folder() {
 /// Eq. 8's shared masks, `coid` per node, as validation chose; the rows of
 /// the learning-free methods, the Hungarians and the oracle byte for
 /// byte); then the ablations `coid+non` and `coid+unc` were added (every
-/// other row byte for byte). A change that moves the default results must say why and renew
-/// the file.
+/// other row byte for byte); then validation chose every deep method's
+/// operating point with its rule (`mutual-real`, the least E[Y]; the
+/// deep rows moved, every other row byte for byte). A change that moves
+/// the default results must say why and renew the file.
 #[test]
 fn the_ideal_mode_reproduces_the_results_from_before_v2x() {
     let fx = Fixture::new();
