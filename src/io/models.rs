@@ -421,4 +421,22 @@ mod tests {
             "{e}"
         );
     }
+
+    /// Regression: a record whose first layer is narrower than class,
+    /// colour and size underflowed the appearance width (a panic in debug
+    /// builds); it is another architecture.
+    #[test]
+    fn a_record_narrower_than_the_node_attributes_is_another_architecture() {
+        let dir = tempfile::tempdir().unwrap();
+        let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+        std::fs::copy(models.join("ours.bpk"), dir.path().join("ours.bpk")).unwrap();
+        let record = std::fs::read_to_string(models.join("ours.toml")).unwrap();
+        assert!(record.contains("node_features = 13"), "{record}");
+        let narrow = record.replace("node_features = 13", "node_features = 5");
+        std::fs::write(dir.path().join("ours.toml"), narrow).unwrap();
+        let e = read_weights(dir.path(), Method::Ours)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("another architecture"), "{e}");
+    }
 }

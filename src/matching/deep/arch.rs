@@ -281,9 +281,11 @@ impl Architecture {
         }
     }
 
-    /// The width of the appearance vectors it reads (0: none).
+    /// The width of the appearance vectors it reads (0: none; a record
+    /// narrower than class, colour and size is another architecture, which
+    /// the record's check says).
     pub fn appearance_width(&self) -> usize {
-        self.node_features - NODE_FEATURES
+        self.node_features.saturating_sub(NODE_FEATURES)
     }
 }
 

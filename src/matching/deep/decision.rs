@@ -252,7 +252,14 @@ impl MatchDistribution {
         let mut pairs = match decision {
             Decision::Assignment => self.assigned.clone(),
             Decision::Mutual => self.mutual_best(true),
-            Decision::MutualReal => self.mutual_best(false),
+            // A real block's best can be a pair of probability 0 (every
+            // entry of its row and column is): SuperGlue keeps only pairs
+            // above its threshold, so this rule never pairs those.
+            Decision::MutualReal => {
+                let mut pairs = self.mutual_best(false);
+                pairs.retain(|&(i, j)| self.p(i, j) > 0.0);
+                pairs
+            }
         };
         if self.min_probability > 0.0 {
             pairs.retain(|&(i, j)| self.p(i, j) >= self.min_probability);
@@ -335,6 +342,18 @@ mod tests {
         assert_eq!(pairs(&d, Decision::MutualReal), [(0, 1)]);
         d.min_probability = 0.95;
         assert!(pairs(&d, Decision::Mutual).is_empty());
+    }
+
+    /// Regression: the real block's mutual best at operating point 0
+    /// paired nodes whose E[Y] is 0 (everything in the dustbins).
+    #[test]
+    fn mutual_real_never_decides_a_pair_of_probability_zero() {
+        let s = vec![
+            0.0, 1.0, //
+            1.0, 0.0,
+        ];
+        let d = MatchDistribution::from_samples(1, 1, &[s]);
+        assert!(d.decide_with(Decision::MutualReal, None).is_empty());
     }
 
     /// A temperature above 1 pulls probabilities towards 1/2 and lowers
