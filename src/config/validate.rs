@@ -13,6 +13,7 @@ use super::raw::{
 };
 use super::{ConfigError, Settings};
 use crate::fusion::FusionSettings;
+use crate::matching::deep::decision::Decision;
 use crate::matching::{DecisionChoice, LambdaChoice, MatchingSettings, Method};
 use crate::rng::Seeds;
 use crate::sensor::{
@@ -351,12 +352,14 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
     };
     let decision = match m.decision.as_str() {
         "validated" => DecisionChoice::Validated,
-        word => DecisionChoice::Fixed(word.parse().map_err(|_| {
-            c.invalid(
-                "matching.decision",
-                format!("must be \"validated\", \"assignment\" or \"mutual\", got \"{word}\""),
-            )
-        })?),
+        word => DecisionChoice::Fixed(crate::label::parse::<Decision>("decision", word).map_err(
+            |e| {
+                c.invalid(
+                    "matching.decision",
+                    format!("must be \"validated\" or a rule: {e}"),
+                )
+            },
+        )?),
     };
     if m.rematch > MAX_REMATCH {
         return Err(c.invalid(

@@ -228,3 +228,11 @@ fn merge_refuses_a_shard_given_twice() {
     let merged = fx.coid(&["merge", "s1", "./s1", "--out", "m"]);
     assert_refused_unwritten(&merged, "given twice", &fx.path("m"));
 }
+
+/// Regression: an unknown decision rule's error listed the rules of an
+/// older build (not `mutual-real`); it names every rule the binary has.
+#[test]
+fn an_unknown_decision_rule_names_every_rule() {
+    let (fx, cfg) = Fixture::with_config(5.0, "[matching]\ndecision = \"mutual-reel\"\n");
+    fails_cleanly(&fx, &cfg, "assignment, mutual, mutual-real");
+}

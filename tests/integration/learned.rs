@@ -399,3 +399,23 @@ fn training_seeds_give_each_deep_row_its_spread_over_seeds() {
     assert_refused(&o, "another recipe");
     assert!(stderr(&o).contains("(epochs differ)"), "{}", stderr(&o));
 }
+
+/// Regression: a record whose first layer is narrower than class, colour
+/// and size (edited by hand) made the appearance width underflow; the
+/// binary refuses it as another architecture, in one line, before
+/// anything runs.
+#[test]
+fn a_record_narrower_than_the_node_attributes_is_refused() {
+    let fx = Fixture::new();
+    std::fs::create_dir_all(fx.path("models")).unwrap();
+    std::fs::copy(repo().join("models/ours.bpk"), fx.path("models/ours.bpk")).unwrap();
+    let record = std::fs::read_to_string(repo().join("models/ours.toml")).unwrap();
+    assert!(record.contains("node_features = 13"), "{record}");
+    fx.write(
+        "models/ours.toml",
+        &record.replace("node_features = 13", "node_features = 5"),
+    );
+    let cfg = fx.method_config("w.toml", "ours", "models");
+    let out = fx.run(&cfg, "w");
+    assert_refused_unwritten(&out, "another architecture", &fx.path("w"));
+}
