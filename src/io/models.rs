@@ -306,8 +306,7 @@ pub struct Validated {
     /// The threshold of each uncertainty type (infinite: no threshold).
     pub lambdas: Option<KindLambdas>,
     pub decision: Option<Decision>,
-    /// The operating point chosen with the rule (0 in records from before
-    /// it was chosen).
+    /// The operating point chosen with the rule (0 in records without one).
     pub min_probability: f64,
     /// The calibration temperature of the reported probabilities.
     pub temperature: Option<f64>,

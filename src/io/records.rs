@@ -52,8 +52,8 @@ pub struct ModelRecord {
     pub dropout_masks: MaskScope,
     pub batch_size: usize,
     /// How a published network's NLL weighed "no match" against true
-    /// pairs (absent: every entry alike, as before it was a choice; and
-    /// for the project's network, whose `loss` says).
+    /// pairs (absent: every entry alike, and for the project's network,
+    /// whose `loss` says).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub no_match: Option<NoMatchWeights>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -131,8 +131,8 @@ pub struct ValidationRecord {
     pub lambda: Lambda,
     pub decision: Decision,
     /// The operating point chosen with the rule: the least E[Y] of a
-    /// decided pair (0, as in records from before it was chosen: every
-    /// pair the rule chooses).
+    /// decided pair (0 in records without one: every pair the rule
+    /// chooses).
     #[serde(default)]
     pub min_probability: f64,
     pub temperature: f64,

@@ -6,7 +6,7 @@
 use super::Inputs;
 use super::calibration::pooled;
 use super::paper::sweep_rows;
-use super::precision_recall::curve;
+use super::precision_recall::pooled_curve;
 use super::record::{LevelFusion, MethodLevel, RunEval};
 use crate::config::Settings;
 use crate::fusion::FusionVariant;
@@ -99,13 +99,8 @@ fn pr_curves(inp: &Inputs) -> Vec<LevelCurves> {
                 .iter()
                 .filter(|m| m.kind() != crate::matching::MethodKind::Oracle)
                 .map(|&m| {
-                    let key = MethodLevel::new(m, l);
-                    let truth = inp
-                        .runs
-                        .iter()
-                        .filter_map(|r| r.table1.get(&key).map(|c| c.ground_truth))
-                        .sum();
-                    (m.as_str().to_owned(), curve(&pooled(inp, key), truth))
+                    let (points, _, _) = pooled_curve(inp, MethodLevel::new(m, l));
+                    (m.as_str().to_owned(), points)
                 })
                 .collect();
             (l.as_str().to_owned(), curves)

@@ -49,9 +49,14 @@ pub fn average_precision(pairs: &[ScoredPair], ground_truth: usize) -> f64 {
     if ground_truth == 0 {
         return f64::NAN;
     }
+    area(&curve(pairs, ground_truth))
+}
+
+/// The area under a step curve's points.
+fn area(points: &[(f64, f64)]) -> f64 {
     let mut ap = 0.0;
     let mut recall_before = 0.0;
-    for (recall, precision) in curve(pairs, ground_truth) {
+    for &(recall, precision) in points {
         ap += precision * (recall - recall_before);
         recall_before = recall;
     }
@@ -61,6 +66,16 @@ pub fn average_precision(pairs: &[ScoredPair], ground_truth: usize) -> f64 {
 /// A method's true pairs at a level in one run (its Table 1 count).
 fn ground_truth(run: &super::RunEval, key: MethodLevel) -> Option<usize> {
     run.table1.get(&key).map(|c| c.ground_truth)
+}
+
+/// The curve of a method at a level, its pairs and true pairs pooled over
+/// the runs: its points, its AP (NaN without true pairs) and its pairs.
+pub(super) fn pooled_curve(inp: &Inputs, key: MethodLevel) -> (Vec<(f64, f64)>, f64, usize) {
+    let pairs = pooled(inp, key);
+    let truth: usize = inp.runs.iter().filter_map(|r| ground_truth(r, key)).sum();
+    let points = curve(&pairs, truth);
+    let ap = if truth == 0 { f64::NAN } else { area(&points) };
+    (points, ap, pairs.len())
 }
 
 /// Each method's average precision at each level: the mean over the runs
@@ -77,25 +92,24 @@ pub(super) fn precision_recall(inp: &Inputs) -> Table {
     let rows: Vec<Row> = inp
         .method_levels()
         .map(|key| {
-            let pairs = pooled(inp, key);
-            let truth: usize = inp.runs.iter().filter_map(|r| ground_truth(r, key)).sum();
             let ap = inp.per_run(|r| {
                 let t = ground_truth(r, key)?;
                 let pairs = r.scored.get(&key).map_or(&[][..], Vec::as_slice);
                 Some(average_precision(pairs, t)).filter(|v| v.is_finite())
             });
-            let points = curve(&pairs, truth);
+            let (points, pooled_ap, n_pairs) = pooled_curve(inp, key);
             Row {
                 key,
                 ap,
-                pooled_ap: average_precision(&pairs, truth),
+                pooled_ap,
                 recall_end: points.last().map_or(f64::NAN, |p| p.0),
-                n_pairs: pairs.len(),
+                n_pairs,
             }
         })
         .collect();
     Columns::of(&rows)
         .method_level(|r| r.key)
+        .text("inputs", |r| r.key.method.inputs().as_str().to_owned())
         .stat("ap", |r| &r.ap)
         .number("ap_pooled", |r| r.pooled_ap)
         .number("recall_at_operating_point", |r| r.recall_end)
@@ -114,8 +128,7 @@ pub(super) fn pr_curve(inp: &Inputs) -> Table {
     }
     let mut rows = Vec::new();
     for key in inp.method_levels() {
-        let truth: usize = inp.runs.iter().filter_map(|r| ground_truth(r, key)).sum();
-        let points = curve(&pooled(inp, key), truth);
+        let (points, _, _) = pooled_curve(inp, key);
         for k in 0..CURVE_POINTS {
             let recall = k as f64 / (CURVE_POINTS - 1) as f64;
             let precision = points

@@ -123,17 +123,16 @@ fn write_consistent_pairs(dir: &Path) {
 }
 
 fn convert(fx: &Fixture, out: &str) -> std::process::Output {
-    fx.coid(&[
-        "convert",
-        "pyg",
-        fx.path("src").to_str().unwrap(),
-        "-q",
-        "-o",
-        fx.path(out).to_str().unwrap(),
-        "--splits",
-        "validation=10..10",
-        "test=11..12",
-    ])
+    convert_split(fx, out, &["validation=10..10", "test=11..12"])
+}
+
+/// `coid convert pyg` of the fixture's `src` into `out`, split as `splits`.
+fn convert_split(fx: &Fixture, out: &str, splits: &[&str]) -> std::process::Output {
+    let (src, dst) = (fx.path("src"), fx.path(out));
+    let mut args = vec!["convert", "pyg", src.to_str().unwrap(), "-q", "-o"];
+    args.extend([dst.to_str().unwrap(), "--splits"]);
+    args.extend(splits);
+    fx.coid(&args)
 }
 
 /// The converted pairs: runs by split, nodes in the body frame (x forward
@@ -497,19 +496,8 @@ fn matches_made_from_a_converted_dataset_are_scored_on_it() {
 fn deep_networks_trained_on_a_dataset_read_its_appearance_vectors() {
     let fx = Fixture::new();
     write_consistent_pairs(&fx.path("src"));
-    let o = fx.coid(&[
-        "convert",
-        "pyg",
-        fx.path("src").to_str().unwrap(),
-        "-q",
-        "-o",
-        fx.path("ds").to_str().unwrap(),
-        "--splits",
-        "train=10..10",
-        "validation=11..11",
-        "test=12..12",
-    ]);
-    assert_ok(&o);
+    let splits = ["train=10..10", "validation=11..11", "test=12..12"];
+    assert_ok(&convert_split(&fx, "ds", &splits));
     let config = fx.write(
         "c.toml",
         &format!(

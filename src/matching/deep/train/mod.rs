@@ -86,8 +86,8 @@ pub struct TrainSettings {
 }
 
 /// As derived, but `no_match` and `appearance_vectors` are shown only when
-/// they are not what configs meant before they existed (`entries`,
-/// `true`): a config's digest hashes this text.
+/// they differ from `entries` and `true`: a config's digest hashes this
+/// text.
 impl std::fmt::Debug for TrainSettings {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let mut d = f.debug_struct("TrainSettings");
