@@ -19,6 +19,7 @@ use pyo3::types::PyModule;
 
 use crate::geometry::{Polygon, Pose2, Vec2};
 use crate::paths;
+use crate::traffic::catalogue::Catalogue;
 use crate::traffic::{
     Lane, ObjectClass, SUMO_DEFAULT_COLOUR, StaticScene, TrafficFrame, TrafficObject, UnsetColours,
     drawn_colour,
@@ -410,6 +411,9 @@ pub struct Sumo {
     /// The traffic seed colours are drawn with for road users whose
     /// demand gives none; `None` keeps SUMO's yellow.
     draw_colours: Option<u64>,
+    /// The catalogue vehicles are drawn from, with the traffic seed
+    /// (`None`: sizes and colours as the demand gives them).
+    catalogue: Option<(std::sync::Arc<Catalogue>, u64)>,
 }
 
 impl Sumo {
@@ -472,6 +476,7 @@ impl Sumo {
                 steps: 0,
                 open: true,
                 draw_colours: None,
+                catalogue: None,
             })
         });
         if result.is_err() {
@@ -485,6 +490,20 @@ impl Sumo {
     /// ([`crate::traffic::drawn_colour`]).
     pub fn with_unset_colours(mut self, rule: UnsetColours, traffic_seed: u64) -> Self {
         self.draw_colours = (rule == UnsetColours::Drawn).then_some(traffic_seed);
+        self
+    }
+
+    /// Vehicles from now on look like a model of `catalogue` in one of
+    /// its paints, drawn by id and `traffic_seed`
+    /// ([`Catalogue::draw`]): its length, width, height and colour replace
+    /// the demand's (the pose stays SUMO's centre); road users of a class
+    /// the catalogue lacks keep theirs.
+    pub fn with_catalogue(
+        mut self,
+        catalogue: Option<std::sync::Arc<Catalogue>>,
+        traffic_seed: u64,
+    ) -> Self {
+        self.catalogue = catalogue.map(|c| (c, traffic_seed));
         self
     }
 
@@ -594,8 +613,7 @@ impl Sumo {
                         }
                         _ => [r, g, b],
                     };
-                    TrafficObject {
-                        id,
+                    let mut object = TrafficObject {
                         type_id,
                         class,
                         pose: centre_pose_from_sumo(x, y, angle, length),
@@ -604,7 +622,18 @@ impl Sumo {
                         height_m: height,
                         colour_rgb,
                         speed_mps: speed,
+                        model: None,
+                        id,
+                    };
+                    if let Some((catalogue, seed)) = &self.catalogue
+                        && let Some((m, paint)) = catalogue.draw(*seed, &object.id, class)
+                    {
+                        let [l, w, h] = catalogue.models[usize::from(m)].size_m;
+                        (object.length_m, object.width_m, object.height_m) = (l, w, h);
+                        object.colour_rgb = paint.rgb;
+                        object.model = Some(m);
                     }
+                    object
                 },
             )
             .collect();

@@ -89,15 +89,60 @@ fn descriptor_law(
             let [a, b] = &inst.sides;
             for x in &a.nodes {
                 for y in &b.nodes {
-                    if let (Some(u), Some(v)) = (&x.appearance, &y.appearance) {
+                    let described = |a: &Option<std::sync::Arc<[f32]>>| {
+                        a.clone().filter(|v| v.iter().any(|x| *x != 0.0))
+                    };
+                    if let (Some(u), Some(v)) = (described(&x.appearance), described(&y.appearance))
+                    {
                         let same = !x.object_id.is_empty() && x.object_id == y.object_id;
-                        pairs.push((crate::sensor::cosine(u, v), same));
+                        pairs.push((crate::sensor::cosine(&u, &v), same));
                     }
                 }
             }
         }
     }
     Ok(crate::matching::descriptor::fit_law(&pairs))
+}
+
+/// Calibrates `[appearance] descriptor = "reid"` on the validation runs
+/// ([`validation_runs`]; never a test run): their views' sightings
+/// ([`pipeline::sighting_pairs`]), the noise that meets the target
+/// ([`crate::sensor::reid::calibrate`]) and what the cosine says there
+/// ([`crate::matching::descriptor::fit_law`], on every pair of the same
+/// views). Nothing to do without the descriptor, when it is calibrated
+/// already, or with a dataset (which brings its own vectors).
+/// `on_run(done, total)` follows the runs.
+pub fn calibrate_appearance(
+    settings: &mut Settings,
+    mut on_run: impl FnMut(usize, usize),
+) -> Result<(), RunError> {
+    let needed = settings
+        .appearance
+        .reid
+        .as_ref()
+        .is_some_and(|r| r.calibration.is_none());
+    if !needed || settings.dataset.is_some() {
+        return Ok(());
+    }
+    let runs = validation_runs(settings)?;
+    let mut pairs = Vec::new();
+    on_run(0, runs.len());
+    for (k, run) in runs.iter().enumerate() {
+        pairs.extend(pipeline::sighting_pairs(run)?.0);
+        on_run(k + 1, runs.len());
+    }
+    let Some(reid) = settings.appearance.reid.as_mut() else {
+        return Ok(());
+    };
+    let (noise, figures, scored) = crate::sensor::reid::calibrate(&pairs, reid.width, reid.target)
+        .map_err(|e| RunError::Calibration(e.to_string()))?;
+    let law = crate::matching::descriptor::fit_law(&crate::sensor::reid::labelled_pairs(&scored));
+    reid.calibration = Some(crate::sensor::reid::ReidCalibration {
+        noise,
+        law,
+        figures,
+    });
+    Ok(())
 }
 
 /// With a dataset ([`with_dataset`]), each of its runs as `runs.parquet`
@@ -644,7 +689,9 @@ pub fn tune_baselines(
     let weighs = settings
         .dataset
         .as_ref()
-        .is_some_and(|d| d.descriptor_law.is_some());
+        .map_or(settings.appearance.descriptor_width() > 0, |d| {
+            d.descriptor_law.is_some()
+        });
     let weighed: Vec<Method> = knobs
         .iter()
         .map(|(m, _)| *m)

@@ -66,6 +66,16 @@ pub enum Purpose {
     /// The errors of the heading and speed one connected vehicle's
     /// detector reports with its detections at one step.
     BoxMotion = 16,
+    /// The catalogue model and paint drawn for one vehicle, per id
+    /// (`[appearance] vehicles = "catalogue"`).
+    VehicleModel = 17,
+    /// The fixed directions of the re-identification descriptor's space
+    /// (per class, model, view, paint channel) and each vehicle's own
+    /// look (per id and traffic seed).
+    ReidLook = 18,
+    /// The noise of one re-identification descriptor (per step,
+    /// observer and object).
+    ReidNoise = 19,
 }
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash step.

@@ -139,6 +139,8 @@ pub fn seed_runs(
             ..Default::default()
         };
         let mut settings = Settings::load_with(config, &overrides)?;
+        experiments::calibrate_appearance(&mut settings, |_, _| {})
+            .map_err(TrainingError::Validation)?;
         if let Some(d) = dataset {
             settings =
                 experiments::with_dataset(&settings, d).map_err(TrainingError::Validation)?;

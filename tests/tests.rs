@@ -8,6 +8,8 @@
 #[path = "integration/util.rs"]
 mod util;
 
+#[path = "integration/appearance.rs"]
+mod appearance;
 #[path = "integration/bad_input.rs"]
 mod bad_input;
 #[path = "integration/batch.rs"]

@@ -167,7 +167,8 @@ pub fn run_one(a: RunArgs) -> anyhow::Result<()> {
     if io::run_is_complete(&a.batch, &record, a.run) {
         return Ok(());
     }
-    let settings = batch::settings_of(&record, a.run)?;
+    let mut settings = batch::settings_of(&record, a.run)?;
+    super::calibrate(&mut settings, true)?;
     let claim = io::Claim::new(
         &io::run_dir(&a.batch, a.run),
         io::ResultKind::Run,

@@ -6,8 +6,9 @@ use anyhow::Context;
 
 use super::{CommonArgs, label_arg, progress_bar};
 use crate::experiments::validation_runs;
-use crate::report::DetectorStats;
+use crate::report::{DetectorStats, reid_table};
 use crate::sensor::profile::{DetectorProfile, Mount, sensor_in_body_m};
+use crate::sensor::reid::{self, DescribedViews};
 use crate::{io, pipeline};
 
 #[derive(clap::Args)]
@@ -41,6 +42,32 @@ fn one_profile(d: &mut crate::sensor::profile::DetectorSettings) {
             set_aside.join(", ")
         );
     }
+}
+
+/// Senses every validation run: the detector's figures into `stats`, the
+/// descriptors' scenes (every pair of views of one step that share an
+/// object) returned with the number of sensings.
+fn measure(
+    runs: &[crate::config::Settings],
+    stats: &mut DetectorStats,
+    (mount, sensors): (Mount, u64),
+    mut on_run: impl FnMut(),
+) -> anyhow::Result<(u64, Vec<reid::ScoredScene>)> {
+    let mut sensings = 0;
+    let mut scenes = Vec::new();
+    for (k, run) in runs.iter().enumerate() {
+        let mut views = DescribedViews::default();
+        sensings += pipeline::sense_steps(run, |frame, sensed| {
+            let ego = frame.find(&sensed.observation.ego_id);
+            let length_m = ego.map_or(0.0, |i| frame.objects[i].length_m);
+            stats.add(sensed, sensor_in_body_m(mount, length_m), sensors);
+            views.add(frame.step, sensed);
+        })
+        .with_context(|| format!("validation run {} failed", k + 1))?;
+        scenes.extend(views.finish());
+        on_run();
+    }
+    Ok((sensings, scenes))
 }
 
 pub fn detector(a: Args) -> anyhow::Result<()> {
@@ -88,16 +115,8 @@ pub fn detector(a: Args) -> anyhow::Result<()> {
         "{spinner} measuring the detector: run {pos}/{len} [{bar:30}] eta {eta}",
     );
     let mut stats = DetectorStats::new(edges);
-    let mut sensings = 0;
-    for (k, run) in runs.iter().enumerate() {
-        sensings += pipeline::sense_steps(run, |frame, sensed| {
-            let ego = frame.find(&sensed.observation.ego_id);
-            let length_m = ego.map_or(0.0, |i| frame.objects[i].length_m);
-            stats.add(sensed, sensor_in_body_m(mount, length_m), sensors as u64);
-        })
-        .with_context(|| format!("validation run {} failed", k + 1))?;
-        pb.inc(1);
-    }
+    let placement = (mount, sensors as u64);
+    let (sensings, scenes) = measure(&runs, &mut stats, placement, || pb.inc(1))?;
     pb.finish_and_clear();
     if sensings == 0 {
         anyhow::bail!(
@@ -108,8 +127,19 @@ pub fn detector(a: Args) -> anyhow::Result<()> {
         );
     }
     let table = stats.table(&recall, &error, clutter);
-    claim.fill(|dir| io::write_tracking(dir, &[("detector.csv", &table)], |_| Ok(())))?;
+    let reid = settings.appearance.reid.as_ref().and_then(|r| {
+        let c = r.calibration.as_ref()?;
+        Some(reid_table(&r.target, &c.figures, &reid::figures(&scenes)))
+    });
+    let mut tables = vec![("detector.csv", &table)];
+    if let Some(t) = &reid {
+        tables.push(("reid.csv", t));
+    }
+    claim.fill(|dir| io::write_tracking(dir, &tables, |_| Ok(())))?;
     println!("{}", io::markdown::table(&table));
+    if let Some(t) = &reid {
+        println!("{}", io::markdown::table(t));
+    }
     eprintln!(
         "coid: the '{}' detector over {} ({}); wrote {}",
         profile.as_str(),

@@ -354,7 +354,8 @@ impl CommonArgs {
         overrides: &crate::config::Overrides,
     ) -> anyhow::Result<(crate::config::Settings, crate::io::Claim)> {
         let config = self.config.path();
-        let settings = crate::config::Settings::load_with(&config, overrides)?;
+        let mut settings = crate::config::Settings::load_with(&config, overrides)?;
+        calibrate(&mut settings, self.quiet.quiet)?;
         let out = out_dir(self.out.out.clone(), &config, suffix);
         let claim = crate::io::Claim::new(&out, kind, crate::io::Existing::when(self.force.force))?;
         Ok((settings, claim))
@@ -368,6 +369,56 @@ impl CommonArgs {
             "{spinner} SUMO t = {msg} [{bar:30}] {percent:>3}% elapsed {elapsed} eta {eta}",
         )
     }
+}
+
+/// Calibrates the re-identification descriptor when the config asks for
+/// one (`[appearance] descriptor = "reid"`) on the validation runs, with a
+/// progress bar, and says what it measured; nothing otherwise.
+pub(crate) fn calibrate(settings: &mut crate::config::Settings, quiet: bool) -> anyhow::Result<()> {
+    let pending = settings
+        .appearance
+        .reid
+        .as_ref()
+        .is_some_and(|r| r.calibration.is_none());
+    if !pending || settings.dataset.is_some() {
+        return Ok(());
+    }
+    let pb = progress_bar(
+        quiet,
+        0,
+        "{spinner} calibrating the re-identification descriptor: validation run {pos}/{len} \
+         [{bar:30}] eta {eta}",
+    );
+    let mut runs = 0;
+    crate::experiments::calibrate_appearance(settings, |done, total| {
+        pb.set_length(total as u64);
+        pb.set_position(done as u64);
+        runs = total;
+    })?;
+    pb.finish_and_clear();
+    if let Some(r) = &settings.appearance.reid
+        && let Some(c) = &r.calibration
+        && !quiet
+    {
+        let f = &c.figures;
+        let auroc = r
+            .target
+            .auroc
+            .map_or("free".to_owned(), |a| format!("{a:.2}"));
+        eprintln!(
+            "coid: re-identification descriptor ({} values) calibrated on {}: rank-1 {:.3} \
+             (target {:.2}), AUROC {:.3} (target {auroc}) over {} queries among {:.1} \
+             candidates",
+            r.width,
+            crate::label::counted(runs as u64, "validation run"),
+            f.rank1,
+            r.target.rank1,
+            f.auroc,
+            f.queries,
+            f.candidates,
+        );
+    }
+    Ok(())
 }
 
 /// Shows a simulation's progress on a bar made by [`CommonArgs::sim_bar`].

@@ -20,6 +20,7 @@
 //! `detector` (`[detector]`: the detector profiles),
 //! `digest` (what a configuration makes a run do, as one value).
 
+mod appearance;
 mod check;
 mod detector;
 mod digest;
@@ -134,6 +135,9 @@ pub struct Settings {
     pub v2x: V2xSettings,
     /// `[detector]`: the detector profile (the paper's by default).
     pub detector: DetectorSettings,
+    /// `[appearance]`: the vehicle catalogue and the re-identification
+    /// descriptor (neither by default).
+    pub appearance: crate::sensor::AppearanceSettings,
     /// Instances read from a dataset folder instead of simulated (`coid
     /// eval --dataset`, ...): the folder, and the run of it these settings
     /// run (`None`: the whole dataset, before it is split into runs).
@@ -160,15 +164,16 @@ pub struct DatasetSource {
 impl Settings {
     /// The width of the appearance vectors the deep networks train on: a
     /// dataset's usable vectors ([`DatasetSource::usable_appearance_width`]),
-    /// or 0.
+    /// else the calibrated re-identification descriptor's
+    /// ([`crate::sensor::AppearanceSettings::descriptor_width`]), or 0.
     pub fn appearance_width(&self) -> usize {
         if !self.train.appearance_vectors {
             return 0;
         }
-        self.dataset
-            .as_ref()
-            .and_then(DatasetSource::usable_appearance_width)
-            .unwrap_or(0)
+        match &self.dataset {
+            Some(d) => d.usable_appearance_width().unwrap_or(0),
+            None => self.appearance.descriptor_width(),
+        }
     }
 }
 
@@ -201,6 +206,11 @@ impl std::fmt::Debug for Settings {
             .field("eval", &self.eval);
         if self.v2x != V2xSettings::default() {
             d.field("v2x", &self.v2x);
+        }
+        // `[appearance]` at its defaults adds nothing (digests of configs
+        // without it stay as they were).
+        if !self.appearance.is_default() {
+            d.field("appearance", &self.appearance);
         }
         // The GNSS drifts in `ideal` runs too (it once was white there
         // whatever `gnss_correlation_s` said): such configs' digests

@@ -31,6 +31,18 @@ pub(super) struct RawConfig {
     pub(super) eval: RawEval,
     pub(super) v2x: RawV2x,
     pub(super) detector: RawDetector,
+    pub(super) appearance: RawAppearance,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawAppearance {
+    pub(super) vehicles: String,
+    pub(super) catalogue: String,
+    pub(super) descriptor: String,
+    pub(super) width: usize,
+    pub(super) rank1: f64,
+    pub(super) auroc: RawRate,
 }
 
 #[derive(Debug, Deserialize)]

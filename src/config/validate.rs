@@ -64,6 +64,7 @@ pub(super) fn validate(
         eval,
         v2x: super::v2x::v2x(&c, raw.v2x)?,
         detector: super::detector::detector(&c, raw.detector)?,
+        appearance: super::appearance::appearance(&c, raw.appearance)?,
         dataset: None,
     })
 }

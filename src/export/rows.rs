@@ -16,6 +16,9 @@ pub(super) struct Rows {
     edges: Vec<Edge>,
     truth: Vec<Truth>,
     true_pairs: Vec<TruePair>,
+    /// The width of the sensor's descriptors (0: none): a node without one
+    /// beside described nodes is written as that many zeros.
+    pub(super) descriptor_width: usize,
 }
 
 impl Rows {
@@ -27,7 +30,14 @@ impl Rows {
     /// The held rows as each instance file's table, in file order (no
     /// longer held).
     pub(super) fn take(&mut self) -> [(&'static str, Table); 5] {
-        let rows = std::mem::take(self);
+        let width = self.descriptor_width;
+        let rows = std::mem::replace(
+            self,
+            Rows {
+                descriptor_width: width,
+                ..Rows::default()
+            },
+        );
         [
             (Instance::FILE, Instance::table(rows.instances)),
             (Node::FILE, Node::table(rows.nodes)),
@@ -138,7 +148,14 @@ impl Rows {
                 sender: Some(truth.sender),
                 world_x_m: None,
                 world_y_m: None,
-                appearance: None,
+                // Every node has one or none does: a node without a
+                // descriptor (a sender's self-report) beside described
+                // nodes is written as zeros.
+                appearance: match (&a.descriptor, self.descriptor_width) {
+                    (Some(d), _) => Some(d.values.to_vec()),
+                    (None, w) if w > 0 => Some(vec![0.0; w]),
+                    (None, _) => None,
+                },
             });
             let p = truth.position_m;
             self.truth.push(Truth {

@@ -33,7 +33,7 @@ pub use frames::evaluate_frames;
 pub use instance::{Instance, InstanceSide};
 pub use run::run;
 pub use runners::{choice_for, choices, runner, runners};
-pub use simulate::{Step, sense_steps, simulate, simulate_frames, simulate_steps};
+pub use simulate::{Step, sense_steps, sighting_pairs, simulate, simulate_frames, simulate_steps};
 pub use track::track;
 
 #[derive(Debug, thiserror::Error)]
@@ -64,6 +64,10 @@ pub enum RunError {
     /// A dataset that does not fit, or cannot stand in for a run.
     #[error("dataset {dir}: {why}")]
     Dataset { dir: String, why: String },
+    /// The re-identification descriptor cannot be calibrated, or a run
+    /// was asked for before it was.
+    #[error("{0}")]
+    Calibration(String),
 }
 
 /// Progress reported once per simulation step.

@@ -277,9 +277,12 @@ fn sensed(inst: &DatasetInstance, s: usize, law: Option<DescriptorLaw>) -> Resul
                 length_m: size[0],
                 width_m: size[1],
                 height_m: size[2],
+                // An all-zero vector is a node without one (a sender's
+                // self-report in coid's own exports).
                 descriptor: n
                     .appearance
                     .clone()
+                    .filter(|v| v.iter().any(|x| *x != 0.0))
                     .zip(law)
                     .map(|(values, law)| Descriptor { values, law }),
             },

@@ -30,6 +30,8 @@ use crate::v2x::{Receptions, Setup, V2xMode, V2xSettings, ViewSource, gnss, true
 #[derive(Clone, Copy)]
 pub(super) struct Rig<'a> {
     seed: u64,
+    traffic_seed: u64,
+    appearance: &'a sensor::AppearanceSettings,
     connected: &'a ConnectedSelection,
     radius_m: f64,
     sender_as_node: bool,
@@ -44,6 +46,8 @@ impl<'a> Rig<'a> {
     pub(super) fn of(settings: &'a Settings) -> Self {
         Self {
             seed: settings.seeds.sensor,
+            traffic_seed: settings.seeds.traffic,
+            appearance: &settings.appearance,
             connected: &settings.connected,
             radius_m: settings.scenario.radius_m,
             sender_as_node: settings.matching.sender_as_node,
@@ -160,12 +164,12 @@ pub fn simulate_steps(
     if let Some(source) = &settings.dataset {
         return super::replay::dataset_steps(settings, source, warnings, progress, on_step);
     }
+    uncalibrated(settings)?;
     let sc = &settings.scenario;
     let rig = Rig::of(settings);
     let cpm = settings.v2x.mode == V2xMode::Cpm;
     let step_length_s = cpm.then_some(settings.v2x.step_length_s);
-    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, step_length_s)?
-        .with_unset_colours(settings.sensor.unset_colours, settings.seeds.traffic);
+    let mut sumo = open_sumo(settings, step_length_s)?;
     let scene = Arc::new(sumo.static_scene(&sc.junction)?);
     let setup = cooperation(settings, &settings.pose_noise);
     let mut receptions = cpm.then(Receptions::default);
@@ -394,7 +398,85 @@ fn sense_one(rig: &Rig, scene: &StaticScene, frame: &TrafficFrame, k: usize) -> 
     let mut boxes = rng::stream(rig.seed, Purpose::BoxMotion, &[frame.step, id_hash]);
     let errors = model.map_or(&sensor.boxes, |m| &m.params.boxes);
     sensor::boxes::add_motion(&mut sensed, frame, k, errors, &mut boxes);
+    if let Some(reid) = &rig.appearance.reid {
+        let range_m = model.map_or(camera.range_m, |m| m.params.range_m);
+        let seeds = (rig.traffic_seed, rig.seed);
+        sensor::reid::describe_detections(&mut sensed, frame, k, range_m, seeds, reid);
+    }
     sensed
+}
+
+/// Refuses to simulate with a re-identification descriptor that was not
+/// calibrated (`experiments::calibrate_appearance` comes first): its
+/// detections would carry none, silently.
+pub(super) fn uncalibrated(settings: &Settings) -> Result<(), RunError> {
+    match &settings.appearance.reid {
+        Some(r) if r.calibration.is_none() => Err(RunError::Calibration(
+            "the re-identification descriptor ([appearance] descriptor = \"reid\") was not \
+             calibrated before this run"
+                .into(),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// SUMO started on the scenario of `settings`, its road users looking as
+/// `[sensor] unset_colours` and `[appearance] vehicles` say.
+pub(super) fn open_sumo(settings: &Settings, step_length_s: Option<f64>) -> Result<Sumo, RunError> {
+    let sc = &settings.scenario;
+    let seed = settings.seeds.traffic;
+    Ok(Sumo::start(&sc.sumocfg, seed, sc.end_s, step_length_s)?
+        .with_unset_colours(settings.sensor.unset_colours, seed)
+        .with_catalogue(settings.appearance.catalogue.clone(), seed))
+}
+
+/// Runs the scenario of `settings` and gives, for every sampled step and
+/// pair of connected vehicles near the junction that see an object in
+/// common, both views' detections as the re-identification descriptor
+/// sees them ([`sensor::reid::sightings`]): what the descriptor is
+/// calibrated on. Returns the pairs and the number of sensings.
+pub fn sighting_pairs(
+    settings: &Settings,
+) -> Result<(Vec<sensor::reid::SightingPair>, u64), RunError> {
+    let seeds = (settings.seeds.traffic, settings.seeds.sensor);
+    let range_of = |frame: &TrafficFrame, k: usize| {
+        let o = &frame.objects[k];
+        settings
+            .detector
+            .model_for(settings.seeds.sensor, &o.id, &o.type_id)
+            .map_or(settings.camera.range_m, |m| m.params.range_m)
+    };
+    let mut pairs = Vec::new();
+    let mut step: Option<u64> = None;
+    let mut views: Vec<Vec<sensor::reid::Sighting>> = Vec::new();
+    let mut flush = |views: &mut Vec<Vec<sensor::reid::Sighting>>| {
+        for i in 0..views.len() {
+            for j in i + 1..views.len() {
+                let shared = views[i]
+                    .iter()
+                    .any(|s| s.object.is_some() && views[j].iter().any(|t| t.object == s.object));
+                if shared {
+                    pairs.push(sensor::reid::SightingPair {
+                        a: views[i].clone(),
+                        b: views[j].clone(),
+                    });
+                }
+            }
+        }
+        views.clear();
+    };
+    let n = sense_steps(settings, |frame, sensed| {
+        if step != Some(frame.step) {
+            flush(&mut views);
+            step = Some(frame.step);
+        }
+        if let Some(k) = frame.find(&sensed.observation.ego_id) {
+            let range_m = range_of(frame, k);
+            views.push(sensor::reid::sightings(sensed, frame, k, range_m, seeds));
+        }
+    })?;
+    flush(&mut views);
+    Ok((pairs, n))
 }
 
 /// Runs the scenario of `settings` from start to end and hands what every
@@ -408,8 +490,7 @@ pub fn sense_steps(
 ) -> Result<u64, RunError> {
     let sc = &settings.scenario;
     let rig = Rig::of(settings);
-    let mut sumo = Sumo::start(&sc.sumocfg, settings.seeds.traffic, sc.end_s, None)?
-        .with_unset_colours(settings.sensor.unset_colours, settings.seeds.traffic);
+    let mut sumo = open_sumo(settings, None)?;
     let scene = sumo.static_scene(&sc.junction)?;
     let mut next_sample_s = f64::NEG_INFINITY;
     let mut n = 0;

@@ -13,7 +13,6 @@ use super::simulate::{
     warn_unused_types,
 };
 use super::{Progress, RunError, Warnings};
-use crate::bridge::Sumo;
 use crate::config::Settings;
 use crate::evaluate::CorrespondenceSource;
 use crate::matching::Matcher;
@@ -32,16 +31,11 @@ pub fn track(
     warnings: &Warnings,
     mut progress: impl FnMut(Progress),
 ) -> Result<TrackResults, RunError> {
+    super::simulate::uncalibrated(settings)?;
     let (sc, v) = (&settings.scenario, &settings.v2x);
     let matcher = frame_matcher(settings)?;
     let level = track_level(settings)?;
-    let mut sumo = Sumo::start(
-        &sc.sumocfg,
-        settings.seeds.traffic,
-        sc.end_s,
-        Some(v.step_length_s),
-    )?
-    .with_unset_colours(settings.sensor.unset_colours, settings.seeds.traffic);
+    let mut sumo = super::simulate::open_sumo(settings, Some(v.step_length_s))?;
     let scene = sumo.static_scene(&sc.junction)?;
     let rig = Rig::of(settings);
     let setup = cooperation(settings, std::slice::from_ref(&level));

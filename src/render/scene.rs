@@ -300,6 +300,7 @@ mod tests {
             colour_rgb: [240, 240, 240],
             speed_mps: 5.0,
             type_id: "car".into(),
+            model: None,
         };
         let frame = TrafficFrame {
             step: 0,

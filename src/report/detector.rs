@@ -162,6 +162,43 @@ impl DetectorStats {
     }
 }
 
+/// One figure of a [`crate::sensor::reid::ReidFigures`].
+type Figure = fn(&crate::sensor::reid::ReidFigures) -> f64;
+
+/// The re-identification descriptor's figures: its targets, what
+/// calibration measured on the validation runs' views, and what the
+/// descriptors the sensor then gave measure on the same runs (the two
+/// agree when the sensor describes as the calibration did).
+pub fn reid_table(
+    target: &crate::sensor::reid::ReidTarget,
+    calibrated: &crate::sensor::reid::ReidFigures,
+    measured: &crate::sensor::reid::ReidFigures,
+) -> Table {
+    let mut t = Table::default();
+    let rows: [(&str, Option<f64>, Figure); 6] = [
+        ("rank1", Some(target.rank1), |f| f.rank1),
+        ("auroc", target.auroc, |f| f.auroc),
+        ("queries", None, |f| f.queries as f64),
+        ("candidates_per_query", None, |f| f.candidates),
+        ("same_object_cosine", None, |f| f.same_cos),
+        ("different_object_cosine", None, |f| f.different_cos),
+    ];
+    t.text("figure", rows.iter().map(|r| r.0.to_owned()).collect());
+    t.number(
+        "target",
+        rows.iter().map(|r| r.1.unwrap_or(f64::NAN)).collect(),
+    );
+    t.number("calibrated", rows.iter().map(|r| r.2(calibrated)).collect());
+    t.number("measured", rows.iter().map(|r| r.2(measured)).collect());
+    t.number(
+        "measured_over_target",
+        rows.iter()
+            .map(|r| r.1.map_or(f64::NAN, |v| r.2(measured) / v))
+            .collect(),
+    );
+    t
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -24,7 +24,7 @@ mod tracking;
 
 pub use batch::{AggregateRow, KEY_COLUMNS, Metric, RunRow, aggregate, aggregate_table};
 pub use calibration::*;
-pub use detector::DetectorStats;
+pub use detector::{DetectorStats, reid_table};
 pub use exchange::{ExportRunRow, MatchRow};
 pub use plots::{LevelCurves, PlotData, SweepPoint};
 pub use run::*;

@@ -123,6 +123,7 @@ mod tests {
             colour_rgb: [200, 10, 10],
             speed_mps,
             type_id: "car".into(),
+            model: None,
         }
     }
 

@@ -21,6 +21,7 @@ pub(crate) mod boxes;
 mod camera;
 mod fleet;
 pub(crate) mod profile;
+pub mod reid;
 
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
@@ -86,6 +87,35 @@ pub struct SensorSettings {
     pub(crate) unset_colours: crate::traffic::UnsetColours,
     /// The errors of the boxes' heading and speed (the paper's model).
     pub(crate) boxes: boxes::BoxErrors,
+}
+
+/// `[appearance]`: what road users look like beyond the demand, and what
+/// a detection's appearance says. The default (no catalogue, no
+/// descriptor) is the demand's sizes and colours and the class, colour
+/// and size a detector reports.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AppearanceSettings {
+    /// `vehicles = "catalogue"`: the catalogue vehicles are drawn from.
+    pub catalogue: Option<std::sync::Arc<crate::traffic::catalogue::Catalogue>>,
+    /// `descriptor = "reid"`: a re-identification descriptor beside the
+    /// class, colour and size.
+    pub reid: Option<reid::ReidSettings>,
+}
+
+impl AppearanceSettings {
+    /// Whether nothing differs from the default.
+    pub fn is_default(&self) -> bool {
+        self.catalogue.is_none() && self.reid.is_none()
+    }
+
+    /// The width of the descriptor the sensor gives detections (0: none),
+    /// once calibrated with a cosine that tells objects apart.
+    pub fn descriptor_width(&self) -> usize {
+        self.reid
+            .as_ref()
+            .filter(|r| r.calibration.as_ref().is_some_and(|c| c.law.is_some()))
+            .map_or(0, |r| r.width)
+    }
 }
 
 crate::label_enum! { "pose-noise level";
@@ -384,6 +414,7 @@ mod tests {
             colour_rgb: [200, 10, 10],
             speed_mps: 0.0,
             type_id: "car".into(),
+            model: None,
         }
     }
 

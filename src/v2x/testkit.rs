@@ -142,6 +142,7 @@ pub(crate) fn car(id: &str, pose: Pose2) -> TrafficObject {
         colour_rgb: [200, 10, 10],
         speed_mps: 5.0,
         type_id: "car".into(),
+        model: None,
     }
 }
 

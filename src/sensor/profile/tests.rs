@@ -59,6 +59,7 @@ fn car(id: &str, x: f64, y: f64) -> TrafficObject {
         colour_rgb: [200, 10, 10],
         speed_mps: 0.0,
         type_id: "car".into(),
+        model: None,
     }
 }
 

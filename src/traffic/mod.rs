@@ -8,6 +8,8 @@
 //! Also the scenario's settings (`[scenario]` of the config): which SUMO
 //! scenario runs, for how long, around which junction.
 
+pub mod catalogue;
+
 use std::path::PathBuf;
 
 use crate::geometry::{OrientedBox, Polygon, Pose2, Vec2};
@@ -182,6 +184,9 @@ pub struct TrafficObject {
     pub speed_mps: f64,
     /// SUMO's vehicle (or person) type id (`[detector] by_type` keys).
     pub type_id: String,
+    /// The catalogue model it was drawn as (its index in the run's
+    /// [`catalogue::Catalogue`]; `None`: its look is the demand's).
+    pub model: Option<u16>,
 }
 
 impl TrafficObject {
