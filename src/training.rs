@@ -109,12 +109,22 @@ pub fn check_models_folder(
     Ok(())
 }
 
+/// What a training reads: the config, the dataset it trains on instead of
+/// simulating, and the re-identification descriptor's rank-1 set over the
+/// config (`coid train --reid-rank1`).
+#[derive(Clone, Copy, Debug)]
+pub struct TrainSource<'a> {
+    pub config: &'a Path,
+    pub dataset: Option<&'a Path>,
+    pub reid_rank1: Option<f64>,
+}
+
 /// The runs of `seeds` (none: `[train] seed` alone), each with the
 /// settings of `config` with it as `[train] seed` and its folder:
 /// `[train] seed`'s the models folder `models_dir`, every other's its
 /// `seed-<N>/` folder; each folder checked ([`check_models_folder`]).
 pub fn seed_runs(
-    (config, dataset): (&Path, Option<&Path>),
+    source: TrainSource,
     settings: &Settings,
     seeds: &[u64],
     models_dir: &Path,
@@ -136,12 +146,13 @@ pub fn seed_runs(
         check_models_folder(&dir, validate_only, force)?;
         let overrides = Overrides {
             train_seed: Some(seed),
+            reid_rank1: source.reid_rank1,
             ..Default::default()
         };
-        let mut settings = Settings::load_with(config, &overrides)?;
+        let mut settings = Settings::load_with(source.config, &overrides)?;
         experiments::calibrate_appearance(&mut settings, |_, _| {})
             .map_err(TrainingError::Validation)?;
-        if let Some(d) = dataset {
+        if let Some(d) = source.dataset {
             settings =
                 experiments::with_dataset(&settings, d).map_err(TrainingError::Validation)?;
         }
@@ -332,14 +343,13 @@ fn seed_list(seeds: &[u64], sep: &str) -> String {
 
 /// The arguments of the child `coid train` of `config` that trains
 /// `group` into `models_dir`, reporting [`ChildMessage`]s.
-fn child_args(
-    (config, dataset): (&Path, Option<&Path>),
-    models_dir: &Path,
-    group: &ChildGroup,
-) -> Vec<OsString> {
-    let mut args: Vec<OsString> = vec!["train".into(), "--config".into(), config.into()];
-    if let Some(d) = dataset {
+fn child_args(source: TrainSource, models_dir: &Path, group: &ChildGroup) -> Vec<OsString> {
+    let mut args: Vec<OsString> = vec!["train".into(), "--config".into(), source.config.into()];
+    if let Some(d) = source.dataset {
         args.extend(["--dataset".into(), d.into()]);
+    }
+    if let Some(r) = source.reid_rank1 {
+        args.extend(["--reid-rank1".into(), r.to_string().into()]);
     }
     args.extend(["--out".into(), models_dir.into()]);
     args.extend(["--methods".into(), labels(&group.methods).join(",").into()]);
@@ -363,7 +373,7 @@ fn child_args(
 /// ends. The first group that failed is the error.
 pub fn train_in_children(
     exe: &Path,
-    (config, dataset, models_dir): (&Path, Option<&Path>, &Path),
+    (source, models_dir): (TrainSource, &Path),
     groups: &[ChildGroup],
     workers: usize,
     on_line: impl FnMut(usize, &str),
@@ -371,7 +381,7 @@ pub fn train_in_children(
 ) -> Result<(), TrainingError> {
     let jobs: Vec<Vec<OsString>> = groups
         .iter()
-        .map(|g| child_args((config, dataset), models_dir, g))
+        .map(|g| child_args(source, models_dir, g))
         .collect();
     let failures = batch::run_children(exe, &jobs, workers, on_line, |child, ok| {
         on_end(child);
@@ -521,7 +531,12 @@ mod tests {
             (&[7, 9][..], &[8][..])
         );
         assert!(g.iter().all(|g| g.methods == [Method::Ours]));
-        let args = child_args((Path::new("c.toml"), None), Path::new("m"), &g[1]);
+        let source = TrainSource {
+            config: Path::new("c.toml"),
+            dataset: None,
+            reid_rank1: None,
+        };
+        let args = child_args(source, Path::new("m"), &g[1]);
         let args: Vec<&str> = args.iter().map(|a| a.to_str().unwrap()).collect();
         assert_eq!(
             args,

@@ -41,6 +41,22 @@ pub struct Args {
     /// results/<config file stem>-mc-sweep
     #[arg(long, conflicts_with_all = ["validation", "suite"])]
     mc_sweep: bool,
+    /// Where learned and learning-free matching cross: at each of these
+    /// cross-view rank-1 rates of the re-identification descriptor
+    /// ([appearance] descriptor = "reid"; rank1 set, auroc = "free"), the
+    /// methods with the models and baseline choices of
+    /// `<models_dir>/rank1-<R>` (made by `coid train --reid-rank1 R`) on
+    /// the validation and the test runs: reid_sweep.csv (F1 with its 95%
+    /// interval, AP), reid_sweep_differences.csv (coid - mogm, ours -
+    /// gps-app-hungarian, paired) and reid_sweep.png/.svg, into
+    /// results/<config file stem>-reid-sweep
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_name = "RANK1",
+        conflicts_with_all = ["validation", "suite", "mc_sweep", "dataset"]
+    )]
+    reid_sweep: Vec<f64>,
     /// Evaluate on a dataset's runs instead of simulating (a folder that
     /// `coid export` or `coid convert` wrote): its test runs (validation
     /// runs with --validation), its pose-noise levels; the config gives
@@ -61,10 +77,26 @@ struct Scenario {
     runs: Vec<RunEval>,
 }
 
+/// `coid eval --reid-sweep`: each point calibrates its own descriptor, so
+/// the config is read here only to refuse a bad one before the folder is
+/// claimed.
+fn reid_sweep(a: &Args) -> anyhow::Result<()> {
+    let config = a.common.config.path();
+    Settings::load(&config)?;
+    let out = super::out_dir(a.common.out.out.clone(), &config, "-reid-sweep");
+    let existing = io::Existing::when(a.common.force.force);
+    let claim = io::Claim::new(&out, io::ResultKind::Eval, existing)?;
+    let (quiet, threads) = (a.common.quiet.quiet, a.threads.get());
+    super::reid_sweep::reid_sweep(&config, &a.reid_sweep, claim, quiet, threads)
+}
+
 pub fn eval(a: Args) -> anyhow::Result<()> {
     if a.mc_sweep {
         let (settings, claim) = a.common.prepare("-mc-sweep", io::ResultKind::Eval)?;
         return super::mc_sweep::mc_sweep(&settings, claim, a.common.quiet.quiet, a.threads.get());
+    }
+    if !a.reid_sweep.is_empty() {
+        return reid_sweep(&a);
     }
     let suffix = if a.validation { "-validation" } else { "-eval" };
     let (settings, claim) =

@@ -9,6 +9,7 @@ mod detector;
 mod eval;
 mod export;
 mod mc_sweep;
+mod reid_sweep;
 mod render;
 mod run;
 mod scenarios;

@@ -28,6 +28,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         traffic_seed: a.traffic_seed,
         sensor_seed: a.sensor_seed,
         train_seed: None,
+        reid_rank1: None,
     };
     let (settings, claim) = a.common.prepare_with("", io::ResultKind::Run, &overrides)?;
     // The folder is claimed (and checked writable) before the simulation.

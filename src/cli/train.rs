@@ -55,6 +55,12 @@ pub struct Args {
     /// by default.
     #[arg(long, value_name = "DIR")]
     dataset: Option<std::path::PathBuf>,
+    /// Train at this cross-view rank-1 rate of the re-identification
+    /// descriptor ([appearance] rank1, with auroc = "free"): a point of
+    /// `coid eval --reid-sweep`, whose models go to
+    /// `<models_dir>/rank1-<RANK1>` unless --out says otherwise.
+    #[arg(long, value_name = "RANK1")]
+    reid_rank1: Option<f64>,
     /// Report progress as lines on stdout (for a parent `coid train`).
     #[arg(long, hide = true)]
     progress_lines: bool,
@@ -98,13 +104,13 @@ fn seed_runs(a: &Args, settings: &Settings, models_dir: &Path) -> anyhow::Result
     }
     let checks = (a.validate_only, a.force.force);
     let config = a.config.path();
-    let dataset = a.dataset.as_deref();
+    let source = training::TrainSource {
+        config: &config,
+        dataset: a.dataset.as_deref(),
+        reid_rank1: a.reid_rank1,
+    };
     Ok(training::seed_runs(
-        (&config, dataset),
-        settings,
-        &a.seed,
-        models_dir,
-        checks,
+        source, settings, &a.seed, models_dir, checks,
     )?)
 }
 
@@ -152,13 +158,23 @@ fn methods_of(a: &Args, settings: &Settings) -> anyhow::Result<(Vec<Method>, Vec
 
 pub fn train(a: Args) -> anyhow::Result<()> {
     let config = a.config.path();
-    let mut settings = Settings::load(&config)?;
+    let overrides = crate::config::Overrides {
+        reid_rank1: a.reid_rank1,
+        ..Default::default()
+    };
+    let mut settings = Settings::load_with(&config, &overrides)?;
+    experiments::calibrate_appearance(&mut settings, |_, _| {})?;
     let models_dir = match &a.dataset {
         Some(d) => {
             settings = experiments::with_dataset(&settings, d)?;
             super::dataset_out_dir(a.out.out.clone(), d, "-models")
         }
-        None => super::out_dir(a.out.out.clone(), &config, "-models"),
+        None => match (a.reid_rank1, &a.out.out) {
+            (Some(r), None) => {
+                super::reid_sweep::point_models_dir(&settings.matching.models_dir, r)
+            }
+            _ => super::out_dir(a.out.out.clone(), &config, "-models"),
+        },
     };
     training::check_models_folder(&models_dir, a.validate_only, a.force.force)?;
     let seeds = seed_runs(&a, &settings, &models_dir)?;
@@ -216,9 +232,14 @@ fn train_in_children(
     let groups = training::child_groups(methods, &a.seed, workers);
     let bars = ChildBars::new(groups.len(), a.quiet.quiet);
     let config = a.config.path();
+    let source = training::TrainSource {
+        config: &config,
+        dataset: a.dataset.as_deref(),
+        reid_rank1: a.reid_rank1,
+    };
     training::train_in_children(
         &exe,
-        (&config, a.dataset.as_deref(), models_dir),
+        (source, models_dir),
         &groups,
         workers,
         |child, line| bars.show(child, line),

@@ -70,12 +70,15 @@ pub fn defaults_dir() -> PathBuf {
 /// What the command line sets over a config file (`--traffic-seed`,
 /// `--sensor-seed`, a batch's per-run seeds): set into the merged file
 /// before validation, never into settings after it.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Overrides {
     pub traffic_seed: Option<u64>,
     pub sensor_seed: Option<u64>,
     /// `[train] seed`.
     pub train_seed: Option<u64>,
+    /// `[appearance] rank1`, with `auroc = "free"`: a point of the
+    /// re-identification sweep.
+    pub reid_rank1: Option<f64>,
 }
 
 impl Overrides {
@@ -88,6 +91,10 @@ impl Overrides {
         }
         if let Some(s) = self.sensor_seed {
             raw.seeds.sensor = s;
+        }
+        if let Some(r) = self.reid_rank1 {
+            raw.appearance.rank1 = r;
+            raw.appearance.auroc = raw::RawRate::Word("free".into());
         }
     }
 }

@@ -108,10 +108,10 @@ pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSourc
         None
     };
     if let Some((w, _)) = &deep {
-        let data = settings
-            .dataset
-            .as_ref()
-            .and_then(crate::config::DatasetSource::usable_appearance_width);
+        let data = match &settings.dataset {
+            Some(d) => d.usable_appearance_width(),
+            None => Some(settings.appearance.descriptor_width()).filter(|w| *w > 0),
+        };
         if let Some(reason) = matching::deep::check_appearance(w.appearance_width, data) {
             return Err(RunError::Weights(WeightsError {
                 method: method.as_str(),

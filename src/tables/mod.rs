@@ -40,6 +40,7 @@ mod seeds;
 
 pub use grid::lambda_grid;
 pub use plots::plot_data;
+pub use precision_recall::average_precision;
 pub use record::{DecidedPair, MethodLevel, RuleKey, RunEval, ThresholdKey};
 
 /// The paper's tables over the test runs.

@@ -106,3 +106,63 @@ fn a_run_with_the_descriptor_is_the_same_on_one_and_two_threads() {
     let said = String::from_utf8_lossy(&o.stdout);
     assert!(said.contains("32"), "{said}");
 }
+
+/// A deep network trained with the descriptor reads it (13 attributes and
+/// 16 values a node), the sender's own node included, which carries none
+/// (training once stopped there: "appearance vectors of the network's
+/// width"); `coid train --reid-rank1` writes a point of the sweep into
+/// `<models_dir>/rank1-<R>` and `coid eval --reid-sweep` evaluates it on
+/// the validation and the test runs (the oracle's F1 is 1); a point
+/// without its models is refused, naming the command that makes them.
+#[test]
+fn deep_networks_train_on_the_descriptor_and_the_sweep_reads_their_point() {
+    let fx = Fixture::new();
+    let cfg = fx.config(
+        "c.toml",
+        130.0,
+        &format!(
+            "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [125]\nepochs = 1\n\
+             methods = [\"ours\"]\n[eval]\ntraffic_seeds = [1]\n[matching]\n\
+             methods = [\"ours\", \"mogm\", \"oracle\"]\nmodels_dir = {:?}\n\
+             [pose_noise]\nlevels = [\"gps\"]\n[appearance]\nvehicles = \"catalogue\"\n\
+             descriptor = \"reid\"\nwidth = 16\n",
+            fx.path("models").to_string_lossy()
+        ),
+    );
+    let o = fx
+        .cmd("train")
+        .quiet()
+        .config(&cfg)
+        .args(["--reid-rank1", "0.5"])
+        .output();
+    assert_ok(&o);
+    let record = fx.read_text("models/rank1-0.50/ours.toml");
+    assert!(record.contains("node_features = 29"), "{record}");
+    let o = fx
+        .cmd("eval")
+        .quiet()
+        .config(&cfg)
+        .args(["--reid-sweep", "0.5"])
+        .out("sweep")
+        .output();
+    assert_ok(&o);
+    let t = read_csv(&fx.path("sweep/reid_sweep.csv"));
+    let (splits, methods) = (strs(&t, "split"), strs(&t, "method"));
+    let f1 = f64s(&t, "f1");
+    let oracle: Vec<f64> = (0..t.height())
+        .filter(|&k| methods[k] == "oracle")
+        .map(|k| f1[k])
+        .collect();
+    assert_eq!(oracle, vec![1.0, 1.0], "{splits:?} {methods:?}");
+    let measured = f64s(&t, "rank1_validation")[0];
+    assert!((measured / 0.5 - 1.0).abs() <= 0.1, "rank-1 {measured}");
+    assert!(fx.path("sweep/reid_sweep.png").exists());
+    let o = fx
+        .cmd("eval")
+        .quiet()
+        .config(&cfg)
+        .args(["--reid-sweep", "0.7"])
+        .out("s2")
+        .output();
+    assert_refused(&o, "--reid-rank1 0.70");
+}

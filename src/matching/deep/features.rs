@@ -87,9 +87,9 @@ impl GraphInput {
 
 /// Appends `d`'s node attributes: class one-hot, colour and size, then,
 /// for a network that reads appearance vectors `appearance_width` wide
-/// (0: none), the detection's vector. Callers check that the data carries
-/// vectors of that width before a network reads it
-/// ([`check_appearance`]).
+/// (0: none), the detection's vector (zeros for a node without one).
+/// Callers check that the data carries vectors of that width before a
+/// network reads it ([`check_appearance`]).
 pub(crate) fn push_node_features(d: &Detection, appearance_width: usize, out: &mut Vec<f32>) {
     let mut f = [0f32; NODE_FEATURES];
     let class = ObjectClass::ALL
@@ -105,14 +105,19 @@ pub(crate) fn push_node_features(d: &Detection, appearance_width: usize, out: &m
     f[12] = (d.appearance.height_m / 4.0) as f32;
     out.extend_from_slice(&f);
     if appearance_width > 0 {
-        let values = d
-            .appearance
-            .descriptor
-            .as_ref()
-            .map(|v| &v.values[..])
-            .filter(|v| v.len() == appearance_width)
-            .expect("appearance vectors of the network's width (checked before it runs)");
-        out.extend_from_slice(values);
+        match d.appearance.descriptor.as_ref().map(|v| &v.values[..]) {
+            Some(values) => {
+                assert_eq!(
+                    values.len(),
+                    appearance_width,
+                    "appearance vectors of the network's width (checked before it runs)"
+                );
+                out.extend_from_slice(values);
+            }
+            // A node without one among described nodes (a sender's
+            // self-report): zeros, as coid's exports write it.
+            None => out.extend(std::iter::repeat_n(0.0, appearance_width)),
+        }
     }
 }
 

@@ -1,0 +1,294 @@
+//! `coid eval --reid-sweep R1,R2,...`: where learned and learning-free
+//! matching cross as appearance gets better. At each point the
+//! re-identification descriptor is calibrated on the validation runs to
+//! cross-view rank-1 R (`[appearance] rank1`, `auroc = "free"`), the
+//! methods run with the models and baseline choices made at that point
+//! (`<models_dir>/rank1-<R>`, by `coid train --reid-rank1 R`), on the
+//! validation runs and on the test runs: every method's F1 (mean and 95%
+//! interval over runs) and AP, and the paired differences that answer the
+//! question (the paper's method against MOGM, `ours` against GPS+appearance
+//! Hungarian).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+
+use super::progress_bar;
+use crate::config::{Overrides, Settings};
+use crate::io::{self, Claim, OutputError};
+use crate::matching::{self, Inputs, Method};
+use crate::report::{PairedDifference, Table, mean_ci95, paired_bootstrap};
+use crate::sensor::PoseNoiseLabel;
+use crate::tables::{MethodLevel, RunEval};
+use crate::{experiments, pipeline, render};
+
+/// The models folder of the point at rank-1 `r` under `models_dir`.
+pub(super) fn point_models_dir(models_dir: &Path, r: f64) -> PathBuf {
+    models_dir.join(format!("rank1-{r:.2}"))
+}
+
+/// One method at one point, split and level.
+struct Row {
+    method: Method,
+    rank1: f64,
+    measured: (f64, f64),
+    split: &'static str,
+    level: PoseNoiseLabel,
+    f1: Vec<f64>,
+    ap: f64,
+}
+
+/// The comparisons the sweep is for: (method, against it), each at the
+/// level where both are read.
+const PAIRS: [(Method, Method); 2] = [
+    (Method::Coid, Method::Mogm),
+    (Method::Ours, Method::GpsAppHungarian),
+];
+
+pub(super) fn reid_sweep(
+    config: &Path,
+    points: &[f64],
+    claim: Claim,
+    quiet: bool,
+    threads: usize,
+) -> anyhow::Result<()> {
+    if let Some(r) = points.iter().find(|r| !(**r > 0.0 && **r < 1.0)) {
+        anyhow::bail!("--reid-sweep: a rank-1 rate must be in (0, 1), got {r}");
+    }
+    let mut rows = Vec::new();
+    let warnings = pipeline::Warnings::default();
+    for &r in points {
+        let s = point_settings(config, r, quiet)?;
+        let methods = s.matching.methods.clone();
+        let lambdas = matching::method_lambdas(&pipeline::choices(&s, &methods)?);
+        let measured = s
+            .appearance
+            .reid
+            .as_ref()
+            .and_then(|x| x.calibration.as_ref())
+            .map_or((f64::NAN, f64::NAN), |c| (c.figures.rank1, c.figures.auroc));
+        let levels: Vec<PoseNoiseLabel> = s.pose_noise.iter().map(|l| l.label).collect();
+        let splits = [
+            ("validation", experiments::validation_runs(&s)?),
+            ("test", experiments::test_runs(&s)?),
+        ];
+        for (split, runs) in splits {
+            let pb = progress_bar(
+                quiet,
+                runs.len() as u64,
+                "{spinner} re-identification sweep: {msg} run {pos}/{len} [{bar:30}] eta {eta}",
+            );
+            pb.set_message(format!("rank-1 {r:.2} ({split})"));
+            let mut evals = Vec::with_capacity(runs.len());
+            for run in &runs {
+                let e = experiments::eval_run(run, &methods, &lambdas, threads, &warnings, |_| {})
+                    .with_context(|| format!("{split} run (seed {}) failed", run.seeds.traffic))?;
+                evals.push(e);
+                pb.inc(1);
+            }
+            pb.finish_and_clear();
+            rows.extend(rows_of(&evals, &methods, &levels, (r, measured), split));
+        }
+    }
+    let (table, differences) = (sweep_table(&rows), differences_table(&rows));
+    let out = claim.out().to_owned();
+    claim.fill(|dir| {
+        let tables = [
+            ("reid_sweep.csv", &table),
+            ("reid_sweep_differences.csv", &differences),
+        ];
+        io::write_tracking(dir, &tables, |dir| {
+            render::line_panels(&dir.join("reid_sweep"), &panels(&rows))
+                .map_err(|e| OutputError::picture(dir, e))
+        })
+    })?;
+    println!("{}", io::markdown::table(&differences));
+    eprintln!(
+        "coid: swept {} re-identification qualities; wrote {}",
+        points.len(),
+        out.display()
+    );
+    Ok(())
+}
+
+/// The settings of the point at rank-1 `r`: the config with `rank1 = r`,
+/// `auroc = "free"`, its models folder, the descriptor calibrated.
+fn point_settings(config: &Path, r: f64, quiet: bool) -> anyhow::Result<Settings> {
+    let overrides = Overrides {
+        reid_rank1: Some(r),
+        ..Overrides::default()
+    };
+    let mut s = Settings::load_with(config, &overrides)?;
+    if s.appearance.reid.is_none() {
+        anyhow::bail!(
+            "--reid-sweep sweeps the re-identification descriptor: {} sets [appearance] \
+             descriptor = \"none\"",
+            config.display()
+        );
+    }
+    let dir = point_models_dir(&s.matching.models_dir, r);
+    if !dir.is_dir() {
+        anyhow::bail!(
+            "{} is missing: the point at rank-1 {r:.2} runs the models and baseline choices \
+             made there (coid train --config {} --reid-rank1 {r:.2} --out {})",
+            dir.display(),
+            config.display(),
+            dir.display()
+        );
+    }
+    s.matching.models_dir = dir;
+    super::calibrate(&mut s, quiet)?;
+    Ok(s)
+}
+
+/// The rows of one point on one split: each method at each level (a
+/// method on the paper's inputs, the same at every level, at the first).
+fn rows_of(
+    evals: &[RunEval],
+    methods: &[Method],
+    levels: &[PoseNoiseLabel],
+    (rank1, measured): (f64, (f64, f64)),
+    split: &'static str,
+) -> Vec<Row> {
+    let mut rows = Vec::new();
+    for &method in methods {
+        let take = if method.inputs() == Inputs::Paper {
+            1
+        } else {
+            levels.len()
+        };
+        for &level in levels.iter().take(take) {
+            let key = MethodLevel::new(method, level);
+            let pairs: Vec<_> = evals
+                .iter()
+                .filter_map(|e| e.scored.get(&key))
+                .flatten()
+                .cloned()
+                .collect();
+            let truth: usize = evals
+                .iter()
+                .filter_map(|e| e.table1.get(&key).map(|c| c.ground_truth))
+                .sum();
+            rows.push(Row {
+                method,
+                rank1,
+                measured,
+                split,
+                level,
+                f1: evals
+                    .iter()
+                    .filter_map(|e| e.table1.get(&key).map(|c| c.f1()))
+                    .collect(),
+                ap: crate::tables::average_precision(&pairs, truth),
+            });
+        }
+    }
+    rows
+}
+
+/// `reid_sweep.csv`: per point, split, method and level, F1's mean and
+/// 95% interval over runs and the pooled AP.
+fn sweep_table(rows: &[Row]) -> Table {
+    let mut t = Table::default();
+    let texts = |f: fn(&Row) -> String| rows.iter().map(f).collect::<Vec<_>>();
+    t.number("rank1_target", rows.iter().map(|r| r.rank1).collect());
+    t.number(
+        "rank1_validation",
+        rows.iter().map(|r| r.measured.0).collect(),
+    );
+    t.number(
+        "auroc_validation",
+        rows.iter().map(|r| r.measured.1).collect(),
+    );
+    t.text("split", texts(|r| r.split.to_owned()));
+    t.text("method", texts(|r| r.method.as_str().to_owned()));
+    t.text("pose_noise", texts(|r| r.level.as_str().to_owned()));
+    t.count("n_runs", rows.iter().map(|r| r.f1.len() as u64).collect());
+    let samples: Vec<Vec<f64>> = rows.iter().map(|r| r.f1.clone()).collect();
+    t.stat("f1", &samples);
+    t.number("ap", rows.iter().map(|r| r.ap).collect());
+    t
+}
+
+/// The row of `method` at the level it is compared at (its first level on
+/// the paper's inputs, else GPS).
+fn compared<'a>(rows: &'a [Row], method: Method, rank1: f64, split: &str) -> Option<&'a Row> {
+    rows.iter()
+        .filter(|r| r.method == method && r.rank1 == rank1 && r.split == split)
+        .find(|r| method.inputs() == Inputs::Paper || r.level == PoseNoiseLabel::Gps)
+}
+
+/// `reid_sweep_differences.csv`: per point and split, each comparison's
+/// paired difference of F1 over runs with its bootstrap interval.
+fn differences_table(rows: &[Row]) -> Table {
+    let mut points: Vec<(f64, &'static str)> = Vec::new();
+    for r in rows {
+        if !points.contains(&(r.rank1, r.split)) {
+            points.push((r.rank1, r.split));
+        }
+    }
+    let mut out: Vec<(f64, &str, String, PairedDifference)> = Vec::new();
+    for (rank1, split) in points {
+        for (a, b) in PAIRS {
+            if let (Some(x), Some(y)) = (
+                compared(rows, a, rank1, split),
+                compared(rows, b, rank1, split),
+            ) {
+                let d = paired_bootstrap(&x.f1, &y.f1, 52);
+                out.push((rank1, split, format!("{} - {}", a.as_str(), b.as_str()), d));
+            }
+        }
+    }
+    let mut t = Table::default();
+    t.number("rank1_target", out.iter().map(|o| o.0).collect());
+    t.text("split", out.iter().map(|o| o.1.to_owned()).collect());
+    t.text("difference", out.iter().map(|o| o.2.clone()).collect());
+    t.count("n_runs", out.iter().map(|o| o.3.n as u64).collect());
+    t.number("f1_difference", out.iter().map(|o| o.3.mean).collect());
+    t.number("ci95_low", out.iter().map(|o| o.3.lo).collect());
+    t.number("ci95_high", out.iter().map(|o| o.3.hi).collect());
+    t
+}
+
+/// F1 against the rank-1 rate, one panel per split: a line per method at
+/// the level it is compared at, its 95% interval as a band.
+fn panels(rows: &[Row]) -> Vec<render::Panel> {
+    let mut methods: Vec<Method> = Vec::new();
+    for r in rows {
+        if !methods.contains(&r.method) {
+            methods.push(r.method);
+        }
+    }
+    ["validation", "test"]
+        .into_iter()
+        .map(|split| {
+            let mut series = Vec::new();
+            let mut bands = Vec::new();
+            let mut all = Vec::new();
+            for &m in &methods {
+                let (points, ci): (Vec<(f64, f64)>, Vec<f64>) = rows
+                    .iter()
+                    .filter(|r| r.method == m && r.split == split)
+                    .filter(|r| m.inputs() == Inputs::Paper || r.level == PoseNoiseLabel::Gps)
+                    .map(|r| {
+                        let (mean, c) = mean_ci95(&r.f1);
+                        ((r.rank1, mean), c)
+                    })
+                    .filter(|((_, mean), _)| mean.is_finite())
+                    .unzip();
+                all.extend(points.iter().zip(&ci).map(|(&(_, m), &c)| (m, c)));
+                series.push((m.as_str().to_owned(), points));
+                bands.push(ci);
+            }
+            render::Panel {
+                title: format!("F1 against re-identification quality ({split} runs)"),
+                x_label: "cross-view rank-1 of the descriptor".into(),
+                y_label: "F1, mean over runs (band: 95% CI; GPS methods at 1.2 m)".into(),
+                x_range: (0.0, 1.0),
+                y_range: render::fitted_range(&all, 0.05),
+                series,
+                bands,
+            }
+        })
+        .collect()
+}
