@@ -195,7 +195,8 @@ fn gather(a: &Args, settings: Settings) -> anyhow::Result<Vec<Scenario>> {
         scenarios.push(scenario(path, s, false));
     }
     for path in &a.suite {
-        let s = Settings::load(path)?;
+        let mut s = Settings::load(path)?;
+        super::calibrate(&mut s, a.common.quiet.quiet)?;
         compatible(&primary, &s)
             .with_context(|| format!("{} cannot join the suite", path.display()))?;
         scenarios.push(scenario(path, s, a.validation));
