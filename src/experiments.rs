@@ -116,12 +116,7 @@ pub fn calibrate_appearance(
     settings: &mut Settings,
     mut on_run: impl FnMut(usize, usize),
 ) -> Result<(), RunError> {
-    let needed = settings
-        .appearance
-        .reid
-        .as_ref()
-        .is_some_and(|r| r.calibration.is_none());
-    if !needed || settings.dataset.is_some() {
+    if !settings.appearance.uncalibrated() || settings.dataset.is_some() {
         return Ok(());
     }
     let runs = validation_runs(settings)?;

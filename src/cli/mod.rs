@@ -376,12 +376,7 @@ impl CommonArgs {
 /// one (`[appearance] descriptor = "reid"`) on the validation runs, with a
 /// progress bar, and says what it measured; nothing otherwise.
 pub(crate) fn calibrate(settings: &mut crate::config::Settings, quiet: bool) -> anyhow::Result<()> {
-    let pending = settings
-        .appearance
-        .reid
-        .as_ref()
-        .is_some_and(|r| r.calibration.is_none());
-    if !pending || settings.dataset.is_some() {
+    if !settings.appearance.uncalibrated() || settings.dataset.is_some() {
         return Ok(());
     }
     let pb = progress_bar(

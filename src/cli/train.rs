@@ -163,6 +163,13 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         ..Default::default()
     };
     let mut settings = Settings::load_with(&config, &overrides)?;
+    if a.reid_rank1.is_some() && settings.appearance.reid.is_none() {
+        anyhow::bail!(
+            "--reid-rank1 sets the re-identification descriptor's rank-1: {} sets [appearance] \
+             descriptor = \"none\"",
+            config.display()
+        );
+    }
     experiments::calibrate_appearance(&mut settings, |_, _| {})?;
     let models_dir = match &a.dataset {
         Some(d) => {

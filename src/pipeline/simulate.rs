@@ -410,14 +410,14 @@ fn sense_one(rig: &Rig, scene: &StaticScene, frame: &TrafficFrame, k: usize) -> 
 /// calibrated (`experiments::calibrate_appearance` comes first): its
 /// detections would carry none, silently.
 pub(super) fn uncalibrated(settings: &Settings) -> Result<(), RunError> {
-    match &settings.appearance.reid {
-        Some(r) if r.calibration.is_none() => Err(RunError::Calibration(
+    if settings.appearance.uncalibrated() {
+        return Err(RunError::Calibration(
             "the re-identification descriptor ([appearance] descriptor = \"reid\") was not \
              calibrated before this run"
                 .into(),
-        )),
-        _ => Ok(()),
+        ));
     }
+    Ok(())
 }
 
 /// SUMO started on the scenario of `settings`, its road users looking as

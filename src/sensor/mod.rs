@@ -108,6 +108,11 @@ impl AppearanceSettings {
         self.catalogue.is_none() && self.reid.is_none()
     }
 
+    /// Whether a descriptor is asked for and not yet calibrated.
+    pub fn uncalibrated(&self) -> bool {
+        self.reid.as_ref().is_some_and(|r| r.calibration.is_none())
+    }
+
     /// The width of the descriptor the sensor gives detections (0: none),
     /// once calibrated with a cosine that tells objects apart.
     pub fn descriptor_width(&self) -> usize {
