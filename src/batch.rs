@@ -96,8 +96,7 @@ pub fn settings_of(batch: &BatchRecord, run: usize) -> Result<Settings, BatchErr
     let overrides = Overrides {
         traffic_seed: Some(traffic),
         sensor_seed: Some(sensor),
-        train_seed: None,
-        reid_rank1: None,
+        ..Default::default()
     };
     Ok(Settings::from_toml_with(
         &batch.config_text,

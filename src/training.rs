@@ -117,6 +117,9 @@ pub struct TrainSource<'a> {
     pub config: &'a Path,
     pub dataset: Option<&'a Path>,
     pub reid_rank1: Option<f64>,
+    /// Train without the descriptor (`[train] appearance_vectors =
+    /// false`, `coid train --without-descriptor`).
+    pub without_descriptor: bool,
 }
 
 /// The runs of `seeds` (none: `[train] seed` alone), each with the
@@ -147,6 +150,7 @@ pub fn seed_runs(
         let overrides = Overrides {
             train_seed: Some(seed),
             reid_rank1: source.reid_rank1,
+            appearance_vectors: source.without_descriptor.then_some(false),
             ..Default::default()
         };
         let mut settings = Settings::load_with(source.config, &overrides)?;
@@ -351,6 +355,9 @@ fn child_args(source: TrainSource, models_dir: &Path, group: &ChildGroup) -> Vec
     if let Some(r) = source.reid_rank1 {
         args.extend(["--reid-rank1".into(), r.to_string().into()]);
     }
+    if source.without_descriptor {
+        args.push("--without-descriptor".into());
+    }
     args.extend(["--out".into(), models_dir.into()]);
     args.extend(["--methods".into(), labels(&group.methods).join(",").into()]);
     if !group.seeds.is_empty() {
@@ -535,6 +542,7 @@ mod tests {
             config: Path::new("c.toml"),
             dataset: None,
             reid_rank1: None,
+            without_descriptor: false,
         };
         let args = child_args(source, Path::new("m"), &g[1]);
         let args: Vec<&str> = args.iter().map(|a| a.to_str().unwrap()).collect();
@@ -557,5 +565,12 @@ mod tests {
                 "--progress-lines"
             ]
         );
+        // The candidate without the descriptor: the children train it.
+        let without = TrainSource {
+            without_descriptor: true,
+            ..source
+        };
+        let args = child_args(without, Path::new("m"), &g[1]);
+        assert!(args.iter().any(|a| a == "--without-descriptor"), "{args:?}");
     }
 }

@@ -16,7 +16,7 @@ use anyhow::Context;
 use super::progress_bar;
 use crate::config::{Overrides, Settings};
 use crate::io::{self, Claim, OutputError};
-use crate::matching::{self, Inputs, Method};
+use crate::matching::{self, BaselineChoice, Inputs, Method, MethodKind};
 use crate::report::{PairedDifference, Table, mean_ci95, paired_bootstrap};
 use crate::sensor::PoseNoiseLabel;
 use crate::tables::{MethodLevel, RunEval};
@@ -30,6 +30,8 @@ pub(super) fn point_models_dir(models_dir: &Path, r: f64) -> PathBuf {
 /// One method at one point, split and level.
 struct Row {
     method: Method,
+    /// What the method made of the descriptor at this point.
+    descriptor: String,
     rank1: f64,
     measured: (f64, f64),
     split: &'static str,
@@ -68,6 +70,10 @@ pub(super) fn reid_sweep(
             .and_then(|x| x.calibration.as_ref())
             .map_or((f64::NAN, f64::NAN), |c| (c.figures.rank1, c.figures.auroc));
         let levels: Vec<PoseNoiseLabel> = s.pose_noise.iter().map(|l| l.label).collect();
+        let uses = methods
+            .iter()
+            .map(|&m| descriptor_use(&s, m))
+            .collect::<anyhow::Result<Vec<String>>>()?;
         let splits = [
             ("validation", experiments::validation_runs(&s)?),
             ("test", experiments::test_runs(&s)?),
@@ -87,7 +93,8 @@ pub(super) fn reid_sweep(
                 pb.inc(1);
             }
             pb.finish_and_clear();
-            rows.extend(rows_of(&evals, &methods, &levels, (r, measured), split));
+            let rows_here = rows_of(&evals, (&methods, &uses), &levels, (r, measured), split);
+            rows.extend(rows_here);
         }
     }
     let (table, differences) = (sweep_table(&rows), differences_table(&rows));
@@ -141,17 +148,48 @@ fn point_settings(config: &Path, r: f64, quiet: bool) -> anyhow::Result<Settings
     Ok(s)
 }
 
+/// What `method` makes of the descriptor with the choices of `s`'s
+/// models folder: a deep network "read" or "left out" (as `coid train`
+/// chose on the validation runs), a baseline's weight on the cosine's
+/// likelihood ratio, or "not used".
+fn descriptor_use(s: &Settings, method: Method) -> anyhow::Result<String> {
+    let dir = &s.matching.models_dir;
+    if let MethodKind::Deep(_) = method.kind() {
+        let w = io::read_weights(dir, method)?;
+        return Ok(if w.appearance_width > 0 {
+            "read"
+        } else {
+            "left out"
+        }
+        .to_owned());
+    }
+    if !method.weighs_descriptors() {
+        return Ok("not used".to_owned());
+    }
+    let weight = if s.matching.baselines == BaselineChoice::Validated {
+        io::read_baselines(dir, &[method])?
+            .get(&method)
+            .map_or(1.0, |v| v.descriptor_weight)
+    } else {
+        s.matching
+            .baseline_values
+            .get(&method)
+            .map_or(1.0, |v| v.descriptor_weight)
+    };
+    Ok(format!("weight {weight:.2}"))
+}
+
 /// The rows of one point on one split: each method at each level (a
 /// method on the paper's inputs, the same at every level, at the first).
 fn rows_of(
     evals: &[RunEval],
-    methods: &[Method],
+    (methods, uses): (&[Method], &[String]),
     levels: &[PoseNoiseLabel],
     (rank1, measured): (f64, (f64, f64)),
     split: &'static str,
 ) -> Vec<Row> {
     let mut rows = Vec::new();
-    for &method in methods {
+    for (&method, descriptor) in methods.iter().zip(uses) {
         let take = if method.inputs() == Inputs::Paper {
             1
         } else {
@@ -171,6 +209,7 @@ fn rows_of(
                 .sum();
             rows.push(Row {
                 method,
+                descriptor: descriptor.clone(),
                 rank1,
                 measured,
                 split,
@@ -203,6 +242,7 @@ fn sweep_table(rows: &[Row]) -> Table {
     t.text("split", texts(|r| r.split.to_owned()));
     t.text("method", texts(|r| r.method.as_str().to_owned()));
     t.text("pose_noise", texts(|r| r.level.as_str().to_owned()));
+    t.text("descriptor", texts(|r| r.descriptor.clone()));
     t.count("n_runs", rows.iter().map(|r| r.f1.len() as u64).collect());
     let samples: Vec<Vec<f64>> = rows.iter().map(|r| r.f1.clone()).collect();
     t.stat("f1", &samples);
@@ -253,8 +293,9 @@ fn differences_table(rows: &[Row]) -> Table {
 /// F1 against the rank-1 rate, one panel per split: a line per method at
 /// the level it is compared at, its 95% interval as a band.
 fn panels(rows: &[Row]) -> Vec<render::Panel> {
+    // The oracle (1 everywhere) would only squeeze the others' scale.
     let mut methods: Vec<Method> = Vec::new();
-    for r in rows {
+    for r in rows.iter().filter(|r| r.method != Method::Oracle) {
         if !methods.contains(&r.method) {
             methods.push(r.method);
         }

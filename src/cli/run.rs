@@ -27,8 +27,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let overrides = crate::config::Overrides {
         traffic_seed: a.traffic_seed,
         sensor_seed: a.sensor_seed,
-        train_seed: None,
-        reid_rank1: None,
+        ..Default::default()
     };
     let (settings, claim) = a.common.prepare_with("", io::ResultKind::Run, &overrides)?;
     // The folder is claimed (and checked writable) before the simulation.

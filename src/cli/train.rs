@@ -61,6 +61,12 @@ pub struct Args {
     /// `<models_dir>/rank1-<RANK1>` unless --out says otherwise.
     #[arg(long, value_name = "RANK1")]
     reid_rank1: Option<f64>,
+    /// Train the deep networks without the re-identification descriptor
+    /// (as [train] appearance_vectors = false). Without this flag, a
+    /// config with the descriptor trains each network both ways and keeps,
+    /// per method, the one with the higher mean F1 on the validation runs.
+    #[arg(long)]
+    without_descriptor: bool,
     /// Report progress as lines on stdout (for a parent `coid train`).
     #[arg(long, hide = true)]
     progress_lines: bool,
@@ -96,21 +102,37 @@ fn send(message: &ChildMessage) {
     }
 }
 
+/// What the training reads ([`training::TrainSource`]), with or
+/// `without` the descriptor.
+fn source<'a>(a: &'a Args, config: &'a Path, without: bool) -> training::TrainSource<'a> {
+    training::TrainSource {
+        config,
+        dataset: a.dataset.as_deref(),
+        reid_rank1: a.reid_rank1,
+        without_descriptor: without,
+    }
+}
+
 /// The seeds `--seed` asks for (else `[train] seed`), each with its
-/// settings and folder ([`training::seed_runs`]).
-fn seed_runs(a: &Args, settings: &Settings, models_dir: &Path) -> anyhow::Result<Vec<SeedRun>> {
+/// settings (with or `without` the descriptor) and folder
+/// ([`training::seed_runs`]).
+fn seed_runs(
+    a: &Args,
+    settings: &Settings,
+    models_dir: &Path,
+    without: bool,
+) -> anyhow::Result<Vec<SeedRun>> {
     if let Some(s) = super::first_repeat(&a.seed) {
         anyhow::bail!("--seed lists {s} twice");
     }
     let checks = (a.validate_only, a.force.force);
     let config = a.config.path();
-    let source = training::TrainSource {
-        config: &config,
-        dataset: a.dataset.as_deref(),
-        reid_rank1: a.reid_rank1,
-    };
     Ok(training::seed_runs(
-        source, settings, &a.seed, models_dir, checks,
+        source(a, &config, without),
+        settings,
+        &a.seed,
+        models_dir,
+        checks,
     )?)
 }
 
@@ -160,6 +182,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     let config = a.config.path();
     let overrides = crate::config::Overrides {
         reid_rank1: a.reid_rank1,
+        appearance_vectors: a.without_descriptor.then_some(false),
         ..Default::default()
     };
     let mut settings = Settings::load_with(&config, &overrides)?;
@@ -184,7 +207,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         },
     };
     training::check_models_folder(&models_dir, a.validate_only, a.force.force)?;
-    let seeds = seed_runs(&a, &settings, &models_dir)?;
+    let seeds = seed_runs(&a, &settings, &models_dir, a.without_descriptor)?;
     // The baselines have no training seed: tuned with [train] seed's run.
     let tunes_baselines = seeds.iter().any(|s| s.dir == models_dir);
     let (methods, baselines) = methods_of(&a, &settings)?;
@@ -193,8 +216,6 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         (false, true) => Show::Quiet,
         (false, false) => Show::Bars,
     };
-    let jobs = methods.len() * seeds.len();
-    let workers = a.workers.get().clamp(1, jobs.max(1));
     let started = std::time::Instant::now();
     let warnings = Warnings::default();
     let bars = (show == Show::Bars, &warnings);
@@ -205,15 +226,29 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         }
         return tune_baselines(&settings, &models_dir, baselines, bars);
     }
-    if workers > 1 {
-        train_in_children(&a, &models_dir, &methods, workers)?;
+    // A simulated descriptor the networks may read: validation decides
+    // whether they do.
+    let chooses = settings.dataset.is_none()
+        && settings.appearance_width() > 0
+        && !a.skip_validation
+        && !methods.is_empty();
+    let pass = Pass {
+        a: &a,
+        methods: &methods,
+        show,
+        warnings: &warnings,
+    };
+    if chooses {
+        choose_descriptor(&pass, &settings, &models_dir, &seeds)?;
     } else {
-        training::train_seeds(&seeds, &methods, &warnings, &mut Shown::new(show))?;
+        pass.train(&models_dir, &seeds, a.without_descriptor)?;
+        if !a.skip_validation {
+            for s in &seeds {
+                validate(&s.settings, &s.dir, &methods, bars)?;
+            }
+        }
     }
     if !a.skip_validation {
-        for s in &seeds {
-            validate(&s.settings, &s.dir, &methods, bars)?;
-        }
         tune_baselines(&settings, &models_dir, baselines, bars)?;
     }
     if show != Show::Lines {
@@ -226,12 +261,103 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// One training pass of a `coid train`: its arguments, the deep methods,
+/// how progress shows, where the runs' warnings go.
+struct Pass<'a> {
+    a: &'a Args,
+    methods: &'a [Method],
+    show: Show,
+    warnings: &'a Warnings,
+}
+
+impl Pass<'_> {
+    /// Trains the methods with every seed of `seeds` into their folders
+    /// (with or `without` the descriptor), in child processes when there
+    /// are workers for more than one job.
+    fn train(&self, models_dir: &Path, seeds: &[SeedRun], without: bool) -> anyhow::Result<()> {
+        let jobs = self.methods.len() * seeds.len();
+        let workers = self.a.workers.get().clamp(1, jobs.max(1));
+        if workers > 1 {
+            train_in_children(self.a, (models_dir, without), self.methods, workers)
+        } else {
+            let mut shown = Shown::new(self.show);
+            training::train_seeds(seeds, self.methods, self.warnings, &mut shown)?;
+            Ok(())
+        }
+    }
+}
+
+/// Where the candidate trained with or `without` the descriptor goes.
+fn candidate_dir(models_dir: &Path, without: bool) -> std::path::PathBuf {
+    let name = if without {
+        "without-descriptor"
+    } else {
+        "reading-descriptor"
+    };
+    models_dir.join("candidates").join(name)
+}
+
+/// Trains every method (and seed) once reading the re-identification
+/// descriptor and once without, each into its candidate folder
+/// ([`candidate_dir`]), validates both, and keeps for each method the one
+/// with the higher mean F1 over the seeds on the validation runs (without
+/// it on ties: the smaller network), copied into `seeds`' folders with
+/// the choice in its record.
+fn choose_descriptor(
+    pass: &Pass,
+    settings: &Settings,
+    models_dir: &Path,
+    seeds: &[SeedRun],
+) -> anyhow::Result<()> {
+    let bars = (pass.show == Show::Bars, pass.warnings);
+    // f1[method][0: reading, 1: without], mean over the seeds.
+    let mut f1 = vec![[0.0; 2]; pass.methods.len()];
+    for (k, without) in [false, true].into_iter().enumerate() {
+        let dir = candidate_dir(models_dir, without);
+        let how = if without { "without" } else { "reading" };
+        pass.show.note(&format!(
+            "coid: training {how} the re-identification descriptor into {}",
+            dir.display()
+        ));
+        let candidates = seed_runs(pass.a, settings, &dir, without)?;
+        pass.train(&dir, &candidates, without)?;
+        for s in &candidates {
+            for (i, (_, c)) in validate(&s.settings, &s.dir, pass.methods, bars)?
+                .iter()
+                .enumerate()
+            {
+                f1[i][k] += c.f1 / candidates.len() as f64;
+            }
+        }
+    }
+    for (i, &method) in pass.methods.iter().enumerate() {
+        let [f1_reading, f1_without] = f1[i];
+        let choice = crate::io::DescriptorChoice {
+            reads: f1_reading > f1_without,
+            f1_reading,
+            f1_without,
+        };
+        let from = candidate_dir(models_dir, !choice.reads);
+        for s in seeds {
+            let within = s.dir.strip_prefix(models_dir).unwrap_or(Path::new(""));
+            crate::io::adopt_candidate(&from.join(within), &s.dir, method, choice)?;
+        }
+        pass.show.note(&format!(
+            "coid: {}: {} the descriptor (mean F1 on the validation runs {f1_reading:.3} reading \
+             it, {f1_without:.3} without)",
+            method.as_str(),
+            if choice.reads { "reads" } else { "leaves out" },
+        ));
+    }
+    Ok(())
+}
+
 /// Trains `methods` with the seeds of `--seed` in `workers` child
 /// processes ([`training::child_groups`]), showing one progress bar per
 /// child.
 fn train_in_children(
     a: &Args,
-    models_dir: &Path,
+    (models_dir, without): (&Path, bool),
     methods: &[Method],
     workers: usize,
 ) -> anyhow::Result<()> {
@@ -239,14 +365,9 @@ fn train_in_children(
     let groups = training::child_groups(methods, &a.seed, workers);
     let bars = ChildBars::new(groups.len(), a.quiet.quiet);
     let config = a.config.path();
-    let source = training::TrainSource {
-        config: &config,
-        dataset: a.dataset.as_deref(),
-        reid_rank1: a.reid_rank1,
-    };
     training::train_in_children(
         &exe,
-        (source, models_dir),
+        (source(a, &config, without), models_dir),
         &groups,
         workers,
         |child, line| bars.show(child, line),
@@ -341,9 +462,9 @@ fn validate(
     models_dir: &Path,
     methods: &[Method],
     (bars, warnings): (bool, &Warnings),
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Vec<(Method, experiments::Chosen)>> {
     if methods.is_empty() {
-        return Ok(());
+        return Ok(Vec::new());
     }
     let pb = progress_bar(
         !bars,
@@ -353,6 +474,12 @@ fn validate(
     let run = (super::cores(), warnings);
     let chosen = training::validate(settings, models_dir, methods, run, |_, _| pb.inc(1))?;
     pb.finish_and_clear();
+    show_chosen(&chosen);
+    Ok(chosen)
+}
+
+/// One line per method: what the validation runs chose for it.
+fn show_chosen(chosen: &[(Method, experiments::Chosen)]) {
     let text = |l: f64| {
         if l.is_finite() {
             format!("{l:.2}")
@@ -376,7 +503,6 @@ fn validate(
             text(aleatoric),
         );
     }
-    Ok(())
 }
 
 /// Chooses the thresholds of `baselines` on the validation runs and

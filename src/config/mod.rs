@@ -79,6 +79,9 @@ pub struct Overrides {
     /// `[appearance] rank1`, with `auroc = "free"`: a point of the
     /// re-identification sweep.
     pub reid_rank1: Option<f64>,
+    /// `[train] appearance_vectors` (`coid train --without-descriptor`:
+    /// false).
+    pub appearance_vectors: Option<bool>,
 }
 
 impl Overrides {
@@ -95,6 +98,9 @@ impl Overrides {
         if let Some(r) = self.reid_rank1 {
             raw.appearance.rank1 = r;
             raw.appearance.auroc = raw::RawRate::Word("free".into());
+        }
+        if let Some(v) = self.appearance_vectors {
+            raw.train.appearance_vectors = v;
         }
     }
 }

@@ -29,7 +29,7 @@ pub use batches::*;
 pub use folder::{Claim, Existing, check_extendable, publish_files};
 pub use identity::ResultKind;
 pub use models::*;
-pub use records::BaselineEntry;
+pub use records::{BaselineEntry, DescriptorChoice};
 pub use results::*;
 
 use std::path::{Path, PathBuf};

@@ -272,6 +272,7 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
         patience: r.best_epoch.map(|_| t.patience),
         best_epoch: r.best_epoch,
         validation: None,
+        descriptor: None,
     })
 }
 
@@ -297,6 +298,30 @@ pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(
     let name = format!("{}.toml", method.as_str());
     let body = record.to_toml().map_err(OutputError::Batch)?;
     publish_files(dir, |tmp| write_text(&tmp.join(&name), &body))
+}
+
+/// Copies `method`'s model (weights, record, loss curve) from the
+/// candidate folder `from` into `to`, its record noting the validation
+/// runs' choice between reading the re-identification descriptor and not;
+/// the files are renamed into place together.
+pub fn adopt_candidate(
+    from: &Path,
+    to: &Path,
+    method: Method,
+    choice: records::DescriptorChoice,
+) -> Result<(), OutputError> {
+    let mut record =
+        read_model_record(from, method).map_err(|e| OutputError::Batch(e.to_string()))?;
+    record.descriptor = Some(choice);
+    let body = record.to_toml().map_err(OutputError::Batch)?;
+    let name = method.as_str();
+    publish_files(to, |tmp| {
+        for file in [format!("{name}.bpk"), format!("{name}_loss.csv")] {
+            let (src, dst) = (from.join(&file), tmp.join(&file));
+            std::fs::copy(&src, &dst).map_err(io(&src))?;
+        }
+        write_text(&tmp.join(format!("{name}.toml")), &body)
+    })
 }
 
 /// What `coid train` chose for a deep method on the validation runs, as

@@ -65,6 +65,21 @@ pub struct ModelRecord {
     /// `coid train` validated the weights.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub validation: Option<ValidationRecord>,
+    /// Whether the network reads the re-identification descriptor, as
+    /// `coid train` chose on the validation runs between a network trained
+    /// with it and one trained without (absent: no such choice was made).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub descriptor: Option<DescriptorChoice>,
+}
+
+/// The validation runs' choice between reading the re-identification
+/// descriptor and leaving it out: each network's mean F1 there, at its own
+/// validated operating point.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DescriptorChoice {
+    pub reads: bool,
+    pub f1_reading: f64,
+    pub f1_without: f64,
 }
 
 /// The dropout masks of weights whose record does not say.
@@ -455,6 +470,7 @@ mod tests {
                     aleatoric: Lambda::from_f64(0.6),
                 }),
             }),
+            descriptor: None,
         }
     }
 

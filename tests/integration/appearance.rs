@@ -110,10 +110,14 @@ fn a_run_with_the_descriptor_is_the_same_on_one_and_two_threads() {
 /// A deep network trained with the descriptor reads it (13 attributes and
 /// 16 values a node), the sender's own node included, which carries none
 /// (training once stopped there: "appearance vectors of the network's
-/// width"); `coid train --reid-rank1` writes a point of the sweep into
+/// width"); `coid train` trains it once reading the descriptor and once
+/// without, and keeps the one the validation runs prefer (its record says
+/// which, and with what F1 each; the weights are that candidate's bytes);
+/// `coid train --reid-rank1` writes a point of the sweep into
 /// `<models_dir>/rank1-<R>` and `coid eval --reid-sweep` evaluates it on
-/// the validation and the test runs (the oracle's F1 is 1); a point
-/// without its models is refused, naming the command that makes them.
+/// the validation and the test runs (the oracle's F1 is 1; the table says
+/// what each method made of the descriptor); a point without its models
+/// is refused, naming the command that makes them.
 #[test]
 fn deep_networks_train_on_the_descriptor_and_the_sweep_reads_their_point() {
     let fx = Fixture::new();
@@ -136,8 +140,29 @@ fn deep_networks_train_on_the_descriptor_and_the_sweep_reads_their_point() {
         .args(["--reid-rank1", "0.5"])
         .output();
     assert_ok(&o);
-    let record = fx.read_text("models/rank1-0.50/ours.toml");
-    assert!(record.contains("node_features = 29"), "{record}");
+    let point = "models/rank1-0.50";
+    let reading = fx.read_text(&format!("{point}/candidates/reading-descriptor/ours.toml"));
+    assert!(reading.contains("node_features = 29"), "{reading}");
+    let without = fx.read_text(&format!("{point}/candidates/without-descriptor/ours.toml"));
+    assert!(without.contains("node_features = 13"), "{without}");
+    let record: toml::Value = toml::from_str(&fx.read_text(&format!("{point}/ours.toml"))).unwrap();
+    let choice = &record["descriptor"];
+    let f1 = |key: &str| choice[key].as_float().unwrap();
+    let reads = choice["reads"].as_bool().unwrap();
+    assert_eq!(reads, f1("f1_reading") > f1("f1_without"), "{choice}");
+    let chosen = if reads { "reading" } else { "without" };
+    let kept = std::fs::read(fx.path(&format!("{point}/ours.bpk"))).unwrap();
+    let candidate =
+        std::fs::read(fx.path(&format!("{point}/candidates/{chosen}-descriptor/ours.bpk")))
+            .unwrap();
+    assert!(
+        kept == candidate,
+        "the kept weights are not the {chosen} candidate's"
+    );
+    let width = record["architecture"]["node_features"]
+        .as_integer()
+        .unwrap();
+    assert_eq!(width, if reads { 29 } else { 13 }, "{record}");
     let o = fx
         .cmd("eval")
         .quiet()
@@ -154,6 +179,12 @@ fn deep_networks_train_on_the_descriptor_and_the_sweep_reads_their_point() {
         .map(|k| f1[k])
         .collect();
     assert_eq!(oracle, vec![1.0, 1.0], "{splits:?} {methods:?}");
+    let uses = strs(&t, "descriptor");
+    let ours_use = (0..t.height())
+        .find(|&k| methods[k] == "ours")
+        .map(|k| uses[k].clone());
+    let expected = if reads { "read" } else { "left out" };
+    assert_eq!(ours_use.as_deref(), Some(expected), "{uses:?}");
     let measured = f64s(&t, "rank1_validation")[0];
     assert!((measured / 0.5 - 1.0).abs() <= 0.1, "rank-1 {measured}");
     assert!(fx.path("sweep/reid_sweep.png").exists());
