@@ -143,28 +143,16 @@ fn rows_of(
     setting: Setting,
     split: &'static str,
 ) -> Vec<Row> {
-    let mut rows = Vec::new();
-    for &method in methods {
-        let take = if method.inputs() == crate::matching::Inputs::Paper {
-            1
-        } else {
-            levels.len()
-        };
-        for &level in levels.iter().take(take) {
-            let key = MethodLevel::new(method, level);
-            rows.push(Row {
-                method,
-                setting,
-                split,
-                level,
-                f1: evals
-                    .iter()
-                    .filter_map(|e| e.table1.get(&key).map(|c| c.f1()))
-                    .collect(),
-            });
-        }
-    }
-    rows
+    MethodLevel::read_at(methods, levels)
+        .into_iter()
+        .map(|key| Row {
+            method: key.method,
+            setting,
+            split,
+            level: key.pose_noise,
+            f1: key.f1_per_run(evals),
+        })
+        .collect()
 }
 
 /// `mc_sweep.csv`: per setting, split and level, F1's mean and 95%

@@ -189,38 +189,28 @@ fn rows_of(
     split: &'static str,
 ) -> Vec<Row> {
     let mut rows = Vec::new();
-    for (&method, descriptor) in methods.iter().zip(uses) {
-        let take = if method.inputs() == Inputs::Paper {
-            1
-        } else {
-            levels.len()
-        };
-        for &level in levels.iter().take(take) {
-            let key = MethodLevel::new(method, level);
-            let pairs: Vec<_> = evals
-                .iter()
-                .filter_map(|e| e.scored.get(&key))
-                .flatten()
-                .cloned()
-                .collect();
-            let truth: usize = evals
-                .iter()
-                .filter_map(|e| e.table1.get(&key).map(|c| c.ground_truth))
-                .sum();
-            rows.push(Row {
-                method,
-                descriptor: descriptor.clone(),
-                rank1,
-                measured,
-                split,
-                level,
-                f1: evals
-                    .iter()
-                    .filter_map(|e| e.table1.get(&key).map(|c| c.f1()))
-                    .collect(),
-                ap: crate::tables::average_precision(&pairs, truth),
-            });
-        }
+    for key in MethodLevel::read_at(methods, levels) {
+        let pairs: Vec<_> = evals
+            .iter()
+            .filter_map(|e| e.scored.get(&key))
+            .flatten()
+            .cloned()
+            .collect();
+        let truth: usize = evals
+            .iter()
+            .filter_map(|e| e.table1.get(&key).map(|c| c.ground_truth))
+            .sum();
+        let k = methods.iter().position(|m| *m == key.method).unwrap_or(0);
+        rows.push(Row {
+            method: key.method,
+            descriptor: uses.get(k).cloned().unwrap_or_default(),
+            rank1,
+            measured,
+            split,
+            level: key.pose_noise,
+            f1: key.f1_per_run(evals),
+            ap: crate::tables::average_precision(&pairs, truth),
+        });
     }
     rows
 }

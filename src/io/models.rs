@@ -446,6 +446,26 @@ mod tests {
         );
     }
 
+    /// The models `configs/reid.toml` evaluates load, every seed of a
+    /// method made the same choice about the descriptor (so the seeds are
+    /// one recipe), and the weights are what the choice says.
+    #[test]
+    fn the_shipped_reid_models_load_with_their_descriptor_choice() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/reid");
+        for method in [Method::Coid, Method::Ours] {
+            let mut reads = Vec::new();
+            for dir in [root.clone(), root.join("seed-8"), root.join("seed-9")] {
+                let w = read_weights(&dir, method).unwrap();
+                let record = read_model_record(&dir, method).unwrap();
+                let choice = record.descriptor.expect("a descriptor choice");
+                assert_eq!(choice.reads, w.appearance_width > 0, "{}", dir.display());
+                assert_eq!(choice.reads, choice.f1_reading > choice.f1_without);
+                reads.push(choice);
+            }
+            assert!(reads.windows(2).all(|p| p[0] == p[1]), "{reads:?}");
+        }
+    }
+
     /// Regression: a record whose first layer is narrower than class,
     /// colour and size underflowed the appearance width (a panic in debug
     /// builds); it is another architecture.

@@ -26,6 +26,29 @@ impl MethodLevel {
         Self { method, pose_noise }
     }
 
+    /// Each of `methods` at each of `levels` it is read at: a method on
+    /// the paper's inputs, the same at every level, at the first only.
+    pub fn read_at(methods: &[Method], levels: &[PoseNoiseLabel]) -> Vec<Self> {
+        let mut keys = Vec::new();
+        for &method in methods {
+            let take = if method.inputs() == crate::matching::Inputs::Paper {
+                1
+            } else {
+                levels.len()
+            };
+            keys.extend(levels.iter().take(take).map(|&l| Self::new(method, l)));
+        }
+        keys
+    }
+
+    /// Its Table 1 F1 in each of `evals` that has it.
+    pub fn f1_per_run(self, evals: &[RunEval]) -> Vec<f64> {
+        evals
+            .iter()
+            .filter_map(|e| e.table1.get(&self).map(PairCounts::f1))
+            .collect()
+    }
+
     /// The method under `decision` at this level.
     pub fn rule(self, decision: Decision) -> RuleKey {
         RuleKey { at: self, decision }
