@@ -16,6 +16,7 @@ use anyhow::Context;
 use super::progress_bar;
 use crate::config::{Overrides, Settings};
 use crate::io::{self, Claim, OutputError};
+use crate::matching::deep::arch::Backbone;
 use crate::matching::{self, BaselineChoice, Inputs, Method, MethodKind};
 use crate::report::{PairedDifference, Table, mean_ci95, paired_bootstrap};
 use crate::sensor::PoseNoiseLabel;
@@ -149,19 +150,24 @@ fn point_settings(config: &Path, r: f64, quiet: bool) -> anyhow::Result<Settings
 }
 
 /// What `method` makes of the descriptor with the choices of `s`'s
-/// models folder: a deep network "read" or "left out" (as `coid train`
-/// chose on the validation runs), a baseline's weight on the cosine's
-/// likelihood ratio, or "not used".
+/// models folder: a deep network's node attributes "read" or "left
+/// out" (as `coid train` chose on the validation runs; the project's
+/// network also starts from the shared likelihood, which weighs the
+/// cosine's likelihood ratio at 1), a baseline's weight on that ratio, or
+/// "not used".
 fn descriptor_use(s: &Settings, method: Method) -> anyhow::Result<String> {
     let dir = &s.matching.models_dir;
-    if let MethodKind::Deep(_) = method.kind() {
+    if let MethodKind::Deep(deep) = method.kind() {
         let w = io::read_weights(dir, method)?;
-        return Ok(if w.appearance_width > 0 {
+        let attributes = if w.appearance_width > 0 {
             "read"
         } else {
             "left out"
-        }
-        .to_owned());
+        };
+        return Ok(match deep.backbone() {
+            Backbone::Likelihood(_) => format!("likelihood weight 1, attributes {attributes}"),
+            Backbone::Published(_) => format!("attributes {attributes}"),
+        });
     }
     if !method.weighs_descriptors() {
         return Ok("not used".to_owned());

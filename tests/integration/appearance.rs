@@ -183,7 +183,11 @@ fn deep_networks_train_on_the_descriptor_and_the_sweep_reads_their_point() {
     let ours_use = (0..t.height())
         .find(|&k| methods[k] == "ours")
         .map(|k| uses[k].clone());
-    let expected = if reads { "read" } else { "left out" };
+    let expected = if reads {
+        "likelihood weight 1, attributes read"
+    } else {
+        "likelihood weight 1, attributes left out"
+    };
     assert_eq!(ours_use.as_deref(), Some(expected), "{uses:?}");
     let measured = f64s(&t, "rank1_validation")[0];
     assert!((measured / 0.5 - 1.0).abs() <= 0.1, "rank-1 {measured}");
@@ -196,4 +200,29 @@ fn deep_networks_train_on_the_descriptor_and_the_sweep_reads_their_point() {
         .out("s2")
         .output();
     assert_refused(&o, "--reid-rank1 0.70");
+}
+
+/// Regression: `coid eval --suite` ran a suite config's scenario with its
+/// descriptor uncalibrated, which the pipeline refuses; each suite config
+/// is calibrated on its own validation runs like the primary one.
+#[test]
+fn a_suite_config_with_the_descriptor_is_calibrated() {
+    let fx = Fixture::new();
+    let base = reid_config(&fx, "base.toml", "reid", 0.39, "\"free\"");
+    let other = fx.write(
+        "other.toml",
+        &fx.read_text("base.toml")
+            .replace("traffic_seeds = [1]", "traffic_seeds = [2]"),
+    );
+    let o = fx
+        .cmd("eval")
+        .quiet()
+        .config(&base)
+        .arg("--suite")
+        .arg(&other)
+        .out("ev")
+        .output();
+    assert_ok(&o);
+    let runs = f64s(&read_csv(&fx.path("ev/pooled/table1b.csv")), "n_runs")[0];
+    assert_eq!(runs, 2.0);
 }
