@@ -172,16 +172,12 @@ fn descriptor_use(s: &Settings, method: Method) -> anyhow::Result<String> {
     if !method.weighs_descriptors() {
         return Ok("not used".to_owned());
     }
-    let weight = if s.matching.baselines == BaselineChoice::Validated {
-        io::read_baselines(dir, &[method])?
-            .get(&method)
-            .map_or(1.0, |v| v.descriptor_weight)
-    } else {
-        s.matching
-            .baseline_values
-            .get(&method)
-            .map_or(1.0, |v| v.descriptor_weight)
-    };
+    // The weight the runner reads: the validated one, or the configured.
+    let mut m = s.matching.clone();
+    if m.baselines == BaselineChoice::Validated {
+        m.baseline_values = io::read_baselines(dir, &[method])?;
+    }
+    let weight = m.descriptor_weight(method);
     Ok(format!("weight {weight:.2}"))
 }
 

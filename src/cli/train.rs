@@ -114,21 +114,15 @@ fn source<'a>(a: &'a Args, config: &'a Path, without: bool) -> training::TrainSo
 }
 
 /// The seeds `--seed` asks for (else `[train] seed`), each with its
-/// settings (with or `without` the descriptor) and folder
-/// ([`training::seed_runs`]).
-fn seed_runs(
-    a: &Args,
-    settings: &Settings,
-    models_dir: &Path,
-    without: bool,
-) -> anyhow::Result<Vec<SeedRun>> {
+/// settings and folder ([`training::seed_runs`]).
+fn seed_runs(a: &Args, settings: &Settings, models_dir: &Path) -> anyhow::Result<Vec<SeedRun>> {
     if let Some(s) = super::first_repeat(&a.seed) {
         anyhow::bail!("--seed lists {s} twice");
     }
     let checks = (a.validate_only, a.force.force);
     let config = a.config.path();
     Ok(training::seed_runs(
-        source(a, &config, without),
+        source(a, &config, a.without_descriptor),
         settings,
         &a.seed,
         models_dir,
@@ -207,7 +201,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         },
     };
     training::check_models_folder(&models_dir, a.validate_only, a.force.force)?;
-    let seeds = seed_runs(&a, &settings, &models_dir, a.without_descriptor)?;
+    let seeds = seed_runs(&a, &settings, &models_dir)?;
     // The baselines have no training seed: tuned with [train] seed's run.
     let tunes_baselines = seeds.iter().any(|s| s.dir == models_dir);
     let (methods, baselines) = methods_of(&a, &settings)?;
@@ -239,7 +233,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         warnings: &warnings,
     };
     if chooses {
-        choose_descriptor(&pass, &settings, &models_dir, &seeds)?;
+        choose_descriptor(&pass, &models_dir, &seeds)?;
     } else {
         pass.train(&models_dir, &seeds, a.without_descriptor)?;
         if !a.skip_validation {
@@ -297,18 +291,34 @@ fn candidate_dir(models_dir: &Path, without: bool) -> std::path::PathBuf {
     models_dir.join("candidates").join(name)
 }
 
+/// The runs of `seeds` (whose folders are in `models_dir`) as candidates
+/// with or `without` the descriptor: the same settings, already
+/// calibrated, each in its folder under [`candidate_dir`] (checked).
+fn candidate_runs(
+    a: &Args,
+    (models_dir, seeds): (&Path, &[SeedRun]),
+    without: bool,
+) -> anyhow::Result<Vec<SeedRun>> {
+    seeds
+        .iter()
+        .map(|s| {
+            let within = s.dir.strip_prefix(models_dir).unwrap_or(Path::new(""));
+            let dir = candidate_dir(models_dir, without).join(within);
+            training::check_models_folder(&dir, false, a.force.force)?;
+            let mut settings = s.settings.clone();
+            settings.train.appearance_vectors = !without;
+            Ok(SeedRun { settings, dir })
+        })
+        .collect()
+}
+
 /// Trains every method (and seed) once reading the re-identification
 /// descriptor and once without, each into its candidate folder
 /// ([`candidate_dir`]), validates both, and keeps for each method the one
 /// with the higher mean F1 over the seeds on the validation runs (without
 /// it on ties: the smaller network), copied into `seeds`' folders with
 /// the choice in its record.
-fn choose_descriptor(
-    pass: &Pass,
-    settings: &Settings,
-    models_dir: &Path,
-    seeds: &[SeedRun],
-) -> anyhow::Result<()> {
+fn choose_descriptor(pass: &Pass, models_dir: &Path, seeds: &[SeedRun]) -> anyhow::Result<()> {
     let bars = (pass.show == Show::Bars, pass.warnings);
     // f1[method][0: reading, 1: without], mean over the seeds.
     let mut f1 = vec![[0.0; 2]; pass.methods.len()];
@@ -319,7 +329,7 @@ fn choose_descriptor(
             "coid: training {how} the re-identification descriptor into {}",
             dir.display()
         ));
-        let candidates = seed_runs(pass.a, settings, &dir, without)?;
+        let candidates = candidate_runs(pass.a, (models_dir, seeds), without)?;
         pass.train(&dir, &candidates, without)?;
         for s in &candidates {
             for (i, (_, c)) in validate(&s.settings, &s.dir, pass.methods, bars)?
