@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Creates the project-local Python environment (.venv) with the pinned SUMO
-# packages from PyPI, and the examples' packages. Idempotent: does nothing
+# packages from PyPI. Idempotent: does nothing
 # when the environment is already complete. Needs only python3 (3.11) with pip and venv.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
@@ -8,19 +8,10 @@ venv="$root/.venv"
 req="$root/bridge/requirements.txt"
 stamp="$venv/.coid-requirements"
 python="${COID_PYTHON:-python3}"
-examples="$root/examples/requirements.txt"
-examples_stamp="$venv/.coid-examples"
 if ! { [ -x "$venv/bin/python" ] && [ -f "$stamp" ] && cmp -s "$req" "$stamp"; }; then
     echo "coid: setting up the Python environment in $venv (libsumo, eclipse-sumo; ~250 MB, once)" >&2
     "$python" -m venv "$venv"
     "$venv/bin/python" -m pip install --disable-pip-version-check --quiet -r "$req"
     "$venv/bin/python" -c "import libsumo, sumo; print('coid: libsumo', libsumo.__file__.rsplit('/', 2)[0], 'SUMO_HOME', sumo.SUMO_HOME)" >&2
     cp "$req" "$stamp"
-fi
-# The examples' packages (polars, numpy: examples/nearest_match.py, which
-# the tests run), with their own stamp.
-if ! { [ -f "$examples_stamp" ] && cmp -s "$examples" "$examples_stamp"; }; then
-    echo "coid: adding the examples' packages to $venv (polars, numpy)" >&2
-    "$venv/bin/python" -m pip install --disable-pip-version-check --quiet -r "$examples"
-    cp "$examples" "$examples_stamp"
 fi

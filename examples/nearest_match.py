@@ -1,15 +1,18 @@
 """A matcher written outside coid: greedy nearest neighbours in the first
-vehicle's frame, from the GPS-reported poses alone.
+vehicle's frame, from the GPS-reported poses alone, through the coid_sim
+package (pip install coid-sim).
 
-    coid export --splits test --out results/my-export
+    python examples/nearest_match.py                 # the default test runs, exported here first
     python examples/nearest_match.py results/my-export --out my-matches.parquet
-    coid score --matches my-matches.parquet --export results/my-export --out results/my-score
 
-Reads an export (schema: the export's schema.md), writes a matches file
-for `coid score`, and prints the precision, recall and F1 its rule
-implies on the split, counted as coid counts them: per run, pooled over
-the run's instances; then the mean over runs. Needs only polars and
-numpy.
+Reads a dataset (a folder `coid export` or `coid_sim.export` wrote, or
+one converted from elsewhere; without one, the default configuration's
+test runs are exported into results/default-export), matches every
+instance of the split, prints the precision, recall and F1 its rule
+implies, counted as coid counts them (per run, pooled over the run's
+instances; then the mean over runs), and then has coid score the same
+matches beside its built-in methods (`coid_sim.score`, the tables of
+`coid score`).
 
 The rule: move the second vehicle's nodes into the first vehicle's body
 frame with both reported poses; take pairs of the same class in order of
@@ -25,6 +28,8 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
+import coid_sim
+
 
 def to_first_frame(xy, first, second):
     """Second-vehicle body-frame points into the first vehicle's body frame."""
@@ -36,18 +41,14 @@ def to_first_frame(xy, first, second):
     return np.stack([c1 * dx + s1 * dy, -s1 * dx + c1 * dy], 1)
 
 
-def match(first_nodes, second_nodes, inst, gate_m):
+def match(inst, level, gate_m):
     """The rule, on one instance at one level: [(a, b, probability)]."""
-    a_xy = first_nodes.select("x_m", "y_m").to_numpy()
-    b_xy = to_first_frame(
-        second_nodes.select("x_m", "y_m").to_numpy(),
-        (inst["first_x_m"], inst["first_y_m"], inst["first_heading_rad"]),
-        (inst["second_x_m"], inst["second_y_m"], inst["second_heading_rad"]),
-    )
+    a_xy = inst.first.xy_m
+    b_xy = to_first_frame(inst.second.xy_m, *level.reported)
     d = np.linalg.norm(a_xy[:, None, :] - b_xy[None, :, :], axis=2)
-    same = first_nodes["class"].to_numpy()[:, None] == second_nodes["class"].to_numpy()[None, :]
+    same = inst.first.classes[:, None] == inst.second.classes[None, :]
     d = np.where(same, d, np.inf)
-    s2 = 1.0 + 2.0 * inst["position_sigma_m"] ** 2
+    s2 = 1.0 + 2.0 * level.position_sigma_m**2
     used_a, used_b, out = set(), set(), []
     for k in np.argsort(d, axis=None, kind="stable"):
         a, b = divmod(int(k), d.shape[1])
@@ -63,27 +64,30 @@ def match(first_nodes, second_nodes, inst, gate_m):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("export", type=Path, help="a folder written by coid export")
-    ap.add_argument("--out", type=Path, default=Path("matches.parquet"))
-    ap.add_argument("--split", default="test", choices=["train", "validation", "test"])
+    ap.add_argument("dataset", type=Path, nargs="?", help="a dataset folder [default: export the default test runs]")
+    ap.add_argument("--out", type=Path, default=Path("matches.parquet"), help="the matches file written")
+    ap.add_argument("--split", default="test", choices=["validation", "test"])
     ap.add_argument("--gate", type=float, default=3.0, help="largest distance matched (m)")
+    ap.add_argument("--score-out", type=Path, help="coid score's results folder [default: results/<dataset>-score]")
     args = ap.parse_args()
 
-    runs = pl.read_parquet(args.export / "runs.parquet").filter(pl.col("split") == args.split)
-    if runs.height == 0:
-        sys.exit(f"{args.export} holds no {args.split} run")
-    keep = pl.col("run").is_in(runs["run"].to_list())
-    instances = pl.read_parquet(args.export / "instances.parquet").filter(keep)
-    nodes = pl.read_parquet(args.export / "nodes.parquet").filter(keep).sort("run", "instance", "side", "node")
-    truth = pl.read_parquet(args.export / "true_pairs.parquet").filter(keep)
-
-    by_vehicle = nodes.partition_by(["run", "instance", "side"], as_dict=True)
-    rows = []
-    for inst in instances.iter_rows(named=True):
-        key = (inst["run"], inst["instance"])
-        first, second = by_vehicle[key + (0,)], by_vehicle[key + (1,)]
-        for a, b, p in match(first, second, inst, args.gate):
-            rows.append((inst["run"], inst["instance"], inst["pose_noise"], a, b, p))
+    if args.dataset is None:
+        dataset = coid_sim.export(splits=[args.split], out="results/default-export")
+    else:
+        dataset = coid_sim.Dataset(args.dataset)
+    rows, per_run, n_instances = [], {}, 0
+    for inst in dataset.instances(args.split):
+        n_instances += 1
+        for level in inst.levels:
+            made = match(inst, level, args.gate)
+            true = {(int(a), int(b)) for a, b in inst.true_pairs}
+            counts = per_run.setdefault((inst.run, level.label), [0, 0, 0])
+            counts[0] += len(made)
+            counts[1] += sum((a, b) in true for a, b, _ in made)
+            counts[2] += len(true)
+            rows += [(inst.run, inst.instance, level.label, a, b, p) for a, b, p in made]
+    if not per_run:
+        sys.exit(f"{dataset.path} holds no {args.split} instance")
     matches = pl.DataFrame(
         rows,
         schema={"run": pl.UInt64, "instance": pl.UInt64, "pose_noise": pl.String,
@@ -92,36 +96,28 @@ def main():
     )
     matches.write_parquet(args.out)
 
-    # What the rule implies, counted as coid counts it.
-    true_set = truth.with_columns(pl.lit(True).alias("correct"))
-    judged = matches.join(true_set, on=["run", "instance", "a", "b"], how="left")
-    judged = judged.with_columns(pl.col("correct").fill_null(False))
-    per_run = (
-        judged.group_by("run", "pose_noise")
-        .agg(pl.len().alias("identified"), pl.col("correct").sum().alias("correct"))
-    )
-    levels = instances.select("pose_noise").unique(maintain_order=True)
-    gt = truth.group_by("run").agg(pl.len().alias("ground_truth"))
-    counts = (
-        runs.select("run").join(levels, how="cross")
-        .join(per_run, on=["run", "pose_noise"], how="left")
-        .join(gt, on="run", how="left")
-        .fill_null(0)
-        .with_columns(
-            precision=pl.when(pl.col("identified") > 0).then(pl.col("correct") / pl.col("identified")),
-            recall=pl.when(pl.col("ground_truth") > 0).then(pl.col("correct") / pl.col("ground_truth")),
-            f1=pl.when(pl.col("identified") + pl.col("ground_truth") > 0)
-            .then(2 * pl.col("correct") / (pl.col("identified") + pl.col("ground_truth"))),
-        )
-    )
-    table = counts.group_by("pose_noise", maintain_order=True).agg(
-        pl.col("precision").mean(), pl.col("recall").mean(), pl.col("f1").mean(), pl.len().alias("n_runs")
-    )
-    print(f"nearest_match: {matches.height} matches on {instances.height} (instance, level) of "
-          f"{runs.height} {args.split} runs; wrote {args.out}")
-    for r in table.iter_rows(named=True):
-        print(f"{r['pose_noise']}: precision {r['precision']:.6f} recall {r['recall']:.6f} "
-              f"f1 {r['f1']:.6f} over {r['n_runs']} runs")
+    # What the rule implies, counted as coid counts it: per run, then the
+    # mean over runs (a run with nothing identified has no precision).
+    runs = dataset.runs.filter(pl.col("split") == args.split)["run"].to_list()
+    print(f"nearest_match: {matches.height} matches on {n_instances} instances x {len(dataset.levels)} levels "
+          f"of {len(runs)} {args.split} runs; wrote {args.out}")
+    for label, _ in dataset.levels:
+        p, r, f = [], [], []
+        for run in runs:
+            identified, correct, truth = per_run.get((run, label), [0, 0, 0])
+            if identified:
+                p.append(correct / identified)
+            if truth:
+                r.append(correct / truth)
+            if identified + truth:
+                f.append(2 * correct / (identified + truth))
+        print(f"{label}: precision {np.mean(p):.6f} recall {np.mean(r):.6f} f1 {np.mean(f):.6f} over {len(runs)} runs")
+
+    scored = coid_sim.score(matches, dataset=dataset, split=args.split, out=args.score_out, force=True, quiet=True)
+    table = scored.frame("table1b").filter(pl.col("pose_noise") == "gps")
+    print(f"coid score (gps): {scored.out}")
+    for row in table.iter_rows(named=True):
+        print(f"  {row['method']:<20} precision {row['precision']:.3f} recall {row['recall']:.3f} f1 {row['f1']:.3f}")
 
 
 if __name__ == "__main__":

@@ -123,12 +123,29 @@ pub struct Parallel {
     pub threads: usize,
 }
 
-/// Runs `pending` on up to `parallel.workers` child processes of `exe`
+/// Another coid process to start: the program, and the arguments before
+/// the command (the binary starts itself; the Python package starts
+/// `python -m coid_sim`, [`crate::bridge::this_program`]).
+#[derive(Clone, Debug)]
+pub struct Program {
+    pub exe: PathBuf,
+    pub prefix: Vec<OsString>,
+}
+
+impl Program {
+    /// This process's program.
+    pub fn this() -> std::io::Result<Program> {
+        let (exe, prefix) = crate::bridge::this_program()?;
+        Ok(Program { exe, prefix })
+    }
+}
+
+/// Runs `pending` on up to `parallel.workers` child processes of `program`
 /// (`coid batch-run`, each from the record in `batch_dir`), each with
 /// `parallel.threads` threads; returns the failures. `done(run, ok)` is
 /// called as each run ends.
 pub fn execute(
-    exe: &Path,
+    program: &Program,
     batch_dir: &Path,
     batch: &BatchRecord,
     pending: &[usize],
@@ -152,7 +169,7 @@ pub fn execute(
         })
         .collect();
     let mut failures = run_children(
-        exe,
+        program,
         &jobs,
         parallel.workers,
         |_, _| {},
@@ -193,14 +210,14 @@ fn dies_with_parent(command: &mut Command) {
     }
 }
 
-/// Runs each job (the arguments of one child process of `exe`) on up to
+/// Runs each job (the arguments of one child process of `program`) on up to
 /// `workers` processes at once, in job order. `line(job, text)` receives
 /// each line the child prints on stdout, as it comes; `done(job, exited
 /// ok) -> ok` is called as each child ends and decides whether the job
 /// counts as failed. Returns the failures (`run` = job index, the message
 /// = the child's last stderr line), sorted.
 pub fn run_children(
-    exe: &Path,
+    program: &Program,
     jobs: &[Vec<OsString>],
     workers: usize,
     mut line: impl FnMut(usize, &str),
@@ -213,7 +230,7 @@ pub fn run_children(
     loop {
         while running.len() < workers.max(1) {
             let Some(job) = queue.next() else { break };
-            running.push(Running::start(exe, job, &jobs[job], sender.clone())?);
+            running.push(Running::start(program, job, &jobs[job], sender.clone())?);
         }
         if running.is_empty() {
             break;
@@ -250,17 +267,18 @@ struct Running {
 }
 
 impl Running {
-    /// Starts `job` (`args` to `exe`). Both pipes are drained while the
+    /// Starts `job` (`args` to `program`). Both pipes are drained while the
     /// child runs (a full pipe would block it): stdout line by line into
     /// `lines`, stderr kept.
     fn start(
-        exe: &Path,
+        program: &Program,
         job: usize,
         args: &[OsString],
         lines: mpsc::Sender<ChildLine>,
     ) -> std::io::Result<Self> {
-        let mut command = Command::new(exe);
+        let mut command = Command::new(&program.exe);
         command
+            .args(&program.prefix)
             .args(args)
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());

@@ -18,6 +18,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyModule;
 
 use crate::geometry::{Polygon, Pose2, Vec2};
+#[cfg(feature = "embed")]
 use crate::paths;
 use crate::traffic::catalogue::Catalogue;
 use crate::traffic::{
@@ -62,15 +63,11 @@ pub enum BridgeError {
     },
 }
 
-/// Runs SUMO's netconvert from the project environment in `dir` with
-/// `args` (paths in them relative to `dir`). Its console output is kept
-/// only for the error.
+/// Runs SUMO's netconvert (from SUMO's environment: [`sumo_tool`]) in
+/// `dir` with `args` (paths in them relative to `dir`). Its console
+/// output is kept only for the error.
 pub fn netconvert(dir: &Path, args: &[String]) -> Result<(), BridgeError> {
-    let venv = environment()?;
-    let exe = venv.join("bin").join("netconvert");
-    if !exe.is_file() {
-        return Err(BridgeError::NoEnvironment(venv));
-    }
+    let exe = sumo_tool("netconvert")?;
     let fail = |message: String| BridgeError::Tool {
         tool: "netconvert",
         dir: dir.to_owned(),
@@ -89,6 +86,76 @@ pub fn netconvert(dir: &Path, args: &[String]) -> Result<(), BridgeError> {
     Err(fail(text.lines().last().unwrap_or("no output").to_owned()))
 }
 
+/// One of SUMO's programs: the binary's SUMO environment's (its `bin/`).
+#[cfg(feature = "embed")]
+fn sumo_tool(name: &str) -> Result<PathBuf, BridgeError> {
+    let venv = environment()?;
+    let exe = venv.join("bin").join(name);
+    if !exe.is_file() {
+        return Err(BridgeError::NoEnvironment(venv));
+    }
+    Ok(exe)
+}
+
+/// One of SUMO's programs: the eclipse-sumo package's of the interpreter
+/// that loaded coid (`<sumo.SUMO_HOME>/bin/`).
+#[cfg(not(feature = "embed"))]
+fn sumo_tool(name: &str) -> Result<PathBuf, BridgeError> {
+    let home: String = Python::attach(|py| {
+        py.import("sumo")
+            .and_then(|m| m.getattr("SUMO_HOME"))
+            .and_then(|h| h.str())
+            .map(|h| h.to_string())
+            .map_err(|e| BridgeError::Setup(no_sumo(&describe(py, &e))))
+    })?;
+    let exe = Path::new(&home).join("bin").join(name);
+    if !exe.is_file() {
+        return Err(BridgeError::Setup(format!(
+            "SUMO's {name} is not in {}",
+            exe.parent().unwrap_or(Path::new(&home)).display()
+        )));
+    }
+    Ok(exe)
+}
+
+/// Why SUMO could not be imported into the interpreter that loaded coid.
+#[cfg(not(feature = "embed"))]
+fn no_sumo(why: &str) -> String {
+    format!(
+        "this Python has no SUMO ({why}): install the pinned packages with `pip install {}`",
+        REQUIREMENTS
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty() && !l.starts_with('#'))
+            .collect::<Vec<_>>()
+            .join(" ")
+    )
+}
+
+/// How to start another coid process (a batch's workers, training's
+/// children): the program and the arguments before the command. The
+/// binary starts itself.
+#[cfg(feature = "embed")]
+pub fn this_program() -> std::io::Result<(PathBuf, Vec<std::ffi::OsString>)> {
+    Ok((std::env::current_exe()?, Vec::new()))
+}
+
+/// How to start another coid process: inside the Python package, the
+/// interpreter that loaded it, as `python -m coid_sim`.
+#[cfg(not(feature = "embed"))]
+pub fn this_program() -> std::io::Result<(PathBuf, Vec<std::ffi::OsString>)> {
+    let exe: Option<String> = Python::attach(|py| {
+        py.import("sys")
+            .and_then(|m| m.getattr("executable"))
+            .and_then(|e| e.extract())
+            .ok()
+    });
+    let exe = exe.filter(|e: &String| !e.is_empty()).ok_or_else(|| {
+        std::io::Error::other("this Python does not name its executable (sys.executable)")
+    })?;
+    Ok((PathBuf::from(exe), vec!["-m".into(), "coid_sim".into()]))
+}
+
 /// `TypeName: message` of a Python exception, on one line.
 fn describe(py: Python<'_>, err: &PyErr) -> String {
     let kind = err
@@ -105,18 +172,23 @@ fn describe(py: Python<'_>, err: &PyErr) -> String {
     }
 }
 
-/// Prepares the process, while it has one thread: the embedded
+/// Prepares a process that coid runs as its main program (the binary,
+/// `python -m coid_sim`), while it has one thread: the signals
+/// ([`crate::interrupt::watch`]); and for the binary, the embedded
 /// interpreter's home (`PYTHONHOME`, unless the user set it) is the
 /// Python the binary was linked against, so that its standard library is
 /// never taken from another Python on `PATH` (a system `python3` of the
 /// same version has extension modules built in that this libpython looks
-/// for as files); and the signals ([`crate::interrupt::watch`]).
+/// for as files).
 pub fn prepare_process() {
-    let home = Path::new(paths::BUILD_PYTHON_HOME);
-    if std::env::var_os("PYTHONHOME").is_none() && home.join("lib").is_dir() {
-        // SAFETY: called first thing in `cli::execute`, before any thread
-        // is started.
-        unsafe { std::env::set_var("PYTHONHOME", home) };
+    #[cfg(feature = "embed")]
+    {
+        let home = Path::new(paths::BUILD_PYTHON_HOME);
+        if std::env::var_os("PYTHONHOME").is_none() && home.join("lib").is_dir() {
+            // SAFETY: called first thing in `main`, before any thread is
+            // started.
+            unsafe { std::env::set_var("PYTHONHOME", home) };
+        }
     }
     crate::interrupt::watch();
 }
@@ -125,8 +197,10 @@ pub fn prepare_process() {
 const REQUIREMENTS: &str = include_str!("../bridge/requirements.txt");
 /// Inside the environment: the requirements it was made with, written
 /// last (the same stamp `bridge/setup.sh` writes).
+#[cfg(feature = "embed")]
 const STAMP: &str = ".coid-requirements";
 
+#[cfg(feature = "embed")]
 /// SUMO's Python environment, made on first use when it is missing or
 /// incomplete: `python -m venv` with the interpreter the binary was
 /// linked against (`COID_PYTHON` overrides it), then pip with the pinned
@@ -187,11 +261,13 @@ pub fn environment() -> Result<PathBuf, BridgeError> {
     Ok(venv)
 }
 
+#[cfg(feature = "embed")]
 fn is_complete(venv: &Path) -> bool {
     venv.join("bin").join("python").is_file()
         && std::fs::read_to_string(venv.join(STAMP)).is_ok_and(|s| s == REQUIREMENTS)
 }
 
+#[cfg(feature = "embed")]
 /// Runs `program args path` for the environment's set-up; its output is
 /// kept for the error.
 fn run_setup(program: &Path, args: &[&str], path: &Path) -> Result<(), BridgeError> {
@@ -213,6 +289,7 @@ fn run_setup(program: &Path, args: &[&str], path: &Path) -> Result<(), BridgeErr
     )))
 }
 
+#[cfg(feature = "embed")]
 /// The environment's Python must be the one the binary links against.
 fn check_version(python: &Path) -> Result<(), BridgeError> {
     if paths::BUILD_PYTHON_VERSION.is_empty() {
@@ -233,6 +310,7 @@ fn check_version(python: &Path) -> Result<(), BridgeError> {
     )))
 }
 
+#[cfg(feature = "embed")]
 fn site_packages(venv: &Path) -> Option<PathBuf> {
     let lib = venv.join("lib");
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(&lib)
@@ -248,6 +326,7 @@ fn site_packages(venv: &Path) -> Option<PathBuf> {
 /// Makes the embedded interpreter see the project's environment: its
 /// site-packages, its python as `sys.executable`, and `SUMO_HOME` (in
 /// Python's and the process environment). Idempotent.
+#[cfg(feature = "embed")]
 fn prepare_python(py: Python<'_>) -> Result<Bound<'_, PyModule>, BridgeError> {
     let venv = environment()?;
     let site = site_packages(&venv).ok_or_else(|| BridgeError::NoEnvironment(venv.clone()))?;
@@ -263,6 +342,25 @@ fn prepare_python(py: Python<'_>) -> Result<Bound<'_, PyModule>, BridgeError> {
     let setup = CString::new(setup).map_err(|e| BridgeError::Setup(e.to_string()))?;
     py.run(&setup, None, None)
         .map_err(|e| BridgeError::Setup(describe(py, &e)))?;
+    load_shim(py)
+}
+
+/// Makes `SUMO_HOME` the eclipse-sumo package's of the interpreter that
+/// loaded coid (unless the user set it). Idempotent.
+#[cfg(not(feature = "embed"))]
+fn prepare_python(py: Python<'_>) -> Result<Bound<'_, PyModule>, BridgeError> {
+    py.run(
+        c"import os, sumo, libsumo\nos.environ.setdefault('SUMO_HOME', sumo.SUMO_HOME)\n",
+        None,
+        None,
+    )
+    .map_err(|e| BridgeError::Setup(no_sumo(&describe(py, &e))))?;
+    load_shim(py)
+}
+
+/// The shim (`bridge/coid_bridge.py`) as a module; the signal handlers of
+/// a coid main process again, in case an imported module took them.
+fn load_shim(py: Python<'_>) -> Result<Bound<'_, PyModule>, BridgeError> {
     let code = CString::new(SHIM).map_err(|e| BridgeError::Setup(e.to_string()))?;
     let shim = PyModule::from_code(py, &code, c"coid_bridge.py", c"coid_bridge")
         .map_err(|e| BridgeError::Setup(describe(py, &e)))?;

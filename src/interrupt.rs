@@ -18,6 +18,12 @@ use std::sync::Mutex;
 /// Temporary paths to remove if the process is interrupted.
 static TEMPORARY: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
 
+/// Set by [`watch`]: coid is the process's main program and owns its
+/// signals. Inside someone else's Python (the package's API) it is not
+/// set, and the interpreter keeps its own handlers (Ctrl-C raises
+/// `KeyboardInterrupt` when the call returns).
+static OWNS_SIGNALS: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 /// Blocks SIGINT, SIGTERM and SIGHUP in this thread (and so in every
 /// thread started after it) and starts the thread that takes them: it
 /// removes the registered paths, then ends the process with 128 + the
@@ -25,6 +31,7 @@ static TEMPORARY: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
 /// thread not start, the signals end the process as before (without the
 /// removal).
 pub fn watch() {
+    OWNS_SIGNALS.store(true, std::sync::atomic::Ordering::SeqCst);
     // SAFETY: plain signal-set manipulation on a local set.
     let set = unsafe {
         let mut set: libc::sigset_t = std::mem::zeroed();
@@ -62,8 +69,12 @@ pub fn watch() {
 /// reaches a thread that does not block it (the watcher could not start,
 /// or foreign code changed a thread's mask): no removal then, but never a
 /// Python KeyboardInterrupt inside SUMO. Installed again after Python
-/// starts, in case an imported module took the signals.
+/// starts, in case an imported module took the signals. Nothing when
+/// coid does not own the process's signals ([`watch`] was not called).
 pub fn install_handlers() {
+    if !OWNS_SIGNALS.load(std::sync::atomic::Ordering::SeqCst) {
+        return;
+    }
     extern "C" fn on_signal(signal: libc::c_int) {
         // SAFETY: _exit is async-signal-safe.
         unsafe { libc::_exit(128 + signal) }

@@ -26,7 +26,7 @@ mod batch;
 mod bridge;
 pub mod cli;
 pub mod config;
-mod dataset;
+pub mod dataset;
 pub mod evaluate;
 mod experiments;
 mod export;

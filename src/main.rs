@@ -23,21 +23,12 @@ fn main() -> ExitCode {
     // time. Peak memory is unchanged; outputs are too.
     // SAFETY: sets a process-wide allocator option before any thread runs.
     unsafe { libmimalloc_sys::mi_option_set(PURGE_DELAY, -1) };
+    coid_sim::cli::prepare_main_process();
     let cli = coid_sim::cli::Cli::parse();
     match coid_sim::cli::execute(cli) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(_) => ExitCode::SUCCESS,
         Err(e) => {
-            // A cause that an outer message already quotes is not repeated.
-            let mut line = String::new();
-            for cause in e.chain().map(|c| c.to_string()) {
-                if !line.contains(&cause) {
-                    if !line.is_empty() {
-                        line.push_str(": ");
-                    }
-                    line.push_str(&cause);
-                }
-            }
-            eprintln!("error: {line}");
+            eprintln!("error: {}", coid_sim::cli::one_line(&e));
             ExitCode::FAILURE
         }
     }

@@ -19,11 +19,14 @@ pub const ASSETS_ID: &str = env!("COID_ASSETS_ID");
 
 /// The interpreter the binary was linked against, and its `major.minor`:
 /// SUMO's environment is made from it (set by `build.rs`).
+#[cfg(feature = "embed")]
 pub const BUILD_PYTHON: &str = env!("COID_BUILD_PYTHON");
+#[cfg(feature = "embed")]
 pub const BUILD_PYTHON_VERSION: &str = env!("COID_BUILD_PYTHON_VERSION");
 /// Its `sys.base_prefix`: where the linked libpython's standard library
 /// lives (the embedded interpreter is told, so that it never takes
 /// another Python's library found on `PATH`).
+#[cfg(feature = "embed")]
 pub const BUILD_PYTHON_HOME: &str = env!("COID_BUILD_PYTHON_HOME");
 
 /// Why no data folder could be named.
@@ -56,6 +59,7 @@ pub fn install_dir() -> Result<PathBuf, NoDataFolder> {
 }
 
 /// SUMO's Python environment: `$COID_VENV`, else `<data>/venv`.
+#[cfg(feature = "embed")]
 pub fn venv_dir() -> Result<PathBuf, NoDataFolder> {
     match std::env::var_os("COID_VENV").filter(|v| !v.is_empty()) {
         Some(v) => Ok(PathBuf::from(v)),

@@ -374,12 +374,12 @@ fn child_args(source: TrainSource, models_dir: &Path, group: &ChildGroup) -> Vec
     args
 }
 
-/// Trains `groups` in child `coid train` processes of `exe` (`workers`
+/// Trains `groups` in child `coid train` processes of `program` (`workers`
 /// at a time) from `config` into `models_dir`: `on_line(group, line)`
 /// receives each line a child prints, `on_end(group)` is called as each
 /// ends. The first group that failed is the error.
 pub fn train_in_children(
-    exe: &Path,
+    program: &batch::Program,
     (source, models_dir): (TrainSource, &Path),
     groups: &[ChildGroup],
     workers: usize,
@@ -390,7 +390,7 @@ pub fn train_in_children(
         .iter()
         .map(|g| child_args(source, models_dir, g))
         .collect();
-    let failures = batch::run_children(exe, &jobs, workers, on_line, |child, ok| {
+    let failures = batch::run_children(program, &jobs, workers, on_line, |child, ok| {
         on_end(child);
         ok
     })

@@ -593,15 +593,15 @@ fn matchers_cannot_reach_the_ground_truth() {
     );
 }
 
-/// `lib.rs` makes public exactly the modules the binary, the tests and the
-/// benches name (`coid_sim::x`); every other module is private to the
+/// `lib.rs` makes public exactly the modules the binary, the tests, the
+/// benches and the Python extension name (`coid_sim::x`); every other module is private to the
 /// crate, so the compiler keeps outsiders out of it.
 #[test]
 fn the_library_exports_only_what_its_users_name() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut named = std::collections::BTreeSet::new();
     let mut files = vec![root.join("src/main.rs")];
-    for dir in ["tests", "benches"] {
+    for dir in ["tests", "benches", "python/src"] {
         let mut stack = vec![root.join(dir)];
         while let Some(d) = stack.pop() {
             for e in std::fs::read_dir(&d).unwrap().flatten() {
@@ -633,7 +633,7 @@ fn the_library_exports_only_what_its_users_name() {
         .collect();
     assert_eq!(
         public, named,
-        "lib.rs's `pub mod`s against what main, tests and benches name"
+        "lib.rs's `pub mod`s against what main, tests, benches and the Python extension name"
     );
 }
 

@@ -107,11 +107,11 @@ pub fn batch(a: Args) -> anyhow::Result<()> {
         "{spinner} runs {pos}/{len} [{bar:30}] {per_sec} eta {eta} {msg}",
     );
     pb.set_position((mine - pending.len()) as u64);
-    let exe = std::env::current_exe().context("cannot find the coid executable")?;
+    let program = crate::batch::Program::this().context("cannot find the coid executable")?;
     let started = std::time::Instant::now();
     let mut failed_count = 0;
     let parallel = batch::Parallel { workers, threads };
-    let failures = batch::execute(&exe, &out, &record, &pending, parallel, |_, ok| {
+    let failures = batch::execute(&program, &out, &record, &pending, parallel, |_, ok| {
         pb.inc(1);
         if !ok {
             failed_count += 1;

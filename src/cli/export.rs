@@ -28,12 +28,22 @@ pub struct ExportArgs {
     /// matches-<method>.parquet (a file `coid score` reads).
     #[arg(long, num_args = 1.., value_parser = label_arg::<Method>("method"))]
     with_matches: Vec<Method>,
+    /// Instead of simulating the configuration's runs, the runs of this
+    /// dataset (any dataset folder, `coid convert`'s too), written again
+    /// with the built-in methods' matches on them (--with-matches; the
+    /// config gives their settings). Results go to
+    /// results/<dataset folder>-export by default.
+    #[arg(long, value_name = "DIR")]
+    dataset: Option<PathBuf>,
 }
 
-pub fn export(a: ExportArgs) -> anyhow::Result<()> {
+/// Writes the export; returns the line it printed last.
+pub fn export(a: ExportArgs) -> anyhow::Result<String> {
     super::no_repeats("--splits", &a.splits)?;
     super::no_repeats("--with-matches", &a.with_matches)?;
-    let (settings, claim) = a.common.prepare("-export", io::ResultKind::Export)?;
+    let (settings, claim) =
+        a.common
+            .prepare_dataset("-export", io::ResultKind::Export, a.dataset.as_deref())?;
     let out = claim.out().to_owned();
     let splits = if a.splits.is_empty() {
         vec![Split::Train, Split::Validation, Split::Test]
@@ -81,7 +91,7 @@ pub fn export(a: ExportArgs) -> anyhow::Result<()> {
     folder.write(export::RUNS_FILE, &export::run_table(&counts, &digest))?;
     folder.finish(&[("schema.md", export::SCHEMA.to_owned())])?;
     let instances: usize = counts.iter().map(|c| c.1).sum();
-    eprintln!(
+    let line = format!(
         "coid: exported {} ({}) of {}; wrote {}",
         crate::label::counted(runs.len() as u64, "run"),
         crate::label::counted(instances as u64, "instance"),
@@ -92,7 +102,8 @@ pub fn export(a: ExportArgs) -> anyhow::Result<()> {
             .join(", "),
         out.display()
     );
-    Ok(())
+    eprintln!("{line}");
+    Ok(line)
 }
 
 #[derive(clap::Args)]
@@ -308,7 +319,8 @@ fn note_other_splits(path: &std::path::Path, other_splits: usize, rows: usize, s
     }
 }
 
-pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
+/// Scores the matches; returns the line it printed last.
+pub fn score(a: ScoreArgs) -> anyhow::Result<String> {
     let (settings, claim) =
         a.common
             .prepare_dataset("-score", io::ResultKind::Eval, a.dataset.as_deref())?;
@@ -379,7 +391,7 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
     warn_unnamed(path, &unnamed);
     note_other_splits(path, other_splits, rows.len(), a.split);
     let instances: usize = evals.iter().map(|r| r.instances).sum();
-    eprintln!(
+    let line = format!(
         "coid: scored {} with {} on {} ({}); wrote {}",
         path.display(),
         crate::label::counted(methods.len() as u64, "built-in method"),
@@ -387,5 +399,6 @@ pub fn score(a: ScoreArgs) -> anyhow::Result<()> {
         crate::label::counted(instances as u64, "instance"),
         out.display()
     );
-    Ok(())
+    eprintln!("{line}");
+    Ok(line)
 }

@@ -151,9 +151,17 @@ enum Command {
     },
 }
 
-/// Runs the parsed command.
-pub fn execute(cli: Cli) -> anyhow::Result<()> {
+/// Prepares a process that runs coid as its main program (the binary,
+/// `python -m coid_sim`), first thing, while it has one thread: its
+/// signals, and the embedded interpreter's home.
+pub fn prepare_main_process() {
     crate::bridge::prepare_process();
+}
+
+/// Runs the parsed command; returns the line it printed last on stderr
+/// for `run` (instances, speed and the headline methods), `export` and
+/// `score` (ending with the folder written).
+pub fn execute(cli: Cli) -> anyhow::Result<Option<String>> {
     report_panics_in_one_line();
     // The default scenario and the shipped weights, where the defaults
     // point (written out once per build).
@@ -161,14 +169,14 @@ pub fn execute(cli: Cli) -> anyhow::Result<()> {
         crate::io::assets::install()?;
     }
     match cli.command {
-        Command::Run(a) => run::run(a),
+        Command::Run(a) => return run::run(a).map(Some),
         Command::Batch(a) => batch::batch(a),
         Command::Merge(a) => batch::merge(a),
         Command::BatchRun(a) => batch::run_one(a),
         Command::Render(a) => render::render(a),
         Command::Eval(a) => eval::eval(a),
-        Command::Export(a) => export::export(a),
-        Command::Score(a) => export::score(a),
+        Command::Export(a) => return export::export(a).map(Some),
+        Command::Score(a) => return export::score(a).map(Some),
         Command::Convert(a) => dataset::convert(a),
         Command::Dataset(a) => dataset::dataset(a),
         Command::Track(a) => track::track(a),
@@ -182,6 +190,33 @@ pub fn execute(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
     }
+    .map(|()| None)
+}
+
+/// `argv` (the program's name first) parsed as the `coid` binary parses
+/// its command line; clap's error (usage, help and version too) if not.
+pub fn try_parse<I, T>(argv: I) -> Result<Cli, clap::Error>
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    use clap::Parser;
+    Cli::try_parse_from(argv)
+}
+
+/// An error as the one line `coid` prints: the cause chain joined by
+/// ": ", a cause that an outer message already quotes left out.
+pub fn one_line(e: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in e.chain().map(|c| c.to_string()) {
+        if !line.contains(&cause) {
+            if !line.is_empty() {
+                line.push_str(": ");
+            }
+            line.push_str(&cause);
+        }
+    }
+    line
 }
 
 /// A panic (a bug in coid) is reported as one line, like any other

@@ -23,7 +23,8 @@ pub struct Args {
     sensor_seed: Option<u64>,
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+/// Runs the scenario; returns the line it printed last.
+pub fn run(a: Args) -> anyhow::Result<String> {
     let overrides = crate::config::Overrides {
         traffic_seed: a.traffic_seed,
         sensor_seed: a.sensor_seed,
@@ -47,8 +48,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if results.n_instances == 0 {
         eprintln!("coid: warning: no instance: {}", why_no_instance(&settings));
     }
-    eprintln!("{}; wrote {}", one_line(&results), out.display());
-    Ok(())
+    let line = format!("{}; wrote {}", one_line(&results), out.display());
+    eprintln!("{line}");
+    Ok(line)
 }
 
 /// The run in one line: instances, speed, and the headline methods at GPS

@@ -371,12 +371,12 @@ fn train_in_children(
     methods: &[Method],
     workers: usize,
 ) -> anyhow::Result<()> {
-    let exe = std::env::current_exe().context("cannot locate the coid executable")?;
+    let program = crate::batch::Program::this().context("cannot locate the coid executable")?;
     let groups = training::child_groups(methods, &a.seed, workers);
     let bars = ChildBars::new(groups.len(), a.quiet.quiet);
     let config = a.config.path();
     training::train_in_children(
-        &exe,
+        &program,
         (source(a, &config, without), models_dir),
         &groups,
         workers,

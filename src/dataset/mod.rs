@@ -5,9 +5,9 @@
 //! checks a folder and reads it back as plain values, refusing one that
 //! does not fit with one line naming the file, row and column.
 
-pub mod convert;
+pub(crate) mod convert;
 pub mod read;
-pub mod schema;
+pub(crate) mod schema;
 
 pub use read::Dataset;
 

@@ -3,7 +3,7 @@
 
 use crate::util::*;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 /// A fixture with a short config: the fast methods, two test runs.
 fn small() -> (Fixture, PathBuf) {
@@ -121,47 +121,6 @@ fn exported_matches_reproduce_the_built_in_rows() {
         rows(&fx, "s1", "table1b.csv", "external"),
         rows(&fx, "s1", "table1b.csv", "gps-app-hungarian")
     );
-}
-
-/// The Python example (polars and numpy, through the project's
-/// environment) reads the export, writes matches, and prints the
-/// precision, recall and F1 its rule implies; `coid score` finds the
-/// same numbers for it.
-#[test]
-fn the_python_example_scores_what_its_rule_implies() {
-    let (fx, config) = small();
-    export(&fx, &config);
-    let out = Command::new(venv().join("bin/python"))
-        .arg(repo().join("examples/nearest_match.py"))
-        .arg(fx.path("ex"))
-        .arg("--out")
-        .arg(fx.path("nm.parquet"))
-        .env_remove("PYTHONHOME")
-        .output()
-        .expect("run python");
-    assert_ok(&out);
-    let printed = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert_ok(&score(&fx, &config, "nm.parquet", "s"));
-    let table = read_csv(&fx.path("s/table1b.csv"));
-    let (methods, levels) = (strs(&table, "method"), strs(&table, "pose_noise"));
-    let mut checked = 0;
-    for line in printed.lines().filter(|l| l.contains(" f1 ")) {
-        let words: Vec<&str> = line.split_whitespace().collect();
-        let level = words[0].trim_end_matches(':');
-        let k = (0..table.height())
-            .find(|&k| methods[k] == "external" && levels[k] == level)
-            .unwrap_or_else(|| panic!("no external row at {level}"));
-        for (name, at) in [("precision", 2), ("recall", 4), ("f1", 6)] {
-            let python: f64 = words[at].parse().unwrap();
-            let coid = f64s(&table, name)[k];
-            assert!(
-                (python - coid).abs() < 1e-6,
-                "{name} at {level}: {python} vs {coid}"
-            );
-        }
-        checked += 1;
-    }
-    assert_eq!(checked, 3, "{printed}");
 }
 
 /// A matches file that does not fit the exported instances is refused

@@ -1,0 +1,254 @@
+//! `coid_sim._coid_sim`: coid inside the Python that imports it. The
+//! commands run in-process exactly as the `coid` binary runs them (same
+//! code, same files, same numbers); datasets are read by coid's own
+//! reader and handed over as plain Python values (lists, dicts, floats),
+//! which the package (`src_py/coid_sim`) turns into numpy arrays and
+//! polars frames. Every failure is a `CoidError` carrying the line `coid`
+//! prints; long work runs with the GIL released (SUMO's thread takes it
+//! when it needs it).
+
+use std::path::PathBuf;
+
+use coid_sim::dataset::Dataset;
+use coid_sim::dataset::read::{DatasetInstance, DatasetNode, DatasetRun, DatasetSide};
+use coid_sim::geometry::Vec2;
+use coid_sim::graph::SceneGraph;
+use pyo3::create_exception;
+use pyo3::exceptions::PyException;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+create_exception!(
+    coid_sim,
+    CoidError,
+    PyException,
+    "coid refused its input or failed; the message is the line the `coid` command prints."
+);
+
+fn coid_error(e: &anyhow::Error) -> PyErr {
+    CoidError::new_err(coid_sim::cli::one_line(e))
+}
+
+/// `coid` as a program (`python -m coid_sim`, the `coid` script, a
+/// batch's workers): `argv` with the program's name first; prints what
+/// the binary prints and returns its exit code. Takes the process's
+/// signals as the binary does: call it only as the main program.
+#[pyfunction]
+fn main(py: Python<'_>, argv: Vec<String>) -> i32 {
+    coid_sim::cli::prepare_main_process();
+    let cli = match coid_sim::cli::try_parse(argv) {
+        Ok(cli) => cli,
+        Err(e) => {
+            let _ = e.print();
+            return e.exit_code();
+        }
+    };
+    match py.detach(|| coid_sim::cli::execute(cli)) {
+        Ok(_) => 0,
+        Err(e) => {
+            eprintln!("error: {}", coid_sim::cli::one_line(&e));
+            1
+        }
+    }
+}
+
+/// Runs one `coid` command line in this process (`argv` with the
+/// program's name first), leaving the interpreter's signals alone.
+/// Returns the command's last line (`run`'s headline), if it has one.
+#[pyfunction]
+fn call(py: Python<'_>, argv: Vec<String>) -> PyResult<Option<String>> {
+    let cli = coid_sim::cli::try_parse(argv).map_err(|e| {
+        let text = e.to_string();
+        let line = text.lines().next().unwrap_or("invalid arguments");
+        CoidError::new_err(line.trim_start_matches("error: ").to_owned())
+    })?;
+    py.detach(|| coid_sim::cli::execute(cli))
+        .map_err(|e| coid_error(&e))
+}
+
+/// A JSON object (a configuration given as a dict) as TOML text.
+#[pyfunction]
+fn toml_of_json(json: &str) -> PyResult<String> {
+    let value: toml::Value = serde_json::from_str(json)
+        .map_err(|e| CoidError::new_err(format!("the configuration is not TOML-shaped: {e}")))?;
+    toml::to_string(&value)
+        .map_err(|e| CoidError::new_err(format!("the configuration is not TOML-shaped: {e}")))
+}
+
+/// The Delaunay graph coid's matchers build over these positions (metres,
+/// one vehicle's body frame): each undirected edge once, `a < b`.
+#[pyfunction]
+fn delaunay(positions_m: Vec<[f64; 2]>) -> PyResult<Vec<(usize, usize)>> {
+    let points: Vec<Vec2> = positions_m.iter().map(|p| Vec2::new(p[0], p[1])).collect();
+    let graph = SceneGraph::delaunay(&points).map_err(|e| CoidError::new_err(e.to_string()))?;
+    Ok(graph.edges.iter().map(|e| (e.a, e.b)).collect())
+}
+
+/// A dataset folder, checked and opened by coid's reader.
+#[pyclass(frozen)]
+struct DatasetReader {
+    dataset: Dataset,
+}
+
+#[pymethods]
+impl DatasetReader {
+    #[new]
+    fn new(py: Python<'_>, dir: PathBuf) -> PyResult<Self> {
+        let dataset = py.detach(|| Dataset::open(&dir)).map_err(|e| {
+            CoidError::new_err(format!("{} is not a usable dataset: {e}", dir.display()))
+        })?;
+        Ok(DatasetReader { dataset })
+    }
+
+    /// Runs, levels, appearance width and optional columns.
+    fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = &self.dataset;
+        let out = PyDict::new(py);
+        let runs = PyList::empty(py);
+        for r in &d.runs {
+            let run = PyDict::new(py);
+            run.set_item("run", r.run)?;
+            run.set_item("split", &r.split)?;
+            run.set_item("scenario", &r.scenario)?;
+            run.set_item("seed", r.seed)?;
+            run.set_item("n_instances", r.n_instances)?;
+            runs.append(run)?;
+        }
+        out.set_item("runs", runs)?;
+        let levels: Vec<(String, f64)> = d
+            .levels
+            .iter()
+            .map(|l| (l.label.as_str().to_owned(), l.position_sigma_m))
+            .collect();
+        out.set_item("levels", levels)?;
+        out.set_item("appearance_width", d.appearance_width)?;
+        out.set_item("optional_columns", d.optional_columns.clone())?;
+        Ok(out)
+    }
+
+    /// The `k`-th run (in `runs.parquet`'s order), every instance as
+    /// plain values.
+    fn run<'py>(&self, py: Python<'py>, k: usize) -> PyResult<Bound<'py, PyList>> {
+        if k >= self.dataset.runs.len() {
+            return Err(CoidError::new_err(format!(
+                "{} has {} runs, not {}",
+                self.dataset.dir.display(),
+                self.dataset.runs.len(),
+                k + 1
+            )));
+        }
+        let run: DatasetRun = py.detach(|| self.dataset.run(k)).map_err(|e| {
+            CoidError::new_err(format!(
+                "{} is not a usable dataset: {e}",
+                self.dataset.dir.display()
+            ))
+        })?;
+        let out = PyList::empty(py);
+        for inst in &run.instances {
+            out.append(instance(py, inst)?)?;
+        }
+        Ok(out)
+    }
+}
+
+fn instance<'py>(py: Python<'py>, inst: &DatasetInstance) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("instance", inst.instance)?;
+    d.set_item("step", inst.step)?;
+    d.set_item("time_s", inst.time_s)?;
+    let levels = PyList::empty(py);
+    for l in &inst.levels {
+        let level = PyDict::new(py);
+        level.set_item("label", l.label.as_str())?;
+        level.set_item("position_sigma_m", l.position_sigma_m)?;
+        level.set_item("heading_sigma_rad", l.heading_sigma_rad.to_vec())?;
+        let poses: Vec<[f64; 3]> = l.reported.iter().map(pose).collect();
+        level.set_item("reported", poses)?;
+        levels.append(level)?;
+    }
+    d.set_item("levels", levels)?;
+    let true_poses: Vec<Option<[f64; 3]>> = inst
+        .true_poses
+        .iter()
+        .map(|p| p.as_ref().map(pose))
+        .collect();
+    d.set_item("true_poses", true_poses)?;
+    let sides = PyList::empty(py);
+    for s in &inst.sides {
+        sides.append(side(py, s)?)?;
+    }
+    d.set_item("sides", sides)?;
+    d.set_item("true_pairs", inst.true_pairs.clone())?;
+    Ok(d)
+}
+
+fn pose(p: &coid_sim::geometry::Pose2) -> [f64; 3] {
+    let t = p.position_m();
+    [t.x, t.y, p.heading_rad()]
+}
+
+/// One vehicle's nodes, column by column: a column no node has is
+/// `None`; in one that some nodes lack (a false positive's true centre),
+/// theirs is NaN.
+fn side<'py>(py: Python<'py>, s: &DatasetSide) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let n = &s.nodes;
+    d.set_item("id", &s.id)?;
+    let col =
+        |width: usize, f: &dyn Fn(&DatasetNode) -> Option<Vec<f64>>| -> Option<Vec<Vec<f64>>> {
+            let values: Vec<Option<Vec<f64>>> = n.iter().map(f).collect();
+            if values.iter().all(Option::is_none) && !values.is_empty() {
+                return None;
+            }
+            Some(
+                values
+                    .into_iter()
+                    .map(|v| v.unwrap_or_else(|| vec![f64::NAN; width]))
+                    .collect(),
+            )
+        };
+    let xy: Vec<[f64; 2]> = n.iter().map(|v| [v.position_m.x, v.position_m.y]).collect();
+    d.set_item("xy_m", xy)?;
+    d.set_item(
+        "cov_m2",
+        col(3, &|v| {
+            v.cov_m2.map(|c| vec![c[(0, 0)], c[(0, 1)], c[(1, 1)]])
+        }),
+    )?;
+    let classes: Vec<&str> = n.iter().map(|v| v.class.as_str()).collect();
+    d.set_item("class", classes)?;
+    d.set_item("colour_rgb", col(3, &|v| v.colour_rgb.map(|c| c.to_vec())))?;
+    d.set_item("size_m", col(3, &|v| v.size_m.map(|c| c.to_vec())))?;
+    d.set_item(
+        "heading_speed",
+        col(2, &|v| v.motion.map(|(h, s)| vec![h, s])),
+    )?;
+    let senders: Vec<bool> = n.iter().map(|v| v.sender).collect();
+    d.set_item("sender", senders)?;
+    d.set_item("world_m", col(2, &|v| v.world_m.map(|w| vec![w.x, w.y])))?;
+    let appearance: Option<Vec<Vec<f32>>> = n
+        .iter()
+        .map(|v| v.appearance.as_ref().map(|a| a.to_vec()))
+        .collect();
+    d.set_item("appearance", appearance)?;
+    let ids: Vec<&str> = n.iter().map(|v| v.object_id.as_str()).collect();
+    d.set_item("object_id", ids)?;
+    d.set_item("true_m", col(2, &|v| v.true_m.map(|t| vec![t.x, t.y])))?;
+    d.set_item(
+        "visible_fraction",
+        col(1, &|v| v.visible_fraction.map(|f| vec![f])),
+    )?;
+    Ok(d)
+}
+
+#[pymodule]
+fn _coid_sim(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("CoidError", m.py().get_type::<CoidError>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(main, m)?)?;
+    m.add_function(wrap_pyfunction!(call, m)?)?;
+    m.add_function(wrap_pyfunction!(toml_of_json, m)?)?;
+    m.add_function(wrap_pyfunction!(delaunay, m)?)?;
+    m.add_class::<DatasetReader>()?;
+    Ok(())
+}

@@ -1,0 +1,221 @@
+"""coid-sim from Python: the simulator, datasets, the built-in matchers and
+the scorer of the ``coid`` command, in this interpreter.
+
+    import coid_sim
+    result = coid_sim.run()            # the default scenario, as `coid run`
+    print(result.headline)
+
+Every command runs in-process with the same code, files and numbers as
+the ``coid`` program (``coid_sim.cli("eval", "-c", "my.toml")`` runs any
+of them); results come back as polars (or pandas) frames, datasets as
+numpy arrays, PyTorch Geometric ``PairData`` and pygmtools' inputs.
+Failures raise :class:`CoidError` with the line ``coid`` prints.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import uuid
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator, Mapping, Optional, Sequence, Union
+
+import polars as pl
+
+from . import _coid_sim
+from ._coid_sim import CoidError
+from .dataset import Dataset, Instance, Level, Match, Side
+from .results import Results
+
+__version__: str = _coid_sim.__version__
+
+__all__ = [
+    "CoidError",
+    "Dataset",
+    "Instance",
+    "Level",
+    "Match",
+    "Results",
+    "Side",
+    "cli",
+    "export",
+    "run",
+    "score",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+Config = Union[None, PathLike, Mapping[str, Any]]
+
+
+def cli(*args: Any) -> Optional[str]:
+    """Runs one ``coid`` command line in this process, as the program runs
+    it (``cli("eval", "-c", "configs/families.toml")``): the same output,
+    files and progress bars. Returns the command's last line where it has
+    one (``run``'s headline). Raises :class:`CoidError` with coid's
+    message on bad input or failure."""
+    return _coid_sim.call(["coid", *(os.fspath(a) if isinstance(a, os.PathLike) else str(a) for a in args)])
+
+
+@contextmanager
+def _config_file(config: Config, name: str) -> Iterator[Optional[str]]:
+    """A configuration as a file path: a path as it is; a dict written as
+    TOML to a hidden file in the current folder (so that relative paths
+    in it mean what they mean here), removed afterwards."""
+    if config is None:
+        yield None
+        return
+    if isinstance(config, Mapping):
+        text = _coid_sim.toml_of_json(json.dumps(config))
+        path = Path(f".coid-{name}-{os.getpid()}-{uuid.uuid4().hex[:8]}.toml")
+        path.write_text(text)
+        try:
+            yield str(path)
+        finally:
+            path.unlink(missing_ok=True)
+        return
+    yield os.fspath(config)
+
+
+def _common(config: Optional[str], out: Optional[PathLike], force: bool, quiet: bool, threads: Optional[int]) -> list:
+    args: list = []
+    if config is not None:
+        args += ["--config", config]
+    if out is not None:
+        args += ["--out", os.fspath(out)]
+    if force:
+        args.append("--force")
+    if quiet:
+        args.append("--quiet")
+    if threads is not None:
+        args += ["--threads", str(threads)]
+    return args
+
+
+def _default_out(config: Config, name: str, suffix: str) -> Optional[str]:
+    """`coid`'s default results folder for a dict configuration (a file's
+    is coid's own: results/<file stem><suffix>)."""
+    return f"results/{name}{suffix}" if isinstance(config, Mapping) else None
+
+
+def run(
+    config: Config = None,
+    *,
+    out: Optional[PathLike] = None,
+    force: bool = False,
+    traffic_seed: Optional[int] = None,
+    sensor_seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    quiet: bool = False,
+    name: str = "config",
+) -> Results:
+    """Runs one scenario headless, as ``coid run`` does, and returns its
+    results folder.
+
+    config: a TOML file, or a dict of the same tables (only what differs
+        from the defaults); None runs the default intersection.
+    out: the results folder [default: results/<config file stem>, or
+        results/<name> for a dict].
+    force: replace a results folder that is there.
+    traffic_seed, sensor_seed: override ``[seeds]``.
+    threads: worker threads [default: every core].
+    quiet: no progress bar.
+    """
+    with _config_file(config, name) as path:
+        args = ["run", *_common(path, out if out is not None else _default_out(config, name, ""), force, quiet, threads)]
+        if traffic_seed is not None:
+            args += ["--traffic-seed", str(traffic_seed)]
+        if sensor_seed is not None:
+            args += ["--sensor-seed", str(sensor_seed)]
+        headline = cli(*args)
+    assert headline is not None
+    written = headline.rsplit("; wrote ", 1)[-1]
+    return Results(Path(written), headline)
+
+
+def export(
+    config: Config = None,
+    *,
+    out: Optional[PathLike] = None,
+    splits: Sequence[str] = (),
+    with_matches: Sequence[str] = (),
+    dataset: Optional[PathLike] = None,
+    force: bool = False,
+    threads: Optional[int] = None,
+    quiet: bool = False,
+    name: str = "config",
+) -> Dataset:
+    """Writes every instance of a configuration as a dataset, as ``coid
+    export`` does, and opens it.
+
+    splits: any of "train", "validation", "test" [default: all three].
+    with_matches: built-in methods whose matches are written beside
+        (``matches-<method>.parquet``), e.g. ["ours", "gps-app-hungarian"].
+    dataset: instead of simulating, the runs of this dataset (any dataset
+        folder, one converted from elsewhere too): the built-in methods'
+        matches on it.
+    """
+    with _config_file(config, name) as path:
+        suffix = "-export"
+        default = _default_out(config, name, suffix) if dataset is None else None
+        args = ["export", *_common(path, out if out is not None else default, force, quiet, threads)]
+        if splits:
+            args += ["--splits", *splits]
+        if with_matches:
+            args += ["--with-matches", *with_matches]
+        if dataset is not None:
+            args += ["--dataset", os.fspath(dataset)]
+        line = cli(*args)
+    folder = out if out is not None else _last_folder(line)
+    return Dataset(folder, config=config)
+
+
+def _last_folder(line: Optional[str]) -> str:
+    if not line or "; wrote " not in line:
+        raise CoidError("coid did not say which folder it wrote")
+    return line.rsplit("; wrote ", 1)[-1]
+
+
+def score(
+    matches: Union[pl.DataFrame, "Any", PathLike],
+    *,
+    dataset: Optional[Union[Dataset, PathLike]] = None,
+    export: Optional[PathLike] = None,
+    config: Config = None,
+    split: str = "test",
+    out: Optional[PathLike] = None,
+    force: bool = False,
+    threads: Optional[int] = None,
+    quiet: bool = False,
+    name: str = "config",
+) -> Results:
+    """Scores matches made elsewhere beside the built-in methods, as
+    ``coid score`` does: the same tables.
+
+    matches: a polars (or pandas) frame, or a Parquet/CSV file, with
+        columns run, instance, a, b and optionally pose_noise, probability,
+        uncertainty (docs/export-schema.md).
+    dataset: the dataset they were made from (a :class:`Dataset` or its
+        folder): its runs are scored as they are.
+    export: instead, the ``coid export`` folder of this configuration.
+    split: "test", or "validation" to choose a threshold there first.
+    """
+    if isinstance(dataset, Dataset):
+        if config is None:
+            config = dataset.config
+        dataset = dataset.path
+    with tempfile.TemporaryDirectory(prefix="coid-score-") as tmp, _config_file(config, name) as path:
+        if isinstance(matches, (str, os.PathLike)):
+            file = os.fspath(matches)
+        else:
+            frame = matches if isinstance(matches, pl.DataFrame) else pl.from_pandas(matches)
+            file = os.path.join(tmp, "matches.parquet")
+            frame.write_parquet(file)
+        args = ["score", *_common(path, out, force, quiet, threads), "--matches", file, "--split", split]
+        if dataset is not None:
+            args += ["--dataset", os.fspath(dataset)]
+        if export is not None:
+            args += ["--export", os.fspath(export)]
+        line = cli(*args)
+    return Results(Path(_last_folder(line)), line)

@@ -1,0 +1,36 @@
+"""coid's Rust core (the extension module); the package wraps it."""
+
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+__version__: str
+
+class CoidError(Exception):
+    """coid refused its input or failed; the message is the line the
+    ``coid`` command prints."""
+
+def main(argv: List[str]) -> int:
+    """``coid`` as the process's main program (``python -m coid_sim``):
+    prints what the binary prints, returns its exit code, takes the
+    process's signals."""
+
+def call(argv: List[str]) -> Optional[str]:
+    """One ``coid`` command line in this process (program name first);
+    the command's last line (``run``, ``export``, ``score``) or None.
+    Raises CoidError."""
+
+def toml_of_json(json: str) -> str:
+    """A JSON object as TOML text. Raises CoidError."""
+
+def delaunay(positions_m: Sequence[Sequence[float]]) -> List[Tuple[int, int]]:
+    """coid's Delaunay graph over body-frame positions: each undirected
+    edge once, ``a < b``. Raises CoidError."""
+
+class DatasetReader:
+    """A dataset folder checked and opened by coid's reader."""
+
+    def __init__(self, dir: str) -> None: ...
+    def info(self) -> Dict[str, Any]:
+        """runs (run, split, scenario, seed, n_instances), levels (label,
+        position sigma), appearance_width, optional_columns."""
+    def run(self, k: int) -> List[Dict[str, Any]]:
+        """The k-th run's instances as plain values."""

@@ -1,0 +1,226 @@
+"""The installed wheel: runs, datasets, built-in matchers and the scorer
+from Python, against the ``coid`` program's own outputs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+import coid_sim
+from conftest import SHORT
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _files(folder: Path) -> dict:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _coid_bin() -> str:
+    exe = os.environ.get("COID_BIN")
+    if not exe:
+        pytest.skip("COID_BIN (the coid binary to compare with) is not set")
+    return exe
+
+
+def test_a_run_from_python_writes_the_coid_programs_bytes(in_tmp: Path) -> None:
+    """`coid_sim.run` and the `coid` binary, same configuration and seeds:
+    the same headline numbers and byte-identical files."""
+    config = in_tmp / "short.toml"
+    config.write_text(coid_sim._coid_sim.toml_of_json(__import__("json").dumps(SHORT)))
+    result = coid_sim.run(config, out=in_tmp / "py", quiet=True)
+    assert result.out == in_tmp / "py"
+    done = subprocess.run(
+        [_coid_bin(), "run", "-q", "-c", str(config), "--out", str(in_tmp / "bin")],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "COID_VENV": os.environ.get("COID_VENV", "")},
+    )
+    assert done.returncode == 0, done.stderr
+    said = done.stderr.strip().splitlines()[-1]
+    # The line's numbers but the wall time and speeds (which differ run to run).
+    numbers = lambda line: [p for p in line.split("; ") if "F1" in p]  # noqa: E731
+    assert numbers(result.headline) == numbers(said) and numbers(said)
+    ours, theirs = _files(in_tmp / "py"), _files(in_tmp / "bin")
+    assert sorted(ours) == sorted(theirs)
+    for name in ours:
+        assert ours[name] == theirs[name], name
+
+
+def test_run_returns_frames_and_a_dict_config_names_its_folder(in_tmp: Path) -> None:
+    result = coid_sim.run({**SHORT, "matching": {"methods": ["gps-hungarian", "oracle"]}}, name="short", quiet=True)
+    assert result.out == Path("results/short")
+    assert result.headline.startswith("coid: ") and "oracle @gps/aligned F1 1.000" in result.headline
+    summary = result.frame("summary")
+    assert isinstance(summary, pl.DataFrame)
+    assert set(summary["method"].unique().to_list()) == {"gps-hungarian", "oracle"}
+    assert "summary" in result.frames()
+    # The config file was removed; a second run into the same folder is refused.
+    assert not list(in_tmp.glob(".coid-*.toml"))
+    with pytest.raises(coid_sim.CoidError, match="results/short"):
+        coid_sim.run(SHORT, name="short", quiet=True)
+
+
+def test_bad_input_raises_the_coid_programs_line(in_tmp: Path) -> None:
+    """A bad configuration is a CoidError with the line `coid` prints, and
+    the interpreter goes on."""
+    bad = in_tmp / "bad.toml"
+    bad.write_text("[scenario]\nend_s = -5\n")
+    with pytest.raises(coid_sim.CoidError) as err:
+        coid_sim.run(bad, quiet=True)
+    message = str(err.value)
+    assert "\n" not in message and "end_s" in message
+    done = subprocess.run([sys.executable, "-m", "coid_sim", "run", "-q", "-c", str(bad)], capture_output=True, text=True)
+    assert done.returncode == 1
+    assert done.stderr.strip() == f"error: {message}"
+    with pytest.raises(coid_sim.CoidError, match="is not a usable dataset"):
+        coid_sim.Dataset(in_tmp)
+    with pytest.raises(coid_sim.CoidError, match="unexpected argument"):
+        coid_sim.cli("run", "--no-such-flag")
+
+
+def test_a_dataset_iterates_as_arrays_with_the_truth(short_export: coid_sim.Dataset) -> None:
+    ds = short_export
+    assert ds.runs["split"].to_list() == ["test", "test"]
+    instances = list(ds.instances("test"))
+    assert len(instances) == len(ds) > 0
+    assert [lv[0] for lv in ds.levels] == ["none", "rtk", "gps"]
+    truth = pl.read_parquet(ds.path / "true_pairs.parquet")
+    assert sum(len(i.true_pairs) for i in instances) == truth.height
+    for inst in instances[:20]:
+        n_s, n_t = len(inst.first), len(inst.second)
+        a = inst.arrays("gps")
+        assert a["x_s"].shape == (n_s, 13) and a["x_t"].shape == (n_t, 13)
+        assert a["edge_index_s"].shape[0] == 2 and a["edge_index_s"].max(initial=-1) < n_s
+        assert a["edge_attr_s"].shape == (a["edge_index_s"].shape[1], 2)
+        assert ((a["edge_attr_s"] >= 0) & (a["edge_attr_s"] <= 1)).all()
+        y = a["y"]
+        assert y.shape == (n_s,)
+        for s, t in inst.true_pairs:
+            assert y[s] == t and inst.first.object_id[s] == inst.second.object_id[t] != ""
+        assert (y >= -1).all() and (y < n_t).all()
+        # True partners are one object: one true centre.
+        if len(inst.true_pairs):
+            s_true, t_true = inst.first.true_m[inst.true_pairs[:, 0]], inst.second.true_m[inst.true_pairs[:, 1]]
+            assert np.array_equal(s_true, t_true)
+        g = inst.to_pygmtools("gps")
+        assert g["X_gt"].sum() == len(inst.true_pairs) and g["ne1"] == a["edge_index_s"].shape[1]
+
+
+def test_the_oracle_read_from_y_scores_as_the_oracle(short_export: coid_sim.Dataset) -> None:
+    """Matches made from each instance's `y` (the oracle's) score exactly
+    as coid's oracle in every table `coid score` writes."""
+    rows = []
+    for inst in short_export.instances("test"):
+        for s, t in enumerate(inst.y):
+            if t >= 0:
+                rows.append((inst.run, inst.instance, s, int(t)))
+    matches = pl.DataFrame(rows, schema={"run": pl.UInt64, "instance": pl.UInt64, "a": pl.UInt64, "b": pl.UInt64}, orient="row")
+    scored = coid_sim.score(matches, dataset=short_export, config=SHORT, quiet=True, out=short_export.path.parent / "s-oracle")
+    for name in ["table1b", "errors", "calibration", "consistency", "views"]:
+        frame = scored.frame(name).drop("inputs", strict=False)
+        external = frame.filter(pl.col("method") == "external").drop("method")
+        oracle = frame.filter(pl.col("method") == "oracle").drop("method")
+        assert external.height > 0, name
+        assert external.equals(oracle), name
+
+
+def test_a_built_in_matcher_on_an_instance_is_the_exports(short_export: coid_sim.Dataset) -> None:
+    """`Instance.match` on the dataset gives what the simulation's export
+    wrote for the same method (probabilities and uncertainties too)."""
+    written = pl.read_parquet(short_export.path / "matches-gps-hungarian.parquet")
+    checked = 0
+    for inst in list(short_export.instances("test"))[:30]:
+        for label in ["gps", "none"]:
+            got = inst.match("gps-hungarian", label)
+            want = written.filter((pl.col("run") == inst.run) & (pl.col("instance") == inst.instance) & (pl.col("pose_noise") == label))
+            assert sorted((m.a, m.b) for m in got) == sorted(zip(want["a"].to_list(), want["b"].to_list()))
+            for m in got:
+                assert 0.0 <= m.probability <= 1.0 and 0.0 <= m.uncertainty <= 1.0
+            checked += len(got)
+    assert checked > 0
+    with pytest.raises(coid_sim.CoidError, match="no-such-method"):
+        short_export.matches("no-such-method")
+
+
+def test_to_pyg_gives_dgmc_pair_data(short_export: coid_sim.Dataset) -> None:
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("torch_geometric")
+    from torch_geometric.loader import DataLoader
+
+    pairs = short_export.to_pyg("test")
+    batch = next(iter(DataLoader(pairs[:4], batch_size=4, follow_batch=["x_s", "x_t"])))
+    assert batch.edge_index_s.max() < batch.x_s.size(0)
+    assert batch.y.dtype == torch.long and batch.y.size(0) == batch.x_s.size(0)
+
+
+def test_a_batch_from_python_starts_its_workers_through_the_package(in_tmp: Path) -> None:
+    """`coid batch` inside the package starts `python -m coid_sim` workers
+    (two at once); its aggregate is the binary's, byte for byte."""
+    config = in_tmp / "short.toml"
+    config.write_text(coid_sim._coid_sim.toml_of_json(__import__("json").dumps(SHORT)))
+    coid_sim.cli("batch", "-q", "-c", config, "--runs", "2", "--workers", "2", "--out", in_tmp / "py")
+    done = subprocess.run(
+        [_coid_bin(), "batch", "-q", "-c", str(config), "--runs", "2", "--workers", "2", "--out", str(in_tmp / "bin")],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    summary = (in_tmp / "py" / "summary.csv").read_bytes()
+    assert summary and summary == (in_tmp / "bin" / "summary.csv").read_bytes()
+
+
+def test_python_m_coid_sim_is_the_coid_program(in_tmp: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "coid_sim", "--version"], capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout.startswith("coid")
+
+
+def test_the_nearest_match_example_scores_what_its_rule_implies(short_export: coid_sim.Dataset) -> None:
+    """examples/nearest_match.py, through the package: the precision,
+    recall and F1 it prints for its rule are the ones `coid score` finds."""
+    example = REPO / "examples" / "nearest_match.py"
+    if not example.is_file():
+        pytest.skip("the examples are in the source tree, not in the wheel")
+    out = short_export.path.parent / "nm-score"
+    done = subprocess.run(
+        [sys.executable, str(example), str(short_export.path), "--score-out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    table = pl.read_csv(out / "table1b.csv")
+    checked = 0
+    for line in done.stdout.splitlines():
+        words = line.split()
+        if not words or words[0].rstrip(":") not in ("none", "rtk", "gps") or " f1 " not in line:
+            continue
+        level = words[0].rstrip(":")
+        row = table.filter((pl.col("method") == "external") & (pl.col("pose_noise") == level)).row(0, named=True)
+        for name, at in [("precision", 2), ("recall", 4), ("f1", 6)]:
+            assert abs(float(words[at]) - row[name]) < 1e-6, (name, level)
+        checked += 1
+    assert checked == 3, done.stdout
+
+
+def test_the_pyg_example_trains_on_a_dataset_and_coid_scores_it(tmp_path: Path) -> None:
+    """examples/train_pyg.py on the short configuration's train,
+    validation and test runs (one epoch): coid scores its matches."""
+    pytest.importorskip("torch")
+    pytest.importorskip("torch_geometric")
+    example = REPO / "examples" / "train_pyg.py"
+    ds = coid_sim.export({**SHORT, "train": {"traffic_seeds": [11, 12], "validation_seeds": [13, 14]}}, out=tmp_path / "all", quiet=True)
+    assert set(ds.runs["split"].to_list()) == {"train", "validation", "test"}
+    done = subprocess.run(
+        [sys.executable, str(example), str(ds.path), "--epochs", "1", "--score-out", str(tmp_path / "s")],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    table = pl.read_csv(tmp_path / "s" / "table1b.csv").filter(pl.col("method") == "external")
+    assert table.filter(pl.col("pose_noise") == "gps")["f1"][0] > 0.0
