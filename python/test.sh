@@ -21,7 +21,7 @@ started=$SECONDS
 wheel="$(ls "$work"/dist/coid_sim-*.whl)"
 echo "python/test.sh: built $(basename "$wheel") ($(du -h "$wheel" | cut -f1)) in $((SECONDS - started)) s" >&2
 "$python" -m venv "$work/venv"
-"$work/venv/bin/python" -m pip install --disable-pip-version-check --quiet "$wheel" pytest
+"$work/venv/bin/python" -m pip install --disable-pip-version-check --quiet "$wheel[pandas]" pytest
 cd "$work"
 COID_BIN="${COID_BIN:-$target/release/coid}" COID_VENV="${COID_VENV:-$root/.venv}" \
     "$work/venv/bin/python" -m pytest -q -p no:cacheprovider "$root/python/tests" "$@"

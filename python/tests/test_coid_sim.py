@@ -61,6 +61,10 @@ def test_run_returns_frames_and_a_dict_config_names_its_folder(in_tmp: Path) -> 
     assert isinstance(summary, pl.DataFrame)
     assert set(summary["method"].unique().to_list()) == {"gps-hungarian", "oracle"}
     assert "summary" in result.frames()
+    pytest.importorskip("pyarrow")
+    pandas = pytest.importorskip("pandas")
+    as_pandas = result.frame("summary", backend="pandas")
+    assert isinstance(as_pandas, pandas.DataFrame) and len(as_pandas) == summary.height
     # The config file was removed; a second run into the same folder is refused.
     assert not list(in_tmp.glob(".coid-*.toml"))
     with pytest.raises(coid_sim.CoidError, match="results/short"):

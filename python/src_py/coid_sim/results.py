@@ -32,6 +32,11 @@ class Results:
         if backend == "polars":
             return frame
         if backend == "pandas":
+            try:
+                import pandas  # noqa: F401
+                import pyarrow  # noqa: F401
+            except ImportError as e:
+                raise ImportError(f"pandas frames need pandas and pyarrow ({e}): pip install 'coid-sim[pandas]'") from e
             return frame.to_pandas()
         raise ValueError(f"backend must be 'polars' or 'pandas', not {backend!r}")
 
