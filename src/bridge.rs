@@ -55,6 +55,8 @@ pub enum BridgeError {
     },
     #[error("a SUMO simulation is already running in this process (libsumo allows one)")]
     AlreadyRunning,
+    #[error("interrupted at t = {time_s} s")]
+    Interrupted { time_s: f64 },
     #[error("SUMO's {tool} failed in {dir}: {message}")]
     Tool {
         tool: &'static str,
@@ -683,6 +685,11 @@ impl Sumo {
     /// Advances one step and returns every vehicle and person.
     pub fn step(&mut self) -> Result<TrafficFrame, BridgeError> {
         let time_before = self.time_s;
+        if crate::interrupt::stop_requested() {
+            return Err(BridgeError::Interrupted {
+                time_s: time_before,
+            });
+        }
         let (time_s, _expected, rows) = Python::attach(|py| {
             let shim = self.shim.bind(py);
             shim.call_method0("step")

@@ -24,6 +24,27 @@ static TEMPORARY: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
 /// `KeyboardInterrupt` when the call returns).
 static OWNS_SIGNALS: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
+/// Set when the interpreter that loaded coid was interrupted (Ctrl-C)
+/// while a command runs (the Python package's `call`): the command stops
+/// at its next SUMO step with an error, and its temporary folders are
+/// removed by their owners as on any error.
+static STOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Asks the running command to stop ([`STOP`]).
+pub fn request_stop() {
+    STOP.store(true, std::sync::atomic::Ordering::SeqCst);
+}
+
+/// Lets commands run again (the next command starts afresh).
+pub fn clear_stop() {
+    STOP.store(false, std::sync::atomic::Ordering::SeqCst);
+}
+
+/// Whether the running command was asked to stop.
+pub fn stop_requested() -> bool {
+    STOP.load(std::sync::atomic::Ordering::SeqCst)
+}
+
 /// Blocks SIGINT, SIGTERM and SIGHUP in this thread (and so in every
 /// thread started after it) and starts the thread that takes them: it
 /// removes the registered paths, then ends the process with 128 + the

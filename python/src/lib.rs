@@ -55,6 +55,9 @@ fn main(py: Python<'_>, argv: Vec<String>) -> i32 {
 /// Runs one `coid` command line in this process (`argv` with the
 /// program's name first), leaving the interpreter's signals alone.
 /// Returns the command's last line (`run`'s headline), if it has one.
+/// The command runs in a thread of its own while this one, the
+/// interpreter's, looks for its signals: Ctrl-C stops the command at its
+/// next SUMO step and raises `KeyboardInterrupt`.
 #[pyfunction]
 fn call(py: Python<'_>, argv: Vec<String>) -> PyResult<Option<String>> {
     let cli = coid_sim::cli::try_parse(argv).map_err(|e| {
@@ -62,9 +65,44 @@ fn call(py: Python<'_>, argv: Vec<String>) -> PyResult<Option<String>> {
         let line = text.lines().next().unwrap_or("invalid arguments");
         CoidError::new_err(line.trim_start_matches("error: ").to_owned())
     })?;
-    py.detach(|| coid_sim::cli::execute(cli))
-        .map_err(|e| coid_error(&e))
+    coid_sim::cli::clear_stop();
+    let (outcome, interrupted) = py.detach(|| {
+        std::thread::scope(|scope| {
+            let worker = std::thread::Builder::new()
+                .name("coid".into())
+                .stack_size(COMMAND_STACK_BYTES)
+                .spawn_scoped(scope, || coid_sim::cli::execute(cli));
+            let worker = match worker {
+                Ok(w) => w,
+                Err(e) => return (Err(anyhow::anyhow!("cannot start a thread: {e}")), None),
+            };
+            let mut interrupted: Option<PyErr> = None;
+            while !worker.is_finished() {
+                std::thread::sleep(SIGNAL_POLL);
+                if interrupted.is_none()
+                    && let Err(e) = Python::attach(|py| py.check_signals())
+                {
+                    coid_sim::cli::request_stop();
+                    interrupted = Some(e);
+                }
+            }
+            let outcome = worker
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+            (outcome, interrupted)
+        })
+    });
+    coid_sim::cli::clear_stop();
+    if let Some(e) = interrupted {
+        return Err(e);
+    }
+    outcome.map_err(|e| coid_error(&e))
 }
+
+/// The stack of the thread a command runs in: the main thread's.
+const COMMAND_STACK_BYTES: usize = 8 << 20;
+/// How often the interpreter's signals are looked at while a command runs.
+const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 
 /// A JSON object (a configuration given as a dict) as TOML text.
 #[pyfunction]

@@ -4,8 +4,10 @@ from Python, against the ``coid`` program's own outputs."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -178,6 +180,48 @@ def test_a_batch_from_python_starts_its_workers_through_the_package(in_tmp: Path
     assert done.returncode == 0, done.stderr
     summary = (in_tmp / "py" / "summary.csv").read_bytes()
     assert summary and summary == (in_tmp / "bin" / "summary.csv").read_bytes()
+
+
+def test_scenarios_from_python_use_the_sumo_wheels_netconvert(in_tmp: Path) -> None:
+    """`coid scenarios` inside the package runs netconvert from the
+    eclipse-sumo wheel of this interpreter; the family is the binary's,
+    byte for byte (the nets too)."""
+    coid_sim.cli("scenarios", "--count", "1", "--seed", "5", "--out", in_tmp / "py")
+    done = subprocess.run([_coid_bin(), "scenarios", "--count", "1", "--seed", "5", "--out", str(in_tmp / "bin")], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    ours, theirs = _files(in_tmp / "py"), _files(in_tmp / "bin")
+    assert any(name.endswith(".net.xml") for name in ours)
+    assert sorted(ours) == sorted(theirs)
+    for name in ours:
+        assert ours[name] == theirs[name], name
+
+
+def test_ctrl_c_stops_a_command_from_python_and_leaves_no_folder(in_tmp: Path) -> None:
+    """Ctrl-C while `coid_sim.cli` runs a long command: KeyboardInterrupt
+    at the command's next SUMO step (not when it ends), the interpreter
+    goes on, and neither the results folder nor its temporary one is left."""
+    script = in_tmp / "long.py"
+    script.write_text(
+        "import sys, time, coid_sim\n"
+        "config = {'scenario': {'end_s': 3600.0}, 'eval': {'traffic_seeds': list(range(1, 41))}}\n"
+        "print('started', flush=True)\n"
+        "t = time.time()\n"
+        "try:\n"
+        "    coid_sim.run(config, name='long', quiet=True)\n"
+        "    print('finished')\n"
+        "except KeyboardInterrupt:\n"
+        "    print(f'interrupted after {time.time() - t:.1f} s')\n"
+        "print('still here')\n"
+    )
+    child = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True, cwd=in_tmp)
+    assert child.stdout is not None
+    assert child.stdout.readline().strip() == "started"
+    time.sleep(2.0)
+    child.send_signal(signal.SIGINT)
+    out, _ = child.communicate(timeout=60)
+    assert "interrupted after" in out and "still here" in out, out
+    left = sorted(p.name for p in (in_tmp / "results").iterdir()) if (in_tmp / "results").exists() else []
+    assert left == [], left
 
 
 def test_python_m_coid_sim_is_the_coid_program(in_tmp: Path) -> None:

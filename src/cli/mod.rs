@@ -193,6 +193,18 @@ pub fn execute(cli: Cli) -> anyhow::Result<Option<String>> {
     .map(|()| None)
 }
 
+/// Asks the command running in this process to stop (the embedding
+/// interpreter was interrupted): it ends at its next SUMO step with an
+/// error, its temporary folders removed.
+pub fn request_stop() {
+    crate::interrupt::request_stop();
+}
+
+/// Lets the next command run (after [`request_stop`]).
+pub fn clear_stop() {
+    crate::interrupt::clear_stop();
+}
+
 /// `argv` (the program's name first) parsed as the `coid` binary parses
 /// its command line; clap's error (usage, help and version too) if not.
 pub fn try_parse<I, T>(argv: I) -> Result<Cli, clap::Error>
