@@ -95,8 +95,10 @@ pub fn export(a: ExportArgs) -> anyhow::Result<String> {
         "coid: exported {} ({}) of {}; wrote {}",
         crate::label::counted(runs.len() as u64, "run"),
         crate::label::counted(instances as u64, "instance"),
+        // The splits asked for that have runs (a dataset's own).
         splits
             .iter()
+            .filter(|s| runs.iter().any(|r| r.split == **s))
             .map(|s| s.as_str())
             .collect::<Vec<_>>()
             .join(", "),

@@ -212,3 +212,39 @@ fn r34_exports_carry_boxes_and_an_older_schema_is_refused() {
     let o = score(&fx, &config, "ex/matches-gps-hungarian.parquet", "s2");
     assert_refused_unwritten(&o, "older coid (export schema 2", &fx.path("s2"));
 }
+
+/// `coid export --dataset`: a dataset's runs written again with a
+/// built-in method's matches on them: the pairs the export made while
+/// simulating, their probabilities to round-off (the dataset's
+/// covariances are rebuilt from three numbers), the same true pairs; it
+/// says which splits it holds.
+#[test]
+fn export_of_a_dataset_writes_the_built_in_matches_on_its_runs() {
+    let (fx, config) = small();
+    export(&fx, &config);
+    let again = fx.cmd("export").quiet().config(&config);
+    let again = again.args(["--dataset", fx.path("ex").to_str().unwrap()]);
+    let o = again
+        .args(["--with-matches", "gps-hungarian"])
+        .out("ex2")
+        .output();
+    assert_ok(&o);
+    assert!(stderr(&o).contains(") of test; wrote"), "{}", stderr(&o));
+    let read = |dir: &str, file: &str| read_parquet(&fx.path(&format!("{dir}/{file}")));
+    let (first, second) = (
+        read("ex", "matches-gps-hungarian.parquet"),
+        read("ex2", "matches-gps-hungarian.parquet"),
+    );
+    assert!(first.height() > 0);
+    for column in ["run", "instance", "a", "b"] {
+        assert_eq!(f64s(&first, column), f64s(&second, column), "{column}");
+    }
+    assert_eq!(strs(&first, "pose_noise"), strs(&second, "pose_noise"));
+    for column in ["probability", "uncertainty"] {
+        for (x, y) in f64s(&first, column).iter().zip(f64s(&second, column)) {
+            assert!((x - y).abs() < 1e-12, "{column}: {x} vs {y}");
+        }
+    }
+    let pairs = read("ex", "true_pairs.parquet");
+    assert!(pairs.equals(&read("ex2", "true_pairs.parquet")));
+}
