@@ -7,7 +7,7 @@ package (pip install coid-sim).
 
 Reads a dataset (a folder `coid export` or `coid_sim.export` wrote, or
 one converted from elsewhere; without one, the default configuration's
-test runs are exported into results/default-export), matches every
+validation and test runs, exported into results/default-export once), matches every
 instance of the split, prints the precision, recall and F1 its rule
 implies, counted as coid counts them (per run, pooled over the run's
 instances; then the mean over runs), and then has coid score the same
@@ -72,7 +72,9 @@ def main():
     args = ap.parse_args()
 
     if args.dataset is None:
-        dataset = coid_sim.export(splits=[args.split], out="results/default-export")
+        # The default configuration's runs, exported once.
+        out = Path("results/default-export")
+        dataset = coid_sim.Dataset(out) if out.exists() else coid_sim.export(splits=["validation", "test"], out=out)
     else:
         dataset = coid_sim.Dataset(args.dataset)
     rows, per_run, n_instances = [], {}, 0

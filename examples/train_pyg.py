@@ -100,7 +100,9 @@ def main():
     torch.manual_seed(args.seed)
 
     if args.dataset is None:
-        dataset = coid_sim.export(out="results/default-export-all")
+        # The default configuration's runs, exported once.
+        out = Path("results/default-export-all")
+        dataset = coid_sim.Dataset(out) if out.exists() else coid_sim.export(out=out)
     else:
         dataset = coid_sim.Dataset(args.dataset)
     train = dataset.to_pyg("train", args.level)

@@ -60,11 +60,22 @@ fn main(py: Python<'_>, argv: Vec<String>) -> i32 {
 /// next SUMO step and raises `KeyboardInterrupt`.
 #[pyfunction]
 fn call(py: Python<'_>, argv: Vec<String>) -> PyResult<Option<String>> {
-    let cli = coid_sim::cli::try_parse(argv).map_err(|e| {
-        let text = e.to_string();
-        let line = text.lines().next().unwrap_or("invalid arguments");
-        CoidError::new_err(line.trim_start_matches("error: ").to_owned())
-    })?;
+    let cli = match coid_sim::cli::try_parse(argv) {
+        Ok(cli) => cli,
+        // Help and version: printed as the program prints them.
+        Err(e) if e.exit_code() == 0 => {
+            let _ = e.print();
+            return Ok(None);
+        }
+        Err(e) => {
+            let text = e.to_string();
+            let line = text
+                .lines()
+                .find_map(|l| l.strip_prefix("error: "))
+                .unwrap_or("no command given (cli(\"--help\") lists them)");
+            return Err(CoidError::new_err(line.to_owned()));
+        }
+    };
     coid_sim::cli::clear_stop();
     let (outcome, interrupted) = py.detach(|| {
         std::thread::scope(|scope| {
@@ -183,13 +194,17 @@ impl DatasetReader {
         })?;
         let out = PyList::empty(py);
         for inst in &run.instances {
-            out.append(instance(py, inst)?)?;
+            out.append(instance(py, &self.dataset, inst)?)?;
         }
         Ok(out)
     }
 }
 
-fn instance<'py>(py: Python<'py>, inst: &DatasetInstance) -> PyResult<Bound<'py, PyDict>> {
+fn instance<'py>(
+    py: Python<'py>,
+    dataset: &Dataset,
+    inst: &DatasetInstance,
+) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("instance", inst.instance)?;
     d.set_item("step", inst.step)?;
@@ -213,7 +228,7 @@ fn instance<'py>(py: Python<'py>, inst: &DatasetInstance) -> PyResult<Bound<'py,
     d.set_item("true_poses", true_poses)?;
     let sides = PyList::empty(py);
     for s in &inst.sides {
-        sides.append(side(py, s)?)?;
+        sides.append(side(py, dataset, s)?)?;
     }
     d.set_item("sides", sides)?;
     d.set_item("true_pairs", inst.true_pairs.clone())?;
@@ -225,58 +240,77 @@ fn pose(p: &coid_sim::geometry::Pose2) -> [f64; 3] {
     [t.x, t.y, p.heading_rad()]
 }
 
-/// One vehicle's nodes, column by column: a column no node has is
-/// `None`; in one that some nodes lack (a false positive's true centre),
-/// theirs is NaN.
-fn side<'py>(py: Python<'py>, s: &DatasetSide) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
+/// One vehicle's nodes, column by column: a column the dataset lacks is
+/// `None`; where a node lacks a value of a column the dataset has (a
+/// false positive's true centre), its value is NaN, its appearance
+/// vector zeros (coid's "none").
+fn side<'py>(py: Python<'py>, d: &Dataset, s: &DatasetSide) -> PyResult<Bound<'py, PyDict>> {
+    let out = PyDict::new(py);
     let n = &s.nodes;
-    d.set_item("id", &s.id)?;
-    let col =
-        |width: usize, f: &dyn Fn(&DatasetNode) -> Option<Vec<f64>>| -> Option<Vec<Vec<f64>>> {
-            let values: Vec<Option<Vec<f64>>> = n.iter().map(f).collect();
-            if values.iter().all(Option::is_none) && !values.is_empty() {
-                return None;
-            }
-            Some(
-                values
-                    .into_iter()
-                    .map(|v| v.unwrap_or_else(|| vec![f64::NAN; width]))
-                    .collect(),
-            )
-        };
+    let has = |column: &str| {
+        d.optional_columns
+            .iter()
+            .any(|c| c.ends_with(&format!(": {column}")))
+    };
+    out.set_item("id", &s.id)?;
+    let col = |column: &str, width: usize, f: &dyn Fn(&DatasetNode) -> Option<Vec<f64>>| {
+        has(column).then(|| {
+            n.iter()
+                .map(|v| f(v).unwrap_or_else(|| vec![f64::NAN; width]))
+                .collect::<Vec<_>>()
+        })
+    };
     let xy: Vec<[f64; 2]> = n.iter().map(|v| [v.position_m.x, v.position_m.y]).collect();
-    d.set_item("xy_m", xy)?;
-    d.set_item(
+    out.set_item("xy_m", xy)?;
+    out.set_item(
         "cov_m2",
-        col(3, &|v| {
+        col("cov_xx_m2", 3, &|v| {
             v.cov_m2.map(|c| vec![c[(0, 0)], c[(0, 1)], c[(1, 1)]])
         }),
     )?;
     let classes: Vec<&str> = n.iter().map(|v| v.class.as_str()).collect();
-    d.set_item("class", classes)?;
-    d.set_item("colour_rgb", col(3, &|v| v.colour_rgb.map(|c| c.to_vec())))?;
-    d.set_item("size_m", col(3, &|v| v.size_m.map(|c| c.to_vec())))?;
-    d.set_item(
+    out.set_item("class", classes)?;
+    out.set_item(
+        "colour_rgb",
+        col("colour_r", 3, &|v| v.colour_rgb.map(|c| c.to_vec())),
+    )?;
+    out.set_item(
+        "size_m",
+        col("length_m", 3, &|v| v.size_m.map(|c| c.to_vec())),
+    )?;
+    out.set_item(
         "heading_speed",
-        col(2, &|v| v.motion.map(|(h, s)| vec![h, s])),
+        col("heading_rad", 2, &|v| v.motion.map(|(h, s)| vec![h, s])),
     )?;
     let senders: Vec<bool> = n.iter().map(|v| v.sender).collect();
-    d.set_item("sender", senders)?;
-    d.set_item("world_m", col(2, &|v| v.world_m.map(|w| vec![w.x, w.y])))?;
-    let appearance: Option<Vec<Vec<f32>>> = n
-        .iter()
-        .map(|v| v.appearance.as_ref().map(|a| a.to_vec()))
-        .collect();
-    d.set_item("appearance", appearance)?;
-    let ids: Vec<&str> = n.iter().map(|v| v.object_id.as_str()).collect();
-    d.set_item("object_id", ids)?;
-    d.set_item("true_m", col(2, &|v| v.true_m.map(|t| vec![t.x, t.y])))?;
-    d.set_item(
-        "visible_fraction",
-        col(1, &|v| v.visible_fraction.map(|f| vec![f])),
+    out.set_item("sender", senders)?;
+    out.set_item(
+        "world_m",
+        col("world_x_m", 2, &|v| v.world_m.map(|w| vec![w.x, w.y])),
     )?;
-    Ok(d)
+    let appearance: Option<Vec<Vec<f32>>> = d.appearance_width.map(|width| {
+        n.iter()
+            .map(|v| {
+                v.appearance
+                    .as_ref()
+                    .map_or_else(|| vec![0.0; width], |a| a.to_vec())
+            })
+            .collect()
+    });
+    out.set_item("appearance", appearance)?;
+    let ids: Vec<&str> = n.iter().map(|v| v.object_id.as_str()).collect();
+    out.set_item("object_id", ids)?;
+    out.set_item(
+        "true_m",
+        col("true_x_m", 2, &|v| v.true_m.map(|t| vec![t.x, t.y])),
+    )?;
+    out.set_item(
+        "visible_fraction",
+        col("visible_fraction", 1, &|v| {
+            v.visible_fraction.map(|f| vec![f])
+        }),
+    )?;
+    Ok(out)
 }
 
 #[pymodule]

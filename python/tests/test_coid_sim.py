@@ -89,6 +89,11 @@ def test_bad_input_raises_the_coid_programs_line(in_tmp: Path) -> None:
         coid_sim.Dataset(in_tmp)
     with pytest.raises(coid_sim.CoidError, match="unexpected argument"):
         coid_sim.cli("run", "--no-such-flag")
+    with pytest.raises(coid_sim.CoidError, match="no command given"):
+        coid_sim.cli()
+    assert coid_sim.cli("--version") is None  # printed, as the program prints it
+    with pytest.raises(coid_sim.CoidError, match="not a TOML value"):
+        coid_sim.run({"scenario": {"end_s": object()}}, quiet=True)
 
 
 def test_a_dataset_iterates_as_arrays_with_the_truth(short_export: coid_sim.Dataset) -> None:
@@ -117,6 +122,10 @@ def test_a_dataset_iterates_as_arrays_with_the_truth(short_export: coid_sim.Data
             assert np.array_equal(s_true, t_true)
         g = inst.to_pygmtools("gps")
         assert g["X_gt"].sum() == len(inst.true_pairs) and g["ne1"] == a["edge_index_s"].shape[1]
+    with pytest.raises(coid_sim.CoidError, match="no run 2"):
+        ds.run(2)
+    with pytest.raises(coid_sim.CoidError, match="no pose-noise level 'gsp'"):
+        instances[0].match("gps-hungarian", "gsp")
 
 
 def test_the_oracle_read_from_y_scores_as_the_oracle(short_export: coid_sim.Dataset) -> None:
@@ -129,6 +138,15 @@ def test_the_oracle_read_from_y_scores_as_the_oracle(short_export: coid_sim.Data
                 rows.append((inst.run, inst.instance, s, int(t)))
     matches = pl.DataFrame(rows, schema={"run": pl.UInt64, "instance": pl.UInt64, "a": pl.UInt64, "b": pl.UInt64}, orient="row")
     scored = coid_sim.score(matches, dataset=short_export, config=SHORT, quiet=True, out=short_export.path.parent / "s-oracle")
+    # Against the export instead (its configuration's digest checked): the
+    # results folder is named after the dict configuration.
+    here = os.getcwd()
+    os.chdir(short_export.path.parent)
+    try:
+        by_export = coid_sim.score(matches, export=short_export.path, config=SHORT, quiet=True, name="short")
+    finally:
+        os.chdir(here)
+    assert by_export.out == Path("results/short-score")
     for name in ["table1b", "errors", "calibration", "consistency", "views"]:
         frame = scored.frame(name).drop("inputs", strict=False)
         external = frame.filter(pl.col("method") == "external").drop("method")
@@ -160,10 +178,17 @@ def test_to_pyg_gives_dgmc_pair_data(short_export: coid_sim.Dataset) -> None:
     pytest.importorskip("torch_geometric")
     from torch_geometric.loader import DataLoader
 
+    from torch_geometric.data import Data
+    from torch_geometric.transforms import Cartesian
+
     pairs = short_export.to_pyg("test")
     batch = next(iter(DataLoader(pairs[:4], batch_size=4, follow_batch=["x_s", "x_t"])))
     assert batch.edge_index_s.max() < batch.x_s.size(0)
     assert batch.y.dtype == torch.long and batch.y.size(0) == batch.x_s.size(0)
+    # The edge attributes are PyG's own Cartesian pseudo-coordinates.
+    for p in pairs[:10]:
+        theirs = Cartesian()(Data(pos=p.pos_s.double(), edge_index=p.edge_index_s)).edge_attr
+        assert torch.allclose(p.edge_attr_s.double(), theirs, atol=1e-6)
 
 
 def test_a_batch_from_python_starts_its_workers_through_the_package(in_tmp: Path) -> None:

@@ -51,7 +51,7 @@ Config = Union[None, PathLike, Mapping[str, Any]]
 
 def cli(*args: Any) -> Optional[str]:
     """Runs one ``coid`` command line in this process, as the program runs
-    it (``cli("eval", "-c", "configs/families.toml")``): the same output,
+    it (``cli("eval", "-c", "configs/family.toml")``): the same output,
     files and progress bars. Returns the command's last line where it has
     one (``run``'s headline). Raises :class:`CoidError` with coid's
     message on bad input or failure."""
@@ -67,7 +67,7 @@ def _config_file(config: Config, name: str) -> Iterator[Optional[str]]:
         yield None
         return
     if isinstance(config, Mapping):
-        text = _coid_sim.toml_of_json(json.dumps(config))
+        text = _coid_sim.toml_of_json(json.dumps(config, default=_plain))
         path = Path(f".coid-{name}-{os.getpid()}-{uuid.uuid4().hex[:8]}.toml")
         path.write_text(text)
         try:
@@ -76,6 +76,16 @@ def _config_file(config: Config, name: str) -> Iterator[Optional[str]]:
             path.unlink(missing_ok=True)
         return
     yield os.fspath(config)
+
+
+def _plain(value: Any) -> Any:
+    """A value of a dict configuration that JSON does not know: numpy
+    arrays and scalars as lists and numbers, paths as text."""
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise CoidError(f"the configuration holds {value!r} ({type(value).__name__}), which is not a TOML value")
 
 
 def _common(config: Optional[str], out: Optional[PathLike], force: bool, quiet: bool, threads: Optional[int]) -> list:
@@ -212,7 +222,8 @@ def score(
             frame = matches if isinstance(matches, pl.DataFrame) else pl.from_pandas(matches)
             file = os.path.join(tmp, "matches.parquet")
             frame.write_parquet(file)
-        args = ["score", *_common(path, out, force, quiet, threads), "--matches", file, "--split", split]
+        default = _default_out(config, name, "-score") if dataset is None else None
+        args = ["score", *_common(path, out if out is not None else default, force, quiet, threads), "--matches", file, "--split", split]
         if dataset is not None:
             args += ["--dataset", os.fspath(dataset)]
         if export is not None:

@@ -61,7 +61,7 @@ def _array(values: Optional[list], width: int, dtype: Any = np.float64) -> Optio
 @dataclass(frozen=True)
 class Side:
     """One vehicle's nodes, one row each (``n`` rows); a column the dataset
-    lacks is None."""
+    lacks is None, a value a node lacks NaN (an appearance vector: zeros)."""
 
     id: str
     xy_m: np.ndarray
@@ -78,7 +78,7 @@ class Side:
     visible_fraction: Optional[np.ndarray] = None
 
     @staticmethod
-    def _of(raw: Mapping[str, Any]) -> "Side":
+    def _of(raw: Mapping[str, Any], appearance_width: Optional[int]) -> "Side":
         cov = _array(raw["cov_m2"], 3)
         if cov is not None:
             cov = np.stack([cov[:, [0, 1]], cov[:, [1, 2]]], axis=1)
@@ -95,7 +95,7 @@ class Side:
             size_m=_array(raw["size_m"], 3),
             heading_speed=_array(raw["heading_speed"], 2),
             world_m=_array(raw["world_m"], 2),
-            appearance=None if appearance is None else np.asarray(appearance, dtype=np.float32).reshape(len(raw["xy_m"]), -1),
+            appearance=None if appearance is None else np.asarray(appearance, dtype=np.float32).reshape(len(raw["xy_m"]), appearance_width or 0),
             true_m=_array(raw["true_m"], 2),
             visible_fraction=None if vf is None else vf[:, 0],
         )
@@ -112,15 +112,23 @@ class Side:
     def features(self) -> np.ndarray:
         """Node features ``[n, 13 (+ d)]``: the class one-hot (``CLASSES``),
         colour (RGB in [0, 1]), size (length, width, height in metres), then
-        the appearance vector where the dataset has one. A missing colour
-        or size is the same for every node (``UNKNOWN_*``)."""
+        the appearance vector where the dataset has one. A colour or size
+        missing (for the dataset, or for a node) is the same for every node
+        (``UNKNOWN_*``), as coid fills it."""
         n = len(self)
         onehot = np.zeros((n, len(CLASSES)))
         for i, c in enumerate(self.classes):
             if c in CLASSES:
                 onehot[i, CLASSES.index(c)] = 1.0
-        colour = self.colour_rgb if self.colour_rgb is not None else np.tile(UNKNOWN_COLOUR, (n, 1))
-        size = self.size_m if self.size_m is not None else np.tile(UNKNOWN_SIZE_M, (n, 1))
+
+        def filled(values: Optional[np.ndarray], unknown: Tuple[float, ...]) -> np.ndarray:
+            known = np.tile(unknown, (n, 1))
+            if values is None:
+                return known
+            return np.where(np.isnan(values).any(axis=1, keepdims=True), known, values)
+
+        colour = filled(self.colour_rgb, UNKNOWN_COLOUR)
+        size = filled(self.size_m, UNKNOWN_SIZE_M)
         parts = [onehot, colour, size]
         if self.appearance is not None:
             parts.append(self.appearance.astype(np.float64))
@@ -140,10 +148,10 @@ def _both_ways(edges: np.ndarray) -> np.ndarray:
 
 def _cartesian(xy: np.ndarray, index: np.ndarray) -> np.ndarray:
     """DGMC's edge attributes (PyG's ``Cartesian`` transform): each edge's
-    offset, target minus source, scaled into [0, 1] by the largest one."""
+    offset, source minus target, scaled into [0, 1] by the largest one."""
     if index.shape[1] == 0:
         return np.zeros((0, 2))
-    offset = xy[index[1]] - xy[index[0]]
+    offset = xy[index[0]] - xy[index[1]]
     largest = np.abs(offset).max()
     return offset / (2.0 * largest) + 0.5 if largest > 0 else np.full_like(offset, 0.5)
 
@@ -184,7 +192,7 @@ class Instance:
         for lv in self.levels:
             if lv.label == label:
                 return lv
-        raise KeyError(f"the dataset has no level {label!r} (it has {', '.join(l.label for l in self.levels)})")
+        raise _coid_sim.CoidError(f"the dataset has no pose-noise level {label!r} (it has {', '.join(l.label for l in self.levels)})")
 
     def world_xy(self, label: str = "gps") -> Tuple[np.ndarray, np.ndarray]:
         """Both vehicles' nodes in the world frame, as their reported poses
@@ -251,6 +259,7 @@ class Instance:
         dataset's configuration (the defaults unless it was opened with
         one). The method runs once over the whole dataset
         (:meth:`Dataset.matches`), kept for the next call."""
+        self.level(label)
         frame = self._dataset.matches(method)
         rows = frame.filter(
             (pl.col("run") == self.run) & (pl.col("instance") == self.instance) & (pl.col("pose_noise") == label)
@@ -317,6 +326,8 @@ class Dataset:
 
     def run(self, k: int) -> List[Instance]:
         """The instances of the ``k``-th run (``runs``' row ``k``)."""
+        if not 0 <= k < self.runs.height:
+            raise _coid_sim.CoidError(f"{self.path} has {self.runs.height} runs: no run {k}")
         meta = self.runs.row(k, named=True)
         out = []
         for raw in self._reader.run(k):
@@ -335,8 +346,8 @@ class Dataset:
                     step=raw["step"],
                     time_s=raw["time_s"],
                     levels=levels,
-                    first=Side._of(raw["sides"][0]),
-                    second=Side._of(raw["sides"][1]),
+                    first=Side._of(raw["sides"][0], self.appearance_width),
+                    second=Side._of(raw["sides"][1], self.appearance_width),
                     true_pairs=pairs,
                     true_poses=poses,  # type: ignore[arg-type]
                     _dataset=self,
