@@ -103,10 +103,13 @@ def _common(config: Optional[str], out: Optional[PathLike], force: bool, quiet: 
     return args
 
 
-def _default_out(config: Config, name: str, suffix: str) -> Optional[str]:
-    """`coid`'s default results folder for a dict configuration (a file's
-    is coid's own: results/<file stem><suffix>)."""
-    return f"results/{name}{suffix}" if isinstance(config, Mapping) else None
+def _out(out: Optional[PathLike], config: Config, name: str, suffix: str, dataset: Any = None) -> Optional[PathLike]:
+    """The results folder to ask for: ``out`` when given; for a dict
+    configuration ``results/<name><suffix>``; else None, coid's default
+    (``results/<file stem><suffix>``, or named after ``dataset``)."""
+    if out is not None:
+        return out
+    return f"results/{name}{suffix}" if isinstance(config, Mapping) and dataset is None else None
 
 
 def run(
@@ -133,15 +136,13 @@ def run(
     quiet: no progress bar.
     """
     with _config_file(config, name) as path:
-        args = ["run", *_common(path, out if out is not None else _default_out(config, name, ""), force, quiet, threads)]
+        args = ["run", *_common(path, _out(out, config, name, ""), force, quiet, threads)]
         if traffic_seed is not None:
             args += ["--traffic-seed", str(traffic_seed)]
         if sensor_seed is not None:
             args += ["--sensor-seed", str(sensor_seed)]
         headline = cli(*args)
-    assert headline is not None
-    written = headline.rsplit("; wrote ", 1)[-1]
-    return Results(Path(written), headline)
+    return Results(Path(_last_folder(headline)), headline)
 
 
 def export(
@@ -167,9 +168,7 @@ def export(
         matches on it.
     """
     with _config_file(config, name) as path:
-        suffix = "-export"
-        default = _default_out(config, name, suffix) if dataset is None else None
-        args = ["export", *_common(path, out if out is not None else default, force, quiet, threads)]
+        args = ["export", *_common(path, _out(out, config, name, "-export", dataset), force, quiet, threads)]
         if splits:
             args += ["--splits", *splits]
         if with_matches:
@@ -222,8 +221,7 @@ def score(
             frame = matches if isinstance(matches, pl.DataFrame) else pl.from_pandas(matches)
             file = os.path.join(tmp, "matches.parquet")
             frame.write_parquet(file)
-        default = _default_out(config, name, "-score") if dataset is None else None
-        args = ["score", *_common(path, out if out is not None else default, force, quiet, threads), "--matches", file, "--split", split]
+        args = ["score", *_common(path, _out(out, config, name, "-score", dataset), force, quiet, threads), "--matches", file, "--split", split]
         if dataset is not None:
             args += ["--dataset", os.fspath(dataset)]
         if export is not None:
