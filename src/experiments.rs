@@ -168,14 +168,38 @@ pub fn dataset_runs(settings: &Settings) -> Result<Option<Vec<(RunInfo, Settings
     Ok(Some(runs))
 }
 
-/// [`dataset_runs`] of one split.
+/// [`dataset_runs`] of one split; refused when the dataset has none of
+/// that split (a command that needs them would otherwise run on nothing).
 fn dataset_split(settings: &Settings, split: &str) -> Result<Option<Vec<Settings>>, RunError> {
-    Ok(dataset_runs(settings)?.map(|runs| {
+    let Some(runs) = dataset_runs(settings)? else {
+        return Ok(None);
+    };
+    let mut splits: Vec<&str> = Vec::new();
+    for (r, _) in &runs {
+        if !splits.contains(&r.split.as_str()) {
+            splits.push(&r.split);
+        }
+    }
+    if !splits.contains(&split) {
+        let dir = settings
+            .dataset
+            .as_ref()
+            .map(|d| d.dir.display().to_string());
+        return Err(RunError::Dataset {
+            dir: dir.unwrap_or_default(),
+            why: format!(
+                "it has no {split} runs, which this command needs (its runs are {}; coid \
+                 convert --splits or coid export chose them)",
+                splits.join(", ")
+            ),
+        });
+    }
+    Ok(Some(
         runs.into_iter()
             .filter(|(r, _)| r.split == split)
             .map(|(_, s)| s)
-            .collect()
-    }))
+            .collect(),
+    ))
 }
 
 /// The training runs: every training seed of the config's own scenario,
@@ -430,35 +454,47 @@ pub struct Chosen {
 /// pair the rule chooses) first.
 pub const MIN_PROBABILITIES: [f64; 10] = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9];
 
-/// The temperatures validation tries: 1/4 to 4, evenly in the log.
-fn temperature_grid() -> Vec<f64> {
-    (0..=80)
-        .map(|k| (f64::from(k - 40) / 40.0 * 4f64.ln()).exp())
-        .collect()
-}
-
 /// The temperature whose calibrated probabilities have the lowest log
-/// loss on `pairs` (the decided pairs of one method and rule).
+/// loss on `pairs` (the decided pairs of one method and rule), fitted
+/// continuously within [`TEMPERATURE_RANGE`]: the log loss is convex in
+/// 1/t (a logistic regression on the logit with one weight), so a golden
+/// section over ln t finds its minimum. At the range's top the decided
+/// pairs are mostly wrong and no temperature calibrates them
+/// ([`crate::matching::deep::decision::temperature_at_bound`]).
 fn fit_temperature<'a>(pairs: impl Iterator<Item = &'a DecidedPair> + Clone) -> f64 {
-    let log_loss = |t: f64| -> f64 {
+    let log_loss = |ln_t: f64| -> f64 {
+        let t = ln_t.exp();
         pairs
             .clone()
             .map(|d| {
-                let q = calibrated(f64::from(d.p), t).clamp(1e-6, 1.0 - 1e-6);
+                let q = calibrated(f64::from(d.p), t).clamp(1e-12, 1.0 - 1e-12);
                 -(if d.correct { q } else { 1.0 - q }).ln()
             })
             .sum()
     };
-    temperature_grid()
-        .into_iter()
-        .map(|t| (t, log_loss(t)))
-        .fold(
-            (1.0, f64::INFINITY),
-            |best, (t, l)| {
-                if l < best.1 { (t, l) } else { best }
-            },
-        )
-        .0
+    let range = crate::matching::deep::decision::TEMPERATURE_RANGE;
+    let (mut a, mut b) = (range.0.ln(), range.1.ln());
+    let phi = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut c, mut d) = (b - phi * (b - a), a + phi * (b - a));
+    let (mut fc, mut fd) = (log_loss(c), log_loss(d));
+    while b - a > 1e-6 {
+        if fc <= fd {
+            (b, d, fd) = (d, c, fc);
+            c = b - phi * (b - a);
+            fc = log_loss(c);
+        } else {
+            (a, c, fc) = (c, d, fd);
+            d = a + phi * (b - a);
+            fd = log_loss(d);
+        }
+    }
+    // Nothing to calibrate (no pairs, or a flat loss): 1.
+    let t = ((a + b) / 2.0).exp();
+    if log_loss(t.ln()) < log_loss(0.0) {
+        t
+    } else {
+        1.0
+    }
 }
 
 /// Chooses each deep method's calibration temperature, decision rule,
@@ -626,6 +662,9 @@ pub struct TunedBaseline {
     /// The value fixed before any data was seen, and its mean F1.
     pub a_priori: f64,
     pub f1_a_priori: f64,
+    /// Said when the value is the first or last of its grid (the data may
+    /// want one beyond it).
+    pub note: Option<String>,
 }
 
 /// The mean over runs of each run's mean F1 over `levels` (runs and
@@ -820,6 +859,11 @@ fn best_of_grid(
             (value, best) = (v, f);
         }
     }
+    let edge = match (k.grid.first(), k.grid.last()) {
+        (Some(&first), _) if value == first && value != a_priori => Some("smallest"),
+        (_, Some(&last)) if value == last && value != a_priori => Some("largest"),
+        _ => None,
+    };
     TunedBaseline {
         method: m,
         parameter: k.name,
@@ -828,6 +872,12 @@ fn best_of_grid(
         f1: best,
         a_priori,
         f1_a_priori,
+        note: edge.map(|e| {
+            format!(
+                "{value} is the {e} {} of its grid: the data may do better beyond it",
+                k.name
+            )
+        }),
     }
 }
 

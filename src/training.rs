@@ -468,6 +468,7 @@ pub fn tune_baselines(
             f1: t.f1,
             a_priori: t.a_priori,
             f1_a_priori: t.f1_a_priori,
+            note: t.note.clone(),
         })
         .collect();
     io::record_baselines(models_dir, settings, &entries)?;

@@ -22,6 +22,8 @@ mod detectors;
 mod export_score;
 #[path = "integration/family_roles.rs"]
 mod family_roles;
+#[path = "integration/hostile.rs"]
+mod hostile;
 #[path = "integration/learned.rs"]
 mod learned;
 #[path = "integration/likelihood.rs"]

@@ -118,10 +118,23 @@ const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 /// A JSON object (a configuration given as a dict) as TOML text.
 #[pyfunction]
 fn toml_of_json(json: &str) -> PyResult<String> {
-    let value: toml::Value = serde_json::from_str(json)
-        .map_err(|e| CoidError::new_err(format!("the configuration is not TOML-shaped: {e}")))?;
+    let value: toml::Value = serde_json::from_str(json).map_err(|e| {
+        CoidError::new_err(format!(
+            "the configuration dict is not TOML-shaped (tables of numbers, text, booleans and \
+             lists): {e}"
+        ))
+    })?;
     toml::to_string(&value)
         .map_err(|e| CoidError::new_err(format!("the configuration is not TOML-shaped: {e}")))
+}
+
+/// Every built-in method's label, in the tables' order.
+#[pyfunction]
+fn methods() -> Vec<&'static str> {
+    coid_sim::matching::Method::all()
+        .iter()
+        .map(|m| m.as_str())
+        .collect()
 }
 
 /// The Delaunay graph coid's matchers build over these positions (metres,
@@ -321,6 +334,7 @@ fn _coid_sim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(call, m)?)?;
     m.add_function(wrap_pyfunction!(toml_of_json, m)?)?;
     m.add_function(wrap_pyfunction!(delaunay, m)?)?;
+    m.add_function(wrap_pyfunction!(methods, m)?)?;
     m.add_class::<DatasetReader>()?;
     Ok(())
 }

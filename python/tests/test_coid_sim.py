@@ -297,3 +297,64 @@ def test_the_pyg_example_trains_on_a_dataset_and_coid_scores_it(tmp_path: Path) 
     assert done.returncode == 0, done.stderr
     table = pl.read_csv(tmp_path / "s" / "table1b.csv").filter(pl.col("method") == "external")
     assert table.filter(pl.col("pose_noise") == "gps")["f1"][0] > 0.0
+
+
+# Issue 63: bad input from Python is a CoidError naming what the user gave.
+
+
+def test_an_unknown_split_lists_the_datasets_splits(short_export: coid_sim.Dataset) -> None:
+    with pytest.raises(coid_sim.CoidError, match=r"'Test' is not a split .*this dataset's runs are test"):
+        list(short_export.instances("Test"))
+    assert list(short_export.instances("train")) == []
+
+
+def test_an_unknown_method_lists_coids_methods(short_export: coid_sim.Dataset) -> None:
+    inst = next(iter(short_export))
+    with pytest.raises(coid_sim.CoidError, match=r"unknown method 'nope' \(coid's methods: coid, .*oracle"):
+        inst.match("nope")
+
+
+def test_a_dict_configs_errors_name_the_dict_not_a_temporary_file(in_tmp: Path) -> None:
+    with pytest.raises(coid_sim.CoidError) as e:
+        coid_sim.run({"scenario": {"end_s": -5.0}}, quiet=True)
+    assert "the configuration dict" in str(e.value) and ".coid-" not in str(e.value), e.value
+    with pytest.raises(coid_sim.CoidError, match=r"holds nan at scenario.end_s: no setting of coid takes a number that is not finite"):
+        coid_sim.run({"scenario": {"end_s": float("nan")}}, quiet=True)
+
+
+def test_a_negative_seed_is_refused_by_name(in_tmp: Path) -> None:
+    with pytest.raises(coid_sim.CoidError, match=r"traffic_seed must be an integer >= 0, not -1"):
+        coid_sim.run(traffic_seed=-1, quiet=True)
+
+
+def test_score_names_what_it_was_given(short_export: coid_sim.Dataset, in_tmp: Path) -> None:
+    with pytest.raises(coid_sim.CoidError, match=r"matches must be a polars or pandas frame, or a Parquet or CSV file, not list"):
+        coid_sim.score([1, 2, 3], export=short_export.path)
+    bad = pl.DataFrame({"run": [0], "instance": [0], "a": [0], "b": [0], "probability": [2.0]})
+    with pytest.raises(coid_sim.CoidError) as e:
+        coid_sim.score(bad, export=short_export.path, config=SHORT, quiet=True)
+    assert "coid-score-" not in str(e.value) and "the matches frame" in str(e.value), e.value
+
+
+def test_to_pyg_without_torch_says_what_to_install(short_export: coid_sim.Dataset) -> None:
+    try:
+        import torch_geometric  # noqa: F401
+
+        pytest.skip("torch_geometric is installed here")
+    except ModuleNotFoundError:
+        pass
+    inst = next(iter(short_export))
+    with pytest.raises(ModuleNotFoundError, match=r"pip install torch torch_geometric"):
+        inst.to_pyg()
+
+
+def test_a_dataset_with_a_nan_is_refused_by_name(short_export: coid_sim.Dataset, in_tmp: Path) -> None:
+    import shutil
+
+    bad = in_tmp / "nan"
+    shutil.copytree(short_export.path, bad)
+    nodes = pl.read_parquet(bad / "nodes.parquet")
+    nodes = nodes.with_columns(pl.when(pl.int_range(pl.len()) == 0).then(float("nan")).otherwise(pl.col("x_m")).alias("x_m"))
+    nodes.write_parquet(bad / "nodes.parquet")
+    with pytest.raises(coid_sim.CoidError, match=r"nodes.parquet: row 1, column 'x_m': NaN is not a number coid can use"):
+        list(coid_sim.Dataset(bad))

@@ -48,10 +48,10 @@ struct PygArgs {
     name: String,
     /// The position noise (per axis, m) of the GPS poses the source's
     /// world positions went through (DMGM: 1.2).
-    #[arg(long, default_value_t = 1.2)]
+    #[arg(long, default_value_t = 1.2, allow_negative_numbers = true)]
     gps_sigma_m: f64,
     /// Their heading noise, degrees (DMGM: 0.2).
-    #[arg(long, default_value_t = 0.2)]
+    #[arg(long, default_value_t = 0.2, allow_negative_numbers = true)]
     gps_heading_sigma_deg: f64,
     #[command(flatten)]
     force: ForceArg,
@@ -93,6 +93,13 @@ pub fn convert(a: ConvertArgs) -> anyhow::Result<()> {
             bail!("{name} must be a number >= 0, not {v}");
         }
     }
+    if a.views[0] == a.views[1] {
+        bail!(
+            "--views names {} twice: the two vehicles' folders differ",
+            a.views[0]
+        );
+    }
+    check_source_name(&a.name)?;
     for v in &a.views {
         if !a.source.join(v).is_dir() {
             bail!(
@@ -143,14 +150,64 @@ pub fn convert(a: ConvertArgs) -> anyhow::Result<()> {
     }
     write(&mut conv)?;
     pb.finish_and_clear();
+    if conv.runs.is_empty() {
+        bail!(
+            "no pair of {} has detections in both views: nothing to convert",
+            a.source.display()
+        );
+    }
     folder.write(dataset::schema::Run::FILE, &conv.run_table(SCHEMA_VERSION))?;
-    let n_instances: u64 = conv.runs.iter().map(|r| r.n_instances).sum();
     folder.finish(&[("schema.md", SCHEMA.to_owned())])?;
+    say_converted(&conv, &a.out);
+    Ok(())
+}
+
+/// The conversion's line (pairs, runs, pairs left out), after a warning
+/// for each recording the splits cut.
+fn say_converted(conv: &convert::Converter, out: &std::path::Path) {
+    for (recording, splits) in conv.split_recordings() {
+        eprintln!(
+            "warning: --splits cuts recording {recording} between {}: its frames are alike, so \
+             what is chosen on one split is seen again on the other",
+            splits.join(" and ")
+        );
+    }
+    let n_instances: u64 = conv.runs.iter().map(|r| r.n_instances).sum();
+    let skipped = match conv.skipped.as_slice() {
+        [] => String::new(),
+        s => format!(
+            " ({} {} left out: a vehicle saw nothing, e.g. pair {} in {})",
+            s.len(),
+            plural(s.len(), "pair", "pairs"),
+            s[0].0,
+            s[0].1
+        ),
+    };
     println!(
-        "converted {n_instances} pairs into {} runs: {}",
+        "converted {n_instances} {} into {} {}{skipped}: {}",
+        plural(n_instances as usize, "pair", "pairs"),
         conv.runs.len(),
-        a.out.display()
+        plural(conv.runs.len(), "run", "runs"),
+        out.display()
     );
+}
+
+fn plural<'a>(n: usize, one: &'a str, many: &'a str) -> &'a str {
+    if n == 1 { one } else { many }
+}
+
+/// A source's name becomes the first part of each run's scenario: one
+/// plain word (letters, digits, `.`, `_`, `-`).
+fn check_source_name(name: &str) -> anyhow::Result<()> {
+    let plain = name
+        .chars()
+        .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'));
+    if name.is_empty() || !plain || name.chars().all(|c| c == '.') {
+        bail!(
+            "--name {name:?} is not a plain word (letters, digits, '.', '_', '-'): runs are \
+             named <name>/<recording>"
+        );
+    }
     Ok(())
 }
 
@@ -165,7 +222,12 @@ pub struct DatasetArgs {
 pub fn dataset(a: DatasetArgs) -> anyhow::Result<()> {
     let unusable = || format!("{} is not a usable dataset", a.dir.display());
     let d = dataset::Dataset::open(&a.dir).with_context(unusable)?;
-    println!("dataset {}: {} runs", a.dir.display(), d.runs.len());
+    println!(
+        "dataset {}: {} {}",
+        a.dir.display(),
+        d.runs.len(),
+        plural(d.runs.len(), "run", "runs")
+    );
     // Per split: runs, instances, nodes, true pairs.
     let mut counts: BTreeMap<&str, [usize; 4]> = BTreeMap::new();
     for k in 0..d.runs.len() {
@@ -191,10 +253,24 @@ pub fn dataset(a: DatasetArgs) -> anyhow::Result<()> {
         };
         let n = insts.max(1) as f64;
         println!(
-            "  {split}: {runs} runs, {insts} instances, {:.1} nodes per vehicle, {:.1} true pairs \
+            "  {split}: {runs} {}, {insts} instances, {:.1} nodes per vehicle, {:.1} true pairs \
              per instance",
+            plural(runs, "run", "runs"),
             nodes as f64 / (2.0 * n),
             shared as f64 / n
+        );
+    }
+    let empty: Vec<String> = d
+        .runs
+        .iter()
+        .filter(|r| r.n_instances == 0)
+        .map(|r| format!("run {} ({}, {})", r.run, r.split, r.scenario))
+        .collect();
+    if !empty.is_empty() {
+        println!(
+            "  runs without instances: {} (tables average over the runs that have some): {}",
+            empty.len(),
+            empty.join(", ")
         );
     }
     let levels: Vec<String> = d

@@ -87,7 +87,8 @@ fn reid_sweep(a: &Args) -> anyhow::Result<()> {
     let existing = io::Existing::when(a.common.force.force);
     let claim = io::Claim::new(&out, io::ResultKind::Eval, existing)?;
     let (quiet, threads) = (a.common.quiet.quiet, a.threads.get());
-    super::reid_sweep::reid_sweep(&config, &a.reid_sweep, claim, quiet, threads)
+    let config = (config.as_path(), a.common.config.shown());
+    super::reid_sweep::reid_sweep(config, &a.reid_sweep, claim, quiet, threads)
 }
 
 pub fn eval(a: Args) -> anyhow::Result<()> {

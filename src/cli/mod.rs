@@ -270,6 +270,24 @@ impl ConfigArg {
             .clone()
             .unwrap_or_else(|| crate::config::defaults_dir().join("default.toml"))
     }
+
+    /// The configuration as messages name it: its file, or "the default
+    /// configuration" (never the install folder's copy).
+    fn shown(&self) -> String {
+        self.config.as_ref().map_or_else(
+            || "the default configuration".to_owned(),
+            |p| p.display().to_string(),
+        )
+    }
+}
+
+/// A rate in (0, 1) given on the command line as `flag`.
+fn rate_arg(flag: &str, r: f64) -> anyhow::Result<()> {
+    if r > 0.0 && r < 1.0 {
+        Ok(())
+    } else {
+        anyhow::bail!("{flag} must be a rate in (0, 1), got {r}")
+    }
 }
 
 /// The output folder, for every command whose folder has a default.

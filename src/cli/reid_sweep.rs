@@ -49,19 +49,25 @@ const PAIRS: [(Method, Method); 2] = [
 ];
 
 pub(super) fn reid_sweep(
-    config: &Path,
+    (config, shown): (&Path, String),
     points: &[f64],
     claim: Claim,
     quiet: bool,
     threads: usize,
 ) -> anyhow::Result<()> {
-    if let Some(r) = points.iter().find(|r| !(**r > 0.0 && **r < 1.0)) {
-        anyhow::bail!("--reid-sweep: a rank-1 rate must be in (0, 1), got {r}");
+    for (k, &r) in points.iter().enumerate() {
+        super::rate_arg("--reid-sweep: a rank-1", r)?;
+        if points[..k]
+            .iter()
+            .any(|&p| format!("{p:.2}") == format!("{r:.2}"))
+        {
+            anyhow::bail!("--reid-sweep names the point {r:.2} twice");
+        }
     }
     let mut rows = Vec::new();
     let warnings = pipeline::Warnings::default();
     for &r in points {
-        let s = point_settings(config, r, quiet)?;
+        let s = point_settings((config, &shown), r, quiet)?;
         let methods = s.matching.methods.clone();
         let lambdas = matching::method_lambdas(&pipeline::choices(&s, &methods)?);
         let measured = s
@@ -121,7 +127,7 @@ pub(super) fn reid_sweep(
 
 /// The settings of the point at rank-1 `r`: the config with `rank1 = r`,
 /// `auroc = "free"`, its models folder, the descriptor calibrated.
-fn point_settings(config: &Path, r: f64, quiet: bool) -> anyhow::Result<Settings> {
+fn point_settings((config, shown): (&Path, &str), r: f64, quiet: bool) -> anyhow::Result<Settings> {
     let overrides = Overrides {
         reid_rank1: Some(r),
         ..Overrides::default()
@@ -129,18 +135,21 @@ fn point_settings(config: &Path, r: f64, quiet: bool) -> anyhow::Result<Settings
     let mut s = Settings::load_with(config, &overrides)?;
     if s.appearance.reid.is_none() {
         anyhow::bail!(
-            "--reid-sweep sweeps the re-identification descriptor: {} sets [appearance] \
-             descriptor = \"none\"",
-            config.display()
+            "--reid-sweep sweeps the re-identification descriptor: {shown} sets [appearance] \
+             descriptor = \"none\""
         );
     }
     let dir = point_models_dir(&s.matching.models_dir, r);
     if !dir.is_dir() {
         anyhow::bail!(
             "{} is missing: the point at rank-1 {r:.2} runs the models and baseline choices \
-             made there (coid train --config {} --reid-rank1 {r:.2} --out {})",
+             made there (coid train {}--reid-rank1 {r:.2} --out {})",
             dir.display(),
-            config.display(),
+            if shown.starts_with("the default") {
+                String::new()
+            } else {
+                format!("--config {shown} ")
+            },
             dir.display()
         );
     }

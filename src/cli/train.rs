@@ -174,6 +174,9 @@ fn methods_of(a: &Args, settings: &Settings) -> anyhow::Result<(Vec<Method>, Vec
 
 pub fn train(a: Args) -> anyhow::Result<()> {
     let config = a.config.path();
+    if let Some(r) = a.reid_rank1 {
+        super::rate_arg("--reid-rank1", r)?;
+    }
     let overrides = crate::config::Overrides {
         reid_rank1: a.reid_rank1,
         appearance_vectors: a.without_descriptor.then_some(false),
@@ -184,7 +187,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         anyhow::bail!(
             "--reid-rank1 sets the re-identification descriptor's rank-1: {} sets [appearance] \
              descriptor = \"none\"",
-            config.display()
+            a.config.shown()
         );
     }
     experiments::calibrate_appearance(&mut settings, |_, _| {})?;
@@ -512,6 +515,9 @@ fn show_chosen(chosen: &[(Method, experiments::Chosen)]) {
             text(epistemic),
             text(aleatoric),
         );
+        if let Some(note) = crate::matching::deep::decision::temperature_at_bound(c.temperature) {
+            eprintln!("coid: {}: note: {note}", method.as_str());
+        }
     }
 }
 
@@ -552,6 +558,9 @@ fn tune_baselines(
             t.a_priori,
             t.f1_a_priori
         );
+        if let Some(note) = &t.note {
+            eprintln!("coid: {}: note: {note}", t.method.as_str());
+        }
     }
     Ok(())
 }

@@ -26,7 +26,24 @@ pub(super) fn appearance(c: &Checker, a: RawAppearance) -> Result<AppearanceSett
         }
     };
     let reid = match a.descriptor.as_str() {
-        "none" => None,
+        "none" => {
+            // A file that states the descriptor's figures but not the
+            // descriptor meant to use it; one that says "none" as well
+            // (the defaults file itself) turned it off on purpose.
+            let set = ["appearance.width", "appearance.rank1", "appearance.auroc"]
+                .into_iter()
+                .find(|k| c.stated.contains(*k))
+                .filter(|_| !c.stated.contains("appearance.descriptor"));
+            if let Some(key) = set {
+                return Err(c.invalid(
+                    key,
+                    "sets the re-identification descriptor, which this configuration leaves \
+                     out (set [appearance] descriptor = \"reid\" too)"
+                        .into(),
+                ));
+            }
+            None
+        }
         "reid" => Some(reid(c, &a)?),
         other => {
             return Err(c.invalid(

@@ -24,7 +24,7 @@ use std::path::PathBuf;
 use super::schema::{Edge, Instance, Node, Run, TruePair, Truth};
 use crate::geometry::Vec2;
 use crate::graph::SceneGraph;
-use crate::io::torch::{self, Field, Graph};
+use crate::io::torch::{self, DType, Field, Graph};
 use crate::report::Table;
 
 /// What a conversion reads and how it labels it.
@@ -81,16 +81,41 @@ pub struct ConvertedRun {
 }
 
 impl PygSource {
-    /// Every pair index of the splits, with its split, in order; refused
-    /// when ranges overlap.
+    /// Every pair of the splits, with its split, in index order: the
+    /// first view's pair folders whose index lies in a split's range (a
+    /// range is never walked index by index); refused when ranges overlap
+    /// or a range holds no pair folder.
     pub fn pairs(&self) -> Result<Vec<(u64, &str)>, String> {
+        for (i, (a, ra)) in self.splits.iter().enumerate() {
+            for (b, rb) in &self.splits[i + 1..] {
+                if ra.start() <= rb.end() && rb.start() <= ra.end() {
+                    return Err(format!(
+                        "the ranges of {a} ({}..{}) and {b} ({}..{}) overlap",
+                        ra.start(),
+                        ra.end(),
+                        rb.start(),
+                        rb.end()
+                    ));
+                }
+            }
+        }
+        let dir = self.dir.join(&self.views[0]);
         let mut out: Vec<(u64, &str)> = Vec::new();
-        for (split, range) in &self.splits {
-            out.extend(range.clone().map(|k| (k, split.as_str())));
+        for k in torch::numbered_folders(&dir)? {
+            if let Some((split, _)) = self.splits.iter().find(|(_, r)| r.contains(&k)) {
+                out.push((k, split.as_str()));
+            }
         }
         out.sort_by_key(|&(k, _)| k);
-        if let Some(w) = out.windows(2).find(|w| w[0].0 == w[1].0) {
-            return Err(format!("pair {} lies in two splits' ranges", w[0].0));
+        for (split, r) in &self.splits {
+            if !out.iter().any(|(k, _)| r.contains(k)) {
+                return Err(format!(
+                    "no pair folder of {} lies in {split}={}..{}",
+                    dir.display(),
+                    r.start(),
+                    r.end()
+                ));
+            }
         }
         Ok(out)
     }
@@ -123,32 +148,46 @@ impl PygSource {
 /// One vehicle's view of a pair, in coid's frames.
 pub struct View {
     pub body_m: Vec<Vec2>,
-    pub world_m: Option<Vec<Vec2>>,
+    pub world_m: Vec<Vec2>,
     pub appearance: Option<Vec<Vec<f32>>>,
+    /// Object ids; empty for an unknown object (an id < 0), never paired.
     pub ids: Vec<String>,
     pub classes: Vec<&'static str>,
     /// The recording and frame, from `name`.
     pub recording: Option<(String, u64)>,
 }
 
-/// A tensor field's shape and values.
-type TensorRef<'g> = (&'g [usize], &'g [f64]);
+/// A tensor field's shape, values and stored type.
+type TensorRef<'g> = (&'g [usize], &'g [f64], DType);
 
 fn tensor<'g>(g: &'g Graph, name: &str) -> Result<Option<TensorRef<'g>>, String> {
     match g.get(name) {
         None => Ok(None),
-        Some(Field::Tensor { shape, values }) => Ok(Some((shape, values))),
+        Some(Field::Tensor {
+            shape,
+            values,
+            dtype,
+        }) => Ok(Some((shape, values, *dtype))),
         Some(_) => Err(format!("its '{name}' is not a tensor")),
     }
 }
 
-/// `n` rows of 3 columns.
+/// `n` rows of 3 finite floating-point columns (`n` from `y`).
 fn points(g: &Graph, name: &str, n: usize) -> Result<Option<Vec<[f64; 3]>>, String> {
-    let Some((shape, v)) = tensor(g, name)? else {
+    let Some((shape, v, dtype)) = tensor(g, name)? else {
         return Ok(None);
     };
+    if !dtype.is_float() {
+        return Err(format!(
+            "its '{name}' holds {} values, not floating point (positions in metres)",
+            dtype.name()
+        ));
+    }
     if shape != [n, 3] {
-        return Err(format!("its '{name}' has shape {shape:?}, not [{n}, 3]"));
+        return Err(format!(
+            "its '{name}' has shape {shape:?}, not [{n}, 3] (its 'y' names {n} objects: one row \
+             per object)"
+        ));
     }
     if let Some(k) = v.iter().position(|x| !x.is_finite()) {
         return Err(format!("its '{name}' holds {} in row {}", v[k], k / 3));
@@ -156,9 +195,27 @@ fn points(g: &Graph, name: &str, n: usize) -> Result<Option<Vec<[f64; 3]>>, Stri
     Ok(Some(v.chunks(3).map(|c| [c[0], c[1], c[2]]).collect()))
 }
 
+/// Integer values (ids, class ids) of a tensor `name`: an integer type,
+/// or floating point holding integers.
+fn integers(name: &str, v: &[f64], dtype: DType) -> Result<Vec<i64>, String> {
+    if dtype == DType::Bool {
+        return Err(format!("its '{name}' holds bool values, not integers"));
+    }
+    v.iter()
+        .enumerate()
+        .map(|(k, &x)| {
+            if x.is_finite() && x.fract() == 0.0 && x.abs() < 2f64.powi(53) {
+                Ok(x as i64)
+            } else {
+                Err(format!("its '{name}' holds {x} in row {k}, not an integer"))
+            }
+        })
+        .collect()
+}
+
 /// coid's class of a COCO class id.
-fn coco_class(id: f64) -> Option<&'static str> {
-    Some(match id as i64 {
+fn coco_class(id: i64) -> Option<&'static str> {
+    Some(match id {
         0 => "pedestrian",
         1 => "bicycle",
         2 => "car",
@@ -169,39 +226,44 @@ fn coco_class(id: f64) -> Option<&'static str> {
     })
 }
 
+/// The recording and frame a view's `name` gives (`<...>/<recording>_<frame>`).
+fn recording(g: &Graph) -> Result<Option<(String, u64)>, String> {
+    let name = match g.get("name") {
+        None => return Ok(None),
+        Some(Field::Text(name)) => name,
+        Some(_) => return Err("its 'name' is not a text".into()),
+    };
+    let last = name.rsplit('/').next().unwrap_or(name);
+    last.rsplit_once('_')
+        .and_then(|(r, f)| Some((r, f.parse::<u64>().ok()?)))
+        .filter(|(r, _)| !r.is_empty())
+        .map(|(r, f)| Some((r.to_owned(), f)))
+        .ok_or_else(|| {
+            format!("its 'name' is {name:?}, not <...>/<recording>_<frame> (frame a number)")
+        })
+}
+
 impl View {
     fn of(g: &Graph) -> Result<View, String> {
-        let (shape, y) = tensor(g, "y")?.ok_or("it has no 'y' (object ids)")?;
-        let n = shape.first().copied().unwrap_or(0);
-        if shape.len() != 1 {
+        let (shape, y, dtype) = tensor(g, "y")?.ok_or("it has no 'y' (object ids)")?;
+        let [n] = *shape else {
             return Err(format!("its 'y' has shape {shape:?}, not [n]"));
-        }
+        };
         let pos = points(g, "pos", n)?.ok_or("it has no 'pos' (camera-frame positions)")?;
         let body_m = pos.iter().map(|p| Vec2::new(p[2], -p[0])).collect();
-        let world_m =
-            points(g, "pos_world", n)?.map(|w| w.iter().map(|p| Vec2::new(p[0], -p[1])).collect());
-        let appearance = match tensor(g, "x")? {
-            None => None,
-            Some((shape, v)) => {
-                let [rows, d] = shape else {
-                    return Err(format!("its 'x' has shape {shape:?}, not [{n}, d]"));
-                };
-                if *rows != n || *d == 0 {
-                    return Err(format!("its 'x' has shape {shape:?}, not [{n}, d]"));
-                }
-                Some(
-                    v.chunks(*d)
-                        .map(|c| c.iter().map(|&x| x as f32).collect())
-                        .collect(),
-                )
-            }
-        };
+        let world = points(g, "pos_world", n)?.ok_or(
+            "it has no 'pos_world' (world positions, [n, 3]): coid fits each vehicle's pose to \
+             them",
+        )?;
+        let world_m = world.iter().map(|p| Vec2::new(p[0], -p[1])).collect();
+        let appearance = appearance(g, n)?;
         let mut ids: Vec<String> = Vec::with_capacity(n);
-        for (k, &id) in y.iter().enumerate() {
-            if id.fract() != 0.0 || !id.is_finite() {
-                return Err(format!("its 'y' holds {id} in row {k}, not an object id"));
+        for (k, id) in integers("y", y, dtype)?.into_iter().enumerate() {
+            if id < 0 {
+                ids.push(String::new());
+                continue;
             }
-            let id = format!("{id:.0}");
+            let id = id.to_string();
             if let Some(first) = ids.iter().position(|x| *x == id) {
                 return Err(format!(
                     "its 'y' names object {id} twice (rows {first} and {k})"
@@ -211,24 +273,20 @@ impl View {
         }
         let classes = match tensor(g, "label")? {
             None => vec!["car"; n],
-            Some((_, labels)) if labels.len() == n => labels
-                .iter()
+            Some((shape, labels, dtype)) if shape == [n] => integers("label", labels, dtype)?
+                .into_iter()
                 .enumerate()
-                .map(|(k, &l)| {
+                .map(|(k, l)| {
                     coco_class(l).ok_or_else(|| {
                         format!("its 'label' holds COCO class {l} in row {k}, not a road user")
                     })
                 })
                 .collect::<Result<_, _>>()?,
-            Some((shape, _)) => return Err(format!("its 'label' has shape {shape:?}")),
-        };
-        let recording = match g.get("name") {
-            Some(Field::Text(name)) => {
-                let last = name.rsplit('/').next().unwrap_or(name);
-                last.rsplit_once('_')
-                    .and_then(|(r, f)| Some((r.to_owned(), f.parse().ok()?)))
+            Some((shape, _, _)) => {
+                return Err(format!(
+                    "its 'label' has shape {shape:?}, not [{n}] (one class per object of 'y')"
+                ));
             }
-            _ => None,
         };
         Ok(View {
             body_m,
@@ -236,9 +294,41 @@ impl View {
             appearance,
             ids,
             classes,
-            recording,
+            recording: recording(g)?,
         })
     }
+}
+
+/// The appearance vectors `x` [n, d], finite.
+fn appearance(g: &Graph, n: usize) -> Result<Option<Vec<Vec<f32>>>, String> {
+    let Some((shape, v, dtype)) = tensor(g, "x")? else {
+        return Ok(None);
+    };
+    let &[rows, d] = shape else {
+        return Err(format!("its 'x' has shape {shape:?}, not [{n}, d]"));
+    };
+    if rows != n || d == 0 {
+        return Err(format!("its 'x' has shape {shape:?}, not [{n}, d]"));
+    }
+    if dtype == DType::Bool {
+        return Err("its 'x' holds bool values, not numbers".into());
+    }
+    if let Some(k) = v
+        .iter()
+        .position(|x| !(x.is_finite() && x.abs() <= f64::from(f32::MAX)))
+    {
+        return Err(format!(
+            "its 'x' holds {} in row {}, column {} (appearance values must be finite)",
+            v[k],
+            k / d,
+            k % d
+        ));
+    }
+    Ok(Some(
+        v.chunks(d)
+            .map(|c| c.iter().map(|&x| x as f32).collect())
+            .collect(),
+    ))
 }
 
 /// Accumulates the conversion: runs (a recording's consecutive pairs in
@@ -246,12 +336,17 @@ impl View {
 #[derive(Default)]
 pub struct Converter {
     pub runs: Vec<ConvertedRun>,
+    /// Pairs left out because a vehicle saw nothing: (index, view).
+    pub skipped: Vec<(u64, String)>,
     pending: PairRows,
     width: Option<usize>,
+    /// Whether the pairs have names (the first pair says).
+    named: Option<bool>,
 }
 
 impl Converter {
-    /// Adds pair `k` of `split` (its views `views`) as the next instance.
+    /// Adds pair `k` of `split` (its views `views`) as the next instance;
+    /// a pair where a vehicle saw nothing is left out (and counted).
     pub fn add(
         &mut self,
         source: &PygSource,
@@ -259,7 +354,11 @@ impl Converter {
         split: &str,
         views: [View; 2],
     ) -> Result<(), String> {
-        let recording = views[0].recording.clone();
+        let recording = self.recording(source, k, &views)?;
+        if let Some(v) = views.iter().position(|v| v.ids.is_empty()) {
+            self.skipped.push((k, source.views[v].clone()));
+            return Ok(());
+        }
         let scenario = match &recording {
             Some((r, _)) => format!("{}/{r}", source.name),
             None => source.name.clone(),
@@ -298,6 +397,57 @@ impl Converter {
             .map_err(|why| format!("pair {k}: {why}"))?;
         self.pending.extend(rows);
         Ok(())
+    }
+
+    /// Pair `k`'s recording and frame: both views name the same (or
+    /// neither does), and every pair has a name or none has.
+    fn recording(
+        &mut self,
+        source: &PygSource,
+        k: u64,
+        views: &[View; 2],
+    ) -> Result<Option<(String, u64)>, String> {
+        let [a, b] = [&views[0].recording, &views[1].recording];
+        let shown = |r: &Option<(String, u64)>| match r {
+            Some((r, f)) => format!("{r}_{f}"),
+            None => "no name".to_owned(),
+        };
+        if a != b {
+            return Err(format!(
+                "pair {k}: its views name different frames ({} {}, {} {})",
+                source.views[0],
+                shown(a),
+                source.views[1],
+                shown(b)
+            ));
+        }
+        match self.named {
+            Some(named) if named != a.is_some() => Err(format!(
+                "pair {k} has {} where earlier pairs have {} (coid groups pairs into runs by \
+                 the recording their 'name' gives)",
+                if named { "no 'name'" } else { "a 'name'" },
+                if named { "one" } else { "none" }
+            )),
+            _ => {
+                self.named = Some(a.is_some());
+                Ok(a.clone())
+            }
+        }
+    }
+
+    /// Recordings whose pairs lie in more than one split, with the splits.
+    pub fn split_recordings(&self) -> Vec<(String, Vec<String>)> {
+        let mut by: std::collections::BTreeMap<&str, Vec<String>> = Default::default();
+        for r in &self.runs {
+            let splits = by.entry(r.scenario.as_str()).or_default();
+            if !splits.contains(&r.split) {
+                splits.push(r.split.clone());
+            }
+        }
+        by.into_iter()
+            .filter(|(_, s)| s.len() > 1)
+            .map(|(r, s)| (r.to_owned(), s))
+            .collect()
     }
 
     /// The rows held so far (no longer held).
@@ -348,7 +498,7 @@ fn pair_rows(
         let side = side as u64;
         let graph = SceneGraph::delaunay(&v.body_m).map_err(|e| e.to_string())?;
         for (k, p) in v.body_m.iter().enumerate() {
-            let world = v.world_m.as_ref().map(|w| w[k]);
+            let world = v.world_m[k];
             rows.nodes.push(Node {
                 run,
                 instance,
@@ -369,8 +519,8 @@ fn pair_rows(
                 heading_rad: None,
                 speed_mps: None,
                 sender: None,
-                world_x_m: world.map(|w| w.x),
-                world_y_m: world.map(|w| w.y),
+                world_x_m: Some(world.x),
+                world_y_m: Some(world.y),
                 appearance: v.appearance.as_ref().map(|a| a[k].clone()),
             });
             rows.truth.push(Truth {
@@ -394,6 +544,9 @@ fn pair_rows(
         }));
     }
     for (a, id) in views[0].ids.iter().enumerate() {
+        if id.is_empty() {
+            continue;
+        }
         if let Some(b) = views[1].ids.iter().position(|x| x == id) {
             rows.true_pairs.push(TruePair {
                 run,

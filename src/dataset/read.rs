@@ -21,6 +21,7 @@ use super::schema::{Edge, Instance, Node, Run, TruePair, Truth};
 use crate::geometry::{Cov2, Pose2, Vec2, fit_rigid};
 use crate::io::frames::{read_dataset_counts, read_dataset_table};
 use crate::sensor::{PoseNoiseLabel, PoseNoiseLevel};
+use crate::traffic::ObjectClass;
 
 /// A dataset: its runs and instances, ready to read run by run.
 #[derive(Debug)]
@@ -94,7 +95,7 @@ pub struct DatasetNode {
     /// Measured centre, the vehicle's body frame.
     pub position_m: Vec2,
     pub cov_m2: Option<Cov2>,
-    pub class: String,
+    pub class: ObjectClass,
     /// RGB in [0, 1].
     pub colour_rgb: Option<[f64; 3]>,
     /// Length, width, height.
@@ -157,6 +158,21 @@ impl Dataset {
             runs.iter().enumerate().map(|(k, r)| (r.run, k)).collect();
         let all = rows(dir, Instance::FILE, Instance::COLUMNS, None, Instance::rows)?;
         let (instances, levels) = group_instances(all, &run_at)?;
+        for (k, (r, rows)) in runs.iter().zip(&instances).enumerate() {
+            let n = rows.chunk_by(|a, b| a.instance == b.instance).count() as u64;
+            if n != r.n_instances {
+                return Err(refuse(
+                    Run::FILE,
+                    format!(
+                        "row {}, column 'n_instances': {}, but instances.parquet holds {n} \
+                         instances of run {}",
+                        k + 1,
+                        r.n_instances,
+                        r.run
+                    ),
+                ));
+            }
+        }
         let mut optional_columns = Vec::new();
         let mut appearance_width = None;
         for (file, columns) in [
@@ -221,6 +237,7 @@ impl Dataset {
         let first = nodes.start;
         let node_rows = rows_in(&self.dir, Node::FILE, Node::COLUMNS, nodes, Node::rows)?;
         for (k, n) in node_rows.into_iter().enumerate() {
+            super::check::node(&n, first + k)?;
             let i = locate(Node::FILE, first + k, n.instance)?;
             self.add_node(&mut instances[i], n, first + k)?;
         }
@@ -233,6 +250,7 @@ impl Dataset {
         let first = truth.start;
         let truth_rows = rows_in(&self.dir, Truth::FILE, Truth::COLUMNS, truth, Truth::rows)?;
         for (k, t) in truth_rows.into_iter().enumerate() {
+            super::check::truth(&t, first + k)?;
             let i = locate(Truth::FILE, first + k, t.instance)?;
             add_truth(&mut instances[i], t, first + k)?;
         }
@@ -355,6 +373,7 @@ fn group_instances(
     let mut by_run: Vec<BTreeMap<u64, Vec<(usize, Instance)>>> =
         vec![BTreeMap::new(); run_at.len()];
     for (k, row) in all.into_iter().enumerate() {
+        super::check::instance(&row, k)?;
         let at = |why: String| refuse(file, format!("row {}{why}", k + 1));
         let &r = run_at
             .get(&row.run)
@@ -494,7 +513,7 @@ fn node_of(n: Node) -> DatasetNode {
     DatasetNode {
         position_m: Vec2::new(n.x_m, n.y_m),
         cov_m2: cov,
-        class: n.class,
+        class: crate::label::parse("object class", &n.class).expect("checked as read"),
         colour_rgb: three(n.colour_r, n.colour_g, n.colour_b),
         size_m: three(n.length_m, n.width_m, n.height_m),
         motion,
@@ -611,12 +630,20 @@ fn add_true_pair(inst: &mut DatasetInstance, p: &TruePair, row: usize) -> Result
         &inst.sides[1].nodes[b].object_id,
     );
     if ia.is_empty() || ia != ib {
+        let shown = |id: &str| {
+            if id.is_empty() {
+                "no object: a false positive, or a node without a truth row".to_owned()
+            } else {
+                format!("object '{id}'")
+            }
+        };
         return Err(refuse(
             TruePair::FILE,
             format!(
-                "row {}: pairs node {a} (object '{ia}') with node {b} (object '{ib}'), not one \
-                 object",
-                row + 1
+                "row {}: pairs node {a} ({}) with node {b} ({}), not one object",
+                row + 1,
+                shown(ia),
+                shown(ib)
             ),
         ));
     }
@@ -641,8 +668,10 @@ fn set_poses(inst: &mut DatasetInstance, rows: &[Instance], run: u64) -> Result<
         refuse(
             Instance::FILE,
             format!(
-                "run {run}, instance {}: the {} vehicle {why}",
-                inst.instance, SIDES[s]
+                "run {run}, instance {}: the {} vehicle {}",
+                inst.instance,
+                SIDES[s],
+                why.replace("{side}", SIDES[s])
             ),
         )
     };
@@ -657,7 +686,7 @@ fn set_poses(inst: &mut DatasetInstance, rows: &[Instance], run: u64) -> Result<
             reported[s] = given[s].or(fitted[s]).ok_or_else(|| {
                 no_pose(
                     s,
-                    "has no reported pose (first_x_m, ...) and its nodes no world positions \
+                    "has no reported pose ({side}_x_m, ...) and its nodes no world positions \
                      (world_x_m, world_y_m) to fit one to",
                 )
             })?;
@@ -675,7 +704,7 @@ fn set_poses(inst: &mut DatasetInstance, rows: &[Instance], run: u64) -> Result<
         if knows_truth && inst.true_poses[s].is_none() {
             return Err(no_pose(
                 s,
-                "has nodes with true positions but no true pose (first_true_x_m, ...) to \
+                "has nodes with true positions but no true pose ({side}_true_x_m, ...) to \
                  score them in its frame",
             ));
         }

@@ -55,6 +55,10 @@ impl CorrespondenceSource {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ExternalMatches {
     pub by_instance: BTreeMap<(usize, PoseNoiseLabel), Vec<Correspondence>>,
+    /// The first row that matches a node a second time, with its
+    /// instance and level: refused by [`ExternalMatches::check`] once that
+    /// instance's nodes are known to exist.
+    pub repeated: Option<((usize, PoseNoiseLabel), String)>,
 }
 
 impl ExternalMatches {
@@ -76,11 +80,23 @@ impl ExternalMatches {
             let (n1, n2) = node_counts(pair);
             for c in self.by_instance.get(&key).into_iter().flatten() {
                 if c.a >= n1 || c.b >= n2 {
+                    let (side, node, n) = if c.a >= n1 {
+                        ("first", c.a, n1)
+                    } else {
+                        ("second", c.b, n2)
+                    };
                     return Err(format!(
-                        "instance {} has {n1} and {n2} nodes, but a match pairs nodes {} and {}",
-                        pair.instance, c.a, c.b
+                        "instance {} at level {}: a match names node {node} of the {side} \
+                         vehicle, which has no such node (it has {n} nodes)",
+                        pair.instance,
+                        pair.level.label.as_str(),
                     ));
                 }
+            }
+            if let Some((k, why)) = &self.repeated
+                && *k == key
+            {
+                return Err(why.clone());
             }
         }
         Ok(())

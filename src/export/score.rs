@@ -69,11 +69,17 @@ pub fn external_matches(
                     side,
                     node,
                 };
-                if !used.insert(matched) {
-                    return Err(format!(
-                        "row {line} matches node {node} of the {} vehicle of run {run}, instance {instance} at level {} a second time",
-                        ["first", "second"][usize::from(side)],
-                        level.as_str()
+                if !used.insert(matched) && matches.repeated.is_none() {
+                    // Refused once the instance's nodes are known to
+                    // exist: a row naming a node the vehicle lacks is
+                    // refused as that first.
+                    matches.repeated = Some((
+                        (instance, level),
+                        format!(
+                            "row {line} matches node {node} of the {} vehicle of run {run}, instance {instance} at level {} a second time",
+                            ["first", "second"][usize::from(side)],
+                            level.as_str()
+                        ),
                     ));
                 }
             }
@@ -183,8 +189,12 @@ mod tests {
         assert_eq!(m[&t].by_instance.len(), 2);
         let fine = [row(t, 1, 2, Some("gps")), row(t, 1, 2, Some("none"))];
         assert!(external_matches(&fine, &all, Split::Test, &levels).is_ok());
+        // A node matched twice is refused once its instance is known to
+        // have it (ExternalMatches::check).
         let twice = [row(t, 1, 2, Some("gps")), row(t, 0, 2, None)];
-        let e = external_matches(&twice, &all, Split::Test, &levels).unwrap_err();
+        let (m, _) = external_matches(&twice, &all, Split::Test, &levels).unwrap();
+        let (key, e) = m[&t].repeated.clone().unwrap();
+        assert_eq!(key, (3, PoseNoiseLabel::Gps));
         assert!(e.contains("node 2 of the second vehicle"), "{e}");
         // Rows of the other splits are left out and counted; a file with
         // only such rows names no test run.

@@ -61,7 +61,7 @@ pub struct BatchLock {
 pub fn claim_batch_folder(dir: &Path, identity: &BatchRecord) -> Result<BatchLock, OutputError> {
     match folder::check_extendable(dir, ResultKind::Batch, Existing::Replace) {
         Ok(()) => {}
-        Err(OutputError::NotReplaceable { why, .. }) => {
+        Err(OutputError::NotExtendable { why, .. }) => {
             let empty = std::fs::read_dir(dir).is_ok_and(|mut d| d.next().is_none());
             if !dir.join("batch.toml").is_file() && !empty {
                 return Err(OutputError::Batch(format!(

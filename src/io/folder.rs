@@ -66,7 +66,7 @@ pub fn check_extendable(
     match what_is_at(out)? {
         None => Ok(()),
         Some(()) if existing == Existing::Refuse => Err(OutputError::Exists(out.to_owned())),
-        Some(()) => kind.check(out).map_err(|why| OutputError::NotReplaceable {
+        Some(()) => kind.check(out).map_err(|why| OutputError::NotExtendable {
             path: out.to_owned(),
             kind: kind.label(),
             why,

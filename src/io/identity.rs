@@ -216,8 +216,10 @@ fn check_runs(runs: &Path) -> Result<(), String> {
 }
 
 /// A models folder: only `<method>.bpk`, `<method>.toml` (a model record,
-/// as `coid train` writes it) and `<method>_loss.csv` of known methods, and
-/// `baselines.toml` (the baselines' validated thresholds).
+/// as `coid train` writes it) and `<method>_loss.csv` of known methods,
+/// `baselines.toml` (the baselines' validated thresholds), and folders
+/// that are models folders themselves (another training seed's,
+/// `seed-N`, or another descriptor's, as the shipped `models/reid`).
 fn check_models(dir: &Path) -> Result<(), String> {
     for e in std::fs::read_dir(dir).map_err(|e| e.to_string())? {
         let e = e.map_err(|e| e.to_string())?;
@@ -226,12 +228,9 @@ fn check_models(dir: &Path) -> Result<(), String> {
             continue;
         }
         // Another training seed's models (`coid train --seed N`: into
-        // `<models>/seed-N`), a models folder of its own.
-        if e.path().is_dir()
-            && name
-                .strip_prefix("seed-")
-                .is_some_and(|s| s.parse::<u64>().is_ok())
-        {
+        // `<models>/seed-N`) or another configuration's: a models folder
+        // of its own.
+        if e.file_type().is_ok_and(|t| t.is_dir()) {
             check_models(&e.path()).map_err(|why| format!("{name}: {why}"))?;
             continue;
         }

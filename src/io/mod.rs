@@ -64,6 +64,12 @@ pub enum OutputError {
         kind: &'static str,
         why: String,
     },
+    #[error("coid does not add to {path}: {why} (it adds only to {kind} that coid wrote)")]
+    NotExtendable {
+        path: PathBuf,
+        kind: &'static str,
+        why: String,
+    },
     #[error("{path} is not a folder coid can write: it is {what} (choose another --out)")]
     NotAFolder { path: PathBuf, what: String },
     #[error(

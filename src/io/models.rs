@@ -294,6 +294,7 @@ pub fn record_validation(dir: &Path, method: Method, v: &Validation) -> Result<(
             epistemic: Lambda::from_f64(v.lambdas.get(UncertaintyKind::Epistemic)),
             aleatoric: Lambda::from_f64(v.lambdas.get(UncertaintyKind::Aleatoric)),
         }),
+        note: crate::matching::deep::decision::temperature_at_bound(v.temperature),
     });
     let name = format!("{}.toml", method.as_str());
     let body = record.to_toml().map_err(OutputError::Batch)?;

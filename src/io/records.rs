@@ -121,6 +121,9 @@ pub struct BaselineEntry {
     /// The a-priori value, and its mean F1 on the same runs.
     pub a_priori: f64,
     pub f1_a_priori: f64,
+    /// What to know about a value at an end of its grid.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
 }
 
 impl BaselinesRecord {
@@ -157,6 +160,10 @@ pub struct ValidationRecord {
     /// the types had their own (their thresholds are not read).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lambdas: Option<LambdaByKind>,
+    /// What to know about a choice that lies at an end of what was tried
+    /// (a temperature at the end of its range).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
 }
 
 /// A threshold per uncertainty type, by its label.
@@ -469,6 +476,7 @@ mod tests {
                     epistemic: Lambda::from_f64(0.3),
                     aleatoric: Lambda::from_f64(0.6),
                 }),
+                note: None,
             }),
             descriptor: None,
         }

@@ -222,7 +222,9 @@ impl Method {
     /// MOGM's minimum share of the largest eigenvector entry (applied after
     /// the spectral solution), RGM's price per match (it shapes the
     /// optimisation), a GPS Hungarian's gate on the squared Mahalanobis
-    /// distance (the chi-square 2-dof 90 % to 99.9999 % points).
+    /// distance (the chi-square 2-dof 10 % to 99.9999 % points: from a
+    /// gate tight enough for lidar-quality data whose covariances are
+    /// not given, 1 m per axis being assumed, to one that gates nothing).
     pub fn baseline_knob(self) -> Option<BaselineKnob> {
         let knob = |name, grid: &[f64]| {
             Some(BaselineKnob {
@@ -236,9 +238,12 @@ impl Method {
                 &[0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9],
             ),
             Method::Rgm => knob("price_per_match", &[0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.5, 2.0]),
-            Method::GpsHungarian | Method::GpsAppHungarian => {
-                knob("gate_chi2", &[4.61, 5.99, 9.21, 13.82, 18.42, 23.03, 27.63])
-            }
+            Method::GpsHungarian | Method::GpsAppHungarian => knob(
+                "gate_chi2",
+                &[
+                    0.21, 0.71, 1.39, 2.41, 3.22, 4.61, 5.99, 9.21, 13.82, 18.42, 23.03, 27.63,
+                ],
+            ),
             _ => None,
         }
     }

@@ -20,7 +20,7 @@ use crate::sensor::{
     Appearance, Descriptor, DescriptorLaw, Detection, DetectionTruth, Observation,
     ObservationTruth, PoseNoiseLevel, Sensed,
 };
-use crate::traffic::{ObjectClass, StaticScene, TrafficFrame};
+use crate::traffic::{StaticScene, TrafficFrame};
 
 /// The position error (1 sigma per axis) of a node whose dataset gives no
 /// covariance.
@@ -257,14 +257,8 @@ fn sensed(inst: &DatasetInstance, s: usize, law: Option<DescriptorLaw>) -> Resul
     let side = &inst.sides[s];
     let mut detections = Vec::with_capacity(side.nodes.len());
     let mut truths = Vec::with_capacity(side.nodes.len());
-    for (k, n) in side.nodes.iter().enumerate() {
-        let class: ObjectClass = crate::label::parse("object class", &n.class).map_err(|why| {
-            format!(
-                "run instance {}, {} vehicle, node {k}: {why}",
-                inst.instance,
-                ["first", "second"][s]
-            )
-        })?;
+    for n in &side.nodes {
+        let class = n.class;
         let size = n.size_m.unwrap_or(UNKNOWN_SIZE_M);
         detections.push(Detection {
             position_m: n.position_m,

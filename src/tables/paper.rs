@@ -58,7 +58,7 @@ pub(super) fn table1(inp: &Inputs) -> Table {
         .method_level(|r| r.key)
         .text("inputs", |r| r.key.method.inputs().as_str().to_owned())
         .scores(|r| &r.scores)
-        .count("n_runs", |_| inp.runs.len())
+        .defined("n_runs", |r| &r.scores.f1)
         .defined(N_RUNS_PRECISION, |r| &r.scores.precision);
     if rows.iter().any(|r| r.spread.is_some()) {
         columns = columns

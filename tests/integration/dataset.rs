@@ -13,7 +13,7 @@ use crate::util::*;
 /// One view: objects `ids` at camera-frame (x right, z forward) `xz`,
 /// seen from a vehicle at world (`at`, heading `h` rad, CARLA's
 /// left-handed frame), with 4-value appearance vectors.
-fn view(name: &str, ids: &[u32], xz: &[(f64, f64)], at: (f64, f64), h: f64) -> Vec<u8> {
+pub(crate) fn view(name: &str, ids: &[u32], xz: &[(f64, f64)], at: (f64, f64), h: f64) -> Vec<u8> {
     let n = ids.len();
     let pos: Vec<f64> = xz.iter().flat_map(|&(x, z)| [x, 1.5, z]).collect();
     // Camera (x right, z forward) -> CARLA (forward, right) -> world.
@@ -59,7 +59,7 @@ fn view(name: &str, ids: &[u32], xz: &[(f64, f64)], at: (f64, f64), h: f64) -> V
 
 /// Three pairs of one recording (frames 5, 6, 7) in DMGM's layout under
 /// `dir`: `proc_s/<k>/data.pt`, `proc_t/<k>/data.pt`, k = 10, 11, 12.
-fn write_pairs(dir: &Path) {
+pub(crate) fn write_pairs(dir: &Path) {
     for (j, k) in [10u32, 11, 12].into_iter().enumerate() {
         let name = format!("data/proc_s/{k}/r1_{:04}", 5 + j);
         let s = view(
@@ -87,7 +87,7 @@ fn write_pairs(dir: &Path) {
 /// Like [`write_pairs`], but the two views see one world: objects 101-105
 /// at fixed CARLA-frame places, each view's camera coordinates computed
 /// from its vehicle's pose (pair k: both vehicles moved by k metres).
-fn write_consistent_pairs(dir: &Path) {
+pub(crate) fn write_consistent_pairs(dir: &Path) {
     let world = [
         (101, (18.0, 4.0)),
         (102, (25.0, -6.0)),
@@ -122,12 +122,12 @@ fn write_consistent_pairs(dir: &Path) {
     }
 }
 
-fn convert(fx: &Fixture, out: &str) -> std::process::Output {
+pub(crate) fn convert(fx: &Fixture, out: &str) -> std::process::Output {
     convert_split(fx, out, &["validation=10..10", "test=11..12"])
 }
 
 /// `coid convert pyg` of the fixture's `src` into `out`, split as `splits`.
-fn convert_split(fx: &Fixture, out: &str, splits: &[&str]) -> std::process::Output {
+pub(crate) fn convert_split(fx: &Fixture, out: &str, splits: &[&str]) -> std::process::Output {
     let (src, dst) = (fx.path("src"), fx.path(out));
     let mut args = vec!["convert", "pyg", src.to_str().unwrap(), "-q", "-o"];
     args.extend([dst.to_str().unwrap(), "--splits"]);
@@ -198,10 +198,10 @@ fn converted_pyg_pairs_read_back_as_a_dataset() {
     assert_ok(&o);
     let said = String::from_utf8_lossy(&o.stdout);
     assert!(
-        said.contains("validation: 1 runs, 1 instances, 3.5 nodes per vehicle, 2.0 true pairs"),
+        said.contains("validation: 1 run, 1 instances, 3.5 nodes per vehicle, 2.0 true pairs"),
         "{said}"
     );
-    assert!(said.contains("test: 1 runs, 2 instances"), "{said}");
+    assert!(said.contains("test: 1 run, 2 instances"), "{said}");
     assert!(
         said.contains("appearance vectors: 4 values per node"),
         "{said}"
@@ -233,7 +233,7 @@ fn a_pt_file_whose_pickle_would_run_code_is_refused() {
     assert!(!fx.path("ds").exists());
 }
 
-fn rewrite(path: &Path, edit: impl FnOnce(DataFrame) -> DataFrame) {
+pub(crate) fn rewrite(path: &Path, edit: impl FnOnce(DataFrame) -> DataFrame) {
     let mut df = edit(read_parquet(path));
     ParquetWriter::new(std::fs::File::create(path).unwrap())
         .finish(&mut df)

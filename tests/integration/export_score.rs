@@ -133,7 +133,7 @@ fn a_matches_file_that_does_not_fit_is_refused_in_one_line() {
     let cases = [
         (
             format!("run,instance,a,b\n{run},0,999,0\n"),
-            "a match pairs nodes 999",
+            "a match names node 999 of the first vehicle, which has no such node",
         ),
         (
             format!("run,instance,a,b\n{run},100000,0,0\n"),

@@ -6,14 +6,18 @@
 
 use std::io::Write;
 
-/// A tensor to write: f32 (`Float`) or i32 (`Int`) values in row-major
-/// order with their shape; `transposed` stores a 2-D tensor column-major
-/// and describes it as a transposed view, as torch does for `.t()`.
+/// A tensor to write: its values in row-major order with their shape, in
+/// the storage type `storage` (`FloatStorage`: f32, `IntStorage`: i32,
+/// `BoolStorage`, `HalfStorage`, `BFloat16Storage`, `CharStorage`: i8);
+/// `transposed` stores a 2-D tensor column-major and describes it as a
+/// transposed view, as torch does for `.t()`; `declared` claims another
+/// size than the values have (a file that lies).
 pub struct PtTensor {
     pub values: Vec<f64>,
     pub shape: Vec<usize>,
-    pub int: bool,
+    pub storage: &'static str,
     pub transposed: bool,
+    pub declared: Option<Vec<usize>>,
 }
 
 impl PtTensor {
@@ -21,20 +25,30 @@ impl PtTensor {
         PtTensor {
             values,
             shape: shape.to_vec(),
-            int: false,
+            storage: "FloatStorage",
             transposed: false,
+            declared: None,
         }
     }
 
     pub fn int(values: Vec<f64>, shape: &[usize]) -> Self {
-        PtTensor {
-            int: true,
-            ..PtTensor::float(values, shape)
-        }
+        PtTensor::float(values, shape).stored_as("IntStorage")
+    }
+
+    pub fn stored_as(mut self, storage: &'static str) -> Self {
+        self.storage = storage;
+        self
     }
 
     pub fn transposed(mut self) -> Self {
         self.transposed = true;
+        self
+    }
+
+    /// Claims size `shape` (with contiguous strides) over the same storage.
+    #[allow(dead_code, reason = "used by the integration tests only")]
+    pub fn declared(mut self, shape: &[usize]) -> Self {
+        self.declared = Some(shape.to_vec());
         self
     }
 }
@@ -43,6 +57,9 @@ impl PtTensor {
 pub enum PtField {
     Tensor(PtTensor),
     Text(String),
+    /// Pickle opcodes that push the field's value.
+    #[allow(dead_code, reason = "used by the integration tests only")]
+    Pickle(Vec<u8>),
 }
 
 /// A pickle assembled opcode by opcode.
@@ -69,6 +86,12 @@ impl Pickle {
     }
 
     pub fn int(&mut self, v: usize) -> &mut Self {
+        if v > i32::MAX as usize {
+            // LONG1 of 8 bytes: sizes no i32 holds.
+            self.0.extend([0x8a, 8]);
+            self.0.extend((v as u64).to_le_bytes());
+            return self;
+        }
         self.0.push(b'J');
         self.0.extend((v as i32).to_le_bytes());
         self
@@ -85,20 +108,21 @@ impl Pickle {
     /// `_rebuild_tensor_v2(('storage', <T>Storage, key, 'cpu', numel),
     /// 0, shape, stride, False, OrderedDict())`.
     fn tensor(&mut self, t: &PtTensor, key: usize) -> &mut Self {
-        let storage = if t.int { "IntStorage" } else { "FloatStorage" };
-        let stride: Vec<usize> = if t.transposed && t.shape.len() == 2 {
-            vec![1, t.shape[0]]
+        let storage = t.storage;
+        let shape = t.declared.as_ref().unwrap_or(&t.shape);
+        let stride: Vec<usize> = if t.transposed && shape.len() == 2 {
+            vec![1, shape[0]]
         } else {
-            let mut s = vec![1; t.shape.len()];
-            for d in (0..t.shape.len().saturating_sub(1)).rev() {
-                s[d] = s[d + 1] * t.shape[d + 1];
+            let mut s = vec![1usize; shape.len()];
+            for d in (0..shape.len().saturating_sub(1)).rev() {
+                s[d] = s[d + 1].saturating_mul(shape[d + 1]);
             }
             s
         };
         self.global("torch._utils", "_rebuild_tensor_v2").op(b'(');
         self.op(b'(').text("storage").global("torch", storage);
         self.text(&key.to_string()).text("cpu").int(t.values.len());
-        self.op(b't').op(b'Q').int(0).ints(&t.shape).ints(&stride);
+        self.op(b't').op(b'Q').int(0).ints(shape).ints(&stride);
         self.op(0x89)
             .global("collections", "OrderedDict")
             .op(b')')
@@ -120,13 +144,28 @@ fn storage(t: &PtTensor) -> Vec<u8> {
     };
     let mut out = Vec::new();
     for v in order {
-        if t.int {
-            out.extend((v as i32).to_le_bytes());
-        } else {
-            out.extend((v as f32).to_le_bytes());
+        match t.storage {
+            "IntStorage" => out.extend((v as i32).to_le_bytes()),
+            "BoolStorage" => out.push(u8::from(v != 0.0)),
+            "CharStorage" => out.push(v as i8 as u8),
+            "HalfStorage" => out.extend(half_bits(v).to_le_bytes()),
+            "BFloat16Storage" => out.extend((((v as f32).to_bits() >> 16) as u16).to_le_bytes()),
+            _ => out.extend((v as f32).to_le_bytes()),
         }
     }
     out
+}
+
+/// The IEEE half of `v` (normal numbers and zero, rounded down: enough for
+/// test values).
+fn half_bits(v: f64) -> u16 {
+    let b = (v as f32).to_bits();
+    let sign = ((b >> 16) & 0x8000) as u16;
+    let exp = ((b >> 23) & 0xff) as i32 - 127 + 15;
+    if v == 0.0 || exp <= 0 {
+        return sign;
+    }
+    sign | ((exp as u16) << 10) | ((b >> 13) & 0x3ff) as u16
 }
 
 /// A `torch.save` archive of `pickle` and `storages` (named `0`, `1`, ...).
@@ -172,6 +211,9 @@ pub fn pyg_data(fields: &[(&str, PtField)]) -> Vec<u8> {
             }
             PtField::Text(s) => {
                 p.text(s);
+            }
+            PtField::Pickle(ops) => {
+                p.0.extend(ops);
             }
         }
     }

@@ -15,6 +15,7 @@ Failures raise :class:`CoidError` with the line ``coid`` prints.
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 import uuid
@@ -67,6 +68,7 @@ def _config_file(config: Config, name: str) -> Iterator[Optional[str]]:
         yield None
         return
     if isinstance(config, Mapping):
+        _finite(config, "")
         text = _coid_sim.toml_of_json(json.dumps(config, default=_plain))
         path = Path(f".coid-{name}-{os.getpid()}-{uuid.uuid4().hex[:8]}.toml")
         path.write_text(text)
@@ -76,6 +78,46 @@ def _config_file(config: Config, name: str) -> Iterator[Optional[str]]:
             path.unlink(missing_ok=True)
         return
     yield os.fspath(config)
+
+
+def _finite(value: Any, at: str) -> None:
+    """Refuses a number that is not finite anywhere in a dict configuration
+    (TOML could carry it; no setting of coid takes it)."""
+    if isinstance(value, Mapping):
+        for k, v in value.items():
+            _finite(v, f"{at}.{k}" if at else str(k))
+    elif isinstance(value, (list, tuple)):
+        for k, v in enumerate(value):
+            _finite(v, f"{at}[{k}]")
+    elif isinstance(value, float) and not math.isfinite(value):
+        raise CoidError(f"the configuration dict holds {value} at {at}: no setting of coid takes a number that is not finite")
+
+
+@contextmanager
+def _shown_as(names: Mapping[str, str]) -> Iterator[None]:
+    """Errors name what the user gave instead of the temporary files coid
+    was handed (a dict configuration, a frame of matches)."""
+    try:
+        yield
+    except CoidError as e:
+        message = str(e)
+        for path, shown in names.items():
+            message = message.replace(os.path.abspath(path), shown).replace(path, shown)
+        raise CoidError(message) from None
+
+
+def _seed(name: str, value: Optional[int]) -> list:
+    """``--<name> value`` for a seed: an integer >= 0."""
+    if value is None:
+        return []
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise CoidError(f"{name} must be an integer >= 0, not {value!r}")
+    return [f"--{name.replace('_', '-')}", str(value)]
+
+
+def _config_names(config: Config, path: Optional[str]) -> dict:
+    """The temporary file of a dict configuration, as errors show it."""
+    return {path: "the configuration dict"} if isinstance(config, Mapping) and path else {}
 
 
 def _plain(value: Any) -> Any:
@@ -135,12 +177,9 @@ def run(
     threads: worker threads [default: every core].
     quiet: no progress bar.
     """
-    with _config_file(config, name) as path:
-        args = ["run", *_common(path, _out(out, config, name, ""), force, quiet, threads)]
-        if traffic_seed is not None:
-            args += ["--traffic-seed", str(traffic_seed)]
-        if sensor_seed is not None:
-            args += ["--sensor-seed", str(sensor_seed)]
+    seeds = _seed("traffic_seed", traffic_seed) + _seed("sensor_seed", sensor_seed)
+    with _config_file(config, name) as path, _shown_as(_config_names(config, path)):
+        args = ["run", *_common(path, _out(out, config, name, ""), force, quiet, threads), *seeds]
         headline = cli(*args)
     return Results(Path(_last_folder(headline)), headline)
 
@@ -167,7 +206,7 @@ def export(
         folder, one converted from elsewhere too): the built-in methods'
         matches on it.
     """
-    with _config_file(config, name) as path:
+    with _config_file(config, name) as path, _shown_as(_config_names(config, path)):
         args = ["export", *_common(path, _out(out, config, name, "-export", dataset), force, quiet, threads)]
         if splits:
             args += ["--splits", *splits]
@@ -214,17 +253,22 @@ def score(
         if config is None:
             config = dataset.config
         dataset = dataset.path
+    if not isinstance(matches, (str, os.PathLike, pl.DataFrame)) and type(matches).__module__.split(".")[0] != "pandas":
+        raise CoidError(f"matches must be a polars or pandas frame, or a Parquet or CSV file, not {type(matches).__name__}")
     with tempfile.TemporaryDirectory(prefix="coid-score-") as tmp, _config_file(config, name) as path:
+        names = _config_names(config, path)
         if isinstance(matches, (str, os.PathLike)):
             file = os.fspath(matches)
         else:
             frame = matches if isinstance(matches, pl.DataFrame) else pl.from_pandas(matches)
             file = os.path.join(tmp, "matches.parquet")
             frame.write_parquet(file)
+            names[file] = "the matches frame"
         args = ["score", *_common(path, _out(out, config, name, "-score", dataset), force, quiet, threads), "--matches", file, "--split", split]
         if dataset is not None:
             args += ["--dataset", os.fspath(dataset)]
         if export is not None:
             args += ["--export", os.fspath(export)]
-        line = cli(*args)
+        with _shown_as(names):
+            line = cli(*args)
     return Results(Path(_last_folder(line)), line)

@@ -21,6 +21,9 @@ def call(argv: List[str]) -> Optional[str]:
 def toml_of_json(json: str) -> str:
     """A JSON object as TOML text. Raises CoidError."""
 
+def methods() -> List[str]:
+    """Every built-in method's label, in the tables' order."""
+
 def delaunay(positions_m: Sequence[Sequence[float]]) -> List[Tuple[int, int]]:
     """coid's Delaunay graph over body-frame positions: each undirected
     edge once, ``a < b``. Raises CoidError."""

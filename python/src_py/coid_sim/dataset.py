@@ -21,6 +21,7 @@ import numpy as np
 import polars as pl
 
 from . import _coid_sim
+from ._coid_sim import CoidError
 
 #: coid's detected classes, in the order of the one-hot node features.
 CLASSES: Tuple[str, ...] = ("car", "van", "truck", "bus", "motorcycle", "bicycle", "pedestrian")
@@ -226,8 +227,7 @@ class Instance:
         of :meth:`arrays` as tensors; ``edge_index_s`` batches by
         ``x_s``'s rows, ``y`` stays local: the partner's index in its own
         instance, -1 for none). Needs torch_geometric."""
-        import torch
-
+        torch = _needs("torch", "to_pyg")
         data = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in self.arrays(label).items()}
         return pair_data_class()(**data, run=self.run, instance=self.instance, num_nodes=len(self.first))
 
@@ -261,6 +261,7 @@ class Instance:
         (:meth:`Dataset.matches`), kept for the next call."""
         self.level(label)
         frame = self._dataset.matches(method)
+
         rows = frame.filter(
             (pl.col("run") == self.run) & (pl.col("instance") == self.instance) & (pl.col("pose_noise") == label)
         )
@@ -270,13 +271,27 @@ class Instance:
 _PAIR_DATA: Any = None
 
 
+def _needs(module: str, what: str) -> Any:
+    """``module``, imported; a missing one named with what to install."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as e:
+        raise ModuleNotFoundError(
+            f"{what} needs torch and torch_geometric, which are not installed here "
+            f"(pip install torch torch_geometric)",
+            name=e.name,
+        ) from None
+
+
 def pair_data_class() -> Any:
     """DGMC's ``PairData``: a ``torch_geometric.data.Data`` whose
     ``edge_index_s``/``_t`` are offset by ``x_s``/``x_t``'s rows when
     batched (everything else, ``y`` too, is not)."""
     global _PAIR_DATA
     if _PAIR_DATA is None:
-        from torch_geometric.data import Data
+        Data = _needs("torch_geometric.data", "to_pyg").Data
 
         class PairData(Data):  # type: ignore[misc, valid-type]
             def __inc__(self, key: str, value: Any, *args: Any, **kwargs: Any) -> Any:
@@ -358,6 +373,9 @@ class Dataset:
     def instances(self, split: Optional[str] = None) -> Iterator[Instance]:
         """Every instance, run by run (only ``split``'s runs when given:
         ``"train"``, ``"validation"`` or ``"test"``)."""
+        if split is not None and split not in ("train", "validation", "test"):
+            have = ", ".join(dict.fromkeys(self.runs["split"].to_list())) or "none"
+            raise CoidError(f"{split!r} is not a split (train, validation or test; this dataset's runs are {have})")
         for k, split_k in enumerate(self.runs["split"].to_list()):
             if split is None or split_k == split:
                 yield from self.run(k)
@@ -373,6 +391,8 @@ class Dataset:
         method (kept for the next call)."""
         from . import export
 
+        if method not in _coid_sim.methods():
+            raise CoidError(f"unknown method {method!r} (coid's methods: {', '.join(_coid_sim.methods())})")
         if method not in self._matches:
             with tempfile.TemporaryDirectory(prefix="coid-matches-") as tmp:
                 out = Path(tmp) / "export"

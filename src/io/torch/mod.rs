@@ -21,10 +21,12 @@ use pickle::{Global, TensorView, Value};
 /// One field of a graph.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Field {
-    /// A tensor's values in row-major order, with its shape.
+    /// A tensor's values in row-major order, with its shape and the
+    /// type it was stored as.
     Tensor {
         shape: Vec<usize>,
         values: Vec<f64>,
+        dtype: DType,
     },
     Text(String),
     Number(f64),
@@ -48,7 +50,10 @@ pub enum PtError {
 
 /// The graphs a `.pt` file holds: a PyG `Data`, or an `InMemoryDataset`'s
 /// `(data, slices)` (one graph when `slices` is `None`, else one per
-/// slice).
+/// slice). What the file can make coid build is bounded by its size: the
+/// pickle by [`pickle::object_budget`], the tensors' values by the
+/// archive's bytes (each view checked against its storage, and each
+/// storage against its entry, before anything is allocated).
 pub fn read_graphs(path: &Path) -> Result<Vec<Graph>, PtError> {
     let shown = path.display().to_string();
     let io = |why: String| PtError::Io {
@@ -60,33 +65,53 @@ pub fn read_graphs(path: &Path) -> Result<Vec<Graph>, PtError> {
         why,
     };
     let file = std::fs::File::open(path).map_err(|e| io(e.to_string()))?;
+    let file_len = file.metadata().map_err(|e| io(e.to_string()))?.len();
     let mut zip = zip::ZipArchive::new(std::io::BufReader::new(file))
         .map_err(|e| io(format!("not a torch.save archive ({e})")))?;
-    let pickle_name = zip
-        .file_names()
-        .filter_map(Result::ok)
-        .find(|n| n.ends_with("/data.pkl") && n.matches('/').count() == 1)
-        .map(|n| n.into_owned())
-        .ok_or_else(|| io("no data.pkl in the archive (not a torch.save file)".into()))?;
+    let pickle_name = root_pickle(&zip).map_err(&io)?;
     let prefix = pickle_name.trim_end_matches("data.pkl").to_owned();
-    let mut read_entry = |name: &str| -> Result<Vec<u8>, PtError> {
-        let mut f = zip
+    let mut read_entry = |name: &str, need: Option<(u64, &str)>| -> Result<Vec<u8>, PtError> {
+        let f = zip
             .by_name(name)
             .map_err(|e| io(format!("no {name} in the archive ({e})")))?;
+        let limit = match need {
+            Some((bytes, what)) if bytes > f.size() => {
+                return Err(content(format!(
+                    "storage {what} should hold {bytes} bytes, its archive entry holds {}",
+                    f.size()
+                )));
+            }
+            Some((bytes, _)) => bytes,
+            None => f.size().min(file_len),
+        };
         let mut buf = Vec::new();
-        f.read_to_end(&mut buf).map_err(|e| io(e.to_string()))?;
+        f.take(limit)
+            .read_to_end(&mut buf)
+            .map_err(|e| io(e.to_string()))?;
         Ok(buf)
     };
-    let root = pickle::read(&read_entry(&pickle_name)?).map_err(|source| PtError::Pickle {
-        path: shown.clone(),
-        source,
-    })?;
+    let root =
+        pickle::read(&read_entry(&pickle_name, None)?).map_err(|source| PtError::Pickle {
+            path: shown.clone(),
+            source,
+        })?;
     let mut storages: BTreeMap<String, Vec<u8>> = BTreeMap::new();
+    // Every value read becomes an f64: at most the archive's bytes of them.
+    let mut left = usize::try_from(file_len).unwrap_or(usize::MAX).max(1 << 16);
     let mut tensor = |v: &TensorView| -> Result<Vec<f64>, PtError> {
+        let count = view_count(v, left).map_err(&content)?;
         if !storages.contains_key(&v.key) {
-            let bytes = read_entry(&format!("{prefix}data/{}", v.key))?;
+            let bytes = v
+                .numel
+                .checked_mul(v.dtype.size())
+                .ok_or_else(|| content(format!("storage {} declares {} values", v.key, v.numel)))?;
+            let bytes = read_entry(
+                &format!("{prefix}data/{}", v.key),
+                Some((bytes as u64, &v.key)),
+            )?;
             storages.insert(v.key.clone(), bytes);
         }
+        left -= count;
         values(v, &storages[&v.key]).map_err(&content)
     };
     let (data, slices) = match &root {
@@ -97,6 +122,45 @@ pub fn read_graphs(path: &Path) -> Result<Vec<Graph>, PtError> {
     match slices {
         None | Some(Value::None) => Ok(vec![whole]),
         Some(s) => split(&whole, s, &mut tensor).map_err(content)?,
+    }
+}
+
+/// The folders of `dir` whose names are numbers (a PyG source's pair
+/// folders), by number.
+pub fn numbered_folders(dir: &Path) -> Result<Vec<u64>, String> {
+    let listing = |e: std::io::Error| format!("cannot list {}: {e}", dir.display());
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(listing)? {
+        let entry = entry.map_err(listing)?;
+        if let Some(k) = entry
+            .file_name()
+            .to_str()
+            .and_then(|n| n.parse::<u64>().ok())
+        {
+            out.push(k);
+        }
+    }
+    out.sort_unstable();
+    Ok(out)
+}
+
+/// The archive's one pickle, `<archive>/data.pkl`.
+fn root_pickle<R: std::io::Read + std::io::Seek>(
+    zip: &zip::ZipArchive<R>,
+) -> Result<String, String> {
+    let roots: Vec<String> = zip
+        .file_names()
+        .filter_map(Result::ok)
+        .filter(|n| n.ends_with("/data.pkl") && n.matches('/').count() == 1)
+        .map(|n| n.into_owned())
+        .collect();
+    match roots.as_slice() {
+        [one] => Ok(one.clone()),
+        [] => Err("no data.pkl in the archive (not a torch.save file)".into()),
+        [a, b, ..] => Err(format!(
+            "the archive holds {} pickles ({a}, {b}, ...), torch.save writes one",
+            roots.len()
+        )),
     }
 }
 
@@ -135,6 +199,7 @@ fn graph(
                 Ok(values) => Field::Tensor {
                     shape: t.shape.clone(),
                     values,
+                    dtype: t.dtype,
                 },
                 Err(e) => return Ok(Err(e)),
             },
@@ -149,8 +214,8 @@ fn graph(
 }
 
 /// An `InMemoryDataset`'s collated `data` cut into its graphs by `slices`
-/// (each field's boundaries along its first dimension; text fields are
-/// lists and are not cut).
+/// (each field's boundaries along its first dimension, from 0, never
+/// decreasing; text fields are lists and are not cut).
 fn split(
     whole: &Graph,
     slices: &Value,
@@ -168,21 +233,37 @@ fn split(
             Ok(b) => b,
             Err(e) => return Ok(Err(e)),
         };
-        bounds.insert(name.clone(), b.iter().map(|&x| x as usize).collect());
+        let b: Vec<usize> = b
+            .iter()
+            .map(|&x| (x >= 0.0 && x.fract() == 0.0 && x < 2f64.powi(52)).then_some(x as usize))
+            .collect::<Option<_>>()
+            .ok_or_else(|| format!("the slices of '{name}' are not indices >= 0"))?;
+        if b.first().is_some_and(|&f| f != 0) || b.windows(2).any(|w| w[1] < w[0]) {
+            return Err(format!(
+                "the slices of '{name}' do not rise from 0 (each graph's rows follow the last's)"
+            ));
+        }
+        bounds.insert(name.clone(), b);
     }
     let n = bounds.values().map(|b| b.len().saturating_sub(1)).max();
     let n = n.ok_or("its slices name no field")?;
     let mut out = vec![Graph::new(); n];
     for (name, field) in whole {
-        let Field::Tensor { shape, values } = field else {
+        let Field::Tensor {
+            shape,
+            values,
+            dtype,
+        } = field
+        else {
             continue;
         };
         let Some(b) = bounds.get(name) else { continue };
         let row: usize = shape.iter().skip(1).product();
         for (g, w) in b.windows(2).enumerate() {
-            let (lo, hi) = (w[0] * row, w[1] * row);
-            let part = values
-                .get(lo..hi)
+            let part = w[0]
+                .checked_mul(row)
+                .zip(w[1].checked_mul(row))
+                .and_then(|(lo, hi)| values.get(lo..hi))
                 .ok_or_else(|| format!("slices of '{name}' lie outside it"))?;
             let mut s = shape.clone();
             if let Some(first) = s.first_mut() {
@@ -193,6 +274,7 @@ fn split(
                 Field::Tensor {
                     shape: s,
                     values: part.to_vec(),
+                    dtype: *dtype,
                 },
             );
         }
@@ -200,8 +282,43 @@ fn split(
     Ok(Ok(out))
 }
 
+/// How many values a tensor view holds, checked before anything is read:
+/// its size (no overflow, at most `left`, what the archive may still
+/// give), and every element it reaches inside its storage.
+fn view_count(v: &TensorView, left: usize) -> Result<usize, String> {
+    let count = v
+        .shape
+        .iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d))
+        .filter(|&n| n <= left)
+        .ok_or_else(|| {
+            format!(
+                "a tensor of size {:?} holds more values than the file has bytes",
+                v.shape
+            )
+        })?;
+    if count == 0 {
+        return Ok(0);
+    }
+    let last = v
+        .shape
+        .iter()
+        .zip(&v.stride)
+        .try_fold(v.offset, |at, (&n, &s)| {
+            at.checked_add((n - 1).checked_mul(s)?)
+        });
+    match last {
+        Some(last) if last < v.numel => Ok(count),
+        _ => Err(format!(
+            "a tensor of size {:?}, stride {:?} from element {} reaches outside its storage of \
+             {} values",
+            v.shape, v.stride, v.offset, v.numel
+        )),
+    }
+}
+
 /// A tensor view's values in row-major order, read from its storage's
-/// bytes; refused when the view reaches outside the storage.
+/// bytes (the view checked by [`view_count`]).
 fn values(v: &TensorView, bytes: &[u8]) -> Result<Vec<f64>, String> {
     let size = v.dtype.size();
     let have = bytes.len() / size;
@@ -215,18 +332,6 @@ fn values(v: &TensorView, bytes: &[u8]) -> Result<Vec<f64>, String> {
     let mut out = Vec::with_capacity(count);
     if count == 0 {
         return Ok(out);
-    }
-    let last = v.offset
-        + v.shape
-            .iter()
-            .zip(&v.stride)
-            .map(|(&n, &s)| (n - 1) * s)
-            .sum::<usize>();
-    if last >= v.numel {
-        return Err(format!(
-            "a tensor's view reaches element {last} of a storage of {}",
-            v.numel
-        ));
     }
     let mut index = vec![0usize; v.shape.len()];
     for _ in 0..count {
@@ -249,17 +354,17 @@ fn values(v: &TensorView, bytes: &[u8]) -> Result<Vec<f64>, String> {
 }
 
 fn element(dtype: DType, b: &[u8]) -> f64 {
-    let a = |n: usize| -> [u8; 8] {
-        let mut x = [0u8; 8];
-        x[..n].copy_from_slice(&b[..n]);
-        x
-    };
+    let two = || [b[0], b[1]];
+    let four = || [b[0], b[1], b[2], b[3]];
     match dtype {
-        DType::F32 => f64::from(f32::from_le_bytes(a(4)[..4].try_into().expect("4"))),
-        DType::F64 => f64::from_le_bytes(a(8)),
-        DType::I64 => i64::from_le_bytes(a(8)) as f64,
-        DType::I32 => f64::from(i32::from_le_bytes(a(4)[..4].try_into().expect("4"))),
-        DType::I16 => f64::from(i16::from_le_bytes(a(2)[..2].try_into().expect("2"))),
+        DType::F64 => f64::from_le_bytes(b[..8].try_into().expect("8 bytes")),
+        DType::F32 => f64::from(f32::from_le_bytes(four())),
+        DType::F16 => f64::from(half::f16::from_le_bytes(two())),
+        DType::BF16 => f64::from(half::bf16::from_le_bytes(two())),
+        DType::I64 => i64::from_le_bytes(b[..8].try_into().expect("8 bytes")) as f64,
+        DType::I32 => f64::from(i32::from_le_bytes(four())),
+        DType::I16 => f64::from(i16::from_le_bytes(two())),
+        DType::I8 => f64::from(b[0] as i8),
         DType::U8 | DType::Bool => f64::from(b[0]),
     }
 }

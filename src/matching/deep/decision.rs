@@ -137,6 +137,22 @@ pub fn pair_uncertainty(p: f64, aleatoric: f64, kind: UncertaintyKind) -> f64 {
 }
 
 /// `sigmoid(logit(p) / tau)`: a probability calibrated by a temperature.
+/// The temperatures validation may fit: 1/1000 to 1000.
+pub const TEMPERATURE_RANGE: (f64, f64) = (1e-3, 1e3);
+
+/// Why a fitted temperature is not a calibration, if it is not: at an end
+/// of [`TEMPERATURE_RANGE`] (at the top, the decided pairs are mostly
+/// wrong and every probability is pushed towards 1/2).
+pub fn temperature_at_bound(t: f64) -> Option<String> {
+    let (lo, hi) = TEMPERATURE_RANGE;
+    (t <= lo * 1.01 || t >= hi / 1.01).then(|| {
+        format!(
+            "the temperature {t:.3} lies at an end of the range fitted ({lo} to {hi}): the \
+             decided pairs' probabilities cannot be calibrated by a temperature"
+        )
+    })
+}
+
 pub fn calibrated(p: f64, temperature: f64) -> f64 {
     if temperature == 1.0 || p <= 0.0 || p >= 1.0 {
         return p;
