@@ -7,20 +7,26 @@
 //! leave this module, and reading and writing weight files is the
 //! caller's business (`io`).
 //!
-//! Inside, one MC-dropout shell ([`mc`]) runs every network: `ours` and
-//! `published` each bring a model (burn, what training differentiates and
-//! the reference the tests hold inference to) and an inference in plain
-//! Rust over the shared `kernels`. `features` is what the networks see,
-//! `backend` the one place burn's device is chosen.
+//! Inside, three layers, each knowing only those below it:
+//! - building blocks: `arch` (the methods' networks and their knobs),
+//!   `features` (what the networks see), `params` (parameters by name:
+//!   weights files and seeded starts), `kernels` (products, lanes,
+//!   Sinkhorn), `decision`, `cost`, and the MC-dropout shell `mc` with its
+//!   [`mc::Network`] trait and seeded draws;
+//! - inference: `ours` and `published`, each network in plain Rust as an
+//!   `impl Network` (no tensors);
+//! - training: `train`, burn's modules of both networks, their losses and
+//!   the trainer, and the tensor reference the tests hold inference to (a
+//!   second `impl Network` of each).
 
 pub mod arch;
-mod backend;
 pub mod cost;
 pub mod decision;
 pub(crate) mod features;
 mod kernels;
 mod mc;
 mod ours;
+mod params;
 mod published;
 #[cfg(test)]
 mod tests;
@@ -33,8 +39,8 @@ pub use self::mc::Inference;
 use self::arch::{Backbone, DeepMethod};
 use self::mc::McMatcher;
 use self::ours::Ours;
-use self::published::{Published, PublishedNet};
-use self::train::init::Init;
+use self::params::Params;
+use self::published::Published;
 use crate::matching::{Matcher, Method};
 
 /// The matcher of `deep` with trained weights (the bytes of its `.bpk`
@@ -73,9 +79,8 @@ pub fn untrained(deep: DeepMethod, init_seed: u64, run: Inference) -> Box<dyn Ma
             run,
         )),
         Backbone::Published(cfg) => {
-            let net = PublishedNet::new(&cfg, Init::Seeded(init_seed), &backend::device());
-            let network = Published::new(cfg, net, run).expect("a fresh network's values are f32");
-            Box::new(McMatcher::new(method, network, run))
+            let p = Params::seeded(&published::spec(&cfg), init_seed);
+            Box::new(McMatcher::new(method, Published::new(cfg, &p, run), run))
         }
     }
 }
@@ -85,15 +90,5 @@ pub fn untrained(deep: DeepMethod, init_seed: u64, run: Inference) -> Box<dyn Ma
 /// learned parts touch, without training.
 #[cfg(test)]
 pub(crate) fn opened_weights(method: DeepMethod, seed: u64) -> Vec<u8> {
-    let device = backend::device();
-    match method.backbone() {
-        Backbone::Likelihood(arch) => {
-            let net = ours::OursNet::new(&arch, Init::Seeded(seed), &device).with_gates(1.0);
-            train::weights::to_bytes(&net).expect("weights")
-        }
-        Backbone::Published(cfg) => {
-            let net = PublishedNet::new(&cfg, Init::Seeded(seed), &device);
-            published::to_bytes(&net).expect("weights")
-        }
-    }
+    train::opened_weights(method, seed)
 }

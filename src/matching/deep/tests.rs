@@ -8,6 +8,7 @@ use super::arch::{Backbone, DeepMethod, MaskScope};
 use super::mc::{Inference, McMatcher, Network, Samples};
 use super::ours::Ours;
 use super::published::Published;
+use super::train::reference::{TensorOurs, TensorPublished};
 use crate::geometry::Vec2;
 use crate::matching::testkit::{self, GPS, Side};
 use crate::matching::{Correspondence, Matcher};
@@ -74,13 +75,18 @@ fn close(a: f64, b: f64, tol: f64) -> bool {
 /// Holds `plain` to `tensor` on every scene (and again with every
 /// embedding kept): samples, scores and mean scores within `tol`, the
 /// same decided pairs with probabilities and uncertainties within `tol`.
-fn holds<N: Network>(label: &str, plain: &McMatcher<N>, tensor: &McMatcher<N>, tol: f64) {
+fn holds<P: Network, T: Network>(
+    label: &str,
+    plain: &McMatcher<P>,
+    tensor: &McMatcher<T>,
+    tol: f64,
+) {
     let scores = |s: &Samples| (s.scores.clone(), s.mean_scores.clone().unwrap_or_default());
     for (a, b) in scenes().iter().chain(&scenes()) {
         let (va, vb) = (a.view(), b.view());
         let relative = crate::matching::gps_relative_pose(&va, &vb);
-        let sp = plain.samples(&va, &vb, &relative).unwrap();
-        let st = tensor.samples(&va, &vb, &relative).unwrap();
+        let sp = plain.samples(&va, &vb, &relative);
+        let st = tensor.samples(&va, &vb, &relative);
         assert_eq!(sp.assignments.len(), 20, "{label}");
         assert_eq!(sp.assignments.len(), st.assignments.len(), "{label}");
         for (p, t) in sp
@@ -133,13 +139,12 @@ fn the_plain_path_of_every_network_equals_its_tensor_reference() {
     };
     for masks in [MaskScope::Shared, MaskScope::PerNode] {
         let r = run(masks);
-        let open = || {
-            let bytes = include_bytes!("../../../models/ours.bpk");
-            let ours = Ours::from_weights(super::arch::Architecture::default(), bytes, r);
-            McMatcher::new(crate::matching::Method::Ours, ours.unwrap(), r)
-        };
-        let label = format!("ours {masks:?}");
-        holds(&label, &open(), &open().with_tensor_path(), 1e-5);
+        let bytes = include_bytes!("../../../models/ours.bpk");
+        let arch = super::arch::Architecture::default();
+        let method = crate::matching::Method::Ours;
+        let plain = McMatcher::new(method, Ours::from_weights(arch, bytes, r).unwrap(), r);
+        let tensor = McMatcher::new(method, TensorOurs::from_weights(arch, bytes, r), r);
+        holds(&format!("ours {masks:?}"), &plain, &tensor, 1e-5);
     }
     let shipped: [(DeepMethod, &[u8]); 3] = [
         (
@@ -158,7 +163,11 @@ fn the_plain_path_of_every_network_equals_its_tensor_reference() {
             let network = || Published::from_weights(cfg, bytes, r).unwrap();
             let open = |n| McMatcher::new(method.method(), n, r);
             let label = format!("{method:?} {masks:?}");
-            let tensor = open(network()).with_tensor_path();
+            let tensor = McMatcher::new(
+                method.method(),
+                TensorPublished::from_weights(cfg, bytes, r),
+                r,
+            );
             holds(&label, &open(network()), &tensor, 1e-4);
             holds(&label, &open(network().never_carry()), &tensor, 1e-4);
         }

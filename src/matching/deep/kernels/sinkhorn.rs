@@ -6,6 +6,10 @@
 //! ([`crate::matching::deep::train::sinkhorn::log_sinkhorn`]), which the
 //! tests hold it to.
 
+/// The score of a gated or padded entry, in the log domain: its
+/// probability under Sinkhorn is `exp(-1e4)`, zero in `f32`.
+pub(crate) const BLOCKED: f32 = -1.0e4;
+
 /// Samples normalised side by side, one in each lane of a register.
 const LANES: usize = 4;
 

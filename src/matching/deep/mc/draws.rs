@@ -1,11 +1,7 @@
 //! The random numbers of MC dropout, drawn from seeded streams
 //! ([`crate::rng`]) as plain numbers: inverted-dropout masks (0 or
 //! 1 / (1 - p)) with one unit per 32-bit draw for training and two at
-//! inference, the consensus' random node indicators, and the store in
-//! which a matcher keeps a pair's draws for its other pose-noise levels.
-
-use std::collections::VecDeque;
-use std::sync::{Arc, Mutex};
+//! inference, and the consensus' random node indicators.
 
 use rand::{Rng, RngCore};
 use rand_chacha::ChaCha8Rng;
@@ -61,51 +57,6 @@ pub(crate) fn indicator_values(rng: &mut ChaCha8Rng, len: usize) -> Vec<f32> {
         .collect()
 }
 
-/// One pair's draws, in the order its network drew them.
-pub(crate) type Drawn = Vec<Vec<f32>>;
-
-/// A matcher's recent draws by everything that makes them (a key its
-/// network computes): the same pair at another pose-noise level draws
-/// the same numbers, drawn once. Kept oldest first, within
-/// [`DrawStore::BYTES`].
-#[derive(Default)]
-pub(crate) struct DrawStore {
-    kept: Mutex<VecDeque<(u64, Arc<Drawn>)>>,
-}
-
-impl DrawStore {
-    /// The most the kept draws hold, in bytes.
-    const BYTES: usize = 64 << 20;
-
-    /// The draws of `id`: kept, or made by `draw` (and kept).
-    pub(crate) fn get(&self, id: u64, draw: impl FnOnce() -> Drawn) -> Arc<Drawn> {
-        let find = |kept: &VecDeque<(u64, Arc<Drawn>)>| {
-            kept.iter()
-                .find(|(k, _)| *k == id)
-                .map(|(_, d)| Arc::clone(d))
-        };
-        if let Some(found) = self.kept.lock().ok().and_then(|kept| find(&kept)) {
-            return found;
-        }
-        let drawn = Arc::new(draw());
-        let bytes = |d: &Drawn| d.iter().map(Vec::len).sum::<usize>() * size_of::<f32>();
-        if let Ok(mut kept) = self.kept.lock()
-            && find(&kept).is_none()
-            && bytes(&drawn) <= Self::BYTES
-        {
-            let mut total: usize = kept.iter().map(|(_, d)| bytes(d)).sum();
-            while total + bytes(&drawn) > Self::BYTES {
-                let Some((_, old)) = kept.pop_front() else {
-                    break;
-                };
-                total -= bytes(&old);
-            }
-            kept.push_back((id, Arc::clone(&drawn)));
-        }
-        drawn
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -124,15 +75,5 @@ mod tests {
         assert!((kept - 0.8).abs() < 0.01, "{kept}");
         assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.8).abs() < 1e-6));
         assert!(dropout_mask_16(&mut rng, 7, 0.0).iter().all(|&v| v == 1.0));
-    }
-
-    #[test]
-    fn a_kept_draw_is_returned_and_not_drawn_again() {
-        let store = DrawStore::default();
-        let a = store.get(7, || vec![vec![1.0, 2.0]]);
-        let b = store.get(7, || unreachable!("kept"));
-        assert_eq!(a, b);
-        let c = store.get(8, || vec![vec![3.0]]);
-        assert_ne!(a, c);
     }
 }

@@ -3,9 +3,10 @@
 //! masks, E[Y] and the uncertainties over them, and the decision. A
 //! network ([`Network`]) says what it reads of a vehicle, how it embeds
 //! it and how it scores a pair; the shell keeps each vehicle's embedding
-//! for the other pairs it is in, keeps the draws and the answers that do
-//! not depend on the poses, counts the multiply-adds, and chooses the
-//! arithmetic in one place ([`McMatcher::path`]).
+//! for the other pairs it is in, keeps the answers that do not depend on
+//! the poses, and counts the multiply-adds. The plain inference of each
+//! network and its tensor reference (`super::train::reference`, for the
+//! tests) are two implementations of one [`Network`].
 
 pub(crate) mod draws;
 
@@ -13,7 +14,6 @@ use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
-use self::draws::DrawStore;
 use super::decision::{Decision, MatchDistribution, UncertaintyKind};
 use crate::assignment::assign;
 use crate::fusion::PoseEstimate;
@@ -60,17 +60,6 @@ impl Inference {
     };
 }
 
-/// The arithmetic a network's inference runs in.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Path {
-    /// Plain Rust, without tensors, computing only what the masks keep.
-    Plain,
-    /// burn's tensors, as training runs the network: the reference the
-    /// tests hold the plain path to (no run asks for it).
-    #[cfg_attr(not(test), allow(dead_code))]
-    Tensor,
-}
-
 /// One side of a pair as the shell hands it to its network.
 pub(crate) struct Side<'a, N: Network + ?Sized> {
     pub(crate) view: &'a MatchView<'a>,
@@ -94,9 +83,6 @@ pub(crate) struct Samples {
     pub(crate) mean_scores: Option<Vec<Option<f64>>>,
 }
 
-/// A failed read of a tensor's values (a backend that cannot give f32).
-pub(crate) type TensorRead = String;
-
 /// What a deep network does at inference, for the shell.
 pub(crate) trait Network: Send + Sync {
     /// What the network reads of one vehicle's view.
@@ -111,20 +97,16 @@ pub(crate) trait Network: Send + Sync {
     fn embedding_key(&self, input: &Self::Input) -> u64;
 
     /// Whether embeddings are made per vehicle (and kept by
-    /// [`Network::embedding_key`]) on `path`; else [`Network::samples`]
-    /// makes them for the pair.
-    fn keeps_embeddings(&self, path: Path) -> bool;
+    /// [`Network::embedding_key`]); else [`Network::samples`] makes them
+    /// for the pair.
+    fn keeps_embeddings(&self) -> bool;
 
     /// Whether the relative pose it is handed enters its answers.
     fn uses_positions(&self) -> bool;
 
     /// The embeddings of `inputs` with their keys, computed together,
     /// and the multiply-adds that took.
-    fn embed(
-        &self,
-        inputs: &[(&Self::Input, u64)],
-        path: Path,
-    ) -> Result<(Vec<Self::Embedding>, u64), TensorRead>;
+    fn embed(&self, inputs: &[(&Self::Input, u64)]) -> (Vec<Self::Embedding>, u64);
 
     /// A key of everything a pair's samples depend on, when that is not
     /// the poses: the shell then keeps the pair's distribution for its
@@ -134,13 +116,7 @@ pub(crate) trait Network: Send + Sync {
     /// The MC samples of a pair (both sides non-empty), with `relative`
     /// the second vehicle's pose in the first one's frame, and the
     /// multiply-adds that took beyond the kept embeddings.
-    fn samples(
-        &self,
-        sides: [Side<'_, Self>; 2],
-        relative: &PoseEstimate,
-        path: Path,
-        draws: &DrawStore,
-    ) -> Result<(Samples, u64), TensorRead>;
+    fn samples(&self, sides: [Side<'_, Self>; 2], relative: &PoseEstimate) -> (Samples, u64);
 }
 
 /// At most this many embeddings and distributions are kept each (a frame
@@ -183,14 +159,11 @@ pub(crate) struct McMatcher<N: Network> {
     method: Method,
     network: N,
     run: Inference,
-    /// The arithmetic asked for ([`Self::path`] says what runs).
-    path: Path,
     /// Reuse each vehicle's embedding across the pairs it is in.
     share_embeddings: bool,
     embeddings: Mutex<Kept<Arc<N::Embedding>>>,
     /// Distributions of pairs whose answers do not read the poses.
     distributions: Mutex<Kept<MatchDistribution>>,
-    draws: DrawStore,
     /// Multiply-adds done so far ([`super::cost`]).
     macs: AtomicU64,
 }
@@ -201,21 +174,11 @@ impl<N: Network> McMatcher<N> {
             method,
             network,
             run,
-            path: Path::Plain,
             share_embeddings: true,
             embeddings: Mutex::default(),
             distributions: Mutex::default(),
-            draws: DrawStore::default(),
             macs: AtomicU64::new(0),
         }
-    }
-
-    /// The same matcher through the tensors, as training runs the
-    /// network: the reference of the plain path.
-    #[cfg(test)]
-    pub(crate) fn with_tensor_path(mut self) -> Self {
-        self.path = Path::Tensor;
-        self
     }
 
     /// Computes every pair's embeddings afresh (results are bit-identical
@@ -232,24 +195,9 @@ impl<N: Network> McMatcher<N> {
         self.embeddings.lock().map_or(0, |c| c.hits)
     }
 
-    #[cfg(test)]
-    pub(crate) fn network(&self) -> &N {
-        &self.network
-    }
-
-    /// The arithmetic that runs: the plain path, unless a test asked for
-    /// the tensor reference.
-    fn path(&self) -> Path {
-        self.path
-    }
-
     /// Each input's embedding, kept or computed (those not kept
     /// together).
-    fn embeddings<const K: usize>(
-        &self,
-        inputs: [&N::Input; K],
-        path: Path,
-    ) -> Result<[Arc<N::Embedding>; K], TensorRead> {
+    fn embeddings<const K: usize>(&self, inputs: [&N::Input; K]) -> [Arc<N::Embedding>; K] {
         let keys = inputs.map(|i| self.network.embedding_key(i));
         let mut found: [Option<Arc<N::Embedding>>; K] = keys.map(|k| {
             self.share_embeddings
@@ -260,7 +208,7 @@ impl<N: Network> McMatcher<N> {
         if !missing.is_empty() {
             let asked: Vec<(&N::Input, u64)> =
                 missing.iter().map(|&k| (inputs[k], keys[k])).collect();
-            let (made, macs) = self.network.embed(&asked, path)?;
+            let (made, macs) = self.network.embed(&asked);
             self.macs.fetch_add(macs, Ordering::Relaxed);
             for (e, &k) in made.into_iter().zip(&missing) {
                 let e = Arc::new(e);
@@ -272,7 +220,7 @@ impl<N: Network> McMatcher<N> {
                 found[k] = Some(e);
             }
         }
-        Ok(found.map(|e| e.expect("every embedding found or computed")))
+        found.map(|e| e.expect("every embedding found or computed"))
     }
 
     /// The `samples` MC-dropout passes over one pair (both sides
@@ -283,7 +231,7 @@ impl<N: Network> McMatcher<N> {
         first: &MatchView,
         second: &MatchView,
         relative: &PoseEstimate,
-    ) -> Result<Samples, TensorRead> {
+    ) -> Samples {
         let inputs = [self.network.input(first), self.network.input(second)];
         self.samples_of([first, second], &inputs, relative)
     }
@@ -293,10 +241,9 @@ impl<N: Network> McMatcher<N> {
         [first, second]: [&MatchView; 2],
         [i1, i2]: &[N::Input; 2],
         relative: &PoseEstimate,
-    ) -> Result<Samples, TensorRead> {
-        let path = self.path();
-        let embeddings = if self.network.keeps_embeddings(path) {
-            Some(self.embeddings([i1, i2], path)?)
+    ) -> Samples {
+        let embeddings = if self.network.keeps_embeddings() {
+            Some(self.embeddings([i1, i2]))
         } else {
             None
         };
@@ -316,9 +263,9 @@ impl<N: Network> McMatcher<N> {
                 embedding: e2,
             },
         ];
-        let (samples, macs) = self.network.samples(sides, relative, path, &self.draws)?;
+        let (samples, macs) = self.network.samples(sides, relative);
         self.macs.fetch_add(macs, Ordering::Relaxed);
-        Ok(samples)
+        samples
     }
 
     /// E[Y], the per-pair uncertainties and the assigned pairs from
@@ -328,7 +275,7 @@ impl<N: Network> McMatcher<N> {
         first: &MatchView,
         second: &MatchView,
         relative: &PoseEstimate,
-    ) -> Result<MatchDistribution, TensorRead> {
+    ) -> MatchDistribution {
         let (n1, n2) = (first.detections.len(), second.detections.len());
         let mut d = if n1 == 0 || n2 == 0 {
             MatchDistribution::all_unmatched(n1, n2)
@@ -339,7 +286,7 @@ impl<N: Network> McMatcher<N> {
             match kept {
                 Some(d) => d,
                 None => {
-                    let s = self.samples_of([first, second], &inputs, relative)?;
+                    let s = self.samples_of([first, second], &inputs, relative);
                     let mut d = MatchDistribution::from_samples(n1, n2, &s.assignments);
                     d.assigned = match &s.mean_scores {
                         Some(scores) => assign(n1, n2, scores),
@@ -357,7 +304,7 @@ impl<N: Network> McMatcher<N> {
         d.decision = self.run.decision;
         d.temperature = self.run.temperature;
         d.min_probability = self.run.min_probability;
-        Ok(d)
+        d
     }
 }
 
@@ -397,11 +344,7 @@ impl<N: Network> Matcher for McMatcher<N> {
         second: &MatchView,
         relative: &PoseEstimate,
     ) -> Identification {
-        // The plain path reads no tensor; the tensor path reads f32
-        // tensors of the backend it made them on.
-        let distribution = self
-            .distribution(first, second, relative)
-            .unwrap_or_else(|e| panic!("{}: {e}", self.method.as_str()));
+        let distribution = self.distribution(first, second, relative);
         Identification {
             matches: distribution.decide(self.run.threshold),
             distribution: Some(distribution),

@@ -1,7 +1,7 @@
 //! The first spline convolution at inference, `relu(conv1(x))`, in plain
 //! Rust: its input (the node attributes) depends on no mask, so it is
 //! computed once per graph for every sample. The same products as the
-//! tensor layer ([`super::spline::SplineConv::forward`], which mixes the
+//! tensor layer (training's `SplineConv::forward`, which mixes the
 //! neighbours before its weights because it has fewer inputs than
 //! outputs) in the same order, through the same `gemm` kernel: the root
 //! product, the neighbours mixed by kernel cell, the used cells' weights,

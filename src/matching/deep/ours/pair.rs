@@ -1,6 +1,6 @@
 //! The pair part of the network at inference under shared masks
 //! ([`crate::matching::deep::arch::MaskScope::Shared`]), in plain Rust: what
-//! [`super::OursNet::pair`] computes through the tensors (the
+//! training's `OursNet::pair` computes through the tensors (the
 //! reference it is held equal to), for one pair and its `T` samples,
 //! without a tensor, an allocation per operation or a padded batch.
 //!
@@ -15,13 +15,12 @@
 //! ([`SharedMaskConv`] with every unit kept): all samples' propagated
 //! indicators in one product, then mixed along the edges.
 
-use super::model::Combination;
 use super::second_layer::{PlainSpline, SharedMaskConv};
 use crate::matching::deep::features::{GraphInput, PairInput};
 use crate::matching::deep::kernels::lanes::{
     PlainLinear, add_pair_terms, product_rows, similarity, transport,
 };
-use crate::matching::deep::train::sinkhorn::BLOCKED;
+use crate::matching::deep::kernels::sinkhorn::BLOCKED;
 
 /// `exp(x)`, with the values whose f32 exponential is 0 (below about
 /// -103.97) answered without the library's underflow path: the same bits.
@@ -29,7 +28,20 @@ fn exp_or_zero(x: f32) -> f32 {
     if x < -104.0 { 0.0 } else { x.exp() }
 }
 
-/// The pair part's parameters (as [`super::OursNet`] holds them).
+/// The scalar parameters that combine the shared likelihood with what the
+/// network learned: score = `scale` ll + `gate` residual; a node's "no
+/// match" score = `dustbin` + `dust_gate` (its learned score). At
+/// initialisation scale is 1 and both gates 0: the scores are the shared
+/// likelihood itself.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Combination {
+    pub(crate) scale: f32,
+    pub(crate) gate: f32,
+    pub(crate) dustbin: f32,
+    pub(crate) dust_gate: f32,
+}
+
+/// The pair part's parameters.
 pub(crate) struct PairWeights {
     pub(crate) pair_in: PlainLinear,
     pub(crate) pair_out: PlainLinear,

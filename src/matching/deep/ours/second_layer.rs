@@ -2,7 +2,7 @@
 //! (Eq. 8: one mask per sample over a layer's units, the same for every
 //! node of every graph), in plain Rust: the arithmetic the masks make
 //! unnecessary is not done; under masks per node, the tensor layer's
-//! products ([`PlainSpline::forward_per_node`]). [`super::OursNet::embed`]
+//! products ([`PlainSpline::forward_per_node`]). Training's `OursNet::embed`
 //! is the reference both are held to (the path tester).
 //!
 //! In sample `t` a dropped input unit contributes nothing and a dropped
@@ -17,6 +17,7 @@
 
 use crate::matching::deep::features::{GraphInput, KERNEL_2D};
 use crate::matching::deep::kernels::matmul;
+use crate::matching::deep::params::Params;
 
 /// One sample's kept units and weights.
 struct Sample {
@@ -51,6 +52,18 @@ pub(crate) struct PlainSpline {
 }
 
 impl PlainSpline {
+    /// The layer `name` of `p` (`<name>.root`, `.weight`, `.bias`).
+    pub(crate) fn of(p: &Params, name: &str) -> Self {
+        let (shape, root) = p.get(&format!("{name}.root"));
+        Self {
+            d_in: shape[0],
+            d_out: shape[1],
+            root: root.to_vec(),
+            weight: p.values(&format!("{name}.weight")).to_vec(),
+            bias: p.values(&format!("{name}.bias")).to_vec(),
+        }
+    }
+
     /// `relu(conv(h m1)) m2` under masks per node and unit, `h` `[n, in]`
     /// the same in every sample, `m1` `[T, n, in]`, `m2` `[T, n, out]`:
     /// `[T, n, out]`. The tensor layer's products: every sample's rows at

@@ -5,25 +5,23 @@
 //! reported poses or the relative pose they are handed, so the shell
 //! answers the same pair at every pose-noise level once.
 
-use super::conv::GraphTensors;
 use super::graph::PaperGraph;
 use super::inference::PlainPublished;
-use super::model::{Dropout, PublishedMasks, PublishedNet, draw_indicators, draw_psi1_masks};
 use crate::fusion::PoseEstimate;
 use crate::matching::MatchView;
 use crate::matching::deep::arch::{MaskScope, PublishedConfig};
-use crate::matching::deep::backend::{device, values};
 use crate::matching::deep::cost::published_macs;
-use crate::matching::deep::mc::draws::{DrawStore, dropout_mask_16, indicator_values};
-use crate::matching::deep::mc::{Inference, Network, Path, Samples, Side, TensorRead};
+use crate::matching::deep::mc::draws::{dropout_mask_16, indicator_values};
+use crate::matching::deep::mc::{Inference, Network, Samples, Side};
+use crate::matching::deep::params::Params;
 use crate::rng::{self, Purpose};
 
 /// The stream name of the psi_1 masks every pair shares
 /// ([`MaskScope::Shared`]).
-const SHARED_MASKS_KEY: u64 = 0x5a4e_d0e8_0000_0009;
+pub(crate) const SHARED_MASKS_KEY: u64 = 0x5a4e_d0e8_0000_0009;
 
 /// A key of both graphs' inputs: what a pair's samples depend on.
-fn pair_key(graphs: [&PaperGraph; 2]) -> u64 {
+pub(crate) fn pair_key(graphs: [&PaperGraph; 2]) -> u64 {
     let mut parts = Vec::new();
     for g in graphs {
         graph_parts(g, &mut parts);
@@ -41,7 +39,6 @@ fn graph_parts(g: &PaperGraph, parts: &mut Vec<u64>) {
 /// A trained published network with its plain inference.
 pub(crate) struct Published {
     cfg: PublishedConfig,
-    net: PublishedNet,
     run: Inference,
     /// psi_1's dropout rate at inference.
     rate: f64,
@@ -49,43 +46,41 @@ pub(crate) struct Published {
 }
 
 impl Published {
-    /// The network of `cfg` with the weights `bytes`, run as `run` says;
-    /// an error says why the bytes do not fit.
-    pub(crate) fn from_weights(
-        cfg: PublishedConfig,
-        bytes: &[u8],
-        run: Inference,
-    ) -> Result<Self, String> {
-        Self::new(cfg, super::from_bytes(&cfg, bytes, &device())?, run)
-    }
-
-    /// The network `net` of `cfg`, run as `run` says.
-    pub(crate) fn new(
-        cfg: PublishedConfig,
-        net: PublishedNet,
-        run: Inference,
-    ) -> Result<Self, TensorRead> {
+    /// The network of `cfg` with the parameters `p`, run as `run` says.
+    pub(crate) fn new(cfg: PublishedConfig, p: &Params, run: Inference) -> Self {
         let rate = run.dropout.unwrap_or(cfg.dropout);
-        // Shared masks are the same for every pair: drawn once, as the
-        // tensor path draws them.
+        // Shared masks are the same for every pair: drawn once.
         let shared = (run.masks == MaskScope::Shared).then(|| {
             let mut shared = rng::stream(run.seed, Purpose::Dropout, &[SHARED_MASKS_KEY]);
             dropout_mask_16(&mut shared, run.samples * cfg.hidden, rate)
         });
         let plain = PlainPublished::new(
-            net.plain()?,
+            super::plain_weights(&cfg, p),
             run.samples,
             shared.as_deref(),
             [cfg.consensus_steps(), cfg.sinkhorn_iters],
             cfg.edge_scale_m,
         );
-        Ok(Self {
+        Self {
             cfg,
-            net,
             run,
             rate,
             plain,
-        })
+        }
+    }
+
+    /// The network of `cfg` with trained weights (the bytes of its `.bpk`
+    /// file); an error says why they do not fit.
+    pub(crate) fn from_weights(
+        cfg: PublishedConfig,
+        bytes: &[u8],
+        run: Inference,
+    ) -> Result<Self, String> {
+        Ok(Self::new(
+            cfg,
+            &Params::from_bytes(bytes, &super::spec(&cfg))?,
+            run,
+        ))
     }
 
     /// The consensus always multiplied anew (tests: the branch large
@@ -96,10 +91,13 @@ impl Published {
         self
     }
 
-    /// The pair's draws from the stream of its `key`: per node masks as
-    /// `draw_psi1_masks` draws them (none under shared masks), then one
-    /// draw of indicators per consensus step as `draw_indicators` does.
-    fn draws(&self, draws: &DrawStore, key: u64, [n1, n2]: [usize; 2]) -> [Vec<Vec<f32>>; 2] {
+    /// The pair's draws from the stream of its `key`: per node masks
+    /// (none under shared masks), then one draw of indicators per
+    /// consensus step, as training draws them.
+    /// Never kept: the shell keeps a pair's distribution for its other
+    /// pose-noise levels (the network does not read the poses), so a
+    /// pair's draws are read once.
+    fn draws(&self, key: u64, [n1, n2]: [usize; 2]) -> [Vec<Vec<f32>>; 2] {
         let (t, rate) = (self.run.samples, self.rate);
         let per_node = self.run.masks == MaskScope::PerNode;
         let (d, r, steps) = (
@@ -107,62 +105,18 @@ impl Published {
             self.cfg.rnd_dim,
             self.cfg.consensus_steps(),
         );
-        let id = rng::key(&[
-            self.run.seed,
-            key,
-            u64::from(per_node),
-            rate.to_bits(),
-            t as u64,
-            n1 as u64,
-            n2 as u64,
-            d as u64,
-            r as u64,
-            steps as u64,
-        ]);
-        let drawn = draws.get(id, || {
-            let mut stream = rng::stream(self.run.seed, Purpose::Dropout, &[key]);
-            let masks = if per_node {
-                [n1, n2].map(|n| dropout_mask_16(&mut stream, t * n * d, rate))
-            } else {
-                [Vec::new(), Vec::new()]
-            };
-            let indicators = (0..steps).map(|_| indicator_values(&mut stream, t * n1 * r));
-            masks.into_iter().chain(indicators).collect()
-        });
-        let (masks, indicators) = drawn.split_at(2);
-        [masks.to_vec(), indicators.to_vec()]
-    }
-
-    /// The soft assignments of the samples through the tensors, as
-    /// training runs the network, from the stream of the pair's `key`.
-    fn tensor_samples(
-        &self,
-        [g1, g2]: [&PaperGraph; 2],
-        key: u64,
-    ) -> Result<Vec<Vec<f32>>, TensorRead> {
-        let (n1, n2, t) = (g1.n, g2.n, self.run.samples);
-        let device = device();
-        let scale = self.cfg.edge_scale_m;
-        let (t1, t2) = (
-            GraphTensors::new(&[g1], scale, &device),
-            GraphTensors::new(&[g2], scale, &device),
-        );
         let mut stream = rng::stream(self.run.seed, Purpose::Dropout, &[key]);
-        let dropout = Dropout::On(self.rate, self.run.masks);
-        let shape = [1, t, n1, n2];
-        let psi1 = match self.run.masks {
-            MaskScope::PerNode => draw_psi1_masks(&mut stream, &self.cfg, shape, dropout, &device),
-            MaskScope::Shared => {
-                let mut shared = rng::stream(self.run.seed, Purpose::Dropout, &[SHARED_MASKS_KEY]);
-                draw_psi1_masks(&mut shared, &self.cfg, shape, dropout, &device)
-            }
+        let masks = if per_node {
+            [n1, n2]
+                .map(|n| dropout_mask_16(&mut stream, t * n * d, rate))
+                .to_vec()
+        } else {
+            Vec::new()
         };
-        let indicators = draw_indicators(&mut stream, &self.cfg, [1, t, n1], &device);
-        let masks = PublishedMasks { psi1, indicators };
-        let p = values(self.net.forward(&self.cfg, [&t1, &t2], masks).last().exp())?;
-        Ok(p.chunks_exact((n1 + 1) * (n2 + 1))
-            .map(<[f32]>::to_vec)
-            .collect())
+        let indicators = (0..steps)
+            .map(|_| indicator_values(&mut stream, t * n1 * r))
+            .collect();
+        [masks, indicators]
     }
 }
 
@@ -182,67 +136,50 @@ impl Network for Published {
 
     /// Under shared masks a graph's psi_1 embedding is the same in all its
     /// pairs; per-node masks are drawn per pair.
-    fn keeps_embeddings(&self, path: Path) -> bool {
-        path == Path::Plain && self.run.masks == MaskScope::Shared
+    fn keeps_embeddings(&self) -> bool {
+        self.run.masks == MaskScope::Shared
     }
 
     fn uses_positions(&self) -> bool {
         false
     }
 
-    fn embed(
-        &self,
-        inputs: &[(&PaperGraph, u64)],
-        _path: Path,
-    ) -> Result<(Vec<Vec<f32>>, u64), TensorRead> {
+    fn embed(&self, inputs: &[(&PaperGraph, u64)]) -> (Vec<Vec<f32>>, u64) {
         let t = self.run.samples;
         let macs = |g: &PaperGraph| published_macs(&self.cfg, [g.n, g.n], t, false).embeddings[0];
         let made = inputs.iter().map(|(g, _)| self.plain.embed(g)).collect();
-        Ok((made, inputs.iter().map(|(g, _)| macs(g)).sum()))
+        (made, inputs.iter().map(|(g, _)| macs(g)).sum())
     }
 
     fn pose_free_key(&self, [g1, g2]: [&PaperGraph; 2]) -> Option<u64> {
         Some(pair_key([g1, g2]))
     }
 
-    fn samples(
-        &self,
-        [s1, s2]: [Side<'_, Self>; 2],
-        _relative: &PoseEstimate,
-        path: Path,
-        draws: &DrawStore,
-    ) -> Result<(Samples, u64), TensorRead> {
+    fn samples(&self, [s1, s2]: [Side<'_, Self>; 2], _relative: &PoseEstimate) -> (Samples, u64) {
         let (g1, g2) = (s1.input, s2.input);
         let (n1, n2, t) = (g1.n, g2.n, self.run.samples);
         let key = pair_key([g1, g2]);
         // A graph's kept embedding is counted where it was computed.
         let per_node = self.run.masks == MaskScope::PerNode;
         let macs = published_macs(&self.cfg, [n1, n2], t, per_node);
-        let assignments = match (path, s1.embedding, s2.embedding) {
-            (Path::Tensor, ..) => {
-                return Ok((
-                    pair_samples(self.tensor_samples([g1, g2], key)?),
-                    macs.new_pair(),
-                ));
-            }
-            (Path::Plain, Some(h1), Some(h2)) => {
-                let [_, indicators] = self.draws(draws, key, [n1, n2]);
+        let [masks, indicators] = self.draws(key, [n1, n2]);
+        match (s1.embedding, s2.embedding) {
+            (Some(h1), Some(h2)) => {
                 let a = self.plain.assignments([(h1, g1), (h2, g2)], &indicators);
-                return Ok((pair_samples(a), macs.shared_pair()));
+                (pair_samples(a), macs.shared_pair())
             }
-            (Path::Plain, ..) => {
-                let [masks, indicators] = self.draws(draws, key, [n1, n2]);
+            _ => {
                 let h1 = self.plain.embed_per_node(g1, &masks[0]);
                 let h2 = self.plain.embed_per_node(g2, &masks[1]);
-                self.plain.assignments([(&h1, g1), (&h2, g2)], &indicators)
+                let a = self.plain.assignments([(&h1, g1), (&h2, g2)], &indicators);
+                (pair_samples(a), macs.new_pair())
             }
-        };
-        Ok((pair_samples(assignments), macs.new_pair()))
+        }
     }
 }
 
 /// Samples of a network without pair scores of its own.
-fn pair_samples(assignments: Vec<Vec<f32>>) -> Samples {
+pub(crate) fn pair_samples(assignments: Vec<Vec<f32>>) -> Samples {
     Samples {
         assignments,
         scores: Vec::new(),

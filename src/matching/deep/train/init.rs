@@ -1,14 +1,16 @@
-//! Where a new network's weights come from: one named random stream per
-//! parameter ([`Init`]), never burn's own generator, and parameter ids
-//! derived from the names ([`named_param`]), so that the same seed gives
-//! the same weights and the same bytes.
+//! Where a network's modules get their values: the parameters of
+//! [`crate::matching::deep::params`] (a weights file's, or a seeded start
+//! drawn from one named stream per parameter, never burn's own
+//! generator) as burn's parameters, each with an id derived from its
+//! stream name ([`named_param`]), so that the same seed gives the same
+//! weights and the same bytes, and inference reads what training holds.
 
 use burn::module::{Param, ParamId};
 use burn::nn::Linear;
 use burn::prelude::*;
-use rand::Rng;
 
-use crate::rng::{self, Purpose};
+use crate::matching::deep::params::{ParamSpec, Params};
+use crate::rng;
 
 /// Where a new network's weights come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -17,50 +19,49 @@ pub(crate) enum Init {
     /// name))`: the same seed gives the same weights, whatever else was
     /// drawn before.
     Seeded(u64),
-    /// Zeros: a skeleton about to receive trained weights.
-    Zeros,
 }
 
 impl Init {
-    /// A tensor of `shape` drawn uniformly from `(-bound, bound)`.
-    fn uniform<const D: usize>(
-        self,
-        name: &str,
-        shape: [usize; D],
-        bound: f64,
-        device: &Device,
-    ) -> Tensor<D> {
-        match self {
-            Init::Seeded(seed) if bound > 0.0 => {
-                let mut s = rng::stream(seed, Purpose::WeightInit, &[rng::hash_str(name)]);
-                let n = shape.iter().product();
-                let v: Vec<f32> = (0..n)
-                    .map(|_| s.random_range(-bound..bound) as f32)
-                    .collect();
-                Tensor::from_data(TensorData::new(v, shape), device)
-            }
-            _ => Tensor::zeros(shape, device),
-        }
+    /// The parameters of `specs` as this start gives them.
+    pub(crate) fn params(self, specs: &[ParamSpec]) -> Params {
+        let Init::Seeded(seed) = self;
+        Params::seeded(specs, seed)
+    }
+}
+
+/// The values of a network's parameters, to build its modules from.
+pub(crate) struct Source<'a> {
+    pub(crate) params: &'a Params,
+    pub(crate) specs: &'a [ParamSpec],
+    pub(crate) device: &'a Device,
+}
+
+impl Source<'_> {
+    /// The parameter `key` as a burn parameter of rank `D`.
+    ///
+    /// # Panics
+    /// When `key` is not in the network's spec or has another rank (a
+    /// module built wrong, not a weights file: those are checked against
+    /// the spec when read).
+    pub(crate) fn param<const D: usize>(&self, key: &str) -> Param<Tensor<D>> {
+        let spec = self
+            .specs
+            .iter()
+            .find(|s| s.key == key)
+            .unwrap_or_else(|| panic!("no parameter {key} in the network's spec"));
+        let (shape, values) = self.params.get(key);
+        let shape: [usize; D] = shape
+            .try_into()
+            .unwrap_or_else(|_| panic!("{key}: rank {} where {D} is read", shape.len()));
+        let t = Tensor::from_data(TensorData::new(values.to_vec(), shape), self.device);
+        named_param(&spec.stream, t)
     }
 
-    /// The parameter `name`, drawn uniformly from `(-bound, bound)`.
-    pub(crate) fn param<const D: usize>(
-        self,
-        name: &str,
-        shape: [usize; D],
-        bound: f64,
-        device: &Device,
-    ) -> Param<Tensor<D>> {
-        named_param(name, self.uniform(name, shape, bound, device))
-    }
-
-    /// A linear layer `[d_in] -> [d_out]` initialised like burn's default
-    /// (weight and bias uniform in `+-1/sqrt(d_in)`).
-    pub(crate) fn linear(self, name: &str, d_in: usize, d_out: usize, device: &Device) -> Linear {
-        let b = 1.0 / (d_in as f64).sqrt();
+    /// The linear layer `name` (`<name>.weight`, `<name>.bias`).
+    pub(crate) fn linear(&self, name: &str) -> Linear {
         Linear {
-            weight: self.param(&format!("{name}.weight"), [d_in, d_out], b, device),
-            bias: Some(self.param(&format!("{name}.bias"), [d_out], b, device)),
+            weight: self.param(&format!("{name}.weight")),
+            bias: Some(self.param(&format!("{name}.bias"))),
         }
     }
 }

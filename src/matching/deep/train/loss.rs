@@ -129,7 +129,7 @@ mod tests {
     /// L_unc = -ln(mean(exp(-H_bits(p)))) over 0.7, 0.2, 0.1, 0.6 = 0.742119.
     #[test]
     fn loss_terms_match_a_hand_computed_two_by_two_case() {
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let l = labels(
             &device,
             [1., 0., 0., 0.],

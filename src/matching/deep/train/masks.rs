@@ -8,7 +8,9 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::matching::deep::arch::{Architecture, MaskScope};
 pub(crate) use crate::matching::deep::mc::draws::MaskDraw;
-use crate::matching::deep::mc::draws::{dropout_mask, dropout_mask_16, indicator_values};
+#[cfg(test)]
+use crate::matching::deep::mc::draws::dropout_mask_16;
+use crate::matching::deep::mc::draws::{dropout_mask, indicator_values};
 
 /// The dropout masks of one training forward pass with T samples (values
 /// 0 or 1 / (1 - p), inverted dropout).
@@ -91,6 +93,7 @@ pub(crate) fn draw_masks(
 /// ([`MaskScope::PerNode`]), or one per sample and unit repeated over the
 /// nodes ([`MaskScope::Shared`]; with the same stream for every graph,
 /// every graph then sees the same weights in sample t).
+#[cfg(test)]
 pub(crate) fn draw_embedding_masks(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
@@ -116,6 +119,7 @@ pub(crate) fn draw_embedding_masks(
 /// The consensus MLP's dropout mask of one pair at inference, `[1, t,
 /// n1, n2, consensus_dim]`: per pair entry and unit, or one per sample and
 /// unit ([`MaskScope::Shared`], from a stream the same for every pair).
+#[cfg(test)]
 pub(crate) fn draw_phi_mask(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
@@ -189,7 +193,7 @@ mod tests {
     #[test]
     fn shared_masks_are_one_draw_per_sample_and_unit() {
         let arch = Architecture::default();
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let rows = |scope| {
             let mut rng = ChaCha8Rng::seed_from_u64(3);
             let (m1, _) = draw_embedding_masks(&mut rng, &arch, [4, 5], scope, &device);
@@ -220,7 +224,7 @@ mod tests {
     #[test]
     fn shared_training_masks_are_one_draw_per_pair_and_sample() {
         let arch = Architecture::default();
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let (b, t, n1, n2, h) = (2, 3, 4, 5, arch.hidden);
         let draw = |scope| {
             let mut rng = ChaCha8Rng::seed_from_u64(9);

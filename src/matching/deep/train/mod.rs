@@ -12,27 +12,57 @@ use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
+pub(crate) mod backend;
 pub(crate) mod examples;
 pub(crate) mod init;
 mod loss;
 pub(crate) mod masks;
+pub(crate) mod ours_net;
+#[cfg(test)]
+mod ours_tests;
 pub(crate) mod published;
+pub(crate) mod published_net;
+#[cfg(test)]
+mod published_tests;
+#[cfg(test)]
+pub(crate) mod reference;
 pub(crate) mod sinkhorn;
+pub(crate) mod spline1d;
+pub(crate) mod spline2d;
 pub(crate) mod weights;
 
+use self::backend::device;
 use self::init::Init;
 use self::loss::{LabelTensors, loss};
 use self::masks::{Masks, draw_masks};
+use self::ours_net::{OursNet, PairTensors};
 use self::published::{PublishedTrainer, TrainPair};
+use self::spline2d::GraphBatch;
 use self::weights::to_bytes;
 use super::arch::{Architecture, Backbone, LossTerms, MaskScope, NoMatchWeights, PairLoss};
-use super::backend::device;
 use super::features::{GraphInput, PairInput};
-use super::ours::{GraphBatch, OursNet, PairTensors};
 use crate::matching::{Method, MethodKind};
 use crate::rng::{self, Purpose};
 
 pub use self::examples::{EdgeStats, Example, OwnedView, Prepared, example};
+
+/// The weights of an untrained network of `method` whose gates are open
+/// (as after the first training steps): for tests of everything the
+/// learned parts touch, without training.
+#[cfg(test)]
+pub(crate) fn opened_weights(method: super::arch::DeepMethod, seed: u64) -> Vec<u8> {
+    let device = device();
+    match method.backbone() {
+        Backbone::Likelihood(arch) => {
+            let net = OursNet::new(&arch, Init::Seeded(seed), &device).with_gates(1.0);
+            to_bytes(&net).expect("weights")
+        }
+        Backbone::Published(cfg) => {
+            let net = published_net::PublishedNet::new(&cfg, Init::Seeded(seed), &device);
+            weights::module_bytes(&net).expect("weights")
+        }
+    }
+}
 
 /// `[train]`: which runs make the training set and how to fit.
 #[derive(Clone, PartialEq)]

@@ -14,10 +14,11 @@ use rand_chacha::ChaCha8Rng;
 use super::examples::Example;
 use super::init::Init;
 use super::loss::{non_term, unc_term};
+use super::published_net::{PublishedNet, draw_training_masks};
+use super::spline1d::GraphTensors;
+use super::weights::module_bytes;
 use crate::matching::deep::arch::{LossTerms, MaskScope, NoMatchWeights, PublishedConfig};
-use crate::matching::deep::published::{
-    GraphTensors, PaperGraph, PublishedNet, draw_training_masks, to_bytes,
-};
+use crate::matching::deep::published::PaperGraph;
 use crate::rng::{self, Purpose};
 
 /// A labelled training pair: two graphs and the true partner in `second`
@@ -185,7 +186,7 @@ impl PublishedTrainer {
         seed: u64,
         name: &str,
     ) -> Self {
-        let device = crate::matching::deep::backend::device().autodiff();
+        let device = crate::matching::deep::train::backend::device().autodiff();
         let kind = format!("{:?}{name}", cfg.kind);
         Self {
             net: PublishedNet::new(&cfg, Init::Seeded(seed), &device),
@@ -300,7 +301,7 @@ impl PublishedTrainer {
     pub(crate) fn validation_loss(&self, pairs: &[TrainPair], seed: u64, batch_size: usize) -> f64 {
         let mut stream = rng::stream(seed, Purpose::Training, &[rng::hash_str("validation")]);
         let net = self.net.valid();
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let sizes: Vec<usize> = pairs.iter().map(TrainPair::padded_size).collect();
         let mut sum = 0.0;
         for batch in crate::matching::deep::train::batches(&sizes, batch_size, None) {
@@ -313,7 +314,7 @@ impl PublishedTrainer {
 
     /// The weights as bytes (what a `.bpk` file holds).
     pub(crate) fn weights(&self) -> Result<Vec<u8>, String> {
-        to_bytes(&self.net)
+        module_bytes(&self.net)
     }
 
     /// The trained network for inference (no autodiff).
@@ -332,7 +333,7 @@ mod tests {
     /// to 1.
     #[test]
     fn labels_cover_true_pairs_and_both_dustbins() {
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let graph = |n: usize| PaperGraph {
             n,
             node_features: vec![0.0; n * crate::matching::deep::features::NODE_FEATURES],

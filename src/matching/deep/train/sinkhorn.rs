@@ -4,9 +4,7 @@
 
 use burn::prelude::*;
 
-/// The score of a gated or padded entry, in the log domain: its
-/// probability under Sinkhorn is `exp(-1e4)`, zero in `f32`.
-pub(crate) const BLOCKED: f32 = -1.0e4;
+pub(crate) use crate::matching::deep::kernels::sinkhorn::BLOCKED;
 
 /// Log-sum-exp along `dim`, keeping it (size 1).
 fn logsumexp<const D: usize>(x: Tensor<D>, dim: usize) -> Tensor<D> {
@@ -66,7 +64,7 @@ mod tests {
 
     #[test]
     fn sinkhorn_rows_and_columns_sum_to_one_with_dustbins() {
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let mut r = ChaCha8Rng::seed_from_u64(1);
         let scores: Vec<f32> = (0..48).map(|_| r.random_range(-6.0..6.0)).collect();
         let scores = Tensor::<4>::from_data(TensorData::new(scores, [1, 2, 4, 6]), &device);
@@ -95,7 +93,7 @@ mod tests {
     /// not.
     #[test]
     fn inference_sinkhorn_equals_the_log_domain_one() {
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         for (shape, spread, corner) in [
             ([3, 5, 4], 6.0f64, 1.0f64),

@@ -1,14 +1,19 @@
-//! The network's weights as bytes (burn's burnpack format, what a
-//! `<method>.bpk` file holds) and back, refusing weights that do not fit
-//! the architecture or hold a value that is not finite. Files are the
-//! caller's business.
+//! The networks' weights as bytes (burn's burnpack format, what a
+//! `<method>.bpk` file holds) and back into modules, refusing weights that
+//! do not fit the architecture or hold a value that is not finite. Files
+//! are the caller's business.
 
-use burn::module::Param;
 use burn::prelude::*;
 
-use super::init::Init;
-use crate::matching::deep::arch::Architecture;
-use crate::matching::deep::ours::OursNet;
+use super::ours_net::OursNet;
+#[cfg(test)]
+use super::published_net::PublishedNet;
+#[cfg(test)]
+use crate::matching::deep::arch::{Architecture, PublishedConfig};
+#[cfg(test)]
+use crate::matching::deep::params::Params;
+#[cfg(test)]
+use crate::matching::deep::{ours, published};
 
 /// The network's weights as bytes (burn's burnpack format, what a
 /// `<method>.bpk` file holds).
@@ -26,55 +31,42 @@ pub(crate) fn module_bytes<M: Module + Clone>(module: &M) -> Result<Vec<u8>, Str
     Ok(bytes.to_vec())
 }
 
-/// The weights of [`module_bytes`] loaded into `empty` (a network of the
-/// right shape); weights that do not fit or hold a value that is not
-/// finite are refused.
-pub(crate) fn load_module<M: Module>(empty: M, bytes: &[u8]) -> Result<M, String> {
-    let record =
-        burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec()))
-            .map_err(|e| format!("{e:?}"))?;
-    let module = empty
-        .try_load_record(record)
-        .map_err(|e| format!("{e:?}"))?;
-    let mut finite = AllFinite(true);
-    module.visit(&mut finite);
-    if !finite.0 {
-        return Err("the weights hold a value that is not a finite number".into());
-    }
-    Ok(module)
-}
-
-/// A network of architecture `arch` on `device` with the weights of
-/// [`to_bytes`]; weights whose scalar parameters are not finite are
-/// refused.
+/// `ours`'s network of `arch` on `device` with the weights of
+/// [`to_bytes`]; weights that do not fit the architecture or hold a value
+/// that is not finite are refused ([`Params::from_bytes`]).
+#[cfg(test)]
 pub(crate) fn from_bytes(
     arch: &Architecture,
     bytes: &[u8],
     device: &Device,
 ) -> Result<OursNet, String> {
-    load_module(OursNet::new(arch, Init::Zeros, device), bytes)
+    let specs = ours::spec(arch);
+    let p = Params::from_bytes(bytes, &specs)?;
+    Ok(OursNet::from_params(arch, &p, &specs, device))
 }
 
-/// Whether every float parameter of a module is finite.
-struct AllFinite(bool);
-
-impl burn::module::ModuleVisitor for AllFinite {
-    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-        if self.0 {
-            let data = param.val().into_data();
-            self.0 = data.iter::<f32>().all(f32::is_finite);
-        }
-    }
+/// A published network of `cfg` on `device` with the weights of
+/// [`module_bytes`], refused as [`from_bytes`] refuses them.
+#[cfg(test)]
+pub(crate) fn published_from_bytes(
+    cfg: &PublishedConfig,
+    bytes: &[u8],
+    device: &Device,
+) -> Result<PublishedNet, String> {
+    let specs = published::spec(cfg);
+    let p = Params::from_bytes(bytes, &specs)?;
+    Ok(PublishedNet::from_params(cfg, &p, &specs, device))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::matching::deep::train::init::Init;
 
     #[test]
     fn weights_that_are_not_finite_do_not_load() {
         let arch = Architecture::default();
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let fine = OursNet::new(&arch, Init::Seeded(3), &device);
         assert!(from_bytes(&arch, &to_bytes(&fine).unwrap(), &device).is_ok());
         let broken = OursNet::new(&arch, Init::Seeded(3), &device).with_gates(f32::NAN);
@@ -84,7 +76,7 @@ mod tests {
 
     #[test]
     fn weights_survive_bytes_and_bad_bytes_are_refused() {
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let arch = Architecture::default();
         let net = OursNet::new(&arch, Init::Seeded(9), &device);
         let bytes = to_bytes(&net).unwrap();

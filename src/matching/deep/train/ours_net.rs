@@ -24,13 +24,18 @@ use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::activation;
 
-use super::spline::{CellWeights, GraphBatch, SplineConv};
+use super::init::{Init, Source};
+use super::masks::{Masks, PairMasks};
+use super::sinkhorn::{BLOCKED, log_sinkhorn};
+#[cfg(test)]
+use super::spline2d::CellWeights;
+use super::spline2d::{GraphBatch, SplineConv};
 use crate::matching::deep::arch::Architecture;
 use crate::matching::deep::features::{DUST_FEATURES, PAIR_FEATURES, PairInput};
-use crate::matching::deep::mc::TensorRead;
-use crate::matching::deep::train::init::{Init, named_param};
-use crate::matching::deep::train::masks::{Masks, PairMasks};
-use crate::matching::deep::train::sinkhorn::{BLOCKED, log_sinkhorn};
+use crate::matching::deep::ours;
+#[cfg(test)]
+use crate::matching::deep::ours::Combination;
+use crate::matching::deep::params::{ParamSpec, Params};
 
 /// The pair inputs of a batch as tensors (see [`super::features::PairInput`]).
 pub(crate) struct PairTensors {
@@ -89,19 +94,6 @@ pub(crate) struct PairOutput {
     pub(crate) dust: [Tensor<3>; 2],
 }
 
-/// The scalar parameters that combine the shared likelihood with what the
-/// network learned: score = `scale` ll + `gate` residual; a node's "no
-/// match" score = `dustbin` + `dust_gate` (its learned score). At
-/// initialisation scale is 1 and both gates 0: the scores are the shared
-/// likelihood itself.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct Combination {
-    pub(crate) scale: f32,
-    pub(crate) gate: f32,
-    pub(crate) dustbin: f32,
-    pub(crate) dust_gate: f32,
-}
-
 #[derive(Module, Debug)]
 pub(crate) struct OursNet {
     conv1: SplineConv,
@@ -124,44 +116,41 @@ pub(crate) struct OursNet {
     dust_gate: Param<Tensor<1>>,
 }
 
-/// The dustbin score before training: a pair is more likely matched than
-/// not about where its log-likelihood passes this (a squared Mahalanobis
-/// distance of 6 at identical looks).
-const INITIAL_DUSTBIN: f32 = -3.0;
-
 impl OursNet {
+    /// A fresh network of `arch` (`init`), or a skeleton for weights.
     pub(crate) fn new(arch: &Architecture, init: Init, device: &Device) -> Self {
-        let r = arch.consensus_dim;
-        let (consensus_conv, phi_in, phi_out) = if arch.consensus {
-            (
-                Some(SplineConv::new("consensus_conv", r, r, init, device)),
-                Some(init.linear("phi_in", r, r, device)),
-                Some(init.linear("phi_out", r, 1, device)),
-            )
-        } else {
-            (None, None, None)
+        let specs = ours::spec(arch);
+        Self::from_params(arch, &init.params(&specs), &specs, device)
+    }
+
+    /// The network of `arch` with the parameters `params` (of `specs`,
+    /// [`ours::spec`]).
+    pub(crate) fn from_params(
+        arch: &Architecture,
+        params: &Params,
+        specs: &[ParamSpec],
+        device: &Device,
+    ) -> Self {
+        let src = Source {
+            params,
+            specs,
+            device,
         };
-        let scalar = |name: &str, v: f32| {
-            named_param(
-                name,
-                Tensor::from_data(TensorData::new(vec![v], [1]), device),
-            )
-        };
-        let h = arch.pair_hidden;
+        let c = arch.consensus;
         Self {
-            conv1: SplineConv::new("conv1", arch.node_features, arch.hidden, init, device),
-            conv2: SplineConv::new("conv2", arch.hidden, arch.out, init, device),
-            consensus_conv,
-            phi_in,
-            phi_out,
-            pair_in: init.linear("pair_in", PAIR_FEATURES, h, device),
-            pair_out: init.linear("pair_out", h, 1, device),
-            dust_in: init.linear("dust_in", DUST_FEATURES, h, device),
-            dust_out: init.linear("dust_out", h, 1, device),
-            log_scale: scalar("log_scale", 0.0),
-            gate: scalar("gate", 0.0),
-            dustbin: scalar("dustbin", INITIAL_DUSTBIN),
-            dust_gate: scalar("dust_gate", 0.0),
+            conv1: SplineConv::from(&src, "conv1"),
+            conv2: SplineConv::from(&src, "conv2"),
+            consensus_conv: c.then(|| SplineConv::from(&src, "consensus_conv")),
+            phi_in: c.then(|| src.linear("phi_in")),
+            phi_out: c.then(|| src.linear("phi_out")),
+            pair_in: src.linear("pair_in"),
+            pair_out: src.linear("pair_out"),
+            dust_in: src.linear("dust_in"),
+            dust_out: src.linear("dust_out"),
+            log_scale: src.param("log_scale"),
+            gate: src.param("gate"),
+            dustbin: src.param("dustbin"),
+            dust_gate: src.param("dust_gate"),
         }
     }
 
@@ -179,12 +168,13 @@ impl OursNet {
     pub(crate) fn with_gate_values(mut self, gate: f32, dust_gate: f32) -> Self {
         let device = self.gate.val().device();
         let value = |v: f32| Tensor::from_data(TensorData::new(vec![v], [1]), &device);
-        self.gate = named_param("gate", value(gate));
-        self.dust_gate = named_param("dust_gate", value(dust_gate));
+        self.gate = super::init::named_param("gate", value(gate));
+        self.dust_gate = super::init::named_param("dust_gate", value(dust_gate));
         self
     }
 
     /// The scalar parameters, read once (inference).
+    #[cfg(test)]
     pub(crate) fn combination(&self) -> Combination {
         let read = |p: &Param<Tensor<1>>| p.val().into_scalar::<f32>();
         Combination {
@@ -208,48 +198,21 @@ impl OursNet {
     /// The first layer's output `relu(conv1(x))` of a single graph, `[n,
     /// hidden]` row-major: the same for every sample.
     #[cfg(test)]
-    pub(crate) fn first_layer(&self, g: &GraphBatch) -> Result<Vec<f32>, TensorRead> {
+    pub(crate) fn first_layer(
+        &self,
+        g: &GraphBatch,
+    ) -> Result<Vec<f32>, super::backend::TensorRead> {
         let w = g.weights.as_deref();
-        crate::matching::deep::backend::values(activation::relu(self.conv1.forward(
+        super::backend::values(activation::relu(self.conv1.forward(
             g.x.clone(),
             g,
             w.map(|w| &w.conv1),
         )))
     }
 
-    /// The first layer's parameters as plain numbers.
-    pub(crate) fn first_layer_weights(
-        &self,
-    ) -> Result<super::second_layer::PlainSpline, TensorRead> {
-        self.conv1.plain()
-    }
-
-    /// The second layer's parameters as plain numbers.
-    pub(crate) fn second_layer(&self) -> Result<super::second_layer::PlainSpline, TensorRead> {
-        self.conv2.plain()
-    }
-
-    /// The pair part's parameters as plain numbers (inference).
-    pub(crate) fn pair_weights(&self) -> Result<super::pair::PairWeights, TensorRead> {
-        let linear = crate::matching::deep::backend::linear;
-        let consensus = match (&self.consensus_conv, &self.phi_in, &self.phi_out) {
-            (Some(conv), Some(phi_in), Some(phi_out)) => {
-                Some((conv.plain()?, linear(phi_in)?, linear(phi_out)?))
-            }
-            _ => None,
-        };
-        Ok(super::pair::PairWeights {
-            pair_in: linear(&self.pair_in)?,
-            pair_out: linear(&self.pair_out)?,
-            dust_in: linear(&self.dust_in)?,
-            dust_out: linear(&self.dust_out)?,
-            consensus,
-            combination: self.combination(),
-        })
-    }
-
     /// Every spline layer's weights of the kernel cells of `g`, for
     /// [`GraphBatch::with_weights`] on graphs with the same cells.
+    #[cfg(test)]
     pub(crate) fn cell_weights(&self, g: &GraphBatch) -> CellWeights {
         CellWeights {
             cell_mask: g.cell_mask,
@@ -410,7 +373,7 @@ mod tests {
     /// log assignment as it is alone, and the padding carries no mass.
     #[test]
     fn a_padded_batch_equals_its_pairs_alone() {
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let arch = Architecture {
             dropout_conv: 0.0,
             dropout_phi: 0.0,
@@ -419,11 +382,11 @@ mod tests {
         let mut net = OursNet::new(&arch, Init::Seeded(2), &device);
         // Open the gates so that the residual and the learned "no match"
         // scores count.
-        net.gate = named_param(
+        net.gate = crate::matching::deep::train::init::named_param(
             "gate",
             Tensor::from_data(TensorData::new(vec![0.3f32], [1]), &device),
         );
-        net.dust_gate = named_param(
+        net.dust_gate = crate::matching::deep::train::init::named_param(
             "dust_gate",
             Tensor::from_data(TensorData::new(vec![0.5f32], [1]), &device),
         );
@@ -496,7 +459,7 @@ mod tests {
     /// their own; weights kept for another cell set are ignored.
     #[test]
     fn kept_cell_weights_change_nothing_and_foreign_ones_are_ignored() {
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let graph = |points: &[(f64, f64)]| GraphBatch::used_cells(&graph_input(points), &device);
         let near = [(0.0, 0.0), (12.0, 3.0), (5.0, 20.0), (-9.0, 14.0)];
         let far = [(0.0, 0.0), (45.0, -30.0), (-40.0, 44.0), (10.0, 60.0)];
@@ -522,7 +485,7 @@ mod tests {
 
     #[test]
     fn seeded_initialisation_is_named_per_parameter() {
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let arch = Architecture::default();
         let bytes = |init| to_bytes(&OursNet::new(&arch, init, &device)).unwrap();
         // Same seed, same weights (and the same bytes: parameter ids are

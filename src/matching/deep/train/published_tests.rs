@@ -7,8 +7,9 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::PI;
 
-use super::model::draw_masks;
-use super::*;
+use super::published_net::{PublishedNet, draw_masks};
+use super::spline1d::GraphTensors;
+use super::weights::{module_bytes as to_bytes, published_from_bytes as from_bytes};
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::SceneGraph;
 use crate::matching::deep::arch::{Backbone, DeepMethod, MaskScope};
@@ -16,6 +17,7 @@ use crate::matching::deep::arch::{PublishedConfig, PublishedKind};
 use crate::matching::deep::cost::published_macs;
 use crate::matching::deep::decision::MatchDistribution;
 use crate::matching::deep::mc::{Inference, McMatcher};
+use crate::matching::deep::published::{PaperGraph, Published};
 use crate::matching::deep::train::init::Init;
 use crate::matching::deep::train::published::{PublishedTrainer, TrainPair};
 use crate::matching::testkit::detection;
@@ -126,7 +128,7 @@ fn assignments_are_per_sample_doubly_stochastic_with_dustbins() {
         let net = PublishedNet::new(
             &cfg,
             Init::Seeded(1),
-            &crate::matching::deep::backend::device(),
+            &crate::matching::deep::train::backend::device(),
         );
         let draw = |mc_dropout: bool| {
             let sampling = Sampling {
@@ -159,13 +161,13 @@ fn assignments_are_per_sample_doubly_stochastic_with_dustbins() {
         let again = PublishedNet::new(
             &cfg,
             Init::Seeded(1),
-            &crate::matching::deep::backend::device(),
+            &crate::matching::deep::train::backend::device(),
         );
         assert_eq!(to_bytes(&net).unwrap(), to_bytes(&again).unwrap());
         let loaded = from_bytes(
             &cfg,
             &to_bytes(&net).unwrap(),
-            &crate::matching::deep::backend::device(),
+            &crate::matching::deep::train::backend::device(),
         )
         .unwrap();
         let sampling = Sampling {
@@ -354,7 +356,7 @@ fn dgmc_matches_rigidly_moved_copies() {
 
 /// `S_0` of one pair, one sample without dropout, `(n1 + 1) x (n2 + 1)`.
 fn initial_assignment(net: &PublishedNet, cfg: &PublishedConfig, p: &TrainPair) -> Vec<f32> {
-    let device = crate::matching::deep::backend::device();
+    let device = crate::matching::deep::train::backend::device();
     let g1 = GraphTensors::new(&[&p.first], cfg.edge_scale_m, &device);
     let g2 = GraphTensors::new(&[&p.second], cfg.edge_scale_m, &device);
     let shape = [1, 1, p.first.n, p.second.n];
@@ -447,7 +449,7 @@ fn sample_assignments(
         (0..n2).for_each(|j| s[n1 * (n2 + 1) + j] = 1.0);
         return vec![s; t];
     }
-    let device = crate::matching::deep::backend::device();
+    let device = crate::matching::deep::train::backend::device();
     let g1 = GraphTensors::new(&[first], cfg.edge_scale_m, &device);
     let g2 = GraphTensors::new(&[second], cfg.edge_scale_m, &device);
     let masks = draw_masks(rng, cfg, [1, t, n1, n2], sampling.mc_dropout, &device);

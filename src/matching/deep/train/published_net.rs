@@ -1,8 +1,8 @@
 //! The two published networks as one burn module: GCN-GM (psi_1 and the
 //! Sinkhorn-normalised similarity `S_0`) and DGMC (the same `S_0`, then `L`
 //! consensus steps with psi_2 on random node indicator functions, giving
-//! `S_L`), their dropout masks and indicators drawn by the caller, and
-//! inference as plain per-sample assignments.
+//! `S_L`), as training runs them, and their dropout masks and indicators
+//! as tensors.
 
 use burn::module::Param;
 use burn::nn::Linear;
@@ -11,17 +11,13 @@ use burn::tensor::activation;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use super::conv::{GraphTensors, SplineCnn};
-use crate::matching::deep::arch::MaskScope;
-use crate::matching::deep::arch::{PublishedConfig, PublishedKind};
-use crate::matching::deep::backend::linear;
-use crate::matching::deep::mc::TensorRead;
+use super::init::{Init, Source};
+use super::sinkhorn::{BLOCKED, log_sinkhorn};
+use super::spline1d::{GraphTensors, SplineCnn};
+use crate::matching::deep::arch::{MaskScope, PublishedConfig, PublishedKind};
 use crate::matching::deep::mc::draws::dropout_mask_16;
-use crate::matching::deep::train::init::{Init, named_param};
-use crate::matching::deep::train::sinkhorn::{BLOCKED, log_sinkhorn};
-
-/// The dustbin score before training.
-const INITIAL_DUSTBIN: f32 = 1.0;
+use crate::matching::deep::params::{ParamSpec, Params};
+use crate::matching::deep::published;
 
 #[derive(Module, Debug)]
 pub(crate) struct PublishedNet {
@@ -54,52 +50,40 @@ pub(crate) struct Assignments {
 
 impl Assignments {
     /// The network's answer: `S_L` when there is one, else `S_0`.
+    #[cfg(test)]
     pub(crate) fn last(self) -> Tensor<4> {
         self.refined.unwrap_or(self.initial)
     }
 }
 
 impl PublishedNet {
+    /// A fresh network of `cfg` (`init`), or a skeleton for weights.
     pub(crate) fn new(cfg: &PublishedConfig, init: Init, device: &Device) -> Self {
-        let name = match cfg.kind {
-            PublishedKind::GcnGm => "gcn_gm",
-            PublishedKind::Dgmc => "dgmc",
-        };
-        let psi1 = SplineCnn::new(
-            &format!("{name}.psi1"),
-            [cfg.node_features(), cfg.hidden, cfg.out],
-            false,
-            init,
-            device,
-        );
-        let r = cfg.rnd_dim;
-        let consensus = cfg.kind == PublishedKind::Dgmc;
-        Self {
-            psi1,
-            psi2: consensus
-                .then(|| SplineCnn::new(&format!("{name}.psi2"), [r, r, r], true, init, device)),
-            mlp_in: consensus.then(|| init.linear(&format!("{name}.mlp_in"), r, r, device)),
-            mlp_out: consensus.then(|| init.linear(&format!("{name}.mlp_out"), r, 1, device)),
-            dustbin: named_param(
-                &format!("{name}.dustbin"),
-                Tensor::from_data(TensorData::new(vec![INITIAL_DUSTBIN], [1]), device),
-            ),
-        }
+        let specs = published::spec(cfg);
+        Self::from_params(cfg, &init.params(&specs), &specs, device)
     }
 
-    /// The parameters as plain numbers (inference).
-    pub(crate) fn plain(&self) -> Result<super::inference::PlainWeights, TensorRead> {
-        let consensus = match (&self.psi2, &self.mlp_in, &self.mlp_out) {
-            (Some(psi2), Some(mlp_in), Some(mlp_out)) => {
-                Some((psi2.plain()?, linear(mlp_in)?, linear(mlp_out)?))
-            }
-            _ => None,
+    /// The network of `cfg` with the parameters `params` (of `specs`,
+    /// [`published::spec`]).
+    pub(crate) fn from_params(
+        cfg: &PublishedConfig,
+        params: &Params,
+        specs: &[ParamSpec],
+        device: &Device,
+    ) -> Self {
+        let src = Source {
+            params,
+            specs,
+            device,
         };
-        Ok(super::inference::PlainWeights {
-            psi1: self.psi1.plain()?,
-            consensus,
-            dustbin: self.dustbin.val().into_scalar::<f32>(),
-        })
+        let consensus = cfg.kind == PublishedKind::Dgmc;
+        Self {
+            psi1: SplineCnn::from(&src, "psi1", false),
+            psi2: consensus.then(|| SplineCnn::from(&src, "psi2", true)),
+            mlp_in: consensus.then(|| src.linear("mlp_in")),
+            mlp_out: consensus.then(|| src.linear("mlp_out")),
+            dustbin: src.param("dustbin"),
+        }
     }
 
     /// Log assignments of `B` pairs (`graphs[0]` the first graphs,

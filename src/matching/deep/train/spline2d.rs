@@ -12,10 +12,8 @@ use burn::module::Param;
 use burn::prelude::*;
 use std::sync::Arc;
 
-use crate::matching::deep::backend::values;
+use super::init::Source;
 use crate::matching::deep::features::{GraphInput, KERNEL_2D, NODE_FEATURES};
-use crate::matching::deep::mc::TensorRead;
-use crate::matching::deep::train::init::{Init, named_param};
 
 /// Graphs as tensors, padded to a common node count `N` (a batch of
 /// training pairs' graphs, or one graph at inference, `B = 1`).
@@ -40,6 +38,10 @@ pub(crate) struct GraphBatch {
     /// Directed edges over the whole batch (0: no messages at all).
     pub(crate) edges: usize,
     /// Bit k set when kernel cell k is in `cells`.
+    #[cfg_attr(
+        not(test),
+        allow(dead_code, reason = "the tensor reference's cell cache")
+    )]
     pub(crate) cell_mask: u32,
     /// The spline layers' weights of exactly these cells, when the caller
     /// has them ([`super::OursNet::cell_weights`]); else each
@@ -52,6 +54,10 @@ pub(crate) struct GraphBatch {
 /// caller that sees the same cell set many times (inference).
 pub(crate) struct CellWeights {
     /// The cell set, as [`GraphBatch::cell_mask`].
+    #[cfg_attr(
+        not(test),
+        allow(dead_code, reason = "the tensor reference's cell cache")
+    )]
     pub(crate) cell_mask: u32,
     pub(crate) conv1: Tensor<2>,
     pub(crate) conv2: Tensor<2>,
@@ -67,6 +73,7 @@ impl GraphBatch {
     }
 
     /// One graph with only the kernel cells some edge uses (inference).
+    #[cfg(test)]
     pub(crate) fn used_cells(g: &GraphInput, device: &Device) -> Self {
         let mut used = [false; KERNEL_2D];
         for &k in &g.basis_index {
@@ -131,6 +138,7 @@ impl GraphBatch {
 
     /// With the spline layers' weights of this batch's cells; weights of
     /// another cell set are ignored (the layers then select their own).
+    #[cfg(test)]
     pub(crate) fn with_weights(mut self, weights: Arc<CellWeights>) -> Self {
         if weights.cell_mask == self.cell_mask {
             self.weights = Some(weights);
@@ -152,17 +160,36 @@ pub(crate) struct SplineConv {
 }
 
 impl SplineConv {
-    /// A layer named `name` (the parameter names of its streams).
-    pub(crate) fn new(name: &str, d_in: usize, d_out: usize, init: Init, device: &Device) -> Self {
-        // Uniform(+-1/sqrt(fan_in)) with the fan-in of one kernel cell.
-        let b = 1.0 / (d_in as f64).sqrt();
-        let weight = [d_in, KERNEL_2D * d_out];
+    /// The layer `name` of `src` (`<name>.weight`, `.root`, `.bias`).
+    pub(crate) fn from(src: &Source, name: &str) -> Self {
+        let bias: Param<Tensor<1>> = src.param(&format!("{name}.bias"));
         Self {
-            weight: init.param(&format!("{name}.weight"), weight, b, device),
-            root: init.param(&format!("{name}.root"), [d_in, d_out], b, device),
-            bias: named_param(&format!("{name}.bias"), Tensor::zeros([d_out], device)),
-            d_out,
+            d_out: bias.val().dims()[0],
+            weight: src.param(&format!("{name}.weight")),
+            root: src.param(&format!("{name}.root")),
+            bias,
         }
+    }
+
+    /// A fresh layer `name`, `d_in -> d_out` (tests).
+    #[cfg(test)]
+    pub(crate) fn new(
+        name: &str,
+        d_in: usize,
+        d_out: usize,
+        init: super::init::Init,
+        device: &Device,
+    ) -> Self {
+        let specs = crate::matching::deep::params::spline_conv(name, "", [d_in, d_out], KERNEL_2D);
+        let params = init.params(&specs);
+        Self::from(
+            &Source {
+                params: &params,
+                specs: &specs,
+                device,
+            },
+            name,
+        )
     }
 
     /// `x: [B, T, N, in] -> [B, T, N, out]` (T samples of each graph):
@@ -213,17 +240,6 @@ impl SplineConv {
         root + messages + bias
     }
 
-    /// The parameters as plain numbers (inference outside tensors).
-    pub(crate) fn plain(&self) -> Result<super::second_layer::PlainSpline, TensorRead> {
-        Ok(super::second_layer::PlainSpline {
-            d_in: self.root.val().dims()[0],
-            d_out: self.d_out,
-            root: values(self.root.val())?,
-            weight: values(self.weight.val())?,
-            bias: values(self.bias.val())?,
-        })
-    }
-
     /// The kernel cells' weight matrices, `[in, KERNEL_2D * out]`.
     #[cfg(test)]
     pub(crate) fn weight(&self) -> Tensor<2> {
@@ -267,7 +283,7 @@ mod tests {
     /// + bias` (kernel cell k_c, basis weight b_c).
     #[test]
     fn spline_conv_equals_the_per_edge_sum() {
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let input = graph_input(&[
             (0.0, 0.0),
             (12.0, 3.0),
@@ -277,7 +293,13 @@ mod tests {
         ]);
         let n = input.n;
         for (d_in, d_out) in [(3, 2), (2, 3)] {
-            let conv = SplineConv::new("test", d_in, d_out, Init::Seeded(3), &device);
+            let conv = SplineConv::new(
+                "test",
+                d_in,
+                d_out,
+                super::super::init::Init::Seeded(3),
+                &device,
+            );
             assert_eq!(conv.mixes_first(), d_in < d_out);
             let x: Vec<f32> = (0..n * d_in).map(|v| (v as f32 * 0.37).sin()).collect();
             let all = GraphBatch::new(&[&input], &device);

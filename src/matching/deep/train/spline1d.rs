@@ -1,6 +1,6 @@
 //! SplineCNN over edge lengths (Fey et al. 2018): [`GraphTensors`] holds
 //! graphs as tensors, padded to a common node count, with each edge's 1-D
-//! B-spline weights ([`super::graph::length_basis`]) mixed into one dense
+//! B-spline weights (`published::graph::length_basis`) mixed into one dense
 //! matrix; [`SplineConv1d`] is PyG's `SplineConv` with `dim = 1`,
 //! `kernel_size = 5`, degree 1, mean aggregation, a root weight and a bias;
 //! [`SplineCnn`] is the stack of DGMC's public code (`SplineCNN`): two
@@ -12,11 +12,10 @@ use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::activation;
 
-use super::graph::{PaperGraph, length_basis};
-use crate::matching::deep::backend::{linear, values};
+use super::init::Source;
 use crate::matching::deep::features::{KERNEL, NODE_FEATURES};
-use crate::matching::deep::mc::TensorRead;
-use crate::matching::deep::train::init::{Init, named_param};
+use crate::matching::deep::published::PaperGraph;
+use crate::matching::deep::published::graph::length_basis;
 
 /// Graphs as tensors, padded to a common node count `N`.
 pub(crate) struct GraphTensors {
@@ -85,16 +84,36 @@ pub(crate) struct SplineConv1d {
 }
 
 impl SplineConv1d {
-    /// A layer named `name` (the names of its parameters' streams).
-    pub(crate) fn new(name: &str, d_in: usize, d_out: usize, init: Init, device: &Device) -> Self {
-        // Uniform(+-1/sqrt(fan in)), as the project's 2-D layer.
-        let b = 1.0 / (d_in as f64).sqrt();
+    /// The layer `name` of `src` (`<name>.weight`, `.root`, `.bias`).
+    pub(crate) fn from(src: &Source, name: &str) -> Self {
+        let bias: Param<Tensor<1>> = src.param(&format!("{name}.bias"));
         Self {
-            weight: init.param(&format!("{name}.weight"), [d_in, KERNEL * d_out], b, device),
-            root: init.param(&format!("{name}.root"), [d_in, d_out], b, device),
-            bias: named_param(&format!("{name}.bias"), Tensor::zeros([d_out], device)),
-            d_out,
+            d_out: bias.val().dims()[0],
+            weight: src.param(&format!("{name}.weight")),
+            root: src.param(&format!("{name}.root")),
+            bias,
         }
+    }
+
+    /// A fresh layer `name`, `d_in -> d_out` (tests).
+    #[cfg(test)]
+    pub(crate) fn new(
+        name: &str,
+        d_in: usize,
+        d_out: usize,
+        init: super::init::Init,
+        device: &Device,
+    ) -> Self {
+        let specs = crate::matching::deep::params::spline_conv(name, "", [d_in, d_out], KERNEL);
+        let params = init.params(&specs);
+        Self::from(
+            &Source {
+                params: &params,
+                specs: &specs,
+                device,
+            },
+            name,
+        )
     }
 
     /// `x: [B, T, N, in] -> [B, T, N, out]` (T samples of each graph; the
@@ -113,15 +132,6 @@ impl SplineConv1d {
             .reshape([b, t, n * KERNEL, d_out]);
         let messages = g.mixing.clone().matmul(xw); // [B, 1, N, N K] x [B, T, N K, out]
         root + messages + self.bias.val().reshape([1, 1, 1, d_out])
-    }
-
-    /// The layer as plain numbers (inference).
-    pub(crate) fn plain(&self) -> Result<super::inference::Conv1d, TensorRead> {
-        Ok(super::inference::Conv1d::new(
-            &values(self.root.val())?,
-            &values(self.weight.val())?,
-            values(self.bias.val())?,
-        ))
     }
 
     /// The knots' weight matrices, `[in, KERNEL * out]`.
@@ -143,30 +153,15 @@ pub(crate) struct SplineCnn {
 }
 
 impl SplineCnn {
-    /// `d_in -> hidden -> out`, then the final linear layer to `out`.
-    pub(crate) fn new(
-        name: &str,
-        [d_in, hidden, out]: [usize; 3],
-        cat: bool,
-        init: Init,
-        device: &Device,
-    ) -> Self {
-        let last_in = if cat { d_in + hidden + out } else { out };
+    /// The stack `name` of `src` (`<name>.conv1`, `.conv2`, `.last`);
+    /// `cat`: the last layer reads the input and both outputs.
+    pub(crate) fn from(src: &Source, name: &str, cat: bool) -> Self {
         Self {
-            conv1: SplineConv1d::new(&format!("{name}.conv1"), d_in, hidden, init, device),
-            conv2: SplineConv1d::new(&format!("{name}.conv2"), hidden, out, init, device),
-            last: init.linear(&format!("{name}.last"), last_in, out, device),
+            conv1: SplineConv1d::from(src, &format!("{name}.conv1")),
+            conv2: SplineConv1d::from(src, &format!("{name}.conv2")),
+            last: src.linear(&format!("{name}.last")),
             cat,
         }
-    }
-
-    /// The stack as plain numbers (inference).
-    pub(crate) fn plain(&self) -> Result<super::inference::PlainCnn, TensorRead> {
-        Ok(super::inference::PlainCnn {
-            conv1: self.conv1.plain()?,
-            conv2: self.conv2.plain()?,
-            last: linear(&self.last)?,
-        })
     }
 
     /// `x: [B, T0, N, in] -> [B, T, N, out]`. `mask`: an inverted-dropout
@@ -206,7 +201,7 @@ mod tests {
     /// bias`, padding included (a second, larger graph in the batch).
     #[test]
     fn spline_conv_1d_equals_the_per_edge_sum() {
-        let device = crate::matching::deep::backend::device();
+        let device = crate::matching::deep::train::backend::device();
         let pts = [
             (0.0, 0.0),
             (12.0, 3.0),
@@ -225,7 +220,13 @@ mod tests {
         let scale = 25.0;
         let g = GraphTensors::new(&[&small, &large], scale, &device);
         let (d_in, d_out) = (NODE_FEATURES, 3);
-        let conv = SplineConv1d::new("test", d_in, d_out, Init::Seeded(3), &device);
+        let conv = SplineConv1d::new(
+            "test",
+            d_in,
+            d_out,
+            super::super::init::Init::Seeded(3),
+            &device,
+        );
         let out: Vec<f32> = conv
             .forward(g.x.clone(), &g)
             .try_into_vec_as::<f32>()

@@ -2,16 +2,27 @@
 //! masks repeat by seed, weights survive bytes, an untrained network
 //! decides as GPS+appearance Hungarian, shared embeddings change no bit.
 
-use super::*;
+use super::backend::device;
+use super::ours_net::OursNet;
+use super::spline2d::GraphBatch;
+use super::weights::{from_bytes, to_bytes};
 use crate::geometry::Vec2;
 use crate::matching::deep::arch::DeepMethod;
+use crate::matching::deep::arch::{Architecture, MaskScope};
+use crate::matching::deep::cost::GraphShape;
 use crate::matching::deep::cost::inference_macs;
+use crate::matching::deep::features::graph_input;
+use crate::matching::deep::mc::Inference;
 use crate::matching::deep::mc::McMatcher;
+use crate::matching::deep::ours::{self, Ours, PlainSpline, first_layer};
+use crate::matching::deep::params::Params;
 use crate::matching::deep::tests::queue_scene;
 use crate::matching::gps_hungarian::GpsHungarian;
+use crate::matching::likelihood::LikelihoodTerms;
 use crate::matching::likelihood::assign;
 use crate::matching::testkit::{self, GPS, Side};
 use crate::matching::{Matcher, Method};
+use burn::prelude::*;
 
 const RUN: Inference = Inference {
     seed: 3,
@@ -26,8 +37,16 @@ fn opened(arch: Architecture, seed: u64) -> McMatcher<Ours> {
 }
 
 fn opened_as(arch: Architecture, seed: u64, run: Inference) -> McMatcher<Ours> {
-    let net = OursNet::new(&arch, Init::Seeded(seed), &device()).with_gates(1.0);
-    McMatcher::new(Method::Ours, Ours::new(net, arch, run).unwrap(), run)
+    let p = opened_params(&arch, seed, 1.0);
+    McMatcher::new(Method::Ours, Ours::new(&p, arch, run), run)
+}
+
+/// The seeded parameters of `arch` with both gates at `gate`.
+fn opened_params(arch: &Architecture, seed: u64, gate: f32) -> Params {
+    let mut p = Params::seeded(&ours::spec(arch), seed);
+    p.set("gate", &[gate]);
+    p.set("dust_gate", &[gate]);
+    p
 }
 
 /// The MC samples of the moved-copy scene.
@@ -35,7 +54,7 @@ fn mc_samples(m: &McMatcher<Ours>) -> Vec<Vec<f32>> {
     let (a, b) = testkit::moved_copy();
     let (va, vb) = (a.view(), b.view());
     let relative = crate::matching::gps_relative_pose(&va, &vb);
-    let s = m.samples(&va, &vb, &relative).unwrap();
+    let s = m.samples(&va, &vb, &relative);
     assert_eq!(s.assignments.len(), 20);
     s.assignments
 }
@@ -95,16 +114,19 @@ fn shared_dropout_masks_vary_by_sample_and_repeat_by_seed() {
 
 #[test]
 fn weights_as_bytes_give_identical_outputs() {
-    let m = opened(Architecture::default(), 11);
-    let bytes = m.network().weights().unwrap();
-    let ours = Ours::from_weights(Architecture::default(), &bytes, RUN).unwrap();
+    let arch = Architecture::default();
+    let m = opened(arch, 11);
+    let p = opened_params(&arch, 11, 1.0);
+    let specs = ours::spec(&arch);
+    let bytes = to_bytes(&OursNet::from_params(&arch, &p, &specs, &device())).unwrap();
+    let ours = Ours::from_weights(arch, &bytes, RUN).unwrap();
     let loaded = McMatcher::new(Method::Ours, ours, RUN);
     let (a, b) = testkit::moved_copy();
     let (va, vb) = (a.view(), b.view());
     let relative = crate::matching::gps_relative_pose(&va, &vb);
     assert_eq!(
-        m.distribution(&va, &vb, &relative).unwrap(),
-        loaded.distribution(&va, &vb, &relative).unwrap()
+        m.distribution(&va, &vb, &relative),
+        loaded.distribution(&va, &vb, &relative)
     );
     // gcn-gm has no consensus: the weights of `ours` do not fit it.
     let fits =
@@ -184,8 +206,8 @@ fn untrained_decides_exactly_as_gps_appearance_hungarian() {
     assert_eq!(pairs(&noprior), hungarian(true));
     assert_ne!(hungarian(true), expected);
     let arch = Architecture::default();
-    let net = OursNet::new(&arch, Init::Seeded(5), &device()).with_gates(30.0);
-    let loud = McMatcher::new(Method::Ours, Ours::new(net, arch, RUN).unwrap(), RUN);
+    let p = opened_params(&arch, 5, 30.0);
+    let loud = McMatcher::new(Method::Ours, Ours::new(&p, arch, RUN), RUN);
     assert_ne!(pairs(&loud), expected);
 }
 
@@ -208,7 +230,6 @@ fn shared_embeddings_are_bit_identical_to_the_per_pair_path() {
             .map(|&(i, j)| {
                 let (a, b) = (sides[i].view(), sides[j].view());
                 m.samples(&a, &b, &crate::matching::gps_relative_pose(&a, &b))
-                    .unwrap()
                     .assignments
             })
             .collect()
@@ -252,7 +273,8 @@ fn the_plain_first_layer_is_the_tensor_one_bit_for_bit() {
     let weights = include_bytes!("../../../../models/ours.bpk");
     let arch = Architecture::default();
     let net = from_bytes(&arch, weights, &device()).unwrap().valid();
-    let plain = first_layer::FirstLayer::new(net.first_layer_weights().unwrap());
+    let p = Params::from_bytes(weights, &ours::spec(&arch)).unwrap();
+    let plain = first_layer::FirstLayer::new(PlainSpline::of(&p, "conv1"));
     let mut scenes: Vec<Side> = vec![testkit::moved_copy().0, testkit::moved_copy().1];
     let objects = testkit::world_objects();
     scenes.push(Side::of(testkit::POSE_A, &objects, &[4], GPS));
