@@ -435,7 +435,7 @@ fn only_in(needles: &[&str], allowed: &[&str]) {
 
 #[test]
 fn only_the_bridge_touches_python() {
-    only_in(&["pyo3", "Python::"], &["bridge.rs"]);
+    only_in(&["pyo3", "Python::"], &["bridge/"]);
 }
 
 #[test]
@@ -455,21 +455,76 @@ fn only_io_frames_touches_polars() {
 
 #[test]
 fn only_the_deep_matcher_sees_tensors() {
-    // The models, training and the tensor reference of inference; the
-    // MC shell, the kernels and the plain inference paths see none.
-    only_in(
-        &["burn::", "Tensor<"],
-        &[
-            "matching/deep/backend.rs",
-            "matching/deep/train/",
-            "matching/deep/ours/mod.rs",
-            "matching/deep/ours/model.rs",
-            "matching/deep/ours/spline.rs",
-            "matching/deep/published/mod.rs",
-            "matching/deep/published/conv.rs",
-            "matching/deep/published/model.rs",
-        ],
-    );
+    // Training: its modules, the trainer and the tensor reference of
+    // inference; the building blocks, the MC shell and the networks'
+    // inference see none.
+    only_in(&["burn::", "Tensor<"], &["matching/deep/train/"]);
+}
+
+/// The deep matchers' layers: the building blocks and the networks'
+/// inference never name training (`matching/deep/train/`); only the
+/// facade (`deep/mod.rs`, which hands out both) and training itself do.
+#[test]
+fn inference_never_imports_training() {
+    let inference = |f: &str| {
+        f.starts_with("matching/deep/")
+            && !f.starts_with("matching/deep/train/")
+            && f != "matching/deep/mod.rs"
+    };
+    for (rel, code) in sources().into_iter().filter(|(f, _)| inference(f)) {
+        let named: Vec<&str> = code
+            .lines()
+            .filter(|l| !l.trim_start().starts_with("//"))
+            .filter(|l| matches(l, "train::") || matches(l, "train$") && l.contains("use "))
+            .collect();
+        assert!(
+            named.is_empty(),
+            "src/{rel} (inference) names training: {named:?}"
+        );
+    }
+}
+
+/// Lines of code of `text`: not blank, not a comment.
+fn code_lines(text: &str) -> usize {
+    text.lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with("//"))
+        .count()
+}
+
+/// No file under `src/` passes 600 lines of code (blank lines and
+/// comments aside); a file's inline test module is counted apart, as a
+/// test module's own file is, against the same limit.
+#[test]
+fn no_file_passes_600_code_lines() {
+    const LIMIT: usize = 600;
+    let mut files = Vec::new();
+    fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                walk(&p, out);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                out.push(p);
+            }
+        }
+    }
+    walk(&src(), &mut files);
+    let mut over = Vec::new();
+    for f in files {
+        let text = std::fs::read_to_string(&f).unwrap();
+        let (code, tests) = match text.find("#[cfg(test)]\nmod tests {") {
+            Some(k) => text.split_at(k),
+            None => (text.as_str(), ""),
+        };
+        for (part, n) in [("code", code_lines(code)), ("tests", code_lines(tests))] {
+            if n > LIMIT {
+                let rel = f.strip_prefix(src()).unwrap().display().to_string();
+                over.push(format!("src/{rel} ({part}): {n}"));
+            }
+        }
+    }
+    assert!(over.is_empty(), "over {LIMIT} code lines: {over:?}");
 }
 
 #[test]
@@ -485,11 +540,13 @@ fn only_io_writes_files_and_only_batch_and_bridge_start_processes() {
             "tempfile",
             "std::fs::copy",
         ],
-        &["io/", "bridge.rs", "interrupt.rs"],
+        &["io/", "bridge/", "interrupt.rs"],
     );
     // The bridge writes only inside SUMO's Python environment (its
     // requirements and stamp) and removes its own capture of SUMO's stderr.
-    let bridge = std::fs::read_to_string(src().join("bridge.rs")).unwrap();
+    let bridge = ["bridge/mod.rs", "bridge/python.rs"]
+        .map(|f| std::fs::read_to_string(src().join(f)).unwrap())
+        .join("\n");
     for line in bridge.lines().filter(|l| l.contains("std::fs::write")) {
         assert!(
             line.contains("std::fs::write(&req") || line.contains("venv.join(STAMP)"),
@@ -505,7 +562,7 @@ fn only_io_writes_files_and_only_batch_and_bridge_start_processes() {
             "config/appearance.rs",
             "config/digest.rs",
             "io/",
-            "bridge.rs",
+            "bridge/",
         ],
     );
     // No fixed or predictable paths under /tmp: temporary files and
@@ -513,11 +570,11 @@ fn only_io_writes_files_and_only_batch_and_bridge_start_processes() {
     // the temporary folder only to remove its own capture folders left by
     // processes that are gone.
     only_in(&["\"/tmp"], &[]);
-    only_in(&["temp_dir()"], &["bridge.rs"]);
+    only_in(&["temp_dir()"], &["bridge/"]);
     // Batch starts its workers; the bridge runs SUMO's netconvert.
     only_in(
         &["std::process::Command", "process::{"],
-        &["batch.rs", "bridge.rs"],
+        &["batch.rs", "bridge/"],
     );
 }
 
@@ -554,7 +611,7 @@ fn matchers_cannot_reach_the_ground_truth() {
             "sensor/camera.rs",
             "sensor/profile/sense.rs",
             "sensor/boxes.rs",
-            "sensor/reid.rs",
+            "sensor/reid/",
             "matching/oracle.rs",
             "evaluate/mod.rs",
             "evaluate/counts.rs",
@@ -574,7 +631,7 @@ fn matchers_cannot_reach_the_ground_truth() {
             "v2x/peer.rs",
             "v2x/receptions.rs",
             "v2x/vehicle.rs",
-            "experiments.rs",
+            "experiments/",
             "export/rows.rs",
             // A converted dataset's truth rows: the source's labels; a
             // dataset's truth read back beside its instances.

@@ -5,6 +5,7 @@
 //! checks a folder and reads it back as plain values, refusing one that
 //! does not fit with one line naming the file, row and column.
 
+mod assemble;
 mod check;
 pub(crate) mod convert;
 pub mod read;
