@@ -86,7 +86,15 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// mimalloc's `mi_option_purge_delay` (as `src/main.rs` names it).
+const PURGE_DELAY: libmimalloc_sys::mi_option_t = libmimalloc_sys::mi_option_use_numa_nodes - 1;
+
 fn main() {
+    // The allocator as the `coid` binary sets it (`src/main.rs`): memory
+    // a pair frees is kept for the next instead of being returned after
+    // 10 ms and faulted in (and zeroed) again.
+    // SAFETY: a process-wide allocator option, set before any thread runs.
+    unsafe { libmimalloc_sys::mi_option_set(PURGE_DELAY, -1) };
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     let objects = scene(20, &mut rng);
     let (pa, pb) = (Pose2::identity(), Pose2::new(Vec2::new(30.0, 20.0), 2.0));
