@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use coid_sim::geometry::{Cov2, Pose2, Vec2};
 use coid_sim::graph::SceneGraph;
-use coid_sim::matching::deep::arch::{Architecture, Backbone, DeepMethod, MaskScope, PairLoss};
+use coid_sim::matching::deep::arch::{Architecture, Backbone, MaskScope, PairLoss};
 use coid_sim::matching::deep::cost::{
     GraphShape, inference_macs, plain_embedding_macs, published_macs,
 };
@@ -89,12 +89,31 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// mimalloc's `mi_option_purge_delay` (as `src/main.rs` names it).
 const PURGE_DELAY: libmimalloc_sys::mi_option_t = libmimalloc_sys::mi_option_use_numa_nodes - 1;
 
-fn main() {
-    // The allocator as the `coid` binary sets it (`src/main.rs`): memory
-    // a pair frees is kept for the next instead of being returned after
-    // 10 ms and faulted in (and zeroed) again.
+/// The allocator as the `coid` binary sets it (`src/main.rs`): memory a
+/// pair frees is kept for the next instead of being returned after 10 ms
+/// and faulted in (and zeroed) again.
+fn allocator_as_the_binary() {
     // SAFETY: a process-wide allocator option, set before any thread runs.
     unsafe { libmimalloc_sys::mi_option_set(PURGE_DELAY, -1) };
+}
+
+/// One vehicle's view of its detections.
+fn view<'a>(
+    detections: &'a [Detection],
+    graph: &'a SceneGraph,
+    pose: Pose2,
+    level: PoseNoiseLevel,
+) -> MatchView<'a> {
+    MatchView {
+        detections,
+        graph,
+        pose_reported: pose,
+        pose_noise: level,
+    }
+}
+
+fn main() {
+    allocator_as_the_binary();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     let objects = scene(20, &mut rng);
     let (pa, pb) = (Pose2::identity(), Pose2::new(Vec2::new(30.0, 20.0), 2.0));
@@ -106,24 +125,13 @@ fn main() {
         position_sigma_m: 1.2,
         heading_sigma_rad: 0.2f64.to_radians(),
     };
-    let va = MatchView {
-        detections: &da,
-        graph: &ga,
-        pose_reported: pa,
-        pose_noise: level,
-    };
-    let vb = MatchView {
-        detections: &db,
-        graph: &gb,
-        pose_reported: pb,
-        pose_noise: level,
-    };
+    let (va, vb) = (view(&da, &ga, pa, level), view(&db, &gb, pb, level));
 
     // A new pair every time: both embeddings computed (an object moved
     // by a tenth of a millimetre more in every call, so that nothing is
     // reused from a call before).
     let run = RUN;
-    let matcher = deep::untrained(DeepMethod::Ours, 1, run);
+    let matcher = deep::untrained(Method::Ours, 1, run);
     let relative = gps_relative_pose(&va, &vb);
     let moved: Vec<_> = (0..60)
         .map(|k| {
@@ -153,20 +161,7 @@ fn main() {
     let (mut new_times, mut shared_times) = (Vec::new(), Vec::new());
     // The two are timed in turn, so that a busy machine slows both alike.
     for (k, (da, db, ga, gb)) in moved.iter().enumerate() {
-        let (va_k, vb_k) = (
-            MatchView {
-                detections: da,
-                graph: ga,
-                pose_reported: pa,
-                pose_noise: level,
-            },
-            MatchView {
-                detections: db,
-                graph: gb,
-                pose_reported: pb,
-                pose_noise: level,
-            },
-        );
+        let (va_k, vb_k) = (view(da, ga, pa, level), view(db, gb, pb, level));
         let relative_k = gps_relative_pose(&va_k, &vb_k);
         let t = Instant::now();
         std::hint::black_box(matcher.identify_with(&va_k, &vb_k, &relative_k));
@@ -250,7 +245,7 @@ fn published_pair(
     level: PoseNoiseLevel,
     peak: Option<f64>,
 ) {
-    let Backbone::Published(cfg) = DeepMethod::Coid.backbone() else {
+    let Some(Backbone::Published(cfg)) = Method::Coid.backbone() else {
         unreachable!("coid is DGMC's network");
     };
     let run = Inference {
@@ -258,7 +253,7 @@ fn published_pair(
         ..RUN
     };
     let bytes = include_bytes!("../models/coid.bpk");
-    let matcher = deep::matcher(Method::Coid, DeepMethod::Coid, 0, bytes, run).unwrap();
+    let matcher = deep::matcher(Method::Coid, 0, bytes, run).unwrap();
     let pairs: Vec<_> = (0..if peak.is_some() { 60 } else { 1000 })
         .map(|k| {
             let mut moved = objects.to_vec();

@@ -404,7 +404,7 @@ fn seed_passes(settings: &Settings, methods: &[Method]) -> anyhow::Result<Vec<Se
     let deep: Vec<Method> = methods
         .iter()
         .copied()
-        .filter(|m| matches!(m.kind(), MethodKind::Deep(_)))
+        .filter(|m| matches!(m.kind(), MethodKind::Deep))
         .collect();
     if seeds.is_empty() || deep.is_empty() {
         return Ok(Vec::new());
@@ -522,7 +522,7 @@ fn evaluate_seeds(
         let keys: Vec<_> = run
             .table1
             .iter()
-            .filter(|(k, _)| matches!(k.method.kind(), MethodKind::Deep(_)))
+            .filter(|(k, _)| matches!(k.method.kind(), MethodKind::Deep))
             .map(|(&k, &c)| (k, c))
             .collect();
         for (k, c) in keys {

@@ -17,7 +17,7 @@ use super::progress_bar;
 use crate::config::{Overrides, Settings};
 use crate::io::{self, Claim, OutputError};
 use crate::matching::deep::arch::Backbone;
-use crate::matching::{self, BaselineChoice, Inputs, Method, MethodKind};
+use crate::matching::{self, BaselineChoice, Inputs, Method};
 use crate::report::{PairedDifference, Table, mean_ci95, paired_bootstrap};
 use crate::sensor::PoseNoiseLabel;
 use crate::tables::{MethodLevel, RunEval};
@@ -166,14 +166,14 @@ fn point_settings((config, shown): (&Path, &str), r: f64, quiet: bool) -> anyhow
 /// "not used".
 fn descriptor_use(s: &Settings, method: Method) -> anyhow::Result<String> {
     let dir = &s.matching.models_dir;
-    if let MethodKind::Deep(deep) = method.kind() {
+    if let Some(backbone) = method.backbone() {
         let w = io::read_weights(dir, method)?;
         let attributes = if w.appearance_width > 0 {
             "read"
         } else {
             "left out"
         };
-        return Ok(match deep.backbone() {
+        return Ok(match backbone {
             Backbone::Likelihood(_) => format!("likelihood weight 1, attributes {attributes}"),
             Backbone::Published(_) => format!("attributes {attributes}"),
         });

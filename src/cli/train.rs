@@ -152,7 +152,7 @@ fn methods_of(a: &Args, settings: &Settings) -> anyhow::Result<(Vec<Method>, Vec
         let (deep, other): (Vec<Method>, Vec<Method>) = a
             .methods
             .iter()
-            .partition(|m| matches!(m.kind(), MethodKind::Deep(_)));
+            .partition(|m| matches!(m.kind(), MethodKind::Deep));
         (deep, other)
     };
     if let Some(m) = baselines.iter().find(|m| m.baseline_knob().is_none()) {

@@ -59,7 +59,7 @@ impl Settings {
             d.file(&self.source, &p)?;
         }
         for m in &self.matching.methods {
-            if let MethodKind::Deep(_) = m.kind() {
+            if let MethodKind::Deep = m.kind() {
                 for ext in ["bpk", "toml"] {
                     let p = self
                         .matching

@@ -93,7 +93,7 @@ fn training_seeds(c: &Checker, seeds: Vec<u64>) -> Result<Vec<u64>, ConfigError>
 fn fitting(c: &Checker, t: &RawTrain) -> Result<(), ConfigError> {
     if t.methods
         .iter()
-        .any(|m| !matches!(m.kind(), MethodKind::Deep(_)))
+        .any(|m| !matches!(m.kind(), MethodKind::Deep))
     {
         return Err(c.invalid(
             "train.methods",

@@ -124,7 +124,7 @@ pub fn validate(
     let kind = settings.matching.uncertainty;
     Ok(methods
         .iter()
-        .filter(|m| matches!(m.kind(), MethodKind::Deep(_)))
+        .filter(|m| matches!(m.kind(), MethodKind::Deep))
         .map(|&m| (m, choose(&runs, &levels, kind, m)))
         .collect())
 }

@@ -323,9 +323,9 @@ pub fn train_method(
     progress: &mut impl TrainProgress,
 ) -> Result<(Vec<u8>, TrainReport), String> {
     let t = &settings.train;
-    let MethodKind::Deep(deep) = method.kind() else {
+    if method.kind() != MethodKind::Deep {
         return Err(format!("'{}' is not a deep method", method.as_str()));
-    };
+    }
     let opts = TrainOptions {
         epochs: t.epochs,
         learning_rate: t.learning_rate,
@@ -333,7 +333,7 @@ pub fn train_method(
         patience: t.patience,
         loss: t.loss,
         samples: t.mc_samples,
-        masks: deep.training_masks(t.dropout_masks, t.paper_dropout_masks),
+        masks: method.training_masks(t.dropout_masks, t.paper_dropout_masks),
         batch_size: t.batch_size,
         gate_chi2: settings.matching.gate_chi2,
         appearance_width: settings.appearance_width(),

@@ -87,7 +87,7 @@ mod tests {
         let defaults = crate::config::Settings::defaults().unwrap();
         let deep = Method::all()
             .iter()
-            .filter(|m| matches!(m.kind(), crate::matching::MethodKind::Deep(_)))
+            .filter(|m| matches!(m.kind(), crate::matching::MethodKind::Deep))
             .filter(|m| defaults.matching.methods.contains(m) || defaults.train.methods.contains(m))
             .map(|m| m.weights_owner().as_str());
         for m in deep {

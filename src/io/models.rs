@@ -14,7 +14,7 @@ use crate::config::Settings;
 use crate::matching::deep::arch::{Backbone, MaskScope};
 use crate::matching::deep::decision::{Decision, KindLambdas, UncertaintyKind};
 use crate::matching::deep::train::TrainReport;
-use crate::matching::{BASELINES_FILE, BaselineValue, Method, MethodKind};
+use crate::matching::{BASELINES_FILE, BaselineValue, Method};
 
 /// The weights file of a method in a models folder (a single-pass
 /// variant's are those of the method it is one pass of).
@@ -49,11 +49,11 @@ pub fn read_weights(models_dir: &Path, method: Method) -> Result<Weights, Weight
     let bytes = read_model_file(method, &path, "no such file", |p| std::fs::read(p))?;
     let record = read_model_record(models_dir, method)?;
     let fail = model_error(method, &path);
-    let MethodKind::Deep(deep) = method.kind() else {
+    let Some(backbone) = method.backbone() else {
         return Err(fail("not a deep method".into()));
     };
     let appearance_width = record.architecture.appearance_width();
-    let backbone = deep.backbone().with_appearance(appearance_width);
+    let backbone = backbone.with_appearance(appearance_width);
     record.check(method, &backbone, &bytes).map_err(fail)?;
     Ok(Weights {
         bytes,
@@ -229,7 +229,7 @@ pub struct Validation {
 /// The record of a model just trained (no validation yet).
 fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, OutputError> {
     let t = &record.settings.train;
-    let MethodKind::Deep(deep) = record.method.kind() else {
+    let Some(backbone) = record.method.backbone() else {
         let method = record.method.as_str();
         return Err(OutputError::Batch(format!(
             "'{method}' is not a deep method"
@@ -239,9 +239,7 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
     let r = record.report;
     Ok(ModelRecord {
         method: record.method.as_str().to_owned(),
-        architecture: deep
-            .backbone()
-            .with_appearance(record.settings.appearance_width()),
+        architecture: backbone.with_appearance(record.settings.appearance_width()),
         weights_fnv64: records::fnv64_hex(weights),
         config: record.settings.source.display().to_string(),
         dataset: record
@@ -266,9 +264,11 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
         edge_clipped_share: r.edges.clipped_share,
         loss: t.loss.as_str().to_owned(),
         mc_samples: t.mc_samples,
-        dropout_masks: deep.training_masks(t.dropout_masks, t.paper_dropout_masks),
+        dropout_masks: record
+            .method
+            .training_masks(t.dropout_masks, t.paper_dropout_masks),
         batch_size: t.batch_size,
-        no_match: matches!(deep.backbone(), Backbone::Published(_)).then_some(t.no_match),
+        no_match: matches!(backbone, Backbone::Published(_)).then_some(t.no_match),
         patience: r.best_epoch.map(|_| t.patience),
         best_epoch: r.best_epoch,
         validation: None,

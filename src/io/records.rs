@@ -510,13 +510,8 @@ mod tests {
             method: "dgmc".into(),
             ..record()
         };
-        let published = Method::Dgmc.kind();
-        let crate::matching::MethodKind::Deep(d) = published else {
-            unreachable!()
-        };
-        let e = old
-            .check(Method::Dgmc, &d.backbone(), b"weights")
-            .unwrap_err();
+        let d = Method::Dgmc.backbone().unwrap();
+        let e = old.check(Method::Dgmc, &d, b"weights").unwrap_err();
         assert!(e.contains("now called 'dgmc+gps'"), "{e}");
         // A NaN loss is written as TOML's nan and read back.
         let nan = ModelRecord {

@@ -98,13 +98,13 @@ pub fn build(
         }),
         MethodKind::Oracle => return Err(BuildError::Oracle),
         MethodKind::External => return Err(BuildError::External),
-        MethodKind::Deep(deep_method) => {
+        MethodKind::Deep => {
             let Trained {
                 weights: bytes,
                 choice,
                 appearance_width,
             } = trained.ok_or(BuildError::NoWeights(method.as_str()))?;
-            let threshold = deep_method
+            let threshold = method
                 .thresholds_by_default()
                 .then_some((settings.uncertainty, choice.lambda));
             // A single-pass variant: one sample with every dropout off.
@@ -124,7 +124,7 @@ pub fn build(
                 dropout,
                 gate_chi2: settings.gate_chi2,
             };
-            deep::matcher(method, deep_method, appearance_width, bytes, run).map_err(|reason| {
+            deep::matcher(method, appearance_width, bytes, run).map_err(|reason| {
                 BuildError::BadWeights {
                     method: method.as_str(),
                     reason,

@@ -2,8 +2,6 @@
 //! needs to run ([`MethodKind`]), and a baseline's threshold that
 //! validation chooses ([`BaselineKnob`]).
 
-use super::deep::arch::DeepMethod;
-
 crate::label_enum! { "method";
     /// The matching methods, with the labels used in configs and results.
     /// Rows of every table come in this order: first the methods that see
@@ -110,16 +108,18 @@ impl Method {
     /// What kind of method this is.
     pub fn kind(self) -> MethodKind {
         match self {
-            Method::Coid | Method::CoidT1 => MethodKind::Deep(DeepMethod::Coid),
-            Method::CoidNon => MethodKind::Deep(DeepMethod::CoidNon),
-            Method::CoidUnc => MethodKind::Deep(DeepMethod::CoidUnc),
-            Method::Dgmc => MethodKind::Deep(DeepMethod::Dgmc),
-            Method::GcnGm => MethodKind::Deep(DeepMethod::GcnGm),
-            Method::Ours | Method::OursT1 => MethodKind::Deep(DeepMethod::Ours),
-            Method::CoidNonGps => MethodKind::Deep(DeepMethod::CoidNonGps),
-            Method::CoidUncGps => MethodKind::Deep(DeepMethod::CoidUncGps),
-            Method::DgmcGps => MethodKind::Deep(DeepMethod::DgmcGps),
-            Method::GcnGmGps => MethodKind::Deep(DeepMethod::GcnGmGps),
+            Method::Coid
+            | Method::CoidT1
+            | Method::CoidNon
+            | Method::CoidUnc
+            | Method::Dgmc
+            | Method::GcnGm
+            | Method::Ours
+            | Method::OursT1
+            | Method::CoidNonGps
+            | Method::CoidUncGps
+            | Method::DgmcGps
+            | Method::GcnGmGps => MethodKind::Deep,
             Method::Mogm | Method::Rgm => MethodKind::LearningFree,
             Method::GpsHungarian | Method::GpsAppHungarian => MethodKind::GpsBased,
             Method::Oracle => MethodKind::Oracle,
@@ -183,8 +183,9 @@ impl Method {
 /// The kinds of [`Method`]: what a method needs to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MethodKind {
-    /// A trained network: weights, a lambda and a decision rule.
-    Deep(DeepMethod),
+    /// A trained network: weights, a lambda and a decision rule; its
+    /// network is [`Method::backbone`].
+    Deep,
     /// Learning-free graph matching (MOGM, RGM).
     LearningFree,
     /// Gated assignment on the GPS-moved positions (and appearance).

@@ -108,10 +108,8 @@ fn permuting_detections_permutes_every_methods_matches_and_nothing_else() {
             if matches!(method, Method::Oracle | Method::External) {
                 continue;
             }
-            let weights = match method.kind() {
-                MethodKind::Deep(d) => Some(deep::opened_weights(d, 3)),
-                _ => None,
-            };
+            let weights = (method.kind() == MethodKind::Deep)
+                .then(|| deep::opened_weights(method.weights_owner(), 3));
             let all_pairs = DeepChoice {
                 lambda: f64::INFINITY,
                 lambdas: KindLambdas::all(f64::INFINITY),
@@ -135,10 +133,7 @@ fn permuting_detections_permutes_every_methods_matches_and_nothing_else() {
             assert_eq!(back, before.matches, "{method:?}, rematch {rematch}");
             // An untrained published network sends every node to its
             // dustbin; its distribution is compared below.
-            let published = matches!(
-                method.kind(),
-                MethodKind::Deep(d) if d.architecture().is_none()
-            );
+            let published = method.kind() == MethodKind::Deep && method.architecture().is_none();
             assert!(
                 !before.matches.is_empty() || method == Method::Rgm || published,
                 "{method:?}"
@@ -258,10 +253,7 @@ fn single_pass_variants_are_one_pass_without_epistemic_uncertainty() {
         (Method::CoidT1, Method::Coid),
         (Method::OursT1, Method::Ours),
     ] {
-        let MethodKind::Deep(d) = owner.kind() else {
-            unreachable!()
-        };
-        let weights = deep::opened_weights(d, 3);
+        let weights = deep::opened_weights(owner, 3);
         let dist = |m: Method, s: &MatchingSettings| {
             let matcher = build(m, s, trained(Some(&weights), CHOICE), 1).unwrap();
             assert_eq!(matcher.method(), m);
@@ -313,10 +305,8 @@ fn the_methods_on_the_papers_inputs_never_read_a_pose() {
         .collect();
     assert_eq!(paper.len(), 8);
     for method in paper.into_iter().chain([Method::GpsAppHungarian]) {
-        let weights = match method.kind() {
-            MethodKind::Deep(d) => Some(deep::opened_weights(d, 3)),
-            _ => None,
-        };
+        let weights = (method.kind() == MethodKind::Deep)
+            .then(|| deep::opened_weights(method.weights_owner(), 3));
         let m = build(method, &s, trained(weights.as_deref(), all_pairs), 1).unwrap();
         let before = m.identify(&a.view(), &b.view());
         let moved = m.identify(&a2.view(), &b2.view());

@@ -79,7 +79,7 @@ pub fn choices(
 ) -> Result<BTreeMap<Method, DeepChoice>, RunError> {
     methods
         .iter()
-        .filter(|m| matches!(m.kind(), MethodKind::Deep(_)))
+        .filter(|m| matches!(m.kind(), MethodKind::Deep))
         .map(|&m| Ok((m, choice_for(settings, m)?)))
         .collect()
 }
@@ -99,7 +99,7 @@ pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSourc
         m.baseline_values = io::read_baselines(&m.models_dir, &[method])?;
     }
     let m = &m;
-    let deep = if let MethodKind::Deep(_) = method.kind() {
+    let deep = if let MethodKind::Deep = method.kind() {
         Some((
             io::read_weights(&m.models_dir, method)?,
             choice_for(settings, method)?,

@@ -204,7 +204,7 @@ impl<'a> Inputs<'a> {
         self.methods
             .iter()
             .copied()
-            .filter(|m| matches!(m.kind(), MethodKind::Deep(_)))
+            .filter(|m| matches!(m.kind(), MethodKind::Deep))
             .collect()
     }
 

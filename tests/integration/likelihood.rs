@@ -2,9 +2,8 @@
 //! deep methods decide as GPS+appearance Hungarian.
 
 use coid_sim::config::Settings;
-use coid_sim::matching::deep::arch::DeepMethod;
 use coid_sim::matching::deep::{self, Inference};
-use coid_sim::matching::{GpsHungarian, Matcher};
+use coid_sim::matching::{GpsHungarian, Matcher, Method};
 use coid_sim::pipeline;
 
 use crate::util::*;
@@ -34,11 +33,11 @@ fn the_untrained_residual_reproduces_gps_appearance_hungarian_on_a_real_scene() 
         ..Inference::MC_DROPOUT
     };
     let deep: Vec<Box<dyn Matcher>> = [
-        DeepMethod::Ours,
-        DeepMethod::CoidNonGps,
-        DeepMethod::CoidUncGps,
-        DeepMethod::DgmcGps,
-        DeepMethod::GcnGmGps,
+        Method::Ours,
+        Method::CoidNonGps,
+        Method::CoidUncGps,
+        Method::DgmcGps,
+        Method::GcnGmGps,
     ]
     .iter()
     .map(|&m| {

@@ -1,31 +1,12 @@
-//! What each deep method is, as plain data (no tensors, no burn): the
-//! [`DeepMethod`]s (paper Table 1 rows), the [`Architecture`] of each
-//! one's network, the loss terms it trains with ([`PairLoss`],
+//! What each deep method is, as plain data (no tensors, no burn): each
+//! deep [`Method`]'s network ([`Method::backbone`]: paper Table 1 rows),
+//! the [`Architecture`] of the project's network, the loss terms it trains with ([`PairLoss`],
 //! [`LossTerms`]), and the shared likelihood it starts from. Configs and
 //! model records name these types without touching the network.
 
 use super::features::NODE_FEATURES;
 use crate::matching::Method;
 use crate::matching::likelihood::LikelihoodTerms;
-
-/// A deep method: the [`Method`]s that are a trained network, as a type of
-/// their own ([`Method::kind`] gives it), so that what only a deep method
-/// has (a network, loss terms, weights) is asked of this type. The first
-/// five see the paper's inputs only (Table 1: [`Backbone::Published`]);
-/// the others the reported poses too (Table 1b: [`Backbone::Likelihood`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DeepMethod {
-    Coid,
-    CoidNon,
-    CoidUnc,
-    Dgmc,
-    GcnGm,
-    Ours,
-    CoidNonGps,
-    CoidUncGps,
-    DgmcGps,
-    GcnGmGps,
-}
 
 /// The network a deep method trains and runs.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -62,67 +43,58 @@ impl Backbone {
     }
 }
 
-impl DeepMethod {
-    /// The method this is.
-    pub fn method(self) -> Method {
-        match self {
-            DeepMethod::Coid => Method::Coid,
-            DeepMethod::CoidNon => Method::CoidNon,
-            DeepMethod::CoidUnc => Method::CoidUnc,
-            DeepMethod::Dgmc => Method::Dgmc,
-            DeepMethod::GcnGm => Method::GcnGm,
-            DeepMethod::Ours => Method::Ours,
-            DeepMethod::CoidNonGps => Method::CoidNonGps,
-            DeepMethod::CoidUncGps => Method::CoidUncGps,
-            DeepMethod::DgmcGps => Method::DgmcGps,
-            DeepMethod::GcnGmGps => Method::GcnGmGps,
-        }
-    }
-
-    /// Its network. On the paper's inputs: GCN-GM's for `gcn-gm`, DGMC's
-    /// for `dgmc` and for the paper's method and its ablations (the paper
-    /// builds on DGMC: SplineCNN, consensus, Sinkhorn with "no match").
-    /// With the poses: the project's network, with the consensus for all
-    /// but `gcn-gm+gps`.
-    pub fn backbone(self) -> Backbone {
-        match self {
-            DeepMethod::GcnGm => Backbone::Published(PublishedConfig::new(PublishedKind::GcnGm)),
-            DeepMethod::Coid | DeepMethod::CoidNon | DeepMethod::CoidUnc | DeepMethod::Dgmc => {
+/// What a deep method is: its network and how it trains (the [`Method`]s
+/// whose kind is [`crate::matching::MethodKind::Deep`]; a single-pass
+/// variant is its weights owner's network). The first five deep methods
+/// see the paper's inputs only (Table 1: [`Backbone::Published`]); the
+/// others the reported poses too (Table 1b: [`Backbone::Likelihood`]).
+impl Method {
+    /// Its network (`None`: not a trained network). On the paper's
+    /// inputs: GCN-GM's for `gcn-gm`, DGMC's for `dgmc` and for the
+    /// paper's method and its ablations (the paper builds on DGMC:
+    /// SplineCNN, consensus, Sinkhorn with "no match"). With the poses:
+    /// the project's network, with the consensus for all but
+    /// `gcn-gm+gps`.
+    pub fn backbone(self) -> Option<Backbone> {
+        let m = self.weights_owner();
+        Some(match m {
+            Method::GcnGm => Backbone::Published(PublishedConfig::new(PublishedKind::GcnGm)),
+            Method::Coid | Method::CoidNon | Method::CoidUnc | Method::Dgmc => {
                 Backbone::Published(PublishedConfig::new(PublishedKind::Dgmc))
             }
-            DeepMethod::Ours
-            | DeepMethod::CoidNonGps
-            | DeepMethod::CoidUncGps
-            | DeepMethod::DgmcGps
-            | DeepMethod::GcnGmGps => Backbone::Likelihood(Architecture {
-                consensus: self != DeepMethod::GcnGmGps,
+            Method::Ours
+            | Method::CoidNonGps
+            | Method::CoidUncGps
+            | Method::DgmcGps
+            | Method::GcnGmGps => Backbone::Likelihood(Architecture {
+                consensus: m != Method::GcnGmGps,
                 ..Architecture::default()
             }),
-        }
+            _ => return None,
+        })
     }
 
     /// The project's network of a method with the poses (`None` on the
-    /// paper's inputs).
+    /// paper's inputs, or not a deep method).
     pub fn architecture(self) -> Option<Architecture> {
-        match self.backbone() {
+        match self.backbone()? {
             Backbone::Likelihood(a) => Some(a),
             Backbone::Published(_) => None,
         }
     }
 
-    /// The terms it trains with: the pair term, and the paper's Eq. 12
-    /// and 13 as the rows of Table 1 have them. The published networks'
-    /// pair term is their own (the NLL of the true correspondences under
-    /// `S_0` and `S_L`); the project's network's is the likelihood of the
-    /// true assignment.
+    /// The terms a deep method trains with: the pair term, and the
+    /// paper's Eq. 12 and 13 as the rows of Table 1 have them (none for a
+    /// method that is not a deep one). The published networks' pair term
+    /// is their own (the NLL of the true correspondences under `S_0` and
+    /// `S_L`); the project's network's is the likelihood of the true
+    /// assignment.
     pub fn loss_terms(self) -> LossTerms {
-        let (non, unc) = match self {
-            DeepMethod::Coid | DeepMethod::Ours => (true, true),
-            DeepMethod::CoidNon | DeepMethod::CoidNonGps => (true, false),
-            DeepMethod::CoidUnc | DeepMethod::CoidUncGps => (false, true),
-            DeepMethod::Dgmc | DeepMethod::GcnGm | DeepMethod::DgmcGps | DeepMethod::GcnGmGps => {
-                (false, false)
-            }
+        let (non, unc) = match self.weights_owner() {
+            Method::Coid | Method::Ours => (true, true),
+            Method::CoidNon | Method::CoidNonGps => (true, false),
+            Method::CoidUnc | Method::CoidUncGps => (false, true),
+            _ => (false, false),
         };
         LossTerms {
             pairs: PairLoss::Likelihood,
@@ -137,9 +109,9 @@ impl DeepMethod {
     /// as `[train] paper_dropout_masks` says (`paper`); the project's
     /// network as `[train] dropout_masks` says (`project`).
     pub fn training_masks(self, project: MaskScope, paper: MaskScope) -> MaskScope {
-        match self {
-            DeepMethod::Dgmc | DeepMethod::GcnGm => MaskScope::PerNode,
-            DeepMethod::Coid | DeepMethod::CoidNon | DeepMethod::CoidUnc => paper,
+        match self.weights_owner() {
+            Method::Dgmc | Method::GcnGm => MaskScope::PerNode,
+            Method::Coid | Method::CoidNon | Method::CoidUnc => paper,
             _ => project,
         }
     }
@@ -409,7 +381,7 @@ mod tests {
         let deep: Vec<Method> = Method::all()
             .iter()
             .copied()
-            .filter(|m| matches!(m.kind(), MethodKind::Deep(_)) && !m.single_pass())
+            .filter(|m| matches!(m.kind(), MethodKind::Deep) && !m.single_pass())
             .collect();
         assert_eq!(deep, rows.map(|(m, _)| m));
         for (t1, owner) in [
@@ -421,11 +393,9 @@ mod tests {
             assert_eq!(owner.single_pass_variant(), Some(t1));
         }
         for (m, row) in rows {
-            let MethodKind::Deep(d) = m.kind() else {
-                unreachable!()
-            };
-            assert_eq!(d.method(), m);
-            let consensus = match d.backbone() {
+            assert_eq!(m.kind(), MethodKind::Deep);
+            let d = m;
+            let consensus = match d.backbone().unwrap() {
                 Backbone::Published(c) => c.consensus_steps() > 0,
                 Backbone::Likelihood(a) => a.consensus && a.positions,
             };
@@ -435,10 +405,7 @@ mod tests {
             let thresholds = t.non || t.unc;
             assert_eq!(d.thresholds_by_default(), thresholds);
         }
-        assert!(!matches!(
-            Method::GpsAppHungarian.kind(),
-            MethodKind::Deep(_)
-        ));
+        assert!(!matches!(Method::GpsAppHungarian.kind(), MethodKind::Deep));
     }
 
     /// DGMC and GCN-GM train with standard dropout as published; the
@@ -448,9 +415,10 @@ mod tests {
     fn published_baselines_train_with_standard_dropout() {
         use MaskScope::{PerNode, Shared};
         for m in Method::all() {
-            let MethodKind::Deep(d) = m.kind() else {
+            if m.kind() != MethodKind::Deep {
                 continue;
-            };
+            }
+            let d = *m;
             let published = matches!(m, Method::Dgmc | Method::GcnGm);
             let paper = m.inputs() == Inputs::Paper && !published;
             let expect = |project, paper_masks| match (published, paper) {
@@ -478,15 +446,15 @@ mod tests {
             architecture: Backbone,
         }
         for m in Method::all() {
-            let MethodKind::Deep(d) = m.kind() else {
+            let Some(backbone) = m.backbone() else {
                 continue;
             };
             let text = toml::to_string(&Holder {
-                architecture: d.backbone(),
+                architecture: backbone,
             })
             .unwrap();
             let back: Holder = toml::from_str(&text).unwrap();
-            assert_eq!(back.architecture, d.backbone(), "{m:?}: {text}");
+            assert_eq!(back.architecture, backbone, "{m:?}: {text}");
         }
     }
 }

@@ -36,25 +36,27 @@ pub use self::features::check_appearance;
 pub use self::kernels::matmul;
 pub use self::mc::Inference;
 
-use self::arch::{Backbone, DeepMethod};
+use self::arch::Backbone;
 use self::mc::McMatcher;
 use self::ours::Ours;
 use self::params::Params;
 use self::published::Published;
 use crate::matching::{Matcher, Method};
 
-/// The matcher of `deep` with trained weights (the bytes of its `.bpk`
-/// file) whose network reads appearance vectors `appearance_width` wide
-/// (0: none), answering as `method` (a single-pass variant answers as
-/// itself); an error says why the bytes do not fit the method's network.
+/// The matcher of deep `method` with trained weights (the bytes of its
+/// `.bpk` file) whose network reads appearance vectors `appearance_width`
+/// wide (0: none); an error says why the bytes do not fit the method's
+/// network, or that it has none.
 pub fn matcher(
     method: Method,
-    deep: DeepMethod,
     appearance_width: usize,
     weights: &[u8],
     run: Inference,
 ) -> Result<Box<dyn Matcher>, String> {
-    Ok(match deep.backbone().with_appearance(appearance_width) {
+    let backbone = method
+        .backbone()
+        .ok_or_else(|| format!("{} is not a deep method", method.as_str()))?;
+    Ok(match backbone.with_appearance(appearance_width) {
         Backbone::Likelihood(arch) => Box::new(McMatcher::new(
             method,
             Ours::from_weights(arch, weights, run)?,
@@ -68,11 +70,14 @@ pub fn matcher(
     })
 }
 
-/// The matcher of `deep` with freshly initialised weights (`init_seed`),
-/// as training starts from: for benchmarks and tests.
-pub fn untrained(deep: DeepMethod, init_seed: u64, run: Inference) -> Box<dyn Matcher> {
-    let method = deep.method();
-    match deep.backbone() {
+/// The matcher of deep `method` with freshly initialised weights
+/// (`init_seed`), as training starts from: for benchmarks and tests.
+///
+/// # Panics
+/// When `method` is not a deep method.
+pub fn untrained(method: Method, init_seed: u64, run: Inference) -> Box<dyn Matcher> {
+    let backbone = method.backbone().expect("a deep method");
+    match backbone {
         Backbone::Likelihood(arch) => Box::new(McMatcher::new(
             method,
             Ours::untrained(arch, init_seed, run),
@@ -89,6 +94,6 @@ pub fn untrained(deep: DeepMethod, init_seed: u64, run: Inference) -> Box<dyn Ma
 /// (as after the first training steps): for tests of everything the
 /// learned parts touch, without training.
 #[cfg(test)]
-pub(crate) fn opened_weights(method: DeepMethod, seed: u64) -> Vec<u8> {
+pub(crate) fn opened_weights(method: Method, seed: u64) -> Vec<u8> {
     train::opened_weights(method, seed)
 }

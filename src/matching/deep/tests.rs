@@ -4,12 +4,13 @@
 //! 9, 2 and 1 nodes: the same samples within the network's rounding, the
 //! same decided pairs with the same probabilities and uncertainties.
 
-use super::arch::{Backbone, DeepMethod, MaskScope};
+use super::arch::{Backbone, MaskScope};
 use super::mc::{Inference, McMatcher, Network, Samples};
 use super::ours::Ours;
 use super::published::Published;
 use super::train::reference::{TensorOurs, TensorPublished};
 use crate::geometry::Vec2;
+use crate::matching::Method;
 use crate::matching::testkit::{self, GPS, Side};
 use crate::matching::{Correspondence, Matcher};
 use crate::traffic::ObjectClass;
@@ -146,28 +147,21 @@ fn the_plain_path_of_every_network_equals_its_tensor_reference() {
         let tensor = McMatcher::new(method, TensorOurs::from_weights(arch, bytes, r), r);
         holds(&format!("ours {masks:?}"), &plain, &tensor, 1e-5);
     }
-    let shipped: [(DeepMethod, &[u8]); 3] = [
-        (
-            DeepMethod::GcnGm,
-            include_bytes!("../../../models/gcn-gm.bpk"),
-        ),
-        (DeepMethod::Dgmc, include_bytes!("../../../models/dgmc.bpk")),
-        (DeepMethod::Coid, include_bytes!("../../../models/coid.bpk")),
+    let shipped: [(Method, &[u8]); 3] = [
+        (Method::GcnGm, include_bytes!("../../../models/gcn-gm.bpk")),
+        (Method::Dgmc, include_bytes!("../../../models/dgmc.bpk")),
+        (Method::Coid, include_bytes!("../../../models/coid.bpk")),
     ];
     for (method, bytes) in shipped {
-        let Backbone::Published(cfg) = method.backbone() else {
+        let Some(Backbone::Published(cfg)) = method.backbone() else {
             panic!("{method:?} is a published network");
         };
         for masks in [MaskScope::Shared, MaskScope::PerNode] {
             let r = run(masks);
             let network = || Published::from_weights(cfg, bytes, r).unwrap();
-            let open = |n| McMatcher::new(method.method(), n, r);
+            let open = |n| McMatcher::new(method, n, r);
             let label = format!("{method:?} {masks:?}");
-            let tensor = McMatcher::new(
-                method.method(),
-                TensorPublished::from_weights(cfg, bytes, r),
-                r,
-            );
+            let tensor = McMatcher::new(method, TensorPublished::from_weights(cfg, bytes, r), r);
             holds(&label, &open(network()), &tensor, 1e-4);
             holds(&label, &open(network().never_carry()), &tensor, 1e-4);
         }

@@ -50,9 +50,9 @@ pub use self::examples::{EdgeStats, Example, OwnedView, Prepared, example};
 /// (as after the first training steps): for tests of everything the
 /// learned parts touch, without training.
 #[cfg(test)]
-pub(crate) fn opened_weights(method: super::arch::DeepMethod, seed: u64) -> Vec<u8> {
+pub(crate) fn opened_weights(method: Method, seed: u64) -> Vec<u8> {
     let device = device();
-    match method.backbone() {
+    match method.backbone().expect("a deep method") {
         Backbone::Likelihood(arch) => {
             let net = OursNet::new(&arch, Init::Seeded(seed), &device).with_gates(1.0);
             to_bytes(&net).expect("weights")
@@ -305,10 +305,10 @@ pub struct Trainer {
 impl Trainer {
     /// A fresh network of `method` (initial weights from `opts.seed`).
     pub fn new(method: Method, opts: &TrainOptions) -> Result<Self, String> {
-        let MethodKind::Deep(deep) = method.kind() else {
+        if method.kind() != MethodKind::Deep {
             return Err(format!("{} is not a deep method", method.as_str()));
-        };
-        let Some(arch) = deep
+        }
+        let Some(arch) = method
             .architecture()
             .map(|a| a.with_appearance(opts.appearance_width))
         else {
@@ -317,7 +317,7 @@ impl Trainer {
                 method.as_str()
             ));
         };
-        let mut terms = deep.loss_terms();
+        let mut terms = method.loss_terms();
         terms.pairs = opts.loss;
         let device = device().autodiff();
         Ok(Self {
@@ -519,7 +519,7 @@ pub fn train(
     opts: &TrainOptions,
     progress: &mut impl TrainProgress,
 ) -> Result<(Vec<u8>, TrainReport), String> {
-    let MethodKind::Deep(deep) = method.kind() else {
+    let Some(backbone) = method.backbone() else {
         return Err(format!("{} is not a deep method", method.as_str()));
     };
     if examples.is_empty() {
@@ -530,7 +530,7 @@ pub fn train(
         edges: EdgeStats::of(examples),
         ..TrainReport::default()
     };
-    match deep.backbone().with_appearance(opts.appearance_width) {
+    match backbone.with_appearance(opts.appearance_width) {
         Backbone::Likelihood(_) => {
             let trainer = Trainer::new(method, opts)?;
             let fit = LikelihoodFit {
@@ -544,7 +544,7 @@ pub fn train(
             let label = method.as_str();
             let mut trainer = PublishedTrainer::with_terms(
                 cfg,
-                deep.loss_terms(),
+                method.loss_terms(),
                 opts.samples,
                 opts.masks,
                 opts.seed,

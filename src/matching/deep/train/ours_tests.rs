@@ -7,7 +7,6 @@ use super::ours_net::OursNet;
 use super::spline2d::GraphBatch;
 use super::weights::{from_bytes, to_bytes};
 use crate::geometry::Vec2;
-use crate::matching::deep::arch::DeepMethod;
 use crate::matching::deep::arch::{Architecture, MaskScope};
 use crate::matching::deep::cost::GraphShape;
 use crate::matching::deep::cost::inference_macs;
@@ -129,11 +128,10 @@ fn weights_as_bytes_give_identical_outputs() {
         loaded.distribution(&va, &vb, &relative)
     );
     // gcn-gm has no consensus: the weights of `ours` do not fit it.
-    let fits =
-        |d: DeepMethod| crate::matching::deep::matcher(d.method(), d, 0, &bytes, RUN).is_ok();
-    assert!(!fits(DeepMethod::GcnGmGps));
+    let fits = |d: Method| crate::matching::deep::matcher(d, 0, &bytes, RUN).is_ok();
+    assert!(!fits(Method::GcnGmGps));
     // gcn-gm (as published) is not this network at all.
-    assert!(!fits(DeepMethod::GcnGm));
+    assert!(!fits(Method::GcnGm));
 }
 
 /// Untrained, every variant with positions scores each pair by the
@@ -188,11 +186,11 @@ fn untrained_decides_exactly_as_gps_appearance_hungarian() {
     assert_eq!(expected, hungarian(false));
     assert!(expected.len() >= 6, "{expected:?}");
     for method in [
-        DeepMethod::Ours,
-        DeepMethod::CoidNonGps,
-        DeepMethod::CoidUncGps,
-        DeepMethod::DgmcGps,
-        DeepMethod::GcnGmGps,
+        Method::Ours,
+        Method::CoidNonGps,
+        Method::CoidUncGps,
+        Method::DgmcGps,
+        Method::GcnGmGps,
     ] {
         let m = crate::matching::deep::untrained(method, 5, RUN);
         assert_eq!(pairs(&*m), expected, "{method:?}");

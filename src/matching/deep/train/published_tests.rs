@@ -12,7 +12,7 @@ use super::spline1d::GraphTensors;
 use super::weights::{module_bytes as to_bytes, published_from_bytes as from_bytes};
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::SceneGraph;
-use crate::matching::deep::arch::{Backbone, DeepMethod, MaskScope};
+use crate::matching::deep::arch::{Backbone, MaskScope};
 use crate::matching::deep::arch::{PublishedConfig, PublishedKind};
 use crate::matching::deep::cost::published_macs;
 use crate::matching::deep::decision::MatchDistribution;
@@ -467,7 +467,7 @@ fn sample_assignments(
 /// the pair part.
 #[test]
 fn a_matcher_counts_what_its_network_multiplies() {
-    let Backbone::Published(cfg) = DeepMethod::Dgmc.backbone() else {
+    let Some(Backbone::Published(cfg)) = Method::Dgmc.backbone() else {
         panic!("DGMC is a published network");
     };
     let bytes = include_bytes!("../../../../models/dgmc.bpk");
