@@ -469,7 +469,7 @@ mod tests {
 
     /// Regression: a record whose first layer is narrower than class,
     /// colour and size underflowed the appearance width (a panic in debug
-    /// builds); it is another architecture.
+    /// builds); it is refused as no architecture of this coid.
     #[test]
     fn a_record_narrower_than_the_node_attributes_is_another_architecture() {
         let dir = tempfile::tempdir().unwrap();
@@ -482,6 +482,6 @@ mod tests {
         let e = read_weights(dir.path(), Method::Ours)
             .unwrap_err()
             .to_string();
-        assert!(e.contains("another architecture"), "{e}");
+        assert!(e.contains("is narrower than class, colour and size"), "{e}");
     }
 }

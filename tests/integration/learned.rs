@@ -402,8 +402,7 @@ fn training_seeds_give_each_deep_row_its_spread_over_seeds() {
 
 /// Regression: a record whose first layer is narrower than class, colour
 /// and size (edited by hand) made the appearance width underflow; the
-/// binary refuses it as another architecture, in one line, before
-/// anything runs.
+/// binary refuses it, in one line, before anything runs.
 #[test]
 fn a_record_narrower_than_the_node_attributes_is_refused() {
     let fx = Fixture::new();
@@ -417,5 +416,9 @@ fn a_record_narrower_than_the_node_attributes_is_refused() {
     );
     let cfg = fx.method_config("w.toml", "ours", "models");
     let out = fx.run(&cfg, "w");
-    assert_refused_unwritten(&out, "another architecture", &fx.path("w"));
+    assert_refused_unwritten(
+        &out,
+        "is narrower than class, colour and size",
+        &fx.path("w"),
+    );
 }

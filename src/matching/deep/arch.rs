@@ -8,8 +8,9 @@ use super::features::NODE_FEATURES;
 use crate::matching::Method;
 use crate::matching::likelihood::LikelihoodTerms;
 
-/// The network a deep method trains and runs.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// The network a deep method trains and runs (as a record holds it: a
+/// published network names its `kind`).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 #[serde(untagged)]
 pub enum Backbone {
     /// GCN-GM's or DGMC's network as Fey et al. publish it, on the paper's
@@ -18,6 +19,24 @@ pub enum Backbone {
     /// The project's network: a learned correction of the shared pair
     /// likelihood, which sees the reported poses.
     Likelihood(Architecture),
+}
+
+impl<'de> serde::Deserialize<'de> for Backbone {
+    /// A published network's configuration when it names its `kind`, else
+    /// the project network's; a field that does not fit is named.
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use serde::de::Error;
+        let v = serde_json::Value::deserialize(d)?;
+        if v.get("kind").is_some() {
+            serde_json::from_value(v)
+                .map(Backbone::Published)
+                .map_err(D::Error::custom)
+        } else {
+            serde_json::from_value(v)
+                .map(Backbone::Likelihood)
+                .map_err(D::Error::custom)
+        }
+    }
 }
 
 impl Backbone {
@@ -67,7 +86,7 @@ impl Method {
             | Method::CoidUncGps
             | Method::DgmcGps
             | Method::GcnGmGps => Backbone::Likelihood(Architecture {
-                consensus: m != Method::GcnGmGps,
+                consensus_steps: usize::from(m != Method::GcnGmGps),
                 ..Architecture::default()
             }),
             _ => return None,
@@ -136,9 +155,10 @@ pub enum PublishedKind {
     Dgmc,
 }
 
-/// The architecture of a published network and its fixed settings.
+/// The architecture of a published network and its fixed settings, in
+/// the vocabulary [`Architecture`] speaks.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, try_from = "RawPublished")]
 pub struct PublishedConfig {
     pub kind: PublishedKind,
     /// psi_1's first layer (paper: 256).
@@ -148,12 +168,12 @@ pub struct PublishedConfig {
     /// Dropout on psi_1's 256 hidden channels (paper: 0.4; once, as
     /// DGMC's `SplineCNN` applies it); MC dropout at inference uses the
     /// same rate.
-    pub dropout: f64,
+    pub dropout_conv: f64,
     /// Random node indicators per consensus step, and psi_2's width (DGMC's
     /// `rnd_dim`).
-    pub rnd_dim: usize,
+    pub consensus_dim: usize,
     /// Consensus steps L (DGMC's `num_steps`; 0 for GCN-GM).
-    pub steps: usize,
+    pub consensus_steps: usize,
     /// Sinkhorn iterations of every normalisation.
     pub sinkhorn_iters: usize,
     /// The last B-spline knot (edge lengths beyond are clipped), metres.
@@ -162,6 +182,43 @@ pub struct PublishedConfig {
     /// colour and size (a dataset's learned features; 0: none).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub appearance_width: usize,
+}
+
+/// A published network's record as read: today's names, or those of
+/// records written before the two networks shared them (`dropout`,
+/// `rnd_dim`, `steps`).
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPublished {
+    kind: PublishedKind,
+    hidden: usize,
+    out: usize,
+    #[serde(alias = "dropout")]
+    dropout_conv: f64,
+    #[serde(alias = "rnd_dim")]
+    consensus_dim: usize,
+    #[serde(alias = "steps")]
+    consensus_steps: usize,
+    sinkhorn_iters: usize,
+    edge_scale_m: f64,
+    #[serde(default)]
+    appearance_width: usize,
+}
+
+impl From<RawPublished> for PublishedConfig {
+    fn from(r: RawPublished) -> Self {
+        Self {
+            kind: r.kind,
+            hidden: r.hidden,
+            out: r.out,
+            dropout_conv: r.dropout_conv,
+            consensus_dim: r.consensus_dim,
+            consensus_steps: r.consensus_steps,
+            sinkhorn_iters: r.sinkhorn_iters,
+            edge_scale_m: r.edge_scale_m,
+            appearance_width: r.appearance_width,
+        }
+    }
 }
 
 fn is_zero(v: &usize) -> bool {
@@ -183,9 +240,9 @@ impl PublishedConfig {
             kind,
             hidden: 256,
             out: 32,
-            dropout: 0.4,
-            rnd_dim: 32,
-            steps: match kind {
+            dropout_conv: 0.4,
+            consensus_dim: 32,
+            consensus_steps: match kind {
                 PublishedKind::GcnGm => 0,
                 PublishedKind::Dgmc => 10,
             },
@@ -199,22 +256,26 @@ impl PublishedConfig {
     pub fn consensus_steps(&self) -> usize {
         match self.kind {
             PublishedKind::GcnGm => 0,
-            PublishedKind::Dgmc => self.steps,
+            PublishedKind::Dgmc => self.consensus_steps,
         }
     }
 }
 
-/// Architecture and regularisation of one matcher variant.
+/// Architecture and regularisation of the project's network, in the
+/// vocabulary [`PublishedConfig`] speaks.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, try_from = "RawArchitecture")]
 pub struct Architecture {
-    pub node_features: usize,
+    /// The width of the appearance vectors its first layer reads beside
+    /// class, colour and size (a dataset's learned features; 0: none).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub appearance_width: usize,
     pub hidden: usize,
     pub out: usize,
     pub dropout_conv: f64,
-    /// DGMC neighbourhood consensus on (`dgmc`, `ours`, ablations) or off
-    /// (`gcn-gm`).
-    pub consensus: bool,
+    /// DGMC neighbourhood consensus: one step (`dgmc+gps`, `ours`,
+    /// ablations) or none (`gcn-gm+gps`).
+    pub consensus_steps: usize,
     pub consensus_dim: usize,
     pub dropout_phi: f64,
     pub sinkhorn_iters: usize,
@@ -227,14 +288,76 @@ pub struct Architecture {
     pub pair_hidden: usize,
 }
 
+/// The project network's record as read: today's names, or those of
+/// records written before the two networks shared them (`node_features`
+/// for class, colour, size and the vector together; `consensus` on or
+/// off).
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawArchitecture {
+    #[serde(default)]
+    appearance_width: Option<usize>,
+    #[serde(default)]
+    node_features: Option<usize>,
+    hidden: usize,
+    out: usize,
+    dropout_conv: f64,
+    #[serde(default)]
+    consensus_steps: Option<usize>,
+    #[serde(default)]
+    consensus: Option<bool>,
+    consensus_dim: usize,
+    dropout_phi: f64,
+    sinkhorn_iters: usize,
+    positions: bool,
+    pair_hidden: usize,
+}
+
+impl TryFrom<RawArchitecture> for Architecture {
+    type Error = String;
+
+    fn try_from(r: RawArchitecture) -> Result<Self, String> {
+        let appearance_width = match (r.appearance_width, r.node_features) {
+            (Some(w), None) => w,
+            (None, None) => 0,
+            (None, Some(n)) => n.checked_sub(NODE_FEATURES).ok_or_else(|| {
+                format!(
+                    "node_features = {n} is narrower than class, colour and size \
+                     ({NODE_FEATURES}): not an architecture of this coid"
+                )
+            })?,
+            (Some(_), Some(_)) => {
+                return Err("appearance_width and node_features name one width twice".into());
+            }
+        };
+        let consensus_steps = match (r.consensus_steps, r.consensus) {
+            (Some(s), None) => s,
+            (None, Some(on)) => usize::from(on),
+            _ => return Err("name consensus_steps (or, in old records, consensus) once".into()),
+        };
+        Ok(Self {
+            appearance_width,
+            hidden: r.hidden,
+            out: r.out,
+            dropout_conv: r.dropout_conv,
+            consensus_steps,
+            consensus_dim: r.consensus_dim,
+            dropout_phi: r.dropout_phi,
+            sinkhorn_iters: r.sinkhorn_iters,
+            positions: r.positions,
+            pair_hidden: r.pair_hidden,
+        })
+    }
+}
+
 impl Default for Architecture {
     fn default() -> Self {
         Self {
-            node_features: NODE_FEATURES,
+            appearance_width: 0,
             hidden: 256,
             out: 32,
             dropout_conv: 0.4,
-            consensus: true,
+            consensus_steps: 1,
             consensus_dim: 32,
             dropout_phi: 0.2,
             sinkhorn_iters: 20,
@@ -248,16 +371,25 @@ impl Architecture {
     /// The same network reading appearance vectors `width` wide (0: none).
     pub fn with_appearance(self, width: usize) -> Self {
         Self {
-            node_features: NODE_FEATURES + width,
+            appearance_width: width,
             ..self
         }
     }
 
-    /// The width of the appearance vectors it reads (0: none; a record
-    /// narrower than class, colour and size is another architecture, which
-    /// the record's check says).
+    /// The width of the appearance vectors it reads (0: none).
     pub fn appearance_width(&self) -> usize {
-        self.node_features.saturating_sub(NODE_FEATURES)
+        self.appearance_width
+    }
+
+    /// Its first layer's input width: class, colour, size and the
+    /// appearance vector.
+    pub fn node_features(&self) -> usize {
+        NODE_FEATURES + self.appearance_width
+    }
+
+    /// Whether it has the consensus step.
+    pub fn has_consensus(&self) -> bool {
+        self.consensus_steps > 0
     }
 }
 
@@ -397,7 +529,7 @@ mod tests {
             let d = m;
             let consensus = match d.backbone().unwrap() {
                 Backbone::Published(c) => c.consensus_steps() > 0,
-                Backbone::Likelihood(a) => a.consensus && a.positions,
+                Backbone::Likelihood(a) => a.has_consensus() && a.positions,
             };
             let t = d.loss_terms();
             assert_eq!((m.inputs(), consensus, t.non, t.unc), row, "{m:?}");

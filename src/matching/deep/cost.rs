@@ -87,14 +87,14 @@ pub fn inference_macs(
     let t = samples as u64;
     let (n1, n2) = (first.nodes as u64, second.nodes as u64);
     let embed = |g: GraphShape| {
-        spline_conv(1, g, arch.node_features, arch.hidden)
+        spline_conv(1, g, arch.node_features(), arch.hidden)
             + spline_conv(t, g, arch.hidden, arch.out)
     };
     let hp = arch.pair_hidden as u64;
     let mlps =
         n1 * n2 * (PAIR_FEATURES as u64 * hp + hp) + (n1 + n2) * (DUST_FEATURES as u64 * hp + hp);
     let similarity = t * n1 * n2 * arch.out as u64;
-    let consensus = if arch.consensus {
+    let consensus = if arch.has_consensus() {
         let r = arch.consensus_dim as u64;
         t * n2 * n1 * r // soft^T r1
             + spline_conv(1, first, arch.consensus_dim, arch.consensus_dim)
@@ -134,11 +134,11 @@ pub fn published_macs(
     let t = samples as u64;
     let (a, b) = (n1 as u64, n2 as u64);
     let cells = 1 + KERNEL as u64;
-    let (h, o, r) = (cfg.hidden as u64, cfg.out as u64, cfg.rnd_dim as u64);
+    let (h, o, r) = (cfg.hidden as u64, cfg.out as u64, cfg.consensus_dim as u64);
     let kept = if per_node {
         h
     } else {
-        ((1.0 - cfg.dropout) * h as f64).round() as u64
+        ((1.0 - cfg.dropout_conv) * h as f64).round() as u64
     };
     let embed = |n: u64| n * NODE_FEATURES as u64 * cells * h + t * n * (kept * cells * o + o * o);
     // psi_2's first product: root, knots and the folded `W_x W_in`.
@@ -167,7 +167,7 @@ pub fn plain_embedding_macs(arch: &Architecture, g: GraphShape, samples: usize) 
     let keep = 1.0 - arch.dropout_conv;
     let (k, o) = (keep * arch.hidden as f64, keep * arch.out as f64);
     let per_sample = g.nodes as f64 * k * (1 + KERNEL_2D) as f64 * o + 4.0 * g.edges as f64 * o;
-    spline_conv(1, g, arch.node_features, arch.hidden) as f64 + samples as f64 * per_sample
+    spline_conv(1, g, arch.node_features(), arch.hidden) as f64 + samples as f64 * per_sample
 }
 
 /// One spline convolution on `rows` copies of graph `g` (1: once for all
@@ -226,7 +226,7 @@ mod tests {
         assert_eq!(m.new_pair(), 186_283_516);
         // Without consensus only the MLPs and the similarity remain.
         let plain = Architecture {
-            consensus: false,
+            consensus_steps: 0,
             ..arch
         };
         let p = inference_macs(&plain, a, b, 20);

@@ -47,14 +47,14 @@ const INITIAL_DUSTBIN: f32 = -3.0;
 /// gates 0: an untrained network scores pairs as the likelihood does).
 pub(crate) fn spec(arch: &Architecture) -> Vec<ParamSpec> {
     let (r, h) = (arch.consensus_dim, arch.pair_hidden);
-    let mut out = params::spline_conv("conv1", "", [arch.node_features, arch.hidden], KERNEL_2D);
+    let mut out = params::spline_conv("conv1", "", [arch.node_features(), arch.hidden], KERNEL_2D);
     out.extend(params::spline_conv(
         "conv2",
         "",
         [arch.hidden, arch.out],
         KERNEL_2D,
     ));
-    if arch.consensus {
+    if arch.has_consensus() {
         out.extend(params::spline_conv("consensus_conv", "", [r, r], KERNEL_2D));
         out.extend(params::linear("phi_in", "", [r, r]));
         out.extend(params::linear("phi_out", "", [r, 1]));
@@ -156,7 +156,7 @@ impl Ours {
     pub(crate) fn new(p: &Params, arch: Architecture, run: Inference) -> Self {
         let arch = at_inference(arch, &run);
         let layer = |name: &str| PlainSpline::of(p, name);
-        let consensus = arch.consensus.then(|| {
+        let consensus = arch.has_consensus().then(|| {
             (
                 layer("consensus_conv"),
                 p.linear("phi_in"),
@@ -351,7 +351,7 @@ fn pair_draws(
     let mut stream = rng::stream(run.seed, Purpose::Dropout, &[key]);
     let (n1, n2, t) = (first.detections.len(), second.detections.len(), run.samples);
     let r = arch.consensus_dim;
-    let phi = if run.masks == MaskScope::PerNode && arch.consensus {
+    let phi = if run.masks == MaskScope::PerNode && arch.has_consensus() {
         dropout_mask_16(&mut stream, t * n1 * n2 * r, arch.dropout_phi)
     } else {
         Vec::new()

@@ -93,7 +93,7 @@ pub(crate) fn spec(cfg: &PublishedConfig) -> Vec<ParamSpec> {
         false,
     );
     if cfg.kind == PublishedKind::Dgmc {
-        let r = cfg.rnd_dim;
+        let r = cfg.consensus_dim;
         v.extend(cnn("psi2", prefix, [r, r, r], true));
         v.extend(params::linear("mlp_in", prefix, [r, r]));
         v.extend(params::linear("mlp_out", prefix, [r, 1]));

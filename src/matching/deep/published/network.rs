@@ -48,7 +48,7 @@ pub(crate) struct Published {
 impl Published {
     /// The network of `cfg` with the parameters `p`, run as `run` says.
     pub(crate) fn new(cfg: PublishedConfig, p: &Params, run: Inference) -> Self {
-        let rate = run.dropout.unwrap_or(cfg.dropout);
+        let rate = run.dropout.unwrap_or(cfg.dropout_conv);
         // Shared masks are the same for every pair: drawn once.
         let shared = (run.masks == MaskScope::Shared).then(|| {
             let mut shared = rng::stream(run.seed, Purpose::Dropout, &[SHARED_MASKS_KEY]);
@@ -102,7 +102,7 @@ impl Published {
         let per_node = self.run.masks == MaskScope::PerNode;
         let (d, r, steps) = (
             self.cfg.hidden,
-            self.cfg.rnd_dim,
+            self.cfg.consensus_dim,
             self.cfg.consensus_steps(),
         );
         let mut stream = rng::stream(self.run.seed, Purpose::Dropout, &[key]);

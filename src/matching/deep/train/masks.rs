@@ -60,7 +60,7 @@ pub(crate) fn draw_masks(
         let conv1 = mask4(rng, dropout_mask, [b, t, 1, h], p, device);
         let conv2 = mask4(rng, dropout_mask, [b, t, 1, o], p, device);
         let r = arch.consensus_dim;
-        let phi = if arch.consensus {
+        let phi = if arch.has_consensus() {
             let v = dropout_mask(rng, b * t * r, arch.dropout_phi);
             Tensor::<5>::from_data(TensorData::new(v, [b, t, 1, 1, r]), device)
                 .expand([b, t, n1, n2, r])
@@ -153,7 +153,7 @@ pub(crate) fn draw_pair_masks(
     device: &Device,
 ) -> PairMasks {
     let r = arch.consensus_dim;
-    let phi = if arch.consensus {
+    let phi = if arch.has_consensus() {
         Tensor::<5>::from_data(
             TensorData::new(
                 draw(rng, b * t * n1 * n2 * r, arch.dropout_phi),

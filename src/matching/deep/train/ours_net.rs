@@ -136,7 +136,7 @@ impl OursNet {
             specs,
             device,
         };
-        let c = arch.consensus;
+        let c = arch.has_consensus();
         Self {
             conv1: SplineConv::from(&src, "conv1"),
             conv2: SplineConv::from(&src, "conv2"),
@@ -496,7 +496,7 @@ mod tests {
         // the first layer is the same with and without consensus.
         let first_layer = |consensus: bool| {
             let a = Architecture {
-                consensus,
+                consensus_steps: usize::from(consensus),
                 ..Architecture::default()
             };
             let net = OursNet::new(&a, Init::Seeded(4), &device);

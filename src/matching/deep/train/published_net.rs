@@ -207,7 +207,7 @@ pub(crate) fn draw_indicators(
     [b, t, n1]: [usize; 3],
     device: &Device,
 ) -> Vec<Tensor<4>> {
-    let r = cfg.rnd_dim;
+    let r = cfg.consensus_dim;
     (0..cfg.consensus_steps())
         .map(|_| {
             let v: Vec<f32> = (0..b * t * n1 * r)
@@ -230,7 +230,7 @@ pub(crate) fn draw_masks(
     device: &Device,
 ) -> PublishedMasks {
     let dropout = if dropout {
-        Dropout::On(cfg.dropout, MaskScope::PerNode)
+        Dropout::On(cfg.dropout_conv, MaskScope::PerNode)
     } else {
         Dropout::Off
     };
@@ -254,7 +254,7 @@ pub(crate) fn draw_training_masks(
         MaskScope::PerNode => draw_masks(rng, cfg, [b, t, n1, n2], true, device),
         MaskScope::Shared => {
             let d = cfg.hidden;
-            let v = dropout_mask_16(rng, b * t * d, cfg.dropout);
+            let v = dropout_mask_16(rng, b * t * d, cfg.dropout_conv);
             let m = Tensor::<4>::from_data(TensorData::new(v, [b, t, 1, d]), device);
             let psi1 = [n1, n2].map(|n| m.clone().expand([b, t, n, d]));
             let indicators = draw_indicators(rng, cfg, [b, t, n1], device);

@@ -344,7 +344,7 @@ fn gcn_gm_matches_rigidly_moved_copies() {
 /// fast.
 fn dgmc() -> PublishedConfig {
     PublishedConfig {
-        steps: 3,
+        consensus_steps: 3,
         ..PublishedConfig::new(PublishedKind::Dgmc)
     }
 }

@@ -132,7 +132,7 @@ impl TensorOurs {
             MaskScope::Shared => {
                 let ones: MaskDraw = |_, len, _| vec![1.0; len];
                 let mut m = draw_pair_masks(&mut stream, &self.arch, shape, ones, &self.device);
-                if self.arch.consensus {
+                if self.arch.has_consensus() {
                     let key = ours::SHARED_MASKS_KEY;
                     let mut shared = rng::stream(seed, Purpose::Dropout, &[key]);
                     let (scope, dims) = (self.run.masks, [t, n1, n2]);
@@ -237,7 +237,7 @@ impl TensorPublished {
     /// The network `net` of `cfg`, run as `run` says.
     pub(crate) fn new(cfg: PublishedConfig, net: PublishedNet, run: Inference) -> Self {
         Self {
-            rate: run.dropout.unwrap_or(cfg.dropout),
+            rate: run.dropout.unwrap_or(cfg.dropout_conv),
             cfg,
             net,
             run,

@@ -85,7 +85,7 @@ mod tests {
         assert!(from_bytes(&arch, b"junk", &device).is_err());
         // Weights of another architecture do not fit.
         let other = Architecture {
-            consensus: false,
+            consensus_steps: 0,
             ..arch
         };
         let other_bytes = to_bytes(&OursNet::new(&other, Init::Seeded(9), &device)).unwrap();
