@@ -2,7 +2,8 @@
 //! per axis (x, y, heading), `e(t + dt) = a e(t) + sqrt(1 - a²) sigma w`,
 //! `a = exp(-dt / tau)`, started from its stationary distribution, so
 //! every step has the level's sigma and errors decorrelate over `tau`.
-//! `tau = 0` gives independent errors per step (today's model).
+//! `tau = 0` (`[v2x] gnss_correlation_s = 0`, the default) gives
+//! independent errors per step.
 //!
 //! The `cpm` mode steps the process frame by frame ([`next_error`]); the
 //! `ideal` mode, which senses only at sampled steps, takes it as a pure

@@ -27,8 +27,7 @@ mod published_tests;
 #[cfg(test)]
 pub(crate) mod reference;
 pub(crate) mod sinkhorn;
-pub(crate) mod spline1d;
-pub(crate) mod spline2d;
+pub(crate) mod spline;
 pub(crate) mod weights;
 
 use self::backend::device;
@@ -37,7 +36,7 @@ use self::loss::{LabelTensors, loss};
 use self::masks::{Masks, draw_masks};
 use self::ours_net::{OursNet, PairTensors};
 use self::published::{PublishedTrainer, TrainPair};
-use self::spline2d::GraphBatch;
+use self::spline::GraphTensors;
 use self::weights::to_bytes;
 use super::arch::{Architecture, Backbone, LossTerms, MaskScope, NoMatchWeights, PairLoss};
 use super::features::{GraphInput, PairInput};
@@ -210,7 +209,7 @@ pub struct TrainReport {
 
 /// A batch of prepared pairs as tensors.
 struct BatchTensors {
-    graphs: [GraphBatch; 2],
+    graphs: [GraphTensors; 2],
     pair: PairTensors,
     labels: LabelTensors,
 }
@@ -219,7 +218,10 @@ impl BatchTensors {
     fn new(batch: &[&Prepared], device: &Device) -> Self {
         let g1: Vec<&GraphInput> = batch.iter().map(|p| &p.g1).collect();
         let g2: Vec<&GraphInput> = batch.iter().map(|p| &p.g2).collect();
-        let graphs = [GraphBatch::new(&g1, device), GraphBatch::new(&g2, device)];
+        let graphs = [
+            GraphTensors::new(&g1, device),
+            GraphTensors::new(&g2, device),
+        ];
         let (n1, n2) = (graphs[0].n(), graphs[1].n());
         let pairs: Vec<&PairInput> = batch.iter().map(|p| &p.pair).collect();
         let pair = PairTensors::new(&pairs, [n1, n2], device);

@@ -28,8 +28,8 @@ use super::init::{Init, Source};
 use super::masks::{Masks, PairMasks};
 use super::sinkhorn::{BLOCKED, log_sinkhorn};
 #[cfg(test)]
-use super::spline2d::CellWeights;
-use super::spline2d::{GraphBatch, SplineConv};
+use super::spline::CellWeights;
+use super::spline::{GraphTensors, SplineConv};
 use crate::matching::deep::arch::Architecture;
 use crate::matching::deep::features::{DUST_FEATURES, PAIR_FEATURES, PairInput};
 use crate::matching::deep::ours;
@@ -138,9 +138,9 @@ impl OursNet {
         };
         let c = arch.has_consensus();
         Self {
-            conv1: SplineConv::from(&src, "conv1"),
-            conv2: SplineConv::from(&src, "conv2"),
-            consensus_conv: c.then(|| SplineConv::from(&src, "consensus_conv")),
+            conv1: SplineConv::from(&src, "conv1", true),
+            conv2: SplineConv::from(&src, "conv2", true),
+            consensus_conv: c.then(|| SplineConv::from(&src, "consensus_conv", true)),
             phi_in: c.then(|| src.linear("phi_in")),
             phi_out: c.then(|| src.linear("phi_out")),
             pair_in: src.linear("pair_in"),
@@ -187,7 +187,7 @@ impl OursNet {
 
     /// Psi: node embeddings `[B, T, N, out]` for T dropout samples of each
     /// graph (`mask1`: `[B, T, N, hidden]`, `mask2`: `[B, T, N, out]`).
-    pub(crate) fn embed(&self, g: &GraphBatch, mask1: Tensor<4>, mask2: Tensor<4>) -> Tensor<4> {
+    pub(crate) fn embed(&self, g: &GraphTensors, mask1: Tensor<4>, mask2: Tensor<4>) -> Tensor<4> {
         // The first layer's input is the same for every sample: compute once.
         let w = g.weights.as_deref();
         let h = activation::relu(self.conv1.forward(g.x.clone(), g, w.map(|w| &w.conv1)));
@@ -200,7 +200,7 @@ impl OursNet {
     #[cfg(test)]
     pub(crate) fn first_layer(
         &self,
-        g: &GraphBatch,
+        g: &GraphTensors,
     ) -> Result<Vec<f32>, super::backend::TensorRead> {
         let w = g.weights.as_deref();
         super::backend::values(activation::relu(self.conv1.forward(
@@ -211,9 +211,9 @@ impl OursNet {
     }
 
     /// Every spline layer's weights of the kernel cells of `g`, for
-    /// [`GraphBatch::with_weights`] on graphs with the same cells.
+    /// [`GraphTensors::with_weights`] on graphs with the same cells.
     #[cfg(test)]
-    pub(crate) fn cell_weights(&self, g: &GraphBatch) -> CellWeights {
+    pub(crate) fn cell_weights(&self, g: &GraphTensors) -> CellWeights {
         CellWeights {
             cell_mask: g.cell_mask,
             conv1: self.conv1.cell_weights(&g.cells),
@@ -250,8 +250,8 @@ impl OursNet {
     /// objects.
     pub(crate) fn pair(
         &self,
-        first: (&Tensor<4>, &GraphBatch),
-        second: (&Tensor<4>, &GraphBatch),
+        first: (&Tensor<4>, &GraphTensors),
+        second: (&Tensor<4>, &GraphTensors),
         pair: &PairTensors,
         masks: PairMasks,
     ) -> PairOutput {
@@ -286,7 +286,7 @@ impl OursNet {
             ]); // [B, T, N1, N2]
             let r1 = masks.indicators * g1.node_mask.clone(); // [B, 1, N1, r]
             let r2 = soft.swap_dims(2, 3).matmul(r1.clone()); // [B, T, N2, r]
-            let w = |g: &GraphBatch| g.weights.as_ref().and_then(|w| w.consensus.clone());
+            let w = |g: &GraphTensors| g.weights.as_ref().and_then(|w| w.consensus.clone());
             let z1 = activation::relu(conv.forward(r1, g1, w(g1).as_ref())); // [B, 1, N1, r]
             let z2 = activation::relu(conv.forward(r2, g2, w(g2).as_ref())); // [B, T, N2, r]
             let d = z1.unsqueeze_dim::<5>(3) - z2.unsqueeze_dim::<5>(2); // [B, T, N1, N2, r]
@@ -300,7 +300,7 @@ impl OursNet {
     /// for training: embeddings, pair part and Sinkhorn in one pass.
     pub(crate) fn forward(
         &self,
-        graphs: [&GraphBatch; 2],
+        graphs: [&GraphTensors; 2],
         pair: &PairTensors,
         masks: Masks,
         sinkhorn_iters: usize,
@@ -409,7 +409,10 @@ mod tests {
         let run = |which: &[usize]| -> Vec<Vec<f32>> {
             let g1: Vec<&GraphInput> = which.iter().map(|&k| &graphs[k][0]).collect();
             let g2: Vec<&GraphInput> = which.iter().map(|&k| &graphs[k][1]).collect();
-            let (b1, b2) = (GraphBatch::new(&g1, &device), GraphBatch::new(&g2, &device));
+            let (b1, b2) = (
+                GraphTensors::new(&g1, &device),
+                GraphTensors::new(&g2, &device),
+            );
             let (n1, n2) = (b1.n(), b2.n());
             let inputs: Vec<&PairInput> = which.iter().map(|&k| &pairs[k]).collect();
             let tensors = PairTensors::new(&inputs, [n1, n2], &device);
@@ -460,7 +463,7 @@ mod tests {
     #[test]
     fn kept_cell_weights_change_nothing_and_foreign_ones_are_ignored() {
         let device = crate::matching::deep::train::backend::device();
-        let graph = |points: &[(f64, f64)]| GraphBatch::used_cells(&graph_input(points), &device);
+        let graph = |points: &[(f64, f64)]| GraphTensors::used_cells(&graph_input(points), &device);
         let near = [(0.0, 0.0), (12.0, 3.0), (5.0, 20.0), (-9.0, 14.0)];
         let far = [(0.0, 0.0), (45.0, -30.0), (-40.0, 44.0), (10.0, 60.0)];
         let arch = Architecture::default();
@@ -471,7 +474,7 @@ mod tests {
             Arc::new(net.cell_weights(&a)),
             Arc::new(net.cell_weights(&b)),
         );
-        let embed = |g: &GraphBatch| -> Vec<f32> {
+        let embed = |g: &GraphTensors| -> Vec<f32> {
             let ones = |d: usize| Tensor::<4>::ones([1, 2, g.n(), d], &device);
             let h = net.embed(g, ones(arch.hidden), ones(arch.out));
             h.try_into_vec_as::<f32>().unwrap()

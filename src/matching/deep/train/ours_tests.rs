@@ -4,7 +4,7 @@
 
 use super::backend::device;
 use super::ours_net::OursNet;
-use super::spline2d::GraphBatch;
+use super::spline::GraphTensors;
 use super::weights::{from_bytes, to_bytes};
 use crate::geometry::Vec2;
 use crate::matching::deep::arch::{Architecture, MaskScope};
@@ -297,7 +297,7 @@ fn the_plain_first_layer_is_the_tensor_one_bit_for_bit() {
         let v = side.view();
         let input = graph_input(v.detections, v.graph, &v.pose_reported, 0);
         let tensor = net
-            .first_layer(&GraphBatch::used_cells(&input, &device()))
+            .first_layer(&GraphTensors::used_cells(&input, &device()))
             .unwrap();
         let bits = |h: &[f32]| h.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(

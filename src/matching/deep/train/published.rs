@@ -15,7 +15,7 @@ use super::examples::Example;
 use super::init::Init;
 use super::loss::{non_term, unc_term};
 use super::published_net::{PublishedNet, draw_training_masks};
-use super::spline1d::GraphTensors;
+use super::spline::GraphTensors;
 use super::weights::module_bytes;
 use crate::matching::deep::arch::{LossTerms, MaskScope, NoMatchWeights, PublishedConfig};
 use crate::matching::deep::published::PaperGraph;
@@ -218,8 +218,8 @@ impl PublishedTrainer {
         let scale = self.cfg.edge_scale_m;
         let firsts: Vec<&PaperGraph> = batch.iter().map(|p| &p.first).collect();
         let seconds: Vec<&PaperGraph> = batch.iter().map(|p| &p.second).collect();
-        let g1 = GraphTensors::new(&firsts, scale, device);
-        let g2 = GraphTensors::new(&seconds, scale, device);
+        let g1 = GraphTensors::lengths(&firsts, scale, device);
+        let g2 = GraphTensors::lengths(&seconds, scale, device);
         let (n1, n2) = (g1.n(), g2.n());
         let b = batch.len();
         let masks = draw_training_masks(

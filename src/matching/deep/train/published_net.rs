@@ -13,7 +13,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::init::{Init, Source};
 use super::sinkhorn::{BLOCKED, log_sinkhorn};
-use super::spline1d::{GraphTensors, SplineCnn};
+use super::spline::{GraphTensors, SplineCnn};
 use crate::matching::deep::arch::{MaskScope, PublishedConfig, PublishedKind};
 use crate::matching::deep::mc::draws::dropout_mask_16;
 use crate::matching::deep::params::{ParamSpec, Params};

@@ -8,7 +8,7 @@ use rand_chacha::ChaCha8Rng;
 use std::f64::consts::PI;
 
 use super::published_net::{PublishedNet, draw_masks};
-use super::spline1d::GraphTensors;
+use super::spline::GraphTensors;
 use super::weights::{module_bytes as to_bytes, published_from_bytes as from_bytes};
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::SceneGraph;
@@ -357,8 +357,8 @@ fn dgmc_matches_rigidly_moved_copies() {
 /// `S_0` of one pair, one sample without dropout, `(n1 + 1) x (n2 + 1)`.
 fn initial_assignment(net: &PublishedNet, cfg: &PublishedConfig, p: &TrainPair) -> Vec<f32> {
     let device = crate::matching::deep::train::backend::device();
-    let g1 = GraphTensors::new(&[&p.first], cfg.edge_scale_m, &device);
-    let g2 = GraphTensors::new(&[&p.second], cfg.edge_scale_m, &device);
+    let g1 = GraphTensors::lengths(&[&p.first], cfg.edge_scale_m, &device);
+    let g2 = GraphTensors::lengths(&[&p.second], cfg.edge_scale_m, &device);
     let shape = [1, 1, p.first.n, p.second.n];
     let masks = draw_masks(&mut stream("initial"), cfg, shape, false, &device);
     let s0 = net.forward(cfg, [&g1, &g2], masks).initial.exp();
@@ -450,8 +450,8 @@ fn sample_assignments(
         return vec![s; t];
     }
     let device = crate::matching::deep::train::backend::device();
-    let g1 = GraphTensors::new(&[first], cfg.edge_scale_m, &device);
-    let g2 = GraphTensors::new(&[second], cfg.edge_scale_m, &device);
+    let g1 = GraphTensors::lengths(&[first], cfg.edge_scale_m, &device);
+    let g2 = GraphTensors::lengths(&[second], cfg.edge_scale_m, &device);
     let masks = draw_masks(rng, cfg, [1, t, n1, n2], sampling.mc_dropout, &device);
     let p = net.forward(cfg, [&g1, &g2], masks).last().exp();
     let v: Vec<f32> = p.try_into_vec_as::<f32>().expect("f32 assignments");

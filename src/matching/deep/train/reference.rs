@@ -15,8 +15,7 @@ use super::ours_net::{OursNet, PairTensors};
 use super::published_net::{
     Dropout, PublishedMasks, PublishedNet, draw_indicators, draw_psi1_masks,
 };
-use super::spline1d::GraphTensors;
-use super::spline2d::{CellWeights, GraphBatch};
+use super::spline::{CellWeights, GraphTensors};
 use crate::fusion::PoseEstimate;
 use crate::matching::MatchView;
 use crate::matching::deep::arch::{Architecture, MaskScope, PublishedConfig, likelihood_terms};
@@ -46,7 +45,7 @@ pub(crate) struct TensorOurs {
 
 /// One vehicle's embedding through the tensors, with its graph.
 pub(crate) struct TensorEmbedded {
-    graph: GraphBatch,
+    graph: GraphTensors,
     h: Vec<f32>,
     shape: GraphShape,
 }
@@ -74,8 +73,8 @@ impl TensorOurs {
     }
 
     /// A graph as tensors with its kept cell weights.
-    fn graph(&self, input: &GraphInput) -> GraphBatch {
-        let graph = GraphBatch::used_cells(input, &self.device);
+    fn graph(&self, input: &GraphInput) -> GraphTensors {
+        let graph = GraphTensors::used_cells(input, &self.device);
         let kept = self.cell_weights.lock().ok().and_then(|mut cache| {
             if let Some(w) = cache.get(&graph.cell_mask) {
                 return Some(Arc::clone(w));
@@ -93,7 +92,7 @@ impl TensorOurs {
     }
 
     /// The embedding with the masks of its stream.
-    fn embedding(&self, graph: &GraphBatch, input: &GraphInput, key: u64) -> Tensor<4> {
+    fn embedding(&self, graph: &GraphTensors, input: &GraphInput, key: u64) -> Tensor<4> {
         let stream_key = match self.run.masks {
             MaskScope::PerNode => key,
             MaskScope::Shared => ours::SHARED_MASKS_KEY,
@@ -257,8 +256,8 @@ impl TensorPublished {
         let device = device();
         let scale = self.cfg.edge_scale_m;
         let (t1, t2) = (
-            GraphTensors::new(&[g1], scale, &device),
-            GraphTensors::new(&[g2], scale, &device),
+            GraphTensors::lengths(&[g1], scale, &device),
+            GraphTensors::lengths(&[g2], scale, &device),
         );
         let mut stream = rng::stream(self.run.seed, Purpose::Dropout, &[key]);
         let dropout = Dropout::On(self.rate, self.run.masks);

@@ -1,23 +1,33 @@
 //! The SplineCNN layer (Fey et al. 2018, paper Eq. 1) and the graphs it
-//! runs on: [`GraphBatch`] holds graphs as tensors, padded to a common
+//! runs on: [`GraphTensors`] holds graphs as tensors, padded to a common
 //! node count, with each edge's degree-1 open B-spline weights over its
-//! 2-D pseudo-coordinates (`KERNEL` knots per dimension) mixed into dense
-//! matrices; [`SplineConv`] is mean aggregation over the neighbours with
-//! a weight matrix per kernel cell, plus a root weight, computed as two
-//! dense products in whichever order costs less. At inference only the
-//! kernel cells a graph uses are computed, and their weights can be kept
-//! per cell set ([`CellWeights`]).
+//! pseudo-coordinates (2-D offsets: `KERNEL` knots per dimension; or edge
+//! lengths: `KERNEL` knots) mixed into dense matrices; [`SplineConv`] is
+//! mean aggregation over the neighbours with a weight matrix per kernel
+//! cell, plus a root weight, computed as two dense products (in whichever
+//! order costs less for the project's network, weights first for the
+//! published ones); [`SplineCnn`] is the stack of DGMC's public code
+//! (`SplineCNN`): two convolutions each followed by ReLU, optionally the
+//! input and every layer's output concatenated (`cat`), then a final
+//! linear layer. The reference of inference computes only the kernel
+//! cells a graph uses, and keeps their weights per cell set
+//! ([`CellWeights`]).
 
-use burn::module::Param;
-use burn::prelude::*;
 use std::sync::Arc;
 
+use burn::module::Param;
+use burn::nn::Linear;
+use burn::prelude::*;
+use burn::tensor::activation;
+
 use super::init::Source;
-use crate::matching::deep::features::{GraphInput, KERNEL_2D, NODE_FEATURES};
+use crate::matching::deep::features::{GraphInput, KERNEL, KERNEL_2D, NODE_FEATURES};
+use crate::matching::deep::published::PaperGraph;
+use crate::matching::deep::published::graph::length_basis;
 
 /// Graphs as tensors, padded to a common node count `N` (a batch of
 /// training pairs' graphs, or one graph at inference, `B = 1`).
-pub(crate) struct GraphBatch {
+pub(crate) struct GraphTensors {
     /// Real nodes of each graph.
     pub(crate) counts: Vec<usize>,
     /// `[B, 1, N, F]` node attributes (zeros for padding).
@@ -31,8 +41,9 @@ pub(crate) struct GraphBatch {
     /// so that the messages `x W` need only a reshape.
     pub(crate) mixing: Tensor<4>,
     /// `[B, 1, N * C, N]`: the same weights with rows (i, cell) and
-    /// columns j, for layers that mix neighbours before their weights.
-    pub(crate) mixing_by_cell: Tensor<4>,
+    /// columns j, for layers that mix neighbours before their weights
+    /// (over 2-D offsets only).
+    pub(crate) mixing_by_cell: Option<Tensor<4>>,
     /// `[B, 1, N, 1]`: 1 for a real node, 0 for padding.
     pub(crate) node_mask: Tensor<4>,
     /// Directed edges over the whole batch (0: no messages at all).
@@ -53,7 +64,7 @@ pub(crate) struct GraphBatch {
 /// out]` each): what [`SplineConv::forward`] would select, kept by a
 /// caller that sees the same cell set many times (inference).
 pub(crate) struct CellWeights {
-    /// The cell set, as [`GraphBatch::cell_mask`].
+    /// The cell set, as [`GraphTensors::cell_mask`].
     #[cfg_attr(
         not(test),
         allow(dead_code, reason = "the tensor reference's cell cache")
@@ -64,10 +75,10 @@ pub(crate) struct CellWeights {
     pub(crate) consensus: Option<Tensor<2>>,
 }
 
-impl GraphBatch {
-    /// Graphs padded to the largest, with every kernel cell (training:
-    /// the gradient of a cell selection costs more than the messages it
-    /// saves).
+impl GraphTensors {
+    /// Graphs over 2-D offsets padded to the largest, with every kernel
+    /// cell (training: the gradient of a cell selection costs more than
+    /// the messages it saves).
     pub(crate) fn new(graphs: &[&GraphInput], device: &Device) -> Self {
         Self::with_cells(graphs, [true; KERNEL_2D], device)
     }
@@ -124,9 +135,48 @@ impl GraphBatch {
             cell_mask: cells.iter().map(|&k| 1u32 << k).sum(),
             cells: Tensor::from_data(TensorData::new(cells, [c]), device),
             mixing: Tensor::from_data(TensorData::new(mixing, [b, 1, n, n * c]), device),
-            mixing_by_cell: Tensor::from_data(TensorData::new(by_cell, [b, 1, n * c, n]), device),
+            mixing_by_cell: Some(Tensor::from_data(
+                TensorData::new(by_cell, [b, 1, n * c, n]),
+                device,
+            )),
             node_mask: Tensor::from_data(TensorData::new(node_mask, [b, 1, n, 1]), device),
             edges,
+            weights: None,
+        }
+    }
+
+    /// Graphs over edge lengths (knots from 0 to `scale_m`) padded to the
+    /// largest (at least one node), every knot a cell.
+    pub(crate) fn lengths(graphs: &[&PaperGraph], scale_m: f64, device: &Device) -> Self {
+        let b = graphs.len();
+        let n = graphs.iter().map(|g| g.n).max().unwrap_or(0).max(1);
+        let f = graphs.first().map_or(NODE_FEATURES, |g| g.node_width);
+        debug_assert!(graphs.iter().all(|g| g.node_width == f));
+        let k = KERNEL;
+        let mut x = vec![0f32; b * n * f];
+        let mut mixing = vec![0f32; b * n * n * k];
+        let mut node_mask = vec![0f32; b * n];
+        for (p, g) in graphs.iter().enumerate() {
+            x[p * n * f..p * n * f + g.n * f].copy_from_slice(&g.node_features);
+            node_mask[p * n..p * n + g.n].fill(1.0);
+            let deg = g.in_degrees();
+            let m = &mut mixing[p * n * n * k..(p + 1) * n * n * k];
+            for e in 0..g.edge_count() {
+                let (i, j) = (g.dst[e], g.src[e]);
+                for (knot, w) in length_basis(f64::from(g.length_m[e]), scale_m) {
+                    m[i * n * k + j * k + knot] += (w / deg[i] as f64) as f32;
+                }
+            }
+        }
+        Self {
+            counts: graphs.iter().map(|g| g.n).collect(),
+            x: Tensor::from_data(TensorData::new(x, [b, 1, n, f]), device),
+            cells: Tensor::from_data(TensorData::new((0..k as i64).collect(), [k]), device),
+            mixing: Tensor::from_data(TensorData::new(mixing, [b, 1, n, n * k]), device),
+            mixing_by_cell: None,
+            node_mask: Tensor::from_data(TensorData::new(node_mask, [b, 1, n, 1]), device),
+            edges: graphs.iter().map(|g| g.edge_count()).sum(),
+            cell_mask: (1u32 << k) - 1,
             weights: None,
         }
     }
@@ -147,9 +197,13 @@ impl GraphBatch {
     }
 }
 
+/// The spline convolution (PyG's `SplineConv`, degree 1, mean
+/// aggregation, a root weight and a bias) over 2-D offsets (25 kernel
+/// cells) or edge lengths (5 knots, `dim = 1`): `x_i' = root x_i +
+/// mean_j sum_k B_k(u_ij) W_k x_j + bias`.
 #[derive(Module, Debug)]
 pub(crate) struct SplineConv {
-    /// `[in, KERNEL_2D * out]`: the kernel cells' weight matrices side by
+    /// `[in, cells * out]`: the kernel cells' weight matrices side by
     /// side.
     weight: Param<Tensor<2>>,
     /// `[in, out]`
@@ -157,39 +211,43 @@ pub(crate) struct SplineConv {
     /// `[out]`
     bias: Param<Tensor<1>>,
     d_out: usize,
+    /// Whether the products run in the cheaper order (the project's
+    /// network); else weights first (the published networks, as DGMC's
+    /// code runs them).
+    cheaper_order: bool,
 }
 
 impl SplineConv {
-    /// The layer `name` of `src` (`<name>.weight`, `.root`, `.bias`).
-    pub(crate) fn from(src: &Source, name: &str) -> Self {
+    /// The layer `name` of `src` (`<name>.weight`, `.root`, `.bias`),
+    /// its products in the cheaper order or weights first.
+    pub(crate) fn from(src: &Source, name: &str, cheaper_order: bool) -> Self {
         let bias: Param<Tensor<1>> = src.param(&format!("{name}.bias"));
         Self {
             d_out: bias.val().dims()[0],
             weight: src.param(&format!("{name}.weight")),
             root: src.param(&format!("{name}.root")),
             bias,
+            cheaper_order,
         }
     }
 
-    /// A fresh layer `name`, `d_in -> d_out` (tests).
+    /// A fresh layer `name`, `d_in -> d_out`, of `cells` kernel cells
+    /// (tests; the cheaper order over 2-D offsets).
     #[cfg(test)]
     pub(crate) fn new(
         name: &str,
-        d_in: usize,
-        d_out: usize,
+        [d_in, d_out, cells]: [usize; 3],
         init: super::init::Init,
         device: &Device,
     ) -> Self {
-        let specs = crate::matching::deep::params::spline_conv(name, "", [d_in, d_out], KERNEL_2D);
+        let specs = crate::matching::deep::params::spline_conv(name, "", [d_in, d_out], cells);
         let params = init.params(&specs);
-        Self::from(
-            &Source {
-                params: &params,
-                specs: &specs,
-                device,
-            },
-            name,
-        )
+        let src = Source {
+            params: &params,
+            specs: &specs,
+            device,
+        };
+        Self::from(&src, name, cells == KERNEL_2D)
     }
 
     /// `x: [B, T, N, in] -> [B, T, N, out]` (T samples of each graph):
@@ -206,7 +264,7 @@ impl SplineConv {
     pub(crate) fn forward(
         &self,
         x: Tensor<4>,
-        g: &GraphBatch,
+        g: &GraphTensors,
         selected: Option<&Tensor<2>>,
     ) -> Tensor<4> {
         let d_out = self.d_out;
@@ -219,6 +277,15 @@ impl SplineConv {
             .matmul(self.root.val())
             .reshape([b, t, n, d_out]);
         let bias = self.bias.val().reshape([1, 1, 1, d_out]);
+        if !self.cheaper_order {
+            // Rows (j, cell) of x_j W_cell: a reshape, no copy.
+            let cells = g.cells.dims()[0];
+            let xw = rows
+                .matmul(self.weight.val())
+                .reshape([b, t, n * cells, d_out]);
+            let messages = g.mixing.clone().matmul(xw); // [B, 1, N, N C] x [B, T, N C, out]
+            return root + messages + bias;
+        }
         if g.edges == 0 {
             return root + bias;
         }
@@ -228,7 +295,8 @@ impl SplineConv {
             None => self.cell_weights(&g.cells),
         };
         let messages = if self.mixes_first() {
-            let mixed = g.mixing_by_cell.clone().matmul(x); // [B, T, N C, in]
+            let by_cell = g.mixing_by_cell.clone();
+            let mixed = by_cell.expect("graphs over 2-D offsets").matmul(x); // [B, T, N C, in]
             mixed
                 .reshape([b * t * n, c * d_in])
                 .matmul(w)
@@ -246,10 +314,10 @@ impl SplineConv {
         self.weight.val()
     }
 
-    /// Whether the neighbours are mixed before the weights (fewer inputs
-    /// than outputs).
+    /// Whether the neighbours are mixed before the weights (in the
+    /// cheaper order, with fewer inputs than outputs).
     fn mixes_first(&self) -> bool {
-        self.root.val().dims()[0] < self.d_out
+        self.cheaper_order && self.root.val().dims()[0] < self.d_out
     }
 
     /// The weights of the kernel cells `cells` in the layout of
@@ -268,6 +336,55 @@ impl SplineConv {
             w.swap_dims(0, 1).reshape([c * d_in, self.d_out])
         } else {
             w.reshape([d_in, c * self.d_out])
+        }
+    }
+}
+
+/// DGMC's `SplineCNN`: two [`SplineConv`]s over edge length with ReLU, then a linear layer
+/// on the last layer's output (`cat = false`, psi_1) or on the input and
+/// both layers' outputs side by side (`cat = true`, psi_2).
+#[derive(Module, Debug)]
+pub(crate) struct SplineCnn {
+    conv1: SplineConv,
+    conv2: SplineConv,
+    last: Linear,
+    cat: bool,
+}
+
+impl SplineCnn {
+    /// The stack `name` of `src` (`<name>.conv1`, `.conv2`, `.last`);
+    /// `cat`: the last layer reads the input and both outputs.
+    pub(crate) fn from(src: &Source, name: &str, cat: bool) -> Self {
+        Self {
+            conv1: SplineConv::from(src, &format!("{name}.conv1"), false),
+            conv2: SplineConv::from(src, &format!("{name}.conv2"), false),
+            last: src.linear(&format!("{name}.last")),
+            cat,
+        }
+    }
+
+    /// `x: [B, T0, N, in] -> [B, T, N, out]`. `mask`: an inverted-dropout
+    /// mask after the first ReLU (`[B, T, N, hidden]`), which also gives
+    /// the T samples of an input shared by all (`T0 = 1`).
+    pub(crate) fn forward(
+        &self,
+        x: Tensor<4>,
+        g: &GraphTensors,
+        mask: Option<Tensor<4>>,
+    ) -> Tensor<4> {
+        let h1 = activation::relu(self.conv1.forward(x.clone(), g, None));
+        let h1 = match mask {
+            Some(m) => h1 * m,
+            None => h1,
+        };
+        let h2 = activation::relu(self.conv2.forward(h1.clone(), g, None));
+        if self.cat {
+            let t = h2.dims()[1];
+            let [b, _, n, d] = x.dims();
+            let x = x.expand([b, t, n, d]);
+            self.last.forward(Tensor::cat(vec![x, h1, h2], 3))
+        } else {
+            self.last.forward(h2)
         }
     }
 }
@@ -295,15 +412,14 @@ mod tests {
         for (d_in, d_out) in [(3, 2), (2, 3)] {
             let conv = SplineConv::new(
                 "test",
-                d_in,
-                d_out,
+                [d_in, d_out, KERNEL_2D],
                 super::super::init::Init::Seeded(3),
                 &device,
             );
             assert_eq!(conv.mixes_first(), d_in < d_out);
             let x: Vec<f32> = (0..n * d_in).map(|v| (v as f32 * 0.37).sin()).collect();
-            let all = GraphBatch::new(&[&input], &device);
-            let used = GraphBatch::used_cells(&input, &device);
+            let all = GraphTensors::new(&[&input], &device);
+            let used = GraphTensors::used_cells(&input, &device);
             assert!(used.cells.dims()[0] < KERNEL_2D, "every cell used");
             let kept = conv.cell_weights(&used.cells); // as an inference cache keeps them
             for (g, selected) in [(&all, None), (&used, None), (&used, Some(&kept))] {
@@ -343,6 +459,76 @@ mod tests {
                             "{d_in} -> {d_out}, node {i}, out {o}: {got} vs {expected}"
                         );
                     }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests_1d {
+    use super::*;
+    use crate::geometry::Vec2;
+    use crate::graph::SceneGraph;
+
+    /// The dense convolution equals the message sum written out per edge:
+    /// `root x_i + sum over edges j -> i of 1/deg(i) sum_k b_k W_k x_j +
+    /// bias`, padding included (a second, larger graph in the batch).
+    #[test]
+    fn spline_conv_1d_equals_the_per_edge_sum() {
+        let device = crate::matching::deep::train::backend::device();
+        let pts = [
+            (0.0, 0.0),
+            (12.0, 3.0),
+            (5.0, 20.0),
+            (-9.0, 14.0),
+            (30.0, -20.0),
+        ];
+        let graph = |k: usize| {
+            let p: Vec<Vec2> = pts[..k].iter().map(|&(x, y)| Vec2::new(x, y)).collect();
+            let f: Vec<f32> = (0..k * NODE_FEATURES)
+                .map(|v| (v as f32 * 0.37).sin())
+                .collect();
+            PaperGraph::with_features(f, NODE_FEATURES, &SceneGraph::delaunay(&p).unwrap())
+        };
+        let (small, large) = (graph(4), graph(5));
+        let scale = 25.0;
+        let g = GraphTensors::lengths(&[&small, &large], scale, &device);
+        let (d_in, d_out) = (NODE_FEATURES, 3);
+        let conv = SplineConv::new(
+            "test",
+            [d_in, d_out, KERNEL],
+            super::super::init::Init::Seeded(3),
+            &device,
+        );
+        let out: Vec<f32> = conv
+            .forward(g.x.clone(), &g, None)
+            .try_into_vec_as::<f32>()
+            .unwrap();
+        let [w, root] =
+            [conv.weight.val(), conv.root.val()].map(|t| t.try_into_vec_as::<f32>().unwrap());
+        for (p, input) in [&small, &large].into_iter().enumerate() {
+            let x = &input.node_features;
+            let deg = input.in_degrees();
+            for i in 0..input.n {
+                for o in 0..d_out {
+                    let mut expected: f32 = (0..d_in)
+                        .map(|c| x[i * d_in + c] * root[c * d_out + o])
+                        .sum();
+                    for e in (0..input.edge_count()).filter(|&e| input.dst[e] == i) {
+                        let j = input.src[e];
+                        for (k, b) in length_basis(f64::from(input.length_m[e]), scale) {
+                            let msg: f32 = (0..d_in)
+                                .map(|f| x[j * d_in + f] * w[f * KERNEL * d_out + k * d_out + o])
+                                .sum();
+                            expected += b as f32 * msg / deg[i] as f32;
+                        }
+                    }
+                    let got = out[(p * 5 + i) * d_out + o];
+                    assert!(
+                        (got - expected).abs() < 1e-5,
+                        "{p} {i} {o}: {got} vs {expected}"
+                    );
                 }
             }
         }
