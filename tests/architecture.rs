@@ -835,7 +835,8 @@ fn process_words(text: &str) -> Vec<String> {
 
 /// README, ARCHITECTURE.md, every page of docs/ and the comments of
 /// `src/` speak of the product as it is: no issue numbers, no
-/// commits, no owner's decisions (the history is CHANGELOG.md's).
+/// commits, no owner's decisions, no "before this work" (the history
+/// is CHANGELOG.md's).
 #[test]
 fn the_docs_and_the_code_speak_of_the_product_not_its_history() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
