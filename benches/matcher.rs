@@ -253,7 +253,13 @@ fn published_pair(
         ..RUN
     };
     let bytes = include_bytes!("../models/coid.bpk");
-    let matcher = deep::matcher(Method::Coid, 0, bytes, run).unwrap();
+    let matcher = deep::matcher(
+        Method::Coid,
+        coid_sim::sensor::AppearanceWidth::NONE,
+        bytes,
+        run,
+    )
+    .unwrap();
     let pairs: Vec<_> = (0..if peak.is_some() { 60 } else { 1000 })
         .map(|k| {
             let mut moved = objects.to_vec();
@@ -349,7 +355,7 @@ fn training_step(
         masks: MaskScope::PerNode,
         batch_size: 32,
         gate_chi2: 9.21,
-        appearance_width: 0,
+        appearance_width: coid_sim::sensor::AppearanceWidth::NONE,
         no_match: coid_sim::matching::deep::arch::NoMatchWeights::Entries,
     };
     let mut trainer = Trainer::new(Method::Ours, &opts).unwrap();

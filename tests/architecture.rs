@@ -507,17 +507,22 @@ fn the_deep_matchers_layers_point_down_without_circles() {
     let module_of = |rel: &str| -> Option<&'static str> {
         let rest = rel.strip_prefix("matching/deep/")?;
         let first = rest.split('/').next()?.trim_end_matches(".rs");
-        DEEP_LAYERS.iter().find(|(m, _)| *m == first).map(|(m, _)| *m)
+        DEEP_LAYERS
+            .iter()
+            .find(|(m, _)| *m == first)
+            .map(|(m, _)| *m)
     };
     let layer = |m: &str| DEEP_LAYERS.iter().find(|(n, _)| *n == m).map(|(_, l)| *l);
     let mut edges: Vec<(&str, &str)> = Vec::new();
     for (rel, code) in sources() {
-        let Some(from) = module_of(&rel) else { continue };
+        let Some(from) = module_of(&rel) else {
+            continue;
+        };
         for line in code.lines().filter(|l| !l.trim_start().starts_with("//")) {
             for (to, _) in DEEP_LAYERS {
-                let named = ["deep::", "super::", "super::super::"]
-                    .iter()
-                    .any(|p| matches(line, &format!("{p}{to}::")) || matches(line, &format!("{p}{to}$")));
+                let named = ["deep::", "super::", "super::super::"].iter().any(|p| {
+                    matches(line, &format!("{p}{to}::")) || matches(line, &format!("{p}{to}$"))
+                });
                 if named && to != from && !edges.contains(&(from, to)) {
                     edges.push((from, to));
                 }
@@ -540,7 +545,10 @@ fn the_deep_matchers_layers_point_down_without_circles() {
     {
         left.remove(k);
     }
-    assert!(left.is_empty(), "matching/deep: a circle among {left:?}: {edges:?}");
+    assert!(
+        left.is_empty(),
+        "matching/deep: a circle among {left:?}: {edges:?}"
+    );
 }
 
 /// Lines of code of `text`: not blank, not a comment.

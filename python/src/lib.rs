@@ -183,7 +183,7 @@ impl DatasetReader {
             .map(|l| (l.label.as_str().to_owned(), l.position_sigma_m))
             .collect();
         out.set_item("levels", levels)?;
-        out.set_item("appearance_width", d.appearance_width)?;
+        out.set_item("appearance_width", d.appearance_width.width())?;
         out.set_item("optional_columns", d.optional_columns.clone())?;
         Ok(out)
     }
@@ -301,7 +301,7 @@ fn side<'py>(py: Python<'py>, d: &Dataset, s: &DatasetSide) -> PyResult<Bound<'p
         "world_m",
         col("world_x_m", 2, &|v| v.world_m.map(|w| vec![w.x, w.y])),
     )?;
-    let appearance: Option<Vec<Vec<f32>>> = d.appearance_width.map(|width| {
+    let appearance: Option<Vec<Vec<f32>>> = d.appearance_width.width().map(|width| {
         n.iter()
             .map(|v| {
                 v.appearance

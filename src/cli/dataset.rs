@@ -279,7 +279,7 @@ pub fn dataset(a: DatasetArgs) -> anyhow::Result<()> {
         .map(|l| format!("{} ({} m)", l.label.as_str(), l.position_sigma_m))
         .collect();
     println!("  pose-noise levels: {}", levels.join(", "));
-    match d.appearance_width {
+    match d.appearance_width.width() {
         Some(w) => println!("  appearance vectors: {w} values per node"),
         None => println!("  appearance vectors: none"),
     }

@@ -168,7 +168,7 @@ fn descriptor_use(s: &Settings, method: Method) -> anyhow::Result<String> {
     let dir = &s.matching.models_dir;
     if let Some(backbone) = method.backbone() {
         let w = io::read_weights(dir, method)?;
-        let attributes = if w.appearance_width > 0 {
+        let attributes = if !w.appearance_width.is_none() {
             "read"
         } else {
             "left out"

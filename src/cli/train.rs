@@ -226,7 +226,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
     // A simulated descriptor the networks may read: validation decides
     // whether they do.
     let chooses = settings.dataset.is_none()
-        && settings.appearance_width() > 0
+        && !settings.appearance_width().is_none()
         && !a.skip_validation
         && !methods.is_empty();
     let pass = Pass {

@@ -169,23 +169,22 @@ pub struct DatasetSource {
     /// validation runs (`None`: no vectors, no validation runs, or they
     /// tell nothing apart there).
     pub descriptor_law: Option<crate::sensor::DescriptorLaw>,
-    /// The width of the nodes' appearance vectors (`None`: the dataset has
-    /// none).
-    pub appearance_width: Option<usize>,
+    /// The width of the nodes' appearance vectors.
+    pub appearance_width: crate::sensor::AppearanceWidth,
 }
 
 impl Settings {
     /// The width of the appearance vectors the deep networks train on: a
     /// dataset's usable vectors ([`DatasetSource::usable_appearance_width`]),
     /// else the calibrated re-identification descriptor's
-    /// ([`crate::sensor::AppearanceSettings::descriptor_width`]), or 0.
-    pub fn appearance_width(&self) -> usize {
+    /// ([`crate::sensor::AppearanceSettings::appearance_width`]), or none.
+    pub fn appearance_width(&self) -> crate::sensor::AppearanceWidth {
         if !self.train.appearance_vectors {
-            return 0;
+            return crate::sensor::AppearanceWidth::NONE;
         }
         match &self.dataset {
-            Some(d) => d.usable_appearance_width().unwrap_or(0),
-            None => self.appearance.descriptor_width(),
+            Some(d) => d.usable_appearance_width(),
+            None => self.appearance.appearance_width(),
         }
     }
 }
@@ -193,8 +192,11 @@ impl Settings {
 impl DatasetSource {
     /// The width of the appearance vectors the methods may use: the
     /// dataset's, when its validation runs fitted what they say.
-    pub fn usable_appearance_width(&self) -> Option<usize> {
-        self.descriptor_law.and(self.appearance_width)
+    pub fn usable_appearance_width(&self) -> crate::sensor::AppearanceWidth {
+        match self.descriptor_law {
+            Some(_) => self.appearance_width,
+            None => crate::sensor::AppearanceWidth::NONE,
+        }
     }
 }
 

@@ -24,7 +24,7 @@ use super::assemble::{
 use super::schema::{Edge, Instance, Node, Run, TruePair, Truth};
 use crate::geometry::{Cov2, Pose2, Vec2};
 use crate::io::frames::{read_dataset_counts, read_dataset_table};
-use crate::sensor::{PoseNoiseLabel, PoseNoiseLevel};
+use crate::sensor::{AppearanceWidth, PoseNoiseLabel, PoseNoiseLevel};
 use crate::traffic::ObjectClass;
 
 /// A dataset: its runs and instances, ready to read run by run.
@@ -36,8 +36,8 @@ pub struct Dataset {
     /// they first appear, each with the accuracy of its first row (the
     /// first vehicle's heading accuracy).
     pub levels: Vec<PoseNoiseLevel>,
-    /// The length of every node's appearance vector, if the nodes have one.
-    pub appearance_width: Option<usize>,
+    /// The length of every node's appearance vector.
+    pub appearance_width: AppearanceWidth,
     /// The optional columns present, as `file: column`.
     pub optional_columns: Vec<String>,
     /// Each run's instance rows (grouped by instance, levels in order).
@@ -178,7 +178,7 @@ impl Dataset {
             }
         }
         let mut optional_columns = Vec::new();
-        let mut appearance_width = None;
+        let mut appearance_width = AppearanceWidth::NONE;
         for (file, columns) in [
             (Instance::FILE, Instance::COLUMNS),
             (Node::FILE, Node::COLUMNS),
@@ -194,7 +194,7 @@ impl Dataset {
                 }
             }
             if let Some(crate::report::TableColumn::Vectors(v)) = first[0].column("appearance") {
-                appearance_width = v.first().map(Vec::len);
+                appearance_width = AppearanceWidth::new(v.first().map_or(0, Vec::len));
             }
         }
         let ranges = [Node::FILE, Truth::FILE, TruePair::FILE]
@@ -302,7 +302,7 @@ impl Dataset {
                 ),
             ));
         }
-        if let (Some(a), Some(w)) = (&n.appearance, self.appearance_width)
+        if let (Some(a), Some(w)) = (&n.appearance, self.appearance_width.width())
             && a.len() != w
         {
             return Err(refuse(

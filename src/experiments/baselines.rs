@@ -87,7 +87,7 @@ pub fn tune_baselines(
     let weighs = settings
         .dataset
         .as_ref()
-        .map_or(settings.appearance.descriptor_width() > 0, |d| {
+        .map_or(!settings.appearance.appearance_width().is_none(), |d| {
             d.descriptor_law.is_some()
         });
     let weighed: Vec<Method> = knobs

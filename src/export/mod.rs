@@ -162,7 +162,7 @@ pub fn export_run(
     let oracle_matches = methods.contains(&Method::Oracle);
     let first_level = s.pose_noise.first().map(|l| l.label);
     let mut rows = rows::Rows::default();
-    rows.descriptor_width = s.appearance.descriptor_width();
+    rows.appearance_width = s.appearance.appearance_width();
     let mut matches: BTreeMap<Method, Vec<schema::Match>> = BTreeMap::new();
     let on_eval = |insts: &[Instance], pairs: &[PairAtLevel], level, f: FrameEval| {
         if f.method != Method::Oracle || oracle_matches {

@@ -16,9 +16,9 @@ pub(super) struct Rows {
     edges: Vec<Edge>,
     truth: Vec<Truth>,
     true_pairs: Vec<TruePair>,
-    /// The width of the sensor's descriptors (0: none): a node without one
+    /// The width of the sensor's descriptors: a node without one
     /// beside described nodes is written as that many zeros.
-    pub(super) descriptor_width: usize,
+    pub(super) appearance_width: crate::sensor::AppearanceWidth,
 }
 
 impl Rows {
@@ -30,11 +30,11 @@ impl Rows {
     /// The held rows as each instance file's table, in file order (no
     /// longer held).
     pub(super) fn take(&mut self) -> [(&'static str, Table); 5] {
-        let width = self.descriptor_width;
+        let width = self.appearance_width;
         let rows = std::mem::replace(
             self,
             Rows {
-                descriptor_width: width,
+                appearance_width: width,
                 ..Rows::default()
             },
         );
@@ -151,10 +151,10 @@ impl Rows {
                 // Every node has one or none does: a node without a
                 // descriptor (a sender's self-report) beside described
                 // nodes is written as zeros.
-                appearance: match (&a.descriptor, self.descriptor_width) {
+                appearance: match (&a.descriptor, self.appearance_width.width()) {
                     (Some(d), _) => Some(d.values.to_vec()),
-                    (None, w) if w > 0 => Some(vec![0.0; w]),
-                    (None, _) => None,
+                    (None, Some(w)) => Some(vec![0.0; w]),
+                    (None, None) => None,
                 },
             });
             let p = truth.position_m;

@@ -37,7 +37,7 @@ pub struct WeightsError {
 #[derive(Clone, Debug)]
 pub struct Weights {
     pub bytes: Vec<u8>,
-    pub appearance_width: usize,
+    pub appearance_width: crate::sensor::AppearanceWidth,
 }
 
 /// The bytes of a method's weights file, checked against the record
@@ -459,7 +459,12 @@ mod tests {
                 let w = read_weights(&dir, method).unwrap();
                 let record = read_model_record(&dir, method).unwrap();
                 let choice = record.descriptor.expect("a descriptor choice");
-                assert_eq!(choice.reads, w.appearance_width > 0, "{}", dir.display());
+                assert_eq!(
+                    choice.reads,
+                    !w.appearance_width.is_none(),
+                    "{}",
+                    dir.display()
+                );
                 assert_eq!(choice.reads, choice.f1_reading > choice.f1_without);
                 reads.push(choice);
             }

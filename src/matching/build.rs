@@ -60,7 +60,7 @@ pub struct Trained<'a> {
     pub weights: &'a [u8],
     pub choice: DeepChoice,
     /// The width of the appearance vectors the network reads (0: none).
-    pub appearance_width: usize,
+    pub appearance_width: crate::sensor::AppearanceWidth,
 }
 
 /// Builds the matcher of a method, in canonical node order and with the

@@ -162,5 +162,10 @@ pub(crate) fn graph_input(points: &[(f64, f64)]) -> super::deep::features::Graph
         .enumerate()
         .map(|(k, p)| detection(*p, ObjectClass::ALL[k % 7], [0.1 * k as f64 % 1.0; 3]))
         .collect();
-    super::deep::features::graph_input(&detections, &scene, &Pose2::new(Vec2::zeros(), 0.4), 0)
+    super::deep::features::graph_input(
+        &detections,
+        &scene,
+        &Pose2::new(Vec2::zeros(), 0.4),
+        crate::sensor::AppearanceWidth::NONE,
+    )
 }

@@ -12,7 +12,7 @@ fn trained(weights: Option<&[u8]>, choice: DeepChoice) -> Option<Trained<'_>> {
     weights.map(|weights| Trained {
         weights,
         choice,
-        appearance_width: 0,
+        appearance_width: crate::sensor::AppearanceWidth::NONE,
     })
 }
 

@@ -127,7 +127,7 @@ fn warn_missing(dataset: &Dataset, source: &DatasetSource, warnings: &Warnings) 
     if !has("length_m") {
         lacks.push("sizes (one size for all: size tells nothing)".to_owned());
     }
-    if dataset.appearance_width.is_some() && source.descriptor_law.is_none() {
+    if !dataset.appearance_width.is_none() && source.descriptor_law.is_none() {
         lacks.push(
             "calibrated appearance vectors (no validation runs to fit them on, or they do not \
              tell objects apart there: unused)"

@@ -110,7 +110,7 @@ pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSourc
     if let Some((w, _)) = &deep {
         let data = match &settings.dataset {
             Some(d) => d.usable_appearance_width(),
-            None => Some(settings.appearance.descriptor_width()).filter(|w| *w > 0),
+            None => settings.appearance.appearance_width(),
         };
         if let Some(reason) = matching::deep::check_appearance(w.appearance_width, data) {
             return Err(RunError::Weights(WeightsError {

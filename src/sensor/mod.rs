@@ -113,13 +113,70 @@ impl AppearanceSettings {
         self.reid.as_ref().is_some_and(|r| r.calibration.is_none())
     }
 
-    /// The width of the descriptor the sensor gives detections (0: none),
-    /// once calibrated with a cosine that tells objects apart.
-    pub fn descriptor_width(&self) -> usize {
+    /// The width of the descriptor the sensor gives detections, once
+    /// calibrated with a cosine that tells objects apart.
+    pub fn appearance_width(&self) -> AppearanceWidth {
         self.reid
             .as_ref()
             .filter(|r| r.calibration.as_ref().is_some_and(|c| c.law.is_some()))
-            .map_or(0, |r| r.width)
+            .map_or(AppearanceWidth::NONE, |r| AppearanceWidth::new(r.width))
+    }
+}
+
+/// The width of the appearance vectors (a re-identification descriptor, a
+/// dataset's learned features) that detections carry and a network reads
+/// beside class, colour and size: none, or a positive number of values.
+/// One value under one name, derived once (`Settings::appearance_width`,
+/// a record's architecture) and passed on; written as its number (a
+/// record leaves out none).
+#[derive(Clone, Copy, Default, PartialEq, Eq, Hash)]
+pub struct AppearanceWidth(Option<std::num::NonZeroUsize>);
+
+impl AppearanceWidth {
+    /// No appearance vectors.
+    pub const NONE: Self = Self(None);
+
+    /// `width` values per node (0: none).
+    pub fn new(width: usize) -> Self {
+        Self(std::num::NonZeroUsize::new(width))
+    }
+
+    /// Values per node (0: none).
+    pub fn get(self) -> usize {
+        self.0.map_or(0, std::num::NonZeroUsize::get)
+    }
+
+    /// Whether there are none.
+    pub fn is_none(&self) -> bool {
+        self.0.is_none()
+    }
+
+    /// The width, if there is one.
+    pub fn width(self) -> Option<usize> {
+        self.0.map(std::num::NonZeroUsize::get)
+    }
+}
+
+/// As the optional width it stands for (`Some(900)`, `None`): a config's
+/// digest hashes this text.
+impl std::fmt::Debug for AppearanceWidth {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.width().fmt(f)
+    }
+}
+
+impl serde::Serialize for AppearanceWidth {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_u64(self.get() as u64)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for AppearanceWidth {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let w = u64::deserialize(d)?;
+        usize::try_from(w)
+            .map(Self::new)
+            .map_err(|_| serde::de::Error::custom(format!("{w} values per node")))
     }
 }
 

@@ -7,6 +7,7 @@
 use super::features::NODE_FEATURES;
 use crate::matching::Method;
 use crate::matching::likelihood::LikelihoodTerms;
+use crate::sensor::AppearanceWidth;
 
 /// The network a deep method trains and runs (as a record holds it: a
 /// published network names its `kind`).
@@ -41,17 +42,17 @@ impl<'de> serde::Deserialize<'de> for Backbone {
 
 impl Backbone {
     /// The width of the appearance vectors its nodes read beside class,
-    /// colour and size (0: none).
-    pub fn appearance_width(&self) -> usize {
+    /// colour and size.
+    pub fn appearance_width(&self) -> AppearanceWidth {
         match self {
             Backbone::Published(c) => c.appearance_width,
             Backbone::Likelihood(a) => a.appearance_width(),
         }
     }
 
-    /// The same network reading appearance vectors `width` wide (0: none):
-    /// its first layer as wide as class, colour, size and the vector.
-    pub fn with_appearance(self, width: usize) -> Self {
+    /// The same network reading appearance vectors `width` wide: its
+    /// first layer as wide as class, colour, size and the vector.
+    pub fn with_appearance(self, width: AppearanceWidth) -> Self {
         match self {
             Backbone::Published(c) => Backbone::Published(PublishedConfig {
                 appearance_width: width,
@@ -179,14 +180,13 @@ pub struct PublishedConfig {
     /// The last B-spline knot (edge lengths beyond are clipped), metres.
     pub edge_scale_m: f64,
     /// The width of the appearance vectors psi_1 reads beside class,
-    /// colour and size (a dataset's learned features; 0: none).
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub appearance_width: usize,
+    /// colour and size (a dataset's learned features).
+    #[serde(default, skip_serializing_if = "AppearanceWidth::is_none")]
+    pub appearance_width: AppearanceWidth,
 }
 
-/// A published network's record as read: today's names, or those of
-/// records written before the two networks shared them (`dropout`,
-/// `rnd_dim`, `steps`).
+/// A published network's record as read: the names it is written with,
+/// or the older ones a record may hold (`dropout`, `rnd_dim`, `steps`).
 #[derive(serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawPublished {
@@ -202,7 +202,7 @@ struct RawPublished {
     sinkhorn_iters: usize,
     edge_scale_m: f64,
     #[serde(default)]
-    appearance_width: usize,
+    appearance_width: AppearanceWidth,
 }
 
 impl From<RawPublished> for PublishedConfig {
@@ -221,14 +221,10 @@ impl From<RawPublished> for PublishedConfig {
     }
 }
 
-fn is_zero(v: &usize) -> bool {
-    *v == 0
-}
-
 impl PublishedConfig {
     /// psi_1's input width: class, colour, size and the appearance vector.
     pub fn node_features(&self) -> usize {
-        NODE_FEATURES + self.appearance_width
+        NODE_FEATURES + self.appearance_width.get()
     }
 }
 
@@ -248,7 +244,7 @@ impl PublishedConfig {
             },
             sinkhorn_iters: 20,
             edge_scale_m: 60.0,
-            appearance_width: 0,
+            appearance_width: AppearanceWidth::NONE,
         }
     }
 
@@ -267,9 +263,9 @@ impl PublishedConfig {
 #[serde(deny_unknown_fields, try_from = "RawArchitecture")]
 pub struct Architecture {
     /// The width of the appearance vectors its first layer reads beside
-    /// class, colour and size (a dataset's learned features; 0: none).
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub appearance_width: usize,
+    /// class, colour and size (a dataset's learned features).
+    #[serde(default, skip_serializing_if = "AppearanceWidth::is_none")]
+    pub appearance_width: AppearanceWidth,
     pub hidden: usize,
     pub out: usize,
     pub dropout_conv: f64,
@@ -288,10 +284,9 @@ pub struct Architecture {
     pub pair_hidden: usize,
 }
 
-/// The project network's record as read: today's names, or those of
-/// records written before the two networks shared them (`node_features`
-/// for class, colour, size and the vector together; `consensus` on or
-/// off).
+/// The project network's record as read: the names it is written with,
+/// or the older ones a record may hold (`node_features` for class,
+/// colour, size and the vector together; `consensus` on or off).
 #[derive(serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawArchitecture {
@@ -318,14 +313,17 @@ impl TryFrom<RawArchitecture> for Architecture {
 
     fn try_from(r: RawArchitecture) -> Result<Self, String> {
         let appearance_width = match (r.appearance_width, r.node_features) {
-            (Some(w), None) => w,
-            (None, None) => 0,
-            (None, Some(n)) => n.checked_sub(NODE_FEATURES).ok_or_else(|| {
-                format!(
-                    "node_features = {n} is narrower than class, colour and size \
+            (Some(w), None) => AppearanceWidth::new(w),
+            (None, None) => AppearanceWidth::NONE,
+            (None, Some(n)) => n
+                .checked_sub(NODE_FEATURES)
+                .map(AppearanceWidth::new)
+                .ok_or_else(|| {
+                    format!(
+                        "node_features = {n} is narrower than class, colour and size \
                      ({NODE_FEATURES}): not an architecture of this coid"
-                )
-            })?,
+                    )
+                })?,
             (Some(_), Some(_)) => {
                 return Err("appearance_width and node_features name one width twice".into());
             }
@@ -353,7 +351,7 @@ impl TryFrom<RawArchitecture> for Architecture {
 impl Default for Architecture {
     fn default() -> Self {
         Self {
-            appearance_width: 0,
+            appearance_width: AppearanceWidth::NONE,
             hidden: 256,
             out: 32,
             dropout_conv: 0.4,
@@ -368,23 +366,23 @@ impl Default for Architecture {
 }
 
 impl Architecture {
-    /// The same network reading appearance vectors `width` wide (0: none).
-    pub fn with_appearance(self, width: usize) -> Self {
+    /// The same network reading appearance vectors `width` wide.
+    pub fn with_appearance(self, width: AppearanceWidth) -> Self {
         Self {
             appearance_width: width,
             ..self
         }
     }
 
-    /// The width of the appearance vectors it reads (0: none).
-    pub fn appearance_width(&self) -> usize {
+    /// The width of the appearance vectors it reads.
+    pub fn appearance_width(&self) -> AppearanceWidth {
         self.appearance_width
     }
 
     /// Its first layer's input width: class, colour, size and the
     /// appearance vector.
     pub fn node_features(&self) -> usize {
-        NODE_FEATURES + self.appearance_width
+        NODE_FEATURES + self.appearance_width.get()
     }
 
     /// Whether it has the consensus step.

@@ -35,7 +35,7 @@ impl GraphShape {
             view.detections,
             view.graph,
             &view.pose_reported,
-            0,
+            crate::sensor::AppearanceWidth::NONE,
         ))
     }
 

@@ -20,7 +20,7 @@ use crate::graph::SceneGraph;
 use crate::matching::MatchView;
 use crate::matching::learning_free::appearance_similarity;
 use crate::matching::likelihood::{LikelihoodTerms, pair_terms};
-use crate::sensor::Detection;
+use crate::sensor::{AppearanceWidth, Detection};
 use crate::traffic::ObjectClass;
 
 /// B-spline knots per pseudo-coordinate dimension (paper: 5).
@@ -90,7 +90,11 @@ impl GraphInput {
 /// (0: none), the detection's vector (zeros for a node without one).
 /// Callers check that the data carries vectors of that width before a
 /// network reads it ([`check_appearance`]).
-pub(crate) fn push_node_features(d: &Detection, appearance_width: usize, out: &mut Vec<f32>) {
+pub(crate) fn push_node_features(
+    d: &Detection,
+    appearance_width: AppearanceWidth,
+    out: &mut Vec<f32>,
+) {
     let mut f = [0f32; NODE_FEATURES];
     let class = ObjectClass::ALL
         .iter()
@@ -104,7 +108,7 @@ pub(crate) fn push_node_features(d: &Detection, appearance_width: usize, out: &m
     f[11] = (d.appearance.width_m / 3.0) as f32;
     f[12] = (d.appearance.height_m / 4.0) as f32;
     out.extend_from_slice(&f);
-    if appearance_width > 0 {
+    if let Some(appearance_width) = appearance_width.width() {
         match d.appearance.descriptor.as_ref().map(|v| &v.values[..]) {
             Some(values) => {
                 assert_eq!(
@@ -123,8 +127,11 @@ pub(crate) fn push_node_features(d: &Detection, appearance_width: usize, out: &m
 
 /// Node attributes of `detections`, `n x (NODE_FEATURES +
 /// appearance_width)` row-major ([`push_node_features`]).
-pub(crate) fn node_attributes(detections: &[Detection], appearance_width: usize) -> Vec<f32> {
-    let mut out = Vec::with_capacity(detections.len() * (NODE_FEATURES + appearance_width));
+pub(crate) fn node_attributes(
+    detections: &[Detection],
+    appearance_width: AppearanceWidth,
+) -> Vec<f32> {
+    let mut out = Vec::with_capacity(detections.len() * (NODE_FEATURES + appearance_width.get()));
     for d in detections {
         push_node_features(d, appearance_width, &mut out);
     }
@@ -135,8 +142,8 @@ pub(crate) fn node_attributes(detections: &[Detection], appearance_width: usize)
 /// none) cannot read data whose vectors are `data_width` wide (`None`:
 /// the data has none a method may use); `None` when it can. A network
 /// without vectors reads any data (and leaves its vectors alone).
-pub fn check_appearance(network_width: usize, data_width: Option<usize>) -> Option<String> {
-    match (network_width, data_width) {
+pub fn check_appearance(network: AppearanceWidth, data: AppearanceWidth) -> Option<String> {
+    match (network.get(), data.width()) {
         (0, _) => None,
         (w, Some(d)) if w == d => None,
         (w, Some(d)) => Some(format!(
@@ -181,7 +188,7 @@ pub(crate) fn graph_input(
     detections: &[Detection],
     graph: &SceneGraph,
     pose_reported: &Pose2,
-    appearance_width: usize,
+    appearance_width: AppearanceWidth,
 ) -> GraphInput {
     let n = detections.len();
     let node_feat = node_attributes(detections, appearance_width);
@@ -210,7 +217,7 @@ pub(crate) fn graph_input(
     GraphInput {
         n,
         node_features: node_feat,
-        node_width: NODE_FEATURES + appearance_width,
+        node_width: NODE_FEATURES + appearance_width.get(),
         src,
         dst,
         basis_index,
@@ -536,7 +543,12 @@ mod tests {
         let objects = testkit::world_objects();
         let dets = testkit::Side::of(testkit::POSE_A, &objects[..3], &[0, 1, 2], testkit::EXACT)
             .detections;
-        let input = graph_input(&dets, &g, &Pose2::new(Vec2::new(5.0, 5.0), 0.7), 0);
+        let input = graph_input(
+            &dets,
+            &g,
+            &Pose2::new(Vec2::new(5.0, 5.0), 0.7),
+            crate::sensor::AppearanceWidth::NONE,
+        );
         let e = input.edge_count();
         assert_eq!(e, 2 * g.edges.len());
         for i in 0..3 {
@@ -567,9 +579,9 @@ mod tests {
                 law,
             });
         }
-        let without = node_attributes(&dets, 0);
+        let without = node_attributes(&dets, crate::sensor::AppearanceWidth::NONE);
         assert_eq!(without.len(), 2 * NODE_FEATURES);
-        let with = node_attributes(&dets, 3);
+        let with = node_attributes(&dets, crate::sensor::AppearanceWidth::new(3));
         assert_eq!(with.len(), 2 * (NODE_FEATURES + 3));
         for k in 0..2 {
             let row = &with[k * (NODE_FEATURES + 3)..(k + 1) * (NODE_FEATURES + 3)];
@@ -579,9 +591,35 @@ mod tests {
             );
             assert_eq!(row[NODE_FEATURES..], [k as f32, 2.0, 3.0]);
         }
-        assert_eq!(check_appearance(0, None), None);
-        assert_eq!(check_appearance(3, Some(3)), None);
-        assert!(check_appearance(3, Some(4)).unwrap().contains("4 wide"));
-        assert!(check_appearance(3, None).unwrap().contains("has none"));
+        assert_eq!(
+            check_appearance(
+                crate::sensor::AppearanceWidth::NONE,
+                crate::sensor::AppearanceWidth::NONE
+            ),
+            None
+        );
+        assert_eq!(
+            check_appearance(
+                crate::sensor::AppearanceWidth::new(3),
+                crate::sensor::AppearanceWidth::new(3)
+            ),
+            None
+        );
+        assert!(
+            check_appearance(
+                crate::sensor::AppearanceWidth::new(3),
+                crate::sensor::AppearanceWidth::new(4)
+            )
+            .unwrap()
+            .contains("4 wide")
+        );
+        assert!(
+            check_appearance(
+                crate::sensor::AppearanceWidth::new(3),
+                crate::sensor::AppearanceWidth::NONE
+            )
+            .unwrap()
+            .contains("has none")
+        );
     }
 }

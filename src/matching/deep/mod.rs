@@ -49,7 +49,7 @@ use crate::matching::{Matcher, Method};
 /// network, or that it has none.
 pub fn matcher(
     method: Method,
-    appearance_width: usize,
+    appearance_width: crate::sensor::AppearanceWidth,
     weights: &[u8],
     run: Inference,
 ) -> Result<Box<dyn Matcher>, String> {

@@ -23,7 +23,7 @@
 
 use crate::graph::SceneGraph;
 use crate::matching::deep::features::{KERNEL, NODE_FEATURES, node_attributes};
-use crate::sensor::Detection;
+use crate::sensor::{AppearanceWidth, Detection};
 
 /// One vehicle's graph on the paper's inputs. Every undirected edge appears
 /// twice, once per direction; message `e` goes from `src[e]` to `dst[e]`.
@@ -49,11 +49,11 @@ impl PaperGraph {
     pub(crate) fn new(
         detections: &[Detection],
         graph: &SceneGraph,
-        appearance_width: usize,
+        appearance_width: AppearanceWidth,
     ) -> Self {
         debug_assert_eq!(detections.len(), graph.node_count());
         let features = node_attributes(detections, appearance_width);
-        Self::with_features(features, NODE_FEATURES + appearance_width, graph)
+        Self::with_features(features, NODE_FEATURES + appearance_width.get(), graph)
     }
 
     /// The Delaunay graph of `detections` (body frame).
@@ -61,7 +61,12 @@ impl PaperGraph {
     pub(crate) fn delaunay(detections: &[Detection]) -> Result<Self, crate::graph::GraphError> {
         let positions: Vec<crate::geometry::Vec2> =
             detections.iter().map(|d| d.position_m).collect();
-        Ok(Self::new(detections, &SceneGraph::delaunay(&positions)?, 0))
+        let none = AppearanceWidth::NONE;
+        Ok(Self::new(
+            detections,
+            &SceneGraph::delaunay(&positions)?,
+            none,
+        ))
     }
 
     /// Node attributes `features` (`n x node_width`) on `graph`.

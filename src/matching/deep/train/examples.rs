@@ -154,7 +154,8 @@ impl EdgeStats {
         let mut m: Vec<f64> = Vec::new();
         for e in examples {
             for side in [&e.first, &e.second] {
-                let g = graph_input(&side.detections, &side.graph, &side.pose_reported, 0);
+                let none = crate::sensor::AppearanceWidth::NONE;
+                let g = graph_input(&side.detections, &side.graph, &side.pose_reported, none);
                 m.extend(
                     g.edge_world_m
                         .iter()

@@ -169,7 +169,7 @@ pub struct TrainOptions {
     pub gate_chi2: f64,
     /// The width of the appearance vectors the network reads (a dataset's
     /// learned features; 0: none).
-    pub appearance_width: usize,
+    pub appearance_width: crate::sensor::AppearanceWidth,
     /// How the published networks weigh "no match" against true pairs.
     pub no_match: NoMatchWeights,
 }

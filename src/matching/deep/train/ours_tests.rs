@@ -128,7 +128,9 @@ fn weights_as_bytes_give_identical_outputs() {
         loaded.distribution(&va, &vb, &relative)
     );
     // gcn-gm has no consensus: the weights of `ours` do not fit it.
-    let fits = |d: Method| crate::matching::deep::matcher(d, 0, &bytes, RUN).is_ok();
+    let fits = |d: Method| {
+        crate::matching::deep::matcher(d, crate::sensor::AppearanceWidth::NONE, &bytes, RUN).is_ok()
+    };
     assert!(!fits(Method::GcnGmGps));
     // gcn-gm (as published) is not this network at all.
     assert!(!fits(Method::GcnGm));
@@ -295,7 +297,12 @@ fn the_plain_first_layer_is_the_tensor_one_bit_for_bit() {
     scenes.push(Side::of(testkit::POSE_B, &big, &all, GPS));
     for side in &scenes {
         let v = side.view();
-        let input = graph_input(v.detections, v.graph, &v.pose_reported, 0);
+        let input = graph_input(
+            v.detections,
+            v.graph,
+            &v.pose_reported,
+            crate::sensor::AppearanceWidth::NONE,
+        );
         let tensor = net
             .first_layer(&GraphTensors::used_cells(&input, &device()))
             .unwrap();

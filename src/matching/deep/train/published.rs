@@ -34,7 +34,7 @@ impl TrainPair {
     /// The paper's inputs of a labelled pair: both vehicles' graphs (body
     /// frames, appearance, edge lengths) and the true partners; the
     /// reported poses are left behind.
-    pub(crate) fn of(e: &Example, appearance_width: usize) -> Self {
+    pub(crate) fn of(e: &Example, appearance_width: crate::sensor::AppearanceWidth) -> Self {
         let mut partner = vec![None; e.first.detections.len()];
         for &(a, b) in &e.true_pairs {
             partner[a] = Some(b);

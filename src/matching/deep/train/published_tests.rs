@@ -104,7 +104,7 @@ fn moved_copy(
         let positions: Vec<Vec2> = objects.iter().map(|d| d.position_m).collect();
         let mut graph = SceneGraph::delaunay(&positions).unwrap().permuted(&order);
         graph.positions_m = second.iter().map(|d| d.position_m).collect();
-        PaperGraph::new(&second, &graph, 0)
+        PaperGraph::new(&second, &graph, crate::sensor::AppearanceWidth::NONE)
     } else {
         PaperGraph::delaunay(&second).unwrap()
     };
