@@ -142,9 +142,9 @@ fn deep_networks_train_on_the_descriptor_and_the_sweep_reads_their_point() {
     assert_ok(&o);
     let point = "models/rank1-0.50";
     let reading = fx.read_text(&format!("{point}/candidates/reading-descriptor/ours.toml"));
-    assert!(reading.contains("node_features = 29"), "{reading}");
+    assert!(reading.contains("appearance_width = 16"), "{reading}");
     let without = fx.read_text(&format!("{point}/candidates/without-descriptor/ours.toml"));
-    assert!(without.contains("node_features = 13"), "{without}");
+    assert!(!without.contains("appearance_width"), "{without}");
     let record: toml::Value = toml::from_str(&fx.read_text(&format!("{point}/ours.toml"))).unwrap();
     let choice = &record["descriptor"];
     let f1 = |key: &str| choice[key].as_float().unwrap();
@@ -159,10 +159,10 @@ fn deep_networks_train_on_the_descriptor_and_the_sweep_reads_their_point() {
         kept == candidate,
         "the kept weights are not the {chosen} candidate's"
     );
-    let width = record["architecture"]["node_features"]
-        .as_integer()
-        .unwrap();
-    assert_eq!(width, if reads { 29 } else { 13 }, "{record}");
+    let width = record["architecture"]
+        .get("appearance_width")
+        .and_then(toml::Value::as_integer);
+    assert_eq!(width, reads.then_some(16), "{record}");
     let o = fx
         .cmd("eval")
         .quiet()

@@ -513,7 +513,7 @@ fn deep_networks_trained_on_a_dataset_read_its_appearance_vectors() {
     let coid = fx.read_text("models/coid.toml");
     assert!(coid.contains("appearance_width = 4"), "{coid}");
     let ours = fx.read_text("models/ours.toml");
-    assert!(ours.contains("node_features = 17"), "{ours}");
+    assert!(ours.contains("appearance_width = 4"), "{ours}");
     // The published network's NLL weighed "no match" as configured; the
     // validation runs chose each method's operating point with its rule.
     assert!(coid.contains("no_match = \"halves\""), "{coid}");
