@@ -5,6 +5,7 @@
 
 pub(crate) mod lanes;
 pub(crate) mod sinkhorn;
+pub(crate) mod spline;
 
 /// `c = a b` for row-major `a` `[m, k]`, `b` `[k, n]` and `c` `[m, n]`
 /// (`c` overwritten, one thread).

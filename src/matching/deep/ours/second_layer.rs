@@ -17,6 +17,7 @@
 
 use crate::matching::deep::features::{GraphInput, KERNEL_2D};
 use crate::matching::deep::kernels::matmul;
+use crate::matching::deep::kernels::spline::{Cells, Incoming};
 use crate::matching::deep::params::Params;
 
 /// One sample's kept units and weights.
@@ -182,11 +183,12 @@ impl SharedMaskConv {
             })
             .collect();
         let rows: usize = graphs.iter().map(|(_, g)| g.n).sum();
-        let edges: Vec<Edge> = graphs
+        let edges: Vec<_> = graphs
             .iter()
             .zip(&offsets)
             .flat_map(|((_, g), &o)| edges(g, o))
             .collect();
+        let incoming = Incoming::new(rows, &edges);
         let mut out: Vec<Vec<f32>> = graphs
             .iter()
             .map(|(_, g)| vec![0f32; self.samples.len() * g.n * d_out])
@@ -208,16 +210,8 @@ impl SharedMaskConv {
                 matmul(rows, k, width, &x, &sample.weights, &mut y);
             }
             // Mix the neighbours' cell outputs into each node's messages.
-            messages.clear();
             messages.resize(rows * o, 0.0);
-            for (i, j, cells) in &edges {
-                for (cell, w) in cells {
-                    let from = &y[j * width + (1 + cell) * o..j * width + (2 + cell) * o];
-                    for (m, v) in messages[i * o..(i + 1) * o].iter_mut().zip(from) {
-                        *m += w * v;
-                    }
-                }
-            }
+            incoming.messages(&y, (width, o), &mut messages);
             for ((_, g), (&at, out)) in graphs.iter().zip(offsets.iter().zip(&mut out)) {
                 let block = &mut out[s * g.n * d_out..(s + 1) * g.n * d_out];
                 for i in 0..g.n {
@@ -234,14 +228,10 @@ impl SharedMaskConv {
     }
 }
 
-/// An edge into node `i` from node `j` (rows of the stacked graphs) with
-/// its four (kernel cell, weight).
-type Edge = (usize, usize, [(usize, f32); 4]);
-
-/// Graph `g`'s edges, its nodes at rows `offset..`: each with the basis
-/// weight of its cells over the destination's degree, as the tensor
-/// path's mixing matrix holds them.
-fn edges(g: &GraphInput, offset: usize) -> Vec<Edge> {
+/// Graph `g`'s edges into node `i` from node `j`, its nodes at rows
+/// `offset..`: each with the basis weight of its four cells over the
+/// destination's degree, as the tensor path's mixing matrix holds them.
+fn edges(g: &GraphInput, offset: usize) -> Vec<(usize, usize, Cells<4>)> {
     let e = g.edge_count();
     (0..e)
         .map(|k| {

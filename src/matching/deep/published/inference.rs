@@ -30,39 +30,29 @@ use crate::matching::deep::kernels::lanes::{
 };
 use crate::matching::deep::kernels::matmul;
 use crate::matching::deep::kernels::sinkhorn::sinkhorn_probabilities;
+use crate::matching::deep::kernels::spline;
 
-/// A graph's edges grouped by destination node, each group in edge
-/// order: the source and its two knots' basis weights over the
-/// destination's in-degree, as the tensor path's mixing matrix weighs
-/// them.
-pub(crate) struct Incoming {
-    n: usize,
-    /// Destination `i`'s edges are `from[start[i]..start[i + 1]]`.
-    start: Vec<usize>,
-    from: Vec<(usize, [(usize, f32); 2])>,
-}
+/// A graph's edges grouped by destination, each group in edge order:
+/// the source and its two knots' basis weights over the destination's
+/// in-degree.
+pub(crate) type Incoming = spline::Incoming<2>;
 
-impl Incoming {
-    fn of(g: &PaperGraph, scale_m: f64) -> Self {
-        let deg = g.in_degrees();
-        let mut start = vec![0; g.n + 1];
-        for (i, d) in deg.iter().enumerate() {
-            start[i + 1] = start[i] + d;
-        }
-        let mut next = start.clone();
-        let mut from = vec![(0, [(0, 0.0); 2]); g.edge_count()];
-        for e in 0..g.edge_count() {
+/// `g`'s [`Incoming`] edges on knots up to `scale_m`, as the tensor
+/// path's mixing matrix weighs them.
+fn incoming(g: &PaperGraph, scale_m: f64) -> Incoming {
+    let deg = g.in_degrees();
+    let edges: Vec<_> = (0..g.edge_count())
+        .map(|e| {
             let (i, j) = (g.dst[e], g.src[e]);
             let basis = length_basis(f64::from(g.length_m[e]), scale_m);
-            from[next[i]] = (j, basis.map(|(knot, b)| (knot, (b / deg[i] as f64) as f32)));
-            next[i] += 1;
-        }
-        Self {
-            n: g.n,
-            start,
-            from,
-        }
-    }
+            (
+                i,
+                j,
+                basis.map(|(knot, b)| (knot, (b / deg[i] as f64) as f32)),
+            )
+        })
+        .collect();
+    spline::Incoming::new(g.n, &edges)
 }
 
 /// `buf` holding `len` values, for a product that overwrites them all: a
@@ -217,7 +207,7 @@ fn mix_columns<const C: usize>(
 ) {
     let (n, d) = (inc.n, bias.len());
     let mut m = [0f32; C];
-    for &(j, cells) in &inc.from[inc.start[i]..inc.start[i + 1]] {
+    for &(j, cells) in inc.into(i) {
         let src = (block * n + j) * width + c;
         for (knot, w) in cells {
             let at = src + (1 + knot) * d;
@@ -471,7 +461,7 @@ impl PlainPublished {
     /// `relu(conv1(x))` of `g` into `h1` (`[n, hidden]`, the same in
     /// every sample), and `g`'s edges.
     fn first_layer(&self, g: &PaperGraph, buf: &mut Buffers, h1: &mut Vec<f32>) -> Incoming {
-        let inc = Incoming::of(g, self.scale_m);
+        let inc = incoming(g, self.scale_m);
         self.psi1
             .conv1
             .relu_forward(&g.node_features, (&inc, 1), &mut buf.y, h1);
@@ -536,10 +526,7 @@ impl PlainPublished {
         let mut s_hat = similarity(h1, h2, [t, n1, n2]);
         let mut p = self.normalise(&s_hat, [t, n1, n2]);
         if let Some(c) = &self.consensus {
-            let (inc1, inc2) = (
-                Incoming::of(g1, self.scale_m),
-                Incoming::of(g2, self.scale_m),
-            );
+            let (inc1, inc2) = (incoming(g1, self.scale_m), incoming(g2, self.scale_m));
             let (w, rnd) = (c.width, c.rnd);
             SCRATCH.with_borrow_mut(|s| {
                 for r_s in indicators.iter().take(self.steps) {
