@@ -159,7 +159,7 @@ pub enum PublishedKind {
 /// The architecture of a published network and its fixed settings, in
 /// the vocabulary [`Architecture`] speaks.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields, try_from = "RawPublished")]
+#[serde(deny_unknown_fields)]
 pub struct PublishedConfig {
     pub kind: PublishedKind,
     /// psi_1's first layer (paper: 256).
@@ -168,12 +168,16 @@ pub struct PublishedConfig {
     pub out: usize,
     /// Dropout on psi_1's 256 hidden channels (paper: 0.4; once, as
     /// DGMC's `SplineCNN` applies it); MC dropout at inference uses the
-    /// same rate.
+    /// same rate. (Older records: `dropout`.)
+    #[serde(alias = "dropout")]
     pub dropout_conv: f64,
     /// Random node indicators per consensus step, and psi_2's width (DGMC's
-    /// `rnd_dim`).
+    /// `rnd_dim`, as older records name it).
+    #[serde(alias = "rnd_dim")]
     pub consensus_dim: usize,
-    /// Consensus steps L (DGMC's `num_steps`; 0 for GCN-GM).
+    /// Consensus steps L (DGMC's `num_steps`; 0 for GCN-GM). (Older
+    /// records: `steps`.)
+    #[serde(alias = "steps")]
     pub consensus_steps: usize,
     /// Sinkhorn iterations of every normalisation.
     pub sinkhorn_iters: usize,
@@ -183,42 +187,6 @@ pub struct PublishedConfig {
     /// colour and size (a dataset's learned features).
     #[serde(default, skip_serializing_if = "AppearanceWidth::is_none")]
     pub appearance_width: AppearanceWidth,
-}
-
-/// A published network's record as read: the names it is written with,
-/// or the older ones a record may hold (`dropout`, `rnd_dim`, `steps`).
-#[derive(serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawPublished {
-    kind: PublishedKind,
-    hidden: usize,
-    out: usize,
-    #[serde(alias = "dropout")]
-    dropout_conv: f64,
-    #[serde(alias = "rnd_dim")]
-    consensus_dim: usize,
-    #[serde(alias = "steps")]
-    consensus_steps: usize,
-    sinkhorn_iters: usize,
-    edge_scale_m: f64,
-    #[serde(default)]
-    appearance_width: AppearanceWidth,
-}
-
-impl From<RawPublished> for PublishedConfig {
-    fn from(r: RawPublished) -> Self {
-        Self {
-            kind: r.kind,
-            hidden: r.hidden,
-            out: r.out,
-            dropout_conv: r.dropout_conv,
-            consensus_dim: r.consensus_dim,
-            consensus_steps: r.consensus_steps,
-            sinkhorn_iters: r.sinkhorn_iters,
-            edge_scale_m: r.edge_scale_m,
-            appearance_width: r.appearance_width,
-        }
-    }
 }
 
 impl PublishedConfig {
