@@ -154,7 +154,7 @@ pub(crate) fn self_match(matcher: &dyn Matcher) -> (f64, usize) {
 
 /// The deep network's input of the Delaunay graph over `points`: classes
 /// in turn, grey levels that vary, seen with heading 0.4.
-pub(crate) fn graph_input(points: &[(f64, f64)]) -> super::deep::features::GraphInput {
+pub(crate) fn graph_input(points: &[(f64, f64)]) -> super::deep::graph::OffsetGraph {
     let positions: Vec<Vec2> = points.iter().map(|&(x, y)| Vec2::new(x, y)).collect();
     let scene = SceneGraph::delaunay(&positions).unwrap();
     let detections: Vec<Detection> = positions
@@ -162,7 +162,7 @@ pub(crate) fn graph_input(points: &[(f64, f64)]) -> super::deep::features::Graph
         .enumerate()
         .map(|(k, p)| detection(*p, ObjectClass::ALL[k % 7], [0.1 * k as f64 % 1.0; 3]))
         .collect();
-    super::deep::features::graph_input(
+    super::deep::graph::OffsetGraph::offsets(
         &detections,
         &scene,
         &Pose2::new(Vec2::zeros(), 0.4),

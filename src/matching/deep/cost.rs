@@ -12,9 +12,8 @@
 //! second's per sample.
 
 use super::arch::{Architecture, PublishedConfig};
-use super::features::{
-    DUST_FEATURES, GraphInput, KERNEL, KERNEL_2D, NODE_FEATURES, PAIR_FEATURES, graph_input,
-};
+use super::features::{DUST_FEATURES, NODE_FEATURES, PAIR_FEATURES};
+use super::graph::{KERNEL, KERNEL_2D, OffsetGraph};
 use crate::matching::MatchView;
 
 /// One graph as the network sees it: its nodes and the kernel cells its
@@ -31,7 +30,7 @@ impl GraphShape {
     /// A vehicle's view as the matcher builds its graph: the kernel cells
     /// of every edge's basis.
     pub fn of(view: &MatchView) -> Self {
-        Self::of_input(&graph_input(
+        Self::of_input(&OffsetGraph::offsets(
             view.detections,
             view.graph,
             &view.pose_reported,
@@ -40,14 +39,10 @@ impl GraphShape {
     }
 
     /// The graph the matcher built.
-    pub(crate) fn of_input(g: &GraphInput) -> Self {
-        let mut used = [false; KERNEL_2D];
-        for &k in &g.basis_index {
-            used[k as usize] = true;
-        }
+    pub(crate) fn of_input(g: &OffsetGraph) -> Self {
         Self {
             nodes: g.n,
-            cells: used.iter().filter(|&&u| u).count(),
+            cells: g.used_cells().0.len(),
             edges: g.edge_count(),
         }
     }

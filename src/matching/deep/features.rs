@@ -1,89 +1,21 @@
-//! What the deep matcher sees of one vehicle's scene graph, as plain `f32`
-//! arrays (no tensors here): node attributes (the paper's A) and, for the
-//! SplineCNN layers, the degree-normalised B-spline basis of every edge's
-//! pseudo-coordinates (the paper's Phi(E_ij), Eq. 1).
-//!
-//! Pseudo-coordinates: the edge vector i -> j rotated into world-aligned
-//! axes with the vehicle's *reported* heading (GPS heading noise is 0.2 deg;
-//! GPS position error does not enter). Open B-splines of degree 1 with
-//! `KERNEL` knots per axis (SplineCNN, Fey et al. 2018) give 4 non-zero
-//! basis weights per edge. The knots sit where edges actually are, not on
-//! an even grid over one junction's extent: at 0, at +-the median and at
-//! +-the 95th percentile of the edges' larger world-axis component, as
-//! measured over the training family (`coid train` records the measured
-//! values in each model's toml, `edge_median_m` and `edge_p95_m`); longer
-//! components are clipped onto the outer knot.
-
+//! What the deep networks see besides their graphs ([`super::graph`]):
+//! node attributes (the paper's A: class, colour, size and, where a
+//! network reads one, the appearance vector), the check that data carries
+//! the vectors a network reads, and the pair inputs of the project's
+//! network (the pair likelihood through the GPS relative pose, offset
+//! votes, range and bearing from either vehicle).
 use crate::fusion::PoseEstimate;
 use crate::geometry::{Pose2, Vec2};
-use crate::graph::SceneGraph;
 use crate::matching::MatchView;
 use crate::matching::learning_free::appearance_similarity;
 use crate::matching::likelihood::{LikelihoodTerms, pair_terms};
 use crate::sensor::{AppearanceWidth, Detection};
 use crate::traffic::ObjectClass;
 
-/// B-spline knots per pseudo-coordinate dimension (paper: 5).
-pub(crate) const KERNEL: usize = 5;
-/// Kernel weights per edge: `KERNEL^2` for 2-D pseudo-coordinates.
-pub(crate) const KERNEL_2D: usize = KERNEL * KERNEL;
 /// Node attribute length without appearance vectors: class one-hot (7),
 /// colour (3), size (3). A network that reads a dataset's appearance
 /// vectors (`appearance_width` wide) has these first, then the vector.
 pub(crate) const NODE_FEATURES: usize = 13;
-/// The knots per axis, in metres: 0, +-median and +-95th percentile of the
-/// edges' larger world-axis component over the training family (17.7 m
-/// and 48.1 m measured on `sumo_nets/family/train` s000-s007 and the
-/// default intersection).
-pub(crate) const KNOTS_M: [f64; KERNEL] = [-48.0, -18.0, 0.0, 18.0, 48.0];
-/// Longer edge components are clipped onto the outer knots.
-pub(crate) const MAX_EDGE_M: f64 = KNOTS_M[KERNEL - 1];
-
-/// One vehicle's graph, ready for the network. Every undirected edge
-/// appears twice, once per direction; message `e` goes from `src[e]` to
-/// `dst[e]`.
-#[derive(Clone, Debug, PartialEq)]
-pub(crate) struct GraphInput {
-    pub(crate) n: usize,
-    /// `n x node_width`, row-major ([`push_node_features`]).
-    pub(crate) node_features: Vec<f32>,
-    /// Attributes per node: `NODE_FEATURES` plus the appearance vector's
-    /// width where the network reads one.
-    pub(crate) node_width: usize,
-    pub(crate) src: Vec<i64>,
-    pub(crate) dst: Vec<i64>,
-    /// `E x 4`: the kernel indices with non-zero basis weight per edge.
-    pub(crate) basis_index: Vec<i64>,
-    /// `E x 4`: those basis weights (they sum to 1 per edge).
-    pub(crate) basis_weight: Vec<f32>,
-    /// `n x E`, row-major: `1 / deg(i)` where `dst[e] == i` (mean
-    /// aggregation of incoming messages).
-    pub(crate) aggregate: Vec<f32>,
-    /// `E`: each edge vector in world-aligned axes (metres), before
-    /// scaling; kept for the edge-length statistics of `coid train`.
-    pub(crate) edge_world_m: Vec<[f32; 2]>,
-}
-
-impl GraphInput {
-    /// The kernel cells some edge uses (ascending), and each cell's place
-    /// among them.
-    pub(crate) fn used_cells(&self) -> (Vec<usize>, [usize; KERNEL_2D]) {
-        let mut used = [false; KERNEL_2D];
-        for &k in &self.basis_index {
-            used[k as usize] = true;
-        }
-        let cells: Vec<usize> = (0..KERNEL_2D).filter(|&k| used[k]).collect();
-        let mut position = [0usize; KERNEL_2D];
-        for (p, &k) in cells.iter().enumerate() {
-            position[k] = p;
-        }
-        (cells, position)
-    }
-
-    pub(crate) fn edge_count(&self) -> usize {
-        self.src.len()
-    }
-}
 
 /// Appends `d`'s node attributes: class one-hot, colour and size, then,
 /// for a network that reads appearance vectors `appearance_width` wide
@@ -154,76 +86,6 @@ pub fn check_appearance(network: AppearanceWidth, data: AppearanceWidth) -> Opti
              vectors are used when they tell same and different objects apart on its \
              validation runs)"
         )),
-    }
-}
-
-/// Degree-1 B-spline weights of an edge component (metres) on the knots
-/// `KNOTS_M`: the two active knots and their weights (clipped at the ends).
-fn linear_basis(d_m: f64) -> [(usize, f64); 2] {
-    let d = d_m.clamp(KNOTS_M[0], KNOTS_M[KERNEL - 1]);
-    let left = (0..KERNEL - 1)
-        .rfind(|&k| KNOTS_M[k] <= d)
-        .unwrap_or(0)
-        .min(KERNEL - 2);
-    let frac = (d - KNOTS_M[left]) / (KNOTS_M[left + 1] - KNOTS_M[left]);
-    [(left, 1.0 - frac), (left + 1, frac)]
-}
-
-/// The 4 non-zero (kernel index, weight) pairs of an edge vector given in
-/// world-aligned axes.
-pub(crate) fn edge_basis(d_world_m: &Vec2) -> [(usize, f64); 4] {
-    let bx = linear_basis(d_world_m.x);
-    let by = linear_basis(d_world_m.y);
-    [
-        (bx[0].0 * KERNEL + by[0].0, bx[0].1 * by[0].1),
-        (bx[0].0 * KERNEL + by[1].0, bx[0].1 * by[1].1),
-        (bx[1].0 * KERNEL + by[0].0, bx[1].1 * by[0].1),
-        (bx[1].0 * KERNEL + by[1].0, bx[1].1 * by[1].1),
-    ]
-}
-
-/// `detections`' graph for the project's network, which reads appearance
-/// vectors `appearance_width` wide (0: none).
-pub(crate) fn graph_input(
-    detections: &[Detection],
-    graph: &SceneGraph,
-    pose_reported: &Pose2,
-    appearance_width: AppearanceWidth,
-) -> GraphInput {
-    let n = detections.len();
-    let node_feat = node_attributes(detections, appearance_width);
-    let neighbours = graph.neighbours();
-    let heading = Pose2::new(Vec2::zeros(), pose_reported.heading_rad());
-    let (mut src, mut dst, mut basis_index, mut basis_weight, mut edge_world_m) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    for (i, nb) in neighbours.iter().enumerate() {
-        for &j in nb {
-            let d_world = heading.to_parent(&(graph.positions_m[j] - graph.positions_m[i]));
-            src.push(j as i64);
-            dst.push(i as i64);
-            edge_world_m.push([d_world.x as f32, d_world.y as f32]);
-            for (k, w) in edge_basis(&d_world) {
-                basis_index.push(k as i64);
-                basis_weight.push(w as f32);
-            }
-        }
-    }
-    let e = src.len();
-    let mut aggregate = vec![0f32; n * e];
-    for (k, &i) in dst.iter().enumerate() {
-        let i = i as usize;
-        aggregate[i * e + k] = 1.0 / neighbours[i].len() as f32;
-    }
-    GraphInput {
-        n,
-        node_features: node_feat,
-        node_width: NODE_FEATURES + appearance_width.get(),
-        src,
-        dst,
-        basis_index,
-        basis_weight,
-        aggregate,
-        edge_world_m,
     }
 }
 
@@ -440,44 +302,6 @@ fn class_one_hot(d: &Detection) -> [f32; 7] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use proptest::prelude::*;
-
-    proptest! {
-        #[test]
-        fn basis_is_a_partition_of_unity(x in -100.0..100.0f64, y in -100.0..100.0f64) {
-            let b = edge_basis(&Vec2::new(x, y));
-            let sum: f64 = b.iter().map(|&(_, w)| w).sum();
-            prop_assert!((sum - 1.0).abs() < 1e-12);
-            prop_assert!(b.iter().all(|&(k, w)| k < KERNEL_2D && (0.0..=1.0).contains(&w)));
-        }
-    }
-
-    #[test]
-    fn knots_are_hit_exactly_and_interpolated_between() {
-        for (k, &t) in KNOTS_M.iter().enumerate() {
-            let b = linear_basis(t);
-            let w: f64 = b.iter().filter(|&&(i, _)| i == k).map(|&(_, w)| w).sum();
-            assert!((w - 1.0).abs() < 1e-12, "knot {k}");
-        }
-        // Halfway between the centre and the median knot.
-        let b = linear_basis(KNOTS_M[3] / 2.0);
-        assert_eq!(b, [(2, 0.5), (3, 0.5)]);
-        // Clipped beyond the outer knots.
-        assert_eq!(linear_basis(500.0), linear_basis(KNOTS_M[KERNEL - 1]));
-        assert_eq!(linear_basis(-500.0), linear_basis(KNOTS_M[0]));
-    }
-
-    #[test]
-    fn zero_edge_sits_on_the_centre_knot() {
-        let b = edge_basis(&Vec2::zeros());
-        let centre = (KERNEL / 2) * KERNEL + KERNEL / 2;
-        let w: f64 = b
-            .iter()
-            .filter(|&&(k, _)| k == centre)
-            .map(|&(_, w)| w)
-            .sum();
-        assert!((w - 1.0).abs() < 1e-12);
-    }
 
     /// True pairs share one offset, so they vote for each other: with the
     /// GPS 2 m off (positions) and without positions at all (only the
@@ -529,36 +353,6 @@ mod tests {
                 );
             }
         }
-    }
-
-    #[test]
-    fn every_node_averages_its_incoming_messages() {
-        let pts = vec![
-            Vec2::new(0.0, 0.0),
-            Vec2::new(10.0, 0.0),
-            Vec2::new(3.0, 8.0),
-        ];
-        let g = SceneGraph::delaunay(&pts).unwrap();
-        use crate::matching::testkit;
-        let objects = testkit::world_objects();
-        let dets = testkit::Side::of(testkit::POSE_A, &objects[..3], &[0, 1, 2], testkit::EXACT)
-            .detections;
-        let input = graph_input(
-            &dets,
-            &g,
-            &Pose2::new(Vec2::new(5.0, 5.0), 0.7),
-            crate::sensor::AppearanceWidth::NONE,
-        );
-        let e = input.edge_count();
-        assert_eq!(e, 2 * g.edges.len());
-        for i in 0..3 {
-            let row = &input.aggregate[i * e..(i + 1) * e];
-            assert!((row.iter().sum::<f32>() - 1.0).abs() < 1e-5);
-        }
-        for w in input.basis_weight.chunks(4) {
-            assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-5);
-        }
-        assert_eq!(input.node_features.len(), 3 * NODE_FEATURES);
     }
 
     /// A network that reads appearance vectors gets each node's vector

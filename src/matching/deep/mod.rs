@@ -9,7 +9,8 @@
 //!
 //! Inside, three layers, each knowing only those below it:
 //! - building blocks: `arch` (the methods' networks and their knobs),
-//!   `features` (what the networks see), `params` (parameters by name:
+//!   `graph` (one graph input, its spline bases), `features` (node
+//!   attributes and `ours`'s pair inputs), `params` (parameters by name:
 //!   weights files and seeded starts), `kernels` (products, lanes,
 //!   Sinkhorn), `decision`, `cost`, and the MC-dropout shell `mc` with its
 //!   [`mc::Network`] trait and seeded draws;
@@ -23,6 +24,7 @@ pub mod arch;
 pub mod cost;
 pub mod decision;
 pub(crate) mod features;
+pub(crate) mod graph;
 mod kernels;
 mod mc;
 mod ours;

@@ -8,7 +8,7 @@
 //! then `(root + messages) + bias`.
 
 use super::second_layer::PlainSpline;
-use crate::matching::deep::features::{GraphInput, KERNEL_2D};
+use crate::matching::deep::graph::{KERNEL_2D, OffsetGraph};
 use crate::matching::deep::kernels::matmul;
 
 /// The first layer's weights as plain numbers.
@@ -22,7 +22,7 @@ impl FirstLayer {
     }
 
     /// `relu(conv1(x))` of `g`, `[n, out]` row-major.
-    pub(crate) fn forward(&self, g: &GraphInput) -> Vec<f32> {
+    pub(crate) fn forward(&self, g: &OffsetGraph) -> Vec<f32> {
         let (n, d_in, d_out) = (g.n.max(1), self.layer.d_in, self.layer.d_out);
         debug_assert_eq!(g.node_width, d_in, "node attributes as wide as the layer");
         let mut x = vec![0f32; n * d_in];
@@ -49,18 +49,14 @@ impl FirstLayer {
     /// The neighbours' messages `[n, out]`: the basis weights over the
     /// degree by (node, used cell) against `x`, then against the used
     /// cells' weights stacked.
-    fn messages(&self, g: &GraphInput, x: &[f32], n: usize) -> Vec<f32> {
+    fn messages(&self, g: &OffsetGraph, x: &[f32], n: usize) -> Vec<f32> {
         let (d_in, d_out) = (self.layer.d_in, self.layer.d_out);
         let (cells, position) = g.used_cells();
         let c = cells.len();
-        let e = g.edge_count();
         let mut by_cell = vec![0f32; n * c * n];
-        for edge in 0..e {
-            let (i, j) = (g.dst[edge] as usize, g.src[edge] as usize);
-            let inv_deg = g.aggregate[i * e + edge];
-            for q in 0..4 {
-                let cell = position[g.basis_index[4 * edge + q] as usize];
-                by_cell[(i * c + cell) * n + j] += g.basis_weight[4 * edge + q] * inv_deg;
+        for (i, j, cells) in g.weighted_edges() {
+            for (k, w) in cells {
+                by_cell[(i * c + position[k]) * n + j] += w;
             }
         }
         let mut mixed = vec![0f32; n * c * d_in];

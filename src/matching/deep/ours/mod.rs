@@ -23,9 +23,8 @@ pub(crate) use self::second_layer::PlainSpline;
 use self::second_layer::SharedMaskConv;
 use super::arch::{Architecture, MaskScope, likelihood_terms};
 use super::cost::{GraphShape, inference_macs, plain_embedding_macs};
-use super::features::{
-    DUST_FEATURES, GraphInput, KERNEL_2D, PAIR_FEATURES, PairInput, graph_input, pair_input,
-};
+use super::features::{DUST_FEATURES, PAIR_FEATURES, PairInput, pair_input};
+use super::graph::{KERNEL_2D, OffsetGraph};
 use super::kernels::sinkhorn::sinkhorn_probabilities;
 use super::mc::draws::{dropout_mask_16, indicator_values};
 use super::mc::{Inference, Network, Samples, Side};
@@ -103,18 +102,15 @@ pub(crate) fn problem_key(first: &MatchView, second: &MatchView) -> u64 {
 /// Everything one vehicle's embedding depends on: its network input
 /// (node features and edges with their B-spline bases, which carry the
 /// reported heading) and the number of samples.
-pub(crate) fn embedding_key(input: &GraphInput, samples: usize) -> u64 {
+pub(crate) fn embedding_key(input: &OffsetGraph, samples: usize) -> u64 {
     let mut parts = vec![input.n as u64, samples as u64, input.edge_count() as u64];
     parts.extend(input.node_features.iter().map(|v| u64::from(v.to_bits())));
-    parts.extend(
-        input
-            .src
-            .iter()
-            .chain(&input.dst)
-            .chain(&input.basis_index)
-            .map(|&v| v as u64),
-    );
-    parts.extend(input.basis_weight.iter().map(|v| u64::from(v.to_bits())));
+    parts.extend(input.src.iter().chain(&input.dst).map(|&v| v as u64));
+    let bases: Vec<_> = (0..input.edge_count())
+        .flat_map(|e| input.basis(e))
+        .collect();
+    parts.extend(bases.iter().map(|&(k, _)| k as u64));
+    parts.extend(bases.iter().map(|&(_, w)| u64::from(w.to_bits())));
     rng::key(&parts)
 }
 
@@ -233,11 +229,11 @@ pub(crate) fn at_inference(mut arch: Architecture, run: &Inference) -> Architect
 }
 
 impl Network for Ours {
-    type Input = GraphInput;
+    type Input = OffsetGraph;
     type Embedding = Embedded;
 
-    fn input(&self, view: &MatchView) -> GraphInput {
-        graph_input(
+    fn input(&self, view: &MatchView) -> OffsetGraph {
+        OffsetGraph::offsets(
             view.detections,
             view.graph,
             &view.pose_reported,
@@ -245,7 +241,7 @@ impl Network for Ours {
         )
     }
 
-    fn embedding_key(&self, input: &GraphInput) -> u64 {
+    fn embedding_key(&self, input: &OffsetGraph) -> u64 {
         embedding_key(input, self.run.samples)
     }
 
@@ -259,7 +255,7 @@ impl Network for Ours {
 
     /// The graphs go through the second layer together, so that each
     /// sample's weights are read once for all of them.
-    fn embed(&self, inputs: &[(&GraphInput, u64)]) -> (Vec<Embedded>, u64) {
+    fn embed(&self, inputs: &[(&OffsetGraph, u64)]) -> (Vec<Embedded>, u64) {
         let t = self.run.samples;
         let shapes: Vec<GraphShape> = inputs
             .iter()
@@ -271,7 +267,7 @@ impl Network for Ours {
             .collect();
         let (hs, macs): (Vec<Vec<f32>>, u64) = match &self.second_layer {
             SecondLayer::Shared(layer) => {
-                let layers: Vec<(&[f32], &GraphInput)> = firsts
+                let layers: Vec<(&[f32], &OffsetGraph)> = firsts
                     .iter()
                     .zip(inputs)
                     .map(|(h, (i, _))| (h.as_slice(), *i))
@@ -306,7 +302,7 @@ impl Network for Ours {
         (made, macs)
     }
 
-    fn pose_free_key(&self, _inputs: [&GraphInput; 2]) -> Option<u64> {
+    fn pose_free_key(&self, _inputs: [&OffsetGraph; 2]) -> Option<u64> {
         None
     }
 

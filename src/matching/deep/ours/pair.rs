@@ -16,7 +16,8 @@
 //! indicators in one product, then mixed along the edges.
 
 use super::second_layer::{PlainSpline, SharedMaskConv};
-use crate::matching::deep::features::{GraphInput, PairInput};
+use crate::matching::deep::features::PairInput;
+use crate::matching::deep::graph::OffsetGraph;
 use crate::matching::deep::kernels::lanes::{
     PlainLinear, add_pair_terms, product_rows, similarity, transport,
 };
@@ -117,8 +118,8 @@ impl PlainPair {
     /// the consensus MLP's masks per pair entry when they are not shared.
     pub(crate) fn forward(
         &self,
-        (h1, g1): (&[f32], &GraphInput),
-        (h2, g2): (&[f32], &GraphInput),
+        (h1, g1): (&[f32], &OffsetGraph),
+        (h2, g2): (&[f32], &OffsetGraph),
         input: &PairInput,
         [indicators, phi]: [&[f32]; 2],
     ) -> PairResidual {
@@ -167,7 +168,7 @@ impl PlainPair {
     fn consensus(
         &self,
         c: &Consensus,
-        [g1, g2]: [&GraphInput; 2],
+        [g1, g2]: [&OffsetGraph; 2],
         input: &PairInput,
         [indicators, phi]: [&[f32]; 2],
         dust1: &[f32],
@@ -212,7 +213,7 @@ impl PlainPair {
         // Both sides embedded by the consensus conv: z1 once, z2 per sample
         // (all samples in one product).
         let z1 = c.conv.forward_many(&[(indicators, g1)]).remove(0);
-        let per_sample: Vec<(&[f32], &GraphInput)> = r2.chunks(n2 * r).map(|x| (x, g2)).collect();
+        let per_sample: Vec<(&[f32], &OffsetGraph)> = r2.chunks(n2 * r).map(|x| (x, g2)).collect();
         let z2: Vec<Vec<f32>> = c.conv.forward_many(&per_sample);
         // phi(z1_i - z2_j) = phi_out(relu(z1_i W - z2_j W + b) m).
         let project = |z: &[f32], n: usize| -> Vec<f32> {

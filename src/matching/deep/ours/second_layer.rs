@@ -15,7 +15,7 @@
 //! set needs no other copy. The neighbours are then mixed along the
 //! edges (4 cells per edge) instead of through a dense `n x n C` matrix.
 
-use crate::matching::deep::features::{GraphInput, KERNEL_2D};
+use crate::matching::deep::graph::{KERNEL_2D, OffsetGraph};
 use crate::matching::deep::kernels::matmul;
 use crate::matching::deep::kernels::spline::{Cells, Incoming};
 use crate::matching::deep::params::Params;
@@ -72,7 +72,7 @@ impl PlainSpline {
     /// then the neighbours mixed through the dense `[n, n C]` matrix.
     pub(crate) fn forward_per_node(
         &self,
-        g: &GraphInput,
+        g: &OffsetGraph,
         h: &[f32],
         [m1, m2]: [&[f32]; 2],
     ) -> Vec<f32> {
@@ -97,12 +97,9 @@ impl PlainSpline {
                 }
             }
             let mut mixing = vec![0f32; n * n * c];
-            for edge in 0..e {
-                let (i, j) = (g.dst[edge] as usize, g.src[edge] as usize);
-                let inv_deg = g.aggregate[i * e + edge];
-                for q in 0..4 {
-                    let cell = position[g.basis_index[4 * edge + q] as usize];
-                    mixing[i * c * n + j * c + cell] += g.basis_weight[4 * edge + q] * inv_deg;
+            for (i, j, cells) in g.weighted_edges() {
+                for (k, w) in cells {
+                    mixing[i * c * n + j * c + position[k]] += w;
                 }
             }
             let mut xw = vec![0f32; t * n * c * d_out];
@@ -172,7 +169,7 @@ impl SharedMaskConv {
     /// whose layer input is `h` (`[n, in]`, the same for every sample):
     /// `[T, n, out]` per graph, row-major. The graphs' nodes are stacked
     /// into one product per sample.
-    pub(crate) fn forward_many(&self, graphs: &[(&[f32], &GraphInput)]) -> Vec<Vec<f32>> {
+    pub(crate) fn forward_many(&self, graphs: &[(&[f32], &OffsetGraph)]) -> Vec<Vec<f32>> {
         let d_out = self.d_out;
         let offsets: Vec<usize> = graphs
             .iter()
@@ -231,17 +228,10 @@ impl SharedMaskConv {
 /// Graph `g`'s edges into node `i` from node `j`, its nodes at rows
 /// `offset..`: each with the basis weight of its four cells over the
 /// destination's degree, as the tensor path's mixing matrix holds them.
-fn edges(g: &GraphInput, offset: usize) -> Vec<(usize, usize, Cells<4>)> {
-    let e = g.edge_count();
-    (0..e)
-        .map(|k| {
-            let (i, j) = (g.dst[k] as usize, g.src[k] as usize);
-            let inv_deg = g.aggregate[i * e + k];
-            let cells = std::array::from_fn(|q| {
-                let cell = g.basis_index[4 * k + q] as usize;
-                (cell, g.basis_weight[4 * k + q] * inv_deg)
-            });
-            (offset + i, offset + j, cells)
-        })
-        .collect()
+fn edges(g: &OffsetGraph, offset: usize) -> Vec<(usize, usize, Cells<4>)> {
+    let mut edges = g.weighted_edges();
+    for (i, j, _) in &mut edges {
+        (*i, *j) = (offset + *i, offset + *j);
+    }
+    edges
 }

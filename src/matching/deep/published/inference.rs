@@ -23,8 +23,7 @@
 //!   source's carried over by `S^T` ([`PlainConsensus`]);
 //! - neighbours are mixed along the edges, not through a dense matrix.
 
-use super::graph::{PaperGraph, length_basis};
-use crate::matching::deep::features::KERNEL;
+use crate::matching::deep::graph::{KERNEL, LengthGraph};
 use crate::matching::deep::kernels::lanes::{
     PlainLinear, add_pair_terms, relu, similarity, transport,
 };
@@ -39,20 +38,8 @@ pub(crate) type Incoming = spline::Incoming<2>;
 
 /// `g`'s [`Incoming`] edges on knots up to `scale_m`, as the tensor
 /// path's mixing matrix weighs them.
-fn incoming(g: &PaperGraph, scale_m: f64) -> Incoming {
-    let deg = g.in_degrees();
-    let edges: Vec<_> = (0..g.edge_count())
-        .map(|e| {
-            let (i, j) = (g.dst[e], g.src[e]);
-            let basis = length_basis(f64::from(g.length_m[e]), scale_m);
-            (
-                i,
-                j,
-                basis.map(|(knot, b)| (knot, (b / deg[i] as f64) as f32)),
-            )
-        })
-        .collect();
-    spline::Incoming::new(g.n, &edges)
+fn incoming(g: &LengthGraph, scale_m: f64) -> Incoming {
+    spline::Incoming::new(g.n, &g.weighted_edges(scale_m))
 }
 
 /// `buf` holding `len` values, for a product that overwrites them all: a
@@ -460,7 +447,7 @@ impl PlainPublished {
 
     /// `relu(conv1(x))` of `g` into `h1` (`[n, hidden]`, the same in
     /// every sample), and `g`'s edges.
-    fn first_layer(&self, g: &PaperGraph, buf: &mut Buffers, h1: &mut Vec<f32>) -> Incoming {
+    fn first_layer(&self, g: &LengthGraph, buf: &mut Buffers, h1: &mut Vec<f32>) -> Incoming {
         let inc = incoming(g, self.scale_m);
         self.psi1
             .conv1
@@ -471,7 +458,7 @@ impl PlainPublished {
     /// psi_1's embedding of `g` in every sample under masks per node and
     /// hidden channel (`mask`: `[T, n, hidden]`), `[T, n, out]`: every
     /// sample's rows in one product per layer.
-    pub(crate) fn embed_per_node(&self, g: &PaperGraph, mask: &[f32]) -> Vec<f32> {
+    pub(crate) fn embed_per_node(&self, g: &LengthGraph, mask: &[f32]) -> Vec<f32> {
         SCRATCH.with_borrow_mut(|s| {
             let inc = self.first_layer(g, &mut s.cnn, &mut s.first);
             let hidden = self.psi1.conv1.d_out;
@@ -495,7 +482,7 @@ impl PlainPublished {
 
     /// psi_1's embedding of `g` in every sample under the shared masks,
     /// `[T, n, out]`.
-    pub(crate) fn embed(&self, g: &PaperGraph) -> Vec<f32> {
+    pub(crate) fn embed(&self, g: &LengthGraph) -> Vec<f32> {
         let n = g.n;
         SCRATCH.with_borrow_mut(|s| {
             let inc = self.first_layer(g, &mut s.cnn, &mut s.first);
@@ -519,7 +506,7 @@ impl PlainPublished {
     /// `indicators` one `[T, n1, rnd_dim]` draw per consensus step.
     pub(crate) fn assignments(
         &self,
-        [(h1, g1), (h2, g2)]: [(&[f32], &PaperGraph); 2],
+        [(h1, g1), (h2, g2)]: [(&[f32], &LengthGraph); 2],
         indicators: &[Vec<f32>],
     ) -> Vec<Vec<f32>> {
         let (n1, n2, t) = (g1.n, g2.n, self.samples());

@@ -4,8 +4,6 @@
 //! appearance attributes, Delaunay graphs with edge lengths. No GPS pose, no
 //! heading, no likelihood prior: nothing here shares `ours`'s network.
 //!
-//! - `graph`: [`PaperGraph`] (plain Rust) and the 1-D B-spline basis over
-//!   edge length.
 //! - `inference`: the network in plain Rust, for every mask scope. GCN-GM:
 //!   psi_1 (two SplineConvs, 256 and 32 channels, each followed by ReLU,
 //!   dropout 0.4 once on the 256 hidden channels, DGMC's final linear
@@ -35,18 +33,16 @@
 //! normalised assignment (a node that goes to its dustbin passes on
 //! nothing).
 
-pub(crate) mod graph;
 mod inference;
 mod network;
 
-pub(crate) use self::graph::PaperGraph;
 pub(crate) use self::inference::{Conv1d, PlainCnn, PlainWeights};
 pub(crate) use self::network::Published;
 #[cfg(test)]
 pub(crate) use self::network::{SHARED_MASKS_KEY, pair_key, pair_samples};
 
 use crate::matching::deep::arch::{PublishedConfig, PublishedKind};
-use crate::matching::deep::features::KERNEL;
+use crate::matching::deep::graph::KERNEL;
 use crate::matching::deep::params::{self, ParamSpec, Params};
 
 /// The dustbin score before training.

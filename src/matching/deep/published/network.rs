@@ -5,12 +5,12 @@
 //! reported poses or the relative pose they are handed, so the shell
 //! answers the same pair at every pose-noise level once.
 
-use super::graph::PaperGraph;
 use super::inference::PlainPublished;
 use crate::fusion::PoseEstimate;
 use crate::matching::MatchView;
 use crate::matching::deep::arch::{MaskScope, PublishedConfig};
 use crate::matching::deep::cost::published_macs;
+use crate::matching::deep::graph::LengthGraph;
 use crate::matching::deep::mc::draws::{dropout_mask_16, indicator_values};
 use crate::matching::deep::mc::{Inference, Network, Samples, Side};
 use crate::matching::deep::params::Params;
@@ -21,7 +21,7 @@ use crate::rng::{self, Purpose};
 pub(crate) const SHARED_MASKS_KEY: u64 = 0x5a4e_d0e8_0000_0009;
 
 /// A key of both graphs' inputs: what a pair's samples depend on.
-pub(crate) fn pair_key(graphs: [&PaperGraph; 2]) -> u64 {
+pub(crate) fn pair_key(graphs: [&LengthGraph; 2]) -> u64 {
     let mut parts = Vec::new();
     for g in graphs {
         graph_parts(g, &mut parts);
@@ -29,10 +29,10 @@ pub(crate) fn pair_key(graphs: [&PaperGraph; 2]) -> u64 {
     rng::key(&parts)
 }
 
-fn graph_parts(g: &PaperGraph, parts: &mut Vec<u64>) {
+fn graph_parts(g: &LengthGraph, parts: &mut Vec<u64>) {
     parts.push(g.n as u64);
     parts.extend(g.node_features.iter().map(|v| u64::from(v.to_bits())));
-    parts.extend(g.length_m.iter().map(|v| u64::from(v.to_bits())));
+    parts.extend(g.edge_m.iter().map(|[v]| u64::from((*v as f32).to_bits())));
     parts.extend(g.src.iter().chain(&g.dst).map(|&v| v as u64));
 }
 
@@ -121,14 +121,14 @@ impl Published {
 }
 
 impl Network for Published {
-    type Input = PaperGraph;
+    type Input = LengthGraph;
     type Embedding = Vec<f32>;
 
-    fn input(&self, view: &MatchView) -> PaperGraph {
-        PaperGraph::new(view.detections, view.graph, self.cfg.appearance_width)
+    fn input(&self, view: &MatchView) -> LengthGraph {
+        LengthGraph::lengths(view.detections, view.graph, self.cfg.appearance_width)
     }
 
-    fn embedding_key(&self, g: &PaperGraph) -> u64 {
+    fn embedding_key(&self, g: &LengthGraph) -> u64 {
         let mut parts = Vec::new();
         graph_parts(g, &mut parts);
         rng::key(&parts)
@@ -144,14 +144,14 @@ impl Network for Published {
         false
     }
 
-    fn embed(&self, inputs: &[(&PaperGraph, u64)]) -> (Vec<Vec<f32>>, u64) {
+    fn embed(&self, inputs: &[(&LengthGraph, u64)]) -> (Vec<Vec<f32>>, u64) {
         let t = self.run.samples;
-        let macs = |g: &PaperGraph| published_macs(&self.cfg, [g.n, g.n], t, false).embeddings[0];
+        let macs = |g: &LengthGraph| published_macs(&self.cfg, [g.n, g.n], t, false).embeddings[0];
         let made = inputs.iter().map(|(g, _)| self.plain.embed(g)).collect();
         (made, inputs.iter().map(|(g, _)| macs(g)).sum())
     }
 
-    fn pose_free_key(&self, [g1, g2]: [&PaperGraph; 2]) -> Option<u64> {
+    fn pose_free_key(&self, [g1, g2]: [&LengthGraph; 2]) -> Option<u64> {
         Some(pair_key([g1, g2]))
     }
 

@@ -8,7 +8,8 @@
 use crate::geometry::Pose2;
 use crate::graph::SceneGraph;
 use crate::matching::deep::arch::{Architecture, likelihood_terms};
-use crate::matching::deep::features::{self, GraphInput, PairInput, graph_input, pair_input};
+use crate::matching::deep::features::{PairInput, pair_input};
+use crate::matching::deep::graph::{MAX_EDGE_M, OffsetGraph};
 use crate::matching::{MatchView, gps_relative_pose};
 use crate::sensor::{Detection, PoseNoiseLevel};
 
@@ -74,8 +75,8 @@ pub fn example(
 /// architecture, and the labels.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Prepared {
-    pub(crate) g1: GraphInput,
-    pub(crate) g2: GraphInput,
+    pub(crate) g1: OffsetGraph,
+    pub(crate) g2: OffsetGraph,
     pub(crate) pair: PairInput,
     /// `n1 x n2`: 1 for a true pair that passes the gates.
     pub y: Vec<f32>,
@@ -115,13 +116,13 @@ impl Example {
         }
         let flag = |b: bool| if b { 0.0 } else { 1.0 };
         Prepared {
-            g1: graph_input(
+            g1: OffsetGraph::offsets(
                 a.detections,
                 a.graph,
                 &a.pose_reported,
                 arch.appearance_width(),
             ),
-            g2: graph_input(
+            g2: OffsetGraph::offsets(
                 b.detections,
                 b.graph,
                 &b.pose_reported,
@@ -139,7 +140,7 @@ impl Example {
 }
 
 /// How the training graphs' edge vectors fill the pseudo-coordinate range
-/// (`features::MAX_EDGE_M` per axis): the median and 95th percentile of
+/// (`MAX_EDGE_M` per axis): the median and 95th percentile of
 /// each edge's larger absolute world-axis component, and the share of
 /// edges beyond the range (clipped onto its border).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -155,12 +156,9 @@ impl EdgeStats {
         for e in examples {
             for side in [&e.first, &e.second] {
                 let none = crate::sensor::AppearanceWidth::NONE;
-                let g = graph_input(&side.detections, &side.graph, &side.pose_reported, none);
-                m.extend(
-                    g.edge_world_m
-                        .iter()
-                        .map(|v| f64::from(v[0].abs().max(v[1].abs()))),
-                );
+                let g =
+                    OffsetGraph::offsets(&side.detections, &side.graph, &side.pose_reported, none);
+                m.extend(g.edge_m.iter().map(|&[x, y]| x.abs().max(y.abs())));
             }
         }
         if m.is_empty() {
@@ -168,7 +166,7 @@ impl EdgeStats {
         }
         m.sort_by(f64::total_cmp);
         let at = |q: f64| m[((m.len() - 1) as f64 * q).round() as usize];
-        let clipped = m.iter().filter(|&&x| x > features::MAX_EDGE_M).count();
+        let clipped = m.iter().filter(|&&x| x > MAX_EDGE_M).count();
         Self {
             median_m: at(0.5),
             p95_m: at(0.95),

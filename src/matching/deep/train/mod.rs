@@ -39,7 +39,8 @@ use self::published::{PublishedTrainer, TrainPair};
 use self::spline::GraphTensors;
 use self::weights::to_bytes;
 use super::arch::{Architecture, Backbone, LossTerms, MaskScope, NoMatchWeights, PairLoss};
-use super::features::{GraphInput, PairInput};
+use super::features::PairInput;
+use super::graph::OffsetGraph;
 use crate::matching::{Method, MethodKind};
 use crate::rng::{self, Purpose};
 
@@ -216,8 +217,8 @@ struct BatchTensors {
 
 impl BatchTensors {
     fn new(batch: &[&Prepared], device: &Device) -> Self {
-        let g1: Vec<&GraphInput> = batch.iter().map(|p| &p.g1).collect();
-        let g2: Vec<&GraphInput> = batch.iter().map(|p| &p.g2).collect();
+        let g1: Vec<&OffsetGraph> = batch.iter().map(|p| &p.g1).collect();
+        let g2: Vec<&OffsetGraph> = batch.iter().map(|p| &p.g2).collect();
         let graphs = [
             GraphTensors::new(&g1, device),
             GraphTensors::new(&g2, device),

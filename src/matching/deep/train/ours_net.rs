@@ -326,7 +326,7 @@ impl OursNet {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::matching::deep::features::GraphInput;
+    use crate::matching::deep::graph::OffsetGraph;
     use crate::matching::deep::train::weights::to_bytes;
     use crate::matching::testkit::graph_input;
     use rand::{Rng, SeedableRng};
@@ -407,8 +407,8 @@ mod tests {
         let pairs = [random_pair(3, 2, 1), random_pair(5, 4, 2)];
         let graphs = [&small, &large];
         let run = |which: &[usize]| -> Vec<Vec<f32>> {
-            let g1: Vec<&GraphInput> = which.iter().map(|&k| &graphs[k][0]).collect();
-            let g2: Vec<&GraphInput> = which.iter().map(|&k| &graphs[k][1]).collect();
+            let g1: Vec<&OffsetGraph> = which.iter().map(|&k| &graphs[k][0]).collect();
+            let g2: Vec<&OffsetGraph> = which.iter().map(|&k| &graphs[k][1]).collect();
             let (b1, b2) = (
                 GraphTensors::new(&g1, &device),
                 GraphTensors::new(&g2, &device),

@@ -10,7 +10,7 @@ use crate::geometry::Vec2;
 use crate::matching::deep::arch::{Architecture, MaskScope};
 use crate::matching::deep::cost::GraphShape;
 use crate::matching::deep::cost::inference_macs;
-use crate::matching::deep::features::graph_input;
+use crate::matching::deep::graph::OffsetGraph;
 use crate::matching::deep::mc::Inference;
 use crate::matching::deep::mc::McMatcher;
 use crate::matching::deep::ours::{self, Ours, PlainSpline, first_layer};
@@ -297,7 +297,7 @@ fn the_plain_first_layer_is_the_tensor_one_bit_for_bit() {
     scenes.push(Side::of(testkit::POSE_B, &big, &all, GPS));
     for side in &scenes {
         let v = side.view();
-        let input = graph_input(
+        let input = OffsetGraph::offsets(
             v.detections,
             v.graph,
             &v.pose_reported,

@@ -18,15 +18,15 @@ use super::published_net::{PublishedNet, draw_training_masks};
 use super::spline::GraphTensors;
 use super::weights::module_bytes;
 use crate::matching::deep::arch::{LossTerms, MaskScope, NoMatchWeights, PublishedConfig};
-use crate::matching::deep::published::PaperGraph;
+use crate::matching::deep::graph::LengthGraph;
 use crate::rng::{self, Purpose};
 
 /// A labelled training pair: two graphs and the true partner in `second`
 /// of each node of `first` (`None`: not seen by the second vehicle).
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct TrainPair {
-    pub(crate) first: PaperGraph,
-    pub(crate) second: PaperGraph,
+    pub(crate) first: LengthGraph,
+    pub(crate) second: LengthGraph,
     pub(crate) partner: Vec<Option<usize>>,
 }
 
@@ -40,8 +40,8 @@ impl TrainPair {
             partner[a] = Some(b);
         }
         Self {
-            first: PaperGraph::new(&e.first.detections, &e.first.graph, appearance_width),
-            second: PaperGraph::new(&e.second.detections, &e.second.graph, appearance_width),
+            first: LengthGraph::lengths(&e.first.detections, &e.first.graph, appearance_width),
+            second: LengthGraph::lengths(&e.second.detections, &e.second.graph, appearance_width),
             partner,
         }
     }
@@ -216,8 +216,8 @@ impl PublishedTrainer {
         stream: &mut ChaCha8Rng,
     ) -> Tensor<1> {
         let scale = self.cfg.edge_scale_m;
-        let firsts: Vec<&PaperGraph> = batch.iter().map(|p| &p.first).collect();
-        let seconds: Vec<&PaperGraph> = batch.iter().map(|p| &p.second).collect();
+        let firsts: Vec<&LengthGraph> = batch.iter().map(|p| &p.first).collect();
+        let seconds: Vec<&LengthGraph> = batch.iter().map(|p| &p.second).collect();
         let g1 = GraphTensors::lengths(&firsts, scale, device);
         let g2 = GraphTensors::lengths(&seconds, scale, device);
         let (n1, n2) = (g1.n(), g2.n());
@@ -334,13 +334,13 @@ mod tests {
     #[test]
     fn labels_cover_true_pairs_and_both_dustbins() {
         let device = crate::matching::deep::train::backend::device();
-        let graph = |n: usize| PaperGraph {
+        let graph = |n: usize| LengthGraph {
             n,
             node_features: vec![0.0; n * crate::matching::deep::features::NODE_FEATURES],
             node_width: crate::matching::deep::features::NODE_FEATURES,
             src: vec![],
             dst: vec![],
-            length_m: vec![],
+            edge_m: vec![],
         };
         let pair = TrainPair {
             first: graph(2),

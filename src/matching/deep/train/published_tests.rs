@@ -16,8 +16,9 @@ use crate::matching::deep::arch::{Backbone, MaskScope};
 use crate::matching::deep::arch::{PublishedConfig, PublishedKind};
 use crate::matching::deep::cost::published_macs;
 use crate::matching::deep::decision::MatchDistribution;
+use crate::matching::deep::graph::LengthGraph;
 use crate::matching::deep::mc::{Inference, McMatcher};
-use crate::matching::deep::published::{PaperGraph, Published};
+use crate::matching::deep::published::Published;
 use crate::matching::deep::train::init::Init;
 use crate::matching::deep::train::published::{PublishedTrainer, TrainPair};
 use crate::matching::testkit::detection;
@@ -99,14 +100,14 @@ fn moved_copy(
             d
         })
         .collect();
-    let first = PaperGraph::delaunay(objects).unwrap();
+    let first = LengthGraph::delaunay(objects).unwrap();
     let second = if exact {
         let positions: Vec<Vec2> = objects.iter().map(|d| d.position_m).collect();
         let mut graph = SceneGraph::delaunay(&positions).unwrap().permuted(&order);
         graph.positions_m = second.iter().map(|d| d.position_m).collect();
-        PaperGraph::new(&second, &graph, crate::sensor::AppearanceWidth::NONE)
+        LengthGraph::lengths(&second, &graph, crate::sensor::AppearanceWidth::NONE)
     } else {
-        PaperGraph::delaunay(&second).unwrap()
+        LengthGraph::delaunay(&second).unwrap()
     };
     TrainPair {
         first,
@@ -179,7 +180,7 @@ fn assignments_are_per_sample_doubly_stochastic_with_dustbins() {
             sample_assignments(&loaded, &cfg, pair, sampling, &mut stream("s")),
             sample_assignments(&net, &cfg, pair, sampling, &mut stream("s")),
         );
-        let empty = PaperGraph::delaunay(&[]).unwrap();
+        let empty = LengthGraph::delaunay(&[]).unwrap();
         let none = sample_assignments(&net, &cfg, [&p.first, &empty], sampling, &mut rng);
         let d = MatchDistribution::from_samples(n1, 0, &none);
         assert!(d.decide(None).is_empty());
@@ -206,12 +207,12 @@ fn paper_graphs_are_invariant_to_rigid_motions() {
         })
         .collect();
     let (a, b) = (
-        PaperGraph::delaunay(&objects).unwrap(),
-        PaperGraph::delaunay(&moved).unwrap(),
+        LengthGraph::delaunay(&objects).unwrap(),
+        LengthGraph::delaunay(&moved).unwrap(),
     );
     assert_eq!(a.node_features, b.node_features);
     assert_eq!((&a.src, &a.dst), (&b.src, &b.dst));
-    for (x, y) in a.length_m.iter().zip(&b.length_m) {
+    for ([x], [y]) in a.edge_m.iter().zip(&b.edge_m) {
         assert!((x - y).abs() < 1e-4, "{x} vs {y}");
     }
 }
@@ -437,7 +438,7 @@ struct Sampling {
 fn sample_assignments(
     net: &PublishedNet,
     cfg: &PublishedConfig,
-    [first, second]: [&PaperGraph; 2],
+    [first, second]: [&LengthGraph; 2],
     sampling: Sampling,
     rng: &mut ChaCha8Rng,
 ) -> Vec<Vec<f32>> {

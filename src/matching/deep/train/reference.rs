@@ -20,11 +20,12 @@ use crate::fusion::PoseEstimate;
 use crate::matching::MatchView;
 use crate::matching::deep::arch::{Architecture, MaskScope, PublishedConfig, likelihood_terms};
 use crate::matching::deep::cost::{GraphShape, inference_macs, published_macs};
-use crate::matching::deep::features::{GraphInput, PairInput, graph_input, pair_input};
+use crate::matching::deep::features::{PairInput, pair_input};
+use crate::matching::deep::graph::{LengthGraph, OffsetGraph};
 use crate::matching::deep::mc::draws::dropout_mask_16;
 use crate::matching::deep::mc::{Inference, Network, Samples, Side};
 use crate::matching::deep::ours::{self, Combination, PairResidual};
-use crate::matching::deep::published::{self, PaperGraph};
+use crate::matching::deep::published;
 use crate::matching::likelihood::LikelihoodTerms;
 use crate::rng::{self, Purpose};
 
@@ -73,7 +74,7 @@ impl TensorOurs {
     }
 
     /// A graph as tensors with its kept cell weights.
-    fn graph(&self, input: &GraphInput) -> GraphTensors {
+    fn graph(&self, input: &OffsetGraph) -> GraphTensors {
         let graph = GraphTensors::used_cells(input, &self.device);
         let kept = self.cell_weights.lock().ok().and_then(|mut cache| {
             if let Some(w) = cache.get(&graph.cell_mask) {
@@ -92,7 +93,7 @@ impl TensorOurs {
     }
 
     /// The embedding with the masks of its stream.
-    fn embedding(&self, graph: &GraphTensors, input: &GraphInput, key: u64) -> Tensor<4> {
+    fn embedding(&self, graph: &GraphTensors, input: &OffsetGraph, key: u64) -> Tensor<4> {
         let stream_key = match self.run.masks {
             MaskScope::PerNode => key,
             MaskScope::Shared => ours::SHARED_MASKS_KEY,
@@ -168,11 +169,11 @@ impl TensorOurs {
 }
 
 impl Network for TensorOurs {
-    type Input = GraphInput;
+    type Input = OffsetGraph;
     type Embedding = TensorEmbedded;
 
-    fn input(&self, view: &MatchView) -> GraphInput {
-        graph_input(
+    fn input(&self, view: &MatchView) -> OffsetGraph {
+        OffsetGraph::offsets(
             view.detections,
             view.graph,
             &view.pose_reported,
@@ -180,7 +181,7 @@ impl Network for TensorOurs {
         )
     }
 
-    fn embedding_key(&self, input: &GraphInput) -> u64 {
+    fn embedding_key(&self, input: &OffsetGraph) -> u64 {
         ours::embedding_key(input, self.run.samples)
     }
 
@@ -192,7 +193,7 @@ impl Network for TensorOurs {
         self.arch.positions
     }
 
-    fn embed(&self, inputs: &[(&GraphInput, u64)]) -> (Vec<TensorEmbedded>, u64) {
+    fn embed(&self, inputs: &[(&OffsetGraph, u64)]) -> (Vec<TensorEmbedded>, u64) {
         let t = self.run.samples;
         let mut made = Vec::with_capacity(inputs.len());
         let mut macs = 0;
@@ -206,7 +207,7 @@ impl Network for TensorOurs {
         (made, macs)
     }
 
-    fn pose_free_key(&self, _inputs: [&GraphInput; 2]) -> Option<u64> {
+    fn pose_free_key(&self, _inputs: [&OffsetGraph; 2]) -> Option<u64> {
         None
     }
 
@@ -251,7 +252,7 @@ impl TensorPublished {
 
     /// The soft assignments of the samples, from the stream of the pair's
     /// `key`.
-    fn assignments(&self, [g1, g2]: [&PaperGraph; 2], key: u64) -> Vec<Vec<f32>> {
+    fn assignments(&self, [g1, g2]: [&LengthGraph; 2], key: u64) -> Vec<Vec<f32>> {
         let (n1, n2, t) = (g1.n, g2.n, self.run.samples);
         let device = device();
         let scale = self.cfg.edge_scale_m;
@@ -281,14 +282,14 @@ impl TensorPublished {
 }
 
 impl Network for TensorPublished {
-    type Input = PaperGraph;
+    type Input = LengthGraph;
     type Embedding = ();
 
-    fn input(&self, view: &MatchView) -> PaperGraph {
-        PaperGraph::new(view.detections, view.graph, self.cfg.appearance_width)
+    fn input(&self, view: &MatchView) -> LengthGraph {
+        LengthGraph::lengths(view.detections, view.graph, self.cfg.appearance_width)
     }
 
-    fn embedding_key(&self, g: &PaperGraph) -> u64 {
+    fn embedding_key(&self, g: &LengthGraph) -> u64 {
         published::pair_key([g, g])
     }
 
@@ -300,11 +301,11 @@ impl Network for TensorPublished {
         false
     }
 
-    fn embed(&self, inputs: &[(&PaperGraph, u64)]) -> (Vec<()>, u64) {
+    fn embed(&self, inputs: &[(&LengthGraph, u64)]) -> (Vec<()>, u64) {
         (vec![(); inputs.len()], 0)
     }
 
-    fn pose_free_key(&self, [g1, g2]: [&PaperGraph; 2]) -> Option<u64> {
+    fn pose_free_key(&self, [g1, g2]: [&LengthGraph; 2]) -> Option<u64> {
         Some(published::pair_key([g1, g2]))
     }
 

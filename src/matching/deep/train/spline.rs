@@ -21,9 +21,10 @@ use burn::prelude::*;
 use burn::tensor::activation;
 
 use super::init::Source;
-use crate::matching::deep::features::{GraphInput, KERNEL, KERNEL_2D, NODE_FEATURES};
-use crate::matching::deep::published::PaperGraph;
-use crate::matching::deep::published::graph::length_basis;
+use crate::matching::deep::features::NODE_FEATURES;
+#[cfg(test)]
+use crate::matching::deep::graph::length_basis;
+use crate::matching::deep::graph::{KERNEL, KERNEL_2D, LengthGraph, OffsetGraph};
 
 /// Graphs as tensors, padded to a common node count `N` (a batch of
 /// training pairs' graphs, or one graph at inference, `B = 1`).
@@ -79,21 +80,21 @@ impl GraphTensors {
     /// Graphs over 2-D offsets padded to the largest, with every kernel
     /// cell (training: the gradient of a cell selection costs more than
     /// the messages it saves).
-    pub(crate) fn new(graphs: &[&GraphInput], device: &Device) -> Self {
+    pub(crate) fn new(graphs: &[&OffsetGraph], device: &Device) -> Self {
         Self::with_cells(graphs, [true; KERNEL_2D], device)
     }
 
     /// One graph with only the kernel cells some edge uses (inference).
     #[cfg(test)]
-    pub(crate) fn used_cells(g: &GraphInput, device: &Device) -> Self {
+    pub(crate) fn used_cells(g: &OffsetGraph, device: &Device) -> Self {
         let mut used = [false; KERNEL_2D];
-        for &k in &g.basis_index {
-            used[k as usize] = true;
+        for k in g.used_cells().0 {
+            used[k] = true;
         }
         Self::with_cells(&[g], used, device)
     }
 
-    fn with_cells(graphs: &[&GraphInput], used: [bool; KERNEL_2D], device: &Device) -> Self {
+    fn with_cells(graphs: &[&OffsetGraph], used: [bool; KERNEL_2D], device: &Device) -> Self {
         let b = graphs.len();
         let n = graphs.iter().map(|g| g.n).max().unwrap_or(0).max(1);
         let f = graphs.first().map_or(NODE_FEATURES, |g| g.node_width);
@@ -114,18 +115,13 @@ impl GraphTensors {
         for (k, g) in graphs.iter().enumerate() {
             x[k * n * f..k * n * f + g.n * f].copy_from_slice(&g.node_features);
             node_mask[k * n..k * n + g.n].fill(1.0);
-            let e = g.edge_count();
-            edges += e;
+            edges += g.edge_count();
             let block = k * n * n * c..(k + 1) * n * n * c;
             let (m, t) = (&mut mixing[block.clone()], &mut by_cell[block]);
-            for edge in 0..e {
-                let (i, j) = (g.dst[edge] as usize, g.src[edge] as usize);
-                let inv_deg = g.aggregate[i * e + edge];
-                for q in 0..4 {
-                    let cell = position[g.basis_index[4 * edge + q] as usize];
-                    let w = g.basis_weight[4 * edge + q] * inv_deg;
-                    m[i * c * n + j * c + cell] += w;
-                    t[(i * c + cell) * n + j] += w;
+            for (i, j, cells) in g.weighted_edges() {
+                for (cell, w) in cells {
+                    m[i * c * n + j * c + position[cell]] += w;
+                    t[(i * c + position[cell]) * n + j] += w;
                 }
             }
         }
@@ -147,7 +143,7 @@ impl GraphTensors {
 
     /// Graphs over edge lengths (knots from 0 to `scale_m`) padded to the
     /// largest (at least one node), every knot a cell.
-    pub(crate) fn lengths(graphs: &[&PaperGraph], scale_m: f64, device: &Device) -> Self {
+    pub(crate) fn lengths(graphs: &[&LengthGraph], scale_m: f64, device: &Device) -> Self {
         let b = graphs.len();
         let n = graphs.iter().map(|g| g.n).max().unwrap_or(0).max(1);
         let f = graphs.first().map_or(NODE_FEATURES, |g| g.node_width);
@@ -159,12 +155,10 @@ impl GraphTensors {
         for (p, g) in graphs.iter().enumerate() {
             x[p * n * f..p * n * f + g.n * f].copy_from_slice(&g.node_features);
             node_mask[p * n..p * n + g.n].fill(1.0);
-            let deg = g.in_degrees();
             let m = &mut mixing[p * n * n * k..(p + 1) * n * n * k];
-            for e in 0..g.edge_count() {
-                let (i, j) = (g.dst[e], g.src[e]);
-                for (knot, w) in length_basis(f64::from(g.length_m[e]), scale_m) {
-                    m[i * n * k + j * k + knot] += (w / deg[i] as f64) as f32;
+            for (i, j, knots) in g.weighted_edges(scale_m) {
+                for (knot, w) in knots {
+                    m[i * n * k + j * k + knot] += w;
                 }
             }
         }
@@ -436,15 +430,11 @@ mod tests {
                         let mut expected: f32 = (0..d_in)
                             .map(|c| x[i * d_in + c] * root[c * d_out + o])
                             .sum();
-                        for e in 0..input.edge_count() {
-                            if input.dst[e] as usize != i {
-                                continue;
-                            }
-                            let j = input.src[e] as usize;
-                            let inv_deg = input.aggregate[i * input.edge_count() + e];
-                            for c in 0..4 {
-                                let k = input.basis_index[4 * e + c] as usize;
-                                let b = input.basis_weight[4 * e + c];
+                        let deg = input.in_degrees();
+                        for e in (0..input.edge_count()).filter(|&e| input.dst[e] == i) {
+                            let j = input.src[e];
+                            let inv_deg = 1.0 / deg[i] as f32;
+                            for (k, b) in input.basis(e) {
                                 let msg: f32 = (0..d_in)
                                     .map(|f| {
                                         x[j * d_in + f] * w[f * KERNEL_2D * d_out + k * d_out + o]
@@ -489,7 +479,7 @@ mod tests_1d {
             let f: Vec<f32> = (0..k * NODE_FEATURES)
                 .map(|v| (v as f32 * 0.37).sin())
                 .collect();
-            PaperGraph::with_features(f, NODE_FEATURES, &SceneGraph::delaunay(&p).unwrap())
+            LengthGraph::with_features(f, NODE_FEATURES, &SceneGraph::delaunay(&p).unwrap())
         };
         let (small, large) = (graph(4), graph(5));
         let scale = 25.0;
@@ -517,7 +507,7 @@ mod tests_1d {
                         .sum();
                     for e in (0..input.edge_count()).filter(|&e| input.dst[e] == i) {
                         let j = input.src[e];
-                        for (k, b) in length_basis(f64::from(input.length_m[e]), scale) {
+                        for (k, b) in length_basis(input.edge_m[e][0], scale) {
                             let msg: f32 = (0..d_in)
                                 .map(|f| x[j * d_in + f] * w[f * KERNEL * d_out + k * d_out + o])
                                 .sum();
