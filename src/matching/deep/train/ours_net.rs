@@ -27,8 +27,6 @@ use burn::tensor::activation;
 use super::init::{Init, Source};
 use super::masks::{Masks, PairMasks};
 use super::sinkhorn::{BLOCKED, log_sinkhorn};
-#[cfg(test)]
-use super::spline::CellWeights;
 use super::spline::{GraphTensors, SplineConv};
 use crate::matching::deep::arch::Architecture;
 use crate::matching::deep::features::{DUST_FEATURES, PAIR_FEATURES, PairInput};
@@ -189,10 +187,9 @@ impl OursNet {
     /// graph (`mask1`: `[B, T, N, hidden]`, `mask2`: `[B, T, N, out]`).
     pub(crate) fn embed(&self, g: &GraphTensors, mask1: Tensor<4>, mask2: Tensor<4>) -> Tensor<4> {
         // The first layer's input is the same for every sample: compute once.
-        let w = g.weights.as_deref();
-        let h = activation::relu(self.conv1.forward(g.x.clone(), g, w.map(|w| &w.conv1)));
+        let h = activation::relu(self.conv1.forward(g.x.clone(), g));
         let h = h * mask1; // [B, T, N, hidden]
-        activation::relu(self.conv2.forward(h, g, w.map(|w| &w.conv2))) * mask2
+        activation::relu(self.conv2.forward(h, g)) * mask2
     }
 
     /// The first layer's output `relu(conv1(x))` of a single graph, `[n,
@@ -202,27 +199,7 @@ impl OursNet {
         &self,
         g: &GraphTensors,
     ) -> Result<Vec<f32>, super::backend::TensorRead> {
-        let w = g.weights.as_deref();
-        super::backend::values(activation::relu(self.conv1.forward(
-            g.x.clone(),
-            g,
-            w.map(|w| &w.conv1),
-        )))
-    }
-
-    /// Every spline layer's weights of the kernel cells of `g`, for
-    /// [`GraphTensors::with_weights`] on graphs with the same cells.
-    #[cfg(test)]
-    pub(crate) fn cell_weights(&self, g: &GraphTensors) -> CellWeights {
-        CellWeights {
-            cell_mask: g.cell_mask,
-            conv1: self.conv1.cell_weights(&g.cells),
-            conv2: self.conv2.cell_weights(&g.cells),
-            consensus: self
-                .consensus_conv
-                .as_ref()
-                .map(|c| c.cell_weights(&g.cells)),
-        }
+        super::backend::values(activation::relu(self.conv1.forward(g.x.clone(), g)))
     }
 
     /// The scores Sinkhorn normalises, `[B, T, N1, N2]`: `scale ll + gate
@@ -286,9 +263,8 @@ impl OursNet {
             ]); // [B, T, N1, N2]
             let r1 = masks.indicators * g1.node_mask.clone(); // [B, 1, N1, r]
             let r2 = soft.swap_dims(2, 3).matmul(r1.clone()); // [B, T, N2, r]
-            let w = |g: &GraphTensors| g.weights.as_ref().and_then(|w| w.consensus.clone());
-            let z1 = activation::relu(conv.forward(r1, g1, w(g1).as_ref())); // [B, 1, N1, r]
-            let z2 = activation::relu(conv.forward(r2, g2, w(g2).as_ref())); // [B, T, N2, r]
+            let z1 = activation::relu(conv.forward(r1, g1)); // [B, 1, N1, r]
+            let z2 = activation::relu(conv.forward(r2, g2)); // [B, T, N2, r]
             let d = z1.unsqueeze_dim::<5>(3) - z2.unsqueeze_dim::<5>(2); // [B, T, N1, N2, r]
             let hidden = activation::relu(phi_in.forward(d)) * masks.phi;
             residual = residual + phi_out.forward(hidden).reshape([b, t, n1, n2]);
@@ -330,7 +306,6 @@ mod tests {
     use crate::matching::deep::train::weights::to_bytes;
     use crate::matching::testkit::graph_input;
     use rand::{Rng, SeedableRng};
-    use std::sync::Arc;
 
     /// A pair input with random likelihoods (every fourth pair gated) and
     /// features.
@@ -456,34 +431,6 @@ mod tests {
         for row in together[0].chunks(m2).take(pairs[0].n1) {
             assert!((row.iter().sum::<f32>() - 1.0).abs() < 1e-3, "{row:?}");
         }
-    }
-
-    /// Kept cell weights give the embedding the layers give by selecting
-    /// their own; weights kept for another cell set are ignored.
-    #[test]
-    fn kept_cell_weights_change_nothing_and_foreign_ones_are_ignored() {
-        let device = crate::matching::deep::train::backend::device();
-        let graph = |points: &[(f64, f64)]| GraphTensors::used_cells(&graph_input(points), &device);
-        let near = [(0.0, 0.0), (12.0, 3.0), (5.0, 20.0), (-9.0, 14.0)];
-        let far = [(0.0, 0.0), (45.0, -30.0), (-40.0, 44.0), (10.0, 60.0)];
-        let arch = Architecture::default();
-        let net = OursNet::new(&arch, Init::Seeded(5), &device);
-        let (a, b) = (graph(&near), graph(&far));
-        assert_ne!(a.cell_mask, b.cell_mask);
-        let (kept_a, kept_b) = (
-            Arc::new(net.cell_weights(&a)),
-            Arc::new(net.cell_weights(&b)),
-        );
-        let embed = |g: &GraphTensors| -> Vec<f32> {
-            let ones = |d: usize| Tensor::<4>::ones([1, 2, g.n(), d], &device);
-            let h = net.embed(g, ones(arch.hidden), ones(arch.out));
-            h.try_into_vec_as::<f32>().unwrap()
-        };
-        let own = embed(&a);
-        assert_eq!(embed(&graph(&near).with_weights(kept_a)), own);
-        let foreign = graph(&near).with_weights(kept_b);
-        assert!(foreign.weights.is_none());
-        assert_eq!(embed(&foreign), own);
     }
 
     #[test]

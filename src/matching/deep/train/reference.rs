@@ -4,9 +4,6 @@
 //! the same streams. The path tests run one matcher of each and hold the
 //! plain one to this one.
 
-use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
-
 use burn::prelude::*;
 
 use super::backend::{device, values};
@@ -15,7 +12,7 @@ use super::ours_net::{OursNet, PairTensors};
 use super::published_net::{
     Dropout, PublishedMasks, PublishedNet, draw_indicators, draw_psi1_masks,
 };
-use super::spline::{CellWeights, GraphTensors};
+use super::spline::GraphTensors;
 use crate::fusion::PoseEstimate;
 use crate::matching::MatchView;
 use crate::matching::deep::arch::{Architecture, MaskScope, PublishedConfig, likelihood_terms};
@@ -29,9 +26,6 @@ use crate::matching::deep::published;
 use crate::matching::likelihood::LikelihoodTerms;
 use crate::rng::{self, Purpose};
 
-/// How many kernel-cell sets' weights are kept.
-const CELL_SETS_KEPT: usize = 16;
-
 /// `ours`'s network through the tensors.
 pub(crate) struct TensorOurs {
     arch: Architecture,
@@ -40,8 +34,6 @@ pub(crate) struct TensorOurs {
     run: Inference,
     terms: LikelihoodTerms,
     combination: Combination,
-    /// The spline layers' weights per set of kernel cells (bit mask).
-    cell_weights: Mutex<HashMap<u32, Arc<CellWeights>>>,
 }
 
 /// One vehicle's embedding through the tensors, with its graph.
@@ -63,7 +55,6 @@ impl TensorOurs {
             net,
             device: device(),
             run,
-            cell_weights: Mutex::default(),
         }
     }
 
@@ -73,23 +64,9 @@ impl TensorOurs {
         Self::new(net, arch, run)
     }
 
-    /// A graph as tensors with its kept cell weights.
+    /// A graph as tensors, with the kernel cells its edges use.
     fn graph(&self, input: &OffsetGraph) -> GraphTensors {
-        let graph = GraphTensors::used_cells(input, &self.device);
-        let kept = self.cell_weights.lock().ok().and_then(|mut cache| {
-            if let Some(w) = cache.get(&graph.cell_mask) {
-                return Some(Arc::clone(w));
-            }
-            (cache.len() < CELL_SETS_KEPT).then(|| {
-                let w = Arc::new(self.net.cell_weights(&graph));
-                cache.insert(graph.cell_mask, Arc::clone(&w));
-                w
-            })
-        });
-        match kept {
-            Some(w) => graph.with_weights(w),
-            None => graph,
-        }
+        GraphTensors::used_cells(input, &self.device)
     }
 
     /// The embedding with the masks of its stream.

@@ -10,10 +10,7 @@
 //! (`SplineCNN`): two convolutions each followed by ReLU, optionally the
 //! input and every layer's output concatenated (`cat`), then a final
 //! linear layer. The reference of inference computes only the kernel
-//! cells a graph uses, and keeps their weights per cell set
-//! ([`CellWeights`]).
-
-use std::sync::Arc;
+//! cells a graph uses.
 
 use burn::module::Param;
 use burn::nn::Linear;
@@ -22,9 +19,8 @@ use burn::tensor::activation;
 
 use super::init::Source;
 use crate::matching::deep::features::NODE_FEATURES;
-#[cfg(test)]
-use crate::matching::deep::graph::length_basis;
-use crate::matching::deep::graph::{KERNEL, KERNEL_2D, LengthGraph, OffsetGraph};
+use crate::matching::deep::graph::{GraphInput, KERNEL, KERNEL_2D, LengthGraph, OffsetGraph};
+use crate::matching::deep::kernels::spline::Cells;
 
 /// Graphs as tensors, padded to a common node count `N` (a batch of
 /// training pairs' graphs, or one graph at inference, `B = 1`).
@@ -49,31 +45,6 @@ pub(crate) struct GraphTensors {
     pub(crate) node_mask: Tensor<4>,
     /// Directed edges over the whole batch (0: no messages at all).
     pub(crate) edges: usize,
-    /// Bit k set when kernel cell k is in `cells`.
-    #[cfg_attr(
-        not(test),
-        allow(dead_code, reason = "the tensor reference's cell cache")
-    )]
-    pub(crate) cell_mask: u32,
-    /// The spline layers' weights of exactly these cells, when the caller
-    /// has them ([`super::OursNet::cell_weights`]); else each
-    /// layer selects them.
-    pub(crate) weights: Option<Arc<CellWeights>>,
-}
-
-/// Every spline layer's weights of one set of kernel cells (`[in, C *
-/// out]` each): what [`SplineConv::forward`] would select, kept by a
-/// caller that sees the same cell set many times (inference).
-pub(crate) struct CellWeights {
-    /// The cell set, as [`GraphTensors::cell_mask`].
-    #[cfg_attr(
-        not(test),
-        allow(dead_code, reason = "the tensor reference's cell cache")
-    )]
-    pub(crate) cell_mask: u32,
-    pub(crate) conv1: Tensor<2>,
-    pub(crate) conv2: Tensor<2>,
-    pub(crate) consensus: Option<Tensor<2>>,
 }
 
 impl GraphTensors {
@@ -81,113 +52,79 @@ impl GraphTensors {
     /// cell (training: the gradient of a cell selection costs more than
     /// the messages it saves).
     pub(crate) fn new(graphs: &[&OffsetGraph], device: &Device) -> Self {
-        Self::with_cells(graphs, [true; KERNEL_2D], device)
+        let edges = graphs.iter().map(|g| g.weighted_edges()).collect();
+        Self::padded(graphs, edges, (0..KERNEL_2D).collect(), true, device)
     }
 
     /// One graph with only the kernel cells some edge uses (inference).
     #[cfg(test)]
     pub(crate) fn used_cells(g: &OffsetGraph, device: &Device) -> Self {
-        let mut used = [false; KERNEL_2D];
-        for k in g.used_cells().0 {
-            used[k] = true;
-        }
-        Self::with_cells(&[g], used, device)
-    }
-
-    fn with_cells(graphs: &[&OffsetGraph], used: [bool; KERNEL_2D], device: &Device) -> Self {
-        let b = graphs.len();
-        let n = graphs.iter().map(|g| g.n).max().unwrap_or(0).max(1);
-        let f = graphs.first().map_or(NODE_FEATURES, |g| g.node_width);
-        debug_assert!(graphs.iter().all(|g| g.node_width == f));
-        let cells: Vec<i64> = (0..KERNEL_2D as i64)
-            .filter(|&k| used[k as usize])
-            .collect();
-        let c = cells.len();
-        let mut position = [0usize; KERNEL_2D];
-        for (p, &k) in cells.iter().enumerate() {
-            position[k as usize] = p;
-        }
-        let mut x = vec![0f32; b * n * f];
-        let mut mixing = vec![0f32; b * n * n * c];
-        let mut by_cell = vec![0f32; b * n * n * c];
-        let mut node_mask = vec![0f32; b * n];
-        let mut edges = 0;
-        for (k, g) in graphs.iter().enumerate() {
-            x[k * n * f..k * n * f + g.n * f].copy_from_slice(&g.node_features);
-            node_mask[k * n..k * n + g.n].fill(1.0);
-            edges += g.edge_count();
-            let block = k * n * n * c..(k + 1) * n * n * c;
-            let (m, t) = (&mut mixing[block.clone()], &mut by_cell[block]);
-            for (i, j, cells) in g.weighted_edges() {
-                for (cell, w) in cells {
-                    m[i * c * n + j * c + position[cell]] += w;
-                    t[(i * c + position[cell]) * n + j] += w;
-                }
-            }
-        }
-        Self {
-            counts: graphs.iter().map(|g| g.n).collect(),
-            x: Tensor::from_data(TensorData::new(x, [b, 1, n, f]), device),
-            cell_mask: cells.iter().map(|&k| 1u32 << k).sum(),
-            cells: Tensor::from_data(TensorData::new(cells, [c]), device),
-            mixing: Tensor::from_data(TensorData::new(mixing, [b, 1, n, n * c]), device),
-            mixing_by_cell: Some(Tensor::from_data(
-                TensorData::new(by_cell, [b, 1, n * c, n]),
-                device,
-            )),
-            node_mask: Tensor::from_data(TensorData::new(node_mask, [b, 1, n, 1]), device),
-            edges,
-            weights: None,
-        }
+        let used = g.used_cells().0;
+        Self::padded(&[g], vec![g.weighted_edges()], used, true, device)
     }
 
     /// Graphs over edge lengths (knots from 0 to `scale_m`) padded to the
     /// largest (at least one node), every knot a cell.
     pub(crate) fn lengths(graphs: &[&LengthGraph], scale_m: f64, device: &Device) -> Self {
+        let edges = graphs.iter().map(|g| g.weighted_edges(scale_m)).collect();
+        Self::padded(graphs, edges, (0..KERNEL).collect(), false, device)
+    }
+
+    /// `graphs` with their weighted edges (i, j, kernel cells), padded to
+    /// the largest (at least one node), the messages of the kernel cells
+    /// `cells` (ascending); `by_cell`: with [`Self::mixing_by_cell`].
+    fn padded<const D: usize, const B: usize>(
+        graphs: &[&GraphInput<D>],
+        edges: Vec<Vec<(usize, usize, Cells<B>)>>,
+        cells: Vec<usize>,
+        by_cell: bool,
+        device: &Device,
+    ) -> Self {
         let b = graphs.len();
         let n = graphs.iter().map(|g| g.n).max().unwrap_or(0).max(1);
         let f = graphs.first().map_or(NODE_FEATURES, |g| g.node_width);
         debug_assert!(graphs.iter().all(|g| g.node_width == f));
-        let k = KERNEL;
+        let c = cells.len();
+        let mut position = [0usize; KERNEL_2D];
+        for (p, &k) in cells.iter().enumerate() {
+            position[k] = p;
+        }
         let mut x = vec![0f32; b * n * f];
-        let mut mixing = vec![0f32; b * n * n * k];
+        let mut mixing = vec![0f32; b * n * n * c];
+        let mut by_cells = vec![0f32; if by_cell { b * n * n * c } else { 0 }];
         let mut node_mask = vec![0f32; b * n];
-        for (p, g) in graphs.iter().enumerate() {
-            x[p * n * f..p * n * f + g.n * f].copy_from_slice(&g.node_features);
-            node_mask[p * n..p * n + g.n].fill(1.0);
-            let m = &mut mixing[p * n * n * k..(p + 1) * n * n * k];
-            for (i, j, knots) in g.weighted_edges(scale_m) {
-                for (knot, w) in knots {
-                    m[i * n * k + j * k + knot] += w;
+        for (k, (g, edges)) in graphs.iter().zip(&edges).enumerate() {
+            x[k * n * f..k * n * f + g.n * f].copy_from_slice(&g.node_features);
+            node_mask[k * n..k * n + g.n].fill(1.0);
+            let block = k * n * n * c..(k + 1) * n * n * c;
+            for &(i, j, weights) in edges {
+                for (cell, w) in weights {
+                    mixing[block.start + i * c * n + j * c + position[cell]] += w;
+                    if by_cell {
+                        by_cells[block.start + (i * c + position[cell]) * n + j] += w;
+                    }
                 }
             }
         }
+        let tensor =
+            |v: Vec<f32>, shape: [usize; 4]| Tensor::from_data(TensorData::new(v, shape), device);
         Self {
             counts: graphs.iter().map(|g| g.n).collect(),
-            x: Tensor::from_data(TensorData::new(x, [b, 1, n, f]), device),
-            cells: Tensor::from_data(TensorData::new((0..k as i64).collect(), [k]), device),
-            mixing: Tensor::from_data(TensorData::new(mixing, [b, 1, n, n * k]), device),
-            mixing_by_cell: None,
-            node_mask: Tensor::from_data(TensorData::new(node_mask, [b, 1, n, 1]), device),
-            edges: graphs.iter().map(|g| g.edge_count()).sum(),
-            cell_mask: (1u32 << k) - 1,
-            weights: None,
+            x: tensor(x, [b, 1, n, f]),
+            cells: Tensor::from_data(
+                TensorData::new(cells.iter().map(|&k| k as i64).collect(), [c]),
+                device,
+            ),
+            mixing: tensor(mixing, [b, 1, n, n * c]),
+            mixing_by_cell: by_cell.then(|| tensor(by_cells, [b, 1, n * c, n])),
+            node_mask: tensor(node_mask, [b, 1, n, 1]),
+            edges: edges.iter().map(Vec::len).sum(),
         }
     }
 
     /// Nodes per graph after padding.
     pub(crate) fn n(&self) -> usize {
         self.x.dims()[2]
-    }
-
-    /// With the spline layers' weights of this batch's cells; weights of
-    /// another cell set are ignored (the layers then select their own).
-    #[cfg(test)]
-    pub(crate) fn with_weights(mut self, weights: Arc<CellWeights>) -> Self {
-        if weights.cell_mask == self.cell_mask {
-            self.weights = Some(weights);
-        }
-        self
     }
 }
 
@@ -252,15 +189,7 @@ impl SplineConv {
     /// per (neighbour, cell); with fewer, the mixing first (`A` by cell
     /// against x, one row per (node, cell)), then the cells' weights
     /// stacked.
-    ///
-    /// `selected`: this layer's weights of the batch's cells in the order's
-    /// layout, if the caller keeps them ([`CellWeights`]).
-    pub(crate) fn forward(
-        &self,
-        x: Tensor<4>,
-        g: &GraphTensors,
-        selected: Option<&Tensor<2>>,
-    ) -> Tensor<4> {
+    pub(crate) fn forward(&self, x: Tensor<4>, g: &GraphTensors) -> Tensor<4> {
         let d_out = self.d_out;
         let [b, t, n, d_in] = x.dims();
         // Every node of every graph and sample as one row: one large
@@ -284,10 +213,7 @@ impl SplineConv {
             return root + bias;
         }
         let c = g.cells.dims()[0];
-        let w = match selected {
-            Some(w) => w.clone(),
-            None => self.cell_weights(&g.cells),
-        };
+        let w = self.cell_weights(&g.cells);
         let messages = if self.mixes_first() {
             let by_cell = g.mixing_by_cell.clone();
             let mixed = by_cell.expect("graphs over 2-D offsets").matmul(x); // [B, T, N C, in]
@@ -317,7 +243,7 @@ impl SplineConv {
     /// The weights of the kernel cells `cells` in the layout of
     /// [`Self::forward`]'s order: `[in, C * out]`, or `[C * in, out]`
     /// when it mixes first.
-    pub(crate) fn cell_weights(&self, cells: &Tensor<1, Int>) -> Tensor<2> {
+    fn cell_weights(&self, cells: &Tensor<1, Int>) -> Tensor<2> {
         let c = cells.dims()[0];
         let d_in = self.root.val().dims()[0];
         let w = self.weight.val().reshape([d_in, KERNEL_2D, self.d_out]);
@@ -366,12 +292,12 @@ impl SplineCnn {
         g: &GraphTensors,
         mask: Option<Tensor<4>>,
     ) -> Tensor<4> {
-        let h1 = activation::relu(self.conv1.forward(x.clone(), g, None));
+        let h1 = activation::relu(self.conv1.forward(x.clone(), g));
         let h1 = match mask {
             Some(m) => h1 * m,
             None => h1,
         };
-        let h2 = activation::relu(self.conv2.forward(h1.clone(), g, None));
+        let h2 = activation::relu(self.conv2.forward(h1.clone(), g));
         if self.cat {
             let t = h2.dims()[1];
             let [b, _, n, d] = x.dims();
@@ -386,96 +312,86 @@ impl SplineCnn {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::Vec2;
+    use crate::graph::SceneGraph;
+    use crate::matching::deep::graph::length_basis;
+    use crate::matching::deep::train::init::Init;
     use crate::matching::testkit::graph_input;
 
-    /// The dense spline convolution, in both orders (weights first, and
-    /// neighbours first), equals the message sum written out per edge:
-    /// `root x_i + sum over edges j -> i of 1/deg(i) sum_c b_c W_(k_c) x_j
-    /// + bias` (kernel cell k_c, basis weight b_c).
-    #[test]
-    fn spline_conv_equals_the_per_edge_sum() {
-        let device = crate::matching::deep::train::backend::device();
-        let input = graph_input(&[
-            (0.0, 0.0),
-            (12.0, 3.0),
-            (5.0, 20.0),
-            (-9.0, 14.0),
-            (30.0, -20.0),
-        ]);
-        let n = input.n;
-        for (d_in, d_out) in [(3, 2), (2, 3)] {
-            let conv = SplineConv::new(
-                "test",
-                [d_in, d_out, KERNEL_2D],
-                super::super::init::Init::Seeded(3),
-                &device,
-            );
-            assert_eq!(conv.mixes_first(), d_in < d_out);
-            let x: Vec<f32> = (0..n * d_in).map(|v| (v as f32 * 0.37).sin()).collect();
-            let all = GraphTensors::new(&[&input], &device);
-            let used = GraphTensors::used_cells(&input, &device);
-            assert!(used.cells.dims()[0] < KERNEL_2D, "every cell used");
-            let kept = conv.cell_weights(&used.cells); // as an inference cache keeps them
-            for (g, selected) in [(&all, None), (&used, None), (&used, Some(&kept))] {
-                let out = conv.forward(
-                    Tensor::from_data(TensorData::new(x.clone(), [1, 1, n, d_in]), &device),
-                    g,
-                    selected,
-                );
-                let out: Vec<f32> = out.try_into_vec_as::<f32>().unwrap();
-                let w: Vec<f32> = conv.weight.val().try_into_vec_as::<f32>().unwrap();
-                let root: Vec<f32> = conv.root.val().try_into_vec_as::<f32>().unwrap();
-                for i in 0..n {
-                    for o in 0..d_out {
-                        let mut expected: f32 = (0..d_in)
-                            .map(|c| x[i * d_in + c] * root[c * d_out + o])
+    const POINTS: [(f64, f64); 5] = [
+        (0.0, 0.0),
+        (12.0, 3.0),
+        (5.0, 20.0),
+        (-9.0, 14.0),
+        (30.0, -20.0),
+    ];
+
+    /// `out`'s rows `first..` for the graph `g` with inputs `x` equal the
+    /// message sum written out per edge: `root x_i + sum over edges j -> i
+    /// of 1/deg(i) sum_k b_k W_k x_j` (`basis`: edge e's cells, of
+    /// `kernel`; the bias is 0).
+    fn assert_per_edge_sum<const D: usize>(
+        (conv, kernel): (&SplineConv, usize),
+        (out, first): (&[f32], usize),
+        (g, x): (&GraphInput<D>, &[f32]),
+        basis: impl Fn(usize) -> Vec<(usize, f32)>,
+    ) {
+        let [w, root] =
+            [conv.weight.val(), conv.root.val()].map(|t| t.try_into_vec_as::<f32>().unwrap());
+        let (d_out, d_in) = (conv.d_out, root.len() / conv.d_out);
+        let deg = g.in_degrees();
+        for i in 0..g.n {
+            for o in 0..d_out {
+                let mut expected: f32 = (0..d_in)
+                    .map(|c| x[i * d_in + c] * root[c * d_out + o])
+                    .sum();
+                for e in (0..g.edge_count()).filter(|&e| g.dst[e] == i) {
+                    let j = g.src[e];
+                    for (k, b) in basis(e) {
+                        let msg: f32 = (0..d_in)
+                            .map(|f| x[j * d_in + f] * w[f * kernel * d_out + k * d_out + o])
                             .sum();
-                        let deg = input.in_degrees();
-                        for e in (0..input.edge_count()).filter(|&e| input.dst[e] == i) {
-                            let j = input.src[e];
-                            let inv_deg = 1.0 / deg[i] as f32;
-                            for (k, b) in input.basis(e) {
-                                let msg: f32 = (0..d_in)
-                                    .map(|f| {
-                                        x[j * d_in + f] * w[f * KERNEL_2D * d_out + k * d_out + o]
-                                    })
-                                    .sum();
-                                expected += inv_deg * b * msg;
-                            }
-                        }
-                        let got = out[i * d_out + o];
-                        assert!(
-                            (got - expected).abs() < 1e-5,
-                            "{d_in} -> {d_out}, node {i}, out {o}: {got} vs {expected}"
-                        );
+                        expected += b * msg / deg[i] as f32;
                     }
                 }
+                let got = out[(first + i) * d_out + o];
+                assert!(
+                    (got - expected).abs() < 1e-5,
+                    "{d_in} -> {d_out}, node {i}, out {o}: {got} vs {expected}"
+                );
             }
         }
     }
-}
 
-#[cfg(test)]
-mod tests_1d {
-    use super::*;
-    use crate::geometry::Vec2;
-    use crate::graph::SceneGraph;
+    /// Over 2-D offsets, in both orders (weights first, and neighbours
+    /// first), with every kernel cell and with the used ones only.
+    #[test]
+    fn spline_conv_equals_the_per_edge_sum() {
+        let device = crate::matching::deep::train::backend::device();
+        let input = graph_input(&POINTS);
+        let n = input.n;
+        for (d_in, d_out) in [(3, 2), (2, 3)] {
+            let conv = SplineConv::new("test", [d_in, d_out, KERNEL_2D], Init::Seeded(3), &device);
+            assert_eq!(conv.mixes_first(), d_in < d_out);
+            let x: Vec<f32> = (0..n * d_in).map(|v| (v as f32 * 0.37).sin()).collect();
+            let used = GraphTensors::used_cells(&input, &device);
+            assert!(used.cells.dims()[0] < KERNEL_2D, "every cell used");
+            for g in [&GraphTensors::new(&[&input], &device), &used] {
+                let x_t = Tensor::from_data(TensorData::new(x.clone(), [1, 1, n, d_in]), &device);
+                let out: Vec<f32> = conv.forward(x_t, g).try_into_vec_as::<f32>().unwrap();
+                let basis = |e| input.basis(e).to_vec();
+                assert_per_edge_sum((&conv, KERNEL_2D), (&out, 0), (&input, &x), basis);
+            }
+        }
+    }
 
-    /// The dense convolution equals the message sum written out per edge:
-    /// `root x_i + sum over edges j -> i of 1/deg(i) sum_k b_k W_k x_j +
-    /// bias`, padding included (a second, larger graph in the batch).
+    /// Over edge lengths, padding included (a second, larger graph in the
+    /// batch).
     #[test]
     fn spline_conv_1d_equals_the_per_edge_sum() {
         let device = crate::matching::deep::train::backend::device();
-        let pts = [
-            (0.0, 0.0),
-            (12.0, 3.0),
-            (5.0, 20.0),
-            (-9.0, 14.0),
-            (30.0, -20.0),
-        ];
         let graph = |k: usize| {
-            let p: Vec<Vec2> = pts[..k].iter().map(|&(x, y)| Vec2::new(x, y)).collect();
+            let p: Vec<Vec2> = POINTS[..k].iter().map(|&(x, y)| Vec2::new(x, y)).collect();
             let f: Vec<f32> = (0..k * NODE_FEATURES)
                 .map(|v| (v as f32 * 0.37).sin())
                 .collect();
@@ -484,43 +400,18 @@ mod tests_1d {
         let (small, large) = (graph(4), graph(5));
         let scale = 25.0;
         let g = GraphTensors::lengths(&[&small, &large], scale, &device);
-        let (d_in, d_out) = (NODE_FEATURES, 3);
-        let conv = SplineConv::new(
-            "test",
-            [d_in, d_out, KERNEL],
-            super::super::init::Init::Seeded(3),
-            &device,
-        );
+        let conv = SplineConv::new("test", [NODE_FEATURES, 3, KERNEL], Init::Seeded(3), &device);
         let out: Vec<f32> = conv
-            .forward(g.x.clone(), &g, None)
+            .forward(g.x.clone(), &g)
             .try_into_vec_as::<f32>()
             .unwrap();
-        let [w, root] =
-            [conv.weight.val(), conv.root.val()].map(|t| t.try_into_vec_as::<f32>().unwrap());
         for (p, input) in [&small, &large].into_iter().enumerate() {
+            let basis = |e: usize| {
+                let cells = length_basis(input.edge_m[e][0], scale);
+                cells.iter().map(|&(k, b)| (k, b as f32)).collect()
+            };
             let x = &input.node_features;
-            let deg = input.in_degrees();
-            for i in 0..input.n {
-                for o in 0..d_out {
-                    let mut expected: f32 = (0..d_in)
-                        .map(|c| x[i * d_in + c] * root[c * d_out + o])
-                        .sum();
-                    for e in (0..input.edge_count()).filter(|&e| input.dst[e] == i) {
-                        let j = input.src[e];
-                        for (k, b) in length_basis(input.edge_m[e][0], scale) {
-                            let msg: f32 = (0..d_in)
-                                .map(|f| x[j * d_in + f] * w[f * KERNEL * d_out + k * d_out + o])
-                                .sum();
-                            expected += b as f32 * msg / deg[i] as f32;
-                        }
-                    }
-                    let got = out[(p * 5 + i) * d_out + o];
-                    assert!(
-                        (got - expected).abs() < 1e-5,
-                        "{p} {i} {o}: {got} vs {expected}"
-                    );
-                }
-            }
+            assert_per_edge_sum((&conv, KERNEL), (&out, p * 5), (input, x), basis);
         }
     }
 }
