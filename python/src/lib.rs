@@ -13,6 +13,9 @@ use coid_sim::dataset::Dataset;
 use coid_sim::dataset::read::{DatasetInstance, DatasetNode, DatasetRun, DatasetSide};
 use coid_sim::geometry::Vec2;
 use coid_sim::graph::SceneGraph;
+use coid_sim::matching::Method;
+use coid_sim::matching::deep::{GraphParts, PublishedForward};
+use coid_sim::sensor::AppearanceWidth;
 use pyo3::create_exception;
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
@@ -326,6 +329,106 @@ fn side<'py>(py: Python<'py>, d: &Dataset, s: &DatasetSide) -> PyResult<Bound<'p
     Ok(out)
 }
 
+/// A published network (`gcn-gm`, `dgmc`, `coid`, ...) with its weights,
+/// its forward pass run with the dropout masks and consensus indicators
+/// the caller gives: what `tools/dgmc_reference` holds DGMC's PyTorch
+/// code to. Not used by any command.
+#[pyclass(frozen)]
+struct PublishedNetwork {
+    net: PublishedForward,
+}
+
+#[pymethods]
+impl PublishedNetwork {
+    /// `method`'s network with the weights of the `.bpk` file `weights`,
+    /// reading appearance vectors `appearance_width` wide (0: none),
+    /// computing `samples` samples per pair.
+    #[new]
+    #[pyo3(signature = (weights, method, appearance_width = 0, samples = 1))]
+    fn new(
+        weights: PathBuf,
+        method: &str,
+        appearance_width: usize,
+        samples: usize,
+    ) -> PyResult<Self> {
+        let method: Method = method
+            .parse()
+            .map_err(|_| CoidError::new_err(format!("no method {method:?}")))?;
+        let bytes = std::fs::read(&weights)
+            .map_err(|e| CoidError::new_err(format!("cannot read {}: {e}", weights.display())))?;
+        let width = AppearanceWidth::new(appearance_width);
+        let net = PublishedForward::new(method, width, &bytes, samples).map_err(|e| {
+            CoidError::new_err(format!(
+                "{} does not fit {}: {e}",
+                weights.display(),
+                method.as_str()
+            ))
+        })?;
+        Ok(Self { net })
+    }
+
+    /// The architecture, as its record writes it.
+    fn config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let c = self.net.config();
+        let d = PyDict::new(py);
+        d.set_item(
+            "kind",
+            if c.consensus_steps() > 0 {
+                "dgmc"
+            } else {
+                "gcn-gm"
+            },
+        )?;
+        d.set_item("node_features", c.node_features())?;
+        d.set_item("hidden", c.hidden)?;
+        d.set_item("out", c.out)?;
+        d.set_item("dropout_conv", c.dropout_conv)?;
+        d.set_item("consensus_dim", c.consensus_dim)?;
+        d.set_item("consensus_steps", c.consensus_steps())?;
+        d.set_item("sinkhorn_iters", c.sinkhorn_iters)?;
+        d.set_item("edge_scale_m", c.edge_scale_m)?;
+        Ok(d)
+    }
+
+    /// Every parameter by its name in the weights file: `(shape, values)`,
+    /// values row-major (a linear layer's weight `[in, out]`, a spline
+    /// convolution's `[in, knots * out]`).
+    fn parameters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for (name, shape, values) in self.net.parameters() {
+            d.set_item(name, (shape, values))?;
+        }
+        Ok(d)
+    }
+
+    /// Each sample's `(n1 + 1) x (n2 + 1)` assignment (row-major, dustbins
+    /// last) for two graphs given as `(node_features, edges, lengths_m)`:
+    /// `n x width` attributes row-major, each undirected edge once;
+    /// `masks`: psi_1's hidden-channel dropout masks, `samples x n x
+    /// hidden` per graph; `indicators`: one `samples x n1 x consensus_dim`
+    /// draw per consensus step.
+    fn forward(
+        &self,
+        py: Python<'_>,
+        first: (Vec<f32>, Vec<(usize, usize)>, Vec<f64>),
+        second: (Vec<f32>, Vec<(usize, usize)>, Vec<f64>),
+        masks: (Vec<f32>, Vec<f32>),
+        indicators: Vec<Vec<f32>>,
+    ) -> PyResult<Vec<Vec<f32>>> {
+        let parts = |(node_features, edges, length_m)| GraphParts {
+            node_features,
+            edges,
+            length_m,
+        };
+        let (g1, g2) = (parts(first), parts(second));
+        py.detach(|| {
+            self.net
+                .forward([&g1, &g2], [&masks.0, &masks.1], &indicators)
+        })
+        .map_err(CoidError::new_err)
+    }
+}
+
 #[pymodule]
 fn _coid_sim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("CoidError", m.py().get_type::<CoidError>())?;
@@ -336,5 +439,6 @@ fn _coid_sim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(delaunay, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;
     m.add_class::<DatasetReader>()?;
+    m.add_class::<PublishedNetwork>()?;
     Ok(())
 }

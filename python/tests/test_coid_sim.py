@@ -358,3 +358,101 @@ def test_a_dataset_with_a_nan_is_refused_by_name(short_export: coid_sim.Dataset,
     nodes.write_parquet(bad / "nodes.parquet")
     with pytest.raises(coid_sim.CoidError, match=r"nodes.parquet: row 1, column 'x_m': NaN is not a number coid can use"):
         list(coid_sim.Dataset(bad))
+
+
+# Issue 65: the published networks' forward pass, opened to the reference check.
+
+
+def _published_pair(inst: "coid_sim.Instance", width: int = 13) -> tuple:
+    def graph(side: "coid_sim.Side") -> tuple:
+        edges = side.edges()
+        lengths = np.linalg.norm(side.xy_m[edges[:, 0]] - side.xy_m[edges[:, 1]], axis=1) if len(edges) else np.zeros(0)
+        x = side.features()[:, :width].astype(np.float32)
+        return (x.reshape(-1).tolist(), [tuple(map(int, e)) for e in edges], lengths.tolist())
+
+    return graph(inst.first), graph(inst.second)
+
+
+def test_a_published_forward_with_given_draws_is_a_dustbin_assignment_per_sample(short_export: coid_sim.Dataset) -> None:
+    """`PublishedNetwork` runs the shipped networks on an exported pair with
+    the masks and indicators given: one `(n1 + 1) x (n2 + 1)` assignment per
+    sample whose real columns sum to 1 (Sinkhorn's last step normalises
+    the columns; 20 steps leave the rows near 1), the same numbers for the
+    same draws, other numbers for other indicators (DGMC) and none asked of
+    GCN-GM."""
+    from coid_sim import _coid_sim
+
+    inst = next(i for i in short_export.instances("test") if len(i.first) > 2 and len(i.second) > 2)
+    n1, n2 = len(inst.first), len(inst.second)
+    first, second = _published_pair(inst)
+    rng = np.random.default_rng(5)
+    net = _coid_sim.PublishedNetwork(str(REPO / "models" / "coid.bpk"), "coid", samples=2)
+    c = net.config()
+    assert (c["kind"], c["node_features"], c["hidden"], c["consensus_steps"]) == ("dgmc", 13, 256, 10)
+    assert net.parameters()["psi1.conv1.weight"][0] == [13, 5 * 256]
+    masks = tuple(((rng.random(2 * n * 256) >= 0.4) / 0.6).astype(np.float32).tolist() for n in (n1, n2))
+    draw = lambda: [rng.standard_normal(2 * n1 * 32).astype(np.float32).tolist() for _ in range(10)]
+    indicators = draw()
+    out = net.forward(first, second, masks, indicators)
+    assert len(out) == 2 and all(len(s) == (n1 + 1) * (n2 + 1) for s in out)
+    for s in out:
+        p = np.asarray(s).reshape(n1 + 1, n2 + 1)
+        assert np.allclose(p[:, :n2].sum(axis=0), 1.0, atol=1e-4) and (p >= 0).all()
+    assert out[0] != out[1]
+    assert net.forward(first, second, masks, indicators) == out
+    assert net.forward(first, second, masks, draw()) != out
+    gcn = _coid_sim.PublishedNetwork(str(REPO / "models" / "gcn-gm.bpk"), "gcn-gm", samples=2)
+    assert len(gcn.forward(first, second, masks, [])) == 2
+
+
+def test_a_published_forward_refuses_what_does_not_fit(short_export: coid_sim.Dataset, tmp_path: Path) -> None:
+    from coid_sim import _coid_sim
+
+    inst = next(i for i in short_export.instances("test") if len(i.first) > 2 and len(i.second) > 2)
+    n1, n2 = len(inst.first), len(inst.second)
+    first, second = _published_pair(inst)
+    weights = str(REPO / "models" / "gcn-gm.bpk")
+    net = _coid_sim.PublishedNetwork(weights, "gcn-gm")
+    masks = ([1.0] * n1 * 256, [1.0] * n2 * 256)
+    with pytest.raises(coid_sim.CoidError, match="a mask of 3 values"):
+        net.forward(first, second, ([1.0] * 3, masks[1]), [])
+    with pytest.raises(coid_sim.CoidError, match="0 consensus steps need 0 indicator draws"):
+        net.forward(first, second, masks, [[0.0]])
+    with pytest.raises(coid_sim.CoidError, match=rf"edge \(0, {n1}\) in a graph of {n1} nodes"):
+        net.forward((first[0], [(0, n1)], [1.0]), second, masks, [])
+    with pytest.raises(coid_sim.CoidError, match="an edge NaN m long"):
+        net.forward((first[0], [(0, 1)], [float("nan")]), second, masks, [])
+    with pytest.raises(coid_sim.CoidError, match="are not rows of 13"):
+        net.forward((first[0][:-1], [], []), second, masks, [])
+    with pytest.raises(coid_sim.CoidError, match="ours is not a network on the paper's inputs"):
+        _coid_sim.PublishedNetwork(str(REPO / "models" / "ours.bpk"), "ours")
+    with pytest.raises(coid_sim.CoidError, match="does not fit dgmc"):
+        _coid_sim.PublishedNetwork(weights, "dgmc")
+    with pytest.raises(coid_sim.CoidError, match="no method"):
+        _coid_sim.PublishedNetwork(weights, "spectral-magic")
+    with pytest.raises(coid_sim.CoidError, match="cannot read"):
+        _coid_sim.PublishedNetwork(str(tmp_path / "none.bpk"), "dgmc")
+
+
+def test_coids_published_forward_is_dgmcs_reference(short_export: coid_sim.Dataset) -> None:
+    """tools/dgmc_reference/check.py: the shipped `coid` weights through
+    DGMC's own forward (PyG's SplineConv) give coid's assignments to 1e-4 on
+    the exported pairs; with the reference's "no match" score moved by 0.5
+    they do not. Needs torch, PyTorch Geometric and a DGMC checkout
+    (COID_DGMC_SRC)."""
+    pytest.importorskip("torch")
+    pytest.importorskip("torch_geometric")
+    dgmc = os.environ.get("COID_DGMC_SRC")
+    if not dgmc:
+        pytest.skip("COID_DGMC_SRC (a checkout of rusty1s/deep-graph-matching-consensus) is not set")
+    sys.path.insert(0, str(REPO / "tools" / "dgmc_reference"))
+    import check
+
+    args = ["--dgmc", dgmc, "--dataset", str(short_export.path), "--split", "test", "--pairs", "20", "--weights", str(REPO / "models" / "coid.bpk")]
+    assert check.main(args) == 0
+    original = check.dustbin_sinkhorn
+    try:
+        check.dustbin_sinkhorn = lambda scores, bin_score, iters: original(scores, bin_score + 0.5, iters)
+        assert check.main(args) == 1
+    finally:
+        check.dustbin_sinkhorn = original

@@ -37,3 +37,23 @@ class DatasetReader:
         position sigma), appearance_width, optional_columns."""
     def run(self, k: int) -> List[Dict[str, Any]]:
         """The k-th run's instances as plain values."""
+
+class PublishedNetwork:
+    """A published network (gcn-gm, dgmc, coid, ...) with its weights, its
+    forward pass run with the dropout masks and consensus indicators the
+    caller gives (tools/dgmc_reference). Raises CoidError."""
+
+    def __init__(self, weights: str, method: str, appearance_width: int = 0, samples: int = 1) -> None: ...
+    def config(self) -> Dict[str, Any]:
+        """kind, node_features, hidden, out, dropout_conv, consensus_dim,
+        consensus_steps, sinkhorn_iters, edge_scale_m."""
+    def parameters(self) -> Dict[str, Tuple[List[int], List[float]]]:
+        """Every parameter by name: shape and row-major values."""
+    def forward(
+        self,
+        first: Tuple[List[float], List[Tuple[int, int]], List[float]],
+        second: Tuple[List[float], List[Tuple[int, int]], List[float]],
+        masks: Tuple[List[float], List[float]],
+        indicators: List[List[float]],
+    ) -> List[List[float]]:
+        """Each sample's (n1 + 1) x (n2 + 1) assignment, dustbins last."""

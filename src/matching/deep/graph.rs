@@ -171,14 +171,29 @@ impl LengthGraph {
     /// undirected edge's two directions in turn; lengths are read as
     /// float32, as DGMC's `edge_attr`.
     pub(crate) fn with_features(features: Vec<f32>, node_width: usize, graph: &SceneGraph) -> Self {
-        let n = graph.node_count();
-        assert_eq!(features.len(), n * node_width, "node attributes");
+        assert_eq!(
+            features.len(),
+            graph.node_count() * node_width,
+            "node attributes"
+        );
+        let edges: Vec<_> = graph.edges.iter().map(|e| (e.a, e.b, e.length_m)).collect();
+        Self::from_edges(features, node_width, &edges)
+    }
+
+    /// Node attributes `features` (`n x node_width`) and undirected edges
+    /// `(a, b, length)`, each in turn in both directions.
+    pub(crate) fn from_edges(
+        features: Vec<f32>,
+        node_width: usize,
+        edges: &[(usize, usize, f64)],
+    ) -> Self {
+        let n = features.len() / node_width.max(1);
         let (mut src, mut dst, mut edge_m) = (Vec::new(), Vec::new(), Vec::new());
-        for e in &graph.edges {
-            for (from, to) in [(e.a, e.b), (e.b, e.a)] {
+        for &(a, b, length_m) in edges {
+            for (from, to) in [(a, b), (b, a)] {
                 src.push(from);
                 dst.push(to);
-                edge_m.push([f64::from(e.length_m as f32)]);
+                edge_m.push([f64::from(length_m as f32)]);
             }
         }
         Self {

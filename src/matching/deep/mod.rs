@@ -37,6 +37,7 @@ pub mod train;
 pub use self::features::check_appearance;
 pub use self::kernels::matmul;
 pub use self::mc::Inference;
+pub use self::published::{GraphParts, PublishedForward};
 
 use self::arch::Backbone;
 use self::mc::McMatcher;

@@ -209,6 +209,13 @@ impl Params {
         v.copy_from_slice(values);
     }
 
+    /// Every parameter by name (in name order): shape and values.
+    pub(crate) fn iter(&self) -> impl Iterator<Item = (&str, &[usize], &[f32])> {
+        self.values
+            .iter()
+            .map(|(k, (shape, v))| (k.as_str(), shape.as_slice(), v.as_slice()))
+    }
+
     /// The values of `key`.
     pub(crate) fn values(&self, key: &str) -> &[f32] {
         self.get(key).1

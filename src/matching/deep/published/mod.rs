@@ -33,9 +33,11 @@
 //! normalised assignment (a node that goes to its dustbin passes on
 //! nothing).
 
+mod check;
 mod inference;
 mod network;
 
+pub use self::check::{GraphParts, PublishedForward};
 pub(crate) use self::inference::{Conv1d, PlainCnn, PlainWeights};
 pub(crate) use self::network::Published;
 #[cfg(test)]
