@@ -367,6 +367,32 @@ impl PublishedNetwork {
         Ok(Self { net })
     }
 
+    /// The bytes of a `.bpk` weights file of `method`'s network with the
+    /// parameters `parameters` (by name: `(shape, values)`, as
+    /// `parameters()` gives them), for coid to run weights trained
+    /// elsewhere.
+    #[staticmethod]
+    #[pyo3(signature = (method, parameters, appearance_width = 0))]
+    fn weights_of<'py>(
+        py: Python<'py>,
+        method: &str,
+        parameters: std::collections::HashMap<String, (Vec<usize>, Vec<f32>)>,
+        appearance_width: usize,
+    ) -> PyResult<Bound<'py, pyo3::types::PyBytes>> {
+        let method: Method = method
+            .parse()
+            .map_err(|_| CoidError::new_err(format!("no method {method:?}")))?;
+        let named = parameters
+            .into_iter()
+            .map(|(k, (shape, v))| (k, shape, v))
+            .collect();
+        let width = AppearanceWidth::new(appearance_width);
+        let bytes = py
+            .detach(|| coid_sim::matching::deep::train::published_weights(method, width, named))
+            .map_err(CoidError::new_err)?;
+        Ok(pyo3::types::PyBytes::new(py, &bytes))
+    }
+
     /// The architecture, as its record writes it.
     fn config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let c = self.net.config();

@@ -403,6 +403,8 @@ def test_a_published_forward_with_given_draws_is_a_dustbin_assignment_per_sample
     assert net.forward(first, second, masks, draw()) != out
     gcn = _coid_sim.PublishedNetwork(str(REPO / "models" / "gcn-gm.bpk"), "gcn-gm", samples=2)
     assert len(gcn.forward(first, second, masks, [])) == 2
+    # Parameters by name make the same weights file again.
+    assert _coid_sim.PublishedNetwork.weights_of("coid", net.parameters()) == (REPO / "models" / "coid.bpk").read_bytes()
 
 
 def test_a_published_forward_refuses_what_does_not_fit(short_export: coid_sim.Dataset, tmp_path: Path) -> None:
@@ -432,6 +434,14 @@ def test_a_published_forward_refuses_what_does_not_fit(short_export: coid_sim.Da
         _coid_sim.PublishedNetwork(weights, "spectral-magic")
     with pytest.raises(coid_sim.CoidError, match="cannot read"):
         _coid_sim.PublishedNetwork(str(tmp_path / "none.bpk"), "dgmc")
+    params = net.parameters()
+    shape, values = params["dustbin"]
+    with pytest.raises(coid_sim.CoidError, match="dustbin holds a value that is not a finite number"):
+        _coid_sim.PublishedNetwork.weights_of("gcn-gm", {**params, "dustbin": (shape, [float("nan")])})
+    with pytest.raises(coid_sim.CoidError, match="the weights have no dustbin"):
+        _coid_sim.PublishedNetwork.weights_of("gcn-gm", {k: v for k, v in params.items() if k != "dustbin"})
+    with pytest.raises(coid_sim.CoidError, match="ours is not a network on the paper's inputs"):
+        _coid_sim.PublishedNetwork.weights_of("ours", params)
 
 
 def test_coids_published_forward_is_dgmcs_reference(short_export: coid_sim.Dataset) -> None:

@@ -63,11 +63,11 @@ def spline_basis(pseudo, kernel_size, is_open_spline, degree):
 
 
 def spline_weighting(x_j, weight, basis, index):
-    """Each message ``sum_s basis_s x_j W[index_s]``."""
-    out = torch.zeros(x_j.shape[0], weight.shape[2], dtype=x_j.dtype)
-    for s in range(basis.shape[1]):
-        out = out + basis[:, s : s + 1] * torch.einsum("ei,eio->eo", x_j, weight[index[:, s]])
-    return out
+    """Each message ``sum_s basis_s x_j W[index_s]``: ``x_j`` times every
+    kernel matrix, then the two knots of each edge picked and weighed."""
+    xw = torch.einsum("ei,kio->eko", x_j, weight)  # [E, K, out]
+    picked = xw.gather(1, index.unsqueeze(-1).expand(-1, -1, xw.shape[2]))
+    return (basis.unsqueeze(-1) * picked).sum(dim=1)
 
 
 def load_dgmc(path: Path):

@@ -49,6 +49,9 @@ class PublishedNetwork:
         consensus_steps, sinkhorn_iters, edge_scale_m."""
     def parameters(self) -> Dict[str, Tuple[List[int], List[float]]]:
         """Every parameter by name: shape and row-major values."""
+    @staticmethod
+    def weights_of(method: str, parameters: Dict[str, Tuple[List[int], List[float]]], appearance_width: int = 0) -> bytes:
+        """A .bpk weights file's bytes for these parameters."""
     def forward(
         self,
         first: Tuple[List[float], List[Tuple[int, int]], List[float]],

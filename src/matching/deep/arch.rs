@@ -72,7 +72,8 @@ impl Method {
     /// Its network (`None`: not a trained network). On the paper's
     /// inputs: GCN-GM's for `gcn-gm`, DGMC's for `dgmc` and for the
     /// paper's method and its ablations (the paper builds on DGMC:
-    /// SplineCNN, consensus, Sinkhorn with "no match"). With the poses:
+    /// SplineCNN, consensus, Sinkhorn; the "no match" dustbin is coid's
+    /// addition, after SuperGlue). With the poses:
     /// the project's network, with the consensus for all but
     /// `gcn-gm+gps`.
     pub fn backbone(self) -> Option<Backbone> {

@@ -161,6 +161,30 @@ impl Params {
         Ok(params)
     }
 
+    /// Parameters given by name (`(name, shape, values)`), checked as
+    /// [`Self::from_bytes`] checks a file's.
+    pub(crate) fn from_named(
+        named: Vec<(String, Vec<usize>, Vec<f32>)>,
+        specs: &[ParamSpec],
+    ) -> Result<Self, String> {
+        let mut values = BTreeMap::new();
+        for (name, shape, v) in named {
+            if v.len() != shape.iter().product::<usize>() {
+                return Err(format!(
+                    "{name} holds {} values for shape {shape:?}",
+                    v.len()
+                ));
+            }
+            if v.iter().any(|x| !x.is_finite()) {
+                return Err(format!("{name} holds a value that is not a finite number"));
+            }
+            values.insert(name, (shape, v));
+        }
+        let params = Self { values };
+        params.check(specs)?;
+        Ok(params)
+    }
+
     /// Whether these are the parameters of `specs`, by name and shape.
     fn check(&self, specs: &[ParamSpec]) -> Result<(), String> {
         for s in specs {

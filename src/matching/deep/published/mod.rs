@@ -20,12 +20,12 @@
 //!
 //! The paper's method and its ablations (`coid`, `coid+non`, `coid+unc`)
 //! are DGMC's network trained with the paper's losses: the paper builds
-//! on DGMC (SplineCNN, neighbourhood consensus, Sinkhorn with "no
-//! match") and adds the losses, MC dropout and thresholding.
+//! on DGMC (SplineCNN, neighbourhood consensus, Sinkhorn) and adds the
+//! losses, MC dropout and thresholding.
 //!
 //! Normalisation: Sinkhorn with a dustbin row and column and one learned
-//! "no match" score (as the paper's Sinkhorn with "no match", and
-//! SuperGlue), not DGMC's row softmax: the two graphs only partly overlap,
+//! "no match" score (SuperGlue's; neither the paper nor DGMC has a
+//! dustbin), not DGMC's row softmax (the paper names Sinkhorn): the two graphs only partly overlap,
 //! a softmax over the other graph's nodes forces every node onto some
 //! partner, and the decision code ([`crate::matching::deep::decision`])
 //! reads `(n1 + 1) x (n2 + 1)` assignments with dustbins. The consensus

@@ -28,7 +28,7 @@ mod published_tests;
 pub(crate) mod reference;
 pub(crate) mod sinkhorn;
 pub(crate) mod spline;
-pub(crate) mod weights;
+mod weights;
 
 use self::backend::device;
 use self::init::Init;
@@ -45,6 +45,7 @@ use crate::matching::{Method, MethodKind};
 use crate::rng::{self, Purpose};
 
 pub use self::examples::{EdgeStats, Example, OwnedView, Prepared, example};
+pub use self::weights::published_weights;
 
 /// The weights of an untrained network of `method` whose gates are open
 /// (as after the first training steps): for tests of everything the

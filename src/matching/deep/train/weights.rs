@@ -31,6 +31,35 @@ pub(crate) fn module_bytes<M: Module + Clone>(module: &M) -> Result<Vec<u8>, Str
     Ok(bytes.to_vec())
 }
 
+/// The weights file (`.bpk` bytes) of `method`'s published network,
+/// reading appearance vectors `appearance_width` wide, with the parameters
+/// `named` (`(name, shape, values)`, as
+/// [`crate::matching::deep::PublishedForward::parameters`] gives them):
+/// weights trained elsewhere (`tools/dgmc_reference/train.py`) for coid
+/// to run.
+pub fn published_weights(
+    method: crate::matching::Method,
+    appearance_width: crate::sensor::AppearanceWidth,
+    named: Vec<(String, Vec<usize>, Vec<f32>)>,
+) -> Result<Vec<u8>, String> {
+    use crate::matching::deep::arch::Backbone;
+    let Some(Backbone::Published(cfg)) = method
+        .backbone()
+        .map(|b| b.with_appearance(appearance_width))
+    else {
+        return Err(format!(
+            "{} is not a network on the paper's inputs",
+            method.as_str()
+        ));
+    };
+    let specs = crate::matching::deep::published::spec(&cfg);
+    let params = crate::matching::deep::params::Params::from_named(named, &specs)?;
+    let device = super::backend::device();
+    module_bytes(&super::published_net::PublishedNet::from_params(
+        &cfg, &params, &specs, &device,
+    ))
+}
+
 /// `ours`'s network of `arch` on `device` with the weights of
 /// [`to_bytes`]; weights that do not fit the architecture or hold a value
 /// that is not finite are refused ([`Params::from_bytes`]).
