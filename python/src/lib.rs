@@ -279,6 +279,10 @@ fn side<'py>(py: Python<'py>, d: &Dataset, s: &DatasetSide) -> PyResult<Bound<'p
     let xy: Vec<[f64; 2]> = n.iter().map(|v| [v.position_m.x, v.position_m.y]).collect();
     out.set_item("xy_m", xy)?;
     out.set_item(
+        "network_features",
+        coid_sim::pipeline::network_node_attributes(s),
+    )?;
+    out.set_item(
         "cov_m2",
         col("cov_xx_m2", 3, &|v| {
             v.cov_m2.map(|c| vec![c[(0, 0)], c[(0, 1)], c[(1, 1)]])

@@ -31,6 +31,7 @@ pub use crate::v2x::{TrackResults, ViewSource};
 pub use evaluation::OnEval;
 pub use frames::evaluate_frames;
 pub use instance::{Instance, InstanceSide};
+pub use replay::network_node_attributes;
 pub use run::run;
 pub use runners::{choice_for, choices, runner, runners};
 pub use simulate::{Step, sense_steps, sighting_pairs, simulate, simulate_frames, simulate_steps};

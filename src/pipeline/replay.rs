@@ -13,7 +13,7 @@ use super::instance::InstanceSide;
 use super::simulate::Step;
 use super::{Progress, RunError, SimStats, Warnings};
 use crate::config::{DatasetSource, Settings};
-use crate::dataset::read::{Dataset, DatasetInstance, DatasetSide};
+use crate::dataset::read::{Dataset, DatasetInstance, DatasetNode, DatasetSide};
 use crate::geometry::{Cov2, Pose2, Vec2};
 use crate::sensor::boxes::Motion;
 use crate::sensor::{
@@ -250,6 +250,47 @@ fn at_levels(inst: &DatasetInstance, s: usize) -> Vec<(PoseNoiseLevel, Pose2)> {
         .collect()
 }
 
+/// A node as the vehicle's detection: what the dataset lacks filled
+/// (grey, one size for all, a 1 m error per axis); its appearance vector
+/// a descriptor of the fitted `law` (none without one).
+fn detection(n: &DatasetNode, law: Option<DescriptorLaw>) -> Detection {
+    let size = n.size_m.unwrap_or(UNKNOWN_SIZE_M);
+    Detection {
+        position_m: n.position_m,
+        cov_m2: n
+            .cov_m2
+            .unwrap_or_else(|| Cov2::identity() * UNKNOWN_SIGMA_M.powi(2)),
+        appearance: Appearance {
+            class: n.class,
+            colour_rgb: n.colour_rgb.unwrap_or(UNKNOWN_COLOUR),
+            length_m: size[0],
+            width_m: size[1],
+            height_m: size[2],
+            // An all-zero vector is a node without one (a sender's
+            // self-report in coid's own exports).
+            descriptor: n
+                .appearance
+                .clone()
+                .filter(|v| v.iter().any(|x| *x != 0.0))
+                .zip(law)
+                .map(|(values, law)| Descriptor { values, law }),
+        },
+        motion: n.motion.map(|(heading_rad, speed_mps)| Motion {
+            heading_rad,
+            speed_mps,
+        }),
+    }
+}
+
+/// The node attributes coid's networks read for `side`'s nodes (class
+/// one-hot, colour, size as the networks scale it; what the dataset lacks
+/// filled as a run fills it), `n x 13` row-major: what a matcher written
+/// elsewhere needs to see a side as coid's networks see it.
+pub fn network_node_attributes(side: &DatasetSide) -> Vec<f32> {
+    let detections: Vec<Detection> = side.nodes.iter().map(|n| detection(n, None)).collect();
+    crate::matching::deep::node_attributes(&detections, crate::sensor::AppearanceWidth::NONE)
+}
+
 /// What vehicle `s` of `inst` holds, and the truth beside it; its nodes'
 /// appearance vectors as descriptors of the fitted `law` (none without
 /// one).
@@ -258,33 +299,7 @@ fn sensed(inst: &DatasetInstance, s: usize, law: Option<DescriptorLaw>) -> Resul
     let mut detections = Vec::with_capacity(side.nodes.len());
     let mut truths = Vec::with_capacity(side.nodes.len());
     for n in &side.nodes {
-        let class = n.class;
-        let size = n.size_m.unwrap_or(UNKNOWN_SIZE_M);
-        detections.push(Detection {
-            position_m: n.position_m,
-            cov_m2: n
-                .cov_m2
-                .unwrap_or_else(|| Cov2::identity() * UNKNOWN_SIGMA_M.powi(2)),
-            appearance: Appearance {
-                class,
-                colour_rgb: n.colour_rgb.unwrap_or(UNKNOWN_COLOUR),
-                length_m: size[0],
-                width_m: size[1],
-                height_m: size[2],
-                // An all-zero vector is a node without one (a sender's
-                // self-report in coid's own exports).
-                descriptor: n
-                    .appearance
-                    .clone()
-                    .filter(|v| v.iter().any(|x| *x != 0.0))
-                    .zip(law)
-                    .map(|(values, law)| Descriptor { values, law }),
-            },
-            motion: n.motion.map(|(heading_rad, speed_mps)| Motion {
-                heading_rad,
-                speed_mps,
-            }),
-        });
+        detections.push(detection(n, law));
         let real = !n.object_id.is_empty();
         truths.push(DetectionTruth {
             object_id: real.then(|| n.object_id.clone()),

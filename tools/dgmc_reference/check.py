@@ -221,7 +221,7 @@ def graph_of(side, scale_m: float, width: int):
     of them: class, colour, size and as much of the appearance vector as the
     network reads), its Delaunay edges and their lengths (coid's), and PyG's
     form of the same."""
-    x = np.ascontiguousarray(side.features()[:, :width].astype(np.float32))
+    x = np.ascontiguousarray(side.network_features()[:, :width].astype(np.float32))
     edges = side.edges()
     lengths = np.linalg.norm(side.xy_m[edges[:, 0]] - side.xy_m[edges[:, 1]], axis=1) if len(edges) else np.zeros(0)
     both = np.concatenate([edges, edges[:, ::-1]], axis=0).T.copy() if len(edges) else np.zeros((2, 0), dtype=np.int64)

@@ -149,7 +149,7 @@ def pairs_of(dataset, split, width, scale):
             continue
         graphs = []
         for side in (inst.first, inst.second):
-            x = torch.from_numpy(np.ascontiguousarray(side.features()[:, :width].astype(np.float32)))
+            x = torch.from_numpy(np.ascontiguousarray(side.network_features()[:, :width].astype(np.float32)))
             e = side.edges()
             lengths = np.linalg.norm(side.xy_m[e[:, 0]] - side.xy_m[e[:, 1]], axis=1) if len(e) else np.zeros(0)
             both = np.concatenate([e, e[:, ::-1]], axis=0).T.copy() if len(e) else np.zeros((2, 0), dtype=np.int64)

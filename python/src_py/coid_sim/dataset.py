@@ -77,6 +77,7 @@ class Side:
     appearance: Optional[np.ndarray] = None
     true_m: Optional[np.ndarray] = None
     visible_fraction: Optional[np.ndarray] = None
+    _network: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
 
     @staticmethod
     def _of(raw: Mapping[str, Any], appearance_width: Optional[int]) -> "Side":
@@ -99,6 +100,7 @@ class Side:
             appearance=None if appearance is None else np.asarray(appearance, dtype=np.float32).reshape(len(raw["xy_m"]), appearance_width or 0),
             true_m=_array(raw["true_m"], 2),
             visible_fraction=None if vf is None else vf[:, 0],
+            _network=np.asarray(raw["network_features"], dtype=np.float32).reshape(len(raw["xy_m"]), 13),
         )
 
     def __len__(self) -> int:
@@ -134,6 +136,20 @@ class Side:
         if self.appearance is not None:
             parts.append(self.appearance.astype(np.float64))
         return np.concatenate(parts, axis=1).reshape(n, -1)
+
+
+    def network_features(self) -> np.ndarray:
+        """The node attributes coid's networks read, ``[n, 13 (+ d)]``
+        float32, computed by coid itself: the class one-hot, colour, and
+        size as the networks scale it (length / 10 m, width / 3 m, height /
+        4 m), what the dataset lacks filled as :meth:`features` fills it,
+        then the appearance vector where the dataset has one. What a
+        network trained elsewhere must read to run in coid
+        (``tools/dgmc_reference``)."""
+        parts = [self._network]
+        if self.appearance is not None:
+            parts.append(self.appearance.astype(np.float32))
+        return np.concatenate(parts, axis=1).reshape(len(self), -1)
 
 
 def _to_world(xy: np.ndarray, pose: Sequence[float]) -> np.ndarray:

@@ -59,10 +59,7 @@ pub(crate) fn push_node_features(
 
 /// Node attributes of `detections`, `n x (NODE_FEATURES +
 /// appearance_width)` row-major ([`push_node_features`]).
-pub(crate) fn node_attributes(
-    detections: &[Detection],
-    appearance_width: AppearanceWidth,
-) -> Vec<f32> {
+pub fn node_attributes(detections: &[Detection], appearance_width: AppearanceWidth) -> Vec<f32> {
     let mut out = Vec::with_capacity(detections.len() * (NODE_FEATURES + appearance_width.get()));
     for d in detections {
         push_node_features(d, appearance_width, &mut out);

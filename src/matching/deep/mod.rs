@@ -34,7 +34,7 @@ mod published;
 mod tests;
 pub mod train;
 
-pub use self::features::check_appearance;
+pub use self::features::{check_appearance, node_attributes};
 pub use self::kernels::matmul;
 pub use self::mc::Inference;
 pub use self::published::{GraphParts, PublishedForward};
