@@ -481,3 +481,34 @@ def test_network_features_are_the_attributes_coids_networks_read(short_export: c
         assert np.allclose(network[:, :10], plain[:, :10])
         assert np.allclose(network[:, 10:13], plain[:, 10:13] / np.array([10.0, 3.0, 4.0]), atol=1e-6)
         assert not np.allclose(network[:, 10:13], plain[:, 10:13])
+
+
+def test_the_reference_trains_on_a_dataset_and_coid_runs_its_weights(tmp_path: Path) -> None:
+    """tools/dgmc_reference/train.py (one epoch of GCN-GM with DGMC's code)
+    on a dataset with train and validation runs, its record copied from
+    the port's: coid validates the weights and evaluates them, as
+    docs/faithfulness.md's commands do. Needs torch, PyTorch Geometric and
+    a DGMC checkout (COID_DGMC_SRC)."""
+    pytest.importorskip("torch")
+    pytest.importorskip("torch_geometric")
+    dgmc = os.environ.get("COID_DGMC_SRC")
+    if not dgmc:
+        pytest.skip("COID_DGMC_SRC (a checkout of rusty1s/deep-graph-matching-consensus) is not set")
+    sys.path.insert(0, str(REPO / "tools" / "dgmc_reference"))
+    import train
+
+    ds = coid_sim.export({**SHORT, "train": {"traffic_seeds": [11, 12], "validation_seeds": [13, 14]}}, out=tmp_path / "all", quiet=True)
+    port, ref = tmp_path / "port", tmp_path / "reference"
+    config = tmp_path / "c.toml"
+    config.write_text(f'[matching]\nmethods = ["gcn-gm", "oracle"]\nmodels_dir = "{port}"\n[train]\nepochs = 1\n[eval]\ntraining_seeds = [7]\n')
+    coid_sim.cli("train", "-c", config, "--dataset", ds.path, "--methods", "gcn-gm", "--seed", "7", "--out", port, "-q")
+    args = ["--dgmc", dgmc, "--dataset", str(ds.path), "--method", "gcn-gm", "--epochs", "1", "--shape-of", str(REPO / "models"), "--record", str(port / "gcn-gm.toml"), "--out", str(ref)]
+    assert train.main(args) == 0
+    assert (ref / "gcn-gm.bpk").read_bytes() != (port / "gcn-gm.bpk").read_bytes()
+    config.write_text(config.read_text().replace(str(port), str(ref)))
+    with pytest.raises(coid_sim.CoidError, match="no validated_lambda"):
+        coid_sim.cli("eval", "-c", config, "--dataset", ds.path, "-o", tmp_path / "e0", "-q")
+    coid_sim.cli("train", "-c", config, "--dataset", ds.path, "--validate-only", "--methods", "gcn-gm", "--out", ref, "-q")
+    coid_sim.cli("eval", "-c", config, "--dataset", ds.path, "-o", tmp_path / "e", "-q")
+    table = pl.read_csv(tmp_path / "e" / "table1.csv").filter(pl.col("method") == "gcn-gm")
+    assert table.height > 0 and 0.0 <= table["f1"][0] <= 1.0

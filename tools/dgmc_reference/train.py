@@ -1,6 +1,7 @@
 """Trains the paper's network on a coid dataset's train split with DGMC's
 reference code (PyTorch Geometric), the way ``coid train`` trains it, and
-writes weights coid runs (``<out>/<method>.bpk``).
+writes weights coid runs (``<out>/<method>.bpk``, its loss curve
+``<method>_loss.csv``, and with ``--record`` its record).
 
 The recipe is coid's (``configs/default.toml``'s ``[train]``): DGMC's
 ``loss(S_0) + loss(S_L)`` as the negative log-likelihood of the labels with
@@ -254,6 +255,28 @@ def batches(sizes, batch_size, rng):
     return out
 
 
+def fnv64_hex(data: bytes) -> str:
+    """coid's weights checksum (FNV-1a 64)."""
+    h = 0xCBF29CE484222325
+    for b in data:
+        h = ((h ^ b) * 0x100000001B3) & 0xFFFFFFFFFFFFFFFF
+    return f"{h:016x}"
+
+
+def record_for(text: str, weights: bytes) -> str:
+    """A coid record of the same recipe for these weights: its checksum
+    theirs, its validated choices (the ``[validation]`` tables, which belong
+    to other weights) left out."""
+    out = []
+    for line in text.splitlines():
+        if line.startswith("[validation"):
+            break
+        if line.startswith("weights_fnv64 = "):
+            line = f'weights_fnv64 = "{fnv64_hex(weights)}"'
+        out.append(line)
+    return "\n".join(out).rstrip() + "\n"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dgmc", type=Path, required=True)
@@ -269,6 +292,7 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", type=int, default=2)
     ap.add_argument("--no-match", choices=["entries", "halves"], default="halves")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--record", type=Path, help="coid's record (<method>.toml) of the same recipe, copied beside the weights with their checksum and without its validated choices, for `coid train --validate-only` and `coid eval`")
     args = ap.parse_args(argv)
 
     import coid_sim
@@ -307,7 +331,7 @@ def main(argv=None) -> int:
     net.train()
     best = (0, validation_loss(), net.parameters_by_name())
     print(f"{len(train)} training pairs, {len(validation)} validation pairs; epoch 0 validation loss {best[1]:.4f}", flush=True)
-    step, rows = 0, []
+    step, rows = 0, [(0, None, best[1])]
     started = time.time()
     for epoch in range(1, args.epochs + 1):
         s = 0.0
@@ -336,9 +360,11 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     bpk = _coid_sim.PublishedNetwork.weights_of(args.method, best[2])
     (args.out / f"{args.method}.bpk").write_bytes(bpk)
-    with open(args.out / f"{args.method}_reference_loss.csv", "w") as f:
-        f.write("epoch,train_loss,validation_loss\n")
-        for e, t, v in rows:
+    if args.record:
+        (args.out / f"{args.method}.toml").write_text(record_for(args.record.read_text(), bpk))
+    with open(args.out / f"{args.method}_loss.csv", "w") as f:  # coid's loss curve's columns
+        f.write(f"epoch,mean_loss,validation_loss\n0,,{rows[0][2]:.6f}\n")
+        for e, t, v in rows[1:]:
             f.write(f"{e},{t:.6f},{v:.6f}\n")
     print(f"best epoch {best[0]} (validation loss {best[1]:.4f}); wrote {args.out / (args.method + '.bpk')} ({step} steps, {time.time() - started:.0f} s)")
     return 0
