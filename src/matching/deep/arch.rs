@@ -124,6 +124,17 @@ impl Method {
         }
     }
 
+    /// Its terms with the pair term `[train] loss` names (`pairs`): for
+    /// the paper's method and its ablations and for the project's
+    /// network; DGMC and GCN-GM as published keep their NLL.
+    pub fn loss_terms_with(self, pairs: PairLoss) -> LossTerms {
+        let terms = self.loss_terms();
+        match self.weights_owner() {
+            Method::Dgmc | Method::GcnGm => terms,
+            _ => LossTerms { pairs, ..terms },
+        }
+    }
+
     /// The dropout masks it trains with: DGMC and GCN-GM as published
     /// draw standard dropout, a mask per node and channel, whatever the
     /// settings; the paper's method and its ablations (on DGMC's network)
@@ -538,6 +549,33 @@ mod tests {
     /// A record's network reads back as the kind it was written as: the
     /// published configuration is not taken for the project's network,
     /// nor the other way round.
+    /// `[train] loss` reaches the paper's method, its ablations and the
+    /// project's network; DGMC and GCN-GM as published keep their NLL.
+    #[test]
+    fn the_pair_loss_reaches_the_papers_method_not_the_published_baselines() {
+        for m in [
+            Method::Coid,
+            Method::CoidNon,
+            Method::CoidUnc,
+            Method::Ours,
+            Method::DgmcGps,
+        ] {
+            assert_eq!(
+                m.loss_terms_with(PairLoss::Paper).pairs,
+                PairLoss::Paper,
+                "{m:?}"
+            );
+        }
+        for m in [Method::Dgmc, Method::GcnGm] {
+            assert_eq!(
+                m.loss_terms_with(PairLoss::Paper).pairs,
+                PairLoss::Likelihood,
+                "{m:?}"
+            );
+        }
+        assert!(Method::Coid.loss_terms_with(PairLoss::Paper).non);
+    }
+
     #[test]
     fn backbones_round_trip_through_toml() {
         #[derive(serde::Serialize, serde::Deserialize)]

@@ -321,8 +321,7 @@ impl Trainer {
                 method.as_str()
             ));
         };
-        let mut terms = method.loss_terms();
-        terms.pairs = opts.loss;
+        let terms = method.loss_terms_with(opts.loss);
         let device = device().autodiff();
         Ok(Self {
             arch,
@@ -548,7 +547,7 @@ pub fn train(
             let label = method.as_str();
             let mut trainer = PublishedTrainer::with_terms(
                 cfg,
-                method.loss_terms(),
+                method.loss_terms_with(opts.loss),
                 opts.samples,
                 opts.masks,
                 opts.seed,

@@ -17,7 +17,9 @@ use super::loss::{non_term, unc_term};
 use super::published_net::{PublishedNet, draw_training_masks};
 use super::spline::GraphTensors;
 use super::weights::module_bytes;
-use crate::matching::deep::arch::{LossTerms, MaskScope, NoMatchWeights, PublishedConfig};
+use crate::matching::deep::arch::{
+    LossTerms, MaskScope, NoMatchWeights, PairLoss, PublishedConfig,
+};
 use crate::matching::deep::graph::LengthGraph;
 use crate::rng::{self, Purpose};
 
@@ -136,6 +138,32 @@ fn label_weights(
     Tensor::from_data(TensorData::new(w, [batch.len(), 1, rows, cols]), device)
 }
 
+/// `[B, N1, N2]` 1 for each true pair, and `[B]` the true pairs of each
+/// pair of graphs (at least 1).
+fn true_pairs(
+    batch: &[&TrainPair],
+    [n1, n2]: [usize; 2],
+    device: &Device,
+) -> (Tensor<3>, Tensor<1>) {
+    let b = batch.len();
+    let mut y = vec![0f32; b * n1 * n2];
+    let mut counts = Vec::with_capacity(b);
+    for (k, p) in batch.iter().enumerate() {
+        let mut n = 0usize;
+        for (i, j) in p.partner.iter().enumerate() {
+            if let Some(j) = *j {
+                y[k * n1 * n2 + i * n2 + j] = 1.0;
+                n += 1;
+            }
+        }
+        counts.push(n.max(1) as f32);
+    }
+    (
+        Tensor::from_data(TensorData::new(y, [b, n1, n2]), device),
+        Tensor::from_data(TensorData::new(counts, [b]), device),
+    )
+}
+
 /// The mean negative log-likelihood of the labels under log assignments
 /// `[B, T, N1 + 1, N2 + 1]`, over pairs and samples.
 fn nll(log_p: Tensor<4>, weights: &Tensor<4>) -> Tensor<1> {
@@ -168,7 +196,7 @@ impl PublishedTrainer {
     #[cfg(test)]
     pub(crate) fn new(cfg: PublishedConfig, seed: u64) -> Self {
         let terms = LossTerms {
-            pairs: crate::matching::deep::arch::PairLoss::Likelihood,
+            pairs: PairLoss::Likelihood,
             non: false,
             unc: false,
         };
@@ -229,22 +257,35 @@ impl PublishedTrainer {
             self.masks,
             device,
         );
-        let weights = label_weights(batch, [n1, n2], self.no_match, device);
         let out = net.forward(&self.cfg, [&g1, &g2], masks);
-        let mut loss = nll(out.initial.clone(), &weights);
-        let last = match out.refined {
-            Some(refined) => {
-                loss = loss + nll(refined.clone(), &weights);
-                refined
+        let refined = out.refined.is_some();
+        let last = out.refined.clone().unwrap_or_else(|| out.initial.clone());
+        // P = E[Y]: the mean over the samples of the network's answer,
+        // its real block.
+        let p = last
+            .clone()
+            .exp()
+            .mean_dim(1)
+            .reshape([b, n1 + 1, n2 + 1])
+            .slice([0..b, 0..n1, 0..n2]);
+        let mut loss = match self.terms.pairs {
+            PairLoss::Likelihood => {
+                let weights = label_weights(batch, [n1, n2], self.no_match, device);
+                let mut l = nll(out.initial, &weights);
+                if refined {
+                    l = l + nll(last, &weights);
+                }
+                l
             }
-            None => out.initial,
+            PairLoss::Paper => {
+                // Eq. 11 on E[Y]: -log(sum(P o Y*) / n_true), n_true
+                // in place of the paper's n n' (a constant per pair).
+                let (y, n_true) = true_pairs(batch, [n1, n2], device);
+                let matched = (p.clone() * y).sum_dims_squeeze::<1, usize>(&[1, 2]) / n_true;
+                -matched.clamp_min(1e-9).log().mean()
+            }
         };
         if self.terms.non || self.terms.unc {
-            let p = last
-                .exp()
-                .mean_dim(1)
-                .reshape([b, n1 + 1, n2 + 1])
-                .slice([0..b, 0..n1, 0..n2]);
             let (non, real, n_real) = covisibility(batch, [n1, n2], device);
             if self.terms.non {
                 loss = loss + non_term(p.clone(), &non, &real, n_real.clone()).mean();
