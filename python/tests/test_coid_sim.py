@@ -444,18 +444,25 @@ def test_a_published_forward_refuses_what_does_not_fit(short_export: coid_sim.Da
         _coid_sim.PublishedNetwork.weights_of("ours", params)
 
 
-def test_coids_published_forward_is_dgmcs_reference(short_export: coid_sim.Dataset) -> None:
-    """tools/dgmc_reference/check.py: the shipped `coid` weights through
-    DGMC's own forward (PyG's SplineConv) give coid's assignments to 1e-4 on
-    the exported pairs; with the reference's "no match" score moved by 0.5
-    they do not. Needs torch, PyTorch Geometric and a DGMC checkout
-    (COID_DGMC_SRC)."""
+def _dgmc_reference() -> str:
+    """The DGMC checkout for tools/dgmc_reference, whose scripts become
+    importable; skips without torch, PyTorch Geometric or COID_DGMC_SRC."""
     pytest.importorskip("torch")
     pytest.importorskip("torch_geometric")
     dgmc = os.environ.get("COID_DGMC_SRC")
     if not dgmc:
         pytest.skip("COID_DGMC_SRC (a checkout of rusty1s/deep-graph-matching-consensus) is not set")
     sys.path.insert(0, str(REPO / "tools" / "dgmc_reference"))
+    return dgmc
+
+
+def test_coids_published_forward_is_dgmcs_reference(short_export: coid_sim.Dataset) -> None:
+    """tools/dgmc_reference/check.py: the shipped `coid` weights through
+    DGMC's own forward (PyG's SplineConv) give coid's assignments to 1e-4 on
+    the exported pairs; with the reference's "no match" score moved by 0.5
+    they do not. Needs torch, PyTorch Geometric and a DGMC checkout
+    (COID_DGMC_SRC)."""
+    dgmc = _dgmc_reference()
     import check
 
     args = ["--dgmc", dgmc, "--dataset", str(short_export.path), "--split", "test", "--pairs", "20", "--weights", str(REPO / "models" / "coid.bpk")]
@@ -489,12 +496,7 @@ def test_the_reference_trains_on_a_dataset_and_coid_runs_its_weights(tmp_path: P
     the port's: coid validates the weights and evaluates them, as
     docs/faithfulness.md's commands do. Needs torch, PyTorch Geometric and
     a DGMC checkout (COID_DGMC_SRC)."""
-    pytest.importorskip("torch")
-    pytest.importorskip("torch_geometric")
-    dgmc = os.environ.get("COID_DGMC_SRC")
-    if not dgmc:
-        pytest.skip("COID_DGMC_SRC (a checkout of rusty1s/deep-graph-matching-consensus) is not set")
-    sys.path.insert(0, str(REPO / "tools" / "dgmc_reference"))
+    dgmc = _dgmc_reference()
     import train
 
     ds = coid_sim.export({**SHORT, "train": {"traffic_seeds": [11, 12], "validation_seeds": [13, 14]}}, out=tmp_path / "all", quiet=True)

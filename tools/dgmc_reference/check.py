@@ -287,5 +287,17 @@ def main(argv=None) -> int:
     return 0 if worst <= args.tolerance else 1
 
 
+def one_line_errors(run) -> int:
+    """``run()``'s exit code; coid's refusals and missing files as one
+    line and exit 1, not a traceback."""
+    from coid_sim import CoidError
+
+    try:
+        return run()
+    except (CoidError, OSError) as e:
+        print(f"{Path(sys.argv[0]).name}: {e}", file=sys.stderr)
+        return 1
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(one_line_errors(main))

@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from check import load_dgmc  # noqa: E402
+from check import graph_of, load_dgmc, one_line_errors  # noqa: E402
 
 BLOCKED = -1.0e4
 WARMUP_STEPS = 200
@@ -148,14 +148,7 @@ def pairs_of(dataset, split, width, scale):
     for inst in dataset.instances(split):
         if len(inst.first) == 0 or len(inst.second) == 0:
             continue
-        graphs = []
-        for side in (inst.first, inst.second):
-            x = torch.from_numpy(np.ascontiguousarray(side.network_features()[:, :width].astype(np.float32)))
-            e = side.edges()
-            lengths = np.linalg.norm(side.xy_m[e[:, 0]] - side.xy_m[e[:, 1]], axis=1) if len(e) else np.zeros(0)
-            both = np.concatenate([e, e[:, ::-1]], axis=0).T.copy() if len(e) else np.zeros((2, 0), dtype=np.int64)
-            pseudo = np.clip(np.concatenate([lengths, lengths]).astype(np.float32) / np.float32(scale), 0, 1)
-            graphs.append((x, torch.from_numpy(both).long(), torch.from_numpy(pseudo).reshape(-1, 1)))
+        graphs = [graph_of(side, scale, width)[1] for side in (inst.first, inst.second)]
         out.append((graphs[0], graphs[1], inst.y.copy()))
     return out
 
@@ -371,4 +364,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(one_line_errors(main))
