@@ -136,9 +136,9 @@ fn seed_runs(a: &Args, settings: &Settings, models_dir: &Path) -> anyhow::Result
 /// a single-pass variant, or a baseline to train.
 fn methods_of(a: &Args, settings: &Settings) -> anyhow::Result<(Vec<Method>, Vec<Method>)> {
     super::no_repeats("--methods", &a.methods)?;
-    if let Some(m) = a.methods.iter().find(|m| m.single_pass()) {
+    if let Some(m) = a.methods.iter().find(|m| m.is_variant()) {
         anyhow::bail!(
-            "'{}' runs the weights and choices of '{}' in one pass: train or validate '{}'",
+            "'{}' runs the weights of '{}': train or validate '{}'",
             m.as_str(),
             m.weights_owner().as_str(),
             m.weights_owner().as_str()

@@ -102,11 +102,11 @@ fn fitting(c: &Checker, t: &RawTrain) -> Result<(), ConfigError> {
                 .into(),
         ));
     }
-    if let Some(m) = t.methods.iter().find(|m| m.single_pass()) {
+    if let Some(m) = t.methods.iter().find(|m| m.is_variant()) {
         return Err(c.invalid(
             "train.methods",
             format!(
-                "'{}' runs the weights of '{}' in one pass: train '{}'",
+                "'{}' runs the weights of '{}': train '{}'",
                 m.as_str(),
                 m.weights_owner().as_str(),
                 m.weights_owner().as_str()

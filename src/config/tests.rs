@@ -131,7 +131,7 @@ fn the_defaults_are_the_shipped_file_and_valid() {
     // installation).
     assert_eq!(d.scenario.sumocfg, shipped.scenario.sumocfg);
     assert_eq!(d.sensor, shipped.sensor);
-    assert_eq!(d.matching.methods.len(), 13);
+    assert_eq!(d.matching.methods.len(), 16);
     assert_eq!(
         d.matching.baselines,
         crate::matching::BaselineChoice::Validated

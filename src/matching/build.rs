@@ -2,8 +2,11 @@
 //! validated choice.
 
 use super::deep::arch::MaskScope;
-use super::deep::decision::{Decision, KindLambdas};
-use super::{GpsHungarian, Matcher, MatchingSettings, Method, MethodKind, Mogm, Rgm, deep, drive};
+use super::deep::decision::{Decision, KindLambdas, UncertaintyKind};
+use super::{
+    GpsHungarian, Matcher, MatchingSettings, Method, MethodKind, Mogm, Rgm, Rrwm, Spectral, deep,
+    drive,
+};
 
 /// Why a method could not be built.
 #[derive(Debug, thiserror::Error)]
@@ -41,6 +44,28 @@ pub struct DeepChoice {
     pub temperature: f64,
     /// The dropout masks the weights were trained with (their record's).
     pub trained_masks: MaskScope,
+}
+
+/// The paper's fixed threshold on the total entropy (l. 343: best at 0.7
+/// in its sensitivity analysis).
+pub const PAPER_LAMBDA: f64 = 0.7;
+
+impl DeepChoice {
+    /// The paper's fixed rule ([`Method::CoidPaperRule`]): the one-to-one
+    /// assignment of E[Y] (Eq. 4), pairs with total entropy `>=`
+    /// [`PAPER_LAMBDA`] removed, probabilities as they are, every pair the
+    /// assignment makes decided; with the masks the weights were trained
+    /// with.
+    pub fn paper_rule(trained_masks: MaskScope) -> Self {
+        Self {
+            lambda: PAPER_LAMBDA,
+            lambdas: KindLambdas::all(PAPER_LAMBDA),
+            decision: Decision::Assignment,
+            min_probability: 0.0,
+            temperature: 1.0,
+            trained_masks,
+        }
+    }
 }
 
 /// Each deep method's threshold of every uncertainty type.
@@ -83,6 +108,13 @@ pub fn build(
             m.params.descriptor_weight = settings.descriptor_weight(method);
             Box::new(m)
         }
+        MethodKind::LearningFree if method == Method::Spectral => {
+            Box::new(Spectral { min_score: value })
+        }
+        MethodKind::LearningFree if method == Method::Rrwm => Box::new(Rrwm {
+            min_score: value,
+            ..Rrwm::default()
+        }),
         MethodKind::LearningFree => {
             let mut m = Rgm {
                 lambda: value,
@@ -104,9 +136,16 @@ pub fn build(
                 choice,
                 appearance_width,
             } = trained.ok_or(BuildError::NoWeights(method.as_str()))?;
+            // The paper's rule thresholds the total entropy, whatever
+            // type the config names.
+            let kind = if method == Method::CoidPaperRule {
+                UncertaintyKind::Total
+            } else {
+                settings.uncertainty
+            };
             let threshold = method
                 .thresholds_by_default()
-                .then_some((settings.uncertainty, choice.lambda));
+                .then_some((kind, choice.lambda));
             // A single-pass variant: one sample with every dropout off.
             let (samples, dropout) = if method.single_pass() {
                 (1, Some(0.0))

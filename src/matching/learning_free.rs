@@ -109,12 +109,12 @@ pub struct AffinityProblem {
 
 /// An edge between two detections of one vehicle: its length and the
 /// variance of the length from the two detections' covariances.
-struct EdgeView {
-    length_m: f64,
-    length_var_m2: f64,
+pub(super) struct EdgeView {
+    pub(super) length_m: f64,
+    pub(super) length_var_m2: f64,
 }
 
-fn edge(p: &Detection, q: &Detection) -> EdgeView {
+pub(super) fn edge(p: &Detection, q: &Detection) -> EdgeView {
     let d = q.position_m - p.position_m;
     let length_m = d.norm().max(1e-3);
     let u = d / length_m;

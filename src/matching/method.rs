@@ -20,6 +20,12 @@ crate::label_enum! { "method";
         /// dropout buys.
         #[strum(serialize = "coid-t1")]
         CoidT1,
+        /// `coid`'s weights with the paper's fixed rule instead of the
+        /// choices validation makes: the one-to-one assignment of E[Y]
+        /// (Eq. 4), pairs whose total entropy is at least 0.7 removed
+        /// (l. 155, 343); no calibration temperature, no operating point.
+        #[strum(serialize = "coid-paper-rule")]
+        CoidPaperRule,
         /// Ablation: L_coid + L_non.
         #[strum(serialize = "coid+non")]
         CoidNon,
@@ -42,6 +48,16 @@ crate::label_enum! { "method";
         /// (IPFP with a price per match).
         #[strum(serialize = "rgm")]
         Rgm,
+        /// Learning-free spectral matching (Leordeanu & Hebert 2005) on
+        /// edge lengths over every pair of same-class candidates, Hungarian,
+        /// a threshold.
+        #[strum(serialize = "spectral")]
+        Spectral,
+        /// Learning-free reweighted random walk matching (Cho et al. 2010,
+        /// as pygmtools implements it) on the same affinity, Hungarian, a
+        /// threshold.
+        #[strum(serialize = "rrwm")]
+        Rrwm,
         /// Our learned correction of the shared pair likelihood (reported
         /// poses, appearance, graph structure): L_coid + L_non + L_unc,
         /// MC-dropout uncertainty, thresholding.
@@ -110,6 +126,7 @@ impl Method {
         match self {
             Method::Coid
             | Method::CoidT1
+            | Method::CoidPaperRule
             | Method::CoidNon
             | Method::CoidUnc
             | Method::Dgmc
@@ -120,7 +137,9 @@ impl Method {
             | Method::CoidUncGps
             | Method::DgmcGps
             | Method::GcnGmGps => MethodKind::Deep,
-            Method::Mogm | Method::Rgm => MethodKind::LearningFree,
+            Method::Mogm | Method::Rgm | Method::Spectral | Method::Rrwm => {
+                MethodKind::LearningFree
+            }
             Method::GpsHungarian | Method::GpsAppHungarian => MethodKind::GpsBased,
             Method::Oracle => MethodKind::Oracle,
             Method::External => MethodKind::External,
@@ -133,12 +152,15 @@ impl Method {
         match self {
             Method::Coid
             | Method::CoidT1
+            | Method::CoidPaperRule
             | Method::CoidNon
             | Method::CoidUnc
             | Method::Dgmc
             | Method::GcnGm
             | Method::Mogm
-            | Method::Rgm => Inputs::Paper,
+            | Method::Rgm
+            | Method::Spectral
+            | Method::Rrwm => Inputs::Paper,
             Method::Ours
             | Method::OursT1
             | Method::CoidNonGps
@@ -154,21 +176,28 @@ impl Method {
         }
     }
 
-    /// Whose weights and validated choices a deep method runs with: its
-    /// own, or for a single-pass variant (`coid-t1`, `ours-t1`) those of
-    /// the method it is one pass of.
+    /// Whose weights a deep method runs with: its own, or for a variant
+    /// (`coid-t1`, `coid-paper-rule`, `ours-t1`) those of the method it is
+    /// a variant of; a single-pass variant takes that method's validated
+    /// choices too.
     pub fn weights_owner(self) -> Method {
         match self {
-            Method::CoidT1 => Method::Coid,
+            Method::CoidT1 | Method::CoidPaperRule => Method::Coid,
             Method::OursT1 => Method::Ours,
             m => m,
         }
     }
 
+    /// Whether the method runs another method's weights (it is neither
+    /// trained nor validated itself).
+    pub fn is_variant(self) -> bool {
+        self.weights_owner() != self
+    }
+
     /// Whether the method runs one pass with every dropout off (no MC
     /// dropout).
     pub fn single_pass(self) -> bool {
-        self.weights_owner() != self
+        matches!(self, Method::CoidT1 | Method::OursT1)
     }
 
     /// The single-pass variant of a method, if it has one.
@@ -220,8 +249,8 @@ impl Method {
     }
 
     /// The baseline's threshold that validation chooses, if it has one:
-    /// MOGM's minimum share of the largest eigenvector entry (applied after
-    /// the spectral solution), RGM's price per match (it shapes the
+    /// MOGM's, spectral matching's and RRWM's minimum share of the largest
+    /// score (applied after the solution), RGM's price per match (it shapes the
     /// optimisation), a GPS Hungarian's gate on the squared Mahalanobis
     /// distance (the chi-square 2-dof 10 % to 99.9999 % points: from a
     /// gate tight enough for lidar-quality data whose covariances are
@@ -237,6 +266,15 @@ impl Method {
             Method::Mogm => knob(
                 "min_score",
                 &[0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9],
+            ),
+            Method::Spectral => knob(
+                "min_score",
+                &[0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9],
+            ),
+            // RRWM's reweighted jumps sharpen its scores towards 0 and 1.
+            Method::Rrwm => knob(
+                "min_score",
+                &[0.0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 0.97, 0.99],
             ),
             Method::Rgm => knob("price_per_match", &[0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.5, 2.0]),
             Method::GpsHungarian | Method::GpsAppHungarian => knob(

@@ -13,6 +13,7 @@ mod gps_hungarian;
 pub mod learning_free;
 pub mod likelihood;
 pub mod oracle;
+pub mod spectral;
 pub mod synchronize;
 #[cfg(test)]
 pub(crate) mod testkit;
@@ -22,10 +23,13 @@ mod tests;
 mod build;
 mod method;
 
-pub use build::{BuildError, DeepChoice, MethodLambdas, Trained, build, method_lambdas};
+pub use build::{
+    BuildError, DeepChoice, MethodLambdas, PAPER_LAMBDA, Trained, build, method_lambdas,
+};
 pub use gps_hungarian::GpsHungarian;
 pub use learning_free::{Mogm, Rgm};
 pub use method::{BaselineKnob, DESCRIPTOR_WEIGHTS, Inputs, Method, MethodKind};
+pub use spectral::{Rrwm, Spectral};
 
 use std::path::PathBuf;
 
@@ -125,6 +129,8 @@ impl MatchingSettings {
         let a_priori = match method {
             Method::Mogm => Mogm::default().min_score,
             Method::Rgm => Rgm::default().lambda,
+            Method::Spectral => Spectral::default().min_score,
+            Method::Rrwm => Rrwm::default().min_score,
             Method::GpsHungarian | Method::GpsAppHungarian => self.gate_chi2,
             _ => f64::NAN,
         };

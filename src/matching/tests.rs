@@ -53,6 +53,8 @@ fn every_learning_free_matcher_matches_a_moved_copy_of_a_scene_to_itself() {
     for method in [
         Method::Mogm,
         Method::Rgm,
+        Method::Spectral,
+        Method::Rrwm,
         Method::GpsHungarian,
         Method::GpsAppHungarian,
     ] {
@@ -213,12 +215,15 @@ fn method_labels_are_the_published_ones_in_table_order() {
         [
             "coid",
             "coid-t1",
+            "coid-paper-rule",
             "coid+non",
             "coid+unc",
             "dgmc",
             "gcn-gm",
             "mogm",
             "rgm",
+            "spectral",
+            "rrwm",
             "ours",
             "ours-t1",
             "coid+non+gps",
@@ -303,7 +308,7 @@ fn the_methods_on_the_papers_inputs_never_read_a_pose() {
         .copied()
         .filter(|m| m.inputs() == Inputs::Paper)
         .collect();
-    assert_eq!(paper.len(), 8);
+    assert_eq!(paper.len(), 11);
     for method in paper.into_iter().chain([Method::GpsAppHungarian]) {
         let weights = (method.kind() == MethodKind::Deep)
             .then(|| deep::opened_weights(method.weights_owner(), 3));
@@ -337,4 +342,31 @@ fn entropy_bounds() {
     assert_eq!(binary_entropy_bits(1.0), 0.0);
     assert!((binary_entropy_bits(0.5) - 1.0).abs() < 1e-12);
     assert!(binary_entropy_bits(0.9) < binary_entropy_bits(0.7));
+}
+
+#[test]
+fn the_papers_rule_is_coids_weights_at_lambda_0_7_on_the_total_entropy() {
+    let world = testkit::world_objects();
+    let all: Vec<usize> = (0..world.len()).collect();
+    let a = Side::of(testkit::POSE_A, &world, &all, testkit::GPS);
+    let b = Side::of(testkit::POSE_B, &world, &[3, 0, 5, 2, 7, 6], testkit::GPS);
+    let weights = deep::opened_weights(Method::Coid, 3);
+    let rule = DeepChoice::paper_rule(MaskScope::PerNode);
+    assert_eq!((rule.lambda, rule.decision), (0.7, Decision::Assignment));
+    let run = |m: Method, uncertainty: UncertaintyKind| {
+        let s = MatchingSettings {
+            uncertainty,
+            ..settings()
+        };
+        let matcher = build(m, &s, trained(Some(&weights), rule), 1).unwrap();
+        assert_eq!(matcher.method(), m);
+        matcher.identify(&a.view(), &b.view())
+    };
+    // Whatever type the config thresholds, the rule thresholds the total.
+    let paper = run(Method::CoidPaperRule, UncertaintyKind::Epistemic);
+    assert_eq!(paper, run(Method::Coid, UncertaintyKind::Total));
+    assert!(
+        paper.matches.iter().all(|c| c.uncertainty < 0.7),
+        "{paper:?}"
+    );
 }

@@ -22,6 +22,11 @@ use crate::matching::{
 /// 1 when the models folder records none).
 pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, RunError> {
     let m = &settings.matching;
+    if method == Method::CoidPaperRule {
+        let validated = io::read_validated(&m.models_dir, method).ok();
+        let masks = validated.map_or(MaskScope::PerNode, |v| v.trained_masks);
+        return Ok(DeepChoice::paper_rule(masks));
+    }
     let validated = match (m.lambda, m.decision) {
         // Only the temperature is read: without it, the probabilities as
         // they are.

@@ -701,9 +701,9 @@ fn the_documented_recipe_for_data_from_elsewhere_runs() {
     copy_dir(&repo().join("models"), &fx.path("dmgm-models"));
     let cfg = fx.write(
         "dmgm.toml",
-        "[matching]\nmethods = [\"coid\", \"mogm\", \"rgm\", \"ours\", \"gps-hungarian\", \
-         \"gps-app-hungarian\", \"oracle\"]\nmodels_dir = \"dmgm-models\"\n[eval]\n\
-         training_seeds = [7]\n",
+        "[matching]\nmethods = [\"coid\", \"coid-paper-rule\", \"mogm\", \"rgm\", \"spectral\", \
+         \"rrwm\", \"ours\", \"gps-hungarian\", \"gps-app-hungarian\", \"oracle\"]\n\
+         models_dir = \"dmgm-models\"\n[eval]\ntraining_seeds = [7]\n",
     );
     let (c, d) = (cfg.to_str().unwrap(), "dmgm-coid");
     let train = |methods: &str| {
@@ -721,7 +721,9 @@ fn the_documented_recipe_for_data_from_elsewhere_runs() {
             "dmgm-models",
         ])
     };
-    assert_ok(&train("mogm,rgm,gps-hungarian,gps-app-hungarian"));
+    assert_ok(&train(
+        "mogm,rgm,spectral,rrwm,gps-hungarian,gps-app-hungarian",
+    ));
     assert_ok(&train("coid,ours"));
     assert_ok(&fx.coid(&["eval", "-q", "-c", c, "--dataset", d]));
     assert!(fx.path("results/dmgm-coid-eval/table1.csv").is_file());

@@ -35,8 +35,8 @@ fn check_summary(summary: &DataFrame) {
     ] {
         assert!(cols.iter().any(|x| x == c), "column {c} missing: {cols:?}");
     }
-    // 13 methods x 3 pose-noise levels x 2 fusion variants.
-    assert_eq!(summary.height(), 78);
+    // 16 methods x 3 pose-noise levels x 2 fusion variants.
+    assert_eq!(summary.height(), 96);
     let (methods, noise) = (strs(summary, "method"), strs(summary, "pose_noise"));
     let fusion = strs(summary, "fusion");
     let (p, r) = (f64s(summary, "precision"), f64s(summary, "recall"));
@@ -342,25 +342,8 @@ fn ctrl_c_exits_130_and_leaves_no_results_folder() {
 }
 
 /// The default run's summary, byte for byte: `tests/golden/default-summary.csv`.
-/// `[v2x] mode = "ideal"`, the default, reproduced the binary's from before
-/// `[v2x]` (commit 2752208) until issue 33 renewed the file: the default
-/// seeds moved off test run 1 to 1001 (outside every run list), and the
-/// deep methods' lambdas were validated again on the uncertainty as Table 3
-/// defines it; then the methods of Table 1 on the paper's inputs (`coid`,
-/// `dgmc`, `gcn-gm` as published; `mogm` and `rgm` without the heading)
-/// replaced `ours-noprior` and the deep baselines with the poses, and the
-/// baselines' thresholds came from the validation runs (`ours`'s rows,
-/// and the renamed `+gps` methods' under their old names, stayed byte for
-/// byte); then the single-pass rows `coid-t1` and `ours-t1` were added
-/// (every other row byte for byte); then the deep methods' weights were
-/// retrained on the family with one-vehicle-type demand (`ours` with
-/// Eq. 8's shared masks, `coid` per node, as validation chose; the rows of
-/// the learning-free methods, the Hungarians and the oracle byte for
-/// byte); then the ablations `coid+non` and `coid+unc` were added (every
-/// other row byte for byte); then validation chose every deep method's
-/// operating point with its rule (`mutual-real`, the least E[Y]; the
-/// deep rows moved, every other row byte for byte). A change that moves
-/// the default results must say why and renew the file.
+/// A change that moves the default results must say why (CHANGELOG.md)
+/// and renew the file.
 #[test]
 fn the_ideal_mode_reproduces_the_results_from_before_v2x() {
     let fx = Fixture::new();

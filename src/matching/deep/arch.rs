@@ -487,11 +487,11 @@ mod tests {
             (Method::DgmcGps, (V2xPoses, true, false, false)),
             (Method::GcnGmGps, (V2xPoses, false, false, false)),
         ];
-        // Single-pass variants run their owner's network.
+        // Variants run their owner's network.
         let deep: Vec<Method> = Method::all()
             .iter()
             .copied()
-            .filter(|m| matches!(m.kind(), MethodKind::Deep) && !m.single_pass())
+            .filter(|m| matches!(m.kind(), MethodKind::Deep) && !m.is_variant())
             .collect();
         assert_eq!(deep, rows.map(|(m, _)| m));
         for (t1, owner) in [
@@ -502,6 +502,9 @@ mod tests {
             assert_eq!(t1.inputs(), owner.inputs());
             assert_eq!(owner.single_pass_variant(), Some(t1));
         }
+        let rule = Method::CoidPaperRule;
+        assert_eq!((rule.weights_owner(), rule.inputs()), (Method::Coid, Paper));
+        assert!(rule.is_variant() && !rule.single_pass() && rule.thresholds_by_default());
         for (m, row) in rows {
             assert_eq!(m.kind(), MethodKind::Deep);
             let d = m;
