@@ -27,7 +27,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{Correspondence, Identification, MatchView, Matcher, Method, binary_entropy_bits};
+use super::{Correspondence, Identification, MatchView, Matcher, Method};
 use crate::fusion::PoseEstimate;
 use crate::sensor::{Appearance, Detection};
 
@@ -245,12 +245,7 @@ impl Matcher for Mogm {
             }
             used_a[a] = true;
             used_b[b] = true;
-            out.push(Correspondence {
-                a,
-                b,
-                probability: x[c],
-                uncertainty: binary_entropy_bits(x[c]),
-            });
+            out.push(Correspondence::with_probability(a, b, x[c]));
         }
         out.sort_by_key(|c| c.a);
         Identification::matches_only(out)
@@ -352,13 +347,7 @@ impl Matcher for Rgm {
             .map(|c| {
                 let (a, b) = problem.candidates[c];
                 // Confidence: the relaxed solution's weight on this pair.
-                let p = x[c].clamp(0.0, 1.0);
-                Correspondence {
-                    a,
-                    b,
-                    probability: p,
-                    uncertainty: binary_entropy_bits(p),
-                }
+                Correspondence::with_probability(a, b, x[c].clamp(0.0, 1.0))
             })
             .collect();
         out.sort_by_key(|c| c.a);

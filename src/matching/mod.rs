@@ -215,6 +215,19 @@ pub struct Correspondence {
     pub uncertainty: f64,
 }
 
+impl Correspondence {
+    /// The pair (a, b) at `probability`, its uncertainty the binary
+    /// entropy of it.
+    pub fn with_probability(a: usize, b: usize, probability: f64) -> Self {
+        Self {
+            a,
+            b,
+            probability,
+            uncertainty: binary_entropy_bits(probability),
+        }
+    }
+}
+
 /// What a method says about one pair of vehicles.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Identification {

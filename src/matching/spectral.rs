@@ -21,7 +21,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::learning_free::{AffinityProblem, edge, principal_eigenvector};
-use super::{Correspondence, Identification, MatchView, Matcher, Method, binary_entropy_bits};
+use super::{Correspondence, Identification, MatchView, Matcher, Method};
 use crate::fusion::PoseEstimate;
 
 /// The geometry-only affinity of the module docs.
@@ -78,12 +78,7 @@ fn assign(problem: &AffinityProblem, scores: &[f64], min_score: f64) -> Identifi
             if c == usize::MAX || scores[c] <= 0.0 || scores[c] < min_score {
                 continue;
             }
-            out.push(Correspondence {
-                a: i,
-                b: a,
-                probability: scores[c],
-                uncertainty: binary_entropy_bits(scores[c]),
-            });
+            out.push(Correspondence::with_probability(i, a, scores[c]));
         }
     }
     out.sort_by_key(|c| c.a);
