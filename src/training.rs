@@ -266,6 +266,27 @@ fn collect(
     Ok(examples)
 }
 
+/// The bytes of the weights `[train] start_from` holds for `method`
+/// (`None`: a seeded start), checked to read what this training reads.
+fn start_weights(settings: &Settings, method: Method) -> Result<Option<Vec<u8>>, String> {
+    let Some(dir) = &settings.train.start_from else {
+        return Ok(None);
+    };
+    let w = io::read_weights(dir, method).map_err(|e| format!("[train] start_from: {e}"))?;
+    let width = settings.appearance_width();
+    if w.appearance_width != width {
+        return Err(format!(
+            "[train] start_from: the weights of '{}' in {} read appearance vectors {} wide, \
+             this training {}",
+            method.as_str(),
+            dir.display(),
+            w.appearance_width.get(),
+            width.get()
+        ));
+    }
+    Ok(Some(w.bytes))
+}
+
 /// Trains `method` and writes its weights, record and loss curve into
 /// `models_dir`.
 fn train_one(
@@ -277,12 +298,19 @@ fn train_one(
 ) -> Result<Trained, TrainingError> {
     let started = std::time::Instant::now();
     report.training(method);
-    let (weights, train_report) =
-        experiments::train_method(settings, method, examples, validation, &mut Steps(report))
-            .map_err(|reason| TrainingError::Train {
-                method: method.as_str(),
-                reason,
-            })?;
+    let fail = |reason| TrainingError::Train {
+        method: method.as_str(),
+        reason,
+    };
+    let start = start_weights(settings, method).map_err(fail)?;
+    let (weights, train_report) = experiments::train_method(
+        settings,
+        method,
+        (examples, validation),
+        start.as_deref(),
+        &mut Steps(report),
+    )
+    .map_err(fail)?;
     let record = TrainingRecord {
         method,
         settings,

@@ -130,10 +130,23 @@ fn seed_runs(a: &Args, settings: &Settings, models_dir: &Path) -> anyhow::Result
     )?)
 }
 
+/// The weights `[train] start_from` names for each of `methods`, read
+/// before any run is simulated.
+fn check_start(settings: &Settings, methods: &[Method]) -> anyhow::Result<()> {
+    if let Some(dir) = &settings.train.start_from {
+        for &m in methods {
+            crate::io::read_weights(dir, m)
+                .map_err(|e| anyhow::anyhow!("[train] start_from: {e}"))?;
+        }
+    }
+    Ok(())
+}
+
 /// The deep methods to train (or validate) and the baselines to tune:
 /// `--methods` split by kind, else `[train] methods` and the baselines of
 /// `[matching] methods`; refused when `--methods` names a method twice,
-/// a single-pass variant, or a baseline to train.
+/// a variant, or a baseline to train, or when the weights training is to
+/// start from are missing.
 fn methods_of(a: &Args, settings: &Settings) -> anyhow::Result<(Vec<Method>, Vec<Method>)> {
     super::no_repeats("--methods", &a.methods)?;
     if let Some(m) = a.methods.iter().find(|m| m.is_variant()) {
@@ -168,6 +181,9 @@ fn methods_of(a: &Args, settings: &Settings) -> anyhow::Result<(Vec<Method>, Vec
             m.as_str(),
             m.as_str()
         );
+    }
+    if !a.validate_only {
+        check_start(settings, &methods)?;
     }
     Ok((methods, baselines))
 }

@@ -68,6 +68,7 @@ pub(super) fn train_and_eval(
         sample_every_s: t.sample_every_s,
         no_match: t.no_match,
         appearance_vectors: t.appearance_vectors,
+        start_from: (!t.start_from.as_os_str().is_empty()).then(|| c.resolve(&t.start_from)),
     };
     Ok((
         train,

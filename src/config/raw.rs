@@ -292,6 +292,7 @@ pub(super) struct RawTrain {
     pub(super) sample_every_s: f64,
     pub(super) no_match: NoMatchWeights,
     pub(super) appearance_vectors: bool,
+    pub(super) start_from: PathBuf,
 }
 
 #[derive(Debug, Deserialize)]

@@ -313,13 +313,14 @@ pub fn collect_examples(
 }
 
 /// Trains one deep method on the collected examples (with early stopping
-/// on `validation` when `[train] patience` > 0); returns its weights
-/// (bytes) and loss curve.
+/// on `validation` when `[train] patience` > 0), from the weights `start`
+/// (the bytes of `[train] start_from`'s `.bpk`) or a seeded start;
+/// returns its weights (bytes) and loss curve.
 pub fn train_method(
     settings: &Settings,
     method: Method,
-    examples: &[Example],
-    validation: &[Example],
+    (examples, validation): (&[Example], &[Example]),
+    start: Option<&[u8]>,
     progress: &mut impl TrainProgress,
 ) -> Result<(Vec<u8>, TrainReport), String> {
     let t = &settings.train;
@@ -339,7 +340,7 @@ pub fn train_method(
         appearance_width: settings.appearance_width(),
         no_match: t.no_match,
     };
-    train::train(method, examples, validation, &opts, progress)
+    train::train(method, examples, validation, &opts, start, progress)
 }
 
 /// Evaluates `methods` on one test run (`settings` already carries the

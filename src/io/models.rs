@@ -236,6 +236,16 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
         )));
     };
     let paths = |v: &[PathBuf]| v.iter().map(|p| p.display().to_string()).collect();
+    let start = t
+        .start_from
+        .as_ref()
+        .map(|dir| weights_path(dir, record.method));
+    let start_fnv64 = match &start {
+        Some(p) => Some(records::fnv64_hex(&std::fs::read(p).map_err(|e| {
+            OutputError::Batch(format!("cannot read {}: {e}", p.display()))
+        })?)),
+        None => None,
+    };
     let r = record.report;
     Ok(ModelRecord {
         method: record.method.as_str().to_owned(),
@@ -270,6 +280,8 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
         batch_size: t.batch_size,
         no_match: matches!(backbone, Backbone::Published(_)).then_some(t.no_match),
         patience: r.best_epoch.map(|_| t.patience),
+        start_from: start.map(|p| p.display().to_string()),
+        start_weights_fnv64: start_fnv64,
         best_epoch: r.best_epoch,
         validation: None,
         descriptor: None,

@@ -58,6 +58,12 @@ pub struct ModelRecord {
     pub no_match: Option<NoMatchWeights>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub patience: Option<usize>,
+    /// The weights training started from (`[train] start_from`): their
+    /// file and its checksum (absent: a seeded start).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_from: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_weights_fnv64: Option<String>,
     /// The epoch kept: lowest loss on the validation runs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_epoch: Option<usize>,
@@ -462,6 +468,8 @@ mod tests {
             batch_size: 32,
             no_match: None,
             patience: Some(3),
+            start_from: None,
+            start_weights_fnv64: None,
             best_epoch: Some(1),
             validation: Some(ValidationRecord {
                 seeds: vec![4],

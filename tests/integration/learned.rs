@@ -422,3 +422,69 @@ fn a_record_narrower_than_the_node_attributes_is_refused() {
         &fx.path("w"),
     );
 }
+
+/// `[train] start_from`: training starts from the weights of a models
+/// folder. The record names them and their checksum, and before the first
+/// step the validation loss is that of those weights (the shipped
+/// `coid`'s, trained on the family: below a seeded start's); a folder
+/// without them is a clear error.
+#[test]
+fn training_starts_from_the_weights_start_from_names() {
+    let fx = Fixture::new();
+    let cfg = |name: &str, start: &str| {
+        fx.config(
+            name,
+            80.0,
+            &format!(
+                "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 1\n\
+                 patience = 1\nmethods = [\"coid\"]\nstart_from = {start:?}\n\
+                 [pose_noise]\nlevels = [\"gps\"]\n"
+            ),
+        )
+    };
+    let shipped = repo().join("models");
+    let train = |c: &std::path::Path, out: &str| {
+        fx.cmd("train")
+            .quiet()
+            .config(c)
+            .out(out)
+            .args(["--skip-validation"])
+            .output()
+    };
+    assert_ok(&train(&cfg("seeded.toml", ""), "seeded"));
+    assert_ok(&train(
+        &cfg("tuned.toml", shipped.to_str().unwrap()),
+        "tuned",
+    ));
+    let before = |dir: &str| -> f64 {
+        let curve = fx.read_text(&format!("{dir}/coid_loss.csv"));
+        let row = curve.lines().find(|l| l.starts_with("0,")).unwrap();
+        row.rsplit(',').next().unwrap().parse().unwrap()
+    };
+    let (seeded, tuned) = (before("seeded"), before("tuned"));
+    assert!(
+        tuned < seeded,
+        "validation loss before training: {tuned} vs {seeded}"
+    );
+    let record = fx.read_text("tuned/coid.toml");
+    let bytes = std::fs::read(shipped.join("coid.bpk")).unwrap();
+    let fnv = bytes.iter().fold(0xcbf29ce484222325u64, |h, b| {
+        (h ^ u64::from(*b)).wrapping_mul(0x100000001b3)
+    });
+    assert!(
+        record.contains(&format!("start_weights_fnv64 = \"{fnv:016x}\"")),
+        "{record}"
+    );
+    assert!(!fx.read_text("seeded/coid.toml").contains("start_from"));
+    std::fs::create_dir_all(fx.path("empty")).unwrap();
+    let o = train(
+        &cfg("nowhere.toml", fx.path("empty").to_str().unwrap()),
+        "nowhere",
+    );
+    assert_refused(&o, "cannot load the weights of 'coid' from");
+    assert!(
+        stderr(&o).contains("coid.bpk (no such file)"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -41,6 +41,7 @@ use self::weights::to_bytes;
 use super::arch::{Architecture, Backbone, LossTerms, MaskScope, NoMatchWeights, PairLoss};
 use super::features::PairInput;
 use super::graph::OffsetGraph;
+use super::params::Params;
 use crate::matching::{Method, MethodKind};
 use crate::rng::{self, Purpose};
 
@@ -114,11 +115,15 @@ pub struct TrainSettings {
     /// Whether the deep networks read a dataset's appearance vectors (when
     /// it has vectors that its validation runs found telling).
     pub appearance_vectors: bool,
+    /// A models folder whose weights of each method start its training
+    /// (fine-tuning weights trained elsewhere, say on simulated scenes);
+    /// `None`: a seeded start.
+    pub start_from: Option<std::path::PathBuf>,
 }
 
-/// As derived, but `no_match` and `appearance_vectors` are shown only when
-/// they differ from `entries` and `true`: a config's digest hashes this
-/// text.
+/// As derived, but `no_match`, `appearance_vectors` and `start_from` are
+/// shown only when they differ from `entries`, `true` and none: a
+/// config's digest hashes this text.
 impl std::fmt::Debug for TrainSettings {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let mut d = f.debug_struct("TrainSettings");
@@ -143,6 +148,9 @@ impl std::fmt::Debug for TrainSettings {
         }
         if !self.appearance_vectors {
             d.field("appearance_vectors", &self.appearance_vectors);
+        }
+        if let Some(dir) = &self.start_from {
+            d.field("start_from", dir);
         }
         d.finish()
     }
@@ -370,6 +378,16 @@ impl Trainer {
         loss(log_p, &tensors.labels, self.terms)
     }
 
+    /// Starts from the weights `bytes` (a `.bpk` of this network) instead
+    /// of the seeded start.
+    pub fn start_from(&mut self, bytes: &[u8]) -> Result<(), String> {
+        let specs = crate::matching::deep::ours::spec(&self.arch);
+        let params = Params::from_bytes(bytes, &specs)
+            .map_err(|e| format!("the starting weights do not fit the network ({e})"))?;
+        self.net = OursNet::from_params(&self.arch, &params, &specs, &self.device);
+        Ok(())
+    }
+
     /// One Adam step on one batch at learning rate `lr`; returns the loss
     /// before the step.
     pub fn step(&mut self, batch: &[&Prepared], lr: f64) -> Result<f32, String> {
@@ -511,15 +529,18 @@ impl Fit for PublishedFit {
     }
 }
 
-/// Trains a deep method on `examples`; returns its weights (bytes) and the
-/// loss curve. With `opts.patience > 0` and `validation` examples, stops
-/// early on the validation loss and returns the best weights. The
-/// published networks see the examples' paper inputs only.
+/// Trains a deep method on `examples`, from the weights `start` (the
+/// bytes of a `.bpk` of the same network) or a seeded start; returns its
+/// weights (bytes) and the loss curve. With `opts.patience > 0` and
+/// `validation` examples, stops early on the validation loss and returns
+/// the best weights. The published networks see the examples' paper
+/// inputs only.
 pub fn train(
     method: Method,
     examples: &[Example],
     validation: &[Example],
     opts: &TrainOptions,
+    start: Option<&[u8]>,
     progress: &mut impl TrainProgress,
 ) -> Result<(Vec<u8>, TrainReport), String> {
     let Some(backbone) = method.backbone() else {
@@ -535,7 +556,10 @@ pub fn train(
     };
     match backbone.with_appearance(opts.appearance_width) {
         Backbone::Likelihood(_) => {
-            let trainer = Trainer::new(method, opts)?;
+            let mut trainer = Trainer::new(method, opts)?;
+            if let Some(bytes) = start {
+                trainer.start_from(bytes)?;
+            }
             let fit = LikelihoodFit {
                 train: trainer.prepare(examples),
                 validation: trainer.prepare(validation),
@@ -554,6 +578,9 @@ pub fn train(
                 label,
             );
             trainer.no_match = opts.no_match;
+            if let Some(bytes) = start {
+                trainer.start_from(bytes)?;
+            }
             let width = cfg.appearance_width;
             let train: Vec<TrainPair> = examples.iter().map(|e| TrainPair::of(e, width)).collect();
             let fit = PublishedFit {

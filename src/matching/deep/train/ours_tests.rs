@@ -315,3 +315,30 @@ fn the_plain_first_layer_is_the_tensor_one_bit_for_bit() {
         );
     }
 }
+
+#[test]
+fn the_projects_trainer_started_from_weights_holds_them() {
+    let opts = |seed| super::TrainOptions {
+        epochs: 1,
+        learning_rate: 1e-3,
+        seed,
+        patience: 0,
+        loss: crate::matching::deep::arch::PairLoss::Likelihood,
+        samples: 1,
+        masks: MaskScope::PerNode,
+        batch_size: 4,
+        gate_chi2: 9.21,
+        appearance_width: crate::sensor::AppearanceWidth::NONE,
+        no_match: crate::matching::deep::arch::NoMatchWeights::Halves,
+    };
+    let other = super::Trainer::new(Method::Ours, &opts(11))
+        .unwrap()
+        .weights()
+        .unwrap();
+    let mut t = super::Trainer::new(Method::Ours, &opts(7)).unwrap();
+    assert_ne!(t.weights().unwrap(), other);
+    t.start_from(&other).unwrap();
+    assert_eq!(t.weights().unwrap(), other);
+    let e = t.start_from(b"not a burnpack").unwrap_err();
+    assert!(e.starts_with("the starting weights do not fit"), "{e}");
+}

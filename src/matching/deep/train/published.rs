@@ -233,6 +233,16 @@ impl PublishedTrainer {
         }
     }
 
+    /// Starts from the weights `bytes` (a `.bpk` of this network) instead
+    /// of the seeded start.
+    pub(crate) fn start_from(&mut self, bytes: &[u8]) -> Result<(), String> {
+        let specs = crate::matching::deep::published::spec(&self.cfg);
+        let params = crate::matching::deep::params::Params::from_bytes(bytes, &specs)
+            .map_err(|e| format!("the starting weights do not fit the network ({e})"))?;
+        self.net = PublishedNet::from_params(&self.cfg, &params, &specs, &self.device);
+        Ok(())
+    }
+
     /// The loss of `batch` on `net` with masks from `stream`: NLL under
     /// `S_0`, plus under `S_L` with consensus, plus Eq. 12 and 13 on the
     /// mean answer when the terms have them.

@@ -530,3 +530,15 @@ fn a_matcher_counts_what_its_network_multiplies() {
         assert_eq!(m.network_macs(), ab.new_pair() + more, "{masks:?}");
     }
 }
+
+#[test]
+fn a_published_trainer_started_from_weights_holds_them() {
+    let cfg = PublishedConfig::new(PublishedKind::Dgmc);
+    let other = PublishedTrainer::new(cfg, 11).weights().unwrap();
+    let mut t = PublishedTrainer::new(cfg, 7);
+    assert_ne!(t.weights().unwrap(), other);
+    t.start_from(&other).unwrap();
+    assert_eq!(t.weights().unwrap(), other);
+    let e = t.start_from(b"not a burnpack").unwrap_err();
+    assert!(e.starts_with("the starting weights do not fit"), "{e}");
+}
