@@ -317,6 +317,7 @@ fn train_one(
         n_examples: examples.len(),
         report: &train_report,
         seconds: started.elapsed().as_secs_f64(),
+        start: start.as_deref(),
     };
     io::write_model(models_dir, &record, &weights)?;
     Ok(Trained {

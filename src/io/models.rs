@@ -202,6 +202,9 @@ pub struct TrainingRecord<'a> {
     pub n_examples: usize,
     pub report: &'a TrainReport,
     pub seconds: f64,
+    /// The weights training started from (`[train] start_from`'s), as
+    /// read; `None`: a seeded start.
+    pub start: Option<&'a [u8]>,
 }
 
 /// What `coid train` chose for one method on the validation runs.
@@ -240,12 +243,6 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
         .start_from
         .as_ref()
         .map(|dir| weights_path(dir, record.method));
-    let start_fnv64 = match &start {
-        Some(p) => Some(records::fnv64_hex(&std::fs::read(p).map_err(|e| {
-            OutputError::Batch(format!("cannot read {}: {e}", p.display()))
-        })?)),
-        None => None,
-    };
     let r = record.report;
     Ok(ModelRecord {
         method: record.method.as_str().to_owned(),
@@ -281,7 +278,7 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
         no_match: matches!(backbone, Backbone::Published(_)).then_some(t.no_match),
         patience: r.best_epoch.map(|_| t.patience),
         start_from: start.map(|p| p.display().to_string()),
-        start_weights_fnv64: start_fnv64,
+        start_weights_fnv64: record.start.map(records::fnv64_hex),
         best_epoch: r.best_epoch,
         validation: None,
         descriptor: None,

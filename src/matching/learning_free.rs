@@ -109,12 +109,12 @@ pub struct AffinityProblem {
 
 /// An edge between two detections of one vehicle: its length and the
 /// variance of the length from the two detections' covariances.
-pub(super) struct EdgeView {
-    pub(super) length_m: f64,
-    pub(super) length_var_m2: f64,
+struct EdgeView {
+    length_m: f64,
+    length_var_m2: f64,
 }
 
-pub(super) fn edge(p: &Detection, q: &Detection) -> EdgeView {
+fn edge(p: &Detection, q: &Detection) -> EdgeView {
     let d = q.position_m - p.position_m;
     let length_m = d.norm().max(1e-3);
     let u = d / length_m;
@@ -138,24 +138,11 @@ pub fn build(first: &MatchView, second: &MatchView, params: &AffinityParams) -> 
             }
         }
     }
-    let k = candidates.len();
-    let mut affinity = DMatrix::zeros(k, k);
-    for u in 0..k {
-        affinity[(u, u)] = unary[u];
-        let (i, a) = candidates[u];
-        for v in (u + 1)..k {
-            let (j, b) = candidates[v];
-            if i == j || a == b {
-                continue; // one-to-one: conflicting candidates never agree
-            }
-            let e1 = edge(&first.detections[i], &first.detections[j]);
-            let e2 = edge(&second.detections[a], &second.detections[b]);
-            if e1.length_m > params.max_edge_m || e2.length_m > params.max_edge_m {
-                continue;
-            }
-            let length_var = e1.length_var_m2 + e2.length_var_m2;
-            let length = (-(e1.length_m - e2.length_m).powi(2) / (2.0 * length_var)).exp();
-            let w = length * (unary[u] * unary[v]).sqrt();
+    let mut affinity = length_agreement(first, second, &candidates, params.max_edge_m);
+    for (u, &s) in unary.iter().enumerate() {
+        affinity[(u, u)] = s;
+        for v in (u + 1)..unary.len() {
+            let w = affinity[(u, v)] * (s * unary[v]).sqrt();
             affinity[(u, v)] = w;
             affinity[(v, u)] = w;
         }
@@ -166,6 +153,40 @@ pub fn build(first: &MatchView, second: &MatchView, params: &AffinityParams) -> 
         n_first: n,
         n_second: m,
     }
+}
+
+/// How well the edges i-j and a-b of each two candidates (i, a), (j, b)
+/// agree in length, `exp(-(|i-j| - |a-b|)^2 / (2 var))` with `var` from
+/// the four detections' covariances; 0 on the diagonal, between
+/// conflicting candidates (i = j or a = b) and where either edge is longer
+/// than `max_edge_m`.
+pub(super) fn length_agreement(
+    first: &MatchView,
+    second: &MatchView,
+    candidates: &[(usize, usize)],
+    max_edge_m: f64,
+) -> DMatrix<f64> {
+    let k = candidates.len();
+    let mut agreement = DMatrix::zeros(k, k);
+    for u in 0..k {
+        let (i, a) = candidates[u];
+        for v in (u + 1)..k {
+            let (j, b) = candidates[v];
+            if i == j || a == b {
+                continue; // one-to-one: conflicting candidates never agree
+            }
+            let e1 = edge(&first.detections[i], &first.detections[j]);
+            let e2 = edge(&second.detections[a], &second.detections[b]);
+            if e1.length_m > max_edge_m || e2.length_m > max_edge_m {
+                continue;
+            }
+            let length_var = e1.length_var_m2 + e2.length_var_m2;
+            let length = (-(e1.length_m - e2.length_m).powi(2) / (2.0 * length_var)).exp();
+            agreement[(u, v)] = length;
+            agreement[(v, u)] = length;
+        }
+    }
+    agreement
 }
 
 /// Principal eigenvector of the (non-negative) affinity by power iteration,

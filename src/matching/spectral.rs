@@ -20,7 +20,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::learning_free::{AffinityProblem, edge, principal_eigenvector};
+use super::learning_free::{AffinityProblem, length_agreement, principal_eigenvector};
 use super::{Correspondence, Identification, MatchView, Matcher, Method};
 use crate::fusion::PoseEstimate;
 
@@ -35,23 +35,7 @@ pub fn plain_affinity(first: &MatchView, second: &MatchView) -> AffinityProblem 
             }
         }
     }
-    let k = candidates.len();
-    let mut affinity = DMatrix::zeros(k, k);
-    for u in 0..k {
-        let (i, a) = candidates[u];
-        for v in (u + 1)..k {
-            let (j, b) = candidates[v];
-            if i == j || a == b {
-                continue; // one-to-one: conflicting candidates never agree
-            }
-            let e1 = edge(&first.detections[i], &first.detections[j]);
-            let e2 = edge(&second.detections[a], &second.detections[b]);
-            let var = e1.length_var_m2 + e2.length_var_m2;
-            let w = (-(e1.length_m - e2.length_m).powi(2) / (2.0 * var)).exp();
-            affinity[(u, v)] = w;
-            affinity[(v, u)] = w;
-        }
-    }
+    let affinity = length_agreement(first, second, &candidates, f64::INFINITY);
     AffinityProblem {
         candidates,
         affinity,
