@@ -256,6 +256,7 @@ fn published_pair(
     let matcher = deep::matcher(
         Method::Coid,
         coid_sim::sensor::AppearanceWidth::NONE,
+        deep::arch::NetworkShape::default(),
         bytes,
         run,
     )
@@ -357,6 +358,7 @@ fn training_step(
         gate_chi2: 9.21,
         appearance_width: coid_sim::sensor::AppearanceWidth::NONE,
         no_match: coid_sim::matching::deep::arch::NoMatchWeights::Entries,
+        network: coid_sim::matching::deep::arch::NetworkShape::default(),
     };
     let mut trainer = Trainer::new(Method::Ours, &opts).unwrap();
     let prepared = trainer.prepare(&examples);

@@ -8,6 +8,7 @@ use super::lists::scenario_lists;
 use super::raw::{RawEval, RawTrain};
 use crate::evaluate::EvalSettings;
 use crate::matching::MethodKind;
+use crate::matching::deep::arch::NetworkShape;
 use crate::matching::deep::train::TrainSettings;
 
 /// More MC-dropout samples per training pair than this are refused.
@@ -69,6 +70,10 @@ pub(super) fn train_and_eval(
         no_match: t.no_match,
         appearance_vectors: t.appearance_vectors,
         start_from: (!t.start_from.as_os_str().is_empty()).then(|| c.resolve(&t.start_from)),
+        network: NetworkShape {
+            graph: t.graph,
+            consensus_dim: t.consensus_dim,
+        },
     };
     Ok((
         train,
@@ -124,6 +129,12 @@ fn fitting(c: &Checker, t: &RawTrain) -> Result<(), ConfigError> {
                 "must be 1 to {MAX_TRAIN_MC_SAMPLES} samples per pair, got {}",
                 t.mc_samples
             ),
+        ));
+    }
+    if !(1..=1024).contains(&t.consensus_dim) {
+        return Err(c.invalid(
+            "train.consensus_dim",
+            format!("must be 1-1024 indicators, got {}", t.consensus_dim),
         ));
     }
     if !(1..=1024).contains(&t.batch_size) {

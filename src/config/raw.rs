@@ -293,6 +293,8 @@ pub(super) struct RawTrain {
     pub(super) no_match: NoMatchWeights,
     pub(super) appearance_vectors: bool,
     pub(super) start_from: PathBuf,
+    pub(super) graph: crate::matching::deep::arch::NetworkGraph,
+    pub(super) consensus_dim: usize,
 }
 
 #[derive(Debug, Deserialize)]

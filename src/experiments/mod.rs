@@ -339,6 +339,7 @@ pub fn train_method(
         gate_chi2: settings.matching.gate_chi2,
         appearance_width: settings.appearance_width(),
         no_match: t.no_match,
+        network: t.network,
     };
     train::train(method, examples, validation, &opts, start, progress)
 }

@@ -38,6 +38,9 @@ pub struct WeightsError {
 pub struct Weights {
     pub bytes: Vec<u8>,
     pub appearance_width: crate::sensor::AppearanceWidth,
+    /// A published network's graph and indicator width, as it was
+    /// trained.
+    pub shape: crate::matching::deep::arch::NetworkShape,
 }
 
 /// The bytes of a method's weights file, checked against the record
@@ -53,11 +56,13 @@ pub fn read_weights(models_dir: &Path, method: Method) -> Result<Weights, Weight
         return Err(fail("not a deep method".into()));
     };
     let appearance_width = record.architecture.appearance_width();
-    let backbone = backbone.with_appearance(appearance_width);
+    let shape = record.architecture.shape();
+    let backbone = backbone.with_appearance(appearance_width).with_shape(shape);
     record.check(method, &backbone, &bytes).map_err(fail)?;
     Ok(Weights {
         bytes,
         appearance_width,
+        shape,
     })
 }
 
@@ -246,7 +251,9 @@ fn model_record(record: &TrainingRecord, weights: &[u8]) -> Result<ModelRecord, 
     let r = record.report;
     Ok(ModelRecord {
         method: record.method.as_str().to_owned(),
-        architecture: backbone.with_appearance(record.settings.appearance_width()),
+        architecture: backbone
+            .with_appearance(record.settings.appearance_width())
+            .with_shape(t.network),
         weights_fnv64: records::fnv64_hex(weights),
         config: record.settings.source.display().to_string(),
         dataset: record
@@ -453,6 +460,27 @@ mod tests {
         assert!(
             e.contains("'ours'") && e.contains("no such file") && e.contains("coid train"),
             "{e}"
+        );
+    }
+
+    /// A record whose network convolves over the complete graph hands
+    /// that graph to the matcher; the shipped ones the paper's Delaunay.
+    #[test]
+    fn the_weights_run_on_the_graph_their_record_names() {
+        let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+        assert_eq!(
+            read_weights(&shipped, Method::Coid).unwrap().shape,
+            crate::matching::deep::arch::NetworkShape::default()
+        );
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::copy(shipped.join("coid.bpk"), dir.path().join("coid.bpk")).unwrap();
+        let record = std::fs::read_to_string(shipped.join("coid.toml")).unwrap();
+        let edited = record.replace("[architecture]\n", "[architecture]\ngraph = \"complete\"\n");
+        assert_ne!(edited, record);
+        std::fs::write(dir.path().join("coid.toml"), edited).unwrap();
+        assert_eq!(
+            read_weights(dir.path(), Method::Coid).unwrap().shape.graph,
+            crate::matching::deep::arch::NetworkGraph::Complete
         );
     }
 

@@ -86,6 +86,8 @@ pub struct Trained<'a> {
     pub choice: DeepChoice,
     /// The width of the appearance vectors the network reads (0: none).
     pub appearance_width: crate::sensor::AppearanceWidth,
+    /// A published network's graph and indicator width.
+    pub shape: deep::arch::NetworkShape,
 }
 
 /// Builds the matcher of a method, in canonical node order and with the
@@ -135,6 +137,7 @@ pub fn build(
                 weights: bytes,
                 choice,
                 appearance_width,
+                shape,
             } = trained.ok_or(BuildError::NoWeights(method.as_str()))?;
             // The paper's rule thresholds the total entropy, whatever
             // type the config names.
@@ -163,7 +166,7 @@ pub fn build(
                 dropout,
                 gate_chi2: settings.gate_chi2,
             };
-            deep::matcher(method, appearance_width, bytes, run).map_err(|reason| {
+            deep::matcher(method, appearance_width, shape, bytes, run).map_err(|reason| {
                 BuildError::BadWeights {
                     method: method.as_str(),
                     reason,

@@ -13,6 +13,7 @@ fn trained(weights: Option<&[u8]>, choice: DeepChoice) -> Option<Trained<'_>> {
         weights,
         choice,
         appearance_width: crate::sensor::AppearanceWidth::NONE,
+        shape: deep::arch::NetworkShape::default(),
     })
 }
 

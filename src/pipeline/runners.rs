@@ -129,6 +129,7 @@ pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSourc
         weights: &w.bytes,
         choice: *choice,
         appearance_width: w.appearance_width,
+        shape: w.shape,
     });
     let matcher =
         matching::build(method, m, trained, settings.seeds.sensor).map_err(|e| match e {

@@ -50,6 +50,31 @@ impl Backbone {
         }
     }
 
+    /// What `[train]` chose of a published network (the project's
+    /// network: the defaults, which it does not read).
+    pub fn shape(&self) -> NetworkShape {
+        match self {
+            Backbone::Published(c) => NetworkShape {
+                graph: c.graph,
+                consensus_dim: c.consensus_dim,
+            },
+            Backbone::Likelihood(_) => NetworkShape::default(),
+        }
+    }
+
+    /// The same network of `shape` (a published network; the project's
+    /// network keeps its own).
+    pub fn with_shape(self, shape: NetworkShape) -> Self {
+        match self {
+            Backbone::Published(c) => Backbone::Published(PublishedConfig {
+                graph: shape.graph,
+                consensus_dim: shape.consensus_dim,
+                ..c
+            }),
+            Backbone::Likelihood(a) => Backbone::Likelihood(a),
+        }
+    }
+
     /// The same network reading appearance vectors `width` wide: its
     /// first layer as wide as class, colour, size and the vector.
     pub fn with_appearance(self, width: AppearanceWidth) -> Self {
@@ -168,6 +193,49 @@ pub enum PublishedKind {
     Dgmc,
 }
 
+/// The graph a published network's psi_1 convolves over, on each
+/// vehicle's body-frame positions; its edges carry their lengths.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum NetworkGraph {
+    /// The scene's Delaunay graph (the paper's, l. 69).
+    #[default]
+    Delaunay,
+    /// Every pair of nodes (what spectral matching and RRWM compare):
+    /// each node sees every other one's distance.
+    Complete,
+}
+
+impl NetworkGraph {
+    /// The paper's graph.
+    pub fn is_delaunay(&self) -> bool {
+        *self == NetworkGraph::Delaunay
+    }
+}
+
+/// DGMC's random node indicators per consensus step (`rnd_dim`), as coid
+/// trains the paper's network by default.
+pub const CONSENSUS_DIM: usize = 32;
+
+/// What `[train]` chooses of the published networks beyond the paper's
+/// sizes (`graph`, `consensus_dim`); recorded with the weights, which run
+/// as they were trained.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NetworkShape {
+    pub graph: NetworkGraph,
+    /// Random node indicators per consensus step, and psi_2's width.
+    pub consensus_dim: usize,
+}
+
+impl Default for NetworkShape {
+    fn default() -> Self {
+        Self {
+            graph: NetworkGraph::Delaunay,
+            consensus_dim: CONSENSUS_DIM,
+        }
+    }
+}
+
 /// The architecture of a published network and its fixed settings, in
 /// the vocabulary [`Architecture`] speaks.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -199,6 +267,9 @@ pub struct PublishedConfig {
     /// colour and size (a dataset's learned features).
     #[serde(default, skip_serializing_if = "AppearanceWidth::is_none")]
     pub appearance_width: AppearanceWidth,
+    /// The graph psi_1 convolves over (`[train] graph`).
+    #[serde(default, skip_serializing_if = "NetworkGraph::is_delaunay")]
+    pub graph: NetworkGraph,
 }
 
 impl PublishedConfig {
@@ -217,7 +288,7 @@ impl PublishedConfig {
             hidden: 256,
             out: 32,
             dropout_conv: 0.4,
-            consensus_dim: 32,
+            consensus_dim: CONSENSUS_DIM,
             consensus_steps: match kind {
                 PublishedKind::GcnGm => 0,
                 PublishedKind::Dgmc => 10,
@@ -225,6 +296,7 @@ impl PublishedConfig {
             sinkhorn_iters: 20,
             edge_scale_m: 60.0,
             appearance_width: AppearanceWidth::NONE,
+            graph: NetworkGraph::Delaunay,
         }
     }
 

@@ -23,6 +23,7 @@
 
 use crate::geometry::{Pose2, Vec2};
 use crate::graph::SceneGraph;
+use crate::matching::deep::arch::NetworkGraph;
 use crate::matching::deep::features::{NODE_FEATURES, node_attributes};
 use crate::matching::deep::kernels::spline::Cells;
 use crate::sensor::{AppearanceWidth, Detection};
@@ -146,17 +147,29 @@ impl OffsetGraph {
 }
 
 impl LengthGraph {
-    /// The graph of `detections` (body frame) on their scene graph
-    /// (Delaunay over the same positions, [`SceneGraph::delaunay`]), for
-    /// a psi_1 that reads appearance vectors `appearance_width` wide.
+    /// The graph of `detections` (body frame) that a published network of
+    /// graph `kind` convolves over: their scene graph (Delaunay over the
+    /// same positions, [`SceneGraph::delaunay`]) or every pair of them,
+    /// for a psi_1 that reads appearance vectors `appearance_width` wide.
     pub(crate) fn lengths(
         detections: &[Detection],
         graph: &SceneGraph,
+        kind: NetworkGraph,
         appearance_width: AppearanceWidth,
     ) -> Self {
         debug_assert_eq!(detections.len(), graph.node_count());
         let features = node_attributes(detections, appearance_width);
-        Self::with_features(features, NODE_FEATURES + appearance_width.get(), graph)
+        let width = NODE_FEATURES + appearance_width.get();
+        match kind {
+            NetworkGraph::Delaunay => Self::with_features(features, width, graph),
+            NetworkGraph::Complete => {
+                let p = &graph.positions_m;
+                let edges: Vec<_> = (0..p.len())
+                    .flat_map(|a| (a + 1..p.len()).map(move |b| (a, b, (p[a] - p[b]).norm())))
+                    .collect();
+                Self::from_edges(features, width, &edges)
+            }
+        }
     }
 
     /// The Delaunay graph of `detections` (body frame).
@@ -164,7 +177,12 @@ impl LengthGraph {
     pub(crate) fn delaunay(detections: &[Detection]) -> Result<Self, crate::graph::GraphError> {
         let positions: Vec<Vec2> = detections.iter().map(|d| d.position_m).collect();
         let graph = SceneGraph::delaunay(&positions)?;
-        Ok(Self::lengths(detections, &graph, AppearanceWidth::NONE))
+        Ok(Self::lengths(
+            detections,
+            &graph,
+            NetworkGraph::Delaunay,
+            AppearanceWidth::NONE,
+        ))
     }
 
     /// Node attributes `features` (`n x node_width`) on `graph`, each
@@ -341,7 +359,8 @@ mod tests {
         let g = SceneGraph::delaunay(&positions).unwrap();
         let pose = Pose2::new(Vec2::new(5.0, 5.0), 0.7);
         let offsets = OffsetGraph::offsets(&dets, &g, &pose, AppearanceWidth::NONE);
-        let lengths = LengthGraph::lengths(&dets, &g, AppearanceWidth::NONE);
+        let lengths =
+            LengthGraph::lengths(&dets, &g, NetworkGraph::Delaunay, AppearanceWidth::NONE);
         assert_eq!(offsets.node_features.len(), 4 * NODE_FEATURES);
         let mut sums = [vec![0f32; 4], vec![0f32; 4]];
         for (i, _, cells) in offsets.weighted_edges() {
@@ -356,6 +375,41 @@ mod tests {
         ] {
             assert_eq!(edges, 2 * g.edges.len());
             assert!(graph.iter().all(|s| (s - 1.0).abs() < 1e-5), "{graph:?}");
+        }
+    }
+
+    /// A complete network graph joins every pair of nodes both ways, each
+    /// edge carrying the pair's distance, whatever the Delaunay graph
+    /// leaves out.
+    #[test]
+    fn a_complete_network_graph_joins_every_pair_by_its_distance() {
+        use crate::matching::testkit;
+        let objects = testkit::world_objects();
+        let dets = testkit::Side::of(
+            testkit::POSE_A,
+            &objects[..5],
+            &[0, 1, 2, 3, 4],
+            testkit::EXACT,
+        )
+        .detections;
+        let positions: Vec<Vec2> = dets.iter().map(|d| d.position_m).collect();
+        let g = SceneGraph::delaunay(&positions).unwrap();
+        let complete =
+            LengthGraph::lengths(&dets, &g, NetworkGraph::Complete, AppearanceWidth::NONE);
+        assert_eq!(complete.edge_count(), 5 * 4);
+        let mut seen = std::collections::BTreeSet::new();
+        for e in 0..complete.edge_count() {
+            let (a, b) = (complete.src[e], complete.dst[e]);
+            assert_ne!(a, b);
+            assert!(seen.insert((a, b)), "edge {a}->{b} twice");
+            let d = f64::from((positions[a] - positions[b]).norm() as f32);
+            assert_eq!(complete.edge_m[e], [d]);
+        }
+        let delaunay =
+            LengthGraph::lengths(&dets, &g, NetworkGraph::Delaunay, AppearanceWidth::NONE);
+        assert!(delaunay.edge_count() < complete.edge_count());
+        for (i, _, cells) in complete.weighted_edges(30.0) {
+            assert!(i < 5 && cells.iter().all(|c| c.1 >= 0.0));
         }
     }
 }

@@ -48,29 +48,33 @@ use crate::matching::{Matcher, Method};
 
 /// The matcher of deep `method` with trained weights (the bytes of its
 /// `.bpk` file) whose network reads appearance vectors `appearance_width`
-/// wide (0: none); an error says why the bytes do not fit the method's
-/// network, or that it has none.
+/// wide (0: none) and, if it is a published network, is of `shape`
+/// (graph, indicator width); an error says why the bytes do not fit the method's network,
+/// or that it has none.
 pub fn matcher(
     method: Method,
     appearance_width: crate::sensor::AppearanceWidth,
+    shape: arch::NetworkShape,
     weights: &[u8],
     run: Inference,
 ) -> Result<Box<dyn Matcher>, String> {
     let backbone = method
         .backbone()
         .ok_or_else(|| format!("{} is not a deep method", method.as_str()))?;
-    Ok(match backbone.with_appearance(appearance_width) {
-        Backbone::Likelihood(arch) => Box::new(McMatcher::new(
-            method,
-            Ours::from_weights(arch, weights, run)?,
-            run,
-        )),
-        Backbone::Published(cfg) => Box::new(McMatcher::new(
-            method,
-            Published::from_weights(cfg, weights, run)?,
-            run,
-        )),
-    })
+    Ok(
+        match backbone.with_appearance(appearance_width).with_shape(shape) {
+            Backbone::Likelihood(arch) => Box::new(McMatcher::new(
+                method,
+                Ours::from_weights(arch, weights, run)?,
+                run,
+            )),
+            Backbone::Published(cfg) => Box::new(McMatcher::new(
+                method,
+                Published::from_weights(cfg, weights, run)?,
+                run,
+            )),
+        },
+    )
 }
 
 /// The matcher of deep `method` with freshly initialised weights

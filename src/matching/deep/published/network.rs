@@ -125,7 +125,12 @@ impl Network for Published {
     type Embedding = Vec<f32>;
 
     fn input(&self, view: &MatchView) -> LengthGraph {
-        LengthGraph::lengths(view.detections, view.graph, self.cfg.appearance_width)
+        LengthGraph::lengths(
+            view.detections,
+            view.graph,
+            self.cfg.graph,
+            self.cfg.appearance_width,
+        )
     }
 
     fn embedding_key(&self, g: &LengthGraph) -> u64 {

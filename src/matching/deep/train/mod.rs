@@ -38,7 +38,9 @@ use self::ours_net::{OursNet, PairTensors};
 use self::published::{PublishedTrainer, TrainPair};
 use self::spline::GraphTensors;
 use self::weights::to_bytes;
-use super::arch::{Architecture, Backbone, LossTerms, MaskScope, NoMatchWeights, PairLoss};
+use super::arch::{
+    Architecture, Backbone, LossTerms, MaskScope, NetworkShape, NoMatchWeights, PairLoss,
+};
 use super::features::PairInput;
 use super::graph::OffsetGraph;
 use super::params::Params;
@@ -119,10 +121,15 @@ pub struct TrainSettings {
     /// (fine-tuning weights trained elsewhere, say on simulated scenes);
     /// `None`: a seeded start.
     pub start_from: Option<std::path::PathBuf>,
+    /// The graph the published networks (the paper's method, its
+    /// ablations, DGMC, GCN-GM) convolve over and their indicator width
+    /// (`graph`, `consensus_dim`); the project's network keeps its own.
+    pub network: NetworkShape,
 }
 
-/// As derived, but `no_match`, `appearance_vectors` and `start_from` are
-/// shown only when they differ from `entries`, `true` and none: a
+/// As derived, but `no_match`, `appearance_vectors`, `start_from` and
+/// `network` are shown only when they differ from `entries`, `true`, none
+/// and the default shape: a
 /// config's digest hashes this text.
 impl std::fmt::Debug for TrainSettings {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -151,6 +158,9 @@ impl std::fmt::Debug for TrainSettings {
         }
         if let Some(dir) = &self.start_from {
             d.field("start_from", dir);
+        }
+        if self.network != NetworkShape::default() {
+            d.field("network", &self.network);
         }
         d.finish()
     }
@@ -182,6 +192,8 @@ pub struct TrainOptions {
     pub appearance_width: crate::sensor::AppearanceWidth,
     /// How the published networks weigh "no match" against true pairs.
     pub no_match: NoMatchWeights,
+    /// The published networks' graph and indicator width.
+    pub network: NetworkShape,
 }
 
 /// MC-dropout samples of the validation loss.
@@ -554,7 +566,10 @@ pub fn train(
         edges: EdgeStats::of(examples),
         ..TrainReport::default()
     };
-    match backbone.with_appearance(opts.appearance_width) {
+    match backbone
+        .with_appearance(opts.appearance_width)
+        .with_shape(opts.network)
+    {
         Backbone::Likelihood(_) => {
             let mut trainer = Trainer::new(method, opts)?;
             if let Some(bytes) = start {
@@ -581,12 +596,11 @@ pub fn train(
             if let Some(bytes) = start {
                 trainer.start_from(bytes)?;
             }
-            let width = cfg.appearance_width;
-            let train: Vec<TrainPair> = examples.iter().map(|e| TrainPair::of(e, width)).collect();
+            let train: Vec<TrainPair> = examples.iter().map(|e| TrainPair::of(e, &cfg)).collect();
             let fit = PublishedFit {
                 sizes: train.iter().map(TrainPair::padded_size).collect(),
                 train,
-                validation: validation.iter().map(|e| TrainPair::of(e, width)).collect(),
+                validation: validation.iter().map(|e| TrainPair::of(e, &cfg)).collect(),
                 trainer,
                 opts: *opts,
             };

@@ -129,7 +129,14 @@ fn weights_as_bytes_give_identical_outputs() {
     );
     // gcn-gm has no consensus: the weights of `ours` do not fit it.
     let fits = |d: Method| {
-        crate::matching::deep::matcher(d, crate::sensor::AppearanceWidth::NONE, &bytes, RUN).is_ok()
+        crate::matching::deep::matcher(
+            d,
+            crate::sensor::AppearanceWidth::NONE,
+            crate::matching::deep::arch::NetworkShape::default(),
+            &bytes,
+            RUN,
+        )
+        .is_ok()
     };
     assert!(!fits(Method::GcnGmGps));
     // gcn-gm (as published) is not this network at all.
@@ -330,6 +337,7 @@ fn the_projects_trainer_started_from_weights_holds_them() {
         gate_chi2: 9.21,
         appearance_width: crate::sensor::AppearanceWidth::NONE,
         no_match: crate::matching::deep::arch::NoMatchWeights::Halves,
+        network: crate::matching::deep::arch::NetworkShape::default(),
     };
     let other = super::Trainer::new(Method::Ours, &opts(11))
         .unwrap()

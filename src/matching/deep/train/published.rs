@@ -36,14 +36,18 @@ impl TrainPair {
     /// The paper's inputs of a labelled pair: both vehicles' graphs (body
     /// frames, appearance, edge lengths) and the true partners; the
     /// reported poses are left behind.
-    pub(crate) fn of(e: &Example, appearance_width: crate::sensor::AppearanceWidth) -> Self {
+    /// (`cfg`: the network's graph and appearance width.)
+    pub(crate) fn of(e: &Example, cfg: &PublishedConfig) -> Self {
         let mut partner = vec![None; e.first.detections.len()];
         for &(a, b) in &e.true_pairs {
             partner[a] = Some(b);
         }
+        let graph = |s: &super::examples::OwnedView| {
+            LengthGraph::lengths(&s.detections, &s.graph, cfg.graph, cfg.appearance_width)
+        };
         Self {
-            first: LengthGraph::lengths(&e.first.detections, &e.first.graph, appearance_width),
-            second: LengthGraph::lengths(&e.second.detections, &e.second.graph, appearance_width),
+            first: graph(&e.first),
+            second: graph(&e.second),
             partner,
         }
     }

@@ -105,7 +105,12 @@ fn moved_copy(
         let positions: Vec<Vec2> = objects.iter().map(|d| d.position_m).collect();
         let mut graph = SceneGraph::delaunay(&positions).unwrap().permuted(&order);
         graph.positions_m = second.iter().map(|d| d.position_m).collect();
-        LengthGraph::lengths(&second, &graph, crate::sensor::AppearanceWidth::NONE)
+        LengthGraph::lengths(
+            &second,
+            &graph,
+            crate::matching::deep::arch::NetworkGraph::Delaunay,
+            crate::sensor::AppearanceWidth::NONE,
+        )
     } else {
         LengthGraph::delaunay(&second).unwrap()
     };

@@ -263,7 +263,12 @@ impl Network for TensorPublished {
     type Embedding = ();
 
     fn input(&self, view: &MatchView) -> LengthGraph {
-        LengthGraph::lengths(view.detections, view.graph, self.cfg.appearance_width)
+        LengthGraph::lengths(
+            view.detections,
+            view.graph,
+            self.cfg.graph,
+            self.cfg.appearance_width,
+        )
     }
 
     fn embedding_key(&self, g: &LengthGraph) -> u64 {
