@@ -359,6 +359,7 @@ fn training_step(
         appearance_width: coid_sim::sensor::AppearanceWidth::NONE,
         no_match: coid_sim::matching::deep::arch::NoMatchWeights::Entries,
         network: coid_sim::matching::deep::arch::NetworkShape::default(),
+        augment: coid_sim::matching::deep::train::augment::Augment::default(),
     };
     let mut trainer = Trainer::new(Method::Ours, &opts).unwrap();
     let prepared = trainer.prepare(&examples);

@@ -10,6 +10,7 @@ use crate::evaluate::EvalSettings;
 use crate::matching::MethodKind;
 use crate::matching::deep::arch::NetworkShape;
 use crate::matching::deep::train::TrainSettings;
+use crate::matching::deep::train::augment::Augment;
 
 /// More MC-dropout samples per training pair than this are refused.
 const MAX_TRAIN_MC_SAMPLES: usize = 100;
@@ -74,6 +75,10 @@ pub(super) fn train_and_eval(
             graph: t.graph,
             consensus_dim: t.consensus_dim,
         },
+        augment: Augment {
+            node_dropout: t.node_dropout,
+            position_jitter_m: t.position_jitter_m,
+        },
     };
     Ok((
         train,
@@ -129,6 +134,18 @@ fn fitting(c: &Checker, t: &RawTrain) -> Result<(), ConfigError> {
                 "must be 1 to {MAX_TRAIN_MC_SAMPLES} samples per pair, got {}",
                 t.mc_samples
             ),
+        ));
+    }
+    if !(0.0..=0.9).contains(&t.node_dropout) {
+        return Err(c.invalid(
+            "train.node_dropout",
+            format!("must be a share from 0 to 0.9, got {}", t.node_dropout),
+        ));
+    }
+    if !(0.0..=10.0).contains(&t.position_jitter_m) {
+        return Err(c.invalid(
+            "train.position_jitter_m",
+            format!("must be 0 to 10 m, got {}", t.position_jitter_m),
         ));
     }
     if !(1..=1024).contains(&t.consensus_dim) {

@@ -340,6 +340,7 @@ pub fn train_method(
         appearance_width: settings.appearance_width(),
         no_match: t.no_match,
         network: t.network,
+        augment: t.augment,
     };
     train::train(method, examples, validation, &opts, start, progress)
 }

@@ -58,6 +58,12 @@ pub struct ModelRecord {
     pub no_match: Option<NoMatchWeights>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub patience: Option<usize>,
+    /// The training pairs' perturbation per epoch (`[train] node_dropout`,
+    /// `position_jitter_m`; absent: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub node_dropout: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_jitter_m: Option<f64>,
     /// The weights training started from (`[train] start_from`): their
     /// file and its checksum (absent: a seeded start).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -303,6 +309,11 @@ impl ModelRecord {
                     == other.no_match.unwrap_or(NoMatchWeights::Entries),
             ),
             ("patience", self.patience == other.patience),
+            (
+                "augmentation",
+                self.node_dropout == other.node_dropout
+                    && self.position_jitter_m == other.position_jitter_m,
+            ),
         ];
         fields
             .into_iter()
@@ -468,6 +479,8 @@ mod tests {
             batch_size: 32,
             no_match: None,
             patience: Some(3),
+            node_dropout: None,
+            position_jitter_m: None,
             start_from: None,
             start_weights_fnv64: None,
             best_epoch: Some(1),

@@ -548,3 +548,49 @@ fn a_network_trained_on_the_complete_graph_records_it() {
     let o = train(&cfg("none.toml", "consensus_dim = 0"), "none");
     assert_refused(&o, "train.consensus_dim");
 }
+
+/// `[train] node_dropout` and `position_jitter_m`: the paper's network's
+/// training pairs are drawn anew each epoch. The record says so (and a
+/// default record does not), the training differs from an unperturbed
+/// one's from the same seed, the weights are the same on 1 thread or 2
+/// (rayon's pool),
+/// and values out of range are refused.
+#[test]
+fn augmented_training_is_recorded_and_deterministic() {
+    let fx = Fixture::new();
+    let cfg = |name: &str, extra: &str| {
+        fx.config(
+            name,
+            80.0,
+            &format!(
+                "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 2\n\
+                 patience = 2\nmethods = [\"coid\"]\n{extra}\n\
+                 [pose_noise]\nlevels = [\"gps\"]\n"
+            ),
+        )
+    };
+    let train = |c: &std::path::Path, out: &str, threads: &str| {
+        fx.cmd("train")
+            .quiet()
+            .config(c)
+            .out(out)
+            .args(["--skip-validation"])
+            .env("RAYON_NUM_THREADS", threads)
+            .output()
+    };
+    let augmented = cfg("aug.toml", "node_dropout = 0.2\nposition_jitter_m = 0.5");
+    assert_ok(&train(&cfg("plain.toml", ""), "plain", "2"));
+    assert_ok(&train(&augmented, "one", "1"));
+    assert_ok(&train(&augmented, "two", "2"));
+    let weights = |dir: &str| std::fs::read(fx.path(&format!("{dir}/coid.bpk"))).unwrap();
+    assert_eq!(weights("one"), weights("two"));
+    assert_ne!(weights("one"), weights("plain"));
+    let record = fx.read_text("one/coid.toml");
+    assert!(record.contains("node_dropout = 0.2"), "{record}");
+    assert!(record.contains("position_jitter_m = 0.5"), "{record}");
+    assert!(!fx.read_text("plain/coid.toml").contains("node_dropout"));
+    let o = train(&cfg("bad.toml", "node_dropout = 1.0"), "bad", "1");
+    assert_refused(&o, "train.node_dropout");
+    let o = train(&cfg("far.toml", "position_jitter_m = -1.0"), "far", "1");
+    assert_refused(&o, "train.position_jitter_m");
+}

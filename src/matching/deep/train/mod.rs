@@ -12,6 +12,7 @@ use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
+pub mod augment;
 pub(crate) mod backend;
 pub(crate) mod examples;
 pub(crate) mod init;
@@ -40,6 +41,7 @@ use self::spline::GraphTensors;
 use self::weights::to_bytes;
 use super::arch::{
     Architecture, Backbone, LossTerms, MaskScope, NetworkShape, NoMatchWeights, PairLoss,
+    PublishedConfig,
 };
 use super::features::PairInput;
 use super::graph::OffsetGraph;
@@ -125,6 +127,9 @@ pub struct TrainSettings {
     /// ablations, DGMC, GCN-GM) convolve over and their indicator width
     /// (`graph`, `consensus_dim`); the project's network keeps its own.
     pub network: NetworkShape,
+    /// The published networks' training pairs perturbed anew each epoch
+    /// (`node_dropout`, `position_jitter_m`; zero: not at all).
+    pub augment: augment::Augment,
 }
 
 /// As derived, but `no_match`, `appearance_vectors`, `start_from` and
@@ -162,6 +167,9 @@ impl std::fmt::Debug for TrainSettings {
         if self.network != NetworkShape::default() {
             d.field("network", &self.network);
         }
+        if !self.augment.is_off() {
+            d.field("augment", &self.augment);
+        }
         d.finish()
     }
 }
@@ -194,6 +202,9 @@ pub struct TrainOptions {
     pub no_match: NoMatchWeights,
     /// The published networks' graph and indicator width.
     pub network: NetworkShape,
+    /// How the published networks' training pairs are perturbed each
+    /// epoch.
+    pub augment: augment::Augment,
 }
 
 /// MC-dropout samples of the validation loss.
@@ -512,22 +523,47 @@ impl Fit for LikelihoodFit {
 }
 
 /// A published network with its pairs on the paper's inputs.
-struct PublishedFit {
+struct PublishedFit<'a> {
     trainer: PublishedTrainer,
+    cfg: PublishedConfig,
+    examples: &'a [Example],
     train: Vec<TrainPair>,
     sizes: Vec<usize>,
     validation: Vec<TrainPair>,
     opts: TrainOptions,
+    /// The epoch running (1-based), whose draws perturb its pairs.
+    epoch: u64,
 }
 
-impl Fit for PublishedFit {
+impl Fit for PublishedFit<'_> {
     fn epoch_batches(&mut self) -> Vec<Vec<usize>> {
+        self.epoch += 1;
         self.trainer
             .epoch_batches(&self.sizes, self.opts.batch_size)
     }
 
     fn step(&mut self, batch: &[usize], lr: f64) -> Result<f32, String> {
-        let batch: Vec<&TrainPair> = batch.iter().map(|&k| &self.train[k]).collect();
+        let a = self.opts.augment;
+        if a.is_off() {
+            let batch: Vec<&TrainPair> = batch.iter().map(|&k| &self.train[k]).collect();
+            return self.trainer.step(&batch, lr);
+        }
+        // Each pair's draws from its own stream (seed, epoch, index): the
+        // same whatever the batch order or thread count.
+        let drawn: Vec<Option<TrainPair>> = batch
+            .iter()
+            .map(|&k| {
+                let parts = [rng::hash_str("augment"), self.epoch, k as u64];
+                let mut stream = rng::stream(self.opts.seed, Purpose::Training, &parts);
+                augment::augmented(&self.examples[k], a, &mut stream)
+                    .map(|e| TrainPair::of(&e, &self.cfg))
+            })
+            .collect();
+        let batch: Vec<&TrainPair> = batch
+            .iter()
+            .zip(&drawn)
+            .map(|(&k, d)| d.as_ref().unwrap_or(&self.train[k]))
+            .collect();
         self.trainer.step(&batch, lr)
     }
 
@@ -602,7 +638,10 @@ pub fn train(
                 train,
                 validation: validation.iter().map(|e| TrainPair::of(e, &cfg)).collect(),
                 trainer,
+                cfg,
+                examples,
                 opts: *opts,
+                epoch: 0,
             };
             fit_loop(fit, examples.len(), stopping, opts, progress, report)
         }

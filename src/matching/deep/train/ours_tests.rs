@@ -338,6 +338,7 @@ fn the_projects_trainer_started_from_weights_holds_them() {
         appearance_width: crate::sensor::AppearanceWidth::NONE,
         no_match: crate::matching::deep::arch::NoMatchWeights::Halves,
         network: crate::matching::deep::arch::NetworkShape::default(),
+        augment: super::augment::Augment::default(),
     };
     let other = super::Trainer::new(Method::Ours, &opts(11))
         .unwrap()
