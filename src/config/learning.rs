@@ -74,6 +74,7 @@ pub(super) fn train_and_eval(
         network: NetworkShape {
             graph: t.graph,
             consensus_dim: t.consensus_dim,
+            edge_scale_m: t.edge_scale_m,
         },
         augment: Augment {
             node_dropout: t.node_dropout,
@@ -146,6 +147,12 @@ fn fitting(c: &Checker, t: &RawTrain) -> Result<(), ConfigError> {
         return Err(c.invalid(
             "train.position_jitter_m",
             format!("must be 0 to 10 m, got {}", t.position_jitter_m),
+        ));
+    }
+    if !(t.edge_scale_m >= 1.0 && t.edge_scale_m <= 1000.0) {
+        return Err(c.invalid(
+            "train.edge_scale_m",
+            format!("must be 1 to 1000 m, got {}", t.edge_scale_m),
         ));
     }
     if !(1..=1024).contains(&t.consensus_dim) {

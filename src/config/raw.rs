@@ -295,6 +295,7 @@ pub(super) struct RawTrain {
     pub(super) start_from: PathBuf,
     pub(super) graph: crate::matching::deep::arch::NetworkGraph,
     pub(super) consensus_dim: usize,
+    pub(super) edge_scale_m: f64,
     pub(super) node_dropout: f64,
     pub(super) position_jitter_m: f64,
 }

@@ -489,9 +489,10 @@ fn training_starts_from_the_weights_start_from_names() {
     );
 }
 
-/// `[train] graph = "complete"` and `consensus_dim`: the paper's network
-/// convolves over every pair of each vehicle's detections, with as many
-/// random indicators per consensus step as asked. The record says so (and
+/// `[train] graph = "complete"`, `consensus_dim` and `edge_scale_m`: the
+/// paper's network convolves over every pair of each vehicle's
+/// detections, with as many random indicators per consensus step and
+/// the edge-length knots as far apart as asked. The record says so (and
 /// the default one does not), and the graph is the one trained on: from
 /// the same seeded weights the validation loss before the first step
 /// differs from the Delaunay graph's. Values out of range are refused.
@@ -537,9 +538,12 @@ fn a_network_trained_on_the_complete_graph_records_it() {
     let default = fx.read_text("delaunay/coid.toml");
     assert!(!default.contains("graph ="), "{default}");
     assert!(default.contains("consensus_dim = 32"), "{default}");
-    let wide = cfg("wide.toml", "consensus_dim = 8");
+    let wide = cfg("wide.toml", "consensus_dim = 8\nedge_scale_m = 30.0");
     assert_ok(&train(&wide, "wide"));
-    assert!(fx.read_text("wide/coid.toml").contains("consensus_dim = 8"));
+    let record = fx.read_text("wide/coid.toml");
+    assert!(record.contains("consensus_dim = 8"), "{record}");
+    assert!(record.contains("edge_scale_m = 30.0"), "{record}");
+    assert!(default.contains("edge_scale_m = 60.0"), "{default}");
     let o = train(&cfg("knn.toml", "graph = \"knn\""), "knn");
     assert_refused(
         &o,
@@ -547,6 +551,8 @@ fn a_network_trained_on_the_complete_graph_records_it() {
     );
     let o = train(&cfg("none.toml", "consensus_dim = 0"), "none");
     assert_refused(&o, "train.consensus_dim");
+    let o = train(&cfg("short.toml", "edge_scale_m = 0.0"), "short");
+    assert_refused(&o, "train.edge_scale_m");
 }
 
 /// `[train] node_dropout` and `position_jitter_m`: the paper's network's

@@ -19,6 +19,7 @@ are PyTorch Geometric's own. Prints each epoch's losses.
 from __future__ import annotations
 
 import argparse
+import tomllib
 import math
 import random
 import sys
@@ -270,6 +271,17 @@ def record_for(text: str, weights: bytes) -> str:
     return "\n".join(out).rstrip() + "\n"
 
 
+def shape_differences(record_text: str, cfg: dict) -> list:
+    """The architecture keys of a coid record that differ from the network
+    the reference trains (``cfg``: its published configuration): the
+    reference convolves over the dataset's Delaunay edges, with the
+    default edge scale and indicator width of ``--shape-of``."""
+    arch = tomllib.loads(record_text).get("architecture", {})
+    have = {"graph": arch.get("graph", "delaunay"), "edge_scale_m": arch.get("edge_scale_m"), "consensus_dim": arch.get("consensus_dim", arch.get("rnd_dim"))}
+    wanted = {"graph": cfg.get("graph", "delaunay"), "edge_scale_m": cfg["edge_scale_m"], "consensus_dim": cfg["consensus_dim"]}
+    return [f"{k} = {have[k]!r} (the reference: {v!r})" for k, v in wanted.items() if have[k] != v]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dgmc", type=Path, required=True)
@@ -295,6 +307,9 @@ def main(argv=None) -> int:
     torch.manual_seed(args.seed)
     rng = random.Random(args.seed)
     cfg = _coid_sim.PublishedNetwork(str(args.shape_of / f"{args.method}.bpk"), args.method).config()
+    if args.record and (differ := shape_differences(args.record.read_text(), cfg)):
+        print(f"train.py: {args.record} is another network than the reference trains: {'; '.join(differ)}", file=sys.stderr)
+        return 2
     terms = {
         "no_match": args.no_match,
         "non": args.method in ("coid", "coid+non"),

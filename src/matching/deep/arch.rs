@@ -57,6 +57,7 @@ impl Backbone {
             Backbone::Published(c) => NetworkShape {
                 graph: c.graph,
                 consensus_dim: c.consensus_dim,
+                edge_scale_m: c.edge_scale_m,
             },
             Backbone::Likelihood(_) => NetworkShape::default(),
         }
@@ -69,6 +70,7 @@ impl Backbone {
             Backbone::Published(c) => Backbone::Published(PublishedConfig {
                 graph: shape.graph,
                 consensus_dim: shape.consensus_dim,
+                edge_scale_m: shape.edge_scale_m,
                 ..c
             }),
             Backbone::Likelihood(a) => Backbone::Likelihood(a),
@@ -217,14 +219,21 @@ impl NetworkGraph {
 /// trains the paper's network by default.
 pub const CONSENSUS_DIM: usize = 32;
 
+/// The last B-spline knot of the published networks' edge lengths by
+/// default, metres (5 knots: one every 15 m).
+pub const EDGE_SCALE_M: f64 = 60.0;
+
 /// What `[train]` chooses of the published networks beyond the paper's
-/// sizes (`graph`, `consensus_dim`); recorded with the weights, which run
-/// as they were trained.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// sizes (`graph`, `consensus_dim`, `edge_scale_m`); recorded with the
+/// weights, which run as they were trained.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NetworkShape {
     pub graph: NetworkGraph,
     /// Random node indicators per consensus step, and psi_2's width.
     pub consensus_dim: usize,
+    /// The last knot of the edge-length splines (longer edges clipped to
+    /// it), metres.
+    pub edge_scale_m: f64,
 }
 
 impl Default for NetworkShape {
@@ -232,6 +241,7 @@ impl Default for NetworkShape {
         Self {
             graph: NetworkGraph::Delaunay,
             consensus_dim: CONSENSUS_DIM,
+            edge_scale_m: EDGE_SCALE_M,
         }
     }
 }
@@ -294,7 +304,7 @@ impl PublishedConfig {
                 PublishedKind::Dgmc => 10,
             },
             sinkhorn_iters: 20,
-            edge_scale_m: 60.0,
+            edge_scale_m: EDGE_SCALE_M,
             appearance_width: AppearanceWidth::NONE,
             graph: NetworkGraph::Delaunay,
         }
