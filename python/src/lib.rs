@@ -337,6 +337,33 @@ fn side<'py>(py: Python<'py>, d: &Dataset, s: &DatasetSide) -> PyResult<Bound<'p
 /// its forward pass run with the dropout masks and consensus indicators
 /// the caller gives: what `tools/dgmc_reference` holds DGMC's PyTorch
 /// code to. Not used by any command.
+/// The shape (graph, edge scale, indicator width) the record beside
+/// `weights` (`<method>.toml` in its folder) gives its network; the
+/// default one when there is no record.
+fn record_shape(
+    weights: &std::path::Path,
+    method: Method,
+) -> PyResult<coid_sim::matching::deep::arch::NetworkShape> {
+    use coid_sim::matching::deep::arch::{Backbone, NetworkShape};
+    let path = weights.with_file_name(format!("{}.toml", method.weights_owner().as_str()));
+    if !path.is_file() {
+        return Ok(NetworkShape::default());
+    }
+    let bad = |why: String| CoidError::new_err(format!("{}: {why}", path.display()));
+    let text = std::fs::read_to_string(&path).map_err(|e| bad(e.to_string()))?;
+    let table: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| bad(e.to_string()))?;
+    let architecture = table
+        .get("architecture")
+        .cloned()
+        .ok_or_else(|| bad("no [architecture] table".into()))?;
+    let backbone: Backbone = architecture
+        .try_into()
+        .map_err(|e: toml::de::Error| bad(e.to_string()))?;
+    Ok(backbone.shape())
+}
+
 #[pyclass(frozen)]
 struct PublishedNetwork {
     net: PublishedForward,
@@ -346,7 +373,9 @@ struct PublishedNetwork {
 impl PublishedNetwork {
     /// `method`'s network with the weights of the `.bpk` file `weights`,
     /// reading appearance vectors `appearance_width` wide (0: none),
-    /// computing `samples` samples per pair.
+    /// computing `samples` samples per pair; of the shape (edge scale,
+    /// indicator width) its record beside it (`<method>.toml`) gives,
+    /// or the default one without a record.
     #[new]
     #[pyo3(signature = (weights, method, appearance_width = 0, samples = 1))]
     fn new(
@@ -361,7 +390,8 @@ impl PublishedNetwork {
         let bytes = std::fs::read(&weights)
             .map_err(|e| CoidError::new_err(format!("cannot read {}: {e}", weights.display())))?;
         let width = AppearanceWidth::new(appearance_width);
-        let net = PublishedForward::new(method, width, &bytes, samples).map_err(|e| {
+        let shape = record_shape(&weights, method)?;
+        let net = PublishedForward::new(method, width, shape, &bytes, samples).map_err(|e| {
             CoidError::new_err(format!(
                 "{} does not fit {}: {e}",
                 weights.display(),

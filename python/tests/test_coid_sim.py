@@ -514,3 +514,22 @@ def test_the_reference_trains_on_a_dataset_and_coid_runs_its_weights(tmp_path: P
     coid_sim.cli("eval", "-c", config, "--dataset", ds.path, "-o", tmp_path / "e", "-q")
     table = pl.read_csv(tmp_path / "e" / "table1.csv").filter(pl.col("method") == "gcn-gm")
     assert table.height > 0 and 0.0 <= table["f1"][0] <= 1.0
+
+
+def test_a_published_network_takes_its_shape_from_the_record_beside_it(tmp_path: Path) -> None:
+    """Weights trained with another edge scale run at that scale (their
+    record beside them says it); weights trained on every pair of
+    detections are refused, since this forward pass takes a dataset's
+    Delaunay edges; without a record, the default shape."""
+    from coid_sim import _coid_sim
+
+    (tmp_path / "coid.bpk").write_bytes((REPO / "models" / "coid.bpk").read_bytes())
+    weights = str(tmp_path / "coid.bpk")
+    assert _coid_sim.PublishedNetwork(weights, "coid").config()["edge_scale_m"] == 60.0
+    record = (REPO / "models" / "coid.toml").read_text()
+    assert "edge_scale_m = 60.0" in record
+    (tmp_path / "coid.toml").write_text(record.replace("edge_scale_m = 60.0", "edge_scale_m = 30.0"))
+    assert _coid_sim.PublishedNetwork(weights, "coid").config()["edge_scale_m"] == 30.0
+    (tmp_path / "coid.toml").write_text(record.replace("[architecture]\n", '[architecture]\ngraph = "complete"\n'))
+    with pytest.raises(coid_sim.CoidError, match="every pair of detections"):
+        _coid_sim.PublishedNetwork(weights, "coid")

@@ -28,17 +28,28 @@ pub struct PublishedForward {
 
 impl PublishedForward {
     /// The network of `method` (one on the paper's inputs) reading
-    /// appearance vectors `appearance_width` wide, with the weights `bytes`
-    /// of its `.bpk` file, computing `samples` samples per pair.
+    /// appearance vectors `appearance_width` wide, of `shape` (its
+    /// record's), with the weights `bytes` of its `.bpk` file, computing
+    /// `samples` samples per pair. The caller gives the edges, so a
+    /// network trained on every pair of detections is refused: its
+    /// edges are not a dataset's.
     pub fn new(
         method: Method,
         appearance_width: AppearanceWidth,
+        shape: crate::matching::deep::arch::NetworkShape,
         bytes: &[u8],
         samples: usize,
     ) -> Result<Self, String> {
+        if shape.graph != crate::matching::deep::arch::NetworkGraph::Delaunay {
+            return Err(
+                "its record says it convolves over every pair of detections, and this \
+                 forward pass takes the dataset's Delaunay edges"
+                    .into(),
+            );
+        }
         let cfg = match method
             .backbone()
-            .map(|b| b.with_appearance(appearance_width))
+            .map(|b| b.with_appearance(appearance_width).with_shape(shape))
         {
             Some(Backbone::Published(cfg)) => cfg,
             _ => {
