@@ -268,10 +268,31 @@ pub fn train(a: Args) -> anyhow::Result<()> {
         eprintln!(
             "coid: training took {:.1} min in all; models in {}",
             started.elapsed().as_secs_f64() / 60.0,
-            models_dir.display()
+            written(&models_dir, &seeds, settings.train.seed)
         );
     }
     Ok(())
+}
+
+/// Where a `coid train` wrote: the models folder, and each seed's folder
+/// beside it. Seeds other than [train] seed's go to `seed-<N>/`; a user
+/// who trained only such a seed would otherwise look for it at the root.
+fn written(models_dir: &Path, seeds: &[SeedRun], own: u64) -> String {
+    let elsewhere: Vec<String> = seeds
+        .iter()
+        .filter(|s| s.dir != models_dir)
+        .map(|s| format!("seed {}'s in {}", s.settings.train.seed, s.dir.display()))
+        .collect();
+    let at_root = seeds.iter().any(|s| s.dir == models_dir);
+    let dir = models_dir.display();
+    match (elsewhere.is_empty(), at_root) {
+        (true, _) => dir.to_string(),
+        (false, true) => format!("{dir} ({})", elsewhere.join(", ")),
+        (false, false) => format!(
+            "{dir} ({}; its root holds [train] seed {own}'s, which `coid eval` reads first)",
+            elsewhere.join(", ")
+        ),
+    }
 }
 
 /// One training pass of a `coid train`: its arguments, the deep methods,

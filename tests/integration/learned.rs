@@ -600,3 +600,34 @@ fn augmented_training_is_recorded_and_deterministic() {
     let o = train(&cfg("far.toml", "position_jitter_m = -1.0"), "far", "1");
     assert_refused(&o, "train.position_jitter_m");
 }
+
+/// Regression: `coid train --seed 8` alone (the config's `[train] seed`
+/// is 7) wrote its weights into `seed-8/` but said "models in <folder>",
+/// and `coid eval` then found no record at the folder's root. The last
+/// line names the seed's folder and what the root is for.
+#[test]
+fn training_another_seed_alone_says_where_its_weights_went() {
+    let fx = Fixture::new();
+    let cfg = fx.config(
+        "c.toml",
+        80.0,
+        "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 1\n\
+         patience = 1\nmethods = [\"coid\"]\n[pose_noise]\nlevels = [\"gps\"]\n",
+    );
+    let o = fx
+        .cmd("train")
+        .quiet()
+        .config(&cfg)
+        .out("m")
+        .args(["--skip-validation", "--seed", "8"])
+        .output();
+    assert_ok(&o);
+    assert!(fx.path("m/seed-8/coid.toml").is_file());
+    let said = stderr(&o);
+    let seed_dir = std::path::Path::new("m").join("seed-8");
+    assert!(
+        said.contains(&format!("seed 8's in {}", seed_dir.display())),
+        "{said}"
+    );
+    assert!(said.contains("its root holds [train] seed 7's"), "{said}");
+}
