@@ -24,6 +24,8 @@ mod export_score;
 mod family_roles;
 #[path = "integration/hostile.rs"]
 mod hostile;
+#[path = "integration/hostile_datasets.rs"]
+mod hostile_datasets;
 #[path = "integration/learned.rs"]
 mod learned;
 #[path = "integration/likelihood.rs"]

@@ -423,6 +423,30 @@ fn a_record_narrower_than_the_node_attributes_is_refused() {
     );
 }
 
+/// A short run's configuration that trains `coid` for one epoch on run
+/// 201 and validates on run 202, with `extra` under `[train]`.
+fn one_epoch_of_coid(fx: &Fixture, name: &str, extra: &str) -> std::path::PathBuf {
+    fx.config(
+        name,
+        80.0,
+        &format!(
+            "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 1\n\
+             patience = 1\nmethods = [\"coid\"]\n{extra}\n\
+             [pose_noise]\nlevels = [\"gps\"]\n"
+        ),
+    )
+}
+
+/// `coid train` of `config` into `out`, without validation.
+fn train_unvalidated(fx: &Fixture, config: &std::path::Path, out: &str) -> std::process::Output {
+    fx.cmd("train")
+        .quiet()
+        .config(config)
+        .out(out)
+        .args(["--skip-validation"])
+        .output()
+}
+
 /// `[train] start_from`: training starts from the weights of a models
 /// folder. The record names them and their checksum, and before the first
 /// step the validation loss is that of those weights (the shipped
@@ -431,26 +455,10 @@ fn a_record_narrower_than_the_node_attributes_is_refused() {
 #[test]
 fn training_starts_from_the_weights_start_from_names() {
     let fx = Fixture::new();
-    let cfg = |name: &str, start: &str| {
-        fx.config(
-            name,
-            80.0,
-            &format!(
-                "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 1\n\
-                 patience = 1\nmethods = [\"coid\"]\nstart_from = {start:?}\n\
-                 [pose_noise]\nlevels = [\"gps\"]\n"
-            ),
-        )
-    };
+    let cfg =
+        |name: &str, start: &str| one_epoch_of_coid(&fx, name, &format!("start_from = {start:?}"));
     let shipped = repo().join("models");
-    let train = |c: &std::path::Path, out: &str| {
-        fx.cmd("train")
-            .quiet()
-            .config(c)
-            .out(out)
-            .args(["--skip-validation"])
-            .output()
-    };
+    let train = |c: &std::path::Path, out: &str| train_unvalidated(&fx, c, out);
     assert_ok(&train(&cfg("seeded.toml", ""), "seeded"));
     assert_ok(&train(
         &cfg("tuned.toml", shipped.to_str().unwrap()),
@@ -499,25 +507,8 @@ fn training_starts_from_the_weights_start_from_names() {
 #[test]
 fn a_network_trained_on_the_complete_graph_records_it() {
     let fx = Fixture::new();
-    let cfg = |name: &str, network: &str| {
-        fx.config(
-            name,
-            80.0,
-            &format!(
-                "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 1\n\
-                 patience = 1\nmethods = [\"coid\"]\n{network}\n\
-                 [pose_noise]\nlevels = [\"gps\"]\n"
-            ),
-        )
-    };
-    let train = |c: &std::path::Path, out: &str| {
-        fx.cmd("train")
-            .quiet()
-            .config(c)
-            .out(out)
-            .args(["--skip-validation"])
-            .output()
-    };
+    let cfg = |name: &str, network: &str| one_epoch_of_coid(&fx, name, network);
+    let train = |c: &std::path::Path, out: &str| train_unvalidated(&fx, c, out);
     assert_ok(&train(&cfg("delaunay.toml", ""), "delaunay"));
     assert_ok(&train(
         &cfg("complete.toml", "graph = \"complete\""),
@@ -608,12 +599,7 @@ fn augmented_training_is_recorded_and_deterministic() {
 #[test]
 fn training_another_seed_alone_says_where_its_weights_went() {
     let fx = Fixture::new();
-    let cfg = fx.config(
-        "c.toml",
-        80.0,
-        "[train]\ntraffic_seeds = [201]\nvalidation_seeds = [202]\nepochs = 1\n\
-         patience = 1\nmethods = [\"coid\"]\n[pose_noise]\nlevels = [\"gps\"]\n",
-    );
+    let cfg = one_epoch_of_coid(&fx, "c.toml", "");
     let o = fx
         .cmd("train")
         .quiet()
