@@ -109,6 +109,7 @@ impl Settings {
             sender_as_node: self.matching.sender_as_node,
             multi_vehicle: MultiVehicle::Pairwise,
             rematch: 0,
+            indicators: crate::matching::deep::arch::IndicatorScope::PerSample,
         };
         s.fusion = FusionSettings {
             variants: Vec::new(),

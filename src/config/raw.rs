@@ -253,6 +253,7 @@ pub(super) struct RawMatching {
     pub(super) sender_as_node: bool,
     pub(super) multi_vehicle: MultiVehicle,
     pub(super) rematch: usize,
+    pub(super) indicators: crate::matching::deep::arch::IndicatorScope,
 }
 
 /// `mc_dropout = 0.3` or `mc_dropout = "trained"`.

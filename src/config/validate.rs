@@ -383,6 +383,7 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
         sender_as_node: m.sender_as_node,
         multi_vehicle: m.multi_vehicle,
         rematch: m.rematch,
+        indicators: m.indicators,
     })
 }
 

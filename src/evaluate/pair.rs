@@ -117,6 +117,7 @@ mod tests {
             sender_as_node: false,
             multi_vehicle: MultiVehicle::Pairwise,
             rematch: 2,
+            indicators: crate::matching::deep::arch::IndicatorScope::PerSample,
         };
         CorrespondenceSource::Matcher(crate::matching::build(method, &settings, None, 1).unwrap())
     }

@@ -165,6 +165,7 @@ pub fn build(
                 masks: settings.dropout_masks.resolve(choice.trained_masks),
                 dropout,
                 gate_chi2: settings.gate_chi2,
+                indicators: settings.indicators,
             };
             deep::matcher(method, appearance_width, shape, bytes, run).map_err(|reason| {
                 BuildError::BadWeights {

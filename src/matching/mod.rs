@@ -81,7 +81,7 @@ crate::label_enum! { "baseline thresholds";
 pub const BASELINES_FILE: &str = "baselines.toml";
 
 /// `[matching]`: which methods run and how they decide.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, PartialEq)]
 pub struct MatchingSettings {
     pub methods: Vec<Method>,
     /// Where the baselines' thresholds come from.
@@ -118,6 +118,35 @@ pub struct MatchingSettings {
     /// the relative pose re-estimated from the matches ([`crate::fusion::align`])
     /// and the pair matched again with it (0 = one pass with the GPS pose).
     pub rematch: usize,
+    /// DGMC's random node indicators across a pair's MC samples.
+    pub indicators: crate::matching::deep::arch::IndicatorScope,
+}
+
+/// As derived, but `indicators` is shown only when it is not "per-sample":
+/// a config's digest hashes this text, and configs from before it keep
+/// their digest (and their batches).
+impl std::fmt::Debug for MatchingSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("MatchingSettings");
+        d.field("methods", &self.methods)
+            .field("baselines", &self.baselines)
+            .field("baseline_values", &self.baseline_values)
+            .field("gate_chi2", &self.gate_chi2)
+            .field("models_dir", &self.models_dir)
+            .field("mc_samples", &self.mc_samples)
+            .field("dropout_masks", &self.dropout_masks)
+            .field("mc_dropout", &self.mc_dropout)
+            .field("lambda", &self.lambda)
+            .field("decision", &self.decision)
+            .field("uncertainty", &self.uncertainty)
+            .field("sender_as_node", &self.sender_as_node)
+            .field("multi_vehicle", &self.multi_vehicle)
+            .field("rematch", &self.rematch);
+        if self.indicators != crate::matching::deep::arch::IndicatorScope::PerSample {
+            d.field("indicators", &self.indicators);
+        }
+        d.finish()
+    }
 }
 
 impl MatchingSettings {

@@ -33,6 +33,7 @@ fn settings() -> MatchingSettings {
         sender_as_node: true,
         multi_vehicle: MultiVehicle::Pairwise,
         rematch: 0,
+        indicators: crate::matching::deep::arch::IndicatorScope::PerSample,
     }
 }
 

@@ -479,6 +479,23 @@ crate::label_enum! { "dropout masks";
     }
 }
 
+crate::label_enum! { "indicator draws";
+    /// `[matching] indicators`: how DGMC's random node indicators are
+    /// drawn across a pair's MC-dropout samples at inference.
+    pub enum IndicatorScope {
+        /// A fresh draw per sample (and per consensus step), as DGMC draws
+        /// them in every forward pass: the samples differ in their masks
+        /// and their indicators.
+        #[strum(serialize = "per-sample")]
+        PerSample,
+        /// One draw per pair and consensus step, shared by its samples:
+        /// the samples differ in their dropout masks alone, the paper's
+        /// Eq. 9 (a sample is a draw of the weights).
+        #[strum(serialize = "per-pair")]
+        PerPair,
+    }
+}
+
 crate::label_enum! { "dropout masks";
     /// `[matching] dropout_masks`: the masks MC dropout draws at
     /// inference.

@@ -17,7 +17,7 @@ use std::sync::{Arc, Mutex};
 use super::decision::{Decision, MatchDistribution, UncertaintyKind};
 use crate::assignment::assign;
 use crate::fusion::PoseEstimate;
-use crate::matching::deep::arch::MaskScope;
+use crate::matching::deep::arch::{IndicatorScope, MaskScope};
 use crate::matching::{Identification, MatchView, Matcher, Method};
 
 /// How a deep matcher runs (beyond its weights).
@@ -40,6 +40,8 @@ pub struct Inference {
     pub dropout: Option<f64>,
     /// The likelihood's gate on the squared Mahalanobis distance.
     pub gate_chi2: f64,
+    /// DGMC's random node indicators: drawn per sample or per pair.
+    pub indicators: IndicatorScope,
 }
 
 impl Inference {
@@ -57,6 +59,7 @@ impl Inference {
         masks: MaskScope::Shared,
         dropout: None,
         gate_chi2: 9.21,
+        indicators: IndicatorScope::PerSample,
     };
 }
 

@@ -8,7 +8,7 @@
 use super::inference::PlainPublished;
 use crate::fusion::PoseEstimate;
 use crate::matching::MatchView;
-use crate::matching::deep::arch::{MaskScope, PublishedConfig};
+use crate::matching::deep::arch::{IndicatorScope, MaskScope, PublishedConfig};
 use crate::matching::deep::cost::published_macs;
 use crate::matching::deep::graph::LengthGraph;
 use crate::matching::deep::mc::draws::{dropout_mask_16, indicator_values};
@@ -93,7 +93,8 @@ impl Published {
 
     /// The pair's draws from the stream of its `key`: per node masks
     /// (none under shared masks), then one draw of indicators per
-    /// consensus step, as training draws them.
+    /// consensus step, as training draws them (or, [`IndicatorScope::PerPair`],
+    /// one shared by the pair's samples).
     /// Never kept: the shell keeps a pair's distribution for its other
     /// pose-noise levels (the network does not read the poses), so a
     /// pair's draws are read once.
@@ -114,7 +115,10 @@ impl Published {
             Vec::new()
         };
         let indicators = (0..steps)
-            .map(|_| indicator_values(&mut stream, t * n1 * r))
+            .map(|_| match self.run.indicators {
+                IndicatorScope::PerSample => indicator_values(&mut stream, t * n1 * r),
+                IndicatorScope::PerPair => indicator_values(&mut stream, n1 * r).repeat(t),
+            })
             .collect();
         [masks, indicators]
     }

@@ -547,3 +547,45 @@ fn a_published_trainer_started_from_weights_holds_them() {
     let e = t.start_from(b"not a burnpack").unwrap_err();
     assert!(e.starts_with("the starting weights do not fit"), "{e}");
 }
+
+/// `[matching] indicators = "per-pair"`: with every dropout off, a
+/// pair's samples differ only in DGMC's indicators, so drawn once per
+/// pair they are one answer T times; drawn per sample they differ.
+/// With dropout on, shared indicators still leave the masks' variation.
+#[test]
+fn indicators_drawn_per_pair_leave_the_samples_differing_in_their_masks_alone() {
+    use crate::matching::deep::arch::IndicatorScope;
+    let Some(Backbone::Published(cfg)) = Method::Coid.backbone() else {
+        panic!("coid is a published network");
+    };
+    let bytes = include_bytes!("../../../../models/coid.bpk");
+    let objects = testkit::world_objects();
+    let a = Side::of(testkit::POSE_A, &objects, &[0, 1, 2, 3, 4, 5], GPS);
+    let b = Side::of(testkit::POSE_B, &objects, &[5, 4, 3, 2, 1], GPS);
+    let (va, vb) = (a.view(), b.view());
+    let relative = crate::matching::gps_relative_pose(&va, &vb);
+    let samples = |indicators, dropout| {
+        let run = Inference {
+            masks: MaskScope::PerNode,
+            samples: 4,
+            dropout,
+            indicators,
+            ..Inference::MC_DROPOUT
+        };
+        let network = Published::from_weights(cfg, bytes, run).unwrap();
+        McMatcher::new(Method::Coid, network, run)
+            .samples(&va, &vb, &relative)
+            .assignments
+    };
+    let spread = |s: &[Vec<f32>]| {
+        s.iter()
+            .flat_map(|x| x.iter().zip(&s[0]).map(|(v, w)| (v - w).abs()))
+            .fold(0f32, f32::max)
+    };
+    let pair = samples(IndicatorScope::PerPair, Some(0.0));
+    assert_eq!(spread(&pair), 0.0, "one draw of indicators, no dropout");
+    let sample = samples(IndicatorScope::PerSample, Some(0.0));
+    assert!(spread(&sample) > 1e-3, "{}", spread(&sample));
+    let masked = samples(IndicatorScope::PerPair, None);
+    assert!(spread(&masked) > 1e-3, "{}", spread(&masked));
+}
