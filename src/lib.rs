@@ -19,12 +19,15 @@
 //!   [`export`]: instances out for matchers written elsewhere, their
 //!   matches back in; [`training`]: `coid train`'s seeds and child
 //!   processes;
+//! - [`commands`]: the commands as typed calls, what the command line
+//!   and the Python package run;
 //! - [`cli`]: the `coid` commands.
 
 mod assignment;
 mod batch;
 mod bridge;
 pub mod cli;
+pub mod commands;
 pub mod config;
 pub mod dataset;
 pub mod evaluate;

@@ -79,13 +79,24 @@ fn call(py: Python<'_>, argv: Vec<String>) -> PyResult<Option<String>> {
             return Err(CoidError::new_err(line.to_owned()));
         }
     };
+    interruptible(py, || coid_sim::cli::execute(cli))
+}
+
+/// Runs `work` (a command) in a thread of its own, the GIL released,
+/// while this thread, the interpreter's, looks for its signals: Ctrl-C
+/// stops the command at its next SUMO step and raises
+/// `KeyboardInterrupt`. Errors as `CoidError` with `coid`'s line.
+fn interruptible<T: Send>(
+    py: Python<'_>,
+    work: impl FnOnce() -> anyhow::Result<T> + Send,
+) -> PyResult<T> {
     coid_sim::cli::clear_stop();
     let (outcome, interrupted) = py.detach(|| {
         std::thread::scope(|scope| {
             let worker = std::thread::Builder::new()
                 .name("coid".into())
                 .stack_size(COMMAND_STACK_BYTES)
-                .spawn_scoped(scope, || coid_sim::cli::execute(cli));
+                .spawn_scoped(scope, work);
             let worker = match worker {
                 Ok(w) => w,
                 Err(e) => return (Err(anyhow::anyhow!("cannot start a thread: {e}")), None),
@@ -111,6 +122,59 @@ fn call(py: Python<'_>, argv: Vec<String>) -> PyResult<Option<String>> {
         return Err(e);
     }
     outcome.map_err(|e| coid_error(&e))
+}
+
+/// `coid run` as a typed call: the configuration as a file (`config`),
+/// as TOML text in no file (`config_text`, named `shown` in messages and
+/// results) or the defaults (neither); the results folder and the
+/// headline back, nothing parsed from printed lines. Progress bars as
+/// the program shows them unless `quiet`.
+#[pyfunction]
+#[pyo3(signature = (config=None, config_text=None, shown=None, out=None, force=false, threads=None, traffic_seed=None, sensor_seed=None, quiet=false))]
+#[allow(clippy::too_many_arguments)]
+fn run(
+    py: Python<'_>,
+    config: Option<PathBuf>,
+    config_text: Option<String>,
+    shown: Option<String>,
+    out: Option<PathBuf>,
+    force: bool,
+    threads: Option<usize>,
+    traffic_seed: Option<u64>,
+    sensor_seed: Option<u64>,
+    quiet: bool,
+) -> PyResult<(PathBuf, String)> {
+    use coid_sim::commands::{ConfigSource, RunRequest};
+    let config = match (config, config_text) {
+        (Some(path), None) => ConfigSource::File(path),
+        (None, Some(text)) => ConfigSource::Text {
+            text,
+            shown: shown.unwrap_or_else(|| "the configuration".to_owned()),
+        },
+        (None, None) => ConfigSource::Defaults,
+        (Some(_), Some(_)) => {
+            return Err(CoidError::new_err(
+                "a configuration is a file or a text, not both",
+            ));
+        }
+    };
+    let request = RunRequest {
+        config,
+        out,
+        force,
+        threads,
+        traffic_seed,
+        sensor_seed,
+    };
+    coid_sim::cli::report_panics_in_one_line();
+    let report = interruptible(py, || {
+        let mut progress = coid_sim::cli::RunProgress::new(quiet);
+        let report = coid_sim::commands::run(&request, |e| progress.show(e));
+        progress.clear();
+        report
+    })?;
+    let line = coid_sim::cli::print_report(&report);
+    Ok((report.folder, line))
 }
 
 /// The stack of the thread a command runs in: the main thread's.
@@ -495,6 +559,7 @@ fn _coid_sim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(main, m)?)?;
     m.add_function(wrap_pyfunction!(call, m)?)?;
+    m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(toml_of_json, m)?)?;
     m.add_function(wrap_pyfunction!(delaunay, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;

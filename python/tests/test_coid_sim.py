@@ -533,3 +533,15 @@ def test_a_published_network_takes_its_shape_from_the_record_beside_it(tmp_path:
     (tmp_path / "coid.toml").write_text(record.replace("[architecture]\n", '[architecture]\ngraph = "complete"\n'))
     with pytest.raises(coid_sim.CoidError, match="every pair of detections"):
         _coid_sim.PublishedNetwork(weights, "coid")
+
+
+def test_a_dict_config_run_writes_nothing_but_its_results_folder(in_tmp: Path) -> None:
+    """A dict configuration is handed to coid as text: no file appears in
+    the current folder, and the results name the dict, not a file."""
+    result = coid_sim.run({**SHORT, "matching": {"methods": ["oracle"]}}, name="dict", quiet=True)
+    assert sorted(p.name for p in in_tmp.iterdir()) == ["results"], list(in_tmp.iterdir())
+    assert result.out == Path("results/dict")
+    assert "- config: `the configuration dict`" in (result.out / "summary.md").read_text()
+    with pytest.raises(coid_sim.CoidError, match=r"threads must be 1 to 1024, got 0"):
+        coid_sim.run(SHORT, out="elsewhere", threads=0, quiet=True)
+    assert not Path("elsewhere").exists()

@@ -242,7 +242,7 @@ fn warn_empty(scenarios: &[Scenario]) {
             "coid: warning: {} has no instance in its {}: {}; its tables are empty",
             s.name,
             crate::label::counted(s.runs.len() as u64, "run"),
-            super::run::why_no_instance(&s.settings)
+            crate::commands::run::why_no_instance(&s.settings)
         );
     }
 }

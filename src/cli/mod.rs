@@ -23,6 +23,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::label::{self, Label};
 
+pub use run::{RunProgress, print_report};
+
 #[derive(Parser)]
 #[command(
     name = "coid",
@@ -234,7 +236,7 @@ pub fn one_line(e: &anyhow::Error) -> String {
 /// A panic (a bug in coid) is reported as one line, like any other
 /// error, saying where and asking for a report; the process still ends
 /// as a panic does (exit code 101), with its temporary folders removed.
-fn report_panics_in_one_line() {
+pub fn report_panics_in_one_line() {
     std::panic::set_hook(Box::new(|info| {
         let what = info
             .payload()
@@ -273,6 +275,14 @@ impl ConfigArg {
 
     /// The configuration as messages name it: its file, or "the default
     /// configuration" (never the install folder's copy).
+    /// The configuration as the library's commands take it.
+    fn source(&self) -> crate::commands::ConfigSource {
+        self.config.clone().map_or(
+            crate::commands::ConfigSource::Defaults,
+            crate::commands::ConfigSource::File,
+        )
+    }
+
     fn shown(&self) -> String {
         self.config.as_ref().map_or_else(
             || "the default configuration".to_owned(),
@@ -346,9 +356,7 @@ impl ThreadsArg {
     }
 }
 
-/// The most threads or worker processes a command starts: more would only
-/// exhaust the machine (each thread a stack, each worker a SUMO).
-const MAX_PARALLEL: usize = 1024;
+use crate::commands::{MAX_PARALLEL, cores};
 
 /// A clap parser for a count in `min..=max`.
 fn in_range(min: usize, max: usize) -> impl Fn(&str) -> Result<usize, String> + Clone {
@@ -357,11 +365,6 @@ fn in_range(min: usize, max: usize) -> impl Fn(&str) -> Result<usize, String> + 
         Ok(n) => Err(format!("{n} is not in {min}..={max}")),
         Err(e) => Err(e.to_string()),
     }
-}
-
-/// The cores this process may use.
-fn cores() -> usize {
-    std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
 }
 
 /// What `run`, `eval` and `render` share: a config, a results folder, a
@@ -432,7 +435,7 @@ impl CommonArgs {
         progress_bar(
             self.quiet.quiet,
             (end_s * 10.0).round() as u64,
-            "{spinner} SUMO t = {msg} [{bar:30}] {percent:>3}% elapsed {elapsed} eta {eta}",
+            SIM_TEMPLATE,
         )
     }
 }
@@ -444,12 +447,7 @@ pub(crate) fn calibrate(settings: &mut crate::config::Settings, quiet: bool) -> 
     if !settings.appearance.uncalibrated() || settings.dataset.is_some() {
         return Ok(());
     }
-    let pb = progress_bar(
-        quiet,
-        0,
-        "{spinner} calibrating the re-identification descriptor: validation run {pos}/{len} \
-         [{bar:30}] eta {eta}",
-    );
+    let pb = progress_bar(quiet, 0, CALIBRATION_TEMPLATE);
     let mut runs = 0;
     crate::experiments::calibrate_appearance(settings, |done, total| {
         pb.set_length(total as u64);
@@ -458,28 +456,43 @@ pub(crate) fn calibrate(settings: &mut crate::config::Settings, quiet: bool) -> 
     })?;
     pb.finish_and_clear();
     if let Some(r) = &settings.appearance.reid
-        && let Some(c) = &r.calibration
+        && let Some(line) = calibration_line(r, runs)
         && !quiet
     {
-        let f = &c.figures;
-        let auroc = r
-            .target
-            .auroc
-            .map_or("free".to_owned(), |a| format!("{a:.2}"));
-        eprintln!(
-            "coid: re-identification descriptor ({} values) calibrated on {}: rank-1 {:.3} \
-             (target {:.2}), AUROC {:.3} (target {auroc}) over {} queries among {:.1} \
-             candidates",
-            r.width,
-            crate::label::counted(runs as u64, "validation run"),
-            f.rank1,
-            r.target.rank1,
-            f.auroc,
-            f.queries,
-            f.candidates,
-        );
+        eprintln!("{line}");
     }
     Ok(())
+}
+
+/// The bar of a descriptor's calibration over the validation runs.
+const CALIBRATION_TEMPLATE: &str = "{spinner} calibrating the re-identification descriptor: \
+     validation run {pos}/{len} [{bar:30}] eta {eta}";
+
+/// The bar over a run's simulated time.
+const SIM_TEMPLATE: &str =
+    "{spinner} SUMO t = {msg} [{bar:30}] {percent:>3}% elapsed {elapsed} eta {eta}";
+
+/// What a descriptor's calibration on `runs` validation runs measured, in
+/// one line (none before it is calibrated).
+fn calibration_line(r: &crate::sensor::reid::ReidSettings, runs: usize) -> Option<String> {
+    let c = r.calibration.as_ref()?;
+    let f = &c.figures;
+    let auroc = r
+        .target
+        .auroc
+        .map_or("free".to_owned(), |a| format!("{a:.2}"));
+    Some(format!(
+        "coid: re-identification descriptor ({} values) calibrated on {}: rank-1 {:.3} \
+         (target {:.2}), AUROC {:.3} (target {auroc}) over {} queries among {:.1} \
+         candidates",
+        r.width,
+        crate::label::counted(runs as u64, "validation run"),
+        f.rank1,
+        r.target.rank1,
+        f.auroc,
+        f.queries,
+        f.candidates,
+    ))
 }
 
 /// Shows a simulation's progress on a bar made by [`CommonArgs::sim_bar`].
@@ -499,13 +512,8 @@ struct QuietArg {
 /// The results folder of a command: `--out`, else
 /// `results/<config file stem><suffix>`.
 fn out_dir(out: Option<PathBuf>, config: &Path, suffix: &str) -> PathBuf {
-    out.unwrap_or_else(|| {
-        let stem = config
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "run".into());
-        PathBuf::from("results").join(format!("{stem}{suffix}"))
-    })
+    let source = crate::commands::ConfigSource::File(config.to_owned());
+    crate::commands::out_dir(out, &source, suffix)
 }
 
 /// The results folder of a command on a dataset: `--out`, else

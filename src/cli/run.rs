@@ -1,13 +1,10 @@
-//! `coid run`: one scenario headless, results into one folder.
+//! `coid run`: one scenario headless, results into one folder
+//! ([`crate::commands::run`], its progress shown by [`RunProgress`]).
 
-use anyhow::Context;
+use indicatif::ProgressBar;
 
-use super::{CommonArgs, ThreadsArg, show_sim_progress};
-use crate::fusion::FusionVariant;
-use crate::matching::Method;
-use crate::report::RunResults;
-use crate::sensor::PoseNoiseLabel;
-use crate::{io, pipeline};
+use super::{CommonArgs, ThreadsArg, calibration_line, progress_bar};
+use crate::commands::{self, RunEvent, RunReport, RunRequest};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -25,109 +22,86 @@ pub struct Args {
 
 /// Runs the scenario; returns the line it printed last.
 pub fn run(a: Args) -> anyhow::Result<String> {
-    let overrides = crate::config::Overrides {
+    let request = RunRequest {
+        config: a.common.config.source(),
+        out: a.common.out.out.clone(),
+        force: a.common.force.force,
+        threads: a.threads.threads,
         traffic_seed: a.traffic_seed,
         sensor_seed: a.sensor_seed,
-        ..Default::default()
     };
-    let (settings, claim) = a.common.prepare_with("", io::ResultKind::Run, &overrides)?;
-    // The folder is claimed (and checked writable) before the simulation.
-    let out = claim.out().to_owned();
-    let mut folder = io::RunFolder::create(claim)?;
-    let bar = a.common.sim_bar(settings.scenario.end_s);
-    let results = pipeline::run(
-        &settings,
-        a.threads.get(),
-        &pipeline::Warnings::default(),
-        |p| show_sim_progress(&bar, p),
-        |rows| folder.objects(rows),
-    )
-    .context("run failed")?;
-    bar.finish_and_clear();
-    folder.finish(&settings, &results)?;
-    if results.n_instances == 0 {
-        eprintln!("coid: warning: no instance: {}", why_no_instance(&settings));
-    }
-    let line = format!("{}; wrote {}", one_line(&results), out.display());
-    eprintln!("{line}");
-    Ok(line)
+    let mut progress = RunProgress::new(a.common.quiet.quiet);
+    let report = commands::run(&request, |e| progress.show(e));
+    progress.clear();
+    Ok(print_report(&report?))
 }
 
-/// The run in one line: instances, speed, and the headline methods at GPS
-/// noise with aligned fusion.
-fn one_line(results: &RunResults) -> String {
-    let rows = results.summary.rows();
-    let mut line = format!(
-        "coid: {} instances in {:.1} s of traffic ({:.1} s wall, SUMO bridge {:.2} ms/step)",
-        results.n_instances,
-        results.sim_end_s,
-        results.wall_time.as_secs_f64(),
-        results.bridge_time.as_secs_f64() * 1e3 / results.n_steps.max(1) as f64,
-    );
-    if results.network_macs > 0 {
-        let gflop = 2.0 * results.network_macs as f64 / 1e9;
-        line.push_str(&format!(
-            "; networks {gflop:.1} GFLOP, {:.1} GFLOP/s",
-            gflop / results.wall_time.as_secs_f64().max(1e-9)
-        ));
+/// Prints what a run wrote as `coid run` does (a warning when it had no
+/// instance, then its headline and folder); returns the last line.
+pub fn print_report(report: &RunReport) -> String {
+    if let Some(why) = &report.no_instance {
+        eprintln!("coid: warning: no instance: {why}");
     }
-    for m in [Method::Ours, Method::GpsHungarian, Method::Oracle] {
-        let row = rows.iter().find(|r| {
-            r.key.method == m
-                && r.key.pose_noise == PoseNoiseLabel::Gps
-                && r.key.fusion == FusionVariant::Aligned
-        });
-        if let Some(r) = row {
-            line.push_str(&format!(
-                "; {} @gps/aligned F1 {:.3}, DE {:.2} -> {:.2} m",
-                m.as_str(),
-                r.f1,
-                r.de_single_m,
-                r.de_fused_m
-            ));
-        }
-    }
+    let line = format!("{}; wrote {}", report.headline, report.folder.display());
+    eprintln!("{line}");
     line
 }
 
-/// Why a run may have had no instance, naming the settings that decide
-/// it: with `[v2x] mode = "cpm"` an instance is a message that arrived,
-/// so a channel that loses every message, or delivers none before the
-/// run ends, comes first.
-pub(super) fn why_no_instance(settings: &crate::config::Settings) -> String {
-    use crate::v2x::V2xMode;
-    use crate::v2x::channel::LossModel;
-    let sc = &settings.scenario;
-    let plain = format!(
-        "no two connected vehicles near junction '{}' saw a common object in {} s (see \
-         [connected], [scenario] radius_m and end_s)",
-        sc.junction, sc.end_s
-    );
-    if settings.v2x.mode != V2xMode::Cpm {
-        return plain;
+/// A run's progress as `coid run` shows it: a bar over the validation
+/// runs while the descriptor is calibrated (and the line saying what it
+/// measured), then one over the simulated time. Nothing when quiet.
+pub struct RunProgress {
+    quiet: bool,
+    calibration: Option<ProgressBar>,
+    simulation: Option<ProgressBar>,
+}
+
+impl RunProgress {
+    pub fn new(quiet: bool) -> Self {
+        Self {
+            quiet,
+            calibration: None,
+            simulation: None,
+        }
     }
-    let ch = &settings.v2x.channel;
-    let p0 = match ch.loss {
-        LossModel::Independent { probability } => probability,
-        LossModel::Distance {
-            probability_at_0, ..
-        } => probability_at_0,
-    };
-    if p0 >= 1.0 {
-        format!(
-            "the channel loses every message ([v2x.channel] loss_probability = {p0}), so none \
-             arrived"
-        )
-    } else if ch.latency_s >= sc.end_s {
-        format!(
-            "no message arrives within the run: [v2x.channel] latency_s ({} s) is not shorter \
-             than [scenario] end_s ({} s)",
-            ch.latency_s, sc.end_s
-        )
-    } else {
-        format!(
-            "no message that arrived shared an object with its receiver's tracks (see \
-             [v2x.channel] and [v2x.cpm]); or {plain}"
-        )
+
+    pub fn show(&mut self, event: RunEvent) {
+        match event {
+            RunEvent::Calibrating { done, total } => {
+                let bar = self.calibration.get_or_insert_with(|| {
+                    progress_bar(self.quiet, 0, super::CALIBRATION_TEMPLATE)
+                });
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            }
+            RunEvent::Calibrated { reid, runs } => {
+                if let Some(bar) = self.calibration.take() {
+                    bar.finish_and_clear();
+                }
+                if let Some(line) = calibration_line(reid, runs).filter(|_| !self.quiet) {
+                    eprintln!("{line}");
+                }
+            }
+            RunEvent::Simulating(p) => {
+                let bar = self.simulation.get_or_insert_with(|| {
+                    progress_bar(
+                        self.quiet,
+                        (p.end_s * 10.0).round() as u64,
+                        super::SIM_TEMPLATE,
+                    )
+                });
+                super::show_sim_progress(bar, p);
+            }
+        }
+    }
+
+    /// Clears the bars (the run ended, well or not).
+    pub fn clear(&mut self) {
+        for bar in [self.calibration.take(), self.simulation.take()]
+            .into_iter()
+            .flatten()
+        {
+            bar.finish_and_clear();
+        }
     }
 }

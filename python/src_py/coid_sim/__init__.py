@@ -59,6 +59,18 @@ def cli(*args: Any) -> Optional[str]:
     return _coid_sim.call(["coid", *(os.fspath(a) if isinstance(a, os.PathLike) else str(a) for a in args)])
 
 
+def _config_source(config: Config) -> "tuple[Optional[str], Optional[str]]":
+    """A configuration as the typed commands take it: a file's path, or a
+    dict's TOML text (checked first: finite numbers, TOML values), or
+    neither for the defaults."""
+    if config is None:
+        return None, None
+    if isinstance(config, Mapping):
+        _finite(config, "")
+        return None, _coid_sim.toml_of_json(json.dumps(config, default=_plain))
+    return os.fspath(config), None
+
+
 @contextmanager
 def _config_file(config: Config, name: str) -> Iterator[Optional[str]]:
     """A configuration as a file path: a path as it is; a dict written as
@@ -106,13 +118,12 @@ def _shown_as(names: Mapping[str, str]) -> Iterator[None]:
         raise CoidError(message) from None
 
 
-def _seed(name: str, value: Optional[int]) -> list:
-    """``--<name> value`` for a seed: an integer >= 0."""
+def _seed(name: str, value: Optional[int]) -> None:
+    """Refuses a seed that is not an integer >= 0 (by its name)."""
     if value is None:
-        return []
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        return
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 2**64:
         raise CoidError(f"{name} must be an integer >= 0, not {value!r}")
-    return [f"--{name.replace('_', '-')}", str(value)]
 
 
 def _config_names(config: Config, path: Optional[str]) -> dict:
@@ -177,11 +188,24 @@ def run(
     threads: worker threads [default: every core].
     quiet: no progress bar.
     """
-    seeds = _seed("traffic_seed", traffic_seed) + _seed("sensor_seed", sensor_seed)
-    with _config_file(config, name) as path, _shown_as(_config_names(config, path)):
-        args = ["run", *_common(path, _out(out, config, name, ""), force, quiet, threads), *seeds]
-        headline = cli(*args)
-    return Results(Path(_last_folder(headline)), headline)
+    _seed("traffic_seed", traffic_seed)
+    _seed("sensor_seed", sensor_seed)
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int)):
+        raise CoidError(f"threads must be an integer from 1 to 1024, not {threads!r}")
+    path, text = _config_source(config)
+    folder_out = _out(out, config, name, "")
+    folder, headline = _coid_sim.run(
+        config=path,
+        config_text=text,
+        shown="the configuration dict",
+        out=None if folder_out is None else os.fspath(folder_out),
+        force=force,
+        threads=threads,
+        traffic_seed=traffic_seed,
+        sensor_seed=sensor_seed,
+        quiet=quiet,
+    )
+    return Results(Path(folder), headline)
 
 
 def export(

@@ -1,0 +1,205 @@
+//! `run`: one scenario headless, its results into one folder
+//! (`summary.csv`, `objects.parquet`, `summary.md`).
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use super::ConfigSource;
+use crate::config::{Overrides, Settings};
+use crate::fusion::FusionVariant;
+use crate::matching::Method;
+use crate::pipeline::{self, Progress};
+use crate::report::RunResults;
+use crate::sensor::PoseNoiseLabel;
+use crate::sensor::reid::ReidSettings;
+use crate::{experiments, io};
+
+/// What to run and where its results go.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunRequest {
+    pub config: ConfigSource,
+    /// The results folder [default: `results/<config stem>`].
+    pub out: Option<PathBuf>,
+    /// Replace a results folder that coid wrote for a run and that did
+    /// not change since (the old one removed only once the new one is
+    /// complete).
+    pub force: bool,
+    /// Threads that evaluate the steps while SUMO advances [default:
+    /// every core]; the results do not depend on it.
+    pub threads: Option<usize>,
+    /// `[seeds] traffic` and `sensor` set over the configuration's.
+    pub traffic_seed: Option<u64>,
+    pub sensor_seed: Option<u64>,
+}
+
+impl RunRequest {
+    /// A run of `config` with everything else at its default.
+    pub fn of(config: ConfigSource) -> Self {
+        Self {
+            config,
+            out: None,
+            force: false,
+            threads: None,
+            traffic_seed: None,
+            sensor_seed: None,
+        }
+    }
+}
+
+/// What a run tells while it works.
+pub enum RunEvent<'a> {
+    /// The re-identification descriptor is being calibrated on the
+    /// validation runs (`[appearance] descriptor = "reid"`): `done` of
+    /// `total` runs.
+    Calibrating { done: usize, total: usize },
+    /// It was calibrated on `runs` validation runs.
+    Calibrated { reid: &'a ReidSettings, runs: usize },
+    /// The simulation advanced.
+    Simulating(Progress),
+}
+
+/// What a run wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunReport {
+    /// The results folder.
+    pub folder: PathBuf,
+    pub instances: usize,
+    /// The run in one line: instances, speed, and the headline methods at
+    /// GPS noise with aligned fusion.
+    pub headline: String,
+    /// With no instance, why there may have been none.
+    pub no_instance: Option<String>,
+}
+
+/// Runs the scenario of `request` and writes its results folder.
+///
+/// # Errors
+/// The configuration, the results folder (taken, not writable), SUMO or
+/// a stage fails; the folder is then not left half-written.
+pub fn run(request: &RunRequest, mut on: impl FnMut(RunEvent)) -> anyhow::Result<RunReport> {
+    let threads = super::threads(request.threads)?;
+    crate::io::assets::install()?;
+    let overrides = Overrides {
+        traffic_seed: request.traffic_seed,
+        sensor_seed: request.sensor_seed,
+        ..Default::default()
+    };
+    let mut settings = request.config.load(&overrides)?;
+    calibrate(&mut settings, &mut on)?;
+    let out = super::out_dir(request.out.clone(), &request.config, "");
+    let claim = io::Claim::new(&out, io::ResultKind::Run, io::Existing::when(request.force))?;
+    // The folder is claimed (and checked writable) before the simulation.
+    let mut folder = io::RunFolder::create(claim)?;
+    let results = pipeline::run(
+        &settings,
+        threads,
+        &pipeline::Warnings::default(),
+        |p| on(RunEvent::Simulating(p)),
+        |rows| folder.objects(rows),
+    )
+    .context("run failed")?;
+    folder.finish(&settings, &results)?;
+    Ok(RunReport {
+        folder: out,
+        instances: results.n_instances,
+        headline: headline(&results),
+        no_instance: (results.n_instances == 0).then(|| why_no_instance(&settings)),
+    })
+}
+
+/// Calibrates the re-identification descriptor when the settings ask for
+/// one and it is not calibrated yet, telling `on`.
+fn calibrate(settings: &mut Settings, on: &mut impl FnMut(RunEvent)) -> anyhow::Result<()> {
+    if !settings.appearance.uncalibrated() || settings.dataset.is_some() {
+        return Ok(());
+    }
+    let mut runs = 0;
+    experiments::calibrate_appearance(settings, |done, total| {
+        runs = total;
+        on(RunEvent::Calibrating { done, total });
+    })?;
+    if let Some(reid) = &settings.appearance.reid {
+        on(RunEvent::Calibrated { reid, runs });
+    }
+    Ok(())
+}
+
+/// The run in one line: instances, speed, and the headline methods at GPS
+/// noise with aligned fusion.
+fn headline(results: &RunResults) -> String {
+    let rows = results.summary.rows();
+    let mut line = format!(
+        "coid: {} instances in {:.1} s of traffic ({:.1} s wall, SUMO bridge {:.2} ms/step)",
+        results.n_instances,
+        results.sim_end_s,
+        results.wall_time.as_secs_f64(),
+        results.bridge_time.as_secs_f64() * 1e3 / results.n_steps.max(1) as f64,
+    );
+    if results.network_macs > 0 {
+        let gflop = 2.0 * results.network_macs as f64 / 1e9;
+        line.push_str(&format!(
+            "; networks {gflop:.1} GFLOP, {:.1} GFLOP/s",
+            gflop / results.wall_time.as_secs_f64().max(1e-9)
+        ));
+    }
+    for m in [Method::Ours, Method::GpsHungarian, Method::Oracle] {
+        let row = rows.iter().find(|r| {
+            r.key.method == m
+                && r.key.pose_noise == PoseNoiseLabel::Gps
+                && r.key.fusion == FusionVariant::Aligned
+        });
+        if let Some(r) = row {
+            line.push_str(&format!(
+                "; {} @gps/aligned F1 {:.3}, DE {:.2} -> {:.2} m",
+                m.as_str(),
+                r.f1,
+                r.de_single_m,
+                r.de_fused_m
+            ));
+        }
+    }
+    line
+}
+
+/// Why a run may have had no instance, naming the settings that decide
+/// it: with `[v2x] mode = "cpm"` an instance is a message that arrived,
+/// so a channel that loses every message, or delivers none before the
+/// run ends, comes first.
+pub fn why_no_instance(settings: &Settings) -> String {
+    use crate::v2x::V2xMode;
+    use crate::v2x::channel::LossModel;
+    let sc = &settings.scenario;
+    let plain = format!(
+        "no two connected vehicles near junction '{}' saw a common object in {} s (see \
+         [connected], [scenario] radius_m and end_s)",
+        sc.junction, sc.end_s
+    );
+    if settings.v2x.mode != V2xMode::Cpm {
+        return plain;
+    }
+    let ch = &settings.v2x.channel;
+    let p0 = match ch.loss {
+        LossModel::Independent { probability } => probability,
+        LossModel::Distance {
+            probability_at_0, ..
+        } => probability_at_0,
+    };
+    if p0 >= 1.0 {
+        format!(
+            "the channel loses every message ([v2x.channel] loss_probability = {p0}), so none \
+             arrived"
+        )
+    } else if ch.latency_s >= sc.end_s {
+        format!(
+            "no message arrives within the run: [v2x.channel] latency_s ({} s) is not shorter \
+             than [scenario] end_s ({} s)",
+            ch.latency_s, sc.end_s
+        )
+    } else {
+        format!(
+            "no message that arrived shared an object with its receiver's tracks (see \
+             [v2x.channel] and [v2x.cpm]); or {plain}"
+        )
+    }
+}
