@@ -144,22 +144,8 @@ fn run(
     sensor_seed: Option<u64>,
     quiet: bool,
 ) -> PyResult<(PathBuf, String)> {
-    use coid_sim::commands::{ConfigSource, RunRequest};
-    let config = match (config, config_text) {
-        (Some(path), None) => ConfigSource::File(path),
-        (None, Some(text)) => ConfigSource::Text {
-            text,
-            shown: shown.unwrap_or_else(|| "the configuration".to_owned()),
-        },
-        (None, None) => ConfigSource::Defaults,
-        (Some(_), Some(_)) => {
-            return Err(CoidError::new_err(
-                "a configuration is a file or a text, not both",
-            ));
-        }
-    };
-    let request = RunRequest {
-        config,
+    let request = coid_sim::commands::RunRequest {
+        config: config_source(config, config_text, shown)?,
         out,
         force,
         threads,
@@ -168,12 +154,73 @@ fn run(
     };
     coid_sim::cli::report_panics_in_one_line();
     let report = interruptible(py, || {
-        let mut progress = coid_sim::cli::RunProgress::new(quiet);
-        let report = coid_sim::commands::run(&request, |e| progress.show(e));
-        progress.clear();
+        let mut bars = coid_sim::cli::Bars::new(quiet, "running");
+        let report = coid_sim::commands::run(&request, |e| bars.show(e));
+        bars.clear();
         report
     })?;
     let line = coid_sim::cli::print_report(&report);
+    Ok((report.folder, line))
+}
+
+/// A configuration as the typed commands take it: a file, TOML text in
+/// no file (named `shown`), or the defaults (neither).
+fn config_source(
+    config: Option<PathBuf>,
+    text: Option<String>,
+    shown: Option<String>,
+) -> PyResult<coid_sim::commands::ConfigSource> {
+    use coid_sim::commands::ConfigSource;
+    match (config, text) {
+        (Some(path), None) => Ok(ConfigSource::File(path)),
+        (None, Some(text)) => Ok(ConfigSource::Text {
+            text,
+            shown: shown.unwrap_or_else(|| "the configuration".to_owned()),
+        }),
+        (None, None) => Ok(ConfigSource::Defaults),
+        (Some(_), Some(_)) => Err(CoidError::new_err(
+            "a configuration is a file or a text, not both",
+        )),
+    }
+}
+
+/// `coid export` as a typed call: the configuration as for [`run`];
+/// `splits` and `with_matches` as labels; the folder written and the
+/// line `coid export` prints back.
+#[pyfunction]
+#[pyo3(signature = (config=None, config_text=None, shown=None, out=None, force=false, threads=None, splits=Vec::new(), with_matches=Vec::new(), dataset=None, quiet=false))]
+#[allow(clippy::too_many_arguments)]
+fn export(
+    py: Python<'_>,
+    config: Option<PathBuf>,
+    config_text: Option<String>,
+    shown: Option<String>,
+    out: Option<PathBuf>,
+    force: bool,
+    threads: Option<usize>,
+    splits: Vec<String>,
+    with_matches: Vec<String>,
+    dataset: Option<PathBuf>,
+    quiet: bool,
+) -> PyResult<(PathBuf, String)> {
+    use coid_sim::commands::labels;
+    let request = coid_sim::commands::ExportRequest {
+        config: config_source(config, config_text, shown)?,
+        out,
+        force,
+        threads,
+        splits: labels("split", &splits).map_err(CoidError::new_err)?,
+        with_matches: labels("method", &with_matches).map_err(CoidError::new_err)?,
+        dataset,
+    };
+    coid_sim::cli::report_panics_in_one_line();
+    let report = interruptible(py, || {
+        let mut bars = coid_sim::cli::Bars::new(quiet, "exporting");
+        let report = coid_sim::commands::export(&request, |e| bars.show(e));
+        bars.clear();
+        report
+    })?;
+    let line = coid_sim::cli::print_export(&report);
     Ok((report.folder, line))
 }
 
@@ -560,6 +607,7 @@ fn _coid_sim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(main, m)?)?;
     m.add_function(wrap_pyfunction!(call, m)?)?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
+    m.add_function(wrap_pyfunction!(export, m)?)?;
     m.add_function(wrap_pyfunction!(toml_of_json, m)?)?;
     m.add_function(wrap_pyfunction!(delaunay, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;

@@ -545,3 +545,13 @@ def test_a_dict_config_run_writes_nothing_but_its_results_folder(in_tmp: Path) -
     with pytest.raises(coid_sim.CoidError, match=r"threads must be 1 to 1024, got 0"):
         coid_sim.run(SHORT, out="elsewhere", threads=0, quiet=True)
     assert not Path("elsewhere").exists()
+
+
+def test_export_takes_typed_lists_and_names_a_bad_label(in_tmp: Path) -> None:
+    with pytest.raises(coid_sim.CoidError, match=r"unknown split 'nope' \(expected one of: train, validation, test\)"):
+        coid_sim.export(SHORT, splits=["nope"], quiet=True)
+    with pytest.raises(coid_sim.CoidError, match=r"splits names 'test' twice"):
+        coid_sim.export(SHORT, splits=["test", "test"], quiet=True)
+    ds = coid_sim.export({**SHORT, "eval": {"traffic_seeds": [1]}}, splits=["test"], name="one", quiet=True)
+    assert ds.path == Path("results/one-export") and len(ds.runs) == 1
+    assert sorted(p.name for p in in_tmp.iterdir()) == ["results"]

@@ -5,9 +5,8 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use anyhow::Context;
-
-use super::{CommonArgs, ThreadsArg, label_arg, progress_bar};
+use super::{Bars, CommonArgs, ThreadsArg, label_arg, progress_bar};
+use crate::commands;
 use crate::export::{self, ExportRun, Split};
 use crate::io;
 use crate::matching::{self, Method, MultiVehicle};
@@ -41,71 +40,26 @@ pub struct ExportArgs {
 pub fn export(a: ExportArgs) -> anyhow::Result<String> {
     super::no_repeats("--splits", &a.splits)?;
     super::no_repeats("--with-matches", &a.with_matches)?;
-    let (settings, claim) =
-        a.common
-            .prepare_dataset("-export", io::ResultKind::Export, a.dataset.as_deref())?;
-    let out = claim.out().to_owned();
-    let splits = if a.splits.is_empty() {
-        vec![Split::Train, Split::Validation, Split::Test]
-    } else {
-        a.splits.clone()
+    let request = commands::ExportRequest {
+        config: a.common.config.source(),
+        out: a.common.out.out.clone(),
+        force: a.common.force.force,
+        threads: a.threads.threads,
+        splits: a.splits.clone(),
+        with_matches: a.with_matches.clone(),
+        dataset: a.dataset.clone(),
     };
-    let digest = settings.instances_digest()?;
-    let runs: Vec<ExportRun> = export::runs(&settings)?
-        .into_iter()
-        .filter(|r| splits.contains(&r.split))
-        .collect();
-    let mut files: Vec<(String, crate::report::Table)> = export::files()
-        .into_iter()
-        .map(|(n, t)| (n.to_owned(), t))
-        .collect();
-    files.extend(
-        a.with_matches
-            .iter()
-            .map(|&m| (export::matches_file(m), export::matches_template())),
-    );
-    let named: Vec<(&str, crate::report::Table)> =
-        files.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
-    let mut folder = io::TablesFolder::create(claim, &named)?;
-    let pb = progress_bar(
-        a.common.quiet.quiet,
-        runs.len() as u64,
-        "{spinner} exporting: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
-    );
-    let mut counts = Vec::new();
-    let warnings = crate::pipeline::Warnings::default();
-    for r in &runs {
-        pb.set_message(format!(
-            "{} {} seed {}",
-            r.split.as_str(),
-            r.scenario,
-            r.seed
-        ));
-        let threads = a.threads.get();
-        let n = export::export_run(r, &a.with_matches, threads, &warnings, |_| {}, &mut folder)
-            .with_context(|| format!("run {} ({} seed {}) failed", r.index, r.scenario, r.seed))?;
-        counts.push((r, n));
-        pb.inc(1);
-    }
-    pb.finish_and_clear();
-    folder.write(export::RUNS_FILE, &export::run_table(&counts, &digest))?;
-    folder.finish(&[("schema.md", export::SCHEMA.to_owned())])?;
-    let instances: usize = counts.iter().map(|c| c.1).sum();
-    let line = format!(
-        "coid: exported {} ({}) of {}; wrote {}",
-        crate::label::counted(runs.len() as u64, "run"),
-        crate::label::counted(instances as u64, "instance"),
-        // The splits asked for that have runs (a dataset's own).
-        splits
-            .iter()
-            .filter(|s| runs.iter().any(|r| r.split == **s))
-            .map(|s| s.as_str())
-            .collect::<Vec<_>>()
-            .join(", "),
-        out.display()
-    );
+    let mut bars = Bars::new(a.common.quiet.quiet, "exporting");
+    let report = commands::export(&request, |e| bars.show(e));
+    bars.clear();
+    Ok(print_export(&report?))
+}
+
+/// Prints what an export wrote as `coid export` does; returns the line.
+pub fn print_export(report: &commands::ExportReport) -> String {
+    let line = format!("{}; wrote {}", report.summary(), report.folder.display());
     eprintln!("{line}");
-    Ok(line)
+    line
 }
 
 #[derive(clap::Args)]

@@ -9,6 +9,7 @@ mod detector;
 mod eval;
 mod export;
 mod mc_sweep;
+mod progress;
 mod reid_sweep;
 mod render;
 mod run;
@@ -23,7 +24,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::label::{self, Label};
 
-pub use run::{RunProgress, print_report};
+pub use export::print_export;
+pub use progress::Bars;
+pub use run::print_report;
 
 #[derive(Parser)]
 #[command(
@@ -519,14 +522,7 @@ fn out_dir(out: Option<PathBuf>, config: &Path, suffix: &str) -> PathBuf {
 /// The results folder of a command on a dataset: `--out`, else
 /// `results/<dataset folder name><suffix>`.
 fn dataset_out_dir(out: Option<PathBuf>, dataset: &Path, suffix: &str) -> PathBuf {
-    out.unwrap_or_else(|| {
-        let name = dataset
-            .canonicalize()
-            .ok()
-            .and_then(|d| d.file_name().map(|n| n.to_string_lossy().into_owned()))
-            .unwrap_or_else(|| "dataset".to_owned());
-        PathBuf::from("results").join(format!("{name}{suffix}"))
-    })
+    crate::commands::dataset_out_dir(out, dataset, suffix)
 }
 
 /// A progress bar with `template`, hidden when `quiet`.
@@ -545,17 +541,7 @@ fn progress_bar(quiet: bool, len: u64, template: &str) -> ProgressBar {
 
 /// Refuses a list argument that names something twice.
 fn no_repeats<T: PartialEq + Label>(flag: &str, list: &[T]) -> anyhow::Result<()> {
-    match first_repeat(list) {
-        Some(x) => anyhow::bail!("{flag} names '{}' twice", x.label()),
-        None => Ok(()),
-    }
-}
-
-/// The first entry of `list` that an earlier one repeats.
-fn first_repeat<T: PartialEq>(list: &[T]) -> Option<&T> {
-    (0..list.len())
-        .find(|&k| list[..k].contains(&list[k]))
-        .map(|k| &list[k])
+    crate::commands::no_repeats(flag, list)
 }
 
 /// A clap parser for a labelled enum: the labels are its possible values

@@ -1,10 +1,8 @@
 //! `coid run`: one scenario headless, results into one folder
-//! ([`crate::commands::run`], its progress shown by [`RunProgress`]).
+//! ([`crate::commands::run`], its progress shown by [`Bars`]).
 
-use indicatif::ProgressBar;
-
-use super::{CommonArgs, ThreadsArg, calibration_line, progress_bar};
-use crate::commands::{self, RunEvent, RunReport, RunRequest};
+use super::{Bars, CommonArgs, ThreadsArg};
+use crate::commands::{self, RunReport, RunRequest};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -30,9 +28,9 @@ pub fn run(a: Args) -> anyhow::Result<String> {
         traffic_seed: a.traffic_seed,
         sensor_seed: a.sensor_seed,
     };
-    let mut progress = RunProgress::new(a.common.quiet.quiet);
-    let report = commands::run(&request, |e| progress.show(e));
-    progress.clear();
+    let mut bars = Bars::new(a.common.quiet.quiet, "running");
+    let report = commands::run(&request, |e| bars.show(e));
+    bars.clear();
     Ok(print_report(&report?))
 }
 
@@ -45,63 +43,4 @@ pub fn print_report(report: &RunReport) -> String {
     let line = format!("{}; wrote {}", report.headline, report.folder.display());
     eprintln!("{line}");
     line
-}
-
-/// A run's progress as `coid run` shows it: a bar over the validation
-/// runs while the descriptor is calibrated (and the line saying what it
-/// measured), then one over the simulated time. Nothing when quiet.
-pub struct RunProgress {
-    quiet: bool,
-    calibration: Option<ProgressBar>,
-    simulation: Option<ProgressBar>,
-}
-
-impl RunProgress {
-    pub fn new(quiet: bool) -> Self {
-        Self {
-            quiet,
-            calibration: None,
-            simulation: None,
-        }
-    }
-
-    pub fn show(&mut self, event: RunEvent) {
-        match event {
-            RunEvent::Calibrating { done, total } => {
-                let bar = self.calibration.get_or_insert_with(|| {
-                    progress_bar(self.quiet, 0, super::CALIBRATION_TEMPLATE)
-                });
-                bar.set_length(total as u64);
-                bar.set_position(done as u64);
-            }
-            RunEvent::Calibrated { reid, runs } => {
-                if let Some(bar) = self.calibration.take() {
-                    bar.finish_and_clear();
-                }
-                if let Some(line) = calibration_line(reid, runs).filter(|_| !self.quiet) {
-                    eprintln!("{line}");
-                }
-            }
-            RunEvent::Simulating(p) => {
-                let bar = self.simulation.get_or_insert_with(|| {
-                    progress_bar(
-                        self.quiet,
-                        (p.end_s * 10.0).round() as u64,
-                        super::SIM_TEMPLATE,
-                    )
-                });
-                super::show_sim_progress(bar, p);
-            }
-        }
-    }
-
-    /// Clears the bars (the run ended, well or not).
-    pub fn clear(&mut self) {
-        for bar in [self.calibration.take(), self.simulation.take()]
-            .into_iter()
-            .flatten()
-        {
-            bar.finish_and_clear();
-        }
-    }
 }

@@ -116,7 +116,7 @@ fn source<'a>(a: &'a Args, config: &'a Path, without: bool) -> training::TrainSo
 /// The seeds `--seed` asks for (else `[train] seed`), each with its
 /// settings and folder ([`training::seed_runs`]).
 fn seed_runs(a: &Args, settings: &Settings, models_dir: &Path) -> anyhow::Result<Vec<SeedRun>> {
-    if let Some(s) = super::first_repeat(&a.seed) {
+    if let Some(s) = crate::commands::first_repeat(&a.seed) {
         anyhow::bail!("--seed lists {s} twice");
     }
     let checks = (a.validate_only, a.force.force);

@@ -6,16 +6,71 @@
 //! show or not. Errors are `anyhow` chains whose one line
 //! (`cli::one_line`) is what `coid` prints.
 //!
-//! `run` is typed so far; the other commands are still reached through
-//! `cli`.
+//! `run` and `export` are typed so far; the other commands are still
+//! reached through `cli`.
 
 use std::path::{Path, PathBuf};
 
 use crate::config::{ConfigError, Overrides, Settings};
+use crate::pipeline::Progress;
+use crate::sensor::reid::ReidSettings;
 
+pub mod export;
 pub mod run;
 
-pub use run::{RunEvent, RunReport, RunRequest, run};
+pub use crate::export::Split;
+pub use export::{ExportReport, ExportRequest, export};
+pub use run::{RunReport, RunRequest, run};
+
+/// What a command tells while it works.
+pub enum Event<'a> {
+    /// The re-identification descriptor is being calibrated on the
+    /// validation runs (`[appearance] descriptor = "reid"`): `done` of
+    /// `total` runs.
+    Calibrating { done: usize, total: usize },
+    /// It was calibrated on `runs` validation runs.
+    Calibrated { reid: &'a ReidSettings, runs: usize },
+    /// A run's simulation advanced.
+    Simulating(Progress),
+    /// `done` of `total` runs are through; `current` names the next.
+    Runs {
+        done: usize,
+        total: usize,
+        current: &'a str,
+    },
+}
+
+/// The settings a command runs with: `config` with `overrides` set over
+/// it and the descriptor calibrated when it asks for one; or, with a
+/// dataset folder, `config` reading that dataset (its splits make the
+/// runs, its pose-noise levels the config's).
+///
+/// # Errors
+/// The configuration or the dataset is refused, or calibration fails.
+pub fn prepare(
+    config: &ConfigSource,
+    overrides: &Overrides,
+    dataset: Option<&Path>,
+    on: &mut impl FnMut(Event),
+) -> anyhow::Result<Settings> {
+    crate::io::assets::install()?;
+    if let Some(dir) = dataset {
+        let settings = config.load(overrides)?;
+        return Ok(crate::experiments::with_dataset(&settings, dir)?);
+    }
+    let mut settings = config.load(overrides)?;
+    if settings.appearance.uncalibrated() && settings.dataset.is_none() {
+        let mut runs = 0;
+        crate::experiments::calibrate_appearance(&mut settings, |done, total| {
+            runs = total;
+            on(Event::Calibrating { done, total });
+        })?;
+        if let Some(reid) = &settings.appearance.reid {
+            on(Event::Calibrated { reid, runs });
+        }
+    }
+    Ok(settings)
+}
 
 /// Where a command's configuration comes from.
 #[derive(Clone, Debug, PartialEq)]
@@ -67,6 +122,47 @@ impl ConfigSource {
 /// (the one rule for default output folders).
 pub fn out_dir(out: Option<PathBuf>, config: &ConfigSource, suffix: &str) -> PathBuf {
     out.unwrap_or_else(|| PathBuf::from("results").join(format!("{}{suffix}", config.stem())))
+}
+
+/// The results folder of a command on a dataset: `out`, else
+/// `results/<dataset folder name><suffix>`.
+pub fn dataset_out_dir(out: Option<PathBuf>, dataset: &Path, suffix: &str) -> PathBuf {
+    out.unwrap_or_else(|| {
+        let name = dataset
+            .canonicalize()
+            .ok()
+            .and_then(|d| d.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .unwrap_or_else(|| "dataset".to_owned());
+        PathBuf::from("results").join(format!("{name}{suffix}"))
+    })
+}
+
+/// `names` as labels of kind `what` ("split", "method"); an unknown one
+/// is refused with the labels that exist.
+///
+/// # Errors
+/// A name that is no label of `T`.
+pub fn labels<T: crate::label::Label>(what: &str, names: &[String]) -> Result<Vec<T>, String> {
+    names.iter().map(|n| crate::label::parse(what, n)).collect()
+}
+
+/// Refuses a list that names something twice (`what`: the list's name
+/// as the caller gave it).
+pub(crate) fn no_repeats<T: PartialEq + crate::label::Label>(
+    what: &str,
+    list: &[T],
+) -> anyhow::Result<()> {
+    match first_repeat(list) {
+        Some(x) => anyhow::bail!("{what} names '{}' twice", x.label()),
+        None => Ok(()),
+    }
+}
+
+/// The first entry of `list` that an earlier one repeats.
+pub(crate) fn first_repeat<T: PartialEq>(list: &[T]) -> Option<&T> {
+    (0..list.len())
+        .find(|&k| list[..k].contains(&list[k]))
+        .map(|k| &list[k])
 }
 
 /// The most threads or worker processes a command starts: more would only

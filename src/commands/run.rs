@@ -5,15 +5,14 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use super::ConfigSource;
+use super::{ConfigSource, Event};
 use crate::config::{Overrides, Settings};
 use crate::fusion::FusionVariant;
+use crate::io;
 use crate::matching::Method;
-use crate::pipeline::{self, Progress};
+use crate::pipeline;
 use crate::report::RunResults;
 use crate::sensor::PoseNoiseLabel;
-use crate::sensor::reid::ReidSettings;
-use crate::{experiments, io};
 
 /// What to run and where its results go.
 #[derive(Clone, Debug, PartialEq)]
@@ -47,18 +46,6 @@ impl RunRequest {
     }
 }
 
-/// What a run tells while it works.
-pub enum RunEvent<'a> {
-    /// The re-identification descriptor is being calibrated on the
-    /// validation runs (`[appearance] descriptor = "reid"`): `done` of
-    /// `total` runs.
-    Calibrating { done: usize, total: usize },
-    /// It was calibrated on `runs` validation runs.
-    Calibrated { reid: &'a ReidSettings, runs: usize },
-    /// The simulation advanced.
-    Simulating(Progress),
-}
-
 /// What a run wrote.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RunReport {
@@ -77,16 +64,14 @@ pub struct RunReport {
 /// # Errors
 /// The configuration, the results folder (taken, not writable), SUMO or
 /// a stage fails; the folder is then not left half-written.
-pub fn run(request: &RunRequest, mut on: impl FnMut(RunEvent)) -> anyhow::Result<RunReport> {
+pub fn run(request: &RunRequest, mut on: impl FnMut(Event)) -> anyhow::Result<RunReport> {
     let threads = super::threads(request.threads)?;
-    crate::io::assets::install()?;
     let overrides = Overrides {
         traffic_seed: request.traffic_seed,
         sensor_seed: request.sensor_seed,
         ..Default::default()
     };
-    let mut settings = request.config.load(&overrides)?;
-    calibrate(&mut settings, &mut on)?;
+    let settings = super::prepare(&request.config, &overrides, None, &mut on)?;
     let out = super::out_dir(request.out.clone(), &request.config, "");
     let claim = io::Claim::new(&out, io::ResultKind::Run, io::Existing::when(request.force))?;
     // The folder is claimed (and checked writable) before the simulation.
@@ -95,7 +80,7 @@ pub fn run(request: &RunRequest, mut on: impl FnMut(RunEvent)) -> anyhow::Result
         &settings,
         threads,
         &pipeline::Warnings::default(),
-        |p| on(RunEvent::Simulating(p)),
+        |p| on(Event::Simulating(p)),
         |rows| folder.objects(rows),
     )
     .context("run failed")?;
@@ -106,23 +91,6 @@ pub fn run(request: &RunRequest, mut on: impl FnMut(RunEvent)) -> anyhow::Result
         headline: headline(&results),
         no_instance: (results.n_instances == 0).then(|| why_no_instance(&settings)),
     })
-}
-
-/// Calibrates the re-identification descriptor when the settings ask for
-/// one and it is not calibrated yet, telling `on`.
-fn calibrate(settings: &mut Settings, on: &mut impl FnMut(RunEvent)) -> anyhow::Result<()> {
-    if !settings.appearance.uncalibrated() || settings.dataset.is_some() {
-        return Ok(());
-    }
-    let mut runs = 0;
-    experiments::calibrate_appearance(settings, |done, total| {
-        runs = total;
-        on(RunEvent::Calibrating { done, total });
-    })?;
-    if let Some(reid) = &settings.appearance.reid {
-        on(RunEvent::Calibrated { reid, runs });
-    }
-    Ok(())
 }
 
 /// The run in one line: instances, speed, and the headline methods at GPS

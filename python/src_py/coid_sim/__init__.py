@@ -126,6 +126,12 @@ def _seed(name: str, value: Optional[int]) -> None:
         raise CoidError(f"{name} must be an integer >= 0, not {value!r}")
 
 
+def _threads(threads: Optional[int]) -> None:
+    """Refuses a thread count that is not an integer (coid checks its range)."""
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 0):
+        raise CoidError(f"threads must be an integer from 1 to 1024, not {threads!r}")
+
+
 def _config_names(config: Config, path: Optional[str]) -> dict:
     """The temporary file of a dict configuration, as errors show it."""
     return {path: "the configuration dict"} if isinstance(config, Mapping) and path else {}
@@ -190,8 +196,7 @@ def run(
     """
     _seed("traffic_seed", traffic_seed)
     _seed("sensor_seed", sensor_seed)
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int)):
-        raise CoidError(f"threads must be an integer from 1 to 1024, not {threads!r}")
+    _threads(threads)
     path, text = _config_source(config)
     folder_out = _out(out, config, name, "")
     folder, headline = _coid_sim.run(
@@ -230,16 +235,21 @@ def export(
         folder, one converted from elsewhere too): the built-in methods'
         matches on it.
     """
-    with _config_file(config, name) as path, _shown_as(_config_names(config, path)):
-        args = ["export", *_common(path, _out(out, config, name, "-export", dataset), force, quiet, threads)]
-        if splits:
-            args += ["--splits", *splits]
-        if with_matches:
-            args += ["--with-matches", *with_matches]
-        if dataset is not None:
-            args += ["--dataset", os.fspath(dataset)]
-        line = cli(*args)
-    folder = out if out is not None else _last_folder(line)
+    path, text = _config_source(config)
+    folder_out = _out(out, config, name, "-export", dataset)
+    _threads(threads)
+    folder, _line = _coid_sim.export(
+        config=path,
+        config_text=text,
+        shown="the configuration dict",
+        out=None if folder_out is None else os.fspath(folder_out),
+        force=force,
+        threads=threads,
+        splits=list(splits),
+        with_matches=list(with_matches),
+        dataset=None if dataset is None else os.fspath(dataset),
+        quiet=quiet,
+    )
     return Dataset(folder, config=config)
 
 

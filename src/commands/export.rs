@@ -1,0 +1,157 @@
+//! `export`: every instance of a configuration (or of a dataset's runs)
+//! as Parquet tables in the dataset schema, for matchers written
+//! elsewhere, with built-in methods' matches beside when asked.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use super::{ConfigSource, Event};
+use crate::config::Overrides;
+use crate::export::{self, ExportRun, Split};
+use crate::io;
+use crate::matching::Method;
+
+/// What to export and where.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExportRequest {
+    pub config: ConfigSource,
+    /// The folder [default: `results/<config stem>-export`, or
+    /// `results/<dataset folder>-export`].
+    pub out: Option<PathBuf>,
+    /// Replace a folder that coid wrote for an export and that did not
+    /// change since.
+    pub force: bool,
+    pub threads: Option<usize>,
+    /// The splits to export [default (empty): all three].
+    pub splits: Vec<Split>,
+    /// Built-in methods whose matches are written beside, each as
+    /// `matches-<method>.parquet`.
+    pub with_matches: Vec<Method>,
+    /// Instead of simulating the configuration's runs, this dataset's.
+    pub dataset: Option<PathBuf>,
+}
+
+impl ExportRequest {
+    /// An export of every split of `config`, nothing else asked.
+    pub fn of(config: ConfigSource) -> Self {
+        Self {
+            config,
+            out: None,
+            force: false,
+            threads: None,
+            splits: Vec::new(),
+            with_matches: Vec::new(),
+            dataset: None,
+        }
+    }
+}
+
+/// What an export wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExportReport {
+    pub folder: PathBuf,
+    pub runs: usize,
+    pub instances: usize,
+    /// The splits asked for that have runs (a dataset's own), in order.
+    pub splits: Vec<Split>,
+}
+
+impl ExportReport {
+    /// The export in one line, as `coid export` prints it (without the
+    /// folder).
+    pub fn summary(&self) -> String {
+        format!(
+            "coid: exported {} ({}) of {}",
+            crate::label::counted(self.runs as u64, "run"),
+            crate::label::counted(self.instances as u64, "instance"),
+            self.splits
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+        )
+    }
+}
+
+/// Writes the export of `request`.
+///
+/// # Errors
+/// A list names something twice, the configuration or the dataset is
+/// refused, the folder is taken, or a run fails; the folder is then not
+/// left half-written.
+pub fn export(request: &ExportRequest, mut on: impl FnMut(Event)) -> anyhow::Result<ExportReport> {
+    super::no_repeats("splits", &request.splits)?;
+    super::no_repeats("with_matches", &request.with_matches)?;
+    let threads = super::threads(request.threads)?;
+    let dataset = request.dataset.as_deref();
+    let settings = super::prepare(&request.config, &Overrides::default(), dataset, &mut on)?;
+    let out = match dataset {
+        Some(dir) => super::dataset_out_dir(request.out.clone(), dir, "-export"),
+        None => super::out_dir(request.out.clone(), &request.config, "-export"),
+    };
+    let claim = io::Claim::new(
+        &out,
+        io::ResultKind::Export,
+        io::Existing::when(request.force),
+    )?;
+    let splits = if request.splits.is_empty() {
+        vec![Split::Train, Split::Validation, Split::Test]
+    } else {
+        request.splits.clone()
+    };
+    let digest = settings.instances_digest()?;
+    let runs: Vec<ExportRun> = export::runs(&settings)?
+        .into_iter()
+        .filter(|r| splits.contains(&r.split))
+        .collect();
+    let mut files: Vec<(String, crate::report::Table)> = export::files()
+        .into_iter()
+        .map(|(n, t)| (n.to_owned(), t))
+        .collect();
+    files.extend(
+        request
+            .with_matches
+            .iter()
+            .map(|&m| (export::matches_file(m), export::matches_template())),
+    );
+    let named: Vec<(&str, crate::report::Table)> =
+        files.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
+    let mut folder = io::TablesFolder::create(claim, &named)?;
+    let mut counts = Vec::new();
+    let warnings = crate::pipeline::Warnings::default();
+    for (k, r) in runs.iter().enumerate() {
+        let current = format!("{} {} seed {}", r.split.as_str(), r.scenario, r.seed);
+        on(Event::Runs {
+            done: k,
+            total: runs.len(),
+            current: &current,
+        });
+        let n = export::export_run(
+            r,
+            &request.with_matches,
+            threads,
+            &warnings,
+            |_| {},
+            &mut folder,
+        )
+        .with_context(|| format!("run {} ({} seed {}) failed", r.index, r.scenario, r.seed))?;
+        counts.push((r, n));
+    }
+    on(Event::Runs {
+        done: runs.len(),
+        total: runs.len(),
+        current: "",
+    });
+    folder.write(export::RUNS_FILE, &export::run_table(&counts, &digest))?;
+    folder.finish(&[("schema.md", export::SCHEMA.to_owned())])?;
+    Ok(ExportReport {
+        folder: out,
+        runs: runs.len(),
+        instances: counts.iter().map(|c| c.1).sum(),
+        splits: splits
+            .into_iter()
+            .filter(|s| runs.iter().any(|r| r.split == *s))
+            .collect(),
+    })
+}
