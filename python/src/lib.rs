@@ -145,10 +145,12 @@ fn run(
     quiet: bool,
 ) -> PyResult<(PathBuf, String)> {
     let request = coid_sim::commands::RunRequest {
-        config: config_source(config, config_text, shown)?,
-        out,
-        force,
-        threads,
+        common: common(
+            config_source(config, config_text, shown)?,
+            out,
+            force,
+            threads,
+        ),
         traffic_seed,
         sensor_seed,
     };
@@ -184,6 +186,21 @@ fn config_source(
     }
 }
 
+/// What every typed command that writes a folder takes.
+fn common(
+    config: coid_sim::commands::ConfigSource,
+    out: Option<PathBuf>,
+    force: bool,
+    threads: Option<usize>,
+) -> coid_sim::commands::Common {
+    coid_sim::commands::Common {
+        config,
+        out,
+        force,
+        threads,
+    }
+}
+
 /// `coid export` as a typed call: the configuration as for [`run`];
 /// `splits` and `with_matches` as labels; the folder written and the
 /// line `coid export` prints back.
@@ -205,10 +222,12 @@ fn export(
 ) -> PyResult<(PathBuf, String)> {
     use coid_sim::commands::labels;
     let request = coid_sim::commands::ExportRequest {
-        config: config_source(config, config_text, shown)?,
-        out,
-        force,
-        threads,
+        common: common(
+            config_source(config, config_text, shown)?,
+            out,
+            force,
+            threads,
+        ),
         splits: labels("split", &splits).map_err(CoidError::new_err)?,
         with_matches: labels("method", &with_matches).map_err(CoidError::new_err)?,
         dataset,

@@ -41,10 +41,7 @@ pub fn export(a: ExportArgs) -> anyhow::Result<String> {
     super::no_repeats("--splits", &a.splits)?;
     super::no_repeats("--with-matches", &a.with_matches)?;
     let request = commands::ExportRequest {
-        config: a.common.config.source(),
-        out: a.common.out.out.clone(),
-        force: a.common.force.force,
-        threads: a.threads.threads,
+        common: a.common.common(&a.threads),
         splits: a.splits.clone(),
         with_matches: a.with_matches.clone(),
         dataset: a.dataset.clone(),

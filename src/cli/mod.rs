@@ -433,6 +433,17 @@ impl CommonArgs {
         Ok((settings, claim))
     }
 
+    /// What the library's commands take of these arguments, with
+    /// `threads`.
+    fn common(&self, threads: &ThreadsArg) -> crate::commands::Common {
+        crate::commands::Common {
+            config: self.config.source(),
+            out: self.out.out.clone(),
+            force: self.force.force,
+            threads: threads.threads,
+        }
+    }
+
     /// A progress bar over the simulated time of one run.
     fn sim_bar(&self, end_s: f64) -> ProgressBar {
         progress_bar(

@@ -21,10 +21,7 @@ pub struct Args {
 /// Runs the scenario; returns the line it printed last.
 pub fn run(a: Args) -> anyhow::Result<String> {
     let request = RunRequest {
-        config: a.common.config.source(),
-        out: a.common.out.out.clone(),
-        force: a.common.force.force,
-        threads: a.threads.threads,
+        common: a.common.common(&a.threads),
         traffic_seed: a.traffic_seed,
         sensor_seed: a.sensor_seed,
     };

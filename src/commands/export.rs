@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use super::{ConfigSource, Event};
+use super::{Common, ConfigSource, Event};
 use crate::config::Overrides;
 use crate::export::{self, ExportRun, Split};
 use crate::io;
@@ -15,14 +15,9 @@ use crate::matching::Method;
 /// What to export and where.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ExportRequest {
-    pub config: ConfigSource,
-    /// The folder [default: `results/<config stem>-export`, or
-    /// `results/<dataset folder>-export`].
-    pub out: Option<PathBuf>,
-    /// Replace a folder that coid wrote for an export and that did not
-    /// change since.
-    pub force: bool,
-    pub threads: Option<usize>,
+    /// The folder's default: `results/<config stem>-export`, or
+    /// `results/<dataset folder>-export`.
+    pub common: Common,
     /// The splits to export [default (empty): all three].
     pub splits: Vec<Split>,
     /// Built-in methods whose matches are written beside, each as
@@ -36,10 +31,7 @@ impl ExportRequest {
     /// An export of every split of `config`, nothing else asked.
     pub fn of(config: ConfigSource) -> Self {
         Self {
-            config,
-            out: None,
-            force: false,
-            threads: None,
+            common: Common::of(config),
             splits: Vec::new(),
             with_matches: Vec::new(),
             dataset: None,
@@ -83,18 +75,12 @@ impl ExportReport {
 pub fn export(request: &ExportRequest, mut on: impl FnMut(Event)) -> anyhow::Result<ExportReport> {
     super::no_repeats("splits", &request.splits)?;
     super::no_repeats("with_matches", &request.with_matches)?;
-    let threads = super::threads(request.threads)?;
+    let common = &request.common;
+    let threads = super::threads(common.threads)?;
     let dataset = request.dataset.as_deref();
-    let settings = super::prepare(&request.config, &Overrides::default(), dataset, &mut on)?;
-    let out = match dataset {
-        Some(dir) => super::dataset_out_dir(request.out.clone(), dir, "-export"),
-        None => super::out_dir(request.out.clone(), &request.config, "-export"),
-    };
-    let claim = io::Claim::new(
-        &out,
-        io::ResultKind::Export,
-        io::Existing::when(request.force),
-    )?;
+    let settings = super::prepare(&common.config, &Overrides::default(), dataset, &mut on)?;
+    let claim = common.claim("-export", dataset, io::ResultKind::Export)?;
+    let out = claim.out().to_owned();
     let splits = if request.splits.is_empty() {
         vec![Split::Train, Split::Validation, Split::Test]
     } else {

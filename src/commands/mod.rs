@@ -40,6 +40,51 @@ pub enum Event<'a> {
     },
 }
 
+/// What every command that writes a results folder takes: its
+/// configuration, the folder, whether it may replace one, and threads.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Common {
+    pub config: ConfigSource,
+    /// The results folder [default: `results/<config stem><suffix>`, or
+    /// `results/<dataset folder><suffix>` on a dataset].
+    pub out: Option<PathBuf>,
+    /// Replace a folder that coid wrote for the same command and that did
+    /// not change since (the old one removed only once the new one is
+    /// complete).
+    pub force: bool,
+    /// Threads that evaluate a run's steps while SUMO advances [default:
+    /// every core]; the results do not depend on it.
+    pub threads: Option<usize>,
+}
+
+impl Common {
+    /// `config` with everything else at its default.
+    pub fn of(config: ConfigSource) -> Self {
+        Self {
+            config,
+            out: None,
+            force: false,
+            threads: None,
+        }
+    }
+
+    /// The results folder, claimed for a folder of `kind`: refused when
+    /// something is there that `force` does not allow to replace.
+    fn claim(
+        &self,
+        suffix: &str,
+        dataset: Option<&Path>,
+        kind: crate::io::ResultKind,
+    ) -> anyhow::Result<crate::io::Claim> {
+        let out = match dataset {
+            Some(dir) => dataset_out_dir(self.out.clone(), dir, suffix),
+            None => out_dir(self.out.clone(), &self.config, suffix),
+        };
+        let existing = crate::io::Existing::when(self.force);
+        Ok(crate::io::Claim::new(&out, kind, existing)?)
+    }
+}
+
 /// The settings a command runs with: `config` with `overrides` set over
 /// it and the descriptor calibrated when it asks for one; or, with a
 /// dataset folder, `config` reading that dataset (its splits make the

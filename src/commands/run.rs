@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use super::{ConfigSource, Event};
+use super::{Common, Event};
 use crate::config::{Overrides, Settings};
 use crate::fusion::FusionVariant;
 use crate::io;
@@ -17,16 +17,7 @@ use crate::sensor::PoseNoiseLabel;
 /// What to run and where its results go.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RunRequest {
-    pub config: ConfigSource,
-    /// The results folder [default: `results/<config stem>`].
-    pub out: Option<PathBuf>,
-    /// Replace a results folder that coid wrote for a run and that did
-    /// not change since (the old one removed only once the new one is
-    /// complete).
-    pub force: bool,
-    /// Threads that evaluate the steps while SUMO advances [default:
-    /// every core]; the results do not depend on it.
-    pub threads: Option<usize>,
+    pub common: Common,
     /// `[seeds] traffic` and `sensor` set over the configuration's.
     pub traffic_seed: Option<u64>,
     pub sensor_seed: Option<u64>,
@@ -34,12 +25,9 @@ pub struct RunRequest {
 
 impl RunRequest {
     /// A run of `config` with everything else at its default.
-    pub fn of(config: ConfigSource) -> Self {
+    pub fn of(config: super::ConfigSource) -> Self {
         Self {
-            config,
-            out: None,
-            force: false,
-            threads: None,
+            common: Common::of(config),
             traffic_seed: None,
             sensor_seed: None,
         }
@@ -65,15 +53,16 @@ pub struct RunReport {
 /// The configuration, the results folder (taken, not writable), SUMO or
 /// a stage fails; the folder is then not left half-written.
 pub fn run(request: &RunRequest, mut on: impl FnMut(Event)) -> anyhow::Result<RunReport> {
-    let threads = super::threads(request.threads)?;
+    let common = &request.common;
+    let threads = super::threads(common.threads)?;
     let overrides = Overrides {
         traffic_seed: request.traffic_seed,
         sensor_seed: request.sensor_seed,
         ..Default::default()
     };
-    let settings = super::prepare(&request.config, &overrides, None, &mut on)?;
-    let out = super::out_dir(request.out.clone(), &request.config, "");
-    let claim = io::Claim::new(&out, io::ResultKind::Run, io::Existing::when(request.force))?;
+    let settings = super::prepare(&common.config, &overrides, None, &mut on)?;
+    let claim = common.claim("", None, io::ResultKind::Run)?;
+    let out = claim.out().to_owned();
     // The folder is claimed (and checked writable) before the simulation.
     let mut folder = io::RunFolder::create(claim)?;
     let results = pipeline::run(
