@@ -6,8 +6,8 @@
 //! show or not. Errors are `anyhow` chains whose one line
 //! (`cli::one_line`) is what `coid` prints.
 //!
-//! `run` and `export` are typed so far; the other commands are still
-//! reached through `cli`.
+//! `run` and `export` are typed; the other commands are reached through
+//! `cli`.
 
 use std::path::{Path, PathBuf};
 

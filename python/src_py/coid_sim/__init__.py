@@ -126,6 +126,23 @@ def _seed(name: str, value: Optional[int]) -> None:
         raise CoidError(f"{name} must be an integer >= 0, not {value!r}")
 
 
+def _request(config: Config, out: Optional[PathLike], name: str, suffix: str, force: bool, threads: Optional[int], dataset: Any = None) -> dict:
+    """What every typed command that writes a folder takes: the
+    configuration (a file's path, or a dict as TOML text named "the
+    configuration dict"), the results folder (``_out``), force and threads."""
+    _threads(threads)
+    path, text = _config_source(config)
+    folder = _out(out, config, name, suffix, dataset)
+    return {
+        "config": path,
+        "config_text": text,
+        "shown": "the configuration dict",
+        "out": None if folder is None else os.fspath(folder),
+        "force": force,
+        "threads": threads,
+    }
+
+
 def _threads(threads: Optional[int]) -> None:
     """Refuses a thread count that is not an integer (coid checks its range)."""
     if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 0):
@@ -196,16 +213,8 @@ def run(
     """
     _seed("traffic_seed", traffic_seed)
     _seed("sensor_seed", sensor_seed)
-    _threads(threads)
-    path, text = _config_source(config)
-    folder_out = _out(out, config, name, "")
     folder, headline = _coid_sim.run(
-        config=path,
-        config_text=text,
-        shown="the configuration dict",
-        out=None if folder_out is None else os.fspath(folder_out),
-        force=force,
-        threads=threads,
+        **_request(config, out, name, "", force, threads),
         traffic_seed=traffic_seed,
         sensor_seed=sensor_seed,
         quiet=quiet,
@@ -235,16 +244,8 @@ def export(
         folder, one converted from elsewhere too): the built-in methods'
         matches on it.
     """
-    path, text = _config_source(config)
-    folder_out = _out(out, config, name, "-export", dataset)
-    _threads(threads)
     folder, _line = _coid_sim.export(
-        config=path,
-        config_text=text,
-        shown="the configuration dict",
-        out=None if folder_out is None else os.fspath(folder_out),
-        force=force,
-        threads=threads,
+        **_request(config, out, name, "-export", force, threads, dataset),
         splits=list(splits),
         with_matches=list(with_matches),
         dataset=None if dataset is None else os.fspath(dataset),
