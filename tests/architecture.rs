@@ -893,3 +893,69 @@ fn the_docs_and_the_code_speak_of_the_product_not_its_history() {
         ["this work", "today's model"]
     );
 }
+
+/// The Python package calls the library's typed commands: it builds no
+/// command line (argv goes to coid only from the user, through
+/// `coid_sim.cli` and `python -m coid_sim`), parses no printed line and
+/// writes no file of its own (a dict configuration goes as text, a frame
+/// of matches as bytes), in its Python code and its extension alike.
+#[test]
+fn the_python_package_builds_no_command_line_and_parses_no_printed_line() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("python");
+    let mut offences = Vec::new();
+    for dir in ["src_py/coid_sim", "src"] {
+        for e in std::fs::read_dir(root.join(dir)).unwrap() {
+            let path = e.unwrap().path();
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            if !(name.ends_with(".py") || name.ends_with(".rs")) {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            let python = name.ends_with(".py");
+            for (k, line) in text.lines().enumerate() {
+                // Code without its comment; a docstring's example
+                // (``cli("eval", ...)``) is no call.
+                let code = if python {
+                    line.split('#').next().unwrap_or("")
+                } else {
+                    line.split("//").next().unwrap_or("")
+                };
+                if python && code.contains("``") {
+                    continue;
+                }
+                let at = format!("python/{dir}/{name}:{}: {}", k + 1, line.trim());
+                // The two doors through which a user's own argv comes in.
+                let door = (name == "__init__.py"
+                    && code.contains("return _coid_sim.call([\"coid\", *"))
+                    || (name == "__main__.py"
+                        && code.contains("_coid_sim.main([\"coid\", *sys.argv[1:]])"));
+                let option = code
+                    .match_indices("\"--")
+                    .any(|(i, _)| !code[..i].ends_with('\\'))
+                    || code.contains("'--");
+                let argv = option
+                    || code.contains("_coid_sim.call(")
+                    || code.contains("_coid_sim.main(")
+                    || (python
+                        && code.contains("cli(")
+                        && !code.trim_start().starts_with("def cli("));
+                if argv && !door {
+                    offences.push(format!("builds a command line: {at}"));
+                }
+                if code.contains("; wrote")
+                    || code.contains("rsplit(")
+                    || code.contains(".split(\"; ")
+                {
+                    offences.push(format!("parses a printed line: {at}"));
+                }
+                if code.contains("tempfile")
+                    || code.contains("write_text(")
+                    || code.contains("NamedTemporary")
+                {
+                    offences.push(format!("writes a file of its own: {at}"));
+                }
+            }
+        }
+    }
+    assert!(offences.is_empty(), "{offences:#?}");
+}

@@ -9,6 +9,10 @@
 
 use std::path::PathBuf;
 
+mod commands;
+
+use commands::interruptible;
+
 use coid_sim::dataset::Dataset;
 use coid_sim::dataset::read::{DatasetInstance, DatasetNode, DatasetRun, DatasetSide};
 use coid_sim::geometry::Vec2;
@@ -28,7 +32,7 @@ create_exception!(
     "coid refused its input or failed; the message is the line the `coid` command prints."
 );
 
-fn coid_error(e: &anyhow::Error) -> PyErr {
+pub(crate) fn coid_error(e: &anyhow::Error) -> PyErr {
     CoidError::new_err(coid_sim::cli::one_line(e))
 }
 
@@ -81,172 +85,6 @@ fn call(py: Python<'_>, argv: Vec<String>) -> PyResult<Option<String>> {
     };
     interruptible(py, || coid_sim::cli::execute(cli))
 }
-
-/// Runs `work` (a command) in a thread of its own, the GIL released,
-/// while this thread, the interpreter's, looks for its signals: Ctrl-C
-/// stops the command at its next SUMO step and raises
-/// `KeyboardInterrupt`. Errors as `CoidError` with `coid`'s line.
-fn interruptible<T: Send>(
-    py: Python<'_>,
-    work: impl FnOnce() -> anyhow::Result<T> + Send,
-) -> PyResult<T> {
-    coid_sim::cli::clear_stop();
-    let (outcome, interrupted) = py.detach(|| {
-        std::thread::scope(|scope| {
-            let worker = std::thread::Builder::new()
-                .name("coid".into())
-                .stack_size(COMMAND_STACK_BYTES)
-                .spawn_scoped(scope, work);
-            let worker = match worker {
-                Ok(w) => w,
-                Err(e) => return (Err(anyhow::anyhow!("cannot start a thread: {e}")), None),
-            };
-            let mut interrupted: Option<PyErr> = None;
-            while !worker.is_finished() {
-                std::thread::sleep(SIGNAL_POLL);
-                if interrupted.is_none()
-                    && let Err(e) = Python::attach(|py| py.check_signals())
-                {
-                    coid_sim::cli::request_stop();
-                    interrupted = Some(e);
-                }
-            }
-            let outcome = worker
-                .join()
-                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-            (outcome, interrupted)
-        })
-    });
-    coid_sim::cli::clear_stop();
-    if let Some(e) = interrupted {
-        return Err(e);
-    }
-    outcome.map_err(|e| coid_error(&e))
-}
-
-/// `coid run` as a typed call: the configuration as a file (`config`),
-/// as TOML text in no file (`config_text`, named `shown` in messages and
-/// results) or the defaults (neither); the results folder and the
-/// headline back, nothing parsed from printed lines. Progress bars as
-/// the program shows them unless `quiet`.
-#[pyfunction]
-#[pyo3(signature = (config=None, config_text=None, shown=None, out=None, force=false, threads=None, traffic_seed=None, sensor_seed=None, quiet=false))]
-#[allow(clippy::too_many_arguments)]
-fn run(
-    py: Python<'_>,
-    config: Option<PathBuf>,
-    config_text: Option<String>,
-    shown: Option<String>,
-    out: Option<PathBuf>,
-    force: bool,
-    threads: Option<usize>,
-    traffic_seed: Option<u64>,
-    sensor_seed: Option<u64>,
-    quiet: bool,
-) -> PyResult<(PathBuf, String)> {
-    let request = coid_sim::commands::RunRequest {
-        common: common(
-            config_source(config, config_text, shown)?,
-            out,
-            force,
-            threads,
-        ),
-        traffic_seed,
-        sensor_seed,
-    };
-    coid_sim::cli::report_panics_in_one_line();
-    let report = interruptible(py, || {
-        let mut bars = coid_sim::cli::Bars::new(quiet, "running");
-        let report = coid_sim::commands::run(&request, |e| bars.show(e));
-        bars.clear();
-        report
-    })?;
-    let line = coid_sim::cli::print_report(&report);
-    Ok((report.folder, line))
-}
-
-/// A configuration as the typed commands take it: a file, TOML text in
-/// no file (named `shown`), or the defaults (neither).
-fn config_source(
-    config: Option<PathBuf>,
-    text: Option<String>,
-    shown: Option<String>,
-) -> PyResult<coid_sim::commands::ConfigSource> {
-    use coid_sim::commands::ConfigSource;
-    match (config, text) {
-        (Some(path), None) => Ok(ConfigSource::File(path)),
-        (None, Some(text)) => Ok(ConfigSource::Text {
-            text,
-            shown: shown.unwrap_or_else(|| "the configuration".to_owned()),
-        }),
-        (None, None) => Ok(ConfigSource::Defaults),
-        (Some(_), Some(_)) => Err(CoidError::new_err(
-            "a configuration is a file or a text, not both",
-        )),
-    }
-}
-
-/// What every typed command that writes a folder takes.
-fn common(
-    config: coid_sim::commands::ConfigSource,
-    out: Option<PathBuf>,
-    force: bool,
-    threads: Option<usize>,
-) -> coid_sim::commands::Common {
-    coid_sim::commands::Common {
-        config,
-        out,
-        force,
-        threads,
-    }
-}
-
-/// `coid export` as a typed call: the configuration as for [`run`];
-/// `splits` and `with_matches` as labels; the folder written and the
-/// line `coid export` prints back.
-#[pyfunction]
-#[pyo3(signature = (config=None, config_text=None, shown=None, out=None, force=false, threads=None, splits=Vec::new(), with_matches=Vec::new(), dataset=None, quiet=false))]
-#[allow(clippy::too_many_arguments)]
-fn export(
-    py: Python<'_>,
-    config: Option<PathBuf>,
-    config_text: Option<String>,
-    shown: Option<String>,
-    out: Option<PathBuf>,
-    force: bool,
-    threads: Option<usize>,
-    splits: Vec<String>,
-    with_matches: Vec<String>,
-    dataset: Option<PathBuf>,
-    quiet: bool,
-) -> PyResult<(PathBuf, String)> {
-    use coid_sim::commands::labels;
-    let request = coid_sim::commands::ExportRequest {
-        common: common(
-            config_source(config, config_text, shown)?,
-            out,
-            force,
-            threads,
-        ),
-        splits: labels("split", &splits).map_err(CoidError::new_err)?,
-        with_matches: labels("method", &with_matches).map_err(CoidError::new_err)?,
-        dataset,
-    };
-    coid_sim::cli::report_panics_in_one_line();
-    let report = interruptible(py, || {
-        let mut bars = coid_sim::cli::Bars::new(quiet, "exporting");
-        let report = coid_sim::commands::export(&request, |e| bars.show(e));
-        bars.clear();
-        report
-    })?;
-    let line = coid_sim::cli::print_export(&report);
-    Ok((report.folder, line))
-}
-
-/// The stack of the thread a command runs in: the main thread's.
-const COMMAND_STACK_BYTES: usize = 8 << 20;
-/// How often the interpreter's signals are looked at while a command runs.
-const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 
 /// A JSON object (a configuration given as a dict) as TOML text.
 #[pyfunction]
@@ -625,8 +463,10 @@ fn _coid_sim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(main, m)?)?;
     m.add_function(wrap_pyfunction!(call, m)?)?;
-    m.add_function(wrap_pyfunction!(run, m)?)?;
-    m.add_function(wrap_pyfunction!(export, m)?)?;
+    m.add_function(wrap_pyfunction!(commands::run, m)?)?;
+    m.add_function(wrap_pyfunction!(commands::export, m)?)?;
+    m.add_function(wrap_pyfunction!(commands::score, m)?)?;
+    m.add_function(wrap_pyfunction!(commands::dataset_matches, m)?)?;
     m.add_function(wrap_pyfunction!(toml_of_json, m)?)?;
     m.add_function(wrap_pyfunction!(delaunay, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;

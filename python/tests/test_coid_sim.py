@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -555,3 +556,24 @@ def test_export_takes_typed_lists_and_names_a_bad_label(in_tmp: Path) -> None:
     ds = coid_sim.export({**SHORT, "eval": {"traffic_seeds": [1]}}, splits=["test"], name="one", quiet=True)
     assert ds.path == Path("results/one-export") and len(ds.runs) == 1
     assert sorted(p.name for p in in_tmp.iterdir()) == ["results"]
+
+
+def test_matches_and_scores_of_frames_write_no_file_of_their_own(short_export: coid_sim.Dataset, in_tmp: Path, tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A dataset's matches come from coid in memory, equal to what `coid
+    export --dataset --with-matches` writes; a frame of matches is scored
+    from memory: no file appears in the temporary folder or the current
+    one but the results folder asked for."""
+    replayed = tmp_path_factory.mktemp("replayed") / "ex"
+    coid_sim.export(short_export.config, dataset=short_export.path, with_matches=["gps-hungarian"], out=replayed, quiet=True)
+    exported = pl.read_parquet(replayed / "matches-gps-hungarian.parquet")
+    scratch = tmp_path_factory.mktemp("scratch")
+    monkeypatch.setenv("TMPDIR", str(scratch))
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    fresh = coid_sim.Dataset(short_export.path, config=short_export.config)
+    made = fresh.matches("gps-hungarian")
+    assert made.height > 0
+    assert made.equals(exported), (made, exported)
+    scored = coid_sim.score(made, dataset=fresh, quiet=True, out="scored")
+    assert scored.headline is not None and "scored the matches frame" in scored.headline, scored.headline
+    assert sorted(p.name for p in in_tmp.iterdir()) == ["scored"], list(in_tmp.iterdir())
+    assert list(scratch.iterdir()) == []

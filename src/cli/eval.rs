@@ -8,13 +8,14 @@ use anyhow::Context;
 use indicatif::ProgressBar;
 
 use super::{CommonArgs, ThreadsArg, progress_bar};
+use crate::commands::write_eval;
 use crate::config::Settings;
 use crate::experiments;
+use crate::io;
 use crate::io::records::ModelRecord;
-use crate::io::{self, OutputError};
-use crate::matching::{self, DeepChoice, Method, MethodKind, MethodLambdas};
+use crate::matching::{self, Method, MethodKind, MethodLambdas};
+use crate::pipeline;
 use crate::tables::RunEval;
-use crate::{pipeline, render, tables};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -131,17 +132,17 @@ pub fn eval(a: Args) -> anyhow::Result<()> {
     pb.finish_and_clear();
     warn_empty(&scenarios);
     if let [only] = scenarios.as_slice() {
-        claim.fill(|dir| write(dir, &only.settings, &only.runs, &choices, None))?;
+        claim.fill(|dir| write_eval(dir, &only.settings, &only.runs, &choices, None))?;
     } else {
         let names: Vec<&str> = scenarios.iter().map(|s| s.name.as_str()).collect();
         let all: Vec<RunEval> = scenarios.iter().flat_map(|s| s.runs.clone()).collect();
         claim.fill(|dir| -> anyhow::Result<()> {
             for s in &scenarios {
-                write(&dir.join(&s.name), &s.settings, &s.runs, &choices, None)?;
+                write_eval(&dir.join(&s.name), &s.settings, &s.runs, &choices, None)?;
             }
             let pooled = Some(names.join(", "));
             let first = &scenarios[0].settings;
-            write(
+            write_eval(
                 &dir.join("pooled"),
                 first,
                 &all,
@@ -558,22 +559,6 @@ fn evaluate_seeds(
         }
     }
     Ok(())
-}
-
-/// The tables and plots of `runs` into the folder `dir`.
-pub(super) fn write(
-    dir: &Path,
-    settings: &Settings,
-    runs: &[RunEval],
-    choices: &BTreeMap<Method, DeepChoice>,
-    pooled: Option<&str>,
-) -> Result<(), OutputError> {
-    let lambdas = matching::method_lambdas(choices);
-    let tables = tables::eval_tables(settings, runs, &lambdas);
-    let plots = tables::plot_data(settings, runs, &lambdas);
-    io::write_eval(dir, settings, &tables.files(), choices, pooled, |dir| {
-        render::eval_plots(dir, &plots).map_err(|e| OutputError::picture(dir, e))
-    })
 }
 
 #[cfg(test)]

@@ -24,7 +24,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::label::{self, Label};
 
-pub use export::print_export;
+pub use export::{print_export, print_score};
 pub use progress::Bars;
 pub use run::print_report;
 

@@ -141,3 +141,50 @@ pub fn export(request: &ExportRequest, mut on: impl FnMut(Event)) -> anyhow::Res
             .collect(),
     })
 }
+
+/// A built-in method's matches on every run of a dataset, held in memory:
+/// what `export` with `with_matches` writes in `matches-<method>.parquet`,
+/// without a folder.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MatchesRequest {
+    /// The settings of the method (the dataset gives the runs).
+    pub config: ConfigSource,
+    pub dataset: PathBuf,
+    pub method: Method,
+    pub threads: Option<usize>,
+}
+
+/// The matches of `request`, run by run, in the export's order.
+///
+/// # Errors
+/// The configuration or the dataset is refused, or a run fails.
+pub fn matches(
+    request: &MatchesRequest,
+    mut on: impl FnMut(Event),
+) -> anyhow::Result<Vec<crate::report::MatchRow>> {
+    let threads = super::threads(request.threads)?;
+    let dataset = Some(request.dataset.as_path());
+    let settings = super::prepare(&request.config, &Overrides::default(), dataset, &mut on)?;
+    let runs = export::runs(&settings)?;
+    let warnings = crate::pipeline::Warnings::default();
+    let mut rows = Vec::new();
+    for (k, r) in runs.iter().enumerate() {
+        let current = format!("{} {} seed {}", r.split.as_str(), r.scenario, r.seed);
+        on(Event::Runs {
+            done: k,
+            total: runs.len(),
+            current: &current,
+        });
+        rows.extend(
+            export::run_matches(r, request.method, threads, &warnings).with_context(|| {
+                format!("run {} ({} seed {}) failed", r.index, r.scenario, r.seed)
+            })?,
+        );
+    }
+    on(Event::Runs {
+        done: runs.len(),
+        total: runs.len(),
+        current: "",
+    });
+    Ok(rows)
+}

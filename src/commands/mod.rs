@@ -6,21 +6,24 @@
 //! show or not. Errors are `anyhow` chains whose one line
 //! (`cli::one_line`) is what `coid` prints.
 //!
-//! `run` and `export` are typed; the other commands are reached through
-//! `cli`.
+//! `run`, `export` and `score` are typed; the other commands are reached
+//! through `cli`.
 
 use std::path::{Path, PathBuf};
 
 use crate::config::{ConfigError, Overrides, Settings};
 use crate::pipeline::Progress;
 use crate::sensor::reid::ReidSettings;
+use crate::{render, tables};
 
 pub mod export;
 pub mod run;
+pub mod score;
 
 pub use crate::export::Split;
-pub use export::{ExportReport, ExportRequest, export};
+pub use export::{ExportReport, ExportRequest, MatchesRequest, export, matches};
 pub use run::{RunReport, RunRequest, run};
+pub use score::{Matches, ScoreReport, ScoreRequest, score};
 
 /// What a command tells while it works.
 pub enum Event<'a> {
@@ -182,6 +185,15 @@ pub fn dataset_out_dir(out: Option<PathBuf>, dataset: &Path, suffix: &str) -> Pa
     })
 }
 
+/// `name` as a label of kind `what` ("split", "method"); an unknown one
+/// is refused with the labels that exist.
+///
+/// # Errors
+/// A name that is no label of `T`.
+pub fn label<T: crate::label::Label>(what: &str, name: &str) -> Result<T, String> {
+    crate::label::parse(what, name)
+}
+
 /// `names` as labels of kind `what` ("split", "method"); an unknown one
 /// is refused with the labels that exist.
 ///
@@ -230,6 +242,23 @@ pub fn threads(threads: Option<usize>) -> anyhow::Result<usize> {
 /// The cores this process may use.
 pub fn cores() -> usize {
     std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+}
+
+/// The tables and plots of evaluated `runs` into the folder `dir`, as
+/// `eval` and `score` write them.
+pub(crate) fn write_eval(
+    dir: &Path,
+    settings: &Settings,
+    runs: &[tables::RunEval],
+    choices: &std::collections::BTreeMap<crate::matching::Method, crate::matching::DeepChoice>,
+    pooled: Option<&str>,
+) -> Result<(), crate::io::OutputError> {
+    let lambdas = crate::matching::method_lambdas(choices);
+    let tables = tables::eval_tables(settings, runs, &lambdas);
+    let plots = tables::plot_data(settings, runs, &lambdas);
+    crate::io::write_eval(dir, settings, &tables.files(), choices, pooled, |dir| {
+        render::eval_plots(dir, &plots).map_err(|e| crate::io::OutputError::picture(dir, e))
+    })
 }
 
 #[cfg(test)]

@@ -185,5 +185,43 @@ pub fn export_run(
     Ok(stats.n_instances)
 }
 
+/// `method`'s matches on every instance of `run`, as `export_run` writes
+/// them in `matches-<method>.parquet` (the same passes: the oracle's
+/// beside), held in memory and nothing written.
+///
+/// # Errors
+/// The run fails.
+pub fn run_matches(
+    run: &ExportRun,
+    method: Method,
+    threads: usize,
+    warnings: &Warnings,
+) -> Result<Vec<crate::report::MatchRow>, RunError> {
+    let s = &run.settings;
+    let mut runners = vec![crate::evaluate::CorrespondenceSource::Oracle];
+    if method != Method::Oracle {
+        runners.extend(pipeline::runners(s, &[method])?);
+    }
+    let mut made = Vec::new();
+    let on_eval = |_: &[Instance], pairs: &[PairAtLevel], _, f: FrameEval| {
+        if f.method == method {
+            made.extend(
+                rows::matches(run.index, pairs, &f).map(|m| crate::report::MatchRow {
+                    run: m.run,
+                    instance: m.instance,
+                    pose_noise: Some(m.pose_noise),
+                    a: m.a,
+                    b: m.b,
+                    probability: Some(m.probability),
+                    uncertainty: Some(m.uncertainty),
+                }),
+            );
+        }
+        Ok(())
+    };
+    pipeline::evaluate_frames(s, &runners, threads, warnings, |_| {}, on_eval)?;
+    Ok(made)
+}
+
 /// Node rows held before they are written as row groups.
 const ROWS_PER_GROUP: usize = 65_536;

@@ -284,6 +284,21 @@ pub fn read_matches(path: &Path) -> Result<Vec<MatchRow>, String> {
         let f = File::open(path).map_err(|e| e.to_string())?;
         ParquetReader::new(f).finish().map_err(text)?
     };
+    matches_of(&df)
+}
+
+/// Reads matches given as a Parquet file's bytes (a frame handed over in
+/// memory, as the Python package does), checked as [`read_matches`]
+/// checks a file.
+pub fn read_matches_parquet(bytes: &[u8]) -> Result<Vec<MatchRow>, String> {
+    let df = ParquetReader::new(std::io::Cursor::new(bytes))
+        .finish()
+        .map_err(first_line)?;
+    matches_of(&df)
+}
+
+/// The rows of a matches frame, its columns checked.
+fn matches_of(df: &DataFrame) -> Result<Vec<MatchRow>, String> {
     let n = df.height();
     if let Some(missing) = ["run", "instance", "a", "b"]
         .into_iter()
@@ -314,7 +329,7 @@ pub fn read_matches(path: &Path) -> Result<Vec<MatchRow>, String> {
             _ => Err(format!("column '{name}' holds {}, not numbers", c.dtype())),
         }
     };
-    let level = pose_noise_column(&df)?;
+    let level = pose_noise_column(df)?;
     let (run, instance, a, b) = (index("run")?, index("instance")?, index("a")?, index("b")?);
     let (p, u) = (number("probability")?, number("uncertainty")?);
     Ok((0..n)

@@ -14,14 +14,12 @@ Failures raise :class:`CoidError` with the line ``coid`` prints.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
-import tempfile
-import uuid
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Mapping, Optional, Sequence, Union
+from typing import Any, Mapping, Optional, Sequence, Union
 
 import polars as pl
 
@@ -71,27 +69,6 @@ def _config_source(config: Config) -> "tuple[Optional[str], Optional[str]]":
     return os.fspath(config), None
 
 
-@contextmanager
-def _config_file(config: Config, name: str) -> Iterator[Optional[str]]:
-    """A configuration as a file path: a path as it is; a dict written as
-    TOML to a hidden file in the current folder (so that relative paths
-    in it mean what they mean here), removed afterwards."""
-    if config is None:
-        yield None
-        return
-    if isinstance(config, Mapping):
-        _finite(config, "")
-        text = _coid_sim.toml_of_json(json.dumps(config, default=_plain))
-        path = Path(f".coid-{name}-{os.getpid()}-{uuid.uuid4().hex[:8]}.toml")
-        path.write_text(text)
-        try:
-            yield str(path)
-        finally:
-            path.unlink(missing_ok=True)
-        return
-    yield os.fspath(config)
-
-
 def _finite(value: Any, at: str) -> None:
     """Refuses a number that is not finite anywhere in a dict configuration
     (TOML could carry it; no setting of coid takes it)."""
@@ -103,19 +80,6 @@ def _finite(value: Any, at: str) -> None:
             _finite(v, f"{at}[{k}]")
     elif isinstance(value, float) and not math.isfinite(value):
         raise CoidError(f"the configuration dict holds {value} at {at}: no setting of coid takes a number that is not finite")
-
-
-@contextmanager
-def _shown_as(names: Mapping[str, str]) -> Iterator[None]:
-    """Errors name what the user gave instead of the temporary files coid
-    was handed (a dict configuration, a frame of matches)."""
-    try:
-        yield
-    except CoidError as e:
-        message = str(e)
-        for path, shown in names.items():
-            message = message.replace(os.path.abspath(path), shown).replace(path, shown)
-        raise CoidError(message) from None
 
 
 def _seed(name: str, value: Optional[int]) -> None:
@@ -149,11 +113,6 @@ def _threads(threads: Optional[int]) -> None:
         raise CoidError(f"threads must be an integer from 1 to 1024, not {threads!r}")
 
 
-def _config_names(config: Config, path: Optional[str]) -> dict:
-    """The temporary file of a dict configuration, as errors show it."""
-    return {path: "the configuration dict"} if isinstance(config, Mapping) and path else {}
-
-
 def _plain(value: Any) -> Any:
     """A value of a dict configuration that JSON does not know: numpy
     arrays and scalars as lists and numbers, paths as text."""
@@ -162,21 +121,6 @@ def _plain(value: Any) -> Any:
     if hasattr(value, "tolist"):
         return value.tolist()
     raise CoidError(f"the configuration holds {value!r} ({type(value).__name__}), which is not a TOML value")
-
-
-def _common(config: Optional[str], out: Optional[PathLike], force: bool, quiet: bool, threads: Optional[int]) -> list:
-    args: list = []
-    if config is not None:
-        args += ["--config", config]
-    if out is not None:
-        args += ["--out", os.fspath(out)]
-    if force:
-        args.append("--force")
-    if quiet:
-        args.append("--quiet")
-    if threads is not None:
-        args += ["--threads", str(threads)]
-    return args
 
 
 def _out(out: Optional[PathLike], config: Config, name: str, suffix: str, dataset: Any = None) -> Optional[PathLike]:
@@ -254,12 +198,6 @@ def export(
     return Dataset(folder, config=config)
 
 
-def _last_folder(line: Optional[str]) -> str:
-    if not line or "; wrote " not in line:
-        raise CoidError("coid did not say which folder it wrote")
-    return line.rsplit("; wrote ", 1)[-1]
-
-
 def score(
     matches: Union[pl.DataFrame, "Any", PathLike],
     *,
@@ -290,20 +228,20 @@ def score(
         dataset = dataset.path
     if not isinstance(matches, (str, os.PathLike, pl.DataFrame)) and type(matches).__module__.split(".")[0] != "pandas":
         raise CoidError(f"matches must be a polars or pandas frame, or a Parquet or CSV file, not {type(matches).__name__}")
-    with tempfile.TemporaryDirectory(prefix="coid-score-") as tmp, _config_file(config, name) as path:
-        names = _config_names(config, path)
-        if isinstance(matches, (str, os.PathLike)):
-            file = os.fspath(matches)
-        else:
-            frame = matches if isinstance(matches, pl.DataFrame) else pl.from_pandas(matches)
-            file = os.path.join(tmp, "matches.parquet")
-            frame.write_parquet(file)
-            names[file] = "the matches frame"
-        args = ["score", *_common(path, _out(out, config, name, "-score", dataset), force, quiet, threads), "--matches", file, "--split", split]
-        if dataset is not None:
-            args += ["--dataset", os.fspath(dataset)]
-        if export is not None:
-            args += ["--export", os.fspath(export)]
-        with _shown_as(names):
-            line = cli(*args)
-    return Results(Path(_last_folder(line)), line)
+    if isinstance(matches, (str, os.PathLike)):
+        file, parquet = os.fspath(matches), None
+    else:
+        frame = matches if isinstance(matches, pl.DataFrame) else pl.from_pandas(matches)
+        buffer = io.BytesIO()
+        frame.write_parquet(buffer)
+        file, parquet = None, buffer.getvalue()
+    folder, line = _coid_sim.score(
+        **_request(config, out, name, "-score", force, threads, dataset),
+        matches=file,
+        matches_parquet=parquet,
+        export=None if export is None else os.fspath(export),
+        dataset=None if dataset is None else os.fspath(dataset),
+        split=split,
+        quiet=quiet,
+    )
+    return Results(Path(folder), line)

@@ -18,6 +18,24 @@ def call(argv: List[str]) -> Optional[str]:
     the command's last line (``run``, ``export``, ``score``) or None.
     Raises CoidError."""
 
+def run(config: Optional[str] = None, config_text: Optional[str] = None, shown: Optional[str] = None, out: Optional[str] = None, force: bool = False, threads: Optional[int] = None, traffic_seed: Optional[int] = None, sensor_seed: Optional[int] = None, quiet: bool = False) -> Tuple[str, str]:
+    """``coid run`` as a typed call: the results folder and the headline.
+    Raises CoidError."""
+
+def export(config: Optional[str] = None, config_text: Optional[str] = None, shown: Optional[str] = None, out: Optional[str] = None, force: bool = False, threads: Optional[int] = None, splits: Sequence[str] = (), with_matches: Sequence[str] = (), dataset: Optional[str] = None, quiet: bool = False) -> Tuple[str, str]:
+    """``coid export`` as a typed call: the folder and the line ``coid
+    export`` prints. Raises CoidError."""
+
+def score(config: Optional[str] = None, config_text: Optional[str] = None, shown: Optional[str] = None, out: Optional[str] = None, force: bool = False, threads: Optional[int] = None, matches: Optional[str] = None, matches_parquet: Optional[bytes] = None, export: Optional[str] = None, dataset: Optional[str] = None, split: str = "test", quiet: bool = False) -> Tuple[str, str]:
+    """``coid score`` as a typed call: matches as a file, or a frame's
+    Parquet bytes ("the matches frame" in messages); the folder and the
+    line ``coid score`` prints. Raises CoidError."""
+
+def dataset_matches(dataset: str, method: str, config: Optional[str] = None, config_text: Optional[str] = None, shown: Optional[str] = None, threads: Optional[int] = None, quiet: bool = True) -> Dict[str, List[Any]]:
+    """A built-in method's matches on every run of a dataset as columns
+    (run, instance, pose_noise, a, b, probability, uncertainty), held in
+    memory. Raises CoidError."""
+
 def toml_of_json(json: str) -> str:
     """A JSON object as TOML text. Raises CoidError."""
 

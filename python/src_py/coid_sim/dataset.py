@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, NamedTuple, Optional, Sequence, Tuple, Union
@@ -29,6 +28,17 @@ CLASSES: Tuple[str, ...] = ("car", "van", "truck", "bus", "motorcycle", "bicycle
 #: it: one grey, one size, so that they tell no two nodes apart).
 UNKNOWN_COLOUR = (0.5, 0.5, 0.5)
 UNKNOWN_SIZE_M = (4.6, 1.8, 1.5)
+
+#: The columns of a matches frame, as ``matches-<method>.parquet`` holds them.
+MATCH_SCHEMA = {
+    "run": pl.UInt64,
+    "instance": pl.UInt64,
+    "pose_noise": pl.String,
+    "a": pl.UInt64,
+    "b": pl.UInt64,
+    "probability": pl.Float64,
+    "uncertainty": pl.Float64,
+}
 
 
 class Match(NamedTuple):
@@ -405,13 +415,14 @@ class Dataset:
         matches frame (run, instance, pose_noise, a, b, probability,
         uncertainty): ``coid export --dataset`` in this process, once per
         method (kept for the next call)."""
-        from . import export
+        from . import _config_source, _threads
+
+        _threads(threads)
 
         if method not in _coid_sim.methods():
             raise CoidError(f"unknown method {method!r} (coid's methods: {', '.join(_coid_sim.methods())})")
         if method not in self._matches:
-            with tempfile.TemporaryDirectory(prefix="coid-matches-") as tmp:
-                out = Path(tmp) / "export"
-                export(self.config, dataset=self.path, with_matches=[method], out=out, quiet=True, threads=threads)
-                self._matches[method] = pl.read_parquet(out / f"matches-{method}.parquet")
+            path, text = _config_source(self.config)
+            columns = _coid_sim.dataset_matches(os.fspath(self.path), method, config=path, config_text=text, shown="the configuration dict", threads=threads)
+            self._matches[method] = pl.DataFrame(columns, schema=MATCH_SCHEMA)
         return self._matches[method]
