@@ -121,9 +121,10 @@ fn main() {
     let ga = SceneGraph::delaunay(&da.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
     let gb = SceneGraph::delaunay(&db.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap();
     let level = PoseNoiseLevel {
-        label: PoseNoiseLabel::Gps,
+        label: PoseNoiseLabel::GPS,
         position_sigma_m: 1.2,
         heading_sigma_rad: 0.2f64.to_radians(),
+        correlation_s: None,
     };
     let (va, vb) = (view(&da, &ga, pa, level), view(&db, &gb, pb, level));
 

@@ -256,7 +256,7 @@ fn sweep_table(rows: &[Row]) -> Table {
 fn compared<'a>(rows: &'a [Row], method: Method, rank1: f64, split: &str) -> Option<&'a Row> {
     rows.iter()
         .filter(|r| r.method == method && r.rank1 == rank1 && r.split == split)
-        .find(|r| method.inputs() == Inputs::Paper || r.level == PoseNoiseLabel::Gps)
+        .find(|r| method.inputs() == Inputs::Paper || r.level == PoseNoiseLabel::GPS)
 }
 
 /// `reid_sweep_differences.csv`: per point and split, each comparison's
@@ -311,7 +311,7 @@ fn panels(rows: &[Row]) -> Vec<render::Panel> {
                 let (points, ci): (Vec<(f64, f64)>, Vec<f64>) = rows
                     .iter()
                     .filter(|r| r.method == m && r.split == split)
-                    .filter(|r| m.inputs() == Inputs::Paper || r.level == PoseNoiseLabel::Gps)
+                    .filter(|r| m.inputs() == Inputs::Paper || r.level == PoseNoiseLabel::GPS)
                     .map(|r| {
                         let (mean, c) = mean_ci95(&r.f1);
                         ((r.rank1, mean), c)

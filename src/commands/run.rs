@@ -103,7 +103,7 @@ fn headline(results: &RunResults) -> String {
     for m in [Method::Ours, Method::GpsHungarian, Method::Oracle] {
         let row = rows.iter().find(|r| {
             r.key.method == m
-                && r.key.pose_noise == PoseNoiseLabel::Gps
+                && r.key.pose_noise == PoseNoiseLabel::GPS
                 && r.key.fusion == FusionVariant::Aligned
         });
         if let Some(r) = row {

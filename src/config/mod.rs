@@ -231,7 +231,11 @@ impl std::fmt::Debug for Settings {
         // whatever `gnss_correlation_s` said): such configs' digests
         // differ from that model's, so that a batch or export it made is
         // refused, never mixed.
-        if self.v2x.mode == V2xMode::Ideal && self.v2x.gnss_correlation_s > 0.0 {
+        let drifts = self
+            .pose_noise
+            .iter()
+            .any(|l| l.correlation_s(self.v2x.gnss_correlation_s) > 0.0);
+        if self.v2x.mode == V2xMode::Ideal && drifts {
             d.field("ideal_gnss_drift", &true);
         }
         // The profiles' parameters change nothing while the paper's model

@@ -222,12 +222,44 @@ pub(super) struct RawSensor {
     pub(super) speed_sigma_mps: f64,
 }
 
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// `[pose_noise]`: the levels results are reported at, and a table of
+/// sigmas for every level but `none` (`rtk` and `gps` by default; any
+/// other name a config gives one, `"gps-2m" = { ... }`).
+#[derive(Debug)]
 pub(super) struct RawPoseNoise {
     pub(super) levels: Vec<PoseNoiseLabel>,
-    pub(super) rtk: RawPoseLevel,
-    pub(super) gps: RawPoseLevel,
+    pub(super) defined: std::collections::BTreeMap<String, RawPoseLevel>,
+}
+
+impl<'de> Deserialize<'de> for RawPoseNoise {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = RawPoseNoise;
+
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("levels = [...] and a table of sigmas per level")
+            }
+
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<RawPoseNoise, A::Error> {
+                let mut levels = None;
+                let mut defined = std::collections::BTreeMap::new();
+                while let Some(key) = map.next_key::<String>()? {
+                    if key == "levels" {
+                        levels = Some(map.next_value()?);
+                    } else {
+                        defined.insert(key, map.next_value()?);
+                    }
+                }
+                let levels = levels.ok_or_else(|| serde::de::Error::missing_field("levels"))?;
+                Ok(RawPoseNoise { levels, defined })
+            }
+        }
+        d.deserialize_map(Visitor)
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -235,6 +267,10 @@ pub(super) struct RawPoseNoise {
 pub(super) struct RawPoseLevel {
     pub(super) position_sigma_m: f64,
     pub(super) heading_sigma_deg: f64,
+    /// The level's own GNSS correlation time [default: `[v2x]
+    /// gnss_correlation_s`].
+    #[serde(default)]
+    pub(super) correlation_s: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]

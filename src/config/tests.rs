@@ -424,3 +424,38 @@ fn every_shipped_config_loads() {
     }
     assert!(n >= 4, "{n} configs");
 }
+
+/// A level of a config's own carries its sigmas and, when it gives one,
+/// its correlation time (then in the digest; a level without one leaves
+/// the digest as it was); bad values are refused by the level's name.
+#[test]
+fn a_defined_level_carries_its_sigmas_and_correlation_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let body = "[pose_noise]\nlevels = [\"none\", \"drift-2m\", \"gps\"]\n\
+                \"drift-2m\" = { position_sigma_m = 2.0, heading_sigma_deg = 0.5, correlation_s = 30.0 }\n";
+    let s = Settings::load(&write_cfg(dir.path(), body)).unwrap();
+    let names: Vec<&str> = s.pose_noise.iter().map(|l| l.label.as_str()).collect();
+    // Reported as levels are ordered: the built-in ones first.
+    assert_eq!(names, ["none", "gps", "drift-2m"]);
+    let drift = s.pose_noise[2];
+    assert_eq!(
+        (drift.position_sigma_m, drift.correlation_s),
+        (2.0, Some(30.0))
+    );
+    assert!((drift.heading_sigma_rad - 0.5_f64.to_radians()).abs() < 1e-15);
+    assert_eq!(drift.correlation_s(0.0), 30.0);
+    assert_eq!(s.pose_noise[1].correlation_s, None);
+    assert_eq!(s.pose_noise[1].correlation_s(7.0), 7.0);
+    assert!(format!("{s:?}").contains("correlation_s: 30.0"));
+    assert!(format!("{s:?}").contains("ideal_gnss_drift"));
+    let d = Settings::defaults().unwrap();
+    assert!(!format!("{d:?}").contains("correlation_s:"));
+    let bad = "[pose_noise]\nlevels = [\"x\"]\nx = { position_sigma_m = 1.0, heading_sigma_deg = 0.0, correlation_s = -1.0 }\n";
+    let e = Settings::load(&write_cfg(dir.path(), bad))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("level x: correlation_s must be in [0, 1000000] s, got -1"),
+        "{e}"
+    );
+}

@@ -261,17 +261,38 @@ fn sensor(c: &Checker, s: RawSensor) -> Result<SensorSettings, ConfigError> {
     })
 }
 
+/// The longest GNSS correlation time a level takes (s), as `[v2x]
+/// gnss_correlation_s`.
+const MAX_CORRELATION_S: f64 = 1e6;
+
 fn pose_noise(c: &Checker, p: RawPoseNoise) -> Result<Vec<PoseNoiseLevel>, ConfigError> {
     if p.levels.is_empty() {
         return Err(c.invalid("pose_noise.levels", "need at least one level".into()));
     }
+    if p.defined.contains_key("none") {
+        return Err(c.invalid(
+            "pose_noise",
+            "level none is exact self-localisation and takes no sigmas: give the level a name \
+             of its own"
+                .into(),
+        ));
+    }
     c.distinct("pose_noise.levels", p.levels)?
         .into_iter()
         .map(|label| {
-            let (sigma_m, sigma_deg) = match label {
-                PoseNoiseLabel::None => (0.0, 0.0),
-                PoseNoiseLabel::Rtk => (p.rtk.position_sigma_m, p.rtk.heading_sigma_deg),
-                PoseNoiseLabel::Gps => (p.gps.position_sigma_m, p.gps.heading_sigma_deg),
+            let (sigma_m, sigma_deg, correlation_s) = match p.defined.get(label.as_str()) {
+                _ if label == PoseNoiseLabel::NONE => (0.0, 0.0, None),
+                Some(l) => (l.position_sigma_m, l.heading_sigma_deg, l.correlation_s),
+                None => {
+                    return Err(c.invalid(
+                        "pose_noise",
+                        format!(
+                            "level {0} has no sigmas: add {0:?} = {{ position_sigma_m = ..., \
+                             heading_sigma_deg = ... }} under [pose_noise]",
+                            label.as_str()
+                        ),
+                    ));
+                }
             };
             // Beyond these a receiver knows nothing of where it is, and
             // squared sigmas stay far from overflowing.
@@ -288,10 +309,21 @@ fn pose_noise(c: &Checker, p: RawPoseNoise) -> Result<Vec<PoseNoiseLevel>, Confi
                     ),
                 ));
             }
+            if let Some(tau) = correlation_s.filter(|t| !(0.0..=MAX_CORRELATION_S).contains(t)) {
+                return Err(c.invalid(
+                    "pose_noise",
+                    format!(
+                        "level {}: correlation_s must be in [0, {MAX_CORRELATION_S}] s, got {}",
+                        label.as_str(),
+                        num(tau)
+                    ),
+                ));
+            }
             Ok(PoseNoiseLevel {
                 label,
                 position_sigma_m: sigma_m,
                 heading_sigma_rad: sigma_deg.to_radians(),
+                correlation_s,
             })
         })
         .collect()

@@ -391,6 +391,7 @@ fn group_instances(
                     label,
                     position_sigma_m: row.position_sigma_m,
                     heading_sigma_rad: row.first_heading_sigma_rad,
+                    correlation_s: None,
                 });
                 levels.len() - 1
             }

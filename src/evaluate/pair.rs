@@ -206,9 +206,10 @@ mod tests {
         let (ob, tb) = sensed("b", pb, &objects);
         let (ga, gb) = (graph(&oa), graph(&ob));
         let level = PoseNoiseLevel {
-            label: PoseNoiseLabel::None,
+            label: PoseNoiseLabel::NONE,
             position_sigma_m: 0.0,
             heading_sigma_rad: 0.0,
+            correlation_s: None,
         };
         let pair = PairAtLevel {
             instance: 0,

@@ -94,9 +94,10 @@ pub(super) fn exact_view<'a>(
     pose: Pose2,
 ) -> MatchView<'a> {
     let gps = PoseNoiseLevel {
-        label: PoseNoiseLabel::Gps,
+        label: PoseNoiseLabel::GPS,
         position_sigma_m: 1.2,
         heading_sigma_rad: 0.0035,
+        correlation_s: None,
     };
     view_at(obs, graph, pose, gps)
 }

@@ -269,7 +269,7 @@ mod tests {
     /// entropy threshold can (both lie on the same side of 1/2).
     #[test]
     fn validation_chooses_the_operating_point_with_the_rule() {
-        let at = MethodLevel::new(Method::Coid, PoseNoiseLabel::Gps);
+        let at = MethodLevel::new(Method::Coid, PoseNoiseLabel::GPS);
         let mut run = RunEval::keeping_pairs();
         let confident = pairs(0.8, 10, 0);
         let mut real = confident.clone();
@@ -290,7 +290,7 @@ mod tests {
         }
         let c = choose(
             &[run],
-            &[PoseNoiseLabel::Gps],
+            &[PoseNoiseLabel::GPS],
             UncertaintyKind::Total,
             Method::Coid,
         );

@@ -181,10 +181,10 @@ mod tests {
         let test: Vec<&ExportRun> = all.iter().filter(|r| r.split == Split::Test).collect();
         assert_eq!(test.iter().map(|r| r.seed).collect::<Vec<_>>(), [1, 2]);
         let t = test[0].index;
-        let levels = [PoseNoiseLabel::None, PoseNoiseLabel::Gps];
+        let levels = [PoseNoiseLabel::NONE, PoseNoiseLabel::GPS];
         let (m, _) = external_matches(&[row(t, 1, 2, None)], &all, Split::Test, &levels).unwrap();
         assert_eq!(m.len(), 2);
-        let at_gps = &m[&t].by_instance[&(3, PoseNoiseLabel::Gps)];
+        let at_gps = &m[&t].by_instance[&(3, PoseNoiseLabel::GPS)];
         assert_eq!((at_gps[0].probability, at_gps[0].uncertainty), (1.0, 0.0));
         assert_eq!(m[&t].by_instance.len(), 2);
         let fine = [row(t, 1, 2, Some("gps")), row(t, 1, 2, Some("none"))];
@@ -194,7 +194,7 @@ mod tests {
         let twice = [row(t, 1, 2, Some("gps")), row(t, 0, 2, None)];
         let (m, _) = external_matches(&twice, &all, Split::Test, &levels).unwrap();
         let (key, e) = m[&t].repeated.clone().unwrap();
-        assert_eq!(key, (3, PoseNoiseLabel::Gps));
+        assert_eq!(key, (3, PoseNoiseLabel::GPS));
         assert!(e.contains("node 2 of the second vehicle"), "{e}");
         // Rows of the other splits are left out and counted; a file with
         // only such rows names no test run.

@@ -681,7 +681,7 @@ mod tests {
 
     fn key(k: usize) -> RowKey {
         let methods = [Method::Ours, Method::Mogm, Method::Oracle];
-        let levels = [PoseNoiseLabel::None, PoseNoiseLabel::Gps];
+        let levels = [PoseNoiseLabel::NONE, PoseNoiseLabel::GPS];
         let variants = [FusionVariant::Paper, FusionVariant::Aligned];
         RowKey {
             method: methods[k % 3],

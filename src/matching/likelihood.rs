@@ -160,9 +160,10 @@ mod tests {
         let first = vec![car(30.0, 0.0, elongated, 0.5)];
         let second = vec![car(33.0, 0.0, tiny, 0.5), car(30.0, 2.0, tiny, 0.5)];
         let level = PoseNoiseLevel {
-            label: PoseNoiseLabel::None,
+            label: PoseNoiseLabel::NONE,
             position_sigma_m: 0.0,
             heading_sigma_rad: 0.0,
+            correlation_s: None,
         };
         let graph = |d: &[Detection]| {
             SceneGraph::delaunay(&d.iter().map(|d| d.position_m).collect::<Vec<_>>()).unwrap()

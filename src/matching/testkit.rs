@@ -8,16 +8,18 @@ use crate::sensor::{Appearance, Detection, PoseNoiseLabel, PoseNoiseLevel};
 use crate::traffic::ObjectClass;
 
 pub(crate) const EXACT: PoseNoiseLevel = PoseNoiseLevel {
-    label: PoseNoiseLabel::None,
+    label: PoseNoiseLabel::NONE,
     position_sigma_m: 0.0,
     heading_sigma_rad: 0.0,
+    correlation_s: None,
 };
 
 /// Plain GPS as in the default config: 1.2 m per axis, 0.2 deg.
 pub(crate) const GPS: PoseNoiseLevel = PoseNoiseLevel {
-    label: PoseNoiseLabel::Gps,
+    label: PoseNoiseLabel::GPS,
     position_sigma_m: 1.2,
     heading_sigma_rad: 0.2 * std::f64::consts::PI / 180.0,
+    correlation_s: None,
 };
 
 /// The first vehicle of the fixtures sits at the origin...

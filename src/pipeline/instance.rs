@@ -266,14 +266,16 @@ mod tests {
     fn a_reported_pose_is_drawn_per_step_or_carried() {
         let side = vehicle_side("cv0", pose(), &seen(), 3);
         let gps = PoseNoiseLevel {
-            label: PoseNoiseLabel::Gps,
+            label: PoseNoiseLabel::GPS,
             position_sigma_m: 1.2,
             heading_sigma_rad: 0.01,
+            correlation_s: None,
         };
         let none = PoseNoiseLevel {
-            label: PoseNoiseLabel::None,
+            label: PoseNoiseLabel::NONE,
             position_sigma_m: 0.0,
             heading_sigma_rad: 0.0,
+            correlation_s: None,
         };
         let p = side.reported_pose(7, 3, &gps);
         assert_eq!(p, side.reported_pose(7, 3, &gps));
@@ -289,8 +291,8 @@ mod tests {
             &[1],
             0.0,
             Some(vec![
-                (PoseNoiseLabel::None, pose()),
-                (PoseNoiseLabel::Gps, carried),
+                (PoseNoiseLabel::NONE, pose()),
+                (PoseNoiseLabel::GPS, carried),
             ]),
         )
         .unwrap();
@@ -318,9 +320,10 @@ mod tests {
             b: &b,
         };
         let level = PoseNoiseLevel {
-            label: PoseNoiseLabel::Rtk,
+            label: PoseNoiseLabel::RTK,
             position_sigma_m: 0.2,
             heading_sigma_rad: 0.003,
+            correlation_s: None,
         };
         let pair = inst.at_level(7, &level, 0.0);
         assert_eq!(pair.instance, 5);

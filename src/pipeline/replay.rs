@@ -244,6 +244,7 @@ fn at_levels(inst: &DatasetInstance, s: usize) -> Vec<(PoseNoiseLevel, Pose2)> {
                 label: l.label,
                 position_sigma_m: l.position_sigma_m,
                 heading_sigma_rad: l.heading_sigma_rad[s],
+                correlation_s: None,
             };
             (claimed, l.reported[s])
         })

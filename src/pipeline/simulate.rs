@@ -525,12 +525,17 @@ fn ideal_gnss(
     id_hash: u64,
 ) -> Option<Vec<(PoseNoiseLabel, Pose2)>> {
     let v = rig.v2x;
-    let (tau_s, speed_sigma) = (v.gnss_correlation_s, v.gnss_heading_speed_sigma_mps);
-    if v.mode != V2xMode::Ideal || (tau_s == 0.0 && speed_sigma == 0.0) {
+    let speed_sigma = v.gnss_heading_speed_sigma_mps;
+    let drifts = rig
+        .pose_noise
+        .iter()
+        .any(|l| l.correlation_s(v.gnss_correlation_s) > 0.0);
+    if v.mode != V2xMode::Ideal || (!drifts && speed_sigma == 0.0) {
         return None;
     }
     let seed = rig.seed;
     let poses = rig.pose_noise.iter().map(|level| {
+        let tau_s = level.correlation_s(v.gnss_correlation_s);
         let level = gnss::at_speed(level, o.speed_mps, speed_sigma);
         let pose = if tau_s > 0.0 {
             gnss::drift_error(seed, id_hash, &level, frame.time_s, tau_s).apply(&o.pose)

@@ -110,8 +110,8 @@ mod tests {
         s.v2x.matcher = Method::Oracle;
         let e = frame_matcher(&s).err().unwrap().to_string();
         assert!(e.contains("[v2x] matcher"), "{e}");
-        s.pose_noise.retain(|l| l.label != PoseNoiseLabel::Gps);
-        s.v2x.pose_noise = PoseNoiseLabel::Gps;
+        s.pose_noise.retain(|l| l.label != PoseNoiseLabel::GPS);
+        s.v2x.pose_noise = PoseNoiseLabel::GPS;
         let e = track_level(&s).unwrap_err().to_string();
         assert!(e.contains("pose_noise = \"gps\""), "{e}");
     }

@@ -10,7 +10,7 @@ use crate::sensor::PoseNoiseLabel;
 fn row(method: Method, f1: f64, de: f64, n_instances: u64) -> RunRow {
     let key = RowKey {
         method,
-        pose_noise: PoseNoiseLabel::Gps,
+        pose_noise: PoseNoiseLabel::GPS,
         fusion: FusionVariant::Paper,
     };
     RunRow {
@@ -86,7 +86,7 @@ fn summary_pools_counts_and_means_errors_over_objects() {
     use crate::geometry::Vec2;
     let key = RowKey {
         method: Method::Ours,
-        pose_noise: PoseNoiseLabel::Gps,
+        pose_noise: PoseNoiseLabel::GPS,
         fusion: FusionVariant::Paper,
     };
     let est = |single: f64, fused: f64| ObjectEstimate {

@@ -20,8 +20,11 @@
 pub(crate) mod boxes;
 mod camera;
 mod fleet;
+mod levels;
 pub(crate) mod profile;
 pub mod reid;
+
+pub use levels::PoseNoiseLabel;
 
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
@@ -180,39 +183,41 @@ impl<'de> serde::Deserialize<'de> for AppearanceWidth {
     }
 }
 
-crate::label_enum! { "pose-noise level";
-    /// The pose-noise levels results are reported at.
-    #[strum(serialize_all = "lowercase")]
-    pub enum PoseNoiseLabel {
-        /// Perfect self-localisation.
-        None,
-        /// RTK-class GNSS: 0.2 m / 0.2 deg by default.
-        Rtk,
-        /// Plain GPS as in the DMGM data: 1.2 m / 0.2 deg by default.
-        Gps,
-    }
-}
-
-impl PoseNoiseLabel {
-    /// The level's part of a pose-noise stream name (frozen: changing it
-    /// changes every result).
-    pub(crate) fn stream_code(self) -> u64 {
-        match self {
-            PoseNoiseLabel::None => 0,
-            PoseNoiseLabel::Rtk => 1,
-            PoseNoiseLabel::Gps => 2,
-        }
-    }
-}
-
 /// One pose-noise level: every connected vehicle's reported pose is its true
-/// pose plus independent Gaussian errors, per step.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// pose plus Gaussian errors, drawn afresh per step or drifting with a
+/// correlation time.
+#[derive(Clone, Copy, PartialEq)]
 pub struct PoseNoiseLevel {
     pub label: PoseNoiseLabel,
     /// Standard deviation of the error along each of x and y.
     pub position_sigma_m: f64,
     pub heading_sigma_rad: f64,
+    /// The level's own GNSS correlation time (s) [default: `[v2x]
+    /// gnss_correlation_s`, [`PoseNoiseLevel::correlation_s`]].
+    pub correlation_s: Option<f64>,
+}
+
+impl PoseNoiseLevel {
+    /// The level's GNSS correlation time (s): its own, else `default_s`
+    /// (`[v2x] gnss_correlation_s`); 0 draws the error afresh per step.
+    pub fn correlation_s(&self, default_s: f64) -> f64 {
+        self.correlation_s.unwrap_or(default_s)
+    }
+}
+
+/// As derived, the correlation time shown only when the level has its own
+/// (settings' digests without one stay as they were).
+impl std::fmt::Debug for PoseNoiseLevel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("PoseNoiseLevel");
+        d.field("label", &self.label)
+            .field("position_sigma_m", &self.position_sigma_m)
+            .field("heading_sigma_rad", &self.heading_sigma_rad);
+        if let Some(tau) = &self.correlation_s {
+            d.field("correlation_s", tau);
+        }
+        d.finish()
+    }
 }
 
 /// What the detector reports about an object's look: class (sometimes
@@ -669,27 +674,14 @@ mod tests {
     fn pose_noise_level_none_is_exact() {
         let truth = Pose2::new(Vec2::new(3.0, 4.0), 0.3);
         let level = PoseNoiseLevel {
-            label: PoseNoiseLabel::None,
+            label: PoseNoiseLabel::NONE,
             position_sigma_m: 0.0,
             heading_sigma_rad: 0.0,
+            correlation_s: None,
         };
         let p = reported_pose(&truth, &level, &mut ChaCha8Rng::seed_from_u64(1));
         assert_eq!(p.position_m(), truth.position_m());
         assert!((p.heading_rad() - truth.heading_rad()).abs() < 1e-15);
-    }
-
-    #[test]
-    fn golden_pose_noise_stream_codes_and_labels() {
-        // Part of every pose-noise stream's name: frozen.
-        let levels = [
-            PoseNoiseLabel::None,
-            PoseNoiseLabel::Rtk,
-            PoseNoiseLabel::Gps,
-        ];
-        let codes: Vec<u64> = levels.iter().map(|l| l.stream_code()).collect();
-        assert_eq!(codes, vec![0, 1, 2]);
-        let labels: Vec<&str> = levels.iter().map(|l| l.as_str()).collect();
-        assert_eq!(labels, vec!["none", "rtk", "gps"]);
     }
 
     #[test]

@@ -56,7 +56,7 @@ fn run_with(dists: &[MatchDistribution], grid: &[f64]) -> RunEval {
             },
             fused: vec![],
         };
-        run.record(&e, PoseNoiseLabel::Gps, (&ta, &tb), grid);
+        run.record(&e, PoseNoiseLabel::GPS, (&ta, &tb), grid);
     }
     run
 }
@@ -147,7 +147,7 @@ fn the_paired_table_compares_with_the_strongest_baseline_run_by_run() {
                 (Method::GpsHungarian, base - 5),
                 (Method::GpsAppHungarian, base),
             ] {
-                let key = MethodLevel::new(m, PoseNoiseLabel::Gps);
+                let key = MethodLevel::new(m, PoseNoiseLabel::GPS);
                 run.table1.insert(key, counts(c));
             }
             run
@@ -246,10 +246,10 @@ fn calibration_uses_one_common_set_of_pairs() {
             },
             fused: vec![],
         };
-        run.record_candidates(&e, PoseNoiseLabel::Gps, 0, (&ta, &tb));
+        run.record_candidates(&e, PoseNoiseLabel::GPS, 0, (&ta, &tb));
     }
     run.close_common();
-    let common = |m: Method| run.common.get(&MethodLevel::new(m, PoseNoiseLabel::Gps));
+    let common = |m: Method| run.common.get(&MethodLevel::new(m, PoseNoiseLabel::GPS));
     let ours = common(Method::Ours).unwrap();
     let coid = common(Method::Coid).unwrap();
     // The union of the deep methods' pairs, (0, 0), (0, 1), (1, 1), in

@@ -124,9 +124,10 @@ mod tests {
     #[test]
     fn the_drift_keeps_sigma_and_correlates_over_tau() {
         let level = PoseNoiseLevel {
-            label: PoseNoiseLabel::Gps,
+            label: PoseNoiseLabel::GPS,
             position_sigma_m: 1.2,
             heading_sigma_rad: 0.0035,
+            correlation_s: None,
         };
         let tau = 30.0;
         let n = 3000u64;
@@ -150,9 +151,10 @@ mod tests {
     #[test]
     fn the_heading_error_grows_at_low_speed() {
         let gps = PoseNoiseLevel {
-            label: PoseNoiseLabel::Gps,
+            label: PoseNoiseLabel::GPS,
             position_sigma_m: 1.2,
             heading_sigma_rad: 0.2f64.to_radians(),
+            correlation_s: None,
         };
         let at = |v: f64| at_speed(&gps, v, 0.05).heading_sigma_rad;
         assert!((at(100.0 / 3.6) - gps.heading_sigma_rad).abs() < 0.001);
@@ -165,9 +167,10 @@ mod tests {
         assert!(at(0.0) > at(1.0));
         assert_eq!(at_speed(&gps, 0.0, 0.0), gps);
         let none = PoseNoiseLevel {
-            label: PoseNoiseLabel::None,
+            label: PoseNoiseLabel::NONE,
             position_sigma_m: 0.0,
             heading_sigma_rad: 0.0,
+            correlation_s: None,
         };
         assert_eq!(at_speed(&none, 0.0, 0.05), none);
     }
@@ -177,9 +180,10 @@ mod tests {
     #[test]
     fn gauss_markov_keeps_sigma_and_correlates_over_tau() {
         let level = PoseNoiseLevel {
-            label: PoseNoiseLabel::Gps,
+            label: PoseNoiseLabel::GPS,
             position_sigma_m: 1.2,
             heading_sigma_rad: 0.0035,
+            correlation_s: None,
         };
         let series = |tau: f64| {
             let mut r = ChaCha8Rng::seed_from_u64(3);

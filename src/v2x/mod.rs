@@ -120,7 +120,7 @@ impl Default for V2xSettings {
             gnss_correlation_s: 0.0,
             gnss_heading_speed_sigma_mps: 0.0,
             matcher: Method::GpsAppHungarian,
-            pose_noise: PoseNoiseLabel::Gps,
+            pose_noise: PoseNoiseLabel::GPS,
             compensate_latency: true,
             tracker: tracker::TrackerSettings::default(),
             cpm: cpm::CpmSettings::default(),

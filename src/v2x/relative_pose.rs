@@ -123,9 +123,10 @@ mod tests {
         let mut s = settings();
         s.v2x.association.pose_smoothing = 1.0;
         let gps = PoseNoiseLevel {
-            label: PoseNoiseLabel::Gps,
+            label: PoseNoiseLabel::GPS,
             position_sigma_m: 1.2,
             heading_sigma_rad: 0.01,
+            correlation_s: None,
         };
         let mut still = s.clone();
         still.v2x.association.pose_smoothing = 0.0;

@@ -199,7 +199,7 @@ impl ConnectedVehicle {
             let e = next_error(
                 last.map(|p| p.1),
                 last.map_or(0.0, |p| p.0),
-                ctx.v.gnss_correlation_s,
+                level.correlation_s(ctx.v.gnss_correlation_s),
                 &level,
                 &mut stream,
             );

@@ -53,3 +53,60 @@ fn a_method_that_identifies_nothing_has_undefined_precision() {
         "{md}"
     );
 }
+
+/// A sweep over GNSS sigmas is a config: configs/gnss-sweep.toml's levels
+/// of its own (docs/pipeline.md shows its command), here on a shorter run
+/// with fewer methods. Every level gets its rows; GPS-Hungarian, which
+/// reads the reported poses, loses pairs as the sigma grows, while coid,
+/// on the paper's inputs, scores the same at every level. A level without
+/// sigmas, a name that is no name and sigmas for `none` are refused.
+#[test]
+fn a_gnss_sigma_sweep_needs_only_a_config() {
+    let sweep = std::fs::read_to_string(repo().join("configs/gnss-sweep.toml")).unwrap();
+    let fx = Fixture::new();
+    let extra = "[eval]\ntraffic_seeds = [1, 2]\n\
+                 [matching]\nmethods = [\"gps-hungarian\", \"coid\", \"oracle\"]\n";
+    let cfg = fx.config("sweep.toml", 60.0, &format!("{extra}{sweep}"));
+    assert_ok(&fx.cmd("eval").quiet().config(&cfg).out("sweep").output());
+    let t = read_csv(&fx.path("sweep/table1b.csv"));
+    let (m, l, f1) = (strs(&t, "method"), strs(&t, "pose_noise"), f64s(&t, "f1"));
+    let at = |method: &str, level: &str| {
+        (0..t.height())
+            .find(|&i| m[i] == method && l[i] == level)
+            .map(|i| f1[i])
+            .unwrap_or_else(|| panic!("no row {method} at {level}"))
+    };
+    let gps = |level: &str| at("gps-hungarian", level);
+    assert!(
+        gps("gnss-0.5m") > gps("gnss-2m") && gps("gnss-2m") > gps("gnss-4m"),
+        "GPS-Hungarian F1 by sigma: {} {} {} {}",
+        gps("gnss-0.5m"),
+        gps("gnss-1m"),
+        gps("gnss-2m"),
+        gps("gnss-4m")
+    );
+    let t1 = read_csv(&fx.path("sweep/table1.csv"));
+    let coid: Vec<f64> = (0..t1.height())
+        .filter(|&i| strs(&t1, "method")[i] == "coid")
+        .map(|i| f64s(&t1, "f1")[i])
+        .collect();
+    assert_eq!(coid.len(), 5, "coid's rows: {coid:?}");
+    assert!(coid.iter().all(|f| *f == coid[0]), "{coid:?}");
+    for (body, expect) in [
+        (
+            "[pose_noise]\nlevels = [\"none\", \"gnss-3m\"]\n",
+            "level gnss-3m has no sigmas: add \"gnss-3m\" = {",
+        ),
+        (
+            "[pose_noise]\nlevels = [\"GNSS 3m\"]\n",
+            "'GNSS 3m' is no pose-noise level's name",
+        ),
+        (
+            "[pose_noise]\nnone = { position_sigma_m = 1.0, heading_sigma_deg = 0.0 }\n",
+            "level none is exact self-localisation",
+        ),
+    ] {
+        let bad = fx.config("bad.toml", 60.0, body);
+        assert_refused_unwritten(&fx.run(&bad, "bad"), expect, &fx.path("bad"));
+    }
+}
