@@ -286,3 +286,37 @@ pub(crate) fn dataset_matches<'py>(
     )?;
     Ok(columns)
 }
+
+/// A dataset folder from its files' frames, each as a Parquet file's
+/// bytes (`edges.parquet` coid computes), checked by coid's reader before
+/// the folder appears; the folder and the line it printed back.
+#[pyfunction]
+#[pyo3(signature = (out, runs, instances, nodes, truth, true_pairs, force=false))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn write_dataset(
+    py: Python<'_>,
+    out: PathBuf,
+    runs: &[u8],
+    instances: &[u8],
+    nodes: &[u8],
+    truth: &[u8],
+    true_pairs: &[u8],
+    force: bool,
+) -> PyResult<(PathBuf, String)> {
+    let request = coid_sim::commands::WriteDatasetRequest {
+        out,
+        force,
+        frames: coid_sim::commands::DatasetFrames {
+            runs: runs.to_vec(),
+            instances: instances.to_vec(),
+            nodes: nodes.to_vec(),
+            truth: truth.to_vec(),
+            true_pairs: true_pairs.to_vec(),
+        },
+    };
+    coid_sim::cli::report_panics_in_one_line();
+    let report = interruptible(py, || coid_sim::commands::write_dataset(&request))?;
+    let line = report.line();
+    eprintln!("{line}");
+    Ok((report.folder, line))
+}

@@ -199,15 +199,20 @@ fn instance<'py>(
         level.set_item("label", l.label.as_str())?;
         level.set_item("position_sigma_m", l.position_sigma_m)?;
         level.set_item("heading_sigma_rad", l.heading_sigma_rad.to_vec())?;
-        let poses: Vec<[f64; 3]> = l.reported.iter().map(pose).collect();
+        let poses: Vec<[f64; 3]> = (0..2)
+            .map(|s| pose(&l.reported[s], l.reported_heading_rad[s]))
+            .collect();
         level.set_item("reported", poses)?;
         levels.append(level)?;
     }
     d.set_item("levels", levels)?;
-    let true_poses: Vec<Option<[f64; 3]>> = inst
-        .true_poses
-        .iter()
-        .map(|p| p.as_ref().map(pose))
+    let true_poses: Vec<Option<[f64; 3]>> = (0..2)
+        .map(|s| {
+            Some(pose(
+                inst.true_poses[s].as_ref()?,
+                inst.true_heading_rad[s]?,
+            ))
+        })
         .collect();
     d.set_item("true_poses", true_poses)?;
     let sides = PyList::empty(py);
@@ -219,9 +224,10 @@ fn instance<'py>(
     Ok(d)
 }
 
-fn pose(p: &coid_sim::geometry::Pose2) -> [f64; 3] {
+/// A pose as (x, y, heading), the heading as the dataset gives it.
+fn pose(p: &coid_sim::geometry::Pose2, heading_rad: f64) -> [f64; 3] {
     let t = p.position_m();
-    [t.x, t.y, p.heading_rad()]
+    [t.x, t.y, heading_rad]
 }
 
 /// One vehicle's nodes, column by column: a column the dataset lacks is
@@ -461,12 +467,14 @@ impl PublishedNetwork {
 fn _coid_sim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("CoidError", m.py().get_type::<CoidError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("SCHEMA_VERSION", coid_sim::dataset::SCHEMA_VERSION)?;
     m.add_function(wrap_pyfunction!(main, m)?)?;
     m.add_function(wrap_pyfunction!(call, m)?)?;
     m.add_function(wrap_pyfunction!(commands::run, m)?)?;
     m.add_function(wrap_pyfunction!(commands::export, m)?)?;
     m.add_function(wrap_pyfunction!(commands::score, m)?)?;
     m.add_function(wrap_pyfunction!(commands::dataset_matches, m)?)?;
+    m.add_function(wrap_pyfunction!(commands::write_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(toml_of_json, m)?)?;
     m.add_function(wrap_pyfunction!(delaunay, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;

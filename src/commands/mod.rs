@@ -6,7 +6,7 @@
 //! show or not. Errors are `anyhow` chains whose one line
 //! (`cli::one_line`) is what `coid` prints.
 //!
-//! `run`, `export` and `score` are typed; the other commands are reached
+//! `run`, `export`, `score` and `write_dataset` are typed; the other commands are reached
 //! through `cli`.
 
 use std::path::{Path, PathBuf};
@@ -16,11 +16,13 @@ use crate::pipeline::Progress;
 use crate::sensor::reid::ReidSettings;
 use crate::{render, tables};
 
+pub mod dataset;
 pub mod export;
 pub mod run;
 pub mod score;
 
 pub use crate::export::Split;
+pub use dataset::{DatasetFrames, WriteDatasetReport, WriteDatasetRequest, write_dataset};
 pub use export::{ExportReport, ExportRequest, MatchesRequest, export, matches};
 pub use run::{RunReport, RunRequest, run};
 pub use score::{Matches, ScoreReport, ScoreRequest, score};

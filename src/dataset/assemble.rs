@@ -19,19 +19,22 @@ pub(super) fn instance_of(rows: &[Instance]) -> DatasetInstance {
     let pose = |x: Option<f64>, y: Option<f64>, h: Option<f64>| {
         Some(Pose2::new(Vec2::new(x?, y?), h?)).filter(|p| p.position_m().x.is_finite())
     };
+    let true_poses = [
+        pose(r.first_true_x_m, r.first_true_y_m, r.first_true_heading_rad),
+        pose(
+            r.second_true_x_m,
+            r.second_true_y_m,
+            r.second_true_heading_rad,
+        ),
+    ];
+    let true_heading_rad = [r.first_true_heading_rad, r.second_true_heading_rad];
     DatasetInstance {
         instance: r.instance,
         step: r.step,
         time_s: r.time_s,
         levels: Vec::new(),
-        true_poses: [
-            pose(r.first_true_x_m, r.first_true_y_m, r.first_true_heading_rad),
-            pose(
-                r.second_true_x_m,
-                r.second_true_y_m,
-                r.second_true_heading_rad,
-            ),
-        ],
+        true_poses,
+        true_heading_rad: [0, 1].map(|s| true_heading_rad[s].filter(|_| true_poses[s].is_some())),
         sides: [
             DatasetSide {
                 id: r.first_id.clone(),
@@ -252,12 +255,18 @@ pub(super) fn set_poses(
                 )
             })?;
         }
+        let as_given = [r.first_heading_rad, r.second_heading_rad];
+        let heading = |s: usize| match (given[s], as_given[s]) {
+            (Some(_), Some(h)) => h,
+            _ => reported[s].heading_rad(),
+        };
         inst.levels.push(InstanceLevel {
             label: crate::label::parse("pose-noise level", &r.pose_noise)
                 .expect("checked when opened"),
             position_sigma_m: r.position_sigma_m,
             heading_sigma_rad: [r.first_heading_sigma_rad, r.second_heading_sigma_rad],
             reported,
+            reported_heading_rad: [heading(0), heading(1)],
         });
     }
     for s in 0..2 {

@@ -10,6 +10,7 @@ mod check;
 pub(crate) mod convert;
 pub mod read;
 pub(crate) mod schema;
+pub mod write;
 
 pub use read::Dataset;
 

@@ -72,6 +72,8 @@ pub struct DatasetInstance {
     pub levels: Vec<InstanceLevel>,
     /// Each vehicle's true pose (world frame), where the source knows it.
     pub true_poses: [Option<Pose2>; 2],
+    /// Their headings as the file gives them.
+    pub true_heading_rad: [Option<f64>; 2],
     pub sides: [DatasetSide; 2],
     /// Node `a` of the first vehicle is node `b` of the second.
     pub true_pairs: Vec<(usize, usize)>,
@@ -85,6 +87,10 @@ pub struct InstanceLevel {
     pub position_sigma_m: f64,
     pub heading_sigma_rad: [f64; 2],
     pub reported: [Pose2; 2],
+    /// Each reported heading as the file gives it (a pose keeps its
+    /// heading as a rotation, which may read back one ulp off), else the
+    /// fitted pose's.
+    pub reported_heading_rad: [f64; 2],
 }
 
 #[derive(Debug, Default)]

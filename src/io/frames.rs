@@ -513,7 +513,26 @@ pub fn read_dataset_table(
         .with_slice(rows)
         .finish()
         .map_err(text)?;
-    let first_row = rows.map_or(0, |r| r.0);
+    dataset_table_of(&df, columns, rows.map_or(0, |r| r.0))
+}
+
+/// A dataset file's table given as a Parquet file's bytes (a frame handed
+/// over in memory), its `columns` read and checked as
+/// [`read_dataset_table`] reads a file's.
+pub fn read_dataset_table_parquet(bytes: &[u8], columns: &[(&str, &str)]) -> Result<Table, String> {
+    let df = ParquetReader::new(std::io::Cursor::new(bytes))
+        .finish()
+        .map_err(first_line)?;
+    dataset_table_of(&df, columns, 0)
+}
+
+/// The `columns` of a dataset file's frame `df` (its first row being row
+/// `first_row` of the file) as a table.
+fn dataset_table_of(
+    df: &DataFrame,
+    columns: &[(&str, &str)],
+    first_row: usize,
+) -> Result<Table, String> {
     let mut out = Table::default();
     for &(name, ty) in columns {
         let ty = ty.replace(' ', "");

@@ -82,11 +82,28 @@ impl TablesFolder {
 
     /// Completes every file, adds `texts` and publishes the folder.
     pub fn finish(self, texts: &[(&str, String)]) -> Result<(), OutputError> {
+        self.finish_checked(texts, |_| Ok::<(), std::convert::Infallible>(()))?
+            .unwrap_or_else(|never| match never {});
+        Ok(())
+    }
+
+    /// Completes every file and adds `texts`, then publishes the folder
+    /// only if `check` accepts it as it stands complete (read from its
+    /// staging folder); refused, nothing is left behind and the refusal is
+    /// returned.
+    pub fn finish_checked<E>(
+        self,
+        texts: &[(&str, String)],
+        check: impl FnOnce(&Path) -> Result<(), E>,
+    ) -> Result<Result<(), E>, OutputError> {
         for (_, w) in self.files {
             w.finish()?;
         }
         write_texts(self.claim.dir(), texts)?;
-        self.claim.publish()
+        if let Err(refused) = check(self.claim.dir()) {
+            return Ok(Err(refused));
+        }
+        self.claim.publish().map(Ok)
     }
 }
 

@@ -27,12 +27,14 @@ from . import _coid_sim
 from ._coid_sim import CoidError
 from .dataset import Dataset, Instance, Level, Match, Side
 from .results import Results
+from .writer import DatasetWriter
 
 __version__: str = _coid_sim.__version__
 
 __all__ = [
     "CoidError",
     "Dataset",
+    "DatasetWriter",
     "Instance",
     "Level",
     "Match",
@@ -42,6 +44,7 @@ __all__ = [
     "export",
     "run",
     "score",
+    "write_dataset",
 ]
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -245,3 +248,53 @@ def score(
         quiet=quiet,
     )
     return Results(Path(folder), line)
+
+
+def _parquet(frame: Any, name: str) -> bytes:
+    """A polars or pandas frame as a Parquet file's bytes (no file)."""
+    if not isinstance(frame, pl.DataFrame):
+        if type(frame).__module__.split(".")[0] != "pandas":
+            raise CoidError(f"{name} must be a polars or pandas frame, not {type(frame).__name__}")
+        frame = pl.from_pandas(frame)
+    buffer = io.BytesIO()
+    frame.write_parquet(buffer)
+    return buffer.getvalue()
+
+
+def write_dataset(
+    out: PathLike,
+    *,
+    runs: Any,
+    instances: Any,
+    nodes: Any,
+    truth: Any,
+    true_pairs: Any,
+    force: bool = False,
+    config: Config = None,
+) -> Dataset:
+    """Writes a dataset folder from its files' frames (polars or pandas),
+    whatever the data's source: the columns of docs/export-schema.md,
+    ``edges.parquet`` computed by coid. ``runs`` may leave out
+    ``schema_version`` and ``config_digest`` (this coid's version, and
+    empty). Nothing is written unless coid's own reader accepts every run
+    (:class:`CoidError` says why); the same instances written by ``coid
+    export`` give the same bytes. Returns the dataset, opened (with
+    ``config`` for its matchers' settings).
+    :class:`DatasetWriter` builds the frames from per-vehicle arrays."""
+    if isinstance(runs, pl.DataFrame) or type(runs).__module__.split(".")[0] == "pandas":
+        frame = runs if isinstance(runs, pl.DataFrame) else pl.from_pandas(runs)
+        if "schema_version" not in frame.columns:
+            frame = frame.with_columns(pl.lit(_coid_sim.SCHEMA_VERSION, pl.UInt64).alias("schema_version"))
+        if "config_digest" not in frame.columns:
+            frame = frame.with_columns(pl.lit("", pl.String).alias("config_digest"))
+        runs = frame
+    folder, _line = _coid_sim.write_dataset(
+        os.fspath(out),
+        _parquet(runs, "runs"),
+        _parquet(instances, "instances"),
+        _parquet(nodes, "nodes"),
+        _parquet(truth, "truth"),
+        _parquet(true_pairs, "true_pairs"),
+        force=force,
+    )
+    return Dataset(Path(folder), config=config)

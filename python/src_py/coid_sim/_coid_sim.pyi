@@ -3,6 +3,7 @@
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 __version__: str
+SCHEMA_VERSION: int
 
 class CoidError(Exception):
     """coid refused its input or failed; the message is the line the
@@ -35,6 +36,10 @@ def dataset_matches(dataset: str, method: str, config: Optional[str] = None, con
     """A built-in method's matches on every run of a dataset as columns
     (run, instance, pose_noise, a, b, probability, uncertainty), held in
     memory. Raises CoidError."""
+
+def write_dataset(out: str, runs: bytes, instances: bytes, nodes: bytes, truth: bytes, true_pairs: bytes, force: bool = False) -> Tuple[str, str]:
+    """A dataset folder from its files' frames as Parquet bytes, checked
+    by coid's reader before it appears. Raises CoidError."""
 
 def toml_of_json(json: str) -> str:
     """A JSON object as TOML text. Raises CoidError."""
