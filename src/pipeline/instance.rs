@@ -10,9 +10,10 @@ use crate::geometry::{Pose2, Vec2};
 use crate::graph::SceneGraph;
 use crate::matching::MatchView;
 use crate::rng::{self, Purpose};
-use crate::sensor::{self, PoseNoiseLabel, PoseNoiseLevel, Sensed};
+use crate::sensor::gnss;
+use crate::sensor::{PoseNoiseLabel, PoseNoiseLevel, Sensed};
 use crate::traffic::{StaticScene, TrafficFrame};
-use crate::v2x::{ReceptionSide, Sensing, ViewSource, gnss};
+use crate::v2x::{ReceptionSide, Sensing, ViewSource};
 
 /// One side of an instance: a connected vehicle near the junction at one
 /// step, with what it sees; or, with `[v2x] mode = "cpm"`, one side of a
@@ -137,12 +138,13 @@ impl InstanceSide {
                 .map(|(_, p)| *p)
                 .expect("a side carries a pose at every level of its run");
         }
-        let mut s = rng::stream(
+        gnss::white_pose(
             sensor_seed,
-            Purpose::PoseNoise,
-            &[step, self.id_hash, level.label.stream_code()],
-        );
-        sensor::reported_pose(&self.sensed.truth.ego_pose, level, &mut s)
+            step,
+            self.id_hash,
+            level,
+            &self.sensed.truth.ego_pose,
+        )
     }
 }
 

@@ -14,13 +14,14 @@ use crate::config::Settings;
 use crate::evaluate;
 use crate::geometry::{Pose2, Vec2};
 use crate::rng::{self, Purpose};
+use crate::sensor::gnss;
 use crate::sensor::profile::DetectorSettings;
 use crate::sensor::{
     self, CameraSettings, ConnectedSelection, LinkSettings, PoseNoiseLabel, PoseNoiseLevel, Sensed,
     SensorSettings,
 };
 use crate::traffic::{StaticScene, TrafficFrame, TrafficObject};
-use crate::v2x::{Receptions, Setup, V2xMode, V2xSettings, ViewSource, gnss, true_centres};
+use crate::v2x::{Receptions, Setup, V2xMode, V2xSettings, ViewSource, true_centres};
 
 /// What sensing reads of the settings: which vehicles carry the rig and
 /// within which radius of the junction they sense, what they sense with
@@ -525,29 +526,23 @@ fn ideal_gnss(
     id_hash: u64,
 ) -> Option<Vec<(PoseNoiseLabel, Pose2)>> {
     let v = rig.v2x;
-    let speed_sigma = v.gnss_heading_speed_sigma_mps;
-    let drifts = rig
-        .pose_noise
-        .iter()
-        .any(|l| l.correlation_s(v.gnss_correlation_s) > 0.0);
-    if v.mode != V2xMode::Ideal || (!drifts && speed_sigma == 0.0) {
+    if v.mode != V2xMode::Ideal {
         return None;
     }
-    let seed = rig.seed;
-    let poses = rig.pose_noise.iter().map(|level| {
-        let tau_s = level.correlation_s(v.gnss_correlation_s);
-        let level = gnss::at_speed(level, o.speed_mps, speed_sigma);
-        let pose = if tau_s > 0.0 {
-            gnss::drift_error(seed, id_hash, &level, frame.time_s, tau_s).apply(&o.pose)
-        } else {
-            // The white model's own stream, with the heading at speed.
-            let code = level.label.stream_code();
-            let mut s = rng::stream(seed, Purpose::PoseNoise, &[frame.step, id_hash, code]);
-            sensor::reported_pose(&o.pose, &level, &mut s)
-        };
-        (level.label, pose)
-    });
-    Some(poses.collect())
+    let at = gnss::VehicleAt {
+        seed: rig.seed,
+        step: frame.step,
+        time_s: frame.time_s,
+        vehicle_hash: id_hash,
+        speed_mps: o.speed_mps,
+    };
+    gnss::ideal_poses(
+        at,
+        rig.pose_noise,
+        v.gnss_correlation_s,
+        v.gnss_heading_speed_sigma_mps,
+        &o.pose,
+    )
 }
 
 #[cfg(test)]

@@ -20,14 +20,15 @@
 pub(crate) mod boxes;
 mod camera;
 mod fleet;
+pub mod gnss;
 mod levels;
 pub(crate) mod profile;
 pub mod reid;
 
+pub use gnss::reported_pose;
 pub use levels::PoseNoiseLabel;
 
 use rand::Rng;
-use rand_distr::{Distribution, Normal};
 
 use crate::geometry::{Cov2, Pose2, Vec2};
 use crate::traffic::{ObjectClass, TrafficObject};
@@ -438,27 +439,6 @@ impl Sensed {
             .map(|&k| self.truth.detections[k].clone())
             .collect();
     }
-}
-
-/// The pose a vehicle's GPS reports: the true pose plus independent Gaussian
-/// errors on x, y and heading at the given level.
-pub(crate) fn reported_pose(truth: &Pose2, level: &PoseNoiseLevel, rng: &mut impl Rng) -> Pose2 {
-    let n = |sigma: f64, rng: &mut _| {
-        if sigma > 0.0 {
-            Normal::new(0.0, sigma)
-                .map(|d| d.sample(rng))
-                .unwrap_or(0.0)
-        } else {
-            0.0
-        }
-    };
-    let dx = n(level.position_sigma_m, rng);
-    let dy = n(level.position_sigma_m, rng);
-    let dh = n(level.heading_sigma_rad, rng);
-    Pose2::new(
-        truth.position_m() + Vec2::new(dx, dy),
-        truth.heading_rad() + dh,
-    )
 }
 
 #[cfg(test)]

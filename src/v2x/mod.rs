@@ -4,7 +4,7 @@
 //! loses them (`channel`), GNSS error correlated in time (`gnss`), and the
 //! receivers' association of track ids over messages (`receiver`). Its
 //! simulation, step by step ([`Context`], `context`): each vehicle tracks,
-//! steps its GNSS and sends (`vehicle`, `message`), the messages go over
+//! steps its GNSS (`sensor::gnss`) and sends (`vehicle`, `message`), the messages go over
 //! the channel (`delivery`, `fleet`); a receiver keeps what it knows of each
 //! peer (`peer`): both sides' views (`views`), the relative pose over time
 //! (`relative_pose`), the association scored against the truth
@@ -12,7 +12,7 @@
 //! `coid track`'s state over a run is `tracking`, with its counts
 //! (`counts`); `[v2x] mode = "cpm"` runs make the messages that arrived
 //! their instances' sides (`receptions`). `[v2x] mode = "ideal"` (the
-//! default) uses only `gnss`: a peer's detections arrive at once, at every
+//! default) uses none of them: a peer's detections arrive at once, at every
 //! step.
 
 pub mod channel;
@@ -22,7 +22,6 @@ pub mod cpm;
 mod delivery;
 mod estimates;
 mod fleet;
-pub mod gnss;
 mod message;
 mod pair_history;
 mod peer;

@@ -12,7 +12,6 @@ use super::context::Context;
 use super::counts::OverTimeCounts;
 use super::cpm::PerceivedObject;
 use super::estimates::{RecursiveFusion, fuse_pairs};
-use super::gnss::at_speed;
 use super::message::{Sent, TrackLabel};
 use super::pair_history::PairHistory;
 use super::receiver::Association;
@@ -23,6 +22,7 @@ use crate::geometry::{Pose2, Vec2, rotate_cov};
 use crate::graph::{GraphError, SceneGraph};
 use crate::matching::{MatchView, Matcher};
 use crate::sensor::Detection;
+use crate::sensor::gnss::at_speed;
 
 /// What a receiver knows of one peer.
 #[derive(Default)]

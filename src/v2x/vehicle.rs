@@ -9,11 +9,10 @@ use super::V2xSettings;
 use super::context::{Context, Sensing};
 use super::counts::VehicleTracking;
 use super::cpm::{CpmGenerator, PerceivedObject, TrackSnapshot};
-use super::gnss::{GnssError, at_speed, next_error};
 use super::message::{Sent, TrackLabel};
 use super::tracker::{MotCounter, TrackMeasurement, Tracker};
 use crate::geometry::{Cov2, Pose2, Vec2};
-use crate::rng::{self, Purpose};
+use crate::sensor::gnss::{self, GnssError, at_speed, next_error};
 use crate::sensor::{Detection, DetectionTruth};
 
 /// A track within this distance of an object counts as tracking it
@@ -189,11 +188,7 @@ impl ConnectedVehicle {
         let previous = std::mem::take(&mut self.gnss);
         self.reported.clear();
         for (k, level) in ctx.levels.iter().enumerate() {
-            let mut stream = rng::stream(
-                ctx.sensor_seed,
-                Purpose::PoseNoise,
-                &[ctx.step, side.id_hash, level.label.stream_code()],
-            );
+            let mut stream = gnss::stream(ctx.sensor_seed, ctx.step, side.id_hash, level);
             let last = previous.get(k).map(|&(t, e)| (ctx.time_s - t, e));
             let level = at_speed(level, side.speed_mps, ctx.v.gnss_heading_speed_sigma_mps);
             let e = next_error(

@@ -1,9 +1,12 @@
-//! GNSS pose error correlated in time: a first-order Gauss-Markov process
-//! per axis (x, y, heading), `e(t + dt) = a e(t) + sqrt(1 - a²) sigma w`,
-//! `a = exp(-dt / tau)`, started from its stationary distribution, so
-//! every step has the level's sigma and errors decorrelate over `tau`.
-//! `tau = 0` (`[v2x] gnss_correlation_s = 0`, the default) gives
-//! independent errors per step.
+//! The GNSS error of a vehicle's reported pose, every model of it in one
+//! place: independent Gaussian errors per step at a pose-noise level
+//! ([`reported_pose`]), or errors correlated in time, a first-order
+//! Gauss-Markov process per axis (x, y, heading), `e(t + dt) = a e(t) +
+//! sqrt(1 - a²) sigma w`, `a = exp(-dt / tau)`, started from its
+//! stationary distribution, so that every step has the level's sigma and
+//! errors decorrelate over `tau` (a level's `correlation_s`, else `[v2x]
+//! gnss_correlation_s`; 0, the default, gives independent errors per
+//! step).
 //!
 //! The `cpm` mode steps the process frame by frame ([`next_error`]); the
 //! `ideal` mode, which senses only at sampled steps, takes it as a pure
@@ -11,11 +14,101 @@
 //! both, the heading error may grow at low speed ([`at_speed`]).
 
 use rand::Rng;
-use rand_distr::{Distribution, StandardNormal};
+use rand_distr::{Distribution, Normal, StandardNormal};
 
 use crate::geometry::{Pose2, Vec2};
 use crate::rng::{self, Purpose};
 use crate::sensor::PoseNoiseLevel;
+
+/// The pose a vehicle's GPS reports: the true pose plus independent Gaussian
+/// errors on x, y and heading at the given level.
+pub fn reported_pose(truth: &Pose2, level: &PoseNoiseLevel, rng: &mut impl Rng) -> Pose2 {
+    let n = |sigma: f64, rng: &mut _| {
+        if sigma > 0.0 {
+            Normal::new(0.0, sigma)
+                .map(|d| d.sample(rng))
+                .unwrap_or(0.0)
+        } else {
+            0.0
+        }
+    };
+    let dx = n(level.position_sigma_m, rng);
+    let dy = n(level.position_sigma_m, rng);
+    let dh = n(level.heading_sigma_rad, rng);
+    Pose2::new(
+        truth.position_m() + Vec2::new(dx, dy),
+        truth.heading_rad() + dh,
+    )
+}
+
+/// The stream of a vehicle's GNSS draws at `step` and `level` (named by
+/// the seed, the step, the vehicle and the level: the same whichever other
+/// vehicles or levels were drawn).
+pub fn stream(
+    seed: u64,
+    step: u64,
+    vehicle_hash: u64,
+    level: &PoseNoiseLevel,
+) -> rand_chacha::ChaCha8Rng {
+    rng::stream(
+        seed,
+        Purpose::PoseNoise,
+        &[step, vehicle_hash, level.label.stream_code()],
+    )
+}
+
+/// The pose the white model reports for a vehicle at `step` and `level`
+/// ([`reported_pose`] from the vehicle's own [`stream`]).
+pub fn white_pose(
+    seed: u64,
+    step: u64,
+    vehicle_hash: u64,
+    level: &PoseNoiseLevel,
+    truth: &Pose2,
+) -> Pose2 {
+    reported_pose(truth, level, &mut stream(seed, step, vehicle_hash, level))
+}
+
+/// A vehicle at one step, as its GNSS draws name it.
+#[derive(Clone, Copy, Debug)]
+pub struct VehicleAt {
+    pub seed: u64,
+    pub step: u64,
+    pub time_s: f64,
+    pub vehicle_hash: u64,
+    /// Its speed over ground (m/s): the heading error may grow below it.
+    pub speed_mps: f64,
+}
+
+/// The pose a vehicle reports at every level of `levels` when the `ideal`
+/// mode draws them at sensing: each level drifting over its correlation
+/// time (a level's own, else `default_tau_s`) or white, its heading error
+/// grown at low speed by `speed_sigma_mps`; `None` when every level is
+/// white and the heading error fixed (the pose is then drawn when asked,
+/// [`white_pose`]: the shipped results).
+pub fn ideal_poses(
+    at: VehicleAt,
+    levels: &[PoseNoiseLevel],
+    default_tau_s: f64,
+    speed_sigma_mps: f64,
+    truth: &Pose2,
+) -> Option<Vec<(crate::sensor::PoseNoiseLabel, Pose2)>> {
+    let drifts = levels.iter().any(|l| l.correlation_s(default_tau_s) > 0.0);
+    if !drifts && speed_sigma_mps == 0.0 {
+        return None;
+    }
+    let poses = levels.iter().map(|level| {
+        let tau_s = level.correlation_s(default_tau_s);
+        let level = at_speed(level, at.speed_mps, speed_sigma_mps);
+        let pose = if tau_s > 0.0 {
+            drift_error(at.seed, at.vehicle_hash, &level, at.time_s, tau_s).apply(truth)
+        } else {
+            white_pose(at.seed, at.step, at.vehicle_hash, &level, truth)
+        };
+        (level.label, pose)
+    });
+    Some(poses.collect())
+}
 
 /// Below this speed a course-over-ground heading is as bad as at it
 /// (m/s; GNSS receivers call course over ground erratic below about 0.75
@@ -211,5 +304,61 @@ mod tests {
                 "tau {tau}: lag {lag} vs {expect}"
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod level_tests {
+    use super::*;
+    use crate::sensor::PoseNoiseLabel;
+
+    /// In the `ideal` mode a level drifts over its own correlation time
+    /// while another stays white; with no level drifting and a fixed
+    /// heading error, the poses are drawn when asked (`None`).
+    #[test]
+    fn each_level_drifts_over_its_own_correlation_time() {
+        let white = PoseNoiseLevel {
+            label: PoseNoiseLabel::GPS,
+            position_sigma_m: 1.2,
+            heading_sigma_rad: 0.01,
+            correlation_s: None,
+        };
+        let drifting = PoseNoiseLevel {
+            label: PoseNoiseLabel::RTK,
+            correlation_s: Some(20.0),
+            ..white
+        };
+        let truth = Pose2::new(Vec2::new(10.0, -4.0), 0.3);
+        let at = VehicleAt {
+            seed: 5,
+            step: 40,
+            time_s: 4.0,
+            vehicle_hash: 77,
+            speed_mps: 8.0,
+        };
+        assert_eq!(ideal_poses(at, &[white], 0.0, 0.0, &truth), None);
+        let poses = ideal_poses(at, &[white, drifting], 0.0, 0.0, &truth).unwrap();
+        assert_eq!(
+            poses[0],
+            (white.label, white_pose(5, 40, 77, &white, &truth))
+        );
+        let drift = drift_error(5, 77, &drifting, 4.0, 20.0).apply(&truth);
+        assert_eq!(poses[1], (drifting.label, drift));
+        // A step later the drifting level has barely moved; the white one
+        // is drawn afresh.
+        let later = ideal_poses(
+            VehicleAt {
+                step: 41,
+                time_s: 4.1,
+                ..at
+            },
+            &[white, drifting],
+            0.0,
+            0.0,
+            &truth,
+        )
+        .unwrap();
+        let moved = |a: &Pose2, b: &Pose2| (a.position_m() - b.position_m()).norm();
+        assert!(moved(&later[1].1, &poses[1].1) < 0.2 * moved(&later[0].1, &poses[0].1));
     }
 }
