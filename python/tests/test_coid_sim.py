@@ -694,3 +694,16 @@ def test_the_kitti_tracking_example_writes_a_dataset_coid_accepts(short_export: 
                 assert lv.reported == theirs.level("gps").reported
                 expected = theirs.first.xy_m
             assert np.abs(mine.first.xy_m - expected).max() < 1e-5
+
+
+def test_the_dataset_writer_refuses_a_step_whose_instances_differ_in_levels(short_export: coid_sim.Dataset, tmp_path: Path) -> None:
+    inst = next(iter(short_export.instances("test")))
+    w = coid_sim.DatasetWriter()
+    run = w.add_run("test", "mine")
+    w.add_instance(run, step=3, first=inst.first, second=inst.second, levels=inst.levels)
+    w.add_instance(run, step=3, first=inst.first, second=inst.second, levels=inst.levels[:1])
+    with pytest.raises(coid_sim.CoidError, match=r"the instances of run 0 at step 3 have different pose-noise levels"):
+        w.write(tmp_path / "mine")
+    assert not (tmp_path / "mine").exists()
+    with pytest.raises(coid_sim.CoidError, match=r"no run 1 \(add_run first: 1 runs\)"):
+        w.add_instance(1, step=0, first=inst.first, second=inst.second, levels=inst.levels)

@@ -92,6 +92,9 @@ class DatasetWriter:
                 while frame < len(added) and added[frame]["step"] == added[k]["step"]:
                     frame += 1
                 group = list(enumerate(added[k:frame], start=k))
+                labels = [tuple(lv.label for lv in inst["levels"]) for _, inst in group]
+                if len(set(labels)) > 1:
+                    raise CoidError(f"the instances of run {run} at step {added[k]['step']} have different pose-noise levels ({', '.join('/'.join(l) for l in dict.fromkeys(labels))}): give every instance of a step the same levels")
                 for i, inst in group:
                     for s, side in enumerate((inst["first"], inst["second"])):
                         _add_side(nodes, truth, run, i, s, side)
