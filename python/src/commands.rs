@@ -81,15 +81,29 @@ pub(crate) fn run(
         traffic_seed,
         sensor_seed,
     };
-    coid_sim::cli::report_panics_in_one_line();
-    let report = interruptible(py, || {
-        let mut bars = coid_sim::cli::Bars::new(quiet, "running");
-        let report = coid_sim::commands::run(&request, |e| bars.show(e));
-        bars.clear();
-        report
+    let report = with_bars(py, quiet, "running", |on| {
+        coid_sim::commands::run(&request, on)
     })?;
     let line = coid_sim::cli::print_report(&report);
     Ok((report.folder, line))
+}
+
+/// Runs a typed command in its own thread ([`interruptible`]), its
+/// events shown as `coid` shows them (`cli::Bars`: "`doing`: run 3/10")
+/// unless `quiet`; a panic reported in one line.
+fn with_bars<T: Send>(
+    py: Python<'_>,
+    quiet: bool,
+    doing: &'static str,
+    work: impl FnOnce(&mut dyn FnMut(coid_sim::commands::Event)) -> anyhow::Result<T> + Send,
+) -> PyResult<T> {
+    coid_sim::cli::report_panics_in_one_line();
+    interruptible(py, || {
+        let mut bars = coid_sim::cli::Bars::new(quiet, doing);
+        let done = work(&mut |e| bars.show(e));
+        bars.clear();
+        done
+    })
 }
 
 /// A configuration as the typed commands take it: a file, TOML text in
@@ -159,12 +173,8 @@ pub(crate) fn export(
         with_matches: labels("method", &with_matches).map_err(CoidError::new_err)?,
         dataset,
     };
-    coid_sim::cli::report_panics_in_one_line();
-    let report = interruptible(py, || {
-        let mut bars = coid_sim::cli::Bars::new(quiet, "exporting");
-        let report = coid_sim::commands::export(&request, |e| bars.show(e));
-        bars.clear();
-        report
+    let report = with_bars(py, quiet, "exporting", |on| {
+        coid_sim::commands::export(&request, on)
     })?;
     let line = coid_sim::cli::print_export(&report);
     Ok((report.folder, line))
@@ -217,12 +227,8 @@ pub(crate) fn score(
         dataset,
         split: coid_sim::commands::label("split", split).map_err(CoidError::new_err)?,
     };
-    coid_sim::cli::report_panics_in_one_line();
-    let report = interruptible(py, || {
-        let mut bars = coid_sim::cli::Bars::new(quiet, "scoring");
-        let report = coid_sim::commands::score(&request, |e| bars.show(e));
-        bars.clear();
-        report
+    let report = with_bars(py, quiet, "scoring", |on| {
+        coid_sim::commands::score(&request, on)
     })?;
     let line = coid_sim::cli::print_score(&report);
     Ok((report.folder, line))
@@ -255,12 +261,8 @@ pub(crate) fn dataset_matches<'py>(
         method: coid_sim::commands::label("method", method).map_err(CoidError::new_err)?,
         threads,
     };
-    coid_sim::cli::report_panics_in_one_line();
-    let rows = interruptible(py, || {
-        let mut bars = coid_sim::cli::Bars::new(quiet, "matching");
-        let rows = coid_sim::commands::matches(&request, |e| bars.show(e));
-        bars.clear();
-        rows
+    let rows = with_bars(py, quiet, "matching", |on| {
+        coid_sim::commands::matches(&request, on)
     })?;
     let columns = pyo3::types::PyDict::new(py);
     columns.set_item("run", rows.iter().map(|r| r.run).collect::<Vec<_>>())?;

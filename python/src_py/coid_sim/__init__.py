@@ -234,10 +234,7 @@ def score(
     if isinstance(matches, (str, os.PathLike)):
         file, parquet = os.fspath(matches), None
     else:
-        frame = matches if isinstance(matches, pl.DataFrame) else pl.from_pandas(matches)
-        buffer = io.BytesIO()
-        frame.write_parquet(buffer)
-        file, parquet = None, buffer.getvalue()
+        file, parquet = None, _parquet(matches, "matches")
     folder, line = _coid_sim.score(
         **_request(config, out, name, "-score", force, threads, dataset),
         matches=file,
