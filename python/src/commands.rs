@@ -72,12 +72,7 @@ pub(crate) fn run(
     quiet: bool,
 ) -> PyResult<(PathBuf, String)> {
     let request = coid_sim::commands::RunRequest {
-        common: common(
-            config_source(config, config_text, shown)?,
-            out,
-            force,
-            threads,
-        ),
+        common: common(config, config_text, shown, out, force, threads)?,
         traffic_seed,
         sensor_seed,
     };
@@ -127,19 +122,23 @@ fn config_source(
     }
 }
 
-/// What every typed command that writes a folder takes.
+/// What every typed command that writes a folder takes: the
+/// configuration as [`config_source`] reads it, the folder, force and
+/// threads.
 fn common(
-    config: coid_sim::commands::ConfigSource,
+    config: Option<PathBuf>,
+    config_text: Option<String>,
+    shown: Option<String>,
     out: Option<PathBuf>,
     force: bool,
     threads: Option<usize>,
-) -> coid_sim::commands::Common {
-    coid_sim::commands::Common {
-        config,
+) -> PyResult<coid_sim::commands::Common> {
+    Ok(coid_sim::commands::Common {
+        config: config_source(config, config_text, shown)?,
         out,
         force,
         threads,
-    }
+    })
 }
 
 /// `coid export` as a typed call: the configuration as for [`run`];
@@ -163,12 +162,7 @@ pub(crate) fn export(
 ) -> PyResult<(PathBuf, String)> {
     use coid_sim::commands::labels;
     let request = coid_sim::commands::ExportRequest {
-        common: common(
-            config_source(config, config_text, shown)?,
-            out,
-            force,
-            threads,
-        ),
+        common: common(config, config_text, shown, out, force, threads)?,
         splits: labels("split", &splits).map_err(CoidError::new_err)?,
         with_matches: labels("method", &with_matches).map_err(CoidError::new_err)?,
         dataset,
@@ -216,12 +210,7 @@ pub(crate) fn score(
         }
     };
     let request = coid_sim::commands::ScoreRequest {
-        common: common(
-            config_source(config, config_text, shown)?,
-            out,
-            force,
-            threads,
-        ),
+        common: common(config, config_text, shown, out, force, threads)?,
         matches,
         export,
         dataset,
