@@ -95,10 +95,7 @@ pub(super) fn mc_sweep(
             pb.set_message(format!("{} {} ({split})", setting.factor, setting.value));
             let mut evals: Vec<RunEval> = Vec::new();
             for run in runs {
-                let mut s = run.clone();
-                s.matching.methods.clone_from(&methods);
-                s.matching.mc_samples = setting.samples;
-                s.matching.mc_dropout = setting.rate;
+                let s = run.with_inference(setting.samples, setting.rate)?;
                 let e = experiments::eval_run(&s, &methods, &lambdas, threads, &warnings, |_| {})
                     .with_context(|| {
                     format!("{split} run (seed {}) failed", s.seeds.traffic)

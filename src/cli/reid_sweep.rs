@@ -182,11 +182,12 @@ fn descriptor_use(s: &Settings, method: Method) -> anyhow::Result<String> {
         return Ok("not used".to_owned());
     }
     // The weight the runner reads: the validated one, or the configured.
-    let mut m = s.matching.clone();
-    if m.baselines == BaselineChoice::Validated {
-        m.baseline_values = io::read_baselines(dir, &[method])?;
-    }
-    let weight = m.descriptor_weight(method);
+    let tuned = if s.matching.baselines == BaselineChoice::Validated {
+        io::read_baselines(dir, &[method])?.get(&method).copied()
+    } else {
+        None
+    };
+    let weight = s.matching.baseline(tuned, method).descriptor_weight;
     Ok(format!("weight {weight:.2}"))
 }
 

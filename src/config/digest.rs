@@ -97,7 +97,6 @@ impl Settings {
         s.matching = MatchingSettings {
             methods: Vec::new(),
             baselines: BaselineChoice::APriori,
-            baseline_values: Default::default(),
             gate_chi2: 0.0,
             models_dir: PathBuf::new(),
             mc_samples: 0,

@@ -459,3 +459,28 @@ fn a_defined_level_carries_its_sigmas_and_correlation_time() {
         "{e}"
     );
 }
+
+/// A point of the MC sweep is checked as a config's `[matching]
+/// mc_samples` and `mc_dropout` are, and leaves the settings it came from
+/// as they were.
+#[test]
+fn a_sweep_point_is_checked_like_a_config_and_leaves_the_settings_alone() {
+    let base = Settings::defaults().unwrap();
+    let s = base.with_inference(40, Some(0.3)).unwrap();
+    assert_eq!(
+        (s.matching.mc_samples, s.matching.mc_dropout),
+        (40, Some(0.3))
+    );
+    assert_eq!(base, Settings::defaults().unwrap());
+    let e = base.with_inference(100_000, None).unwrap_err();
+    assert!(
+        e.to_string().contains("matching.mc_samples: must be 1 to"),
+        "{e}"
+    );
+    let e = base.with_inference(20, Some(0.99)).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("matching.mc_dropout: must be a rate"),
+        "{e}"
+    );
+}

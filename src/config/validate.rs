@@ -334,15 +334,51 @@ fn pose_noise(c: &Checker, p: RawPoseNoise) -> Result<Vec<PoseNoiseLevel>, Confi
 fn mc_dropout(c: &Checker, raw: RawRate) -> Result<Option<f64>, ConfigError> {
     match raw {
         RawRate::Word(w) if w == "trained" => Ok(None),
-        RawRate::Value(v) if (0.0..=0.95).contains(&v) => Ok(Some(v)),
-        RawRate::Value(v) => Err(c.invalid(
-            "matching.mc_dropout",
-            format!("must be a rate in [0, 0.95] or \"trained\", got {}", num(v)),
-        )),
+        RawRate::Value(v) => mc_rate(c, v).map(Some),
         RawRate::Word(w) => Err(c.invalid(
             "matching.mc_dropout",
             format!("must be a rate in [0, 0.95] or \"trained\", got \"{w}\""),
         )),
+    }
+}
+
+/// A dropout rate at inference in [0, 0.95].
+fn mc_rate(c: &Checker, v: f64) -> Result<f64, ConfigError> {
+    if (0.0..=0.95).contains(&v) {
+        return Ok(v);
+    }
+    Err(c.invalid(
+        "matching.mc_dropout",
+        format!("must be a rate in [0, 0.95] or \"trained\", got {}", num(v)),
+    ))
+}
+
+/// A number of MC-dropout samples at inference, 1 to [`MAX_MC_SAMPLES`].
+fn mc_samples(c: &Checker, n: usize) -> Result<usize, ConfigError> {
+    if (1..=MAX_MC_SAMPLES).contains(&n) {
+        return Ok(n);
+    }
+    Err(c.invalid(
+        "matching.mc_samples",
+        format!("must be 1 to {MAX_MC_SAMPLES} samples, got {n}"),
+    ))
+}
+
+impl Settings {
+    /// These settings inferring with `samples` MC-dropout samples at the
+    /// dropout `rate` (`None`: as trained), checked as `[matching]
+    /// mc_samples` and `mc_dropout` are: a point of a sweep is a
+    /// configuration of its own, never an edit of a validated one.
+    pub fn with_inference(&self, samples: usize, rate: Option<f64>) -> Result<Self, ConfigError> {
+        let stated = BTreeSet::new();
+        let c = Checker {
+            path: &self.source,
+            stated: &stated,
+        };
+        let mut s = self.clone();
+        s.matching.mc_samples = mc_samples(&c, samples)?;
+        s.matching.mc_dropout = rate.map(|v| mc_rate(&c, v)).transpose()?;
+        Ok(s)
     }
 }
 
@@ -357,15 +393,7 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
         ));
     }
     c.positive(field!("matching", m.gate_chi2))?;
-    if !(1..=MAX_MC_SAMPLES).contains(&m.mc_samples) {
-        return Err(c.invalid(
-            "matching.mc_samples",
-            format!(
-                "must be 1 to {MAX_MC_SAMPLES} samples, got {}",
-                m.mc_samples
-            ),
-        ));
-    }
+    mc_samples(c, m.mc_samples)?;
     let lambda = match m.lambda {
         RawLambda::Word(w) if w == "validated" => LambdaChoice::Validated,
         RawLambda::Word(w) if w == "none" => LambdaChoice::Fixed(f64::INFINITY),
@@ -403,7 +431,6 @@ fn matching(c: &Checker, m: RawMatching) -> Result<MatchingSettings, ConfigError
     Ok(MatchingSettings {
         methods: c.distinct("matching.methods", m.methods)?,
         baselines: m.baselines,
-        baseline_values: Default::default(),
         gate_chi2: m.gate_chi2,
         models_dir: c.resolve(&m.models_dir),
         mc_samples: m.mc_samples,

@@ -105,7 +105,6 @@ mod tests {
         let settings = crate::matching::MatchingSettings {
             methods: vec![],
             baselines: crate::matching::BaselineChoice::APriori,
-            baseline_values: Default::default(),
             gate_chi2: 9.21,
             models_dir: std::path::PathBuf::new(),
             mc_samples: 20,
@@ -119,7 +118,9 @@ mod tests {
             rematch: 2,
             indicators: crate::matching::deep::arch::IndicatorScope::PerSample,
         };
-        CorrespondenceSource::Matcher(crate::matching::build(method, &settings, None, 1).unwrap())
+        CorrespondenceSource::Matcher(
+            crate::matching::build(method, &settings, (None, None), 1).unwrap(),
+        )
     }
 
     /// Permuting one vehicle's detections (with its truth and graph)

@@ -51,9 +51,7 @@ fn mean_f1(runs: &[RunEval], levels: &[PoseNoiseLabel], m: Method) -> f64 {
 /// The a-priori threshold of baseline `m` (what it runs with when no
 /// value is given).
 fn a_priori_value(settings: &Settings, m: Method) -> f64 {
-    let mut none = settings.matching.clone();
-    none.baseline_values.clear();
-    none.baseline_value(m)
+    settings.matching.a_priori_value(m)
 }
 
 /// Chooses each baseline's threshold among `[matching] methods` on the
@@ -259,15 +257,13 @@ fn validation_f1s(
     }
     let levels: Vec<_> = settings.pose_noise.iter().map(|l| l.label).collect();
     let mut evals = Vec::with_capacity(validation.len());
+    let found = pipeline::Found::baselines_at(values.clone());
     for run in validation {
-        let mut s = run.clone();
-        s.matching.baselines = crate::matching::BaselineChoice::APriori;
-        s.matching.baseline_values = values.clone();
-        let runners = pipeline::runners(&s, &methods)?;
+        let runners = pipeline::runners_with(run, &found, &methods)?;
         let no_lambdas = BTreeMap::new();
         evals.push(eval_run_into(
             RunEval::default(),
-            &s,
+            run,
             &runners,
             (&no_lambdas, threads),
             warnings,

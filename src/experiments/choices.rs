@@ -10,7 +10,7 @@ use crate::evaluate::PairCounts;
 use crate::matching::deep::decision::{
     Decision, KindLambdas, UncertaintyKind, calibrated, pair_uncertainty,
 };
-use crate::matching::{DecisionChoice, LambdaChoice, Method, MethodKind};
+use crate::matching::{Method, MethodKind};
 use crate::pipeline::{self, RunError, Warnings};
 use crate::sensor::PoseNoiseLabel;
 use crate::tables::{DecidedPair, MethodLevel, RuleKey, RunEval, lambda_grid};
@@ -101,11 +101,10 @@ pub fn validate(
     warnings: &Warnings,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<BTreeMap<Method, Chosen>, RunError> {
-    // The default decision is not used: every rule and threshold is counted.
-    let mut s = settings.clone();
-    s.matching.lambda = LambdaChoice::Fixed(f64::INFINITY);
-    s.matching.decision = DecisionChoice::Fixed(Decision::Assignment);
-    let validation = validation_runs(&s)?;
+    // The configured decision is not used: every rule and threshold is
+    // counted.
+    let counting = pipeline::Found::counting_every_rule(settings, methods)?;
+    let validation = validation_runs(settings)?;
     let mut runs = Vec::new();
     for (k, run) in validation.iter().enumerate() {
         let kept = RunEval::keeping_pairs();
@@ -113,7 +112,7 @@ pub fn validate(
         runs.push(eval_run_into(
             kept,
             run,
-            &pipeline::runners(run, methods)?,
+            &pipeline::runners_with(run, &counting, methods)?,
             (&no_lambdas, threads),
             warnings,
             |_| {},

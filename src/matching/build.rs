@@ -4,8 +4,8 @@
 use super::deep::arch::MaskScope;
 use super::deep::decision::{Decision, KindLambdas, UncertaintyKind};
 use super::{
-    GpsHungarian, Matcher, MatchingSettings, Method, MethodKind, Mogm, Rgm, Rrwm, Spectral, deep,
-    drive,
+    BaselineValue, GpsHungarian, Matcher, MatchingSettings, Method, MethodKind, Mogm, Rgm, Rrwm,
+    Spectral, deep, drive,
 };
 
 /// Why a method could not be built.
@@ -92,22 +92,27 @@ pub struct Trained<'a> {
 
 /// Builds the matcher of a method, in canonical node order and with the
 /// configured rounds of match-align-rematch. Deep methods need what they
-/// were trained to (`trained`; the other methods read nothing of it);
-/// MC-dropout masks are drawn from streams seeded with `dropout_seed`.
+/// were trained to (`trained`; the other methods read nothing of it); a
+/// baseline runs with `tuned` (what validation found for it), else its
+/// a-priori threshold. MC-dropout masks are drawn from streams seeded
+/// with `dropout_seed`.
 pub fn build(
     method: Method,
     settings: &MatchingSettings,
-    trained: Option<Trained<'_>>,
+    (trained, tuned): (Option<Trained<'_>>, Option<BaselineValue>),
     dropout_seed: u64,
 ) -> Result<Box<dyn Matcher>, BuildError> {
-    let value = settings.baseline_value(method);
+    let BaselineValue {
+        value,
+        descriptor_weight,
+    } = settings.baseline(tuned, method);
     let inner: Box<dyn Matcher> = match method.kind() {
         MethodKind::LearningFree if method == Method::Mogm => {
             let mut m = Mogm {
                 min_score: value,
                 ..Mogm::default()
             };
-            m.params.descriptor_weight = settings.descriptor_weight(method);
+            m.params.descriptor_weight = descriptor_weight;
             Box::new(m)
         }
         MethodKind::LearningFree if method == Method::Spectral => {
@@ -122,13 +127,13 @@ pub fn build(
                 lambda: value,
                 ..Rgm::default()
             };
-            m.params.descriptor_weight = settings.descriptor_weight(method);
+            m.params.descriptor_weight = descriptor_weight;
             Box::new(m)
         }
         MethodKind::GpsBased => Box::new(GpsHungarian {
             gate_chi2: value,
             appearance: method == Method::GpsAppHungarian,
-            descriptor_weight: settings.descriptor_weight(method),
+            descriptor_weight,
         }),
         MethodKind::Oracle => return Err(BuildError::Oracle),
         MethodKind::External => return Err(BuildError::External),

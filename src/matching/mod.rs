@@ -84,13 +84,9 @@ pub const BASELINES_FILE: &str = "baselines.toml";
 #[derive(Clone, PartialEq)]
 pub struct MatchingSettings {
     pub methods: Vec<Method>,
-    /// Where the baselines' thresholds come from.
+    /// Where the baselines' thresholds come from (their values travel
+    /// beside the settings: [`crate::pipeline::Found`]).
     pub baselines: BaselineChoice,
-    /// The baselines' thresholds to run with (from `baselines.toml`, or a
-    /// grid point during validation); a baseline not listed runs at its
-    /// a-priori value. Filled when the runners are built, never by the
-    /// config.
-    pub baseline_values: std::collections::BTreeMap<Method, BaselineValue>,
     /// GPS-Hungarian gate on the squared Mahalanobis distance (9.21 is the
     /// 99% point of chi-square with 2 degrees of freedom).
     pub gate_chi2: f64,
@@ -124,13 +120,15 @@ pub struct MatchingSettings {
 
 /// As derived, but `indicators` is shown only when it is not "per-sample":
 /// a config's digest hashes this text, and configs from before it keep
-/// their digest (and their batches).
+/// their digest (and their batches). For the same reason the text still
+/// shows the empty `baseline_values` the settings once carried (the
+/// values validation finds are no setting).
 impl std::fmt::Debug for MatchingSettings {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let mut d = f.debug_struct("MatchingSettings");
         d.field("methods", &self.methods)
             .field("baselines", &self.baselines)
-            .field("baseline_values", &self.baseline_values)
+            .field("baseline_values", &BaselineValues::new())
             .field("gate_chi2", &self.gate_chi2)
             .field("models_dir", &self.models_dir)
             .field("mc_samples", &self.mc_samples)
@@ -150,33 +148,32 @@ impl std::fmt::Debug for MatchingSettings {
 }
 
 impl MatchingSettings {
-    /// The threshold baseline `method` runs with: its entry of
-    /// `baseline_values`, else its a-priori value (MOGM's minimum score
-    /// 0.3, RGM's price per match 1.2, a GPS Hungarian's `gate_chi2`).
-    /// NaN for a method without one.
-    pub fn baseline_value(&self, method: Method) -> f64 {
-        let a_priori = match method {
+    /// The threshold baseline `method` runs with when validation found
+    /// none: MOGM's minimum score 0.3, RGM's price per match 1.2, a GPS
+    /// Hungarian's `gate_chi2`. NaN for a method without one.
+    pub fn a_priori_value(&self, method: Method) -> f64 {
+        match method {
             Method::Mogm => Mogm::default().min_score,
             Method::Rgm => Rgm::default().lambda,
             Method::Spectral => Spectral::default().min_score,
             Method::Rrwm => Rrwm::default().min_score,
             Method::GpsHungarian | Method::GpsAppHungarian => self.gate_chi2,
             _ => f64::NAN,
-        };
-        self.baseline_values
-            .get(&method)
-            .map_or(a_priori, |v| v.value)
+        }
     }
 
-    /// The power of the learned descriptors' likelihood ratio in baseline
-    /// `method`'s appearance similarity: its entry of `baseline_values`,
-    /// else 1 (the ratio as fitted).
-    pub fn descriptor_weight(&self, method: Method) -> f64 {
-        self.baseline_values
-            .get(&method)
-            .map_or(1.0, |v| v.descriptor_weight)
+    /// What baseline `method` runs with: `found` (validated, or a grid
+    /// point while validating), else its a-priori threshold with the
+    /// descriptors' ratio as fitted.
+    pub fn baseline(&self, found: Option<BaselineValue>, method: Method) -> BaselineValue {
+        found.unwrap_or_else(|| BaselineValue::at(self.a_priori_value(method)))
     }
 }
+
+/// The baselines' thresholds a run uses, found on the validation runs
+/// (`baselines.toml`) or a grid point while they are found; a baseline not
+/// listed runs at its a-priori value.
+pub type BaselineValues = std::collections::BTreeMap<Method, BaselineValue>;
 
 /// What a baseline runs with beside its method: its threshold
 /// ([`Method::baseline_knob`]) and, for the learning-free matchers on

@@ -21,7 +21,6 @@ fn settings() -> MatchingSettings {
     MatchingSettings {
         methods: vec![],
         baselines: BaselineChoice::APriori,
-        baseline_values: Default::default(),
         gate_chi2: 9.21,
         models_dir: PathBuf::new(),
         mc_samples: 20,
@@ -47,7 +46,7 @@ const CHOICE: DeepChoice = DeepChoice {
 };
 
 fn built(method: Method) -> Box<dyn Matcher> {
-    build(method, &settings(), None, 1).unwrap()
+    build(method, &settings(), (None, None), 1).unwrap()
 }
 
 #[test]
@@ -119,7 +118,13 @@ fn permuting_detections_permutes_every_methods_matches_and_nothing_else() {
                 lambdas: KindLambdas::all(f64::INFINITY),
                 ..CHOICE
             };
-            let m = build(method, &s, trained(weights.as_deref(), all_pairs), 1).unwrap();
+            let m = build(
+                method,
+                &s,
+                (trained(weights.as_deref(), all_pairs), None),
+                1,
+            )
+            .unwrap();
             let before = m.identify(&a.view(), &b.view());
             let (pa, pb) = (permuted(&a, &order_a), permuted(&b, &order_b));
             let after = m.identify(&pa.view(), &pb.view());
@@ -190,15 +195,17 @@ fn graph_matchers_find_nothing_in_unrelated_scenes() {
 #[test]
 fn the_oracle_is_not_a_matcher_and_deep_methods_need_weights() {
     assert!(matches!(
-        build(Method::Oracle, &settings(), None, 1),
+        build(Method::Oracle, &settings(), (None, None), 1),
         Err(BuildError::Oracle)
     ));
-    let e = build(Method::Ours, &settings(), None, 1).err().unwrap();
+    let e = build(Method::Ours, &settings(), (None, None), 1)
+        .err()
+        .unwrap();
     assert_eq!(e.to_string(), "'ours' needs trained weights");
     let e = build(
         Method::Ours,
         &settings(),
-        trained(Some(b"not a burnpack"), CHOICE),
+        (trained(Some(b"not a burnpack"), CHOICE), None),
         1,
     )
     .err()
@@ -262,7 +269,7 @@ fn single_pass_variants_are_one_pass_without_epistemic_uncertainty() {
     ] {
         let weights = deep::opened_weights(owner, 3);
         let dist = |m: Method, s: &MatchingSettings| {
-            let matcher = build(m, s, trained(Some(&weights), CHOICE), 1).unwrap();
+            let matcher = build(m, s, (trained(Some(&weights), CHOICE), None), 1).unwrap();
             assert_eq!(matcher.method(), m);
             matcher
                 .identify(&a.view(), &b.view())
@@ -314,7 +321,13 @@ fn the_methods_on_the_papers_inputs_never_read_a_pose() {
     for method in paper.into_iter().chain([Method::GpsAppHungarian]) {
         let weights = (method.kind() == MethodKind::Deep)
             .then(|| deep::opened_weights(method.weights_owner(), 3));
-        let m = build(method, &s, trained(weights.as_deref(), all_pairs), 1).unwrap();
+        let m = build(
+            method,
+            &s,
+            (trained(weights.as_deref(), all_pairs), None),
+            1,
+        )
+        .unwrap();
         let before = m.identify(&a.view(), &b.view());
         let moved = m.identify(&a2.view(), &b2.view());
         if method.inputs() == Inputs::Paper {
@@ -362,7 +375,7 @@ fn the_papers_rule_is_coids_weights_at_lambda_0_7_on_the_total_entropy() {
             uncertainty,
             ..settings()
         };
-        let matcher = build(m, &s, trained(Some(weights), rule), 1).unwrap();
+        let matcher = build(m, &s, (trained(Some(weights), rule), None), 1).unwrap();
         assert_eq!(matcher.method(), m);
         matcher.identify(&a.view(), &b.view())
     };

@@ -33,7 +33,7 @@ pub use frames::evaluate_frames;
 pub use instance::{Instance, InstanceSide};
 pub use replay::network_node_attributes;
 pub use run::run;
-pub use runners::{choice_for, choices, runner, runners};
+pub use runners::{Found, choice_for, choices, runner, runner_with, runners, runners_with};
 pub use simulate::{Step, sense_steps, sighting_pairs, simulate, simulate_frames, simulate_steps};
 pub use track::track;
 

@@ -1,7 +1,8 @@
-//! Each method's runner: the matcher built with its settings, a deep
-//! method's weights and its choice of lambda, decision rule and
-//! temperature (configured, or validated by `coid train`, read through
-//! `io`).
+//! Each method's runner: the matcher built with its settings and what
+//! validation found for it ([`Found`]: a deep method's choice of lambda,
+//! decision rule, operating point and temperature, a baseline's
+//! threshold), as given or as the models folder records it (read through
+//! `io`). The settings are the config's, never written into.
 
 use std::collections::BTreeMap;
 
@@ -10,11 +11,55 @@ use crate::config::Settings;
 use crate::evaluate::CorrespondenceSource;
 use crate::io::{self, WeightsError};
 use crate::matching::deep::arch::MaskScope;
-use crate::matching::deep::decision::KindLambdas;
+use crate::matching::deep::decision::{Decision, KindLambdas};
 use crate::matching::{
-    self, BaselineChoice, BuildError, DecisionChoice, DeepChoice, LambdaChoice, Method, MethodKind,
-    Trained,
+    self, BaselineChoice, BaselineValues, BuildError, DecisionChoice, DeepChoice, LambdaChoice,
+    Method, MethodKind, Trained,
 };
+
+/// What the methods of a run take beside its settings: what validation
+/// found for them, given in memory. A method not listed runs as its
+/// settings say: a deep method with its configured lambda and rule or the
+/// models folder's validated ones ([`choice_for`]), a baseline at its
+/// a-priori threshold or at the models folder's (`[matching] baselines`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Found {
+    /// Each deep method's lambda, decision rule, operating point and
+    /// temperature.
+    pub deep: BTreeMap<Method, DeepChoice>,
+    /// Each baseline's threshold (and descriptor weight).
+    pub baselines: BaselineValues,
+}
+
+impl Found {
+    /// Every deep method among `methods` deciding by assignment with no
+    /// threshold, which counts every pair at every rule and lambda (what
+    /// validation chooses among); the temperature and the masks trained
+    /// with as the models folder records them.
+    pub fn counting_every_rule(settings: &Settings, methods: &[Method]) -> Result<Self, RunError> {
+        let every = (
+            LambdaChoice::Fixed(f64::INFINITY),
+            DecisionChoice::Fixed(Decision::Assignment),
+        );
+        let deep = methods
+            .iter()
+            .filter(|m| matches!(m.kind(), MethodKind::Deep))
+            .map(|&m| Ok((m, choice_as(settings, m, every)?)))
+            .collect::<Result<_, RunError>>()?;
+        Ok(Self {
+            deep,
+            baselines: BaselineValues::new(),
+        })
+    }
+
+    /// The baselines at `values`, the deep methods as their settings say.
+    pub fn baselines_at(values: BaselineValues) -> Self {
+        Self {
+            deep: BTreeMap::new(),
+            baselines: values,
+        }
+    }
+}
 
 /// How a deep method decides: its entropy threshold and decision rule as
 /// configured, or as `coid train` chose them on the validation runs, and
@@ -22,12 +67,22 @@ use crate::matching::{
 /// 1 when the models folder records none).
 pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, RunError> {
     let m = &settings.matching;
+    choice_as(settings, method, (m.lambda, m.decision))
+}
+
+/// [`choice_for`] with `lambda` and `decision` in place of the config's.
+fn choice_as(
+    settings: &Settings,
+    method: Method,
+    (lambda, decision): (LambdaChoice, DecisionChoice),
+) -> Result<DeepChoice, RunError> {
+    let m = &settings.matching;
     if method == Method::CoidPaperRule {
         let validated = io::read_validated(&m.models_dir, method).ok();
         let masks = validated.map_or(MaskScope::PerNode, |v| v.trained_masks);
         return Ok(DeepChoice::paper_rule(masks));
     }
-    let validated = match (m.lambda, m.decision) {
+    let validated = match (lambda, decision) {
         // Only the temperature is read: without it, the probabilities as
         // they are.
         (LambdaChoice::Fixed(_), DecisionChoice::Fixed(_)) => {
@@ -44,14 +99,13 @@ pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, Run
             ),
         })
     };
-    let lambdas = match m.lambda {
+    let lambdas = match lambda {
         LambdaChoice::Fixed(v) => KindLambdas::all(v),
         LambdaChoice::Validated => validated
             .and_then(|v| v.lambdas)
             .ok_or_else(|| missing("lambda"))?,
     };
-    let lambda = lambdas.get(m.uncertainty);
-    let decision = match m.decision {
+    let decision_rule = match decision {
         DecisionChoice::Fixed(d) => d,
         DecisionChoice::Validated => validated
             .and_then(|v| v.decision)
@@ -63,14 +117,14 @@ pub fn choice_for(settings: &Settings, method: Method) -> Result<DeepChoice, Run
         .unwrap_or(1.0);
     // The operating point goes with the validated rule; a configured rule
     // decides every pair it chooses.
-    let min_probability = match m.decision {
+    let min_probability = match decision {
         DecisionChoice::Fixed(_) => 0.0,
         DecisionChoice::Validated => validated.as_ref().map_or(0.0, |v| v.min_probability),
     };
     Ok(DeepChoice {
-        lambda,
+        lambda: lambdas.get(m.uncertainty),
         lambdas,
-        decision,
+        decision: decision_rule,
         min_probability,
         temperature,
         trained_masks: validated.map_or(MaskScope::PerNode, |v| v.trained_masks),
@@ -89,26 +143,42 @@ pub fn choices(
         .collect()
 }
 
-/// How `method` runs with `settings`: deep methods get their weights from
-/// `[matching] models_dir` and their lambda and decision rule
-/// ([`choice_for`]); MC-dropout masks are seeded with the sensor seed.
-/// The baselines run at the thresholds `settings.matching.baseline_values`
-/// holds, or with `baselines = "validated"` at those of the models
-/// folder's `baselines.toml`.
+/// How `method` runs with `settings` and nothing found in memory
+/// ([`runner_with`]).
 pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSource, RunError> {
+    runner_with(settings, &Found::default(), method)
+}
+
+/// How `method` runs with `settings` and `found`: deep methods get their
+/// weights from `[matching] models_dir` and their lambda and decision rule
+/// from `found` or [`choice_for`]; MC-dropout masks are seeded with the
+/// sensor seed. A baseline runs at its threshold in `found`, else with
+/// `baselines = "validated"` at the models folder's `baselines.toml`,
+/// else at its a-priori value.
+pub fn runner_with(
+    settings: &Settings,
+    found: &Found,
+    method: Method,
+) -> Result<CorrespondenceSource, RunError> {
     if method == Method::Oracle {
         return Ok(CorrespondenceSource::Oracle);
     }
-    let mut m = settings.matching.clone();
-    if m.baselines == BaselineChoice::Validated && method.baseline_knob().is_some() {
-        m.baseline_values = io::read_baselines(&m.models_dir, &[method])?;
-    }
-    let m = &m;
+    let m = &settings.matching;
+    let tuned = match found.baselines.get(&method) {
+        Some(v) => Some(*v),
+        None if m.baselines == BaselineChoice::Validated && method.baseline_knob().is_some() => {
+            io::read_baselines(&m.models_dir, &[method])?
+                .get(&method)
+                .copied()
+        }
+        None => None,
+    };
     let deep = if let MethodKind::Deep = method.kind() {
-        Some((
-            io::read_weights(&m.models_dir, method)?,
-            choice_for(settings, method)?,
-        ))
+        let choice = match found.deep.get(&method) {
+            Some(c) => *c,
+            None => choice_for(settings, method)?,
+        };
+        Some((io::read_weights(&m.models_dir, method)?, choice))
     } else {
         None
     };
@@ -131,8 +201,8 @@ pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSourc
         appearance_width: w.appearance_width,
         shape: w.shape,
     });
-    let matcher =
-        matching::build(method, m, trained, settings.seeds.sensor).map_err(|e| match e {
+    let matcher = matching::build(method, m, (trained, tuned), settings.seeds.sensor).map_err(
+        |e| match e {
             BuildError::BadWeights {
                 method: label,
                 reason,
@@ -142,16 +212,29 @@ pub fn runner(settings: &Settings, method: Method) -> Result<CorrespondenceSourc
                 reason,
             }),
             other => RunError::Build(other),
-        })?;
+        },
+    )?;
     Ok(CorrespondenceSource::Matcher(matcher))
 }
 
-/// The runners of `methods`, in order.
+/// The runners of `methods`, in order, with nothing found in memory.
 pub fn runners(
     settings: &Settings,
     methods: &[Method],
 ) -> Result<Vec<CorrespondenceSource>, RunError> {
-    methods.iter().map(|&m| runner(settings, m)).collect()
+    runners_with(settings, &Found::default(), methods)
+}
+
+/// The runners of `methods` with `found` ([`runner_with`]), in order.
+pub fn runners_with(
+    settings: &Settings,
+    found: &Found,
+    methods: &[Method],
+) -> Result<Vec<CorrespondenceSource>, RunError> {
+    methods
+        .iter()
+        .map(|&m| runner_with(settings, found, m))
+        .collect()
 }
 
 #[cfg(test)]
@@ -218,6 +301,42 @@ mod tests {
             choice_for(&s, Method::Ours),
             Err(RunError::Weights(_))
         ));
+    }
+
+    /// What validation found, given in memory, wins over the config and
+    /// the models folder; the settings are left as they were. Counting
+    /// every rule decides by assignment with no threshold and keeps the
+    /// recorded temperature; a baseline's value given runs even when the
+    /// config asks for the models folder's.
+    #[test]
+    fn what_was_found_travels_beside_the_settings() {
+        let s = settings();
+        let before = s.clone();
+        let methods = [Method::Ours, Method::Mogm, Method::Oracle];
+        let counting = Found::counting_every_rule(&s, &methods).unwrap();
+        let c = counting.deep[&Method::Ours];
+        assert_eq!(
+            (c.lambda, c.decision),
+            (f64::INFINITY, Decision::Assignment)
+        );
+        assert_eq!(
+            c.temperature,
+            choice_for(&s, Method::Ours).unwrap().temperature
+        );
+        assert_eq!(counting.deep.len(), 1);
+        let dir = tempfile::tempdir().unwrap();
+        let mut empty = without_models(&dir);
+        empty.matching.baselines = BaselineChoice::Validated;
+        assert!(runner(&empty, Method::Mogm).is_err());
+        let given = Found::baselines_at(BaselineValues::from([(
+            Method::Mogm,
+            matching::BaselineValue::at(0.2),
+        )]));
+        assert!(matches!(
+            runner_with(&empty, &given, Method::Mogm),
+            Ok(CorrespondenceSource::Matcher(_))
+        ));
+        assert_eq!(s, before);
     }
 
     /// Only deep methods have a choice; the shipped models record one for
