@@ -153,9 +153,9 @@ pub fn seed_runs(
             appearance_vectors: source.without_descriptor.then_some(false),
             ..Default::default()
         };
-        let mut settings = Settings::load_with(source.config, &overrides)?;
-        experiments::calibrate_appearance(&mut settings, |_, _| {})
-            .map_err(TrainingError::Validation)?;
+        let loaded = Settings::load_with(source.config, &overrides)?;
+        let mut settings =
+            experiments::calibrated(&loaded, |_, _| {}).map_err(TrainingError::Validation)?;
         if let Some(d) = source.dataset {
             settings =
                 experiments::with_dataset(&settings, d).map_err(TrainingError::Validation)?;
@@ -450,8 +450,7 @@ pub fn validate(
     (threads, warnings): (usize, &Warnings),
     progress: impl FnMut(usize, usize),
 ) -> Result<Vec<(Method, Chosen)>, TrainingError> {
-    let mut on_models = settings.clone();
-    on_models.matching.models_dir = models_dir.to_owned();
+    let on_models = settings.with_models(models_dir);
     let chosen = experiments::validate(&on_models, methods, threads, warnings, progress)
         .map_err(TrainingError::Validation)?;
     let mut out = Vec::with_capacity(methods.len());
@@ -483,8 +482,7 @@ pub fn tune_baselines(
     (threads, warnings): (usize, &Warnings),
     progress: impl FnMut(usize, usize),
 ) -> Result<Vec<TunedBaseline>, TrainingError> {
-    let mut only = settings.clone();
-    only.matching.methods = baselines.to_vec();
+    let only = settings.with_methods(baselines);
     let tuned = experiments::tune_baselines(&only, threads, warnings, progress)
         .map_err(TrainingError::Validation)?;
     let entries: Vec<io::BaselineEntry> = tuned

@@ -962,3 +962,122 @@ fn the_python_package_builds_no_command_line_and_parses_no_printed_line() {
     }
     assert!(offences.is_empty(), "{offences:#?}");
 }
+
+/// The sections of `Settings`, as fields.
+const SETTINGS_SECTIONS: [&str; 16] = [
+    "source",
+    "scenario",
+    "connected",
+    "link",
+    "seeds",
+    "camera",
+    "sensor",
+    "pose_noise",
+    "matching",
+    "fusion",
+    "train",
+    "eval",
+    "v2x",
+    "detector",
+    "appearance",
+    "dataset",
+];
+
+/// Whether `line` writes into a section of settings: assigns to
+/// `x.<section>...`, calls a mutating method on it, or borrows it
+/// mutably.
+fn writes_a_section(line: &str) -> bool {
+    const MUTATING: [&str; 12] = [
+        ".push(",
+        ".retain(",
+        ".clear(",
+        ".insert(",
+        ".extend(",
+        ".clone_from(",
+        ".as_mut(",
+        ".truncate(",
+        ".get_mut(",
+        ".iter_mut(",
+        ".take(",
+        ".sort",
+    ];
+    let ident = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    SETTINGS_SECTIONS.iter().any(|section| {
+        let needle = format!(".{section}");
+        line.match_indices(&needle).any(|(k, _)| {
+            let before = line[..k].chars().next_back();
+            let mut rest = &line[k + needle.len()..];
+            if !before.is_some_and(ident) || rest.starts_with(ident) {
+                return false;
+            }
+            let receiver_start = line[..k].rfind(|c: char| !ident(c)).map_or(0, |i| i + 1);
+            if line[..receiver_start].trim_end().ends_with("&mut") {
+                return true;
+            }
+            // The rest of the field chain.
+            while let Some(r) = rest.strip_prefix('.') {
+                let n = r.find(|c: char| !ident(c)).unwrap_or(r.len());
+                if n == 0 || r[n..].starts_with('(') {
+                    break;
+                }
+                rest = &r[n..];
+            }
+            let t = rest.trim_start();
+            let assigns = (t.starts_with('=') && !t.starts_with("==") && !t.starts_with("=>"))
+                || ["+=", "-=", "*=", "/="].iter().any(|op| t.starts_with(op));
+            assigns || MUTATING.iter().any(|m| rest.starts_with(m))
+        })
+    })
+}
+
+/// Settings do not change after validation: outside `config` (whose
+/// constructors make a run's, a pass's or a sweep point's settings as new
+/// values, `config/variants.rs`), no code writes into a section of
+/// `Settings`; what validation finds travels beside them
+/// (`pipeline::Found`). A detection's `appearance` is no setting.
+#[test]
+fn nothing_outside_config_writes_into_settings() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files: Vec<(String, String)> = sources()
+        .into_iter()
+        .filter(|(rel, _)| !rel.starts_with("config/"))
+        .collect();
+    for f in ["commands.rs", "lib.rs"] {
+        let p = root.join("python/src").join(f);
+        files.push((
+            format!("python/src/{f}"),
+            std::fs::read_to_string(p).unwrap(),
+        ));
+    }
+    let mut offenders = Vec::new();
+    for (rel, code) in &files {
+        for (n, line) in code.lines().enumerate() {
+            let l = line.trim_start();
+            if l.starts_with("//") || l.contains("det.appearance") {
+                continue;
+            }
+            if writes_a_section(line) {
+                offenders.push(format!("{rel}:{}: {}", n + 1, l));
+            }
+        }
+    }
+    assert!(offenders.is_empty(), "{offenders:#?}");
+    // The check finds what it looks for.
+    for written in [
+        "s.matching.models_dir = dir;",
+        "settings.eval.traffic_seeds.truncate(2);",
+        "(v.apply)(&mut s.v2x);",
+        "let Some(reid) = settings.appearance.reid.as_mut() else {",
+        "run.scenario.sample_every_s += 1.0;",
+    ] {
+        assert!(writes_a_section(written), "{written}");
+    }
+    for read in [
+        "let dir = s.matching.models_dir.clone();",
+        "if s.matching.lambda == LambdaChoice::Validated {",
+        "(Some(d), Some(_)) if self.appearance => {",
+        "let n = s.train.runs_per_scenario.min(s.eval.traffic_seeds.len());",
+    ] {
+        assert!(!writes_a_section(read), "{read}");
+    }
+}

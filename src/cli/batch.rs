@@ -167,8 +167,7 @@ pub fn run_one(a: RunArgs) -> anyhow::Result<()> {
     if io::run_is_complete(&a.batch, &record, a.run) {
         return Ok(());
     }
-    let mut settings = batch::settings_of(&record, a.run)?;
-    super::calibrate(&mut settings, true)?;
+    let settings = super::calibrated(&batch::settings_of(&record, a.run)?, true)?;
     let claim = io::Claim::new(
         &io::run_dir(&a.batch, a.run),
         io::ResultKind::Run,

@@ -20,30 +20,6 @@ pub struct Args {
     profile: Option<DetectorProfile>,
 }
 
-/// One profile at a time: every connected vehicle carries `d.profile`
-/// here, whatever the fleet's mix, types and rigs say (and it says so).
-fn one_profile(d: &mut crate::sensor::profile::DetectorSettings) {
-    let set_aside: Vec<&str> = [
-        ("mix", !d.mix.is_empty()),
-        ("by_type", !d.by_type.is_empty()),
-        ("rig_by_type", !d.rig_by_type.is_empty()),
-    ]
-    .into_iter()
-    .filter_map(|(key, set)| set.then_some(key))
-    .collect();
-    d.mix.clear();
-    d.by_type.clear();
-    d.rig_by_type.clear();
-    if !set_aside.is_empty() {
-        eprintln!(
-            "coid: measuring the '{}' profile on every connected vehicle: [detector] {} set \
-             aside here (one profile at a time; --profile chooses another)",
-            d.profile.as_str(),
-            set_aside.join(", ")
-        );
-    }
-}
-
 /// Senses every validation run: the detector's figures into `stats`, the
 /// descriptors' scenes (every pair of views of one step that share an
 /// object) returned with the number of sensings.
@@ -70,12 +46,24 @@ fn measure(
     Ok((sensings, scenes))
 }
 
-pub fn detector(a: Args) -> anyhow::Result<()> {
-    let (mut settings, claim) = a.common.prepare("-detector", io::ResultKind::Detector)?;
-    if let Some(p) = a.profile {
-        settings.detector.profile = p;
+/// One profile at a time: every connected vehicle carries the profile
+/// measured, whatever the fleet's mix, types and rigs say; says so when
+/// the config sets any of them.
+fn say_set_aside(settings: &crate::config::Settings, set_aside: &[&str]) {
+    if !set_aside.is_empty() {
+        eprintln!(
+            "coid: measuring the '{}' profile on every connected vehicle: [detector] {} set \
+             aside here (one profile at a time; --profile chooses another)",
+            settings.detector.profile.as_str(),
+            set_aside.join(", ")
+        );
     }
-    one_profile(&mut settings.detector);
+}
+
+pub fn detector(a: Args) -> anyhow::Result<()> {
+    let (configured, claim) = a.common.prepare("-detector", io::ResultKind::Detector)?;
+    let (settings, set_aside) = configured.with_one_detector_profile(a.profile);
+    say_set_aside(&settings, &set_aside);
     let out = claim.out().to_owned();
     let profile = settings.detector.profile;
     // The bins, the configured figures, where the sensors sit.

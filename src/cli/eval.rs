@@ -192,13 +192,13 @@ fn gather(a: &Args, settings: Settings) -> anyhow::Result<Vec<Scenario>> {
         // The config's own scenario lists: its settings, that scenario.
         let mut s = primary.with_scenario_of(path)?;
         if a.validation {
-            s.eval.traffic_seeds.truncate(s.train.runs_per_scenario);
+            let n = s.train.runs_per_scenario.min(s.eval.traffic_seeds.len());
+            s = s.with_test_seeds(&s.eval.traffic_seeds[..n]);
         }
         scenarios.push(scenario(path, s, false));
     }
     for path in &a.suite {
-        let mut s = Settings::load(path)?;
-        super::calibrate(&mut s, a.common.quiet.quiet)?;
+        let s = super::calibrated(&Settings::load(path)?, a.common.quiet.quiet)?;
         compatible(&primary, &s)
             .with_context(|| format!("{} cannot join the suite", path.display()))?;
         scenarios.push(scenario(path, s, a.validation));
@@ -250,14 +250,8 @@ fn warn_empty(scenarios: &[Scenario]) {
 
 /// A dataset's test (or validation) runs as the one scenario, named by
 /// its folder.
-fn dataset_scenario(
-    dir: &Path,
-    mut settings: Settings,
-    validation: bool,
-) -> anyhow::Result<Scenario> {
-    if let Some(d) = &mut settings.dataset {
-        d.split = Some(if validation { "validation" } else { "test" }.to_owned());
-    }
+fn dataset_scenario(dir: &Path, settings: Settings, validation: bool) -> anyhow::Result<Scenario> {
+    let settings = settings.with_dataset_split(if validation { "validation" } else { "test" });
     let runs = if validation {
         experiments::validation_runs(&settings)?
     } else {
@@ -278,11 +272,13 @@ fn dataset_scenario(
 
 /// A scenario to evaluate on its test (or validation) runs, named by its
 /// config's file stem (by its folder for a `coid.toml`).
-fn scenario(path: &Path, mut settings: Settings, validation: bool) -> Scenario {
-    if validation {
-        // The tables' header names the runs evaluated.
-        settings.eval.traffic_seeds = settings.train.validation_seeds.clone();
-    }
+fn scenario(path: &Path, settings: Settings, validation: bool) -> Scenario {
+    // The tables' header names the runs evaluated.
+    let settings = if validation {
+        settings.reporting_split("validation")
+    } else {
+        settings
+    };
     let to_run = settings
         .eval
         .traffic_seeds
@@ -532,18 +528,13 @@ fn evaluate_seeds(
         }
     }
     for pass in passes {
-        let mut settings = s.settings.clone();
-        settings.matching.models_dir = pass.models_dir.clone();
+        let settings = s.settings.with_models(&pass.models_dir);
         let choices = pipeline::choices(&settings, &pass.methods)?;
         let lambdas = matching::method_lambdas(&choices);
         let to_run = s
             .to_run
             .iter()
-            .map(|(name, run)| {
-                let mut run = run.clone();
-                run.matching.models_dir = pass.models_dir.clone();
-                (name.clone(), run)
-            })
+            .map(|(name, run)| (name.clone(), run.with_models(&pass.models_dir)))
             .collect();
         let seeded = Scenario {
             name: format!("{} (training seed {})", s.name, pass.seed),

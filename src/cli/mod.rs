@@ -426,8 +426,8 @@ impl CommonArgs {
         overrides: &crate::config::Overrides,
     ) -> anyhow::Result<(crate::config::Settings, crate::io::Claim)> {
         let config = self.config.path();
-        let mut settings = crate::config::Settings::load_with(&config, overrides)?;
-        calibrate(&mut settings, self.quiet.quiet)?;
+        let settings = crate::config::Settings::load_with(&config, overrides)?;
+        let settings = calibrated(&settings, self.quiet.quiet)?;
         let out = out_dir(self.out.out.clone(), &config, suffix);
         let claim = crate::io::Claim::new(&out, kind, crate::io::Existing::when(self.force.force))?;
         Ok((settings, claim))
@@ -454,16 +454,20 @@ impl CommonArgs {
     }
 }
 
-/// Calibrates the re-identification descriptor when the config asks for
-/// one (`[appearance] descriptor = "reid"`) on the validation runs, with a
-/// progress bar, and says what it measured; nothing otherwise.
-pub(crate) fn calibrate(settings: &mut crate::config::Settings, quiet: bool) -> anyhow::Result<()> {
+/// `settings` with the re-identification descriptor calibrated when the
+/// config asks for one (`[appearance] descriptor = "reid"`) on the
+/// validation runs, with a progress bar, saying what it measured; as they
+/// are otherwise.
+pub(crate) fn calibrated(
+    settings: &crate::config::Settings,
+    quiet: bool,
+) -> anyhow::Result<crate::config::Settings> {
     if !settings.appearance.uncalibrated() || settings.dataset.is_some() {
-        return Ok(());
+        return Ok(settings.clone());
     }
     let pb = progress_bar(quiet, 0, CALIBRATION_TEMPLATE);
     let mut runs = 0;
-    crate::experiments::calibrate_appearance(settings, |done, total| {
+    let settings = crate::experiments::calibrated(settings, |done, total| {
         pb.set_length(total as u64);
         pb.set_position(done as u64);
         runs = total;
@@ -475,7 +479,7 @@ pub(crate) fn calibrate(settings: &mut crate::config::Settings, quiet: bool) -> 
     {
         eprintln!("{line}");
     }
-    Ok(())
+    Ok(settings)
 }
 
 /// The bar of a descriptor's calibration over the validation runs.

@@ -132,7 +132,7 @@ fn point_settings((config, shown): (&Path, &str), r: f64, quiet: bool) -> anyhow
         reid_rank1: Some(r),
         ..Overrides::default()
     };
-    let mut s = Settings::load_with(config, &overrides)?;
+    let s = Settings::load_with(config, &overrides)?;
     if s.appearance.reid.is_none() {
         anyhow::bail!(
             "--reid-sweep sweeps the re-identification descriptor: {shown} sets [appearance] \
@@ -153,9 +153,7 @@ fn point_settings((config, shown): (&Path, &str), r: f64, quiet: bool) -> anyhow
             dir.display()
         );
     }
-    s.matching.models_dir = dir;
-    super::calibrate(&mut s, quiet)?;
-    Ok(s)
+    super::calibrated(&s.with_models(&dir), quiet)
 }
 
 /// What `method` makes of the descriptor with the choices of `s`'s

@@ -5,7 +5,6 @@
 use anyhow::Context;
 
 use super::{CommonArgs, progress_bar, show_sim_progress};
-use crate::config::Settings;
 use crate::experiments::settings_for_seed;
 use crate::io::markdown::fmt_num;
 use crate::label::counted;
@@ -149,8 +148,9 @@ fn sweep(a: &Args) -> anyhow::Result<()> {
     let mut runs: Vec<Vec<OverTimeCounts>> = Vec::new();
     let warnings = pipeline::Warnings::default();
     for v in &variants {
-        let mut s: Settings = settings.clone();
-        (v.apply)(&mut s.v2x);
+        let mut v2x = settings.v2x.clone();
+        (v.apply)(&mut v2x);
+        let s = settings.with_v2x(v2x);
         let mut per_seed = Vec::new();
         for &seed in &seeds {
             pb.set_message(format!("{} = {} seed {seed}", v.factor, v.value));

@@ -206,7 +206,7 @@ pub fn train(a: Args) -> anyhow::Result<()> {
             a.config.shown()
         );
     }
-    experiments::calibrate_appearance(&mut settings, |_, _| {})?;
+    settings = experiments::calibrated(&settings, |_, _| {})?;
     let models_dir = match &a.dataset {
         Some(d) => {
             settings = experiments::with_dataset(&settings, d)?;
@@ -345,8 +345,7 @@ fn candidate_runs(
             let within = s.dir.strip_prefix(models_dir).unwrap_or(Path::new(""));
             let dir = candidate_dir(models_dir, without).join(within);
             training::check_models_folder(&dir, false, a.force.force)?;
-            let mut settings = s.settings.clone();
-            settings.train.appearance_vectors = !without;
+            let settings = s.settings.with_appearance_vectors(!without);
             Ok(SeedRun { settings, dir })
         })
         .collect()

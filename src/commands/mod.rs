@@ -108,16 +108,17 @@ pub fn prepare(
         let settings = config.load(overrides)?;
         return Ok(crate::experiments::with_dataset(&settings, dir)?);
     }
-    let mut settings = config.load(overrides)?;
+    let settings = config.load(overrides)?;
     if settings.appearance.uncalibrated() && settings.dataset.is_none() {
         let mut runs = 0;
-        crate::experiments::calibrate_appearance(&mut settings, |done, total| {
+        let settings = crate::experiments::calibrated(&settings, |done, total| {
             runs = total;
             on(Event::Calibrating { done, total });
         })?;
         if let Some(reid) = &settings.appearance.reid {
             on(Event::Calibrated { reid, runs });
         }
+        return Ok(settings);
     }
     Ok(settings)
 }

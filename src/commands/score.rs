@@ -303,14 +303,7 @@ fn check_export(request: &ScoreRequest, settings: &Settings) -> anyhow::Result<B
 
 /// The settings the report's header names the scored runs by.
 fn report_header(settings: &Settings, split: Split) -> Settings {
-    let mut header = settings.clone();
-    if split == Split::Validation {
-        header.eval.traffic_seeds = settings.train.validation_seeds.clone();
-    }
-    if let Some(d) = &mut header.dataset {
-        d.split = Some(split.as_str().to_owned());
-    }
-    header
+    settings.reporting_split(split.as_str())
 }
 
 /// The instance count of every run the matches were made from: the

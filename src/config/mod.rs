@@ -30,6 +30,7 @@ mod merge;
 mod raw;
 mod v2x;
 mod validate;
+mod variants;
 
 use std::path::{Path, PathBuf};
 

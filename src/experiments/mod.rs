@@ -20,14 +20,12 @@ use crate::fusion::FusionSettings;
 use crate::matching::deep::train::{self, Example, TrainOptions, TrainProgress, TrainReport};
 use crate::matching::{Method, MethodKind, MethodLambdas};
 use crate::pipeline::{self, Progress, RunError, Warnings};
+use crate::sensor::reid::ReidCalibration;
 use crate::tables::{RunEval, lambda_grid};
 
-/// The settings of run `seed`: traffic and sensor seeds both set to it.
+/// The settings of run `seed` ([`Settings::for_seed`]).
 pub fn settings_for_seed(settings: &Settings, seed: u64) -> Settings {
-    let mut s = settings.clone();
-    s.seeds.traffic = seed;
-    s.seeds.sensor = seed;
-    s
+    settings.for_seed(seed)
 }
 
 /// `settings` reading their instances from the dataset in `dir` instead
@@ -38,7 +36,6 @@ pub fn with_dataset(settings: &Settings, dir: &Path) -> Result<Settings, RunErro
         dir: dir.display().to_string(),
         why: e.to_string(),
     })?;
-    let mut s = settings.clone();
     // The records and reports name the runs by their seeds.
     let seeds = |split: &str| -> Vec<u64> {
         d.runs
@@ -47,22 +44,22 @@ pub fn with_dataset(settings: &Settings, dir: &Path) -> Result<Settings, RunErro
             .map(|r| r.seed)
             .collect()
     };
-    s.train.traffic_seeds = seeds("train");
-    s.train.validation_seeds = seeds("validation");
-    s.eval.traffic_seeds = seeds("test");
     let descriptor_law = descriptor_law(&d).map_err(|e| RunError::Dataset {
         dir: dir.display().to_string(),
         why: e.to_string(),
     })?;
-    s.pose_noise = d.levels;
-    s.dataset = Some(DatasetSource {
+    let source = DatasetSource {
         dir: dir.to_owned(),
         split: None,
         run: None,
         descriptor_law,
         appearance_width: d.appearance_width,
-    });
-    Ok(s)
+    };
+    Ok(settings.reading_dataset(
+        [seeds("train"), seeds("validation"), seeds("test")],
+        d.levels.clone(),
+        source,
+    ))
 }
 
 /// What the dataset's appearance vectors say
@@ -106,15 +103,19 @@ fn descriptor_law(
 /// ([`pipeline::sighting_pairs`]), the noise that meets the target
 /// ([`crate::sensor::reid::calibrate`]) and what the cosine says there
 /// ([`crate::matching::descriptor::fit_law`], on every pair of the same
-/// views). Nothing to do without the descriptor, when it is calibrated
-/// already, or with a dataset (which brings its own vectors).
-/// `on_run(done, total)` follows the runs.
+/// views). `None` without the descriptor, when it is calibrated already,
+/// or with a dataset (which brings its own vectors); the runs that use it
+/// take [`Settings::with_descriptor_calibration`]. `on_run(done, total)`
+/// follows the runs.
 pub fn calibrate_appearance(
-    settings: &mut Settings,
+    settings: &Settings,
     mut on_run: impl FnMut(usize, usize),
-) -> Result<(), RunError> {
+) -> Result<Option<ReidCalibration>, RunError> {
+    let Some(reid) = &settings.appearance.reid else {
+        return Ok(None);
+    };
     if !settings.appearance.uncalibrated() || settings.dataset.is_some() {
-        return Ok(());
+        return Ok(None);
     }
     let runs = validation_runs(settings)?;
     let mut pairs = Vec::new();
@@ -123,18 +124,26 @@ pub fn calibrate_appearance(
         pairs.extend(pipeline::sighting_pairs(run)?.0);
         on_run(k + 1, runs.len());
     }
-    let Some(reid) = settings.appearance.reid.as_mut() else {
-        return Ok(());
-    };
     let (noise, figures, scored) = crate::sensor::reid::calibrate(&pairs, reid.width, reid.target)
         .map_err(|e| RunError::Calibration(e.to_string()))?;
     let law = crate::matching::descriptor::fit_law(&crate::sensor::reid::labelled_pairs(&scored));
-    reid.calibration = Some(crate::sensor::reid::ReidCalibration {
+    Ok(Some(ReidCalibration {
         noise,
         law,
         figures,
-    });
-    Ok(())
+    }))
+}
+
+/// `settings` with the descriptor calibrated ([`calibrate_appearance`]),
+/// as they are when there is nothing to calibrate.
+pub fn calibrated(
+    settings: &Settings,
+    on_run: impl FnMut(usize, usize),
+) -> Result<Settings, RunError> {
+    Ok(match calibrate_appearance(settings, on_run)? {
+        Some(c) => settings.with_descriptor_calibration(c),
+        None => settings.clone(),
+    })
 }
 
 /// With a dataset ([`with_dataset`]), each of its runs as `runs.parquet`
@@ -153,12 +162,7 @@ pub fn dataset_runs(settings: &Settings) -> Result<Option<Vec<(RunInfo, Settings
         .into_iter()
         .enumerate()
         .map(|(k, r)| {
-            let mut s = settings_for_seed(settings, r.seed);
-            s.dataset = Some(DatasetSource {
-                split: Some(r.split.clone()),
-                run: Some(k),
-                ..source.clone()
-            });
+            let s = settings.of_dataset_run(r.seed, &r.split, k);
             (r, s)
         })
         .collect();
@@ -221,11 +225,8 @@ pub fn validation_loss_runs(settings: &Settings) -> Result<Vec<Settings>, RunErr
     Ok(sampled_for_training(validation_runs(settings)?))
 }
 
-fn sampled_for_training(mut runs: Vec<Settings>) -> Vec<Settings> {
-    for r in &mut runs {
-        r.scenario.sample_every_s = r.scenario.sample_every_s.max(r.train.sample_every_s);
-    }
-    runs
+fn sampled_for_training(runs: Vec<Settings>) -> Vec<Settings> {
+    runs.iter().map(Settings::sampled_for_training).collect()
 }
 
 /// The validation runs: every validation seed of the config's own
