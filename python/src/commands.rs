@@ -6,6 +6,7 @@
 use std::path::PathBuf;
 
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 use crate::{CoidError, coid_error};
 
@@ -307,6 +308,116 @@ pub(crate) fn write_dataset(
     };
     coid_sim::cli::report_panics_in_one_line();
     let report = interruptible(py, || coid_sim::commands::write_dataset(&request))?;
+    let line = report.line();
+    eprintln!("{line}");
+    Ok((report.folder, line))
+}
+
+/// `coid dataset` as a call: the dataset in `dir` read run by run and
+/// checked; what it holds as a dict (the counts per split, the runs
+/// without instances, the levels, the appearance width, the optional
+/// columns) and the lines `coid dataset` prints.
+#[pyfunction]
+pub(crate) fn check_dataset(py: Python<'_>, dir: PathBuf) -> PyResult<Bound<'_, PyDict>> {
+    coid_sim::cli::report_panics_in_one_line();
+    let s = interruptible(py, || coid_sim::commands::check_dataset(&dir))?;
+    let out = PyDict::new(py);
+    out.set_item("dir", &s.dir)?;
+    out.set_item("runs", s.runs)?;
+    let splits = PyDict::new(py);
+    for c in &s.splits {
+        let d = PyDict::new(py);
+        d.set_item("runs", c.runs)?;
+        d.set_item("instances", c.instances)?;
+        d.set_item("nodes", c.nodes)?;
+        d.set_item("true_pairs", c.true_pairs)?;
+        splits.set_item(c.split, d)?;
+    }
+    out.set_item("splits", splits)?;
+    out.set_item("empty_runs", &s.empty_runs)?;
+    out.set_item("levels", s.levels.iter().cloned().collect::<Vec<_>>())?;
+    out.set_item("appearance_width", s.appearance_width)?;
+    out.set_item("optional_columns", &s.optional_columns)?;
+    out.set_item("lines", s.lines())?;
+    Ok(out)
+}
+
+/// `coid convert pyg` as a call: DMGM-layout PyG pairs in `source` into
+/// the dataset `out`; the folder and the line it printed (after a warning
+/// for each recording the splits cut).
+#[pyfunction]
+#[pyo3(signature = (source, out, splits, views=("proc_s".to_owned(), "proc_t".to_owned()), name="dmgm".to_owned(), gps_sigma_m=1.2, gps_heading_sigma_deg=0.2, force=false, quiet=false))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn convert_pyg(
+    py: Python<'_>,
+    source: PathBuf,
+    out: PathBuf,
+    splits: Vec<(String, u64, u64)>,
+    views: (String, String),
+    name: String,
+    gps_sigma_m: f64,
+    gps_heading_sigma_deg: f64,
+    force: bool,
+    quiet: bool,
+) -> PyResult<(PathBuf, String)> {
+    let mut ranges = Vec::with_capacity(splits.len());
+    for (split, first, last) in splits {
+        if first > last {
+            return Err(CoidError::new_err(format!(
+                "the range {first}..{last} of {split} is empty"
+            )));
+        }
+        ranges.push((split, first..=last));
+    }
+    let request = coid_sim::commands::ConvertPygRequest {
+        source,
+        views: [views.0, views.1],
+        splits: ranges,
+        name,
+        gps_sigma_m,
+        gps_heading_sigma_deg,
+        out,
+        force,
+    };
+    let report = with_bars(py, quiet, "converting", |on| {
+        coid_sim::commands::convert_pyg(&request, on)
+    })?;
+    for w in report.warnings() {
+        eprintln!("{w}");
+    }
+    let line = report.line();
+    eprintln!("{line}");
+    Ok((report.folder, line))
+}
+
+/// `coid eval` as a typed call: every configured method on the test (or
+/// validation) runs of the configuration, its `suite` and a `dataset`;
+/// the folder and the line `coid eval` prints.
+#[pyfunction]
+#[pyo3(signature = (config=None, config_text=None, shown=None, out=None, force=false, threads=None, validation=false, suite=Vec::new(), dataset=None, quiet=false))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn eval(
+    py: Python<'_>,
+    config: Option<PathBuf>,
+    config_text: Option<String>,
+    shown: Option<String>,
+    out: Option<PathBuf>,
+    force: bool,
+    threads: Option<usize>,
+    validation: bool,
+    suite: Vec<PathBuf>,
+    dataset: Option<PathBuf>,
+    quiet: bool,
+) -> PyResult<(PathBuf, String)> {
+    let request = coid_sim::commands::EvalRequest {
+        common: common(config, config_text, shown, out, force, threads)?,
+        validation,
+        suite,
+        dataset,
+    };
+    let report = with_bars(py, quiet, "evaluating", |on| {
+        coid_sim::commands::eval(&request, on)
+    })?;
     let line = report.line();
     eprintln!("{line}");
     Ok((report.folder, line))

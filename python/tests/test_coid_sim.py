@@ -707,3 +707,53 @@ def test_the_dataset_writer_refuses_a_step_whose_instances_differ_in_levels(shor
     assert not (tmp_path / "mine").exists()
     with pytest.raises(coid_sim.CoidError, match=r"no run 1 \(add_run first: 1 runs\)"):
         w.add_instance(1, step=0, first=inst.first, second=inst.second, levels=inst.levels)
+
+
+def test_check_dataset_says_what_coid_dataset_says(short_export: coid_sim.Dataset, capfd: pytest.CaptureFixture) -> None:
+    """coid_sim.check_dataset is ``coid dataset`` as a call: its lines are
+    what the program prints, its counts the dataset's own."""
+    summary = coid_sim.check_dataset(short_export.path)
+    capfd.readouterr()
+    coid_sim.cli("dataset", short_export.path)
+    assert capfd.readouterr().out.splitlines() == summary["lines"]
+    assert summary["runs"] == 2 and list(summary["splits"]) == ["test"]
+    instances = list(short_export)
+    test = summary["splits"]["test"]
+    assert test["runs"] == 2 and test["instances"] == len(instances) > 0
+    assert test["nodes"] == sum(len(i.first.xy_m) + len(i.second.xy_m) for i in instances)
+    assert [name for name, _ in summary["levels"]] == ["none", "rtk", "gps"]
+    assert summary["appearance_width"] is None
+
+
+def test_check_dataset_and_convert_pyg_refuse_by_name_and_write_nothing(tmp_path: Path) -> None:
+    with pytest.raises(coid_sim.CoidError, match=r"is not a usable dataset"):
+        coid_sim.check_dataset(tmp_path)
+    source = tmp_path / "pyg"
+    (source / "proc_s").mkdir(parents=True)
+    out = tmp_path / "converted"
+    with pytest.raises(coid_sim.CoidError, match=r"has no folder proc_t \(the views' folders, --views\)"):
+        coid_sim.convert_pyg(source, out, splits={"test": (0, 3)}, quiet=True)
+    with pytest.raises(coid_sim.CoidError, match=r"the range 5\.\.3 of test is empty"):
+        coid_sim.convert_pyg(source, out, splits={"test": (5, 3)}, quiet=True)
+    with pytest.raises(coid_sim.CoidError, match=r"--views names proc_s twice"):
+        coid_sim.convert_pyg(source, out, splits={"test": (0, 3)}, views=("proc_s", "proc_s"), quiet=True)
+    assert not out.exists()
+
+
+def test_eval_from_python_writes_the_coid_programs_bytes(in_tmp: Path) -> None:
+    """`coid_sim.eval` is `coid eval` as a call: the same tables byte for
+    byte, the same last line but the folder; a dataset evaluates as
+    `coid eval --dataset` does."""
+    config = in_tmp / "short.toml"
+    config.write_text(coid_sim._coid_sim.toml_of_json(__import__("json").dumps(SHORT)))
+    result = coid_sim.eval(config, out=in_tmp / "py", quiet=True)
+    assert result.out == in_tmp / "py"
+    assert result.headline.startswith("coid: evaluated 3 methods on 2 test runs of 1 scenario (")
+    coid_sim.cli("eval", "-q", "-c", config, "--out", in_tmp / "bin")
+    ours, theirs = _files(in_tmp / "py"), _files(in_tmp / "bin")
+    assert sorted(ours) == sorted(theirs) and "table1.csv" in ours
+    for name in ours:
+        assert ours[name] == theirs[name], name
+    with pytest.raises(coid_sim.CoidError, match=r"dataset .*nothing: "):
+        coid_sim.eval(config, dataset=in_tmp / "nothing", out=in_tmp / "none", quiet=True)
+    assert not (in_tmp / "none").exists()

@@ -276,8 +276,6 @@ impl ConfigArg {
             .unwrap_or_else(|| crate::config::defaults_dir().join("default.toml"))
     }
 
-    /// The configuration as messages name it: its file, or "the default
-    /// configuration" (never the install folder's copy).
     /// The configuration as the library's commands take it.
     fn source(&self) -> crate::commands::ConfigSource {
         self.config.clone().map_or(
@@ -286,6 +284,8 @@ impl ConfigArg {
         )
     }
 
+    /// The configuration as messages name it: its file, or "the default
+    /// configuration" (never the install folder's copy).
     fn shown(&self) -> String {
         self.config.as_ref().map_or_else(
             || "the default configuration".to_owned(),
@@ -394,27 +394,6 @@ impl CommonArgs {
         kind: crate::io::ResultKind,
     ) -> anyhow::Result<(crate::config::Settings, crate::io::Claim)> {
         self.prepare_with(suffix, kind, &crate::config::Overrides::default())
-    }
-
-    /// [`CommonArgs::prepare`] for a command that may read its instances
-    /// from a dataset folder (`--dataset`): the settings read it (its
-    /// splits make the runs, its pose-noise levels the config's), and the
-    /// results folder is named after it (`results/<dataset folder><suffix>`).
-    fn prepare_dataset(
-        &self,
-        suffix: &str,
-        kind: crate::io::ResultKind,
-        dataset: Option<&Path>,
-    ) -> anyhow::Result<(crate::config::Settings, crate::io::Claim)> {
-        let Some(dir) = dataset else {
-            return self.prepare(suffix, kind);
-        };
-        let config = self.config.path();
-        let settings = crate::config::Settings::load(&config)?;
-        let settings = crate::experiments::with_dataset(&settings, dir)?;
-        let out = dataset_out_dir(self.out.out.clone(), dir, suffix);
-        let claim = crate::io::Claim::new(&out, kind, crate::io::Existing::when(self.force.force))?;
-        Ok((settings, claim))
     }
 
     /// [`CommonArgs::prepare`] with command-line `overrides` set over the

@@ -8,9 +8,12 @@ use indicatif::ProgressBar;
 use super::{CALIBRATION_TEMPLATE, SIM_TEMPLATE, calibration_line, progress_bar};
 use crate::commands::Event;
 
+/// The bar over the pairs a conversion reads.
+const PAIRS_TEMPLATE: &str = "{spinner} converting: pair {pos}/{len} [{bar:30}] eta {eta}";
+
 /// The bars of one command: over the validation runs while the
-/// descriptor is calibrated, over a run's simulated time, over the runs.
-/// Nothing when quiet.
+/// descriptor is calibrated, over a run's simulated time, over the runs,
+/// over the pairs converted. Nothing when quiet.
 pub struct Bars {
     quiet: bool,
     /// What the bar over the runs says the command does ("exporting").
@@ -18,6 +21,7 @@ pub struct Bars {
     calibration: Option<ProgressBar>,
     simulation: Option<ProgressBar>,
     runs: Option<ProgressBar>,
+    pairs: Option<ProgressBar>,
 }
 
 impl Bars {
@@ -29,6 +33,7 @@ impl Bars {
             calibration: None,
             simulation: None,
             runs: None,
+            pairs: None,
         }
     }
 
@@ -55,6 +60,19 @@ impl Bars {
                 });
                 super::show_sim_progress(bar, p);
             }
+            Event::Warning(line) => {
+                let bars = [&self.calibration, &self.simulation, &self.runs, &self.pairs];
+                match bars.into_iter().flatten().next() {
+                    Some(bar) => bar.suspend(|| eprintln!("{line}")),
+                    None => eprintln!("{line}"),
+                }
+            }
+            Event::Pairs { done, total } => {
+                let bar = self
+                    .pairs
+                    .get_or_insert_with(|| progress_bar(self.quiet, total as u64, PAIRS_TEMPLATE));
+                bar.set_position(done as u64);
+            }
             Event::Runs {
                 done,
                 total,
@@ -79,6 +97,7 @@ impl Bars {
             self.calibration.take(),
             self.simulation.take(),
             self.runs.take(),
+            self.pairs.take(),
         ]
         .into_iter()
         .flatten()

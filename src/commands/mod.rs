@@ -6,8 +6,9 @@
 //! show or not. Errors are `anyhow` chains whose one line
 //! (`cli::one_line`) is what `coid` prints.
 //!
-//! `run`, `export`, `score` and `write_dataset` are typed; the other commands are reached
-//! through `cli`.
+//! `run`, `export`, `score`, `write_dataset`, `convert_pyg` and
+//! `check_dataset` are typed; the other commands are reached through
+//! `cli`.
 
 use std::path::{Path, PathBuf};
 
@@ -16,13 +17,19 @@ use crate::pipeline::Progress;
 use crate::sensor::reid::ReidSettings;
 use crate::{render, tables};
 
+pub mod convert;
 pub mod dataset;
+pub mod eval;
 pub mod export;
 pub mod run;
 pub mod score;
 
 pub use crate::export::Split;
+pub use convert::{
+    ConvertPygRequest, ConvertReport, DatasetSummary, SplitCounts, check_dataset, convert_pyg,
+};
 pub use dataset::{DatasetFrames, WriteDatasetReport, WriteDatasetRequest, write_dataset};
+pub use eval::{EvalReport, EvalRequest, eval};
 pub use export::{ExportReport, ExportRequest, MatchesRequest, export, matches};
 pub use run::{RunReport, RunRequest, run};
 pub use score::{Matches, ScoreReport, ScoreRequest, score};
@@ -37,6 +44,11 @@ pub enum Event<'a> {
     Calibrated { reid: &'a ReidSettings, runs: usize },
     /// A run's simulation advanced.
     Simulating(Progress),
+    /// Something the caller should say now (one line: a scenario without
+    /// instances, a training seed without weights).
+    Warning(&'a str),
+    /// `done` of `total` pairs are converted.
+    Pairs { done: usize, total: usize },
     /// `done` of `total` runs are through; `current` names the next.
     Runs {
         done: usize,
@@ -108,17 +120,26 @@ pub fn prepare(
         let settings = config.load(overrides)?;
         return Ok(crate::experiments::with_dataset(&settings, dir)?);
     }
-    let settings = config.load(overrides)?;
-    if settings.appearance.uncalibrated() && settings.dataset.is_none() {
-        let mut runs = 0;
-        let settings = crate::experiments::calibrated(&settings, |done, total| {
-            runs = total;
-            on(Event::Calibrating { done, total });
-        })?;
-        if let Some(reid) = &settings.appearance.reid {
-            on(Event::Calibrated { reid, runs });
-        }
-        return Ok(settings);
+    calibrated(&config.load(overrides)?, on)
+}
+
+/// `settings` with the re-identification descriptor calibrated on the
+/// validation runs when they ask for one (`[appearance] descriptor =
+/// "reid"`), saying so in events; as they are otherwise.
+///
+/// # Errors
+/// A validation run or the calibration fails.
+pub fn calibrated(settings: &Settings, on: &mut impl FnMut(Event)) -> anyhow::Result<Settings> {
+    if !settings.appearance.uncalibrated() || settings.dataset.is_some() {
+        return Ok(settings.clone());
+    }
+    let mut runs = 0;
+    let settings = crate::experiments::calibrated(settings, |done, total| {
+        runs = total;
+        on(Event::Calibrating { done, total });
+    })?;
+    if let Some(reid) = &settings.appearance.reid {
+        on(Event::Calibrated { reid, runs });
     }
     Ok(settings)
 }
@@ -139,6 +160,16 @@ pub enum ConfigSource {
 }
 
 impl ConfigSource {
+    /// The path that names it: its file, the defaults' file, or for text
+    /// the name it is shown by.
+    pub fn path(&self) -> PathBuf {
+        match self {
+            ConfigSource::Defaults => crate::config::defaults_dir().join("default.toml"),
+            ConfigSource::File(path) => path.clone(),
+            ConfigSource::Text { shown, .. } => PathBuf::from(shown),
+        }
+    }
+
     /// The settings it gives, `overrides` set over it before validation.
     ///
     /// # Errors

@@ -40,7 +40,10 @@ __all__ = [
     "Match",
     "Results",
     "Side",
+    "check_dataset",
     "cli",
+    "convert_pyg",
+    "eval",
     "export",
     "run",
     "score",
@@ -169,6 +172,45 @@ def run(
     return Results(Path(folder), headline)
 
 
+def eval(
+    config: Config = None,
+    *,
+    out: Optional[PathLike] = None,
+    validation: bool = False,
+    suite: Sequence[PathLike] = (),
+    dataset: Optional[Union[Dataset, PathLike]] = None,
+    force: bool = False,
+    threads: Optional[int] = None,
+    quiet: bool = False,
+    name: str = "config",
+) -> Results:
+    """Evaluates every configured method, as ``coid eval`` does: the
+    paper's tables and plots of the test runs, per scenario and pooled.
+
+    config: a TOML file, or a dict of the same tables; None evaluates the
+        default intersection.
+    out: the results folder [default: results/<config file stem>-eval,
+        results/<name>-eval for a dict, results/<dataset folder>-eval].
+    validation: the validation runs instead of the test runs.
+    suite: more scenario configs, each on its own runs.
+    dataset: a dataset's runs (a :class:`Dataset` or its folder) instead
+        of simulated ones.
+    """
+    if isinstance(dataset, Dataset):
+        if config is None:
+            config = dataset.config
+        dataset = dataset.path
+    suffix = "-validation" if validation else "-eval"
+    folder, line = _coid_sim.eval(
+        **_request(config, out, name, suffix, force, threads, dataset),
+        validation=validation,
+        suite=[os.fspath(p) for p in suite],
+        dataset=None if dataset is None else os.fspath(dataset),
+        quiet=quiet,
+    )
+    return Results(Path(folder), line)
+
+
 def export(
     config: Config = None,
     *,
@@ -293,5 +335,53 @@ def write_dataset(
         _parquet(truth, "truth"),
         _parquet(true_pairs, "true_pairs"),
         force=force,
+    )
+    return Dataset(Path(folder), config=config)
+
+
+def check_dataset(path: PathLike) -> dict:
+    """Reads the dataset folder ``path`` run by run and checks it, as
+    ``coid dataset`` does; returns what it holds: ``runs``, ``splits``
+    (per split: ``runs``, ``instances``, ``nodes`` of both vehicles,
+    ``true_pairs``), ``empty_runs``, ``levels`` (name and position sigma
+    in m), ``appearance_width`` (None without vectors),
+    ``optional_columns``, and ``lines`` (what ``coid dataset`` prints).
+    Raises :class:`CoidError` with coid's message when the dataset is
+    refused."""
+    return _coid_sim.check_dataset(os.fspath(path))
+
+
+def convert_pyg(
+    source: PathLike,
+    out: PathLike,
+    *,
+    splits: Mapping[str, tuple],
+    views: Sequence[str] = ("proc_s", "proc_t"),
+    name: str = "dmgm",
+    gps_sigma_m: float = 1.2,
+    gps_heading_sigma_deg: float = 0.2,
+    force: bool = False,
+    quiet: bool = False,
+    config: Config = None,
+) -> Dataset:
+    """Converts PyTorch Geometric pairs as DMGM distributes them (one
+    folder per view, ``<view>/<k>/data.pt``; read without torch, nothing
+    in them run) into the dataset folder ``out``, as ``coid convert pyg``
+    does. ``splits`` gives each split's first and last pair index:
+    ``{"validation": (60260, 64006), "test": (64007, 69468)}``. Returns
+    the dataset, opened (with ``config`` for its matchers' settings)."""
+    if len(views) != 2:
+        raise CoidError(f"views names the two vehicles' folders, not {len(views)}")
+    ranges = [(split, int(first), int(last)) for split, (first, last) in splits.items()]
+    folder, _line = _coid_sim.convert_pyg(
+        os.fspath(source),
+        os.fspath(out),
+        ranges,
+        views=(str(views[0]), str(views[1])),
+        name=name,
+        gps_sigma_m=float(gps_sigma_m),
+        gps_heading_sigma_deg=float(gps_heading_sigma_deg),
+        force=force,
+        quiet=quiet,
     )
     return Dataset(Path(folder), config=config)

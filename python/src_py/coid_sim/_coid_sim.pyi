@@ -41,6 +41,18 @@ def write_dataset(out: str, runs: bytes, instances: bytes, nodes: bytes, truth: 
     """A dataset folder from its files' frames as Parquet bytes, checked
     by coid's reader before it appears. Raises CoidError."""
 
+def eval(config: Optional[str] = None, config_text: Optional[str] = None, shown: Optional[str] = None, out: Optional[str] = None, force: bool = False, threads: Optional[int] = None, validation: bool = False, suite: List[str] = [], dataset: Optional[str] = None, quiet: bool = False) -> Tuple[str, str]:
+    """``coid eval`` as a typed call: the folder and the line it prints.
+    Raises CoidError."""
+
+def check_dataset(dir: str) -> Dict[str, Any]:
+    """``coid dataset`` as a call: the dataset read run by run, checked,
+    and what it holds. Raises CoidError."""
+
+def convert_pyg(source: str, out: str, splits: List[Tuple[str, int, int]], views: Tuple[str, str] = ("proc_s", "proc_t"), name: str = "dmgm", gps_sigma_m: float = 1.2, gps_heading_sigma_deg: float = 0.2, force: bool = False, quiet: bool = False) -> Tuple[str, str]:
+    """``coid convert pyg`` as a call: the folder and the line it
+    printed. Raises CoidError."""
+
 def toml_of_json(json: str) -> str:
     """A JSON object as TOML text. Raises CoidError."""
 
