@@ -422,3 +422,82 @@ pub(crate) fn eval(
     eprintln!("{line}");
     Ok((report.folder, line))
 }
+
+/// `coid track` as a typed call (with `sweep`, `coid track --sweep`): the
+/// folder and the line `coid track` prints last.
+#[pyfunction]
+#[pyo3(signature = (config=None, config_text=None, shown=None, out=None, force=false, sweep=false, validation=false, quiet=false))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn track(
+    py: Python<'_>,
+    config: Option<PathBuf>,
+    config_text: Option<String>,
+    shown: Option<String>,
+    out: Option<PathBuf>,
+    force: bool,
+    sweep: bool,
+    validation: bool,
+    quiet: bool,
+) -> PyResult<(PathBuf, String)> {
+    if validation && !sweep {
+        return Err(CoidError::new_err(
+            "validation chooses the runs of a sweep: it needs sweep=True",
+        ));
+    }
+    let request = coid_sim::commands::TrackRequest {
+        common: common(config, config_text, shown, out, force, None)?,
+        validation,
+    };
+    let doing = if sweep { "sweeping" } else { "tracking" };
+    let report = with_bars(py, quiet, doing, |on| {
+        if sweep {
+            coid_sim::commands::track_sweep(&request, on)
+        } else {
+            coid_sim::commands::track(&request, on)
+        }
+    })?;
+    if let Some(why) = &report.no_vehicle {
+        eprintln!("{why}");
+    }
+    eprintln!("{}", report.line);
+    Ok((report.folder, report.line))
+}
+
+/// `coid batch` as a typed call: `runs` runs seeded from `seed` on worker
+/// processes (this package's program), resumable; the folder and the line
+/// `coid batch` prints.
+#[pyfunction]
+#[pyo3(signature = (runs, config=None, config_text=None, shown=None, out=None, seed=1, shard=None, workers=None, threads=None, quiet=false))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn batch(
+    py: Python<'_>,
+    runs: usize,
+    config: Option<PathBuf>,
+    config_text: Option<String>,
+    shown: Option<String>,
+    out: Option<PathBuf>,
+    seed: u64,
+    shard: Option<String>,
+    workers: Option<usize>,
+    threads: Option<usize>,
+    quiet: bool,
+) -> PyResult<(PathBuf, String)> {
+    let shard = shard
+        .map(|s| s.parse::<coid_sim::commands::Shard>())
+        .transpose()
+        .map_err(CoidError::new_err)?;
+    let request = coid_sim::commands::BatchRequest {
+        config: config_source(config, config_text, shown)?,
+        runs,
+        seed,
+        out,
+        shard,
+        workers,
+        threads,
+    };
+    let report = with_bars(py, quiet, "running", |on| {
+        coid_sim::commands::batch(&request, on)
+    })?;
+    eprintln!("{}", report.line);
+    Ok((report.folder, report.line))
+}

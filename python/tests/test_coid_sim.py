@@ -206,6 +206,12 @@ def test_a_batch_from_python_starts_its_workers_through_the_package(in_tmp: Path
     assert done.returncode == 0, done.stderr
     summary = (in_tmp / "py" / "summary.csv").read_bytes()
     assert summary and summary == (in_tmp / "bin" / "summary.csv").read_bytes()
+    # The typed call: the same aggregate; a dict configuration is refused.
+    typed = coid_sim.batch(config, runs=2, workers=2, out=in_tmp / "typed", quiet=True)
+    assert typed.headline.startswith("coid: 2 runs done in ") and typed.out == in_tmp / "typed"
+    assert (in_tmp / "typed" / "summary.csv").read_bytes() == summary
+    with pytest.raises(coid_sim.CoidError, match=r"a batch reads its configuration from a file"):
+        coid_sim.batch(SHORT, runs=1)
 
 
 def test_scenarios_from_python_use_the_sumo_wheels_netconvert(in_tmp: Path) -> None:
@@ -751,9 +757,25 @@ def test_eval_from_python_writes_the_coid_programs_bytes(in_tmp: Path) -> None:
     assert result.headline.startswith("coid: evaluated 3 methods on 2 test runs of 1 scenario (")
     coid_sim.cli("eval", "-q", "-c", config, "--out", in_tmp / "bin")
     ours, theirs = _files(in_tmp / "py"), _files(in_tmp / "bin")
-    assert sorted(ours) == sorted(theirs) and "table1.csv" in ours
+    assert sorted(ours) == sorted(theirs) and "table1b.csv" in ours
     for name in ours:
         assert ours[name] == theirs[name], name
     with pytest.raises(coid_sim.CoidError, match=r"dataset .*nothing: "):
         coid_sim.eval(config, dataset=in_tmp / "nothing", out=in_tmp / "none", quiet=True)
     assert not (in_tmp / "none").exists()
+
+
+def test_track_from_python_writes_the_coid_programs_bytes(in_tmp: Path) -> None:
+    """`coid_sim.track` is `coid track` as a call: the same tables byte for
+    byte; validation without a sweep is refused by name."""
+    config = in_tmp / "cpm.toml"
+    config.write_text('[scenario]\nend_s = 40.0\n[v2x]\nmode = "cpm"\n')
+    result = coid_sim.track(config, out=in_tmp / "py", quiet=True)
+    assert result.headline.startswith("coid: ") and "tracked, MOTA" in result.headline
+    coid_sim.cli("track", "-q", "-c", config, "--out", in_tmp / "bin")
+    ours, theirs = _files(in_tmp / "py"), _files(in_tmp / "bin")
+    assert sorted(ours) == sorted(theirs) and "tracking.csv" in ours
+    for name in ours:
+        assert ours[name] == theirs[name], name
+    with pytest.raises(coid_sim.CoidError, match=r"validation chooses the runs of a sweep"):
+        coid_sim.track(config, validation=True)

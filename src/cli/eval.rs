@@ -1,7 +1,8 @@
 //! `coid eval`: its arguments parsed, `commands::eval` called (every
 //! method on the test runs, the paper's tables and plots; with `--suite`,
 //! over several scenarios, per scenario and pooled) and its line
-//! printed; `--mc-sweep` and `--reid-sweep` run here.
+//! printed (`commands::mc_sweep` with `--mc-sweep`); `--reid-sweep` runs
+//! here.
 
 use std::path::PathBuf;
 
@@ -76,8 +77,13 @@ fn reid_sweep(a: &Args) -> anyhow::Result<()> {
 
 pub fn eval(a: Args) -> anyhow::Result<()> {
     if a.mc_sweep {
-        let (settings, claim) = a.common.prepare("-mc-sweep", io::ResultKind::Eval)?;
-        return super::mc_sweep::mc_sweep(&settings, claim, a.common.quiet.quiet, a.threads.get());
+        let common = a.common.common(&a.threads);
+        let doing = "sweeping T and the dropout rate";
+        let mut bars = super::Bars::new(a.common.quiet.quiet, doing);
+        let report = commands::mc_sweep(&common, |e| bars.show(e));
+        bars.clear();
+        eprintln!("{}", report?.line);
+        return Ok(());
     }
     if !a.reid_sweep.is_empty() {
         return reid_sweep(&a);

@@ -8,7 +8,6 @@ mod dataset;
 mod detector;
 mod eval;
 mod export;
-mod mc_sweep;
 mod progress;
 mod reid_sweep;
 mod render;
@@ -339,7 +338,7 @@ impl WorkersArg {
 }
 
 /// Threads inside one run.
-#[derive(clap::Args)]
+#[derive(clap::Args, Default)]
 struct ThreadsArg {
     /// Threads that evaluate a run's steps while SUMO advances (1 to
     /// 1024); the results do not depend on it [default: the number of
@@ -351,11 +350,6 @@ struct ThreadsArg {
 impl ThreadsArg {
     fn get(&self) -> usize {
         self.threads.unwrap_or_else(cores)
-    }
-
-    /// The threads given, else `default`.
-    fn or(&self, default: usize) -> usize {
-        self.threads.unwrap_or(default)
     }
 }
 

@@ -8,6 +8,9 @@ use indicatif::ProgressBar;
 use super::{CALIBRATION_TEMPLATE, SIM_TEMPLATE, calibration_line, progress_bar};
 use crate::commands::Event;
 
+/// The bar over a batch's runs.
+const BATCH_TEMPLATE: &str = "{spinner} runs {pos}/{len} [{bar:30}] {per_sec} eta {eta} {msg}";
+
 /// The bar over the pairs a conversion reads.
 const PAIRS_TEMPLATE: &str = "{spinner} converting: pair {pos}/{len} [{bar:30}] eta {eta}";
 
@@ -22,6 +25,7 @@ pub struct Bars {
     simulation: Option<ProgressBar>,
     runs: Option<ProgressBar>,
     pairs: Option<ProgressBar>,
+    batch: Option<ProgressBar>,
 }
 
 impl Bars {
@@ -34,6 +38,7 @@ impl Bars {
             simulation: None,
             runs: None,
             pairs: None,
+            batch: None,
         }
     }
 
@@ -61,10 +66,29 @@ impl Bars {
                 super::show_sim_progress(bar, p);
             }
             Event::Warning(line) => {
-                let bars = [&self.calibration, &self.simulation, &self.runs, &self.pairs];
+                let bars = [
+                    &self.calibration,
+                    &self.simulation,
+                    &self.runs,
+                    &self.pairs,
+                    &self.batch,
+                ];
                 match bars.into_iter().flatten().next() {
                     Some(bar) => bar.suspend(|| eprintln!("{line}")),
                     None => eprintln!("{line}"),
+                }
+            }
+            Event::Batch {
+                done,
+                total,
+                failed,
+            } => {
+                let bar = self
+                    .batch
+                    .get_or_insert_with(|| progress_bar(self.quiet, total as u64, BATCH_TEMPLATE));
+                bar.set_position(done as u64);
+                if failed > 0 {
+                    bar.set_message(format!("{failed} failed"));
                 }
             }
             Event::Pairs { done, total } => {
@@ -98,6 +122,7 @@ impl Bars {
             self.simulation.take(),
             self.runs.take(),
             self.pairs.take(),
+            self.batch.take(),
         ]
         .into_iter()
         .flatten()

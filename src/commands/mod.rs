@@ -6,9 +6,10 @@
 //! show or not. Errors are `anyhow` chains whose one line
 //! (`cli::one_line`) is what `coid` prints.
 //!
-//! `run`, `export`, `score`, `write_dataset`, `convert_pyg` and
-//! `check_dataset` are typed; the other commands are reached through
-//! `cli`.
+//! `run`, `export`, `score`, `eval` (and its `mc_sweep`), `track`,
+//! `batch` and `merge`, `write_dataset`, `convert_pyg` and
+//! `check_dataset` are typed; `train` and `eval --reid-sweep` are reached
+//! through `cli`.
 
 use std::path::{Path, PathBuf};
 
@@ -17,22 +18,29 @@ use crate::pipeline::Progress;
 use crate::sensor::reid::ReidSettings;
 use crate::{render, tables};
 
+pub mod batch;
 pub mod convert;
 pub mod dataset;
 pub mod eval;
 pub mod export;
+pub mod mc_sweep;
 pub mod run;
 pub mod score;
+pub mod track;
 
+pub use crate::batch::Shard;
 pub use crate::export::Split;
+pub use batch::{BatchReport, BatchRequest, MergeRequest, batch, batch_run, merge};
 pub use convert::{
     ConvertPygRequest, ConvertReport, DatasetSummary, SplitCounts, check_dataset, convert_pyg,
 };
 pub use dataset::{DatasetFrames, WriteDatasetReport, WriteDatasetRequest, write_dataset};
 pub use eval::{EvalReport, EvalRequest, eval};
 pub use export::{ExportReport, ExportRequest, MatchesRequest, export, matches};
+pub use mc_sweep::{McSweepReport, mc_sweep};
 pub use run::{RunReport, RunRequest, run};
 pub use score::{Matches, ScoreReport, ScoreRequest, score};
+pub use track::{TrackReport, TrackRequest, track, track_sweep};
 
 /// What a command tells while it works.
 pub enum Event<'a> {
@@ -47,6 +55,13 @@ pub enum Event<'a> {
     /// Something the caller should say now (one line: a scenario without
     /// instances, a training seed without weights).
     Warning(&'a str),
+    /// `done` of a batch's `total` runs (of this shard) are through,
+    /// `failed` of them failed.
+    Batch {
+        done: usize,
+        total: usize,
+        failed: usize,
+    },
     /// `done` of `total` pairs are converted.
     Pairs { done: usize, total: usize },
     /// `done` of `total` runs are through; `current` names the next.

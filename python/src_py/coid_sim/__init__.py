@@ -40,6 +40,7 @@ __all__ = [
     "Match",
     "Results",
     "Side",
+    "batch",
     "check_dataset",
     "cli",
     "convert_pyg",
@@ -47,6 +48,7 @@ __all__ = [
     "export",
     "run",
     "score",
+    "track",
     "write_dataset",
 ]
 
@@ -385,3 +387,61 @@ def convert_pyg(
         quiet=quiet,
     )
     return Dataset(Path(folder), config=config)
+
+
+def track(
+    config: Config = None,
+    *,
+    out: Optional[PathLike] = None,
+    sweep: bool = False,
+    validation: bool = False,
+    force: bool = False,
+    quiet: bool = False,
+    name: str = "config",
+) -> Results:
+    """Tracks over one run, as ``coid track`` does: every connected
+    vehicle's tracker, its CPMs over the channel and what the receivers
+    make of them (``tracking.csv``, ``association.csv``). With ``sweep``,
+    as ``coid track --sweep``: latency, loss and rate one at a time over
+    the test runs (``validation``: the validation runs), ``sweep.csv``."""
+    suffix = ("-sweep-validation" if validation else "-sweep") if sweep else "-track"
+    request = _request(config, out, name, suffix, force, None)
+    request.pop("threads")
+    folder, line = _coid_sim.track(**request, sweep=sweep, validation=validation, quiet=quiet)
+    return Results(Path(folder), line)
+
+
+def batch(
+    config: Optional[PathLike] = None,
+    *,
+    runs: int,
+    seed: int = 1,
+    out: Optional[PathLike] = None,
+    shard: Optional[str] = None,
+    workers: Optional[int] = None,
+    threads: Optional[int] = None,
+    quiet: bool = False,
+) -> Results:
+    """Runs a Monte Carlo batch, as ``coid batch`` does: ``runs`` runs with
+    seeds derived from ``seed`` on worker processes (this package's
+    program), resumable (the same call finishes a stopped batch), the
+    aggregate with 95 % intervals in ``summary.csv``. ``config`` is a TOML
+    file (the batch records its text) or None for the defaults; ``shard``
+    ``"k/n"`` runs one slice."""
+    if isinstance(config, Mapping):
+        raise CoidError("a batch reads its configuration from a file (it records the file's text and folder): write the configuration to a TOML file")
+    _seed("seed", seed)
+    _threads(threads)
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
+        raise CoidError(f"workers must be an integer from 1 to 1024, not {workers!r}")
+    folder, line = _coid_sim.batch(
+        int(runs),
+        config=None if config is None else os.fspath(config),
+        out=None if out is None else os.fspath(out),
+        seed=seed,
+        shard=shard,
+        workers=workers,
+        threads=threads,
+        quiet=quiet,
+    )
+    return Results(Path(folder), line)

@@ -45,6 +45,14 @@ def eval(config: Optional[str] = None, config_text: Optional[str] = None, shown:
     """``coid eval`` as a typed call: the folder and the line it prints.
     Raises CoidError."""
 
+def track(config: Optional[str] = None, config_text: Optional[str] = None, shown: Optional[str] = None, out: Optional[str] = None, force: bool = False, sweep: bool = False, validation: bool = False, quiet: bool = False) -> Tuple[str, str]:
+    """``coid track`` (``sweep``: ``--sweep``) as a typed call: the folder
+    and the line it prints last. Raises CoidError."""
+
+def batch(runs: int, config: Optional[str] = None, config_text: Optional[str] = None, shown: Optional[str] = None, out: Optional[str] = None, seed: int = 1, shard: Optional[str] = None, workers: Optional[int] = None, threads: Optional[int] = None, quiet: bool = False) -> Tuple[str, str]:
+    """``coid batch`` as a typed call: the folder and the line it prints.
+    Raises CoidError."""
+
 def check_dataset(dir: str) -> Dict[str, Any]:
     """``coid dataset`` as a call: the dataset read run by run, checked,
     and what it holds. Raises CoidError."""

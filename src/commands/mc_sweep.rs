@@ -1,4 +1,4 @@
-//! `coid eval --mc-sweep`: the paper's Fig. 8b for the paper's method
+//! `mc_sweep` (`coid eval --mc-sweep`): the paper's Fig. 8b for the paper's method
 //! (`coid`) and `ours`, those of them `[matching] methods` lists. The number of
 //! MC-dropout samples T (1, 10, 20, ..., 100, at the trained dropout
 //! rates) and the dropout rate at inference (0.1 to 0.8 in every layer,
@@ -6,11 +6,13 @@
 //! be chosen) and on the test runs (the curve beside it), at the validated
 //! decision and thresholds. T = 1 is one pass with one dropout draw.
 
+use std::path::PathBuf;
+
 use anyhow::Context;
 
-use super::progress_bar;
-use crate::config::Settings;
-use crate::io::{self, Claim, OutputError};
+use super::{Common, Event};
+use crate::config::Overrides;
+use crate::io::{self, OutputError};
 use crate::matching::{self, Method};
 use crate::report::{Table, mean_ci95};
 use crate::sensor::PoseNoiseLabel;
@@ -59,12 +61,26 @@ struct Row {
     f1: Vec<f64>,
 }
 
-pub(super) fn mc_sweep(
-    settings: &Settings,
-    claim: Claim,
-    quiet: bool,
-    threads: usize,
-) -> anyhow::Result<()> {
+/// What a sweep wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct McSweepReport {
+    pub folder: PathBuf,
+    /// What was swept, in one line (the folder named last).
+    pub line: String,
+}
+
+/// Sweeps T and the dropout rate of `coid` and `ours` (those of them
+/// `[matching] methods` lists) on the validation and the test runs of
+/// `common`'s configuration, and writes `mc_sweep.csv` and its picture
+/// (into `results/<config stem>-mc-sweep` by default).
+///
+/// # Errors
+/// The configuration lists neither method, a run fails, or the folder
+/// is taken; nothing is then written.
+pub fn mc_sweep(common: &Common, mut on: impl FnMut(Event)) -> anyhow::Result<McSweepReport> {
+    let threads = super::threads(common.threads)?;
+    let settings = super::prepare(&common.config, &Overrides::default(), None, &mut on)?;
+    let claim = common.claim("-mc-sweep", None, io::ResultKind::Eval)?;
     let methods: Vec<Method> = settings
         .matching
         .methods
@@ -75,38 +91,38 @@ pub(super) fn mc_sweep(
     if methods.is_empty() {
         anyhow::bail!("--mc-sweep sweeps coid and ours: [matching] methods lists neither");
     }
-    let lambdas = matching::method_lambdas(&pipeline::choices(settings, &methods)?);
+    let lambdas = matching::method_lambdas(&pipeline::choices(&settings, &methods)?);
     let splits = [
-        ("validation", experiments::validation_runs(settings)?),
-        ("test", experiments::test_runs(settings)?),
+        ("validation", experiments::validation_runs(&settings)?),
+        ("test", experiments::test_runs(&settings)?),
     ];
     let sweep = settings_of_sweep();
     let total: usize = splits.iter().map(|(_, r)| r.len()).sum::<usize>() * sweep.len();
-    let pb = progress_bar(
-        quiet,
-        total as u64,
-        "{spinner} sweeping T and the dropout rate: run {pos}/{len} [{bar:30}] {msg} eta {eta}",
-    );
     let levels: Vec<PoseNoiseLabel> = settings.pose_noise.iter().map(|l| l.label).collect();
     let mut rows = Vec::new();
     let warnings = crate::pipeline::Warnings::default();
+    let mut done = 0;
     for setting in &sweep {
         for (split, runs) in &splits {
-            pb.set_message(format!("{} {} ({split})", setting.factor, setting.value));
+            let current = format!("{} {} ({split})", setting.factor, setting.value);
             let mut evals: Vec<RunEval> = Vec::new();
             for run in runs {
+                on(Event::Runs {
+                    done,
+                    total,
+                    current: &current,
+                });
                 let s = run.with_inference(setting.samples, setting.rate)?;
                 let e = experiments::eval_run(&s, &methods, &lambdas, threads, &warnings, |_| {})
                     .with_context(|| {
                     format!("{split} run (seed {}) failed", s.seeds.traffic)
                 })?;
                 evals.push(e);
-                pb.inc(1);
+                done += 1;
             }
             rows.extend(rows_of(&evals, &methods, &levels, *setting, split));
         }
     }
-    pb.finish_and_clear();
     let table = sweep_table(&rows);
     let panels: Vec<render::Panel> = methods.iter().flat_map(|&m| panels(&rows, m)).collect();
     let out = claim.out().to_owned();
@@ -116,7 +132,7 @@ pub(super) fn mc_sweep(
                 .map_err(|e| OutputError::picture(dir, e))
         })
     })?;
-    eprintln!(
+    let line = format!(
         "coid: swept {} settings of {} on {} validation and {} test runs; wrote {}",
         sweep.len(),
         methods
@@ -128,7 +144,7 @@ pub(super) fn mc_sweep(
         splits[1].1.len(),
         out.display()
     );
-    Ok(())
+    Ok(McSweepReport { folder: out, line })
 }
 
 /// The rows of one setting on one split: each method at each level (a
