@@ -501,3 +501,51 @@ pub(crate) fn batch(
     eprintln!("{}", report.line);
     Ok((report.folder, report.line))
 }
+
+/// `coid train` as a typed call: the deep methods trained (in child
+/// processes of this package's program when several train at once), then
+/// validated; the models folder and the line `coid train` prints last
+/// (none for `validate_only`).
+#[pyfunction]
+#[pyo3(signature = (config=None, out=None, force=false, methods=Vec::new(), workers=None, skip_validation=false, validate_only=false, seeds=Vec::new(), dataset=None, reid_rank1=None, without_descriptor=false, quiet=false))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn train(
+    py: Python<'_>,
+    config: Option<PathBuf>,
+    out: Option<PathBuf>,
+    force: bool,
+    methods: Vec<String>,
+    workers: Option<usize>,
+    skip_validation: bool,
+    validate_only: bool,
+    seeds: Vec<u64>,
+    dataset: Option<PathBuf>,
+    reid_rank1: Option<f64>,
+    without_descriptor: bool,
+    quiet: bool,
+) -> PyResult<(PathBuf, Option<String>)> {
+    let request = coid_sim::commands::TrainRequest {
+        config,
+        out,
+        force,
+        methods: coid_sim::commands::labels("method", &methods).map_err(CoidError::new_err)?,
+        workers,
+        skip_validation,
+        validate_only,
+        seeds,
+        dataset,
+        reid_rank1,
+        without_descriptor,
+    };
+    coid_sim::cli::report_panics_in_one_line();
+    let report = interruptible(py, || {
+        let mut view = coid_sim::cli::TrainBars::on_stderr(quiet);
+        let done = coid_sim::commands::train(&request, &mut view);
+        view.clear();
+        done
+    })?;
+    if let Some(line) = &report.line {
+        eprintln!("{line}");
+    }
+    Ok((report.folder, report.line))
+}

@@ -479,6 +479,7 @@ fn _coid_sim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(commands::eval, m)?)?;
     m.add_function(wrap_pyfunction!(commands::track, m)?)?;
     m.add_function(wrap_pyfunction!(commands::batch, m)?)?;
+    m.add_function(wrap_pyfunction!(commands::train, m)?)?;
     m.add_function(wrap_pyfunction!(commands::convert_pyg, m)?)?;
     m.add_function(wrap_pyfunction!(toml_of_json, m)?)?;
     m.add_function(wrap_pyfunction!(delaunay, m)?)?;

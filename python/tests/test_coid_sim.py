@@ -769,7 +769,7 @@ def test_track_from_python_writes_the_coid_programs_bytes(in_tmp: Path) -> None:
     """`coid_sim.track` is `coid track` as a call: the same tables byte for
     byte; validation without a sweep is refused by name."""
     config = in_tmp / "cpm.toml"
-    config.write_text('[scenario]\nend_s = 40.0\n[v2x]\nmode = "cpm"\n')
+    config.write_text('[scenario]\nend_s = 70.0\n[v2x]\nmode = "cpm"\n')
     result = coid_sim.track(config, out=in_tmp / "py", quiet=True)
     assert result.headline.startswith("coid: ") and "tracked, MOTA" in result.headline
     coid_sim.cli("track", "-q", "-c", config, "--out", in_tmp / "bin")
@@ -779,3 +779,29 @@ def test_track_from_python_writes_the_coid_programs_bytes(in_tmp: Path) -> None:
         assert ours[name] == theirs[name], name
     with pytest.raises(coid_sim.CoidError, match=r"validation chooses the runs of a sweep"):
         coid_sim.track(config, validation=True)
+
+
+def test_train_from_python_writes_the_coid_programs_bytes(in_tmp: Path) -> None:
+    """`coid_sim.train` is `coid train` as a call: real burn training on one
+    short SUMO run, the same weights byte for byte as the program's and the
+    same record but its wall time; a dict configuration is refused (child
+    processes read the file)."""
+    config = in_tmp / "t.toml"
+    config.write_text(
+        '[scenario]\nend_s = 80.0\n[train]\ntraffic_seeds = [201]\nepochs = 1\nmethods = ["gcn-gm"]\n'
+        '[matching]\nmethods = ["gcn-gm", "oracle"]\n[pose_noise]\nlevels = ["gps"]\n'
+    )
+    result = coid_sim.train(config, out=in_tmp / "py", skip_validation=True, workers=1, quiet=True)
+    assert result.out == in_tmp / "py" and result.headline.startswith("coid: training took ")
+    coid_sim.cli("train", "-q", "-c", config, "--out", in_tmp / "bin", "--skip-validation", "--workers", "1")
+    ours, theirs = _files(in_tmp / "py"), _files(in_tmp / "bin")
+    assert sorted(ours) == sorted(theirs) and "gcn-gm.bpk" in ours
+    assert ours["gcn-gm.bpk"] == theirs["gcn-gm.bpk"]
+    assert ours["gcn-gm_loss.csv"] == theirs["gcn-gm_loss.csv"]
+    # The record says how long training took; everything else is equal.
+    timeless = lambda b: [l for l in b.decode().splitlines() if not l.startswith("seconds = ")]  # noqa: E731
+    assert timeless(ours["gcn-gm.toml"]) == timeless(theirs["gcn-gm.toml"])
+    with pytest.raises(coid_sim.CoidError, match=r"training reads its configuration from a file"):
+        coid_sim.train({"train": {"epochs": 1}})
+    with pytest.raises(coid_sim.CoidError, match=r"'ours-t1' runs the weights of 'ours'"):
+        coid_sim.train(config, methods=["ours-t1"], out=in_tmp / "none", quiet=True)

@@ -1,15 +1,13 @@
 //! `coid eval`: its arguments parsed, `commands::eval` called (every
 //! method on the test runs, the paper's tables and plots; with `--suite`,
 //! over several scenarios, per scenario and pooled) and its line
-//! printed (`commands::mc_sweep` with `--mc-sweep`); `--reid-sweep` runs
-//! here.
+//! printed (`commands::mc_sweep` with `--mc-sweep`,
+//! `commands::reid_sweep` with `--reid-sweep`).
 
 use std::path::PathBuf;
 
 use super::{CommonArgs, ThreadsArg};
 use crate::commands;
-use crate::config::Settings;
-use crate::io;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -61,18 +59,20 @@ pub struct Args {
     dataset: Option<PathBuf>,
 }
 
-/// `coid eval --reid-sweep`: each point calibrates its own descriptor, so
-/// the config is read here only to refuse a bad one before the folder is
-/// claimed.
+/// `coid eval --reid-sweep`: `commands::reid_sweep`, its differences
+/// printed on stdout.
 fn reid_sweep(a: &Args) -> anyhow::Result<()> {
-    let config = a.common.config.path();
-    Settings::load(&config)?;
-    let out = super::out_dir(a.common.out.out.clone(), &config, "-reid-sweep");
-    let existing = io::Existing::when(a.common.force.force);
-    let claim = io::Claim::new(&out, io::ResultKind::Eval, existing)?;
-    let (quiet, threads) = (a.common.quiet.quiet, a.threads.get());
-    let config = (config.as_path(), a.common.config.shown());
-    super::reid_sweep::reid_sweep(config, &a.reid_sweep, claim, quiet, threads)
+    let request = commands::ReidSweepRequest {
+        common: a.common.common(&a.threads),
+        points: a.reid_sweep.clone(),
+    };
+    let mut bars = super::Bars::new(a.common.quiet.quiet, "re-identification sweep");
+    let report = commands::reid_sweep(&request, |e| bars.show(e));
+    bars.clear();
+    let report = report?;
+    println!("{}", report.differences);
+    eprintln!("{}", report.line);
+    Ok(())
 }
 
 pub fn eval(a: Args) -> anyhow::Result<()> {

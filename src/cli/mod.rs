@@ -9,7 +9,6 @@ mod detector;
 mod eval;
 mod export;
 mod progress;
-mod reid_sweep;
 mod render;
 mod run;
 mod scenarios;
@@ -26,6 +25,7 @@ use crate::label::{self, Label};
 pub use export::{print_export, print_score};
 pub use progress::Bars;
 pub use run::print_report;
+pub use train::TrainBars;
 
 #[derive(Parser)]
 #[command(
@@ -282,24 +282,6 @@ impl ConfigArg {
             crate::commands::ConfigSource::File,
         )
     }
-
-    /// The configuration as messages name it: its file, or "the default
-    /// configuration" (never the install folder's copy).
-    fn shown(&self) -> String {
-        self.config.as_ref().map_or_else(
-            || "the default configuration".to_owned(),
-            |p| p.display().to_string(),
-        )
-    }
-}
-
-/// A rate in (0, 1) given on the command line as `flag`.
-fn rate_arg(flag: &str, r: f64) -> anyhow::Result<()> {
-    if r > 0.0 && r < 1.0 {
-        Ok(())
-    } else {
-        anyhow::bail!("{flag} must be a rate in (0, 1), got {r}")
-    }
 }
 
 /// The output folder, for every command whose folder has a default.
@@ -329,12 +311,6 @@ struct WorkersArg {
     /// depend on it [default: the number of cores].
     #[arg(long, short, value_parser = in_range(1, MAX_PARALLEL))]
     workers: Option<usize>,
-}
-
-impl WorkersArg {
-    fn get(&self) -> usize {
-        self.workers.unwrap_or_else(cores)
-    }
 }
 
 /// Threads inside one run.
@@ -505,12 +481,6 @@ struct QuietArg {
 fn out_dir(out: Option<PathBuf>, config: &Path, suffix: &str) -> PathBuf {
     let source = crate::commands::ConfigSource::File(config.to_owned());
     crate::commands::out_dir(out, &source, suffix)
-}
-
-/// The results folder of a command on a dataset: `--out`, else
-/// `results/<dataset folder name><suffix>`.
-fn dataset_out_dir(out: Option<PathBuf>, dataset: &Path, suffix: &str) -> PathBuf {
-    crate::commands::dataset_out_dir(out, dataset, suffix)
 }
 
 /// A progress bar with `template`, hidden when `quiet`.

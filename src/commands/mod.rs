@@ -6,10 +6,10 @@
 //! show or not. Errors are `anyhow` chains whose one line
 //! (`cli::one_line`) is what `coid` prints.
 //!
-//! `run`, `export`, `score`, `eval` (and its `mc_sweep`), `track`,
-//! `batch` and `merge`, `write_dataset`, `convert_pyg` and
-//! `check_dataset` are typed; `train` and `eval --reid-sweep` are reached
-//! through `cli`.
+//! Every command is typed: `run`, `export`, `score`, `eval` (and its
+//! `mc_sweep` and `reid_sweep`), `train`, `track`, `batch` and `merge`,
+//! `write_dataset`, `convert_pyg` and `check_dataset`; `cli` keeps the
+//! scenario tools, the detector report and the pictures.
 
 use std::path::{Path, PathBuf};
 
@@ -24,9 +24,11 @@ pub mod dataset;
 pub mod eval;
 pub mod export;
 pub mod mc_sweep;
+pub mod reid_sweep;
 pub mod run;
 pub mod score;
 pub mod track;
+pub mod train;
 
 pub use crate::batch::Shard;
 pub use crate::export::Split;
@@ -38,9 +40,11 @@ pub use dataset::{DatasetFrames, WriteDatasetReport, WriteDatasetRequest, write_
 pub use eval::{EvalReport, EvalRequest, eval};
 pub use export::{ExportReport, ExportRequest, MatchesRequest, export, matches};
 pub use mc_sweep::{McSweepReport, mc_sweep};
+pub use reid_sweep::{ReidSweepReport, ReidSweepRequest, reid_sweep};
 pub use run::{RunReport, RunRequest, run};
 pub use score::{Matches, ScoreReport, ScoreRequest, score};
 pub use track::{TrackReport, TrackRequest, track, track_sweep};
+pub use train::{TrainReport, TrainRequest, TrainView, train};
 
 /// What a command tells while it works.
 pub enum Event<'a> {

@@ -49,6 +49,7 @@ __all__ = [
     "run",
     "score",
     "track",
+    "train",
     "write_dataset",
 ]
 
@@ -442,6 +443,53 @@ def batch(
         shard=shard,
         workers=workers,
         threads=threads,
+        quiet=quiet,
+    )
+    return Results(Path(folder), line)
+
+
+def train(
+    config: Optional[PathLike] = None,
+    *,
+    out: Optional[PathLike] = None,
+    methods: Sequence[str] = (),
+    seeds: Sequence[int] = (),
+    dataset: Optional[Union[Dataset, PathLike]] = None,
+    skip_validation: bool = False,
+    validate_only: bool = False,
+    reid_rank1: Optional[float] = None,
+    without_descriptor: bool = False,
+    workers: Optional[int] = None,
+    force: bool = False,
+    quiet: bool = False,
+) -> Results:
+    """Trains the deep matchers, as ``coid train`` does: weights, record
+    and loss curve of each method into the models folder, then each one's
+    temperature, decision rule and lambda (and the baselines' thresholds)
+    chosen on the validation runs. ``config`` is a TOML file (several
+    methods train in child processes, which read it) or None for the
+    defaults. ``headline`` is the line ``coid train`` ends with (None with
+    ``validate_only``)."""
+    if isinstance(config, Mapping):
+        raise CoidError("training reads its configuration from a file (its child processes read it): write the configuration to a TOML file")
+    if isinstance(dataset, Dataset):
+        dataset = dataset.path
+    for s in seeds:
+        _seed("seeds", s)
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
+        raise CoidError(f"workers must be an integer from 1 to 1024, not {workers!r}")
+    folder, line = _coid_sim.train(
+        config=None if config is None else os.fspath(config),
+        out=None if out is None else os.fspath(out),
+        force=force,
+        methods=[str(m) for m in methods],
+        workers=workers,
+        skip_validation=skip_validation,
+        validate_only=validate_only,
+        seeds=[int(s) for s in seeds],
+        dataset=None if dataset is None else os.fspath(dataset),
+        reid_rank1=None if reid_rank1 is None else float(reid_rank1),
+        without_descriptor=without_descriptor,
         quiet=quiet,
     )
     return Results(Path(folder), line)

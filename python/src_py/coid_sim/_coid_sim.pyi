@@ -53,6 +53,10 @@ def batch(runs: int, config: Optional[str] = None, config_text: Optional[str] = 
     """``coid batch`` as a typed call: the folder and the line it prints.
     Raises CoidError."""
 
+def train(config: Optional[str] = None, out: Optional[str] = None, force: bool = False, methods: List[str] = [], workers: Optional[int] = None, skip_validation: bool = False, validate_only: bool = False, seeds: List[int] = [], dataset: Optional[str] = None, reid_rank1: Optional[float] = None, without_descriptor: bool = False, quiet: bool = False) -> Tuple[str, Optional[str]]:
+    """``coid train`` as a typed call: the models folder and the line it
+    prints last (None with validate_only). Raises CoidError."""
+
 def check_dataset(dir: str) -> Dict[str, Any]:
     """``coid dataset`` as a call: the dataset read run by run, checked,
     and what it holds. Raises CoidError."""

@@ -1,4 +1,4 @@
-//! `coid eval --reid-sweep R1,R2,...`: where learned and learning-free
+//! `reid_sweep` (`coid eval --reid-sweep R1,R2,...`): where learned and learning-free
 //! matching cross as appearance gets better. At each point the
 //! re-identification descriptor is calibrated on the validation runs to
 //! cross-view rank-1 R (`[appearance] rank1`, `auroc = "free"`), the
@@ -13,9 +13,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use super::progress_bar;
+use super::{Common, ConfigSource, Event};
 use crate::config::{Overrides, Settings};
-use crate::io::{self, Claim, OutputError};
+use crate::io::{self, OutputError};
 use crate::matching::deep::arch::Backbone;
 use crate::matching::{self, BaselineChoice, Inputs, Method};
 use crate::report::{PairedDifference, Table, mean_ci95, paired_bootstrap};
@@ -24,7 +24,7 @@ use crate::tables::{MethodLevel, RunEval};
 use crate::{experiments, pipeline, render};
 
 /// The models folder of the point at rank-1 `r` under `models_dir`.
-pub(super) fn point_models_dir(models_dir: &Path, r: f64) -> PathBuf {
+pub fn point_models_dir(models_dir: &Path, r: f64) -> PathBuf {
     models_dir.join(format!("rank1-{r:.2}"))
 }
 
@@ -48,15 +48,49 @@ const PAIRS: [(Method, Method); 2] = [
     (Method::Ours, Method::GpsAppHungarian),
 ];
 
-pub(super) fn reid_sweep(
-    (config, shown): (&Path, String),
-    points: &[f64],
-    claim: Claim,
-    quiet: bool,
-    threads: usize,
-) -> anyhow::Result<()> {
+/// A re-identification sweep to run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReidSweepRequest {
+    pub common: Common,
+    /// The cross-view rank-1 rates of the points, each in (0, 1).
+    pub points: Vec<f64>,
+}
+
+/// What a sweep wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReidSweepReport {
+    pub folder: PathBuf,
+    /// `reid_sweep_differences.csv` as a Markdown table.
+    pub differences: String,
+    /// What was swept, in one line (the folder named last).
+    pub line: String,
+}
+
+/// Runs every configured method at each point of `request` on the
+/// validation and the test runs, with the models and baseline choices of
+/// `<models_dir>/rank1-<R>`, and writes `reid_sweep.csv`,
+/// `reid_sweep_differences.csv` and their picture (into
+/// `results/<config stem>-reid-sweep` by default).
+///
+/// # Errors
+/// A point is no rate or named twice, the configuration has no
+/// descriptor, a point's models folder is missing, a run fails, or the
+/// folder is taken; nothing is then written.
+pub fn reid_sweep(
+    request: &ReidSweepRequest,
+    mut on: impl FnMut(Event),
+) -> anyhow::Result<ReidSweepReport> {
+    let common = &request.common;
+    let threads = super::threads(common.threads)?;
+    let points = &request.points;
+    // The config is read here only to refuse a bad one before the folder
+    // is claimed: each point calibrates its own descriptor.
+    common.config.load(&Overrides::default())?;
+    let claim = common.claim("-reid-sweep", None, io::ResultKind::Eval)?;
     for (k, &r) in points.iter().enumerate() {
-        super::rate_arg("--reid-sweep: a rank-1", r)?;
+        if !(r > 0.0 && r < 1.0) {
+            anyhow::bail!("--reid-sweep: a rank-1 must be a rate in (0, 1), got {r}");
+        }
         if points[..k]
             .iter()
             .any(|&p| format!("{p:.2}") == format!("{r:.2}"))
@@ -67,7 +101,7 @@ pub(super) fn reid_sweep(
     let mut rows = Vec::new();
     let warnings = pipeline::Warnings::default();
     for &r in points {
-        let s = point_settings((config, &shown), r, quiet)?;
+        let s = point_settings(&common.config, r, &mut on)?;
         let methods = s.matching.methods.clone();
         let lambdas = matching::method_lambdas(&pipeline::choices(&s, &methods)?);
         let measured = s
@@ -86,20 +120,18 @@ pub(super) fn reid_sweep(
             ("test", experiments::test_runs(&s)?),
         ];
         for (split, runs) in splits {
-            let pb = progress_bar(
-                quiet,
-                runs.len() as u64,
-                "{spinner} re-identification sweep: {msg} run {pos}/{len} [{bar:30}] eta {eta}",
-            );
-            pb.set_message(format!("rank-1 {r:.2} ({split})"));
+            let current = format!("rank-1 {r:.2} ({split})");
             let mut evals = Vec::with_capacity(runs.len());
             for run in &runs {
+                on(Event::Runs {
+                    done: evals.len(),
+                    total: runs.len(),
+                    current: &current,
+                });
                 let e = experiments::eval_run(run, &methods, &lambdas, threads, &warnings, |_| {})
                     .with_context(|| format!("{split} run (seed {}) failed", run.seeds.traffic))?;
                 evals.push(e);
-                pb.inc(1);
             }
-            pb.finish_and_clear();
             let rows_here = rows_of(&evals, (&methods, &uses), &levels, (r, measured), split);
             rows.extend(rows_here);
         }
@@ -116,23 +148,35 @@ pub(super) fn reid_sweep(
                 .map_err(|e| OutputError::picture(dir, e))
         })
     })?;
-    println!("{}", io::markdown::table(&differences));
-    eprintln!(
+    let line = format!(
         "coid: swept {} re-identification qualities; wrote {}",
         points.len(),
         out.display()
     );
-    Ok(())
+    Ok(ReidSweepReport {
+        folder: out,
+        differences: io::markdown::table(&differences),
+        line,
+    })
 }
 
 /// The settings of the point at rank-1 `r`: the config with `rank1 = r`,
 /// `auroc = "free"`, its models folder, the descriptor calibrated.
-fn point_settings((config, shown): (&Path, &str), r: f64, quiet: bool) -> anyhow::Result<Settings> {
+fn point_settings(
+    config: &ConfigSource,
+    r: f64,
+    on: &mut impl FnMut(Event),
+) -> anyhow::Result<Settings> {
     let overrides = Overrides {
         reid_rank1: Some(r),
         ..Overrides::default()
     };
-    let s = Settings::load_with(config, &overrides)?;
+    let s = config.load(&overrides)?;
+    let shown = match config {
+        ConfigSource::Defaults => "the default configuration".to_owned(),
+        ConfigSource::File(path) => path.display().to_string(),
+        ConfigSource::Text { shown, .. } => shown.clone(),
+    };
     if s.appearance.reid.is_none() {
         anyhow::bail!(
             "--reid-sweep sweeps the re-identification descriptor: {shown} sets [appearance] \
@@ -145,7 +189,7 @@ fn point_settings((config, shown): (&Path, &str), r: f64, quiet: bool) -> anyhow
             "{} is missing: the point at rank-1 {r:.2} runs the models and baseline choices \
              made there (coid train {}--reid-rank1 {r:.2} --out {})",
             dir.display(),
-            if shown.starts_with("the default") {
+            if matches!(config, ConfigSource::Defaults) {
                 String::new()
             } else {
                 format!("--config {shown} ")
@@ -153,7 +197,7 @@ fn point_settings((config, shown): (&Path, &str), r: f64, quiet: bool) -> anyhow
             dir.display()
         );
     }
-    super::calibrated(&s.with_models(&dir), quiet)
+    super::calibrated(&s.with_models(&dir), on)
 }
 
 /// What `method` makes of the descriptor with the choices of `s`'s
