@@ -335,7 +335,7 @@ pub(crate) fn check_dataset(py: Python<'_>, dir: PathBuf) -> PyResult<Bound<'_, 
     }
     out.set_item("splits", splits)?;
     out.set_item("empty_runs", &s.empty_runs)?;
-    out.set_item("levels", s.levels.iter().cloned().collect::<Vec<_>>())?;
+    out.set_item("levels", s.levels.clone())?;
     out.set_item("appearance_width", s.appearance_width)?;
     out.set_item("optional_columns", &s.optional_columns)?;
     out.set_item("lines", s.lines())?;
