@@ -270,17 +270,12 @@ impl ConfigArg {
     /// The file to read: `--config`, else the defaults as this build
     /// wrote them out (named `default.toml`).
     fn path(&self) -> PathBuf {
-        self.config
-            .clone()
-            .unwrap_or_else(|| crate::config::defaults_dir().join("default.toml"))
+        self.source().path()
     }
 
     /// The configuration as the library's commands take it.
     fn source(&self) -> crate::commands::ConfigSource {
-        self.config.clone().map_or(
-            crate::commands::ConfigSource::Defaults,
-            crate::commands::ConfigSource::File,
-        )
+        crate::commands::ConfigSource::from(self.config.clone())
     }
 }
 

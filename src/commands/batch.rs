@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use super::{ConfigSource, Event, MAX_PARALLEL};
+use super::{ConfigSource, Event};
 use crate::batch::{self, Shard};
 use crate::config::Settings;
 use crate::label::counted;
@@ -59,7 +59,7 @@ pub fn batch(request: &BatchRequest, mut on: impl FnMut(Event)) -> anyhow::Resul
     if !(1..=MAX_RUNS).contains(&request.runs) {
         anyhow::bail!("runs must be 1 to {MAX_RUNS}, got {}", request.runs);
     }
-    let wanted = parallel("workers", request.workers)?;
+    let wanted = super::parallel("workers", request.workers)?;
     let (out, _lock) = claim(request)?;
     // A resumed batch runs from the record it started with.
     let record = io::batch_identity(&out)?;
@@ -71,7 +71,7 @@ pub fn batch(request: &BatchRequest, mut on: impl FnMut(Event)) -> anyhow::Resul
     let workers = wanted.min(pending.len()).max(1);
     // Workers x threads stay within the cores unless asked otherwise.
     let threads = match request.threads {
-        Some(_) => parallel("threads", request.threads)?,
+        Some(_) => super::threads(request.threads)?,
         None => (super::cores() / workers).max(1),
     };
     let program = crate::batch::Program::this().context("cannot find the coid executable")?;
@@ -159,16 +159,6 @@ fn claim(request: &BatchRequest) -> anyhow::Result<(PathBuf, io::BatchLock)> {
     let identity = batch::identity(&settings, &config, &text, request.runs, request.seed)?;
     let lock = io::claim_batch_folder(&out, &identity)?;
     Ok((out, lock))
-}
-
-/// A count of workers or threads: as given (1 to [`MAX_PARALLEL`]), else
-/// every core.
-fn parallel(what: &str, n: Option<usize>) -> anyhow::Result<usize> {
-    match n {
-        None => Ok(super::cores()),
-        Some(n) if (1..=MAX_PARALLEL).contains(&n) => Ok(n),
-        Some(n) => anyhow::bail!("{what} must be 1 to {MAX_PARALLEL}, got {n}"),
-    }
 }
 
 /// One run of a batch, in a worker process: from the batch's record in

@@ -179,6 +179,16 @@ pub enum ConfigSource {
 }
 
 impl ConfigSource {
+    /// The configuration as messages name it: its file, "the default
+    /// configuration", or the name text is shown by.
+    pub fn shown(&self) -> String {
+        match self {
+            ConfigSource::Defaults => "the default configuration".to_owned(),
+            ConfigSource::File(path) => path.display().to_string(),
+            ConfigSource::Text { shown, .. } => shown.clone(),
+        }
+    }
+
     /// The path that names it: its file, the defaults' file, or for text
     /// the name it is shown by.
     pub fn path(&self) -> PathBuf {
@@ -285,10 +295,16 @@ pub const MAX_PARALLEL: usize = 1024;
 /// # Errors
 /// `threads` is 0 or above [`MAX_PARALLEL`].
 pub fn threads(threads: Option<usize>) -> anyhow::Result<usize> {
-    match threads {
+    parallel("threads", threads)
+}
+
+/// A count of `what` (workers or threads): as given (1 to
+/// [`MAX_PARALLEL`]), else every core.
+pub(crate) fn parallel(what: &str, n: Option<usize>) -> anyhow::Result<usize> {
+    match n {
         None => Ok(cores()),
         Some(n) if (1..=MAX_PARALLEL).contains(&n) => Ok(n),
-        Some(n) => anyhow::bail!("threads must be 1 to {MAX_PARALLEL}, got {n}"),
+        Some(n) => anyhow::bail!("{what} must be 1 to {MAX_PARALLEL}, got {n}"),
     }
 }
 

@@ -172,11 +172,7 @@ fn point_settings(
         ..Overrides::default()
     };
     let s = config.load(&overrides)?;
-    let shown = match config {
-        ConfigSource::Defaults => "the default configuration".to_owned(),
-        ConfigSource::File(path) => path.display().to_string(),
-        ConfigSource::Text { shown, .. } => shown.clone(),
-    };
+    let shown = config.shown();
     if s.appearance.reid.is_none() {
         anyhow::bail!(
             "--reid-sweep sweeps the re-identification descriptor: {shown} sets [appearance] \

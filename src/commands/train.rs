@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use super::{ConfigSource, MAX_PARALLEL};
+use super::ConfigSource;
 use crate::config::{Overrides, Settings};
 use crate::experiments;
 use crate::matching::{Method, MethodKind};
@@ -174,11 +174,7 @@ fn loaded(request: &TrainRequest, config: &ConfigSource) -> anyhow::Result<Setti
     {
         anyhow::bail!("--reid-rank1 must be a rate in (0, 1), got {r}");
     }
-    if let Some(n) = request.workers
-        && !(1..=MAX_PARALLEL).contains(&n)
-    {
-        anyhow::bail!("workers must be 1 to {MAX_PARALLEL}, got {n}");
-    }
+    super::parallel("workers", request.workers)?;
     let overrides = Overrides {
         reid_rank1: request.reid_rank1,
         appearance_vectors: request.without_descriptor.then_some(false),
@@ -186,13 +182,10 @@ fn loaded(request: &TrainRequest, config: &ConfigSource) -> anyhow::Result<Setti
     };
     let settings = config.load(&overrides)?;
     if request.reid_rank1.is_some() && settings.appearance.reid.is_none() {
-        let shown = match config {
-            ConfigSource::File(path) => path.display().to_string(),
-            _ => "the default configuration".to_owned(),
-        };
         anyhow::bail!(
-            "--reid-rank1 sets the re-identification descriptor's rank-1: {shown} sets \
-             [appearance] descriptor = \"none\""
+            "--reid-rank1 sets the re-identification descriptor's rank-1: {} sets \
+             [appearance] descriptor = \"none\"",
+            config.shown()
         );
     }
     Ok(settings)
